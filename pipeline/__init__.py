@@ -1,0 +1,1 @@
+"""signpose's computer vision: framework-free stages over numpy arrays (numpy + OpenCV only)."""

@@ -1,0 +1,212 @@
+"""Camera intrinsics: loading ROS / OpenCV / plain-JSON camera files, and an assumed camera.
+
+K is the OpenCV 3x3 matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels; `dist` is OpenCV's
+(k1, k2, p1, p2[, k3, ...]) distortion vector.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+ASSUMED_HFOV_DEG = 60.0
+
+
+class CameraError(ValueError):
+    """A camera file or intrinsics that cannot be used; the message says which and why."""
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """Pinhole intrinsics for images of `width` x `height` px.
+
+    `source` says where the numbers came from ("file:<path>", "json", "assumed 60° hfov", ...).
+    """
+
+    K: np.ndarray
+    dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    width: int | None = None
+    height: int | None = None
+    source: str = "given"
+
+    def __post_init__(self) -> None:
+        K = np.asarray(self.K, dtype=np.float64)
+        if K.shape != (3, 3):
+            raise CameraError(f"camera matrix must be 3x3; got shape {K.shape}")
+        if not np.all(np.isfinite(K)):
+            raise CameraError("camera matrix has non-finite values")
+        fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+        if fx <= 0 or fy <= 0:
+            raise CameraError(f"focal lengths must be positive; got fx={fx}, fy={fy}")
+        if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
+            raise CameraError("camera matrix must have the form [[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
+        dist = np.asarray(self.dist, dtype=np.float64).ravel()
+        if dist.size not in (0, 4, 5, 8, 12, 14):
+            raise CameraError(f"distortion must have 4, 5, 8, 12 or 14 coefficients; got {dist.size}")
+        if not np.all(np.isfinite(dist)):
+            raise CameraError("distortion coefficients must be finite")
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if v is not None and (not isinstance(v, (int, np.integer)) or v <= 0):
+                raise CameraError(f"image {name} must be a positive whole number; got {v!r}")
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "dist", dist if dist.size else np.zeros(5))
+        if cx < 0 or cy < 0 or (self.width and cx > self.width) or (self.height and cy > self.height):
+            raise CameraError(f"principal point ({cx}, {cy}) lies outside the image")
+
+    @property
+    def has_distortion(self) -> bool:
+        return bool(np.any(self.dist != 0))
+
+    @property
+    def is_assumed(self) -> bool:
+        return self.source.startswith("assumed")
+
+    def for_image(self, width: int, height: int) -> tuple[Camera, list[str]]:
+        """Intrinsics for an image of `width` x `height` px, scaled when the calibration size differs.
+
+        Returns the camera and warnings (empty when the size matches or is unknown).
+        """
+        if self.width is None or self.height is None or (self.width, self.height) == (width, height):
+            return self, []
+        sx, sy = width / self.width, height / self.height
+        warnings = [f"image is {width}x{height} px but the camera was calibrated at {self.width}x{self.height}; "
+                    f"intrinsics scaled by {sx:.3g} x {sy:.3g}"]
+        if abs(sx / sy - 1) > 0.01:
+            warnings.append("image aspect differs from the calibration's: the pose is unreliable")
+        K = np.diag([sx, sy, 1.0]) @ self.K
+        return Camera(K, self.dist, width, height, self.source), warnings
+
+    def to_json(self) -> dict:
+        K = self.K
+        return {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "dist": self.dist.tolist(),
+                "width": self.width, "height": self.height, "source": self.source}
+
+
+def assumed_camera(width: int, height: int, hfov_deg: float = ASSUMED_HFOV_DEG) -> Camera:
+    """A distortion-free camera with square pixels, centred principal point and `hfov_deg` horizontal FOV."""
+    f = (width / 2) / math.tan(math.radians(hfov_deg) / 2)
+    K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]])
+    return Camera(K, np.zeros(5), width, height, f"assumed {hfov_deg:g}° horizontal field of view")
+
+
+def camera_from_json(data: dict, source: str = "json") -> Camera:
+    """Camera from `{fx, fy, cx, cy, dist?, width?, height?}`."""
+    if not isinstance(data, dict):
+        raise CameraError("camera JSON must be an object with fx, fy, cx, cy")
+    missing = [k for k in ("fx", "fy", "cx", "cy") if k not in data]
+    if missing:
+        raise CameraError(f"camera JSON is missing {', '.join(missing)}")
+    try:
+        fx, fy, cx, cy = (float(data[k]) for k in ("fx", "fy", "cx", "cy"))
+        dist = np.asarray(data.get("dist") or [], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise CameraError("fx, fy, cx, cy must be numbers and dist a list of numbers") from None
+    K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
+    return Camera(K, dist, _opt_int(data.get("width")), _opt_int(data.get("height")), source)
+
+
+def _opt_int(v):
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not float(v).is_integer():
+        raise CameraError(f"image width/height must be whole numbers; got {v!r}")
+    return int(v)
+
+
+def _matrix(node, name: str, rows: int | None, cols: int | None) -> np.ndarray:
+    """A ROS-style {rows, cols, data} node (or a plain nested list) as an array."""
+    if isinstance(node, dict) and "data" in node:
+        data = np.asarray(node["data"], dtype=np.float64)
+        r, c = node.get("rows", rows), node.get("cols", cols)
+        if r is not None and c is not None:
+            if data.size != r * c:
+                raise CameraError(f"{name} declares {r}x{c} but has {data.size} values")
+            data = data.reshape(r, c)
+        return data
+    try:
+        return np.asarray(node, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise CameraError(f"{name} is not a numeric matrix") from None
+
+
+def camera_from_ros(data: dict, source: str) -> Camera:
+    """Camera from a parsed ROS camera_info YAML."""
+    K = _matrix(data["camera_matrix"], "camera_matrix", 3, 3)
+    if K.size != 9:
+        raise CameraError(f"camera_matrix must have 9 values; got {K.size}")
+    dist = _matrix(data.get("distortion_coefficients", {"data": []}), "distortion_coefficients", None, None)
+    return Camera(K.reshape(3, 3), dist.ravel(), _opt_int(data.get("image_width")),
+                  _opt_int(data.get("image_height")), source)
+
+
+def _camera_from_filestorage(path: Path) -> Camera:
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    try:
+        K = next((fs.getNode(n).mat() for n in ("camera_matrix", "K", "cameraMatrix") if not fs.getNode(n).empty()),
+                 None)
+        if K is None:
+            raise CameraError(f"{path}: no camera_matrix, K or cameraMatrix node")
+        dist = next((fs.getNode(n).mat() for n in ("distortion_coefficients", "D", "dist_coeffs", "distCoeffs")
+                     if not fs.getNode(n).empty()), None)
+        w, h = fs.getNode("image_width"), fs.getNode("image_height")
+        width = int(w.real()) if not w.empty() else None
+        height = int(h.real()) if not h.empty() else None
+    finally:
+        fs.release()
+    return Camera(K, np.zeros(5) if dist is None else dist.ravel(), width, height, f"file:{path}")
+
+
+def load_camera(path: str | Path) -> Camera:
+    """Read a ROS camera_info YAML, an OpenCV FileStorage YAML/JSON, or JSON `{fx, fy, cx, cy, dist}`."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise CameraError(f"camera file not found: {path}") from None
+    except UnicodeDecodeError:
+        raise CameraError(f"camera file {path} is not text") from None
+    source = f"file:{path}"
+    if text.lstrip().startswith("%YAML") or "!!opencv-matrix" in text or '"type_id": "opencv-matrix"' in text:
+        try:
+            return _camera_from_filestorage(path)
+        except cv2.error as exc:
+            raise CameraError(f"{path}: not a readable OpenCV FileStorage file: {exc}") from None
+    try:
+        data = yaml.safe_load(text)  # YAML is a superset of JSON
+    except yaml.YAMLError as exc:
+        raise CameraError(f"{path} is neither valid YAML nor JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise CameraError(f"{path}: expected a mapping with camera_matrix (ROS) or fx, fy, cx, cy")
+    try:
+        if "camera_matrix" in data:
+            return camera_from_ros(data, source)
+        if "fx" in data:
+            return camera_from_json(data, source)
+    except CameraError as exc:
+        raise CameraError(f"{path}: {exc}") from None
+    raise CameraError(f"{path}: expected camera_matrix (ROS camera_info) or fx, fy, cx, cy keys")
+
+
+def ros_camera_yaml(camera: Camera, name: str = "camera") -> str:
+    """ROS camera_info YAML text for `camera` (plumb_bob for 5 coefficients)."""
+    d = camera.dist.tolist()
+    P = np.hstack([camera.K, np.zeros((3, 1))])
+    doc = {
+        "image_width": camera.width, "image_height": camera.height, "camera_name": name,
+        "camera_matrix": {"rows": 3, "cols": 3, "data": camera.K.ravel().tolist()},
+        "distortion_model": "plumb_bob" if len(d) == 5 else "rational_polynomial",
+        "distortion_coefficients": {"rows": 1, "cols": len(d), "data": d},
+        "rectification_matrix": {"rows": 3, "cols": 3, "data": np.eye(3).ravel().tolist()},
+        "projection_matrix": {"rows": 3, "cols": 4, "data": P.ravel().tolist()},
+    }
+    return yaml.safe_dump(doc, sort_keys=False)
+
+
+def save_camera(camera: Camera, path: str | Path, name: str = "camera") -> None:
+    Path(path).write_text(ros_camera_yaml(camera, name), encoding="utf-8")

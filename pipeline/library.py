@@ -1,0 +1,174 @@
+"""Sign libraries: a folder of sign images plus `library.json` with their physical sizes.
+
+`library.json`::
+
+    {"signs": [{"id": "security_compound", "name": "Security Compound", "text": "مجمع أمني",
+                "image": "security_compound.png", "width_m": 0.6, "height_m": 0.24}]}
+
+Library pixel (u, v) (OpenCV convention, the image's top-left corner at (0, 0) and its
+bottom-right corner at (w, h)) maps to the sign frame (x right, y down, z into the wall,
+metres, origin at the sign centre) by X = (u - w/2)·width_m/w, Y = (v - h/2)·height_m/h.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+SAMPLE_LIBRARY = Path(__file__).resolve().parent.parent / "sample_images" / "library"
+ID_PATTERN = re.compile(r"^[a-z0-9][a-z0-9_-]{0,63}$")
+# Aspect ratios of image and physical size may differ by this much before it is an error:
+# a sign printed with a slightly different aspect would give a skewed pose.
+ASPECT_TOLERANCE = 0.02
+
+
+class LibraryError(ValueError):
+    """A library folder or entry that cannot be used; the message says which and why."""
+
+
+@dataclass(eq=False)
+class LibrarySign:
+    """One known planar sign.
+
+    `image` is the grayscale sign, (h, w) uint8. `width_m`, `height_m`: physical size in metres.
+    """
+
+    id: str
+    name: str
+    text: str
+    image_file: str
+    width_m: float
+    height_m: float
+    image: np.ndarray = field(repr=False)
+
+    @property
+    def size_px(self) -> tuple[int, int]:
+        """(w, h) of the library image in pixels."""
+        return int(self.image.shape[1]), int(self.image.shape[0])
+
+    @property
+    def corners_px(self) -> np.ndarray:
+        """(4, 2) library-pixel corners TL, TR, BR, BL."""
+        w, h = self.size_px
+        return np.array([[0, 0], [w, 0], [w, h], [0, h]], dtype=np.float64)
+
+    @property
+    def pixel_to_metric(self) -> np.ndarray:
+        """(3, 3) map from homogeneous library pixels to sign-plane metres (X, Y, 1)."""
+        w, h = self.size_px
+        sx, sy = self.width_m / w, self.height_m / h
+        return np.array([[sx, 0, -w / 2 * sx], [0, sy, -h / 2 * sy], [0, 0, 1]], dtype=np.float64)
+
+    def to_metric(self, uv: np.ndarray) -> np.ndarray:
+        """(N, 2) library pixels -> (N, 3) sign-frame points in metres with z = 0."""
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        A = self.pixel_to_metric
+        xy = uv * np.diag(A)[:2] + A[:2, 2]
+        return np.column_stack([xy, np.zeros(len(xy))])
+
+    def to_json(self) -> dict:
+        return {"id": self.id, "name": self.name, "text": self.text, "image": self.image_file,
+                "width_m": self.width_m, "height_m": self.height_m}
+
+
+@dataclass(eq=False)
+class Library:
+    """Signs in a folder. `cache` holds derived data (library features) keyed by the caller."""
+
+    root: Path
+    signs: list[LibrarySign]
+    cache: dict = field(default_factory=dict, repr=False)
+
+    def __getitem__(self, sign_id: str) -> LibrarySign:
+        for sign in self.signs:
+            if sign.id == sign_id:
+                return sign
+        raise KeyError(sign_id)
+
+    @property
+    def ids(self) -> list[str]:
+        return [s.id for s in self.signs]
+
+
+def validate_sign_entry(entry: dict, where: str) -> dict:
+    """Check one `library.json` entry; returns it with sizes as floats."""
+    if not isinstance(entry, dict):
+        raise LibraryError(f"{where}: each sign must be an object")
+    missing = [k for k in ("id", "image", "width_m") if k not in entry]
+    if missing:
+        raise LibraryError(f"{where}: missing {', '.join(missing)}")
+    sign_id = entry["id"]
+    if not isinstance(sign_id, str) or not ID_PATTERN.match(sign_id):
+        raise LibraryError(
+            f"{where}: id {sign_id!r} must be 1-64 characters of a-z, 0-9, _ or -, starting with a letter or digit"
+        )
+    image = entry["image"]
+    if not isinstance(image, str) or Path(image).name != image or image.startswith("."):
+        raise LibraryError(f"{where}: image {image!r} must be a plain file name inside the library folder")
+    for key in ("width_m", "height_m"):
+        value = entry.get(key)
+        if value is None and key == "height_m":
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
+            raise LibraryError(f"{where}: {key} must be a positive number of metres; got {value!r}")
+        if value > 100:
+            raise LibraryError(f"{where}: {key} = {value} m is not a plausible sign size (metres, not mm?)")
+    return entry
+
+
+def make_sign(entry: dict, image: np.ndarray, where: str) -> LibrarySign:
+    """A `LibrarySign` from a validated entry and its grayscale image; fills a missing height from the aspect."""
+    h, w = image.shape[:2]
+    if min(w, h) < 32:
+        raise LibraryError(f"{where}: image is {w}x{h} px; a sign image needs at least 32 px on each side")
+    width_m = float(entry["width_m"])
+    height_m = float(entry["height_m"]) if entry.get("height_m") is not None else width_m * h / w
+    aspect_px, aspect_m = w / h, width_m / height_m
+    if abs(aspect_px / aspect_m - 1) > ASPECT_TOLERANCE:
+        raise LibraryError(
+            f"{where}: image aspect {aspect_px:.3f} ({w}x{h} px) does not match physical aspect "
+            f"{aspect_m:.3f} ({width_m}x{height_m} m)"
+        )
+    return LibrarySign(
+        id=entry["id"], name=str(entry.get("name") or entry["id"]), text=str(entry.get("text") or ""),
+        image_file=entry["image"], width_m=width_m, height_m=height_m, image=image,
+    )
+
+
+def load_library(root: str | Path = SAMPLE_LIBRARY) -> Library:
+    """Load every sign listed in `root/library.json`."""
+    root = Path(root)
+    meta_path = root / "library.json"
+    if not meta_path.is_file():
+        raise LibraryError(f"{root} is not a sign library: {meta_path} not found")
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise LibraryError(f"{meta_path} is not valid JSON: {exc}") from None
+    entries = meta.get("signs") if isinstance(meta, dict) else None
+    if not isinstance(entries, list) or not entries:
+        raise LibraryError(f'{meta_path} must hold {{"signs": [...]}} with at least one sign')
+    signs: list[LibrarySign] = []
+    for i, entry in enumerate(entries):
+        where = f"{meta_path} sign #{i}"
+        validate_sign_entry(entry, where)
+        if entry["id"] in {s.id for s in signs}:
+            raise LibraryError(f"{where}: duplicate id {entry['id']!r}")
+        image_path = root / entry["image"]
+        image = cv2.imread(str(image_path), cv2.IMREAD_GRAYSCALE)
+        if image is None:
+            raise LibraryError(f"{where}: cannot read image {image_path}")
+        signs.append(make_sign(entry, image, where))
+    return Library(root=root, signs=signs)
+
+
+def save_library_json(library: Library) -> None:
+    """Write `library.json` for the signs currently in `library`."""
+    path = library.root / "library.json"
+    path.write_text(json.dumps({"signs": [s.to_json() for s in library.signs]}, ensure_ascii=False, indent=2) + "\n",
+                    encoding="utf-8")

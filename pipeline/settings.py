@@ -1,0 +1,216 @@
+"""Every tunable parameter of the pipeline, in one typed model.
+
+The same `Settings` serves the CLI (`--settings FILE`, `--preset`), the HTTP API
+(`GET/PUT /api/settings`), the web form and the viser sliders: each field carries
+its group, range or choices and a one-line help text in its metadata, and
+`settings_schema()` exposes them so no front end keeps its own copy.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+
+class SettingsError(ValueError):
+    """A settings value or file that cannot be used; the message says which and why."""
+
+
+def _num(default, lo, hi, group, help, step=None, nullable=False):
+    return field(
+        default=default,
+        metadata={"group": group, "min": lo, "max": hi, "step": step, "help": help, "nullable": nullable},
+    )
+
+
+def _choice(default, choices, group, help):
+    return field(default=default, metadata={"group": group, "choices": tuple(choices), "help": help})
+
+
+def _flag(default, group, help):
+    return field(default=default, metadata={"group": group, "help": help})
+
+
+SEGMENT_MODES = ("threshold", "none")
+NORMALIZATIONS = ("scale", "minmax")
+DETECTORS = ("sift", "orb")
+RANSAC_METHODS = ("own", "cv2_ransac", "usac_magsac", "usac_accurate")
+POSE_METHODS = ("paper", "ippe", "ippe_lm")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """All pipeline parameters. Pixel values are in the input image unless stated."""
+
+    # Segmentation
+    segment_mode: str = _choice("threshold", SEGMENT_MODES, "Segmentation",
+                                "threshold: find bright plaques first; none: search the full frame")
+    normalization: str = _choice("scale", NORMALIZATIONS, "Segmentation",
+                                 "Grayscale to [0,1]: scale divides by 255, minmax stretches min..max (the paper)")
+    threshold: float = _num(0.6, 0.0, 1.0, "Segmentation",
+                            "Normalised gray level above which a pixel counts as white", step=0.01)
+    high_threshold: float | None = _num(None, 0.0, 1.0, "Segmentation",
+                                        "Optional upper gate: pixels brighter than this are not sign (glare)",
+                                        step=0.01, nullable=True)
+    candidates: int = _num(3, 1, 10, "Segmentation", "How many of the largest white blobs to try, largest first", step=1)
+    crop_margin: float = _num(0.15, 0.0, 1.0, "Segmentation",
+                              "Margin added around a blob's bounding box, as a fraction of its size", step=0.01)
+    min_blob_area: float = _num(0.0005, 0.0, 0.5, "Segmentation",
+                                "Smallest blob worth trying, as a fraction of the image area", step=0.0001)
+    full_frame_fallback: bool = _flag(True, "Segmentation",
+                                      "Search the full frame when no candidate blob yields a sign")
+
+    # Features
+    detector: str = _choice("sift", DETECTORS, "Features", "Local feature detector and descriptor")
+    max_features: int = _num(2000, 50, 20000, "Features", "Most keypoints kept per image (strongest first)", step=50)
+    min_crop_size: int = _num(320, 0, 2000, "Features",
+                              "Crops whose longer side is below this many px are upscaled to it before detection",
+                              step=10)
+    contrast_threshold: float = _num(0.03, 0.001, 0.2, "Features",
+                                     "SIFT contrast threshold: lower finds more, weaker keypoints", step=0.001)
+
+    # Matching
+    ratio: float = _num(0.75, 0.3, 1.0, "Matching",
+                        "Lowe's distance-ratio test: keep a match when best < ratio x second best", step=0.01)
+
+    # RANSAC
+    ransac_method: str = _choice("own", RANSAC_METHODS, "RANSAC",
+                                 "own: the paper's fixed-iteration RANSAC on 4-point DLT; others: OpenCV backends")
+    ransac_iterations: int = _num(500, 1, 100000, "RANSAC", "Hypotheses drawn (own RANSAC: exactly this many)", step=1)
+    ransac_threshold_px: float = _num(4.0, 0.1, 50.0, "RANSAC",
+                                      "Reprojection distance in image px under which a match is an inlier", step=0.1)
+    ransac_confidence: float = _num(0.999, 0.5, 0.999999, "RANSAC",
+                                    "Confidence for OpenCV backends' adaptive stopping", step=0.001)
+    seed: int = _num(0, 0, 2**31 - 1, "RANSAC", "Random seed: the same seed gives the same answer", step=1)
+
+    # Decision
+    min_matches: int = _num(8, 4, 1000, "Decision", "A sign with fewer ratio-test matches is rejected", step=1)
+    min_inliers: int = _num(12, 4, 1000, "Decision", "A sign with fewer RANSAC inliers is rejected", step=1)
+    min_margin: int = _num(5, 0, 1000, "Decision",
+                           "The winner needs this many more inliers than the runner-up", step=1)
+
+    # Pose
+    pose_method: str = _choice("ippe_lm", POSE_METHODS, "Pose",
+                               "paper: decompose H; ippe: planar PnP on all inliers; ippe_lm: ippe refined by LM")
+    ambiguity_ratio: float = _num(0.8, 0.0, 1.0, "Pose",
+                                  "Flag ambiguous when best / second IPPE error exceeds this", step=0.01)
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            _check_field(f, getattr(self, f.name))
+        if self.high_threshold is not None and self.high_threshold <= self.threshold:
+            raise SettingsError(
+                f"high_threshold ({self.high_threshold}) must be above threshold ({self.threshold}), or null"
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def replace(self, **changes: Any) -> Settings:
+        """A copy with `changes` applied and validated; unknown keys are an error."""
+        return Settings.from_dict({**self.to_dict(), **changes})
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], base: Settings | None = None) -> Settings:
+        """Build from a full or partial dict; missing keys come from `base` (default: `Settings()`)."""
+        if not isinstance(data, dict):
+            raise SettingsError(f"settings must be a JSON object, got {type(data).__name__}")
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise SettingsError(f"unknown setting(s): {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+        merged = {**(base or cls()).to_dict(), **data}
+        return cls(**merged)
+
+
+def _check_field(f: dataclasses.Field, value: Any) -> None:
+    meta = f.metadata
+    name = f.name
+    if value is None:
+        if meta.get("nullable"):
+            return
+        raise SettingsError(f"{name} must not be null")
+    if "choices" in meta:
+        if value not in meta["choices"]:
+            raise SettingsError(f"{name} must be one of {', '.join(meta['choices'])}; got {value!r}")
+        return
+    if isinstance(f.default, bool):
+        if not isinstance(value, bool):
+            raise SettingsError(f"{name} must be true or false; got {value!r}")
+        return
+    is_int = isinstance(f.default, int) and not isinstance(f.default, bool)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SettingsError(f"{name} must be a number; got {value!r}")
+    if is_int and not float(value).is_integer():
+        raise SettingsError(f"{name} must be a whole number; got {value!r}")
+    if not math.isfinite(value):
+        raise SettingsError(f"{name} must be finite; got {value!r}")
+    if not meta["min"] <= value <= meta["max"]:
+        raise SettingsError(f"{name} must be between {meta['min']} and {meta['max']}; got {value!r}")
+
+
+def settings_schema() -> list[dict[str, Any]]:
+    """One entry per field: name, type, group, default, min/max/step or choices, help."""
+    out = []
+    for f in dataclasses.fields(Settings):
+        meta = dict(f.metadata)
+        if "choices" in meta:
+            kind = "choice"
+        elif isinstance(f.default, bool):
+            kind = "bool"
+        elif f.type in ("int",) or (isinstance(f.default, int) and not isinstance(f.default, bool)):
+            kind = "int"
+        else:
+            kind = "float"
+        entry = {"name": f.name, "type": kind, "default": f.default, **meta}
+        if "choices" in entry:
+            entry["choices"] = list(entry["choices"])
+        out.append(entry)
+    return out
+
+
+PRESETS: dict[str, Settings] = {
+    # The published method as described: minmax normalisation, threshold 0.75, the largest
+    # blob only, ratio 1/1.5 (VLFeat's default), own RANSAC with 50 iterations, H decomposition.
+    "paper": Settings(
+        normalization="minmax",
+        threshold=0.75,
+        candidates=1,
+        full_frame_fallback=False,
+        min_crop_size=0,
+        ratio=0.667,
+        ransac_method="own",
+        ransac_iterations=50,
+        min_inliers=4,
+        min_margin=0,
+        pose_method="paper",
+    ),
+    "default": Settings(),
+}
+
+
+def preset(name: str) -> Settings:
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise SettingsError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}") from None
+
+
+def load_settings(path: str | Path, base: Settings | None = None) -> Settings:
+    """Read settings JSON (full or partial) from `path`."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise SettingsError(f"settings file not found: {path}") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise SettingsError(f"settings file {path} is not valid JSON: {exc}") from None
+    return Settings.from_dict(data, base=base)
+
+
+def save_settings(settings: Settings, path: str | Path) -> None:
+    Path(path).write_text(json.dumps(settings.to_dict(), indent=2) + "\n", encoding="utf-8")
