@@ -1,0 +1,42 @@
+import numpy as np
+
+from pipeline.segment import expand_box, normalize_gray, segment
+from pipeline.settings import Settings
+
+
+def scene_with_plaques():
+    """A dark wall with a big white door (left) and a smaller plaque (right)."""
+    img = np.full((240, 320), 60, np.uint8)
+    img[20:230, 10:110] = 230  # door: 21000 px
+    img[100:140, 180:300] = 250  # plaque: 4800 px
+    img[112:128, 200:280] = 0  # black text inside the plaque
+    return img
+
+
+def test_normalisations():
+    g = np.array([[50, 100], [150, 200]], np.uint8)
+    assert np.allclose(normalize_gray(g, "scale"), g / 255)
+    assert np.allclose(normalize_gray(g, "minmax"), [[0, 1 / 3], [2 / 3, 1]])
+    assert not normalize_gray(np.full((4, 4), 7, np.uint8), "minmax").any()
+
+
+def test_blobs_largest_first_and_crops_with_margin():
+    seg = segment(scene_with_plaques(), Settings(threshold=0.6, candidates=3, crop_margin=0.1))
+    assert [b.bbox for b in seg.blobs] == [(10, 20, 110, 230), (180, 100, 300, 140)]
+    assert seg.crops[1] == (168, 96, 312, 144)
+    assert seg.mask.dtype == np.uint8 and seg.mask.max() == 255
+
+
+def test_paper_keeps_only_the_largest_blob_and_high_threshold_gates_glare():
+    img = scene_with_plaques()
+    assert len(segment(img, Settings(candidates=1)).blobs) == 1
+    seg = segment(img, Settings(threshold=0.6, high_threshold=0.95, candidates=3))
+    assert [b.bbox for b in seg.blobs] == [(10, 20, 110, 230)]  # the 250-level plaque is above the gate
+
+
+def test_expand_box_clips_to_image():
+    assert expand_box((0, 0, 10, 10), 0.5, 12, 12) == (0, 0, 12, 12)
+
+
+def test_all_black_image_has_no_blobs():
+    assert segment(np.zeros((50, 50), np.uint8), Settings()).blobs == []

@@ -1,0 +1,58 @@
+import json
+import math
+
+import pytest
+
+from pipeline.settings import PRESETS, Settings, SettingsError, load_settings, preset, settings_schema
+
+
+def test_paper_preset_is_the_published_method():
+    p = preset("paper")
+    assert (p.normalization, p.threshold, p.candidates, p.ratio) == ("minmax", 0.75, 1, 0.667)
+    assert (p.ransac_method, p.ransac_iterations, p.pose_method) == ("own", 50, "paper")
+    assert not p.full_frame_fallback
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"threshold": math.nan}, "finite"),
+    ({"threshold": math.inf}, "finite"),
+    ({"threshold": -0.1}, "between"),
+    ({"ransac_iterations": 2.5}, "whole number"),
+    ({"ransac_iterations": "50"}, "number"),
+    ({"full_frame_fallback": 1}, "true or false"),
+    ({"detector": "akaze"}, "one of"),
+    ({"thresold": 0.5}, "unknown setting"),
+    ({"threshold": 0.8, "high_threshold": 0.7}, "above threshold"),
+    ({"candidates": None}, "null"),
+])
+def test_invalid_values_are_clear_errors(changes, message):
+    with pytest.raises(SettingsError, match=message):
+        Settings().replace(**changes)
+
+
+def test_partial_json_round_trip(tmp_path):
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps({"threshold": 0.7, "high_threshold": None}))
+    s = load_settings(path, base=preset("paper"))
+    assert s.threshold == 0.7 and s.ransac_iterations == 50
+    path.write_text("{not json")
+    with pytest.raises(SettingsError, match="not valid JSON"):
+        load_settings(path)
+    path.write_text('{"threshold": NaN}')
+    with pytest.raises(SettingsError, match="finite"):
+        load_settings(path)
+
+
+def test_schema_covers_every_field_with_help_and_range():
+    schema = {e["name"]: e for e in settings_schema()}
+    assert set(schema) == set(Settings().to_dict())
+    for e in schema.values():
+        assert e["help"] and e["group"]
+        if e["type"] in ("int", "float"):
+            assert e["min"] <= (e["default"] if e["default"] is not None else e["min"]) <= e["max"]
+        if e["type"] == "choice":
+            assert e["default"] in e["choices"]
+    assert schema["ransac_iterations"]["type"] == "int"
+    assert schema["threshold"]["type"] == "float"
+    assert schema["full_frame_fallback"]["type"] == "bool"
+    assert all(isinstance(p, Settings) for p in PRESETS.values())
