@@ -1,0 +1,192 @@
+"""`signpose` command line: recognize, synth, evaluate, serve."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from tqdm import tqdm
+
+from pipeline.camera import Camera, CameraError, load_camera
+from pipeline.image import ImageError, read_image
+from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
+from pipeline.recognize import Recognition, recognize
+from pipeline.settings import PRESETS, Settings, SettingsError, load_settings, preset
+
+EXIT_USAGE = 2
+
+
+class CliError(Exception):
+    """A problem with the command's inputs: printed as one line, exit code 2."""
+
+
+def load_inputs(args) -> tuple[Library, Settings, Camera | None]:
+    """The library, settings and camera named by the common options."""
+    try:
+        library = load_library(args.library)
+        settings = preset(args.preset)
+        if args.settings:
+            settings = load_settings(args.settings, base=settings)
+        camera = load_camera(args.camera) if args.camera else None
+    except (LibraryError, SettingsError, CameraError) as exc:
+        raise CliError(str(exc)) from None
+    return library, settings, camera
+
+
+def add_common(p: argparse.ArgumentParser, camera: bool = True) -> None:
+    p.add_argument("--library", default=str(SAMPLE_LIBRARY), help="sign library folder (default: the samples)")
+    if camera:
+        p.add_argument("--camera", help="camera file: ROS camera_info YAML, OpenCV YAML/JSON, or {fx,fy,cx,cy,dist}")
+    p.add_argument("--settings", help="settings JSON (full or partial), applied over --preset")
+    p.add_argument("--preset", default="default", choices=sorted(PRESETS), help="base settings (default: default)")
+
+
+def format_row(name: str, rec: Recognition) -> str:
+    best = rec.best
+    if best is None:
+        top = max(rec.scores, key=lambda s: s.n_inliers, default=None)
+        why = top.reason if top is not None else "no candidate region"
+        return f"{name:<28} {'-':<22} {'':>7} {'':>6}  no sign ({why})"
+    pose = rec.pose
+    where = ""
+    if pose is not None:
+        x, y, z = pose.camera_position
+        where = f"cam at ({x:+.2f}, {y:+.2f}, {z:+.2f}) m, rmse {pose.reprojection_rmse_px:.2f} px"
+        if pose.ambiguous:
+            where += ", ambiguous"
+    return f"{name:<28} {best.sign:<22} {best.n_inliers:>7} {rec.margin:>6}  {where}"
+
+
+def cmd_recognize(args) -> int:
+    library, settings, camera = load_inputs(args)
+    failed = 0
+    if not args.json:
+        print(f"{'image':<28} {'label':<22} {'inliers':>7} {'margin':>6}  pose")
+    for path in tqdm(args.images, desc="recognize", unit="img", disable=args.json or len(args.images) < 10,
+                     leave=False, file=sys.stderr):
+        name = str(path)
+        try:
+            rec = recognize(read_image(path), library, settings, camera)
+        except ImageError as exc:
+            failed += 1
+            if args.json:
+                print(json.dumps({"image": name, "error": str(exc)}), flush=True)
+            else:
+                print(f"{name:<28} error: {exc}", flush=True)
+            continue
+        if args.json:
+            print(json.dumps(rec.to_json(name)), flush=True)
+        else:
+            print(format_row(Path(name).name, rec), flush=True)
+            for w in rec.warnings:
+                print(f"{'':<28}   warning: {w}")
+    if failed:
+        print(f"{failed} of {len(args.images)} image(s) could not be read", file=sys.stderr)
+    return 1 if failed else 0
+
+
+def cmd_synth(args) -> int:
+    from pipeline.synth import generate_dataset
+
+    try:
+        library = load_library(args.library)
+    except LibraryError as exc:
+        raise CliError(str(exc)) from None
+    bar = tqdm(total=args.n, desc="synth", unit="img", file=sys.stderr)
+    generate_dataset(Path(args.out_dir), library, n=args.n, seed=args.seed,
+                     progress=lambda i, n: bar.update(1))
+    bar.close()
+    print(f"wrote {args.n} scenes, truth.json and camera.yaml to {args.out_dir}")
+    return 0
+
+
+def cmd_evaluate(args) -> int:
+    from pipeline.evaluate import evaluate, format_table, load_dataset
+
+    library, settings, camera = load_inputs(args)
+    try:
+        datasets = [load_dataset(Path(d)) for d in args.datasets]
+    except (ValueError, OSError) as exc:
+        raise CliError(str(exc)) from None
+    total = sum(len(d) for d in datasets)
+    with tqdm(total=total, desc="evaluate", unit="img", file=sys.stderr) as bar:
+        report = evaluate(datasets, library, settings, camera, progress=lambda *_: bar.update(1))
+    print(format_table(report))
+    return 0
+
+
+def cmd_calibrate(args) -> int:
+    from pipeline.calibrate import CalibrationError, calibrate, drop_outliers, find_board, format_report, parse_board
+    from pipeline.camera import save_camera
+    from pipeline.image import to_gray
+
+    try:
+        board = parse_board(args.board)
+    except CalibrationError as exc:
+        raise CliError(str(exc)) from None
+    views, unreadable = [], 0
+    for path in tqdm(args.images, desc="calibrate", unit="img", file=sys.stderr, leave=False):
+        try:
+            views.append(find_board(to_gray(read_image(path)), board, Path(path).name))
+        except ImageError as exc:
+            unreadable += 1
+            print(f"error: {exc}", file=sys.stderr)
+    try:
+        calibration = calibrate(views, board, args.square)
+        if args.drop_outliers:
+            calibration = drop_outliers(calibration)
+    except CalibrationError as exc:
+        raise CliError(str(exc)) from None
+    print(format_report(calibration))
+    save_camera(calibration.camera, args.output)
+    print(f"wrote {args.output} (use it with: signpose recognize --camera {args.output} IMAGE...)")
+    if unreadable:
+        print(f"{unreadable} of {len(args.images)} image(s) could not be read", file=sys.stderr)
+    return 1 if unreadable else 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="signpose", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("recognize", help="recognise signs and estimate camera pose in images")
+    p.add_argument("images", nargs="+", help="image files")
+    add_common(p)
+    p.add_argument("--json", action="store_true", help="one JSON object per image per line")
+    p.set_defaults(func=cmd_recognize)
+
+    p = sub.add_parser("synth", help="render synthetic scenes with ground truth")
+    p.add_argument("out_dir")
+    p.add_argument("--n", type=int, default=20, help="number of scenes (default 20)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--library", default=str(SAMPLE_LIBRARY))
+    p.set_defaults(func=cmd_synth)
+
+    p = sub.add_parser("evaluate", help="accuracy and timing on labelled datasets (the paper's Table 1)")
+    p.add_argument("datasets", nargs="+", help="dataset folders: truth.json, or one sub-folder per label")
+    add_common(p)
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("calibrate", help="camera intrinsics from photos of a printed chessboard (docs/calibration.md)")
+    p.add_argument("images", nargs="+", help="photos of the board, all the same size and orientation")
+    p.add_argument("--board", required=True, help="inner corners COLSxROWS, e.g. 9x6 for a board of 10x7 squares")
+    p.add_argument("--square", type=float, required=True, help="side of one printed square in metres, e.g. 0.025")
+    p.add_argument("-o", "--output", default="camera.yaml", help="ROS camera_info YAML to write (default camera.yaml)")
+    p.add_argument("--drop-outliers", action="store_true", help="recalibrate without the views whose error stands out")
+    p.set_defaults(func=cmd_calibrate)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except CliError as exc:
+        print(f"signpose {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+
+
+if __name__ == "__main__":
+    sys.exit(main())

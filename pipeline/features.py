@@ -1,0 +1,95 @@
+"""Stage 2: local features (SIFT by default, ORB as an option), in a crop or the full frame.
+
+Keypoints are returned as plain arrays in full-image pixel coordinates (OpenCV convention,
+pixel centres at integers), so results pickle cheaply to worker processes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from .library import Library, LibrarySign
+from .segment import Box
+from .settings import Settings
+
+# Beyond this, upscaling invents no detail and only costs time.
+MAX_UPSCALE = 4.0
+
+
+@dataclass(frozen=True, eq=False)
+class Features:
+    """Keypoints and descriptors of one image region.
+
+    xy: (N, 2) float32 full-image px; size: (N,) keypoint diameter in full-image px;
+    descriptors: (N, D) float32 (SIFT) or uint8 (ORB); region: the `Box` searched;
+    scale: the factor the region was resized by before detection.
+    """
+
+    xy: np.ndarray = field(repr=False)
+    size: np.ndarray = field(repr=False)
+    descriptors: np.ndarray = field(repr=False)
+    region: Box
+    scale: float
+    detector: str
+
+    def __len__(self) -> int:
+        return len(self.xy)
+
+    @property
+    def norm(self) -> int:
+        return cv2.NORM_HAMMING if self.detector == "orb" else cv2.NORM_L2
+
+
+def create_detector(settings: Settings):
+    if settings.detector == "orb":
+        return cv2.ORB_create(nfeatures=settings.max_features)
+    return cv2.SIFT_create(nfeatures=settings.max_features, contrastThreshold=settings.contrast_threshold)
+
+
+def feature_key(settings: Settings) -> tuple:
+    """The settings that change what `detect` returns for a given image region."""
+    return settings.detector, settings.max_features, settings.contrast_threshold, settings.min_crop_size
+
+
+def detect(gray: np.ndarray, settings: Settings, region: Box | None = None) -> Features:
+    """Detect and describe keypoints of an (H, W) uint8 image inside `region` (default: all of it).
+
+    Regions whose longer side is below `settings.min_crop_size` are upscaled first (at most
+    `MAX_UPSCALE` times), so a sign 60 px wide still yields enough keypoints.
+    """
+    h, w = gray.shape
+    x0, y0, x1, y1 = region if region is not None else (0, 0, w, h)
+    patch = gray[y0:y1, x0:x1]
+    long_side = max(patch.shape)
+    scale = 1.0
+    if 0 < long_side < settings.min_crop_size:
+        scale = min(settings.min_crop_size / long_side, MAX_UPSCALE)
+        patch = cv2.resize(patch, None, fx=scale, fy=scale, interpolation=cv2.INTER_CUBIC)
+    keypoints, descriptors = create_detector(settings).detectAndCompute(patch, None)
+    dim, dtype = (32, np.uint8) if settings.detector == "orb" else (128, np.float32)
+    if descriptors is None or not keypoints:
+        return Features(np.zeros((0, 2), np.float32), np.zeros(0, np.float32), np.zeros((0, dim), dtype),
+                        (x0, y0, x1, y1), scale, settings.detector)
+    pts = np.array([k.pt for k in keypoints], dtype=np.float32)
+    # cv2.resize aligns pixel centres: x_src = (x_dst + 0.5) / scale - 0.5.
+    xy = (pts + 0.5) / scale - 0.5 + np.array([x0, y0], dtype=np.float32)
+    size = np.array([k.size for k in keypoints], dtype=np.float32) / scale
+    return Features(xy, size, descriptors, (x0, y0, x1, y1), scale, settings.detector)
+
+
+def sign_features(sign: LibrarySign, settings: Settings) -> Features:
+    """Features of a library sign image, in library pixels (never upscaled)."""
+    return detect(sign.image, settings.replace(min_crop_size=0))
+
+
+def library_features(library: Library, settings: Settings) -> dict[str, Features]:
+    """Features of every library sign, computed once per feature settings and cached on the library."""
+    key = ("features", *feature_key(settings)[:3])
+    cached = library.cache.get(key)
+    if cached is None or cached.keys() != set(library.ids):
+        cached = {sign.id: sign_features(sign, settings) for sign in library.signs}
+        library.cache[key] = cached
+    return cached

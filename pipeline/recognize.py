@@ -1,0 +1,332 @@
+"""Stage 5: which library sign is in the image, where, and the camera pose it gives.
+
+For each candidate region (the largest white blobs, then optionally the full frame) every
+library sign is scored by its RANSAC inliers; the winner needs enough inliers, a plausible
+homography and a margin over the runner-up. "No sign" is a first-class answer.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .camera import Camera, assumed_camera
+from .features import Features, detect, feature_key, library_features
+from .homography import HomographyEstimate, estimate_homography
+from .image import to_gray
+from .library import Library, LibrarySign
+from .match import Matches, ratio_match
+from .pose import Pose, estimate_pose
+from .segment import Box, Segmentation, segment
+from .settings import Settings
+
+STAGES = ("segment", "features", "match", "ransac", "pose")
+# A sign seen from any usable viewpoint projects to a convex quad whose opposite sides differ
+# in length by far less than this factor; larger means a degenerate H fitted to a few points.
+MAX_SIDE_RATIO = 8.0
+# Corners may leave the image (a sign at the frame edge), but not by more than this many image sizes.
+MAX_CORNER_EXCURSION = 0.5
+MIN_QUAD_AREA_PX = 64.0
+
+
+@dataclass(eq=False)
+class SignScore:
+    """How well one library sign explains one region of the image.
+
+    src, dst: (M, 2) matched points in library px and image px; `estimate.inliers` marks the
+    RANSAC inliers among them; corners: (4, 2) image px of the sign's TL, TR, BR, BL, or None.
+    """
+
+    sign: str
+    matches: Matches = field(repr=False)
+    src: np.ndarray = field(repr=False)
+    dst: np.ndarray = field(repr=False)
+    estimate: HomographyEstimate | None = field(repr=False)
+    corners: np.ndarray | None = field(repr=False)
+    reason: str | None = None
+
+    @property
+    def n_matches(self) -> int:
+        return len(self.matches)
+
+    @property
+    def n_inliers(self) -> int:
+        return self.estimate.n_inliers if self.estimate is not None else 0
+
+    @property
+    def inlier_ratio(self) -> float:
+        return self.n_inliers / self.n_matches if self.n_matches else 0.0
+
+    @property
+    def H(self) -> np.ndarray | None:
+        return self.estimate.H if self.estimate is not None else None
+
+    def to_json(self) -> dict:
+        return {"sign": self.sign, "matches": self.n_matches, "inliers": self.n_inliers, "reason": self.reason}
+
+
+@dataclass(eq=False)
+class Attempt:
+    """One candidate region searched: its features, every sign's score and the decision."""
+
+    region: Box
+    source: str  # "blob 1", "blob 2", ..., "full frame"
+    features: Features = field(repr=False)
+    scores: list[SignScore]
+    winner: int | None
+    margin: int
+
+    @property
+    def best_inliers(self) -> int:
+        return max((s.n_inliers for s in self.scores), default=0)
+
+
+@dataclass(eq=False)
+class Recognition:
+    """Everything the pipeline computed for one image; `attempt` is the region the answer came from."""
+
+    image_size: tuple[int, int]
+    settings: Settings
+    camera: Camera
+    segmentation: Segmentation | None = field(repr=False)
+    attempts: list[Attempt] = field(repr=False)
+    attempt: Attempt | None = field(repr=False)
+    pose: Pose | None
+    timing_ms: dict[str, float]
+    warnings: list[str]
+
+    @property
+    def best(self) -> SignScore | None:
+        a = self.attempt
+        return a.scores[a.winner] if a is not None and a.winner is not None else None
+
+    @property
+    def label(self) -> str | None:
+        return self.best.sign if self.best is not None else None
+
+    @property
+    def recognized(self) -> bool:
+        return self.best is not None
+
+    @property
+    def scores(self) -> list[SignScore]:
+        return self.attempt.scores if self.attempt is not None else []
+
+    @property
+    def margin(self) -> int:
+        return self.attempt.margin if self.attempt is not None else 0
+
+    @property
+    def H(self) -> np.ndarray | None:
+        return self.best.H if self.best is not None else None
+
+    @property
+    def corners(self) -> np.ndarray | None:
+        return self.best.corners if self.best is not None else None
+
+    def to_json(self, image: str) -> dict:
+        """The CLI's and API's JSON schema for one image."""
+        return {
+            "image": image,
+            "recognized": self.recognized,
+            "label": self.label,
+            "scores": [s.to_json() for s in self.scores],
+            "homography": _list(self.H),
+            "corners": _list(self.corners),
+            "pose": self.pose.to_json() if self.pose is not None else None,
+            "timing_ms": {k: round(v, 3) for k, v in self.timing_ms.items()},
+            "warnings": list(self.warnings),
+        }
+
+
+def _list(a: np.ndarray | None):
+    return None if a is None else np.asarray(a, dtype=float).tolist()
+
+
+def project(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """(N, 2) points through a 3x3 homography -> (N, 3) homogeneous results (not divided)."""
+    return np.column_stack([pts, np.ones(len(pts))]) @ H.T
+
+
+def quad_problem(H: np.ndarray, sign: LibrarySign, width: int, height: int) -> tuple[np.ndarray | None, str | None]:
+    """Project the sign's corners through H and say what, if anything, makes the result implausible.
+
+    Returns ((4, 2) corners or None, reason or None).
+    """
+    hom = project(H, sign.corners_px)
+    w = hom[:, 2]
+    if np.any(w <= 1e-12 * np.abs(hom[:, :2]).max(axis=1)):
+        return None, "degenerate homography: the sign plane crosses the horizon"
+    corners = hom[:, :2] / w[:, None]
+    edges = np.roll(corners, -1, axis=0) - corners
+    cross = edges[:, 0] * np.roll(edges, -1, axis=0)[:, 1] - edges[:, 1] * np.roll(edges, -1, axis=0)[:, 0]
+    if np.any(cross <= 0):
+        # TL, TR, BR, BL run clockwise on screen (y down); anything else is mirrored, self-crossing or concave.
+        return corners, "degenerate homography: non-convex, self-crossing or mirrored quad"
+    area = 0.5 * abs(np.sum(corners[:, 0] * np.roll(corners[:, 1], -1) - corners[:, 1] * np.roll(corners[:, 0], -1)))
+    sides = np.linalg.norm(edges, axis=1)
+    if area < MIN_QUAD_AREA_PX or max(sides[0] / sides[2], sides[2] / sides[0],
+                                      sides[1] / sides[3], sides[3] / sides[1]) > MAX_SIDE_RATIO:
+        return corners, "absurd scale: the sign would be tiny or extremely foreshortened"
+    margin_x, margin_y = MAX_CORNER_EXCURSION * width, MAX_CORNER_EXCURSION * height
+    if np.any((corners[:, 0] < -margin_x) | (corners[:, 0] > width + margin_x)
+              | (corners[:, 1] < -margin_y) | (corners[:, 1] > height + margin_y)):
+        return corners, "corners far outside the image"
+    return corners, None
+
+
+class StageCache:
+    """Results of earlier stages for one image, keyed by the settings each stage depends on.
+
+    Least recently used entries are dropped beyond `max_entries`, so a slider sweep over many
+    values cannot grow memory without bound.
+    """
+
+    def __init__(self, max_entries: int = 64) -> None:
+        self.max_entries = max_entries
+        self._entries: OrderedDict[tuple, object] = OrderedDict()
+
+    def get(self, key: tuple, compute):
+        """The entry under `key`, computing and storing it first when absent."""
+        if key in self._entries:
+            self._entries.move_to_end(key)
+            return self._entries[key]
+        value = compute()
+        self._entries[key] = value
+        if len(self._entries) > self.max_entries:
+            self._entries.popitem(last=False)
+        return value
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+
+def cached(cache: StageCache | None, key: tuple, compute):
+    return compute() if cache is None else cache.get(key, compute)
+
+
+def score_sign(sign: LibrarySign, query: Features, train: Features, settings: Settings,
+               image_size: tuple[int, int], timing: dict[str, float], cache: StageCache | None = None) -> SignScore:
+    """Match `query` against one sign's features, fit H by RANSAC and check it."""
+    t0 = time.perf_counter()
+    key = ("match", *feature_key(settings), query.region, sign.id, settings.ratio)
+    matches = cached(cache, key, lambda: ratio_match(query.descriptors, train.descriptors, settings.ratio, query.norm))
+    src = train.xy[matches.train_idx].astype(np.float64)
+    dst = query.xy[matches.query_idx].astype(np.float64)
+    t1 = time.perf_counter()
+    timing["match"] += (t1 - t0) * 1e3
+    score = SignScore(sign.id, matches, src, dst, None, None)
+    if len(matches) < max(4, settings.min_matches):
+        score.reason = f"too few matches ({len(matches)} < {max(4, settings.min_matches)})"
+        return score
+    score.estimate = estimate_homography(src, dst, settings.ransac_method, settings.ransac_iterations,
+                                         settings.ransac_threshold_px, settings.ransac_confidence, settings.seed)
+    timing["ransac"] += (time.perf_counter() - t1) * 1e3
+    if score.estimate.H is None:
+        score.reason = "no homography found"
+    elif score.n_inliers < settings.min_inliers:
+        score.reason = f"too few inliers ({score.n_inliers} < {settings.min_inliers})"
+    if score.estimate.H is not None:
+        score.corners, problem = quad_problem(score.estimate.H, sign, *image_size)
+        score.reason = score.reason or problem
+    return score
+
+
+def decide(scores: list[SignScore], settings: Settings) -> tuple[int | None, int]:
+    """Index of the winning sign (or None) and its inlier margin over the runner-up.
+
+    Sets the reason of a best sign whose margin is too small.
+    """
+    order = sorted(range(len(scores)), key=lambda i: -scores[i].n_inliers)
+    valid = [i for i in order if scores[i].reason is None]
+    if not valid:
+        return None, 0
+    best = valid[0]
+    runner_up = max((scores[i].n_inliers for i in order if i != best), default=0)
+    margin = scores[best].n_inliers - runner_up
+    if margin < settings.min_margin:
+        scores[best].reason = f"margin over the runner-up too small ({margin} < {settings.min_margin})"
+        return None, margin
+    return best, margin
+
+
+def search_region(gray: np.ndarray, region: Box, source: str, library: Library,
+                  settings: Settings, timing: dict[str, float], cache: StageCache | None = None) -> Attempt:
+    """Detect features in `region` and score every library sign against them."""
+    t0 = time.perf_counter()
+    query = cached(cache, ("features", *feature_key(settings), region), lambda: detect(gray, settings, region))
+    lib = library_features(library, settings)
+    timing["features"] += (time.perf_counter() - t0) * 1e3
+    size = (gray.shape[1], gray.shape[0])
+    scores = [score_sign(sign, query, lib[sign.id], settings, size, timing, cache) for sign in library.signs]
+    winner, margin = decide(scores, settings)
+    return Attempt(region, source, query, scores, winner, margin)
+
+
+def candidate_regions(segmentation: Segmentation | None, settings: Settings, width: int, height: int):
+    """(region, source) pairs in the order they are searched."""
+    full = (0, 0, width, height)
+    regions = []
+    if segmentation is not None:
+        regions = [(crop, f"blob {i + 1}") for i, crop in enumerate(segmentation.crops)]
+    if segmentation is None or (settings.full_frame_fallback and full not in [r for r, _ in regions]):
+        regions.append((full, "full frame"))
+    return regions
+
+
+def recognize(image: np.ndarray, library: Library, settings: Settings, camera: Camera | None = None,
+              cache: StageCache | None = None) -> Recognition:
+    """Recognise a library sign in an (H, W, 3) BGR or (H, W) gray uint8 image and estimate the camera pose.
+
+    Without `camera`, a 60° horizontal field of view is assumed and a warning says so.
+    `cache`: a `StageCache` kept by the caller for this image; re-running with changed settings then
+    re-uses every stage the change does not affect (a RANSAC change re-uses features and
+    matches, a ratio change re-uses features). The cache must be dropped with the image and
+    whenever the library changes.
+    """
+    t_start = time.perf_counter()
+    timing = dict.fromkeys(STAGES, 0.0)
+    warnings: list[str] = []
+    gray = to_gray(image)
+    height, width = gray.shape
+    if camera is None:
+        camera = assumed_camera(width, height)
+        warnings.append(f"no camera file: {camera.source} assumed, so the pose is approximate")
+    else:
+        camera, scale_warnings = camera.for_image(width, height)
+        warnings += scale_warnings
+
+    segmentation = None
+    if settings.segment_mode == "threshold":
+        t0 = time.perf_counter()
+        seg_key = ("segment", settings.normalization, settings.threshold, settings.high_threshold,
+                   settings.candidates, settings.crop_margin, settings.min_blob_area)
+        segmentation = cached(cache, seg_key, lambda: segment(gray, settings))
+        timing["segment"] = (time.perf_counter() - t0) * 1e3
+        if not segmentation.blobs:
+            warnings.append("no white blob above the threshold")
+
+    attempts: list[Attempt] = []
+    for region, source in candidate_regions(segmentation, settings, width, height):
+        attempts.append(search_region(gray, region, source, library, settings, timing, cache))
+        if attempts[-1].winner is not None:
+            break
+    chosen = next((a for a in attempts if a.winner is not None), None)
+    if chosen is None and attempts:
+        chosen = max(attempts, key=lambda a: a.best_inliers)
+
+    pose = None
+    if chosen is not None and chosen.winner is not None:
+        best = chosen.scores[chosen.winner]
+        t0 = time.perf_counter()
+        inl = best.estimate.inliers
+        pose = estimate_pose(best.H, best.src[inl], best.dst[inl], library[best.sign], camera,
+                             settings.pose_method, settings.ambiguity_ratio)
+        timing["pose"] = (time.perf_counter() - t0) * 1e3
+        if pose.ambiguous:
+            warnings.append("pose is ambiguous: the two planar solutions fit almost equally well")
+    timing["total"] = (time.perf_counter() - t_start) * 1e3
+    return Recognition((width, height), settings, camera, segmentation, attempts, chosen, pose, timing, warnings)

@@ -1,0 +1,87 @@
+"""Stage 1: threshold segmentation, bright candidate blobs and crops (the paper's first step).
+
+The paper normalises gray levels, thresholds at 0.75, keeps the largest white connected
+component and crops its bounding box. Beyond the paper we keep the K largest blobs as
+candidates, so a larger white object (a door, a whiteboard) does not hide the sign.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from .settings import Settings
+
+Box = tuple[int, int, int, int]
+"""(x0, y0, x1, y1) in image pixels, half-open: columns x0..x1-1, rows y0..y1-1."""
+
+
+@dataclass(frozen=True)
+class Blob:
+    """One white connected component: `area` in px, `bbox` as a `Box`, `label` in `Segmentation.labels`."""
+
+    label: int
+    area: int
+    bbox: Box
+
+
+@dataclass(frozen=True, eq=False)
+class Segmentation:
+    """Intermediates of segmentation, all (H, W) like the input.
+
+    gray: normalised float32 in [0, 1]; mask: uint8 0/255 white pixels; labels: int32 component ids;
+    blobs: candidate blobs, largest first; crops: one `Box` per blob, with margin, clipped to the image.
+    """
+
+    gray: np.ndarray = field(repr=False)
+    mask: np.ndarray = field(repr=False)
+    labels: np.ndarray = field(repr=False)
+    blobs: list[Blob]
+    crops: list[Box]
+
+
+def normalize_gray(gray: np.ndarray, mode: str) -> np.ndarray:
+    """(H, W) uint8 -> float32 in [0, 1]. "scale": /255. "minmax": (g - min) / (max - min), the paper's remap."""
+    g = gray.astype(np.float32)
+    if mode == "scale":
+        return g / 255.0
+    lo, hi = float(g.min()), float(g.max())
+    if hi <= lo:
+        return np.zeros_like(g)
+    return (g - lo) / (hi - lo)
+
+
+def threshold_mask(gray01: np.ndarray, threshold: float, high_threshold: float | None) -> np.ndarray:
+    """(H, W) float [0, 1] -> uint8 mask, 255 where threshold <= g (<= high_threshold when given)."""
+    mask = gray01 >= threshold
+    if high_threshold is not None:
+        mask &= gray01 <= high_threshold
+    return mask.astype(np.uint8) * 255
+
+
+def expand_box(bbox: Box, margin: float, width: int, height: int) -> Box:
+    """Grow `bbox` by `margin` times its size on every side, clipped to a `width` x `height` image."""
+    x0, y0, x1, y1 = bbox
+    mx, my = round((x1 - x0) * margin), round((y1 - y0) * margin)
+    return max(0, x0 - mx), max(0, y0 - my), min(width, x1 + mx), min(height, y1 + my)
+
+
+def segment(gray: np.ndarray, settings: Settings) -> Segmentation:
+    """Find candidate sign regions in an (H, W) uint8 gray image."""
+    h, w = gray.shape
+    gray01 = normalize_gray(gray, settings.normalization)
+    mask = threshold_mask(gray01, settings.threshold, settings.high_threshold)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    order = np.argsort(-areas, kind="stable")
+    min_area = max(16, settings.min_blob_area * h * w)
+    blobs: list[Blob] = []
+    for i in order[: settings.candidates]:
+        if areas[i] < min_area:
+            break
+        x, y, bw, bh = (int(v) for v in stats[i + 1, :4])
+        blobs.append(Blob(label=int(i + 1), area=int(areas[i]), bbox=(x, y, x + bw, y + bh)))
+    crops = [expand_box(b.bbox, settings.crop_margin, w, h) for b in blobs]
+    return Segmentation(gray=gray01, mask=mask, labels=labels, blobs=blobs, crops=crops)
