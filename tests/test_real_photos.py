@@ -1,0 +1,49 @@
+"""Homography estimation on real photo pairs with ground truth (../shared/data/homogr).
+
+Image A plays the library sign and B the scene; the default preset runs on the full frame
+(`segment_mode="none"`), as for any landmark that is not a bright plaque.
+"""
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pipeline.library import Library, make_sign
+from pipeline.recognize import recognize
+from pipeline.settings import preset
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "homogr"
+SOLVABLE = ["adam", "boat", "city", "WhiteBoard", "BruggeSquare"]
+
+pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason=f"real photo pairs not found at {DATA}")
+
+
+def run_pair(name: str):
+    """(recognition, ground-truth RMSE in B pixels of the label-1 points, or None without H)."""
+    a = cv2.imread(str(next(DATA.glob(f"{name}A.*"))), cv2.IMREAD_GRAYSCALE)
+    b = cv2.imread(str(next(DATA.glob(f"{name}B.*"))))
+    pts = np.loadtxt(DATA / f"{name}_pts.txt")
+    truth = pts[pts[:, 6] == 1]
+    library = Library(DATA, [make_sign({"id": "a", "image": "a.png", "width_m": 1.0}, a, name)])
+    rec = recognize(b, library, preset("default").replace(segment_mode="none"))
+    H = rec.scores[0].H
+    if H is None:
+        return rec, None
+    mapped = cv2.perspectiveTransform(truth[None, :, :2], H)[0]
+    return rec, float(np.sqrt(np.mean(np.sum((mapped - truth[:, 3:5]) ** 2, axis=1))))
+
+
+def test_default_preset_is_accurate_on_real_photos():
+    rmse = {name: run_pair(name)[1] for name in SOLVABLE}
+    assert all(v is not None for v in rmse.values()), rmse
+    assert np.median(list(rmse.values())) <= 1.5, rmse
+    assert rmse["city"] < 1.0 and rmse["adam"] < 1.0, rmse
+
+
+def test_unsolvable_pair_is_reported_not_guessed():
+    rec, rmse = run_pair("LePoint1")
+    score = rec.scores[0]
+    assert not rec.recognized
+    assert score.reason is not None, f"LePoint1 accepted with H error {rmse} px"
