@@ -1,0 +1,72 @@
+// Thin client for the signpose HTTP API (docs/web-contract.md). Every failure becomes an
+// Error whose message is the server's `detail`, so callers can show it as is.
+
+export class ApiError extends Error {
+  constructor(status, message) {
+    super(message);
+    this.status = status;
+  }
+}
+
+/** The person-readable message in an error body: FastAPI sends a string or a list of field errors. */
+function detailOf(body, status, statusText) {
+  const detail = body?.detail;
+  if (typeof detail === "string") return detail;
+  if (Array.isArray(detail)) {
+    return detail.map((d) => `${(d.loc || []).filter((p) => p !== "body").join(".")}: ${d.msg}`).join("; ");
+  }
+  return `${status} ${statusText || "request failed"}`;
+}
+
+async function parse(response) {
+  const text = await response.text();
+  let body = null;
+  try { body = text ? JSON.parse(text) : null; } catch { body = text; }
+  if (!response.ok) throw new ApiError(response.status, detailOf(body, response.status, response.statusText));
+  return body;
+}
+
+/** JSON request; `body` is sent as JSON unless it is FormData. */
+export async function api(method, url, body) {
+  const init = { method, headers: {} };
+  if (body instanceof FormData) init.body = body;
+  else if (body !== undefined) {
+    init.body = JSON.stringify(body);
+    init.headers["Content-Type"] = "application/json";
+  }
+  let response;
+  try {
+    response = await fetch(url, init);
+  } catch (err) {
+    throw new ApiError(0, `cannot reach the signpose server (${method} ${url}): ${err.message}`);
+  }
+  return parse(response);
+}
+
+export const get = (url) => api("GET", url);
+
+/** POST multipart `form` with upload progress (fetch cannot report it); resolves to the JSON body. */
+export function upload(url, form, onProgress) {
+  return new Promise((resolve, reject) => {
+    const xhr = new XMLHttpRequest();
+    xhr.open("POST", url);
+    xhr.upload.onprogress = (e) => e.lengthComputable && onProgress(e.loaded / e.total);
+    xhr.upload.onload = () => onProgress(1);
+    xhr.onerror = () => reject(new ApiError(0, `upload failed: cannot reach the signpose server`));
+    xhr.onload = () => {
+      const response = new Response(xhr.responseText, { status: xhr.status, statusText: xhr.statusText });
+      parse(response).then(resolve, reject);
+    };
+    xhr.send(form);
+  });
+}
+
+/** The error text a failed image URL would have returned (an <img> cannot read it). */
+export async function failureOf(url) {
+  try {
+    await parse(await fetch(url));
+    return "image could not be decoded";
+  } catch (err) {
+    return err.message;
+  }
+}

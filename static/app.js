@@ -1,0 +1,76 @@
+// Entry point: load the initial state, wire the views, and follow the server's event stream.
+
+import { get } from "./api.js";
+import { initDetail } from "./detail.js";
+import { initGallery, refreshImages } from "./gallery.js";
+import { apply as applySettings, initSettings } from "./settings.js";
+import { emit, on, select, state } from "./store.js";
+import { $, report } from "./ui.js";
+
+function showProgress({ running, done, total }) {
+  const pill = $("#run-status");
+  pill.classList.toggle("busy", running);
+  pill.textContent = running ? `re-running ${done}/${total}` : "up to date";
+  $("#run-progress").style.width = running && total ? `${(100 * done) / total}%` : "0";
+}
+
+async function loadLibrary() {
+  state.library = await get("/api/library");
+  emit("library", state.library);
+}
+
+/** Everything the event stream could have told us while it was down. */
+async function resync() {
+  try {
+    applySettings(await get("/api/settings"), true);
+    refreshImages();
+  } catch (err) {
+    report(err);
+  }
+}
+
+function listen() {
+  const source = new EventSource("/api/events");
+  const live = $("#live");
+  const handle = (fn) => (e) => {
+    try { fn(JSON.parse(e.data || "null")); } catch (err) { report(err); }
+  };
+  let opened = false;
+  source.onopen = () => {
+    live.className = "live on";
+    live.title = "live: following server events";
+    if (opened) resync();
+    opened = true;
+  };
+  // EventSource reconnects by itself; say so instead of failing silently.
+  source.onerror = () => {
+    live.className = "live off";
+    live.title = "event stream lost: reconnecting…";
+  };
+  source.addEventListener("settings", handle(applySettings));
+  source.addEventListener("results", handle((p) => { showProgress(p); refreshImages(); }));
+  source.addEventListener("images", handle(refreshImages));
+  source.addEventListener("library", handle(() => loadLibrary().then(refreshImages, report)));
+  source.addEventListener("camera", handle(() => emit("camera")));
+}
+
+async function main() {
+  window.addEventListener("unhandledrejection", (e) => report(e.reason));
+  const [health] = await Promise.all([get("/api/health"), loadLibrary()]);
+  $("#app-version").textContent = `v${health.version}`;
+  await initSettings();
+  initGallery();
+  initDetail();
+  const wanted = new URLSearchParams(location.hash.slice(1)).get("image");
+  let autoOpen = true;
+  on("images", (images) => {
+    // Open an image as soon as there is one, so the stages are visible without a click.
+    if (!autoOpen || !images.length) return;
+    autoOpen = false;
+    if (!state.selected) select((images.find((i) => i.id === wanted) ?? images[0]).id);
+  });
+  refreshImages();
+  listen();
+}
+
+main().catch(report);

@@ -1,0 +1,126 @@
+// Canvas charts for threshold calibration: the gray histogram and the threshold sweep.
+
+const PAD = { left: 34, right: 34, top: 10, bottom: 20 };
+const INK = "#57606a";
+const GRID = "#d8dee4";
+const FONT = "10px system-ui, sans-serif";
+export const COLORS = {
+  threshold: "#0969da", suggested: "#1a7f37", white: "#8c959f", high: "#bc4c00",
+  bars: "#8c959f", correct: "#1a7f37", margin: "#8250df", band: "rgba(26,127,55,0.12)",
+};
+
+/** Size the canvas for the device's pixel ratio and return plot-area transforms for x in [x0, x1]. */
+function plot(canvas, x0, x1) {
+  const ratio = window.devicePixelRatio || 1;
+  const width = canvas.clientWidth, height = canvas.clientHeight;
+  canvas.width = Math.round(width * ratio);
+  canvas.height = Math.round(height * ratio);
+  const ctx = canvas.getContext("2d");
+  ctx.setTransform(ratio, 0, 0, ratio, 0, 0);
+  ctx.clearRect(0, 0, width, height);
+  ctx.font = FONT;
+  const w = width - PAD.left - PAD.right, h = height - PAD.top - PAD.bottom;
+  const x = (v) => PAD.left + ((v - x0) / (x1 - x0)) * w;
+  const y = (f) => PAD.top + h - f * h;   // f: fraction of the plot height
+  ctx.strokeStyle = GRID;
+  ctx.strokeRect(PAD.left + 0.5, PAD.top + 0.5, w, h);
+  ctx.fillStyle = INK;
+  ctx.textAlign = "center";
+  ctx.textBaseline = "top";
+  for (let i = 0; i <= 4; i++) {
+    const v = x0 + ((x1 - x0) * i) / 4;
+    ctx.fillText(Number(v.toFixed(2)).toString(), x(v), PAD.top + h + 4);
+  }
+  return { ctx, x, y, w, h };
+}
+
+function marker(p, value, color, label, dash = [], row = 0) {
+  if (value === null || value === undefined) return;
+  const { ctx, x, y } = p;
+  ctx.save();
+  ctx.strokeStyle = color;
+  ctx.setLineDash(dash);
+  ctx.lineWidth = 1.5;
+  ctx.beginPath();
+  ctx.moveTo(Math.round(x(value)) + 0.5, y(0));
+  ctx.lineTo(Math.round(x(value)) + 0.5, y(1));
+  ctx.stroke();
+  ctx.fillStyle = color;
+  ctx.textBaseline = "top";
+  ctx.textAlign = x(value) > PAD.left + p.w * 0.65 ? "right" : "left";
+  ctx.fillText(` ${label} `, x(value), y(1) + 2 + row * 12);
+  ctx.restore();
+}
+
+/** Canvas x (client px) -> data value, for click-to-set on a chart drawn over [x0, x1]. */
+export function valueAt(canvas, clientX, x0, x1) {
+  const left = canvas.getBoundingClientRect().left + PAD.left;
+  const w = canvas.clientWidth - PAD.left - PAD.right;
+  return Math.min(x1, Math.max(x0, x0 + ((clientX - left) / w) * (x1 - x0)));
+}
+
+/** 256-bin histogram of normalised gray in [0, 1], log counts (the sign is a small part of most frames). */
+export function drawHistogram(canvas, calib, settings) {
+  const p = plot(canvas, 0, 1);
+  const { ctx, x, y } = p;
+  const hist = calib.histogram;
+  const top = Math.log1p(Math.max(...hist, 1));
+  const binW = x(1 / hist.length) - x(0);
+  hist.forEach((count, i) => {
+    const v = i / hist.length;
+    ctx.fillStyle = v >= settings.threshold && (settings.high_threshold ?? 1) >= v ? "#a8c7fa" : COLORS.bars;
+    const f = Math.log1p(count) / top;
+    ctx.fillRect(x(v), y(f), Math.max(1, binW), y(0) - y(f));
+  });
+  ctx.fillStyle = INK;
+  ctx.save();
+  ctx.translate(10, p.y(0.5));
+  ctx.rotate(-Math.PI / 2);
+  ctx.textAlign = "center";
+  ctx.fillText("log count", 0, 0);
+  ctx.restore();
+  marker(p, calib.white_level, COLORS.white, `white ${calib.white_level?.toFixed(2)}`, [2, 3], 2);
+  marker(p, calib.suggested_threshold, COLORS.suggested, `suggested ${calib.suggested_threshold?.toFixed(2)}`, [5, 3], 1);
+  marker(p, settings.high_threshold, COLORS.high, `high ${settings.high_threshold?.toFixed(2)}`, [], 1);
+  marker(p, settings.threshold, COLORS.threshold, `threshold ${settings.threshold.toFixed(2)}`);
+}
+
+function series(p, xs, ys, max, color) {
+  const { ctx, x, y } = p;
+  ctx.strokeStyle = color;
+  ctx.fillStyle = color;
+  ctx.lineWidth = 1.5;
+  ctx.beginPath();
+  xs.forEach((v, i) => (i ? ctx.lineTo(x(v), y(ys[i] / max)) : ctx.moveTo(x(v), y(ys[i] / max))));
+  ctx.stroke();
+  xs.forEach((v, i) => ctx.fillRect(x(v) - 2, y(ys[i] / max) - 2, 4, 4));
+}
+
+/** Correct count (left axis) and smallest margin (right axis) against the swept threshold. */
+export function drawSweep(canvas, sweep, threshold) {
+  const xs = sweep.values;
+  const p = plot(canvas, xs[0], xs[xs.length - 1]);
+  const { ctx, x, y, w } = p;
+  if (sweep.band) {
+    ctx.fillStyle = COLORS.band;
+    ctx.fillRect(x(sweep.band[0]), y(1), x(sweep.band[1]) - x(sweep.band[0]), y(0) - y(1));
+  }
+  const labelled = Math.max(sweep.labelled, 1);
+  const margins = sweep.min_margin.map((m) => m ?? 0);
+  const maxMargin = Math.max(...margins, 1);
+  series(p, xs, margins.map((m) => Math.max(m, 0)), maxMargin, COLORS.margin);
+  series(p, xs, sweep.correct, labelled, COLORS.correct);
+  ctx.textBaseline = "middle";
+  ctx.textAlign = "right";
+  ctx.fillStyle = COLORS.correct;
+  ctx.fillText(String(sweep.labelled), PAD.left - 4, y(1));
+  ctx.fillText("0", PAD.left - 4, y(0));
+  ctx.textAlign = "left";
+  ctx.fillStyle = COLORS.margin;
+  ctx.fillText(String(maxMargin), PAD.left + w + 4, y(1));
+  ctx.fillText("0", PAD.left + w + 4, y(0));
+  marker(p, sweep.centre, COLORS.suggested, `centre ${sweep.centre?.toFixed(2)}`, [5, 3], 1);
+  if (threshold >= xs[0] && threshold <= xs[xs.length - 1]) {
+    marker(p, threshold, COLORS.threshold, `threshold ${threshold.toFixed(2)}`);
+  }
+}

@@ -1,0 +1,364 @@
+// Detail view of one image: every pipeline stage, the score table, the pose, and the threshold
+// calibration tools (box-drag histogram, sweep over all labelled images).
+
+import { api, failureOf, get } from "./api.js";
+import { drawHistogram, drawSweep, valueAt } from "./charts.js";
+import { setSetting } from "./settings.js";
+import { state, on, select, signName } from "./store.js";
+import { $, el, fill, fmt, report } from "./ui.js";
+
+let detail = null;          // GET /api/images/{id} of the shown image
+let shownKey = "";          // id + version + status: reload only when the result can differ
+let loadToken = 0;          // drops responses that arrive after a newer request
+let calib = null;           // POST /api/calibrate/threshold answer for the shown image
+let sweep = null;           // GET /api/sweep answer plus the settings it ran under
+const boxes = new Map();    // image id -> calibration box [x0, y0, x1, y1] in image px
+
+const stageUrl = (stage, query = "") =>
+  `/api/images/${detail.id}/stages/${stage}?v=${detail.settings_version}${query}`;
+
+/** A figure whose <img> shows the server's reason (e.g. "no blob") when the stage cannot be drawn. */
+function stageFigure(title, link = true) {
+  const img = el("img", { alt: title, decoding: "async" });
+  const note = el("div.stage-note");
+  const box = link ? el("a.stage-img", { target: "_blank", title: `${title}: open full size` }, img, note)
+    : el("div.stage-img", {}, img, note);
+  const fig = el("figure.stage", {}, box, el("figcaption", {}, title));
+  img.onload = () => fig.classList.remove("missing");
+  img.onerror = async () => {
+    const src = img.src;
+    const message = await failureOf(src);
+    if (img.src !== src) return;
+    fig.classList.add("missing");
+    note.textContent = message;
+  };
+  return {
+    fig, img,
+    set(url) {
+      if (link) box.href = url;
+      if (img.getAttribute("src") !== url) img.src = url;
+    },
+  };
+}
+
+const input = stageFigure("input · detected sign outlined · drag a box on the sign to calibrate", false);
+const stages = ["gray", "mask", "blob", "crop"].map((s) => ({
+  stage: s,
+  figure: stageFigure({ gray: "normalised gray", mask: "binary mask", blob: "largest blob", crop: "crop" }[s]),
+}));
+
+// ---- rendering
+
+function renderHead() {
+  const r = detail.result;
+  $("#detail-name").textContent = detail.name;
+  $("#detail-name").title = `${detail.name} · ${detail.width}×${detail.height} px`;
+  const badge = $("#detail-badge");
+  badge.textContent = detail.status;
+  badge.className = `badge status-${detail.status}`;
+  const parts = [
+    detail.label ? el("b", {}, signName(detail.label)) : el("b", {}, "no sign"),
+    detail.expected ? `expected ${signName(detail.expected)}` : "no expected label",
+    `${detail.inliers ?? "–"} inliers`, `margin ${detail.margin ?? "–"}`,
+    r?.timing_ms?.total !== undefined ? `${fmt(r.timing_ms.total, 0)} ms` : null,
+    `${detail.width}×${detail.height}`,
+  ].filter(Boolean);
+  fill($("#detail-summary"), ...parts.flatMap((p, i) => (i ? [el("span.sep", {}, "·"), p] : [p])));
+  const warnings = [detail.error, ...(r?.warnings ?? [])].filter(Boolean);
+  fill($("#detail-warnings"), ...warnings.map((w) => el("li", {}, w)));
+}
+
+function renderStages() {
+  input.set(stageUrl("input"));
+  for (const { stage, figure } of stages) figure.set(stageUrl(stage));
+  renderBox();
+}
+
+function renderScores() {
+  const r = detail.result;
+  const scores = r?.scores ?? [];
+  const rows = scores.map((s) => el(`tr${s.sign === r.label ? ".winner" : ""}`, {},
+    el("td", {}, signName(s.sign)), el("td.num", {}, s.matches), el("td.num", {}, s.inliers),
+    el("td.reason", {}, s.sign === r.label ? "winner" : s.reason ?? "runner-up")));
+  fill($("#scores"),
+    el("thead", {}, el("tr", {}, el("th", {}, "sign"), el("th.num", {}, "matches"), el("th.num", {}, "inliers"),
+      el("th", {}, "decision"))),
+    el("tbody", {}, rows.length ? rows : el("tr", {}, el("td.reason", { colSpan: 4 }, "no region was searched"))));
+  fill($("#attempts"),
+    el("thead", {}, el("tr", {}, el("th", {}, "region"), el("th", {}, "box (px)"), el("th", {}, "winner"),
+      el("th.num", {}, "margin"))),
+    el("tbody", {}, (detail.attempts ?? []).map((a) => el("tr", {},
+      el("td", {}, a.source), el("td.mono", {}, a.region ? a.region.join(", ") : "–"),
+      el("td", {}, a.winner ? signName(a.winner) : "–"), el("td.num", {}, a.margin ?? "–")))));
+  const timing = Object.entries(r?.timing_ms ?? {}).filter(([k]) => k !== "total");
+  fill($("#timing"), ...timing.map(([k, v]) => el("span", {}, `${k} `, el("b", {}, fmt(v, 1))),
+  ), r?.timing_ms ? el("span", {}, "total ", el("b", {}, `${fmt(r.timing_ms.total, 1)} ms`)) : null);
+}
+
+const kv = (key, value, cls = "") => [el("dt", {}, key), el(`dd${cls}`, {}, value)];
+
+function renderPose() {
+  const pose = detail.result?.pose;
+  const box = $("#pose");
+  if (!pose) {
+    fill(box, el("p.muted", {}, detail.label ? "no pose could be computed" : "no sign, so no pose"));
+  } else {
+    const [x, y, z] = pose.camera_position ?? [];
+    const e = pose.euler_deg ?? {};
+    const sd = (pose.covariance ?? []).map((row, i) => Math.sqrt(Math.max(row[i] ?? 0, 0)));
+    const signed = (v, d) => (v === null || v === undefined ? "–" : `${v >= 0 ? "+" : ""}${v.toFixed(d)}`);
+    fill(box, el("dl.pose", {},
+      kv("camera x y z", el("span.triple", {}, ...[x, y, z].map((v) => el("span", {}, signed(v, 3)))), ""),
+      kv("distance", `${fmt(Math.hypot(x, y, z), 3)} m`),
+      kv("yaw pitch roll", el("span.triple", {}, ...[e.yaw, e.pitch, e.roll].map((v) => el("span", {}, `${signed(v, 1)}°`)))),
+      kv("reprojection", `${fmt(pose.reprojection_rmse_px, 2)} px RMSE`),
+      kv("ambiguous", pose.ambiguous ? "yes: two planar solutions fit almost equally" : "no",
+        pose.ambiguous ? ".bad" : ""),
+      sd.length === 6 ? kv("1σ rot · t", `${sd.slice(0, 3).map((s) => fmt((s * 180) / Math.PI, 2)).join(" ")} ° · `
+        + `${sd.slice(3).map((s) => fmt(s * 100, 1)).join(" ")} cm`) : null,
+    ), el("p.hint", {}, "metres in the sign frame: origin at the sign centre, x right, y down, z into the wall"));
+  }
+  const cam = detail.camera;
+  const assumed = !cam || String(cam.source ?? "").startsWith("assumed");
+  fill($("#intrinsics"),
+    assumed ? el("p.warn", {}, `No camera file, so ${cam?.source ?? "a 60° horizontal field of view"} is assumed: `
+      + "distance and angles are approximate. Load the camera's calibration in the settings panel.") : null,
+    cam ? el("dl.pose", {},
+      kv("fx fy", `${fmt(cam.fx, 1)} ${fmt(cam.fy, 1)} px`),
+      kv("cx cy", `${fmt(cam.cx, 1)} ${fmt(cam.cy, 1)} px`),
+      kv("distortion", (cam.dist ?? []).every((d) => d === 0) ? "none" : cam.dist.map((d) => fmt(d, 4)).join(" ")),
+      kv("size", cam.width ? `${cam.width}×${cam.height}` : "any"),
+      kv("source", cam.source ?? "given")) : null);
+}
+
+function renderMatches() {
+  const r = detail.result;
+  fill($("#match-grid"), ...state.library.map((sign) => {
+    const score = r?.scores?.find((s) => s.sign === sign.id);
+    const query = `&sign=${encodeURIComponent(sign.id)}`;
+    const raw = stageFigure(`${score?.matches ?? "–"} ratio-test matches`);
+    const inl = stageFigure(`${score?.inliers ?? "–"} RANSAC inliers`);
+    raw.set(stageUrl("matches", query));
+    inl.set(stageUrl("inliers", query));
+    const won = r?.label === sign.id;
+    return el(`div.match-row${won ? ".winner" : ""}`, {},
+      el("div.match-head", {}, el("b", {}, sign.name), el("span.reason", {}, won ? "winner" : score?.reason ?? "")),
+      raw.fig, inl.fig);
+  }));
+}
+
+function render() {
+  $("#detail").hidden = false;
+  $("#detail-empty").hidden = true;
+  renderHead();
+  renderStages();
+  renderScores();
+  renderPose();
+  renderMatches();
+}
+
+async function load(id) {
+  const token = ++loadToken;
+  try {
+    const body = await get(`/api/images/${encodeURIComponent(id)}`);
+    if (token !== loadToken) return;
+    const first = detail?.id !== body.id;
+    detail = body;
+    shownKey = keyOf(body);
+    render();
+    if (first) calibrate();
+  } catch (err) {
+    if (token === loadToken) report(err);
+  }
+}
+
+const keyOf = (img) => `${img.id}:${img.settings_version}:${img.status}:${img.label}:${img.inliers}`;
+
+function close() {
+  detail = null;
+  calib = null;
+  shownKey = "";
+  $("#detail").hidden = true;
+  $("#detail-empty").hidden = false;
+}
+
+// ---- threshold calibration
+
+function renderBox() {
+  const rect = detail && boxes.get(detail.id);
+  const box = $("#drag-rect");
+  box.hidden = !rect;
+  if (!rect) return;
+  const [x0, y0, x1, y1] = rect;
+  Object.assign(box.style, {
+    left: `${(100 * x0) / detail.width}%`, top: `${(100 * y0) / detail.height}%`,
+    width: `${(100 * (x1 - x0)) / detail.width}%`, height: `${(100 * (y1 - y0)) / detail.height}%`,
+  });
+}
+
+async function calibrate() {
+  const id = detail.id;
+  const rect = boxes.get(id) ?? null;
+  try {
+    const body = await api("POST", "/api/calibrate/threshold", { image_id: id, rect });
+    if (detail?.id !== id) return;
+    calib = body;
+    renderCalib();
+  } catch (err) {
+    report(err);
+  }
+}
+
+function renderCalib() {
+  const out = $("#calib-result");
+  if (!calib) { fill(out); return; }
+  drawHistogram($("#histogram"), calib, state.settings);
+  const where = calib.rect
+    ? `box ${calib.rect[2] - calib.rect[0]}×${calib.rect[3] - calib.rect[1]} px`
+    : "whole image (drag a box on the sign for a sharper estimate)";
+  const suggestion = calib.suggested_threshold;
+  fill(out,
+    el("span", {}, `${where}: white level `, el("b", {}, fmt(calib.white_level)), " → suggested ",
+      el("b.suggested", {}, fmt(suggestion))),
+    suggestion !== null && suggestion !== undefined ? el("button.primary", {
+      type: "button", id: "apply-threshold", title: "Set the threshold to the suggested value",
+      disabled: Math.abs(suggestion - state.settings.threshold) < 1e-9,
+      onclick: () => setSetting("threshold", suggestion),
+    }, "apply") : null);
+}
+
+function bindDrag() {
+  const area = $("#drag-area");
+  let start = null;
+  const toImage = (e) => {
+    const r = area.getBoundingClientRect();
+    return [Math.min(Math.max(e.clientX - r.left, 0), r.width) * (detail.width / r.width),
+      Math.min(Math.max(e.clientY - r.top, 0), r.height) * (detail.height / r.height)];
+  };
+  const rectFrom = (e) => {
+    const [x, y] = toImage(e);
+    return [Math.min(start[0], x), Math.min(start[1], y), Math.max(start[0], x), Math.max(start[1], y)].map(Math.round);
+  };
+  area.addEventListener("pointerdown", (e) => {
+    if (!detail || e.button !== 0) return;
+    e.preventDefault();
+    area.setPointerCapture(e.pointerId);
+    start = toImage(e);
+  });
+  area.addEventListener("pointermove", (e) => {
+    if (!start) return;
+    boxes.set(detail.id, rectFrom(e));
+    renderBox();
+  });
+  area.addEventListener("pointerup", (e) => {
+    if (!start) return;
+    const rect = rectFrom(e);
+    start = null;
+    // A click without a drag goes back to the whole-image histogram.
+    if (rect[2] - rect[0] < 4 || rect[3] - rect[1] < 4) boxes.delete(detail.id);
+    else boxes.set(detail.id, rect);
+    renderBox();
+    calibrate();
+  });
+}
+
+// ---- threshold sweep
+
+const sweepKey = (s) => JSON.stringify({ ...s, threshold: null });
+
+async function runSweep() {
+  const button = $("#run-sweep");
+  const params = new URLSearchParams({
+    param: "threshold", lo: $("#sweep-lo").value, hi: $("#sweep-hi").value, steps: $("#sweep-steps").value,
+  });
+  button.disabled = true;
+  button.textContent = "sweeping…";
+  try {
+    sweep = { ...(await get(`/api/sweep?${params}`)), key: sweepKey(state.settings) };
+    renderSweep();
+  } catch (err) {
+    report(err);
+  } finally {
+    button.disabled = false;
+    button.textContent = "run sweep";
+  }
+}
+
+function renderSweep() {
+  const info = $("#sweep-info");
+  const canvas = $("#sweep");
+  canvas.hidden = !sweep?.labelled;
+  if (!sweep) return;
+  if (!sweep.labelled) {
+    fill(info, el("span.warn", {}, "No labelled images: upload with an expected label to sweep."));
+    return;
+  }
+  drawSweep(canvas, sweep, state.settings.threshold);
+  const stale = sweep.key !== sweepKey(state.settings);
+  fill(info,
+    el("span", {}, el("i.swatch.correct"), `correct of ${sweep.labelled} labelled`),
+    el("span", {}, el("i.swatch.margin"), "smallest margin"),
+    sweep.band
+      ? el("span", {}, "working band ", el("b", {}, `${fmt(sweep.band[0])}–${fmt(sweep.band[1])}`),
+        ", centre ", el("b.suggested", {}, fmt(sweep.centre)))
+      : el("span.warn", {}, "no threshold gets every labelled image right"),
+    sweep.centre !== null && sweep.centre !== undefined ? el("button.primary", {
+      type: "button", title: "Set the threshold to the centre of the working band",
+      onclick: () => setSetting("threshold", sweep.centre),
+    }, "apply centre") : null,
+    stale ? el("span.warn", {}, "other settings changed since: run again") : null);
+}
+
+/** Clicking a chart sets the threshold there: faster than finding the slider. */
+function bindChartClicks() {
+  $("#histogram").addEventListener("click", (e) =>
+    setSetting("threshold", valueAt(e.currentTarget, e.clientX, 0, 1)));
+  $("#sweep").addEventListener("click", (e) => {
+    const xs = sweep.values;
+    setSetting("threshold", valueAt(e.currentTarget, e.clientX, xs[0], xs[xs.length - 1]));
+  });
+}
+
+// ---- wiring
+
+function step(delta) {
+  const ids = state.images.map((i) => i.id);
+  const next = ids[(ids.indexOf(state.selected) + delta + ids.length) % ids.length];
+  if (next) select(next);
+}
+
+export function initDetail() {
+  const area = input.fig.querySelector(".stage-img");
+  area.id = "drag-area";
+  area.append(el("div.drag-rect", { id: "drag-rect", hidden: true }));
+  input.fig.classList.add("input-stage");
+  $("#input-slot").replaceWith(input.fig);
+  fill($("#stages"), ...stages.map((s) => s.figure.fig));
+  bindDrag();
+  bindChartClicks();
+  $("#run-sweep").onclick = runSweep;
+  $("#prev").onclick = () => step(-1);
+  $("#next").onclick = () => step(1);
+  $("#detail-close").onclick = () => select(null);
+  document.addEventListener("keydown", (e) => {
+    if (e.target.closest("input, select, textarea") || !state.selected) return;
+    if (e.key === "ArrowLeft") step(-1);
+    else if (e.key === "ArrowRight") step(1);
+    else if (e.key === "Escape") select(null);
+  });
+  on("select", (id) => (id ? load(id) : close()));
+  on("images", () => {
+    const img = state.images.find((i) => i.id === state.selected);
+    if (state.selected && !img) select(null);
+    else if (img && keyOf(img) !== shownKey) load(img.id);
+  });
+  let normalization = null;
+  on("settings", (s) => {
+    if (detail && s.normalization !== normalization && normalization !== null) calibrate();
+    normalization = s.normalization;
+    renderCalib();
+    renderSweep();
+  });
+  on("camera", () => detail && load(detail.id));
+  new ResizeObserver(() => { renderCalib(); renderSweep(); }).observe($("#calib"));
+}

@@ -1,0 +1,246 @@
+// Settings form generated from /api/settings/schema, kept in sync with the server (and through
+// it with the viser sliders): local edits are PUT debounced; server `settings` events update the
+// controls, which fires no input events, so nothing is echoed back.
+
+import { api, get } from "./api.js";
+import { state, emit, on } from "./store.js";
+import { $, el, fill, debounce, download, report, toast } from "./ui.js";
+
+const controls = new Map();   // name -> {entry, row, read(), write(value)}
+let pending = {};             // edits not yet sent
+const inflight = new Set();   // names sent but not yet answered
+let dragging = null;          // the slider under the pointer: server updates must not yank it
+
+const decimals = (step) => (String(step).split(".")[1] || "").length;
+
+function snap(value, entry) {
+  const step = entry.step || (entry.type === "int" ? 1 : 0.001);
+  const v = Math.min(entry.max, Math.max(entry.min, Math.round(value / step) * step));
+  return Number(v.toFixed(decimals(step)));
+}
+
+/** Slider position <-> value. Wide positive ranges (iterations, feature counts) get a log scale
+ *  so small values stay reachable; ranges too wide even for that (seed) get no slider. */
+function sliderScale(entry) {
+  const { min, max, step } = entry;
+  if ((max - min) / (step || 1) <= 2000) {
+    return { min, max, step: step || "any", toPos: (v) => v, toValue: (p) => snap(Number(p), entry) };
+  }
+  if (min <= 0 || max / min > 1e6) return null;
+  const k = Math.log(max / min);
+  return {
+    min: 0, max: 1000, step: 1,
+    toPos: (v) => Math.round((1000 * Math.log(v / min)) / k),
+    toValue: (p) => snap(min * Math.exp((Number(p) / 1000) * k), entry),
+  };
+}
+
+function numericControl(entry, id, change) {
+  const num = el("input.num", { id, type: "number", min: entry.min, max: entry.max, step: entry.step || "any" });
+  const scale = sliderScale(entry);
+  const range = scale && el("input.range", {
+    type: "range", min: scale.min, max: scale.max, step: scale.step, tabIndex: -1, "aria-label": entry.name,
+  });
+  const enabled = entry.nullable && el("input.toggle", { type: "checkbox", title: "off = null (not used)" });
+  const write = (value) => {
+    const off = value === null || value === undefined;
+    if (enabled) enabled.checked = !off;
+    num.disabled = off;
+    if (range) range.disabled = off;
+    if (off) return;
+    num.value = value;
+    if (range) range.value = scale.toPos(value);
+  };
+  const read = () => (enabled && !enabled.checked ? null : snap(Number(num.value), entry));
+  num.addEventListener("change", () => {
+    if (num.value === "") return;
+    num.value = read();
+    if (range) range.value = scale.toPos(read());
+    change();
+  });
+  if (range) {
+    range.addEventListener("input", () => { num.value = scale.toValue(range.value); change(); });
+    range.addEventListener("pointerdown", () => { dragging = entry.name; });
+  }
+  if (enabled) {
+    enabled.addEventListener("change", () => {
+      // Re-enabling starts from the top of the range, the least restrictive upper gate.
+      if (enabled.checked && num.value === "") num.value = entry.max;
+      write(read() ?? (enabled.checked ? entry.max : null));
+      change();
+    });
+  }
+  return { head: [enabled, num].filter(Boolean), body: range, read, write };
+}
+
+// Released anywhere, not only over the slider it started on.
+window.addEventListener("pointerup", () => { dragging = null; });
+
+function choiceControl(entry, id, change) {
+  const select = el("select", { id, onchange: change }, entry.choices.map((c) => el("option", { value: c }, c)));
+  return { head: [select], read: () => select.value, write: (v) => { select.value = v; } };
+}
+
+function boolControl(entry, id, change) {
+  const box = el("input.toggle", { id, type: "checkbox", onchange: change });
+  return { head: [box], read: () => box.checked, write: (v) => { box.checked = Boolean(v); } };
+}
+
+const builders = { float: numericControl, int: numericControl, choice: choiceControl, bool: boolControl };
+
+function buildField(entry) {
+  const id = `set-${entry.name}`;
+  const change = () => edit(entry.name);
+  const control = builders[entry.type](entry, id, change);
+  const reset = el("button.icon.reset", {
+    type: "button", title: `Reset to default (${entry.default ?? "null"})`,
+    onclick: () => { control.write(entry.default); change(); },
+  }, "↺");
+  const row = el("div.field", { title: entry.help, dataset: { name: entry.name, type: entry.type } },
+    el("div.field-head", {}, el("label", { for: id }, entry.name), reset, ...control.head),
+    control.body);
+  controls.set(entry.name, { entry, row, ...control });
+  return row;
+}
+
+function buildForm() {
+  const groups = Map.groupBy(state.schema, (e) => e.group);
+  fill($("#settings-form"), ...[...groups].map(([group, entries]) =>
+    el("details.group", { open: true },
+      el("summary", {}, group, el("span.group-count", {})),
+      entries.map(buildField))));
+}
+
+function edit(name) {
+  const c = controls.get(name);
+  pending[name] = c.read();
+  markChanged(name, pending[name]);
+  push();
+}
+
+const push = debounce(async () => {
+  const changes = pending;
+  pending = {};
+  const names = Object.keys(changes);
+  names.forEach((n) => inflight.add(n));
+  try {
+    apply(await api("PUT", "/api/settings", changes));
+  } catch (err) {
+    report(err);
+    // The server kept its settings: show them again instead of the rejected value.
+    apply(await get("/api/settings").catch(() => null), true);
+  } finally {
+    names.forEach((n) => inflight.delete(n));
+  }
+}, 150);
+
+function markChanged(name, value) {
+  const c = controls.get(name);
+  c.row.classList.toggle("changed", value !== c.entry.default);
+}
+
+/** Show server settings `{version, settings}`; `force` also overwrites controls with local edits. */
+export function apply(payload, force = false) {
+  if (!payload) return;
+  const settings = payload.settings ?? payload;
+  if (payload.version !== undefined && payload.version < state.version && !force) return;
+  state.settings = settings;
+  if (payload.version !== undefined) state.version = payload.version;
+  for (const [name, c] of controls) {
+    if (!(name in settings)) continue;
+    const busy = name in pending || inflight.has(name) || dragging === name
+      || (document.activeElement?.id === `set-${name}` && c.entry.type !== "bool");
+    if (!busy || force) c.write(settings[name]);
+    if (!busy || force) markChanged(name, settings[name]);
+  }
+  for (const group of document.querySelectorAll("#settings-form details")) {
+    const n = group.querySelectorAll(".field.changed").length;
+    group.querySelector(".group-count").textContent = n ? `${n} changed` : "";
+  }
+  for (const button of document.querySelectorAll("#presets button")) {
+    const p = state.presets[button.value];
+    button.classList.toggle("active", Boolean(p) && Object.entries(p).every(([k, v]) => settings[k] === v));
+  }
+  $("#settings-version").textContent = `settings v${state.version}`;
+  emit("settings", settings);
+}
+
+/** Change settings from elsewhere on the page (calibration, sweep): same path as a form edit. */
+export function setSetting(name, value) {
+  const c = controls.get(name);
+  c.write(value);
+  edit(name);
+}
+
+async function postAndApply(url, body, message) {
+  try {
+    apply(await api("POST", url, body));
+    toast(message, "info");
+  } catch (err) {
+    report(err);
+  }
+}
+
+function buildToolbar() {
+  fill($("#presets"), ...Object.keys(state.presets).map((name) =>
+    el("button", { type: "button", value: name, title: `Apply the ${name} preset`,
+      onclick: () => postAndApply(`/api/settings/preset/${encodeURIComponent(name)}`, undefined,
+        `preset ${name} applied`) }, name)));
+  $("#export-settings").onclick = () => download("/api/settings/export");
+  const file = $("#import-settings");
+  file.onchange = () => {
+    const form = new FormData();
+    form.append("file", file.files[0]);
+    postAndApply("/api/settings/import", form, `imported ${file.files[0].name}`);
+    file.value = "";
+  };
+}
+
+// Camera intrinsics: the pose is only as good as these, so show where they come from.
+export async function loadCamera() {
+  try {
+    const body = await get("/api/camera");
+    const cam = body && "camera" in body ? body.camera : body;
+    const box = $("#camera-info");
+    box.classList.toggle("warn", !cam || String(cam.source || "").startsWith("assumed"));
+    box.textContent = cam && cam.fx
+      ? `fx ${cam.fx.toFixed(1)} fy ${cam.fy.toFixed(1)} cx ${cam.cx.toFixed(1)} cy ${cam.cy.toFixed(1)}`
+        + `${cam.width ? ` @ ${cam.width}×${cam.height}` : ""} — ${cam.source ?? "given"}`
+      : "No camera file: 60° horizontal FOV assumed per image; poses are approximate.";
+  } catch (err) {
+    report(err);
+  }
+}
+
+function buildCamera() {
+  const file = $("#camera-file");
+  file.onchange = async () => {
+    const form = new FormData();
+    form.append("file", file.files[0]);
+    try {
+      await api("PUT", "/api/camera", form);
+      toast(`camera ${file.files[0].name} loaded`, "info");
+    } catch (err) {
+      report(err);
+    }
+    file.value = "";
+    loadCamera();
+  };
+  $("#camera-reset").onclick = async () => {
+    try { await api("DELETE", "/api/camera"); } catch (err) { report(err); }
+    loadCamera();
+  };
+}
+
+export async function initSettings() {
+  const [schema, current, presets] = await Promise.all([
+    get("/api/settings/schema"), get("/api/settings"), get("/api/presets")]);
+  state.schema = schema;
+  state.presets = presets;
+  buildForm();
+  buildToolbar();
+  buildCamera();
+  apply(current, true);
+  loadCamera();
+  on("camera", loadCamera);
+}

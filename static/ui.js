@@ -1,0 +1,70 @@
+// DOM and notification helpers shared by every module.
+
+/** Create an element: el("div.card.wide", {title: "x", onclick}, child, "text", ...). */
+export function el(spec, attrs = {}, ...children) {
+  const [tag, ...classes] = spec.split(".");
+  const node = document.createElement(tag || "div");
+  if (classes.length) node.className = classes.join(" ");
+  for (const [key, value] of Object.entries(attrs)) {
+    if (value === undefined || value === null || value === false) continue;
+    if (key.startsWith("on")) node.addEventListener(key.slice(2), value);
+    else if (key === "dataset") Object.assign(node.dataset, value);
+    else if (key in node && typeof value !== "string") node[key] = value;
+    else node.setAttribute(key, value === true ? "" : value);
+  }
+  node.append(...present(children));
+  return node;
+}
+
+const present = (children) => children.flat().filter((c) => c !== null && c !== undefined && c !== false);
+
+/** Replace a node's children, skipping null/false ones like `el` does (for conditional parts). */
+export function fill(node, ...children) {
+  node.replaceChildren(...present(children));
+}
+
+export const $ = (selector, root = document) => root.querySelector(selector);
+
+/** Show a message; errors stay until dismissed so none goes unseen. */
+export function toast(message, kind = "error") {
+  const box = el(`div.toast.${kind}`, { role: kind === "error" ? "alert" : "status" },
+    el("span.toast-msg", {}, message),
+    el("button.icon", { type: "button", title: "Dismiss", onclick: () => box.remove() }, "×"));
+  $("#toasts").append(box);
+  if (kind !== "error") setTimeout(() => box.remove(), 4000);
+  return box;
+}
+
+export function report(err) {
+  console.error(err);
+  toast(err?.message || String(err), "error");
+}
+
+/** Call `fn` once `ms` after the last call; `flush()` runs a pending call at once. */
+export function debounce(fn, ms) {
+  let timer = null;
+  const debounced = (...args) => {
+    clearTimeout(timer);
+    timer = setTimeout(() => { timer = null; fn(...args); }, ms);
+  };
+  debounced.pending = () => timer !== null;
+  return debounced;
+}
+
+/** Run `fn` at most once per `ms`, always including a trailing call so the last state is shown. */
+export function throttle(fn, ms) {
+  let last = 0, timer = null;
+  return () => {
+    const wait = last + ms - Date.now();
+    if (timer) return;
+    if (wait <= 0) { last = Date.now(); fn(); return; }
+    timer = setTimeout(() => { timer = null; last = Date.now(); fn(); }, wait);
+  };
+}
+
+export const fmt = (value, digits = 2) =>
+  value === null || value === undefined || Number.isNaN(value) ? "–" : Number(value).toFixed(digits);
+
+export function download(url) {
+  el("a", { href: url, download: "" }).click();
+}
