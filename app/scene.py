@@ -1,0 +1,542 @@
+"""The viser 3D view of a Workspace: signs, estimated cameras, inlier matches and tuning sliders.
+
+Frames: every sign defines its own world (the sign frame: origin at the sign centre, x right,
+y down the sign, z into the wall, metres). A pose (R, t) maps X_cam = R·X_sign + t with an
+OpenCV camera (x right, y down, z forward); the camera sits at -Rᵀt in the sign frame and its
+orientation there is Rᵀ. viser's frustums, image planes and client cameras use the same OpenCV
+axes, so Rᵀ goes to viser unchanged (as a wxyz quaternion).
+
+Different signs cannot share one world (they all sit at the origin), so the scene keeps one
+subtree per recognised sign under ``/signs/<sign id>`` and a "Sign world" dropdown shows one of
+them at a time; the default is the sign with the most recognised images.
+
+Workspace events arrive on worker threads; they only mark the scene dirty, and one redraw thread
+brings the viser scene up to date at most every `REDRAW_INTERVAL_S`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import statistics
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any, Callable, Protocol
+
+import cv2
+import numpy as np
+import viser
+import viser.transforms as tf
+
+from pipeline.library import Library, LibrarySign
+from pipeline.recognize import Recognition
+from pipeline.settings import Settings, SettingsError, settings_schema
+
+log = logging.getLogger(__name__)
+
+REDRAW_INTERVAL_S = 0.1
+THUMBNAIL_WIDTH_PX = 160
+# The sign texture only needs to look sharp at a few metres; larger library images waste bandwidth.
+SIGN_TEXTURE_MAX_WIDTH_PX = 1024
+# Above this many slider positions a slider cannot hit a chosen value; use a number box.
+MAX_SLIDER_POSITIONS = 10_000
+DEFAULT_FRUSTUM_WIDTH_M = 0.5
+AMBIGUOUS_RGB = (230, 30, 30)
+# tab10 without its red, which marks ambiguous poses.
+LABEL_RGB = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (148, 103, 189),
+             (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207))
+NO_WORLD = "(no sign recognised)"
+OUTLINE_RGB = (60, 60, 60)
+# Cameras usually stand in front of the sign (z < 0): start to its left and above, looking past it.
+INITIAL_VIEW_POSITION_M = (-1.8, -1.0, -2.2)
+INITIAL_VIEW_LOOK_AT_M = (0.0, 0.0, -0.8)
+
+
+class Workspace(Protocol):
+    """The part of app.workspace.Workspace the scene uses (see docs/web-contract.md)."""
+
+    settings: Settings
+    settings_version: int
+    library: Library
+
+    def images(self) -> list[Any]: ...
+    def add_image(self, name: str, data: bytes, expected: str | None) -> Any: ...
+    def update_settings(self, changes: dict) -> Settings: ...
+    def subscribe(self, callback: Callable[[Any], None]) -> Callable[[], None]: ...
+
+
+# --------------------------------------------------------------------------- geometry
+
+def camera_pose_in_sign(R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Camera position (3,) in metres and orientation (4,) wxyz, both in the sign frame, from X_cam = R·X + t."""
+    R = np.asarray(R, dtype=np.float64)
+    position = -R.T @ np.asarray(t, dtype=np.float64).reshape(3)
+    return position, tf.SO3.from_matrix(R.T).wxyz
+
+
+def frustum_shape(width_px: int, height_px: int, K: np.ndarray) -> tuple[float, float]:
+    """viser frustum (vertical fov in radians, aspect width/height) for an image and its intrinsics."""
+    return 2.0 * math.atan2(height_px / 2.0, K[1, 1]), width_px / height_px
+
+
+def frustum_scale(fov: float, aspect: float, plane_width_m: float) -> float:
+    """The `scale` at which viser draws a frustum's image plane `plane_width_m` wide.
+
+    viser normalises each frustum to a fixed volume before scaling (CameraFrustumVariants.tsx):
+    the image plane sits at depth 1/v and spans ±tan(fov/2)·aspect/v with v = ∛(tan²(fov/2)·aspect/3).
+    """
+    tan = math.tan(fov / 2.0)
+    volume = (tan * tan * aspect / 3.0) ** (1.0 / 3.0)
+    return plane_width_m * volume / (2.0 * tan * aspect)
+
+
+def image_plane_points(uv: np.ndarray, width_px: int, height_px: int, fov: float, aspect: float,
+                       scale: float) -> np.ndarray:
+    """(N, 2) image pixels -> (N, 3) points in the camera frame, metres, on the frustum's drawn photo.
+
+    The photo fills the frustum's image plane edge to edge, so a pixel maps linearly onto it
+    (exact for a centred principal point and square pixels, which the frustum drawing assumes).
+    """
+    tan = math.tan(fov / 2.0)
+    volume = (tan * tan * aspect / 3.0) ** (1.0 / 3.0)
+    half_w, half_h, depth = scale * tan * aspect / volume, scale * tan / volume, scale / volume
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    x = (2.0 * uv[:, 0] / width_px - 1.0) * half_w
+    y = (2.0 * uv[:, 1] / height_px - 1.0) * half_h
+    return np.column_stack([x, y, np.full(len(uv), depth)])
+
+
+def fit_width(image: np.ndarray, max_width: int) -> np.ndarray:
+    """`image` as RGB uint8, shrunk (aspect kept) to at most `max_width` px wide; BGR or gray in."""
+    rgb = cv2.cvtColor(image, cv2.COLOR_GRAY2RGB if image.ndim == 2 else cv2.COLOR_BGR2RGB)
+    h, w = rgb.shape[:2]
+    if w <= max_width:
+        return rgb
+    return cv2.resize(rgb, (max_width, max(1, round(h * max_width / w))), interpolation=cv2.INTER_AREA)
+
+
+def label_rgb(library: Library, label: str) -> tuple[int, int, int]:
+    ids = library.ids
+    return LABEL_RGB[ids.index(label) % len(LABEL_RGB)] if label in ids else LABEL_RGB[-1]
+
+
+# --------------------------------------------------------------------------- settings panel
+
+@dataclass
+class SettingControl:
+    """The GUI input(s) of one setting; `enabled` is the checkbox of a nullable one (unticked = None)."""
+
+    name: str
+    input: viser.GuiInputHandle
+    enabled: viser.GuiCheckboxHandle | None = None
+
+    @property
+    def value(self) -> Any:
+        return None if self.enabled is not None and not self.enabled.value else self.input.value
+
+    def show(self, value: Any) -> None:
+        """Display `value`; fires the inputs' on_update callbacks (the panel's guard silences them)."""
+        if self.enabled is not None:
+            self.enabled.value = value is not None
+            self.input.disabled = value is None
+            if value is None:
+                return
+        self.input.value = value
+
+
+@dataclass
+class SettingsPanel:
+    """One GUI folder per settings group, one control per field of `settings_schema()`.
+
+    User edits call `on_change({name: value})`; `show()` displays settings from elsewhere
+    without calling it, so a settings event never echoes back as a change.
+    """
+
+    controls: dict[str, SettingControl]
+    on_change: Callable[[dict[str, Any], viser.ClientHandle | None], None] = field(repr=False)
+    version: int = -1
+    _quiet: threading.local = field(default_factory=threading.local, repr=False)
+
+    def show(self, settings: dict[str, Any], version: int | None = None) -> None:
+        """Display `settings` (name -> value); an event older than the one shown is ignored."""
+        if version is not None:
+            if version < self.version:
+                return
+            self.version = version
+        # viser runs on_update synchronously in the assigning thread, so a thread-local flag
+        # silences exactly our own assignments and never a user's edit arriving meanwhile.
+        self._quiet.active = True
+        try:
+            for name, value in settings.items():
+                if name in self.controls:
+                    self.controls[name].show(value)
+        finally:
+            self._quiet.active = False
+
+    def _edited(self, control: SettingControl, event: viser.GuiEvent) -> None:
+        if getattr(self._quiet, "active", False):
+            return
+        if control.enabled is not None:
+            control.input.disabled = not control.enabled.value
+            if event.target is control.input and not control.enabled.value:
+                return  # the value is staged until the checkbox turns it on
+        self.on_change({control.name: control.value}, event.client)
+
+
+def add_settings_panel(gui: viser.GuiApi, settings: Settings,
+                       on_change: Callable[[dict[str, Any], viser.ClientHandle | None], None]) -> SettingsPanel:
+    """Build the settings folders showing `settings`; edits are reported to `on_change(changes, client)`."""
+    panel = SettingsPanel({}, on_change)
+    current = settings.to_dict()
+    groups: dict[str, list[dict]] = {}
+    for entry in settings_schema():
+        groups.setdefault(entry["group"], []).append(entry)
+    for group, entries in groups.items():
+        with gui.add_folder(group, expand_by_default=False):
+            for entry in entries:
+                control = _add_control(gui, entry, current[entry["name"]])
+                for handle in (control.input, control.enabled):
+                    if handle is not None:
+                        handle.on_update(lambda event, c=control: panel._edited(c, event))
+                panel.controls[entry["name"]] = control
+    return panel
+
+
+def _add_control(gui: viser.GuiApi, entry: dict, value: Any) -> SettingControl:
+    name, kind, hint = entry["name"], entry["type"], entry.get("help")
+    if kind == "choice":
+        return SettingControl(name, gui.add_dropdown(name, tuple(entry["choices"]), initial_value=value, hint=hint))
+    if kind == "bool":
+        return SettingControl(name, gui.add_checkbox(name, bool(value), hint=hint))
+    cast = int if kind == "int" else float
+    lo, hi = cast(entry["min"]), cast(entry["max"])
+    step = cast(entry.get("step") or (1 if kind == "int" else (hi - lo) / 100))
+    enabled = None
+    if entry.get("nullable"):
+        enabled = gui.add_checkbox(f"{name} on", value is not None, hint=f"Untick for none. {hint}")
+    # A null value shows the top of the range: turning the checkbox on then sends a valid value.
+    shown = cast(hi if value is None else value)
+    if (hi - lo) / step > MAX_SLIDER_POSITIONS:
+        number = gui.add_number(name, shown, min=lo, max=hi, step=step, hint=hint, disabled=value is None)
+    else:
+        number = gui.add_slider(name, lo, hi, step, shown, hint=hint, disabled=value is None)
+    return SettingControl(name, number, enabled)
+
+
+# --------------------------------------------------------------------------- scene
+
+@dataclass
+class SignNodes:
+    """One sign's world: `frame` is the sign frame (axes), `plane` the sign texture at its physical size,
+    `outline` its edges (a white plaque is otherwise lost against viser's white background)."""
+
+    frame: viser.FrameHandle
+    plane: viser.ImageHandle
+    outline: viser.LineSegmentsHandle
+
+    def remove(self) -> None:
+        self.outline.remove()
+        self.plane.remove()
+        self.frame.remove()
+
+
+@dataclass
+class CameraNodes:
+    """What one recognised image shows in its sign's world, and the recognition it shows."""
+
+    sign: str
+    recognition: Recognition
+    frustum: viser.CameraFrustumHandle
+    label: viser.LabelHandle
+    matches: viser.LineSegmentsHandle
+
+    def remove(self) -> None:
+        self.matches.remove()
+        self.label.remove()
+        self.frustum.remove()
+
+
+@dataclass
+class SceneHandle:
+    """Everything `attach` added to a viser server; `close()` detaches from the workspace.
+
+    `signs` and `cameras` (keyed by image id) mirror the workspace as of the last `redraw()`.
+    """
+
+    server: viser.ViserServer
+    workspace: Workspace
+    panel: SettingsPanel
+    world: viser.GuiDropdownHandle
+    show_matches: viser.GuiCheckboxHandle
+    frustum_width: viser.GuiSliderHandle
+    status: viser.GuiMarkdownHandle
+    upload: viser.GuiUploadButtonHandle
+    signs: dict[str, SignNodes] = field(default_factory=dict)
+    cameras: dict[str, CameraNodes] = field(default_factory=dict)
+    _thumbnails: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    _progress: dict[str, Any] = field(default_factory=dict, repr=False)
+    _lock: threading.RLock = field(default_factory=threading.RLock, repr=False)
+    _dirty: threading.Event = field(default_factory=threading.Event, repr=False)
+    _closed: bool = False
+    _stale_geometry: bool = False
+    _stale_signs: bool = False
+    _unsubscribe: Callable[[], None] | None = field(default=None, repr=False)
+    _thread: threading.Thread | None = field(default=None, repr=False)
+
+    # ---- lifecycle
+
+    def _start(self) -> None:
+        self._unsubscribe = self.workspace.subscribe(self._on_event)
+        self._thread = threading.Thread(target=self._redraw_loop, name="signpose-scene", daemon=True)
+        self._thread.start()
+        self._dirty.set()
+
+    def close(self) -> None:
+        """Stop following the workspace; the viser nodes stay as they are. Safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._unsubscribe is not None:
+            self._unsubscribe()
+        self._dirty.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=5)
+
+    def _redraw_loop(self) -> None:
+        while True:
+            self._dirty.wait()
+            if self._closed:
+                return
+            self._dirty.clear()
+            try:
+                self.redraw()
+            except Exception:  # a bad record must not stop later redraws
+                log.exception("scene redraw failed")
+            # Events arriving during this pause fold into a single next redraw.
+            time.sleep(REDRAW_INTERVAL_S)
+
+    def _on_event(self, event: Any) -> None:
+        if event.kind == "settings":
+            self.panel.show(event.payload["settings"], event.payload["version"])
+            return
+        if event.kind == "results":
+            self._progress = event.payload
+        elif event.kind == "library":
+            self._stale_signs = True
+        self._dirty.set()
+
+    # ---- user actions
+
+    def _apply_settings(self, changes: dict[str, Any], client: viser.ClientHandle | None) -> None:
+        try:
+            self.workspace.update_settings(changes)
+        except SettingsError as exc:
+            self.panel.show(self.workspace.settings.to_dict())
+            if client is not None:
+                client.add_notification("Setting not applied", str(exc), color="red", auto_close_seconds=8.0)
+            log.info("setting not applied: %s", exc)
+
+    def _on_upload(self, event: viser.GuiEvent) -> None:
+        file = event.target.value
+        try:
+            self.workspace.add_image(file.name, file.content, None)
+        except ValueError as exc:  # ImageError and friends: messages meant for the user
+            if event.client is not None:
+                event.client.add_notification("Image not added", str(exc), color="red", auto_close_seconds=8.0)
+            log.info("upload %s rejected: %s", file.name, exc)
+
+    def _on_view_option(self, _event: viser.GuiEvent) -> None:
+        with self._lock:
+            for sign_id, nodes in self.signs.items():
+                nodes.frame.visible = sign_id == self.world.value
+            for nodes in self.cameras.values():
+                nodes.matches.visible = self.show_matches.value
+
+    def _on_frustum_width(self, _event: viser.GuiEvent) -> None:
+        self._stale_geometry = True
+        self._dirty.set()
+
+    def view_from(self, image_id: str, client: viser.ClientHandle) -> None:
+        """Move `client`'s viewport to the estimated camera of `image_id`, looking along its optical axis."""
+        with self._lock:
+            nodes = self.cameras.get(image_id)
+            if nodes is None:
+                return
+            if self.world.value != nodes.sign:
+                self.world.value = nodes.sign
+            position, wxyz = np.asarray(nodes.frustum.position), np.asarray(nodes.frustum.wxyz)
+        axes = tf.SO3(wxyz).as_matrix()
+        forward = axes[:, 2]
+        # Orbit around the point where the optical axis meets the sign plane (z = 0) when it does.
+        depth = -position[2] / forward[2] if forward[2] > 1e-6 else 0.0
+        depth = depth if depth > 0 else float(np.linalg.norm(position)) or 1.0
+        with client.atomic():
+            client.camera.position = position
+            client.camera.look_at = position + depth * forward
+            client.camera.up_direction = -axes[:, 1]
+
+    # ---- drawing
+
+    def redraw(self) -> None:
+        """Bring the viser scene in line with the workspace's current images and results."""
+        with self._lock:
+            library = self.workspace.library
+            records = self.workspace.images()
+            shown = [r for r in records if _has_pose(r) and r.recognition.label in library.ids]
+            counts = Counter(r.recognition.label for r in shown)
+            if self._stale_signs:
+                # Library edits can change a sign's image or size under the same id.
+                self._stale_signs = False
+                self._remove_cameras(set(self.cameras))
+                self._remove_signs(set(self.signs))
+            stale_geometry, self._stale_geometry = self._stale_geometry, False
+
+            current = {r.id for r in records}
+            self._thumbnails = {k: v for k, v in self._thumbnails.items() if k in current}
+            sign_of = {r.id: r.recognition.label for r in shown}
+            self._remove_cameras({k for k, nodes in self.cameras.items() if sign_of.get(k) != nodes.sign})
+            self._remove_signs(set(self.signs) - set(counts))
+            for sign_id in counts:
+                if sign_id not in self.signs:
+                    self.signs[sign_id] = self._add_sign(library[sign_id])
+            for record in shown:
+                nodes = self.cameras.get(record.id)
+                if nodes is None or nodes.recognition is not record.recognition or stale_geometry:
+                    self._draw_camera(record, library)
+            self._choose_world(counts)
+            self.status.content = status_markdown(records, self._progress)
+
+    def _remove_cameras(self, image_ids: set[str]) -> None:
+        for image_id in image_ids:
+            self.cameras.pop(image_id).remove()
+
+    def _remove_signs(self, sign_ids: set[str]) -> None:
+        for sign_id in sign_ids:
+            self.signs.pop(sign_id).remove()
+
+    def _choose_world(self, counts: Counter) -> None:
+        options = tuple(sorted(counts)) or (NO_WORLD,)
+        if tuple(self.world.options) != options:
+            keep = self.world.value if self.world.value in options else None
+            self.world.options = options
+            self.world.value = keep or (counts.most_common(1)[0][0] if counts else NO_WORLD)
+        self.world.disabled = not counts
+        self._on_view_option(None)
+
+    def _add_sign(self, sign: LibrarySign) -> SignNodes:
+        root = f"/signs/{sign.id}"
+        size = max(sign.width_m, sign.height_m)
+        frame = self.server.scene.add_frame(root, axes_length=0.5 * size, axes_radius=0.01 * size,
+                                            visible=self.world.value == sign.id)
+        plane = self.server.scene.add_image(f"{root}/plane", fit_width(sign.image, SIGN_TEXTURE_MAX_WIDTH_PX),
+                                            sign.width_m, sign.height_m)
+        corners = sign.to_metric(sign.corners_px)
+        outline = self.server.scene.add_line_segments(
+            f"{root}/outline", np.stack([corners, np.roll(corners, -1, axis=0)], axis=1), OUTLINE_RGB,
+            thickness=2.0, thickness_units="screen")
+        return SignNodes(frame, plane, outline)
+
+    def _draw_camera(self, record: Any, library: Library) -> None:
+        rec: Recognition = record.recognition
+        sign = library[rec.label]
+        width_px, height_px = rec.image_size
+        fov, aspect = frustum_shape(width_px, height_px, rec.camera.K)
+        scale = frustum_scale(fov, aspect, self.frustum_width.value)
+        position, wxyz = camera_pose_in_sign(rec.pose.R, rec.pose.t)
+        color = AMBIGUOUS_RGB if rec.pose.ambiguous else label_rgb(library, rec.label)
+        old = self.cameras.get(record.id)
+        if old is not None and old.frustum.fov == fov and old.frustum.aspect == aspect:
+            # Same photo and shape: move the frustum instead of re-sending its image.
+            frustum, label = old.frustum, old.label
+            frustum.position, frustum.wxyz, frustum.color, frustum.scale = position, wxyz, color, scale
+            label.text = _camera_text(record)
+            old.matches.remove()
+        else:
+            if old is not None:
+                old.remove()
+            frustum = self._add_frustum(record, rec.label, fov, aspect, scale, color, position, wxyz)
+            label = self.server.scene.add_label(f"{frustum.name}/label", _camera_text(record))
+        best = rec.best
+        inliers = best.estimate.inliers
+        on_sign = sign.to_metric(best.src[inliers])
+        on_photo = image_plane_points(best.dst[inliers], width_px, height_px, fov, aspect, scale)
+        on_photo_world = on_photo @ tf.SO3(wxyz).as_matrix().T + position
+        matches = self.server.scene.add_line_segments(
+            f"/signs/{rec.label}/matches/{record.id}", np.stack([on_sign, on_photo_world], axis=1), color,
+            thickness=1.0, thickness_units="screen", visible=self.show_matches.value)
+        self.cameras[record.id] = CameraNodes(rec.label, rec, frustum, label, matches)
+
+    def _add_frustum(self, record: Any, sign_id: str, fov: float, aspect: float, scale: float,
+                     color: tuple[int, int, int], position: np.ndarray, wxyz: np.ndarray) -> viser.CameraFrustumHandle:
+        thumbnail = self._thumbnails.get(record.id)
+        if thumbnail is None:
+            thumbnail = self._thumbnails[record.id] = fit_width(record.image, THUMBNAIL_WIDTH_PX)
+        frustum = self.server.scene.add_camera_frustum(
+            f"/signs/{sign_id}/cameras/{record.id}", fov, aspect, scale=scale, color=color, image=thumbnail,
+            thickness=2.0, thickness_units="screen", position=position, wxyz=wxyz)
+        image_id = record.id
+        frustum.on_click(lambda event: self.view_from(image_id, event.client))
+        return frustum
+
+
+def _has_pose(record: Any) -> bool:
+    rec = record.recognition
+    return rec is not None and rec.recognized and rec.pose is not None
+
+
+def _camera_text(record: Any) -> str:
+    rec: Recognition = record.recognition
+    notes = []
+    if rec.pose.ambiguous:
+        notes.append("ambiguous pose")
+    if record.expected is not None and record.expected != rec.label:
+        notes.append(f"expected {record.expected}")
+    return " · ".join([record.name, *notes])
+
+
+def status_markdown(records: list[Any], progress: dict[str, Any]) -> str:
+    """One status line: image counts, correctness, median time per image and re-run progress."""
+    done = [r.recognition for r in records if r.recognition is not None]
+    recognised = sum(rec.recognized for rec in done)
+    labelled = [r for r in records if r.expected is not None and r.recognition is not None]
+    correct = sum(r.recognition.label == r.expected for r in labelled)
+    parts = [f"**{len(records)}** images", f"**{recognised}** recognised",
+             f"**{correct}**/{len(labelled)} correct", f"**{len(done) - recognised}** no sign"]
+    errors = sum(r.error is not None for r in records)
+    if errors:
+        parts.append(f"**{errors}** errors")
+    if done:
+        parts.append(f"{statistics.median(rec.timing_ms['total'] for rec in done):.0f} ms/image (median)")
+    if progress.get("running"):
+        parts.append(f"re-running {progress.get('done', 0)}/{progress.get('total', 0)}")
+    return " · ".join(parts)
+
+
+def attach(server: viser.ViserServer, workspace: Workspace) -> SceneHandle:
+    """Add the sign/camera scene and the tuning GUI to `server` and keep both in step with `workspace`."""
+    server.scene.set_up_direction("-y")  # y runs down the sign
+    server.initial_camera.position = INITIAL_VIEW_POSITION_M
+    server.initial_camera.look_at = INITIAL_VIEW_LOOK_AT_M
+    gui = server.gui
+    status = gui.add_markdown("")
+    upload = gui.add_upload_button("Add image", icon=viser.Icon.UPLOAD, mime_type="image/*",
+                                   hint="Recognise a photo and add it to the workspace")
+    with gui.add_folder("View"):
+        world = gui.add_dropdown("Sign world", (NO_WORLD,), hint="Each sign is its own world: show this one",
+                                 disabled=True)
+        show_matches = gui.add_checkbox("Inlier matches", True,
+                                        hint="Lines from each inlier on the sign to its pixel on the photo")
+        frustum_width = gui.add_slider("Photo width (m)", 0.05, 5.0, 0.05, DEFAULT_FRUSTUM_WIDTH_M,
+                                       hint="Drawn width of each camera's photo, in metres")
+    # `scene` is bound below, before any client can connect and edit a setting.
+    panel = add_settings_panel(gui, workspace.settings, lambda changes, client: scene._apply_settings(changes, client))
+    panel.version = workspace.settings_version
+    scene = SceneHandle(server, workspace, panel, world, show_matches, frustum_width, status, upload)
+    world.on_update(scene._on_view_option)
+    show_matches.on_update(scene._on_view_option)
+    frustum_width.on_update(scene._on_frustum_width)
+    upload.on_upload(scene._on_upload)
+    scene._start()
+    return scene
