@@ -1,0 +1,294 @@
+"""Camera calibration from photos of a printed chessboard (Zhang's method, via OpenCV).
+
+Conventions: a board is `(cols, rows)` *inner* corners (a board of 10 x 7 squares has 9 x 6);
+image sizes are `(width, height)` px; corner arrays are (N, 2) float image px in OpenCV's
+row-major order, N = cols * rows; board points are (N, 3) metres on the board plane z = 0.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .camera import Camera
+
+MIN_VIEWS = 3
+# findChessboardCornersSB cost grows with the pixel count and it finds boards just as well at
+# this size; the corners are then refined at full resolution.
+MAX_DETECT_SIDE = 1600
+# A view whose RMS error is below this is usable whatever the others score: sub-pixel corner
+# detectors are good to ~0.1 px, so a relative rule alone would flag noise on a very good set.
+OUTLIER_FLOOR_PX = 0.5
+# Limits past which a calibration is reported as suspect (see `Calibration.warnings`).
+MAX_GOOD_RMS_PX = 1.0
+MAX_FOCAL_STD = 0.01  # relative standard deviation of fx, fy
+# Zhang's method needs the board tilted: seen face-on in every view, the focal length trades
+# off freely against the board's distance.
+MIN_MAX_TILT_DEG = 15.0
+
+
+class CalibrationError(ValueError):
+    """Inputs that cannot give a calibration; the message says which and why."""
+
+
+@dataclass(frozen=True, eq=False)
+class BoardView:
+    """The chessboard as seen in one image.
+
+    corners: (cols * rows, 2) float64 image px, or None when the board was not found.
+    image_size: (width, height) px of the image it was found in.
+    """
+
+    name: str
+    image_size: tuple[int, int]
+    corners: np.ndarray | None
+
+    @property
+    def found(self) -> bool:
+        return self.corners is not None
+
+
+@dataclass(frozen=True, eq=False)
+class Calibration:
+    """Intrinsics fitted to the views where the board was found, and how well each view fits.
+
+    views: every view passed in, in input order (V of them).
+    errors_px: (V,) RMS reprojection error of each view in px under `camera`; NaN where the board
+        was not found. Views in `excluded` were left out of the fit and are scored by their own
+        pose (solvePnP) under the fitted intrinsics.
+    rvecs, tvecs: (V, 3) board-to-camera Rodrigues rotation (rad) and translation (metres); NaN
+        where the board was not found.
+    rms_px: RMS reprojection error over all corners of the views used in the fit, px.
+    intrinsics_std: (fx, fy, cx, cy) standard deviations of the estimates, px.
+    """
+
+    camera: Camera
+    rms_px: float
+    views: tuple[BoardView, ...]
+    errors_px: np.ndarray
+    rvecs: np.ndarray
+    tvecs: np.ndarray
+    intrinsics_std: np.ndarray
+    excluded: tuple[int, ...]
+    board: tuple[int, int]
+    square_m: float
+    fix_k3: bool
+
+    @property
+    def not_found(self) -> tuple[int, ...]:
+        """Indices of the views where the board was not found."""
+        return tuple(i for i, v in enumerate(self.views) if not v.found)
+
+    @property
+    def used(self) -> tuple[int, ...]:
+        """Indices of the views the intrinsics were fitted to."""
+        return tuple(i for i, v in enumerate(self.views) if v.found and i not in self.excluded)
+
+    @property
+    def tilts_deg(self) -> np.ndarray:
+        """(V,) angle between each board's normal and the optical axis, degrees; NaN where not found."""
+        tilts = np.full(len(self.views), np.nan)
+        for i in np.flatnonzero(np.isfinite(self.rvecs[:, 0])):
+            tilts[i] = math.degrees(math.acos(min(1.0, abs(cv2.Rodrigues(self.rvecs[i])[0][2, 2]))))
+        return tilts
+
+    @property
+    def warnings(self) -> list[str]:
+        """Reasons to distrust this calibration, each with what to do about it."""
+        out = []
+        if self.rms_px > MAX_GOOD_RMS_PX:
+            out.append(f"RMS {self.rms_px:.2f} px is above {MAX_GOOD_RMS_PX:g} px: check the board is flat and sharp "
+                       "in every photo and its size (inner corners, square side) is right")
+        focal_std = float(np.max(self.intrinsics_std[:2] / np.diag(self.camera.K)[:2]))
+        if focal_std > MAX_FOCAL_STD:
+            out.append(f"the focal length is uncertain by ±{focal_std:.1%}: add photos from more viewpoints")
+        max_tilt = float(np.nanmax(self.tilts_deg[list(self.used)]))
+        if max_tilt < MIN_MAX_TILT_DEG:
+            out.append(f"the board faces the camera in every photo (largest tilt {max_tilt:.0f}°), so the focal "
+                       "length is poorly determined: add photos with the board tilted 30-45°")
+        return out
+
+    @property
+    def outliers(self) -> tuple[int, ...]:
+        """Indices of used views whose error is far above the rest (see `outlier_threshold`)."""
+        used = list(self.used)
+        limit = outlier_threshold(self.errors_px[used])
+        return tuple(i for i in used if self.errors_px[i] > limit)
+
+
+def parse_board(text: str) -> tuple[int, int]:
+    """"9x6" -> (9, 6) inner corners; CalibrationError for anything else."""
+    parts = text.lower().replace("×", "x").split("x")
+    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
+        raise CalibrationError(f"board must be COLSxROWS inner corners, e.g. 9x6; got {text!r}")
+    return check_board((int(parts[0]), int(parts[1])))
+
+
+def check_board(board: tuple[int, int]) -> tuple[int, int]:
+    cols, rows = board
+    if cols < 3 or rows < 3:
+        raise CalibrationError(f"board needs at least 3x3 inner corners; got {cols}x{rows} "
+                               "(count the corners where four squares meet, not the squares)")
+    return int(cols), int(rows)
+
+
+def board_points(board: tuple[int, int], square_m: float) -> np.ndarray:
+    """(cols * rows, 3) float32 corner positions in metres on the board plane, in OpenCV's order."""
+    cols, rows = board
+    grid = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2)
+    return np.column_stack([grid * square_m, np.zeros(len(grid))]).astype(np.float32)
+
+
+def chessboard_image(board: tuple[int, int], square_px: int = 100, margin_px: int | None = None) -> np.ndarray:
+    """A printable board with `board` inner corners: (H, W) uint8, white margin of one square by default.
+
+    The top-left square is black; the margin gives the detector the quiet zone it needs.
+    """
+    cols, rows = check_board(board)
+    margin = square_px if margin_px is None else margin_px
+    squares = (np.indices((rows + 1, cols + 1)).sum(axis=0) % 2).astype(np.uint8) * 255
+    image = np.kron(squares, np.ones((square_px, square_px), np.uint8))
+    return cv2.copyMakeBorder(image, margin, margin, margin, margin, cv2.BORDER_CONSTANT, value=255)
+
+
+def find_board(gray: np.ndarray, board: tuple[int, int], name: str = "") -> BoardView:
+    """Sub-pixel inner corners of a chessboard with `board` = (cols, rows) inner corners.
+
+    The corners may be numbered from either end of the board; for calibrating one camera that
+    only changes the board pose of that view.
+    gray: (H, W) uint8. The board is searched for with findChessboardCornersSB, on a copy shrunk
+    to MAX_DETECT_SIDE px for large images, and its corners refined at full resolution by
+    cornerSubPix (as accurate as SB's CALIB_CB_ACCURACY upsampling at a twentieth of the cost).
+    """
+    cols, rows = check_board(board)
+    h, w = gray.shape[:2]
+    scale = min(1.0, MAX_DETECT_SIDE / max(w, h))
+    small = gray if scale == 1.0 else cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+    flags = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE
+    found, corners = cv2.findChessboardCornersSB(small, (cols, rows), flags=flags)
+    if not found:
+        return BoardView(name, (w, h), None)
+    return BoardView(name, (w, h), refine_corners(gray, (corners.reshape(-1, 2) + 0.5) / scale - 0.5))
+
+
+def refine_corners(gray: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """(N, 2) corners moved to the nearby saddle point, (N, 2) float64 px.
+
+    The search window reaches a third of the way to the closest neighbouring corner (the 10th
+    percentile spacing, for foreshortened boards): wide enough to average out blur and noise,
+    never wide enough to take in a second corner.
+    """
+    spacing = np.percentile(np.linalg.norm(np.diff(corners, axis=0), axis=1), 10)
+    half = int(np.clip(spacing / 3, 2, 25))
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 50, 1e-3)
+    refined = cv2.cornerSubPix(gray, corners.astype(np.float32).reshape(-1, 1, 2), (half, half), (-1, -1), criteria)
+    return refined.reshape(-1, 2).astype(np.float64)
+
+
+def outlier_threshold(errors_px: np.ndarray) -> float:
+    """Error above which a view is an outlier: max(2·median, median + 3·MAD, OUTLIER_FLOOR_PX), px."""
+    errors_px = np.asarray(errors_px, dtype=np.float64)
+    median = float(np.median(errors_px))
+    mad = float(np.median(np.abs(errors_px - median)))
+    return max(2 * median, median + 3 * mad, OUTLIER_FLOOR_PX)
+
+
+def calibrate(views: list[BoardView], board: tuple[int, int], square_m: float,
+              image_size: tuple[int, int] | None = None, exclude: tuple[int, ...] = (),
+              fix_k3: bool = True) -> Calibration:
+    """Fit K and distortion (k1, k2, p1, p2, k3) to the views where the board was found.
+
+    square_m: side of one printed square in metres (sets the scale of `tvecs` only).
+    image_size: (width, height) px; taken from the views when None, and every found view must match.
+    exclude: indices of views to leave out of the fit (e.g. outliers).
+    fix_k3: keep k3 = 0, as ROS's calibrator does by default: with 15-20 handheld views k3 mostly
+        fits noise and extrapolates wildly towards the image corners.
+    """
+    board = check_board(board)
+    if not (math.isfinite(square_m) and square_m > 0):
+        raise CalibrationError(f"square size must be a positive number of metres; got {square_m}")
+    views = tuple(views)
+    found = [i for i, v in enumerate(views) if v.found]
+    if not found:
+        raise CalibrationError(f"the {board[0]}x{board[1]} board was not found in any of the {len(views)} image(s); "
+                               "check the board size counts inner corners (squares minus one per side) "
+                               "and the whole board, with its white border, is in view")
+    size = image_size or views[found[0]].image_size
+    wrong = [views[i].name or str(i) for i in found if tuple(views[i].image_size) != tuple(size)]
+    if wrong:
+        raise CalibrationError(f"all images must be {size[0]}x{size[1]} px like the first; these differ: "
+                               f"{', '.join(wrong)} (portrait and landscape photos need separate calibrations)")
+    n_corners = board[0] * board[1]
+    wrong = [views[i].name or str(i) for i in found if views[i].corners.shape != (n_corners, 2)]
+    if wrong:
+        raise CalibrationError(f"a {board[0]}x{board[1]} board has {n_corners} corners; these views have a different "
+                               f"number: {', '.join(wrong)}")
+    fit = [i for i in found if i not in exclude]
+    if len(fit) < MIN_VIEWS:
+        raise CalibrationError(f"the board was found in {len(fit)} usable image(s); calibration needs at least "
+                               f"{MIN_VIEWS} (15-20 recommended, tilted and spread over the frame)")
+    obj = board_points(board, square_m)
+    flags = cv2.CALIB_FIX_K3 if fix_k3 else 0
+    rms, K, dist, rvecs, tvecs, std_intr, _, per_view = cv2.calibrateCameraExtended(
+        [obj] * len(fit), [views[i].corners.astype(np.float32) for i in fit], tuple(int(s) for s in size),
+        None, None, flags=flags)
+    camera = Camera(K, dist.ravel(), int(size[0]), int(size[1]), "calibrated")
+
+    n = len(views)
+    errors, rv, tv = np.full(n, np.nan), np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+    errors[fit] = per_view.ravel()
+    rv[fit], tv[fit] = np.hstack(rvecs).T, np.hstack(tvecs).T
+    for i in set(found) - set(fit):
+        rv[i], tv[i], errors[i] = view_pose(camera, views[i].corners, obj)
+    return Calibration(camera, float(rms), views, errors, rv, tv, std_intr.ravel()[:4].copy(),
+                       tuple(sorted(set(exclude) & set(found))), board, float(square_m), fix_k3)
+
+
+def view_pose(camera: Camera, corners: np.ndarray, obj: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Board pose (rvec (3,), tvec (3,) metres) of one view under fixed intrinsics, and its RMS error px."""
+    corners = corners.astype(np.float64)
+    _, rvec, tvec = cv2.solvePnP(obj, corners, camera.K, camera.dist, flags=cv2.SOLVEPNP_IPPE)
+    rvec, tvec = cv2.solvePnPRefineLM(obj, corners, camera.K, camera.dist, rvec, tvec)
+    projected, _ = cv2.projectPoints(obj, rvec, tvec, camera.K, camera.dist)
+    rms = float(np.sqrt(np.mean(np.sum((projected.reshape(-1, 2) - corners) ** 2, axis=1))))
+    return rvec.ravel(), tvec.ravel(), rms
+
+
+def drop_outliers(calibration: Calibration) -> Calibration:
+    """Recalibrate without `calibration.outliers` (one round; the result may name new ones)."""
+    c = calibration
+    if not c.outliers:
+        return c
+    return calibrate(list(c.views), c.board, c.square_m, (c.camera.width, c.camera.height),
+                     exclude=tuple(sorted(set(c.excluded) | set(c.outliers))), fix_k3=c.fix_k3)
+
+
+def format_report(calibration: Calibration) -> str:
+    """Human-readable summary: a per-view table, the intrinsics with their standard deviations, outliers."""
+    c = calibration
+    outliers = set(c.outliers)
+    lines = [f"{'image':<32} {'board':<10} {'error px':>8}"]
+    for i, view in enumerate(c.views):
+        status = "found" if view.found else "not found"
+        error = f"{c.errors_px[i]:8.3f}" if view.found else f"{'-':>8}"
+        note = "  outlier" if i in outliers else "  dropped as an outlier, not fitted" if i in c.excluded else ""
+        lines.append(f"{view.name:<32} {status:<10} {error}{note}")
+    K, d, (sfx, sfy, scx, scy) = c.camera.K, c.camera.dist, c.intrinsics_std
+    lines += [
+        "",
+        f"overall RMS {c.rms_px:.3f} px from {len(c.used)} of {len(c.views)} image(s) "
+        f"({c.board[0]}x{c.board[1]} inner corners, {c.square_m * 1000:g} mm squares)",
+        f"fx {K[0, 0]:.2f} ± {sfx:.2f}  fy {K[1, 1]:.2f} ± {sfy:.2f}  cx {K[0, 2]:.2f} ± {scx:.2f}  "
+        f"cy {K[1, 2]:.2f} ± {scy:.2f} px  at {c.camera.width}x{c.camera.height}",
+        "distortion k1 k2 p1 p2 k3: " + " ".join(f"{v:.5g}" for v in d),
+    ]
+    if outliers:
+        limit = outlier_threshold(c.errors_px[list(c.used)])
+        names = ", ".join(f"{c.views[i].name} ({c.errors_px[i]:.2f} px)" for i in sorted(outliers))
+        lines.append(f"outliers (error > {limit:.2f} px): {names}; "
+                     "retake or drop them (signpose calibrate --drop-outliers)")
+    lines += [f"warning: {w}" for w in c.warnings]
+    return "\n".join(lines)

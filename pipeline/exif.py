@@ -1,0 +1,163 @@
+"""Approximate intrinsics from a JPEG's EXIF lens data, read with the standard library only.
+
+Better than an assumed field of view when there is no calibration: phones and cameras record
+the focal length and either the sensor's pixel density or the 35 mm-equivalent focal length.
+Distortion is unknown, so the result has none; the principal point is taken as the image centre.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+from .camera import Camera
+
+# The 35 mm-equivalent focal length is defined by the angle of view across the diagonal of a
+# 36 x 24 mm frame, which keeps it independent of the image's aspect and orientation.
+FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
+# Focal lengths giving a horizontal field of view outside this range are taken to be bogus EXIF.
+PLAUSIBLE_HFOV_DEG = (5.0, 150.0)
+
+_TAG_EXIF_IFD = 0x8769
+_TAG_FOCAL_LENGTH = 0x920A
+_TAG_FOCAL_35MM = 0xA405
+_TAG_PLANE_X_RES = 0xA20E
+_TAG_PLANE_UNIT = 0xA210
+_TAG_PIXEL_X = 0xA002
+_TAG_PIXEL_Y = 0xA003
+# FocalPlaneResolutionUnit code -> millimetres per unit (2, inches, is the default).
+_UNIT_MM = {2: 25.4, 3: 10.0, 4: 1.0, 5: 1e-3}
+# TIFF field type -> (struct code, size in bytes) for the numeric types the tags above use
+# (13 is an IFD offset, stored like a LONG).
+_TYPES = {3: ("H", 2), 4: ("I", 4), 5: ("II", 8), 13: ("I", 4)}
+
+
+@dataclass(frozen=True)
+class LensExif:
+    """Lens fields of one JPEG's EXIF; None where absent or unusable.
+
+    focal_mm: true focal length, mm. focal_35mm: 35 mm-equivalent focal length, mm.
+    plane_px_per_mm: sensor pixels per mm (FocalPlaneXResolution in its unit, converted).
+    pixel_size: (width, height) px of the image the camera recorded, before any resizing.
+    """
+
+    focal_mm: float | None
+    focal_35mm: float | None
+    plane_px_per_mm: float | None
+    pixel_size: tuple[int, int] | None
+
+
+def exif_tiff(jpeg: bytes) -> bytes | None:
+    """The TIFF block inside a JPEG's APP1 "Exif" segment, or None (not a JPEG, or no EXIF)."""
+    if jpeg[:2] != b"\xff\xd8":
+        return None
+    pos = 2
+    while pos + 4 <= len(jpeg):
+        if jpeg[pos] != 0xFF:
+            return None
+        marker = jpeg[pos + 1]
+        if marker == 0xFF:  # fill byte before a marker
+            pos += 1
+            continue
+        if marker == 0xDA or marker == 0xD9:  # image data or end: metadata comes before these
+            return None
+        if 0xD0 <= marker <= 0xD7 or marker == 0x01:  # markers without a length
+            pos += 2
+            continue
+        (length,) = struct.unpack(">H", jpeg[pos + 2:pos + 4])
+        payload = jpeg[pos + 4:pos + 2 + length]
+        if marker == 0xE1 and payload.startswith(b"Exif\x00\x00"):
+            return payload[6:]
+        pos += 2 + length
+    return None
+
+
+def _ifd(tiff: bytes, offset: int, order: str) -> dict[int, float]:
+    """Tag -> first value of each numeric entry of the IFD at `offset` (a RATIONAL as num / den).
+
+    Only the first value is read: every tag used here holds one, and a corrupt count must not
+    make us allocate or read gigabytes.
+    """
+    (count,) = struct.unpack_from(order + "H", tiff, offset)
+    entries = {}
+    for i in range(count):
+        tag, kind, n, inline = struct.unpack_from(order + "HHI4s", tiff, offset + 2 + 12 * i)
+        if kind not in _TYPES or n == 0:
+            continue
+        code, size = _TYPES[kind]
+        data = inline if size * n <= 4 else tiff[struct.unpack(order + "I", inline)[0]:]
+        value = struct.unpack_from(order + code, data)
+        if kind != 5:
+            entries[tag] = float(value[0])
+        elif value[1]:
+            entries[tag] = value[0] / value[1]
+    return entries
+
+
+def _positive(value: float | None) -> float | None:
+    return value if value is not None and value > 0 else None
+
+
+def read_lens_exif(jpeg: bytes) -> LensExif | None:
+    """The lens fields of a JPEG's EXIF, or None when there is no EXIF or it is malformed."""
+    tiff = exif_tiff(jpeg)
+    if tiff is None or tiff[:4] not in (b"II*\x00", b"MM\x00*"):
+        return None
+    order = "<" if tiff[:2] == b"II" else ">"
+    try:
+        ifd0 = _ifd(tiff, struct.unpack_from(order + "I", tiff, 4)[0], order)
+        if _TAG_EXIF_IFD not in ifd0:
+            return None
+        exif = _ifd(tiff, int(ifd0[_TAG_EXIF_IFD]), order)
+    except struct.error:  # offsets pointing outside the block: truncated or corrupt EXIF
+        return None
+    plane = _positive(exif.get(_TAG_PLANE_X_RES))
+    unit_mm = _UNIT_MM.get(int(exif.get(_TAG_PLANE_UNIT, 2)))
+    px, py = _positive(exif.get(_TAG_PIXEL_X)), _positive(exif.get(_TAG_PIXEL_Y))
+    return LensExif(
+        focal_mm=_positive(exif.get(_TAG_FOCAL_LENGTH)),
+        focal_35mm=_positive(exif.get(_TAG_FOCAL_35MM)),
+        plane_px_per_mm=plane / unit_mm if plane and unit_mm else None,
+        pixel_size=(int(px), int(py)) if px and py else None,
+    )
+
+
+def focal_px(lens: LensExif, width: int, height: int) -> float | None:
+    """Focal length in px for a `width` x `height` image from `lens`, or None if it cannot be had.
+
+    Prefers the true focal length times the sensor's pixel density (scaled when the image was
+    resized from `lens.pixel_size`); falls back to the 35 mm equivalent over the diagonal.
+    Orientation does not matter: both routes assume square pixels.
+    """
+    candidates = []
+    if lens.focal_mm and lens.plane_px_per_mm:
+        scale = max(width, height) / max(lens.pixel_size) if lens.pixel_size else 1.0
+        candidates.append(lens.focal_mm * lens.plane_px_per_mm * scale)
+    if lens.focal_35mm:
+        candidates.append(lens.focal_35mm * math.hypot(width, height) / FULL_FRAME_DIAGONAL_MM)
+    lo, hi = PLAUSIBLE_HFOV_DEG
+    for f in candidates:
+        if lo <= math.degrees(2 * math.atan(width / (2 * f))) <= hi:
+            return f
+    return None
+
+
+def camera_from_exif(jpeg: bytes, width: int, height: int) -> Camera | None:
+    """A distortion-free camera for the decoded `width` x `height` image from its JPEG's EXIF, or None.
+
+    `width`, `height` are of the image as decoded (after EXIF orientation). `source` names the
+    EXIF fields used, e.g. "EXIF focal length 4.2 mm (35 mm equiv 26 mm)".
+    """
+    lens = read_lens_exif(jpeg)
+    f = focal_px(lens, width, height) if lens is not None else None
+    if f is None:
+        return None
+    parts = [f"focal length {lens.focal_mm:.3g} mm"] if lens.focal_mm else []
+    if lens.focal_35mm:
+        parts.append(f"35 mm equiv {lens.focal_35mm:.3g} mm")
+    source = "EXIF " + (f"{parts[0]} ({parts[1]})" if len(parts) == 2 else parts[0])
+    K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]])
+    return Camera(K, np.zeros(5), width, height, source)

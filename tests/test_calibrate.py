@@ -1,0 +1,264 @@
+"""Chessboard calibration: rendered and projected views of a board under known intrinsics."""
+
+import cv2
+import numpy as np
+import pytest
+
+import pipeline.calibrate as calib
+from app.cli import main
+from pipeline.calibrate import (BoardView, CalibrationError, board_points, calibrate, chessboard_image,
+                                drop_outliers, find_board, format_report, parse_board)
+from pipeline.camera import load_camera, save_camera
+
+SIZE = (640, 480)
+K_TRUE = np.array([[520.0, 0, 318.0], [0, 515.0, 243.0], [0, 0, 1]])
+DIST_TRUE = np.array([-0.12, 0.05, 0.001, -0.0005, 0.0])
+BOARD = (9, 6)
+SQUARE_M = 0.03
+TEXTURE_SQUARE_PX = 40
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
+
+
+def board_poses(n: int, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
+    """n (rvec (3,), tvec (3,) m) board poses, 0.35-0.55 m away, tilted up to ~30° and spread over the frame."""
+    rng = np.random.default_rng(seed)
+    centre = np.array([(BOARD[0] - 1) / 2, (BOARD[1] - 1) / 2, 0]) * SQUARE_M
+    poses = []
+    for _ in range(n):
+        rvec = np.concatenate([rng.uniform(-0.5, 0.5, 2), rng.uniform(-0.3, 0.3, 1)])
+        offset = np.array([rng.uniform(-0.08, 0.08), rng.uniform(-0.06, 0.06), rng.uniform(0.35, 0.55)])
+        poses.append((rvec, offset - cv2.Rodrigues(rvec)[0] @ centre))
+    return poses
+
+
+def pixel_rays(K: np.ndarray, dist: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """(H, W, 3) homogeneous normalised ray of every pixel centre of the distorted image."""
+    w, h = size
+    pixels = np.stack(np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)), -1)
+    undistort = getattr(cv2, "undistortPointsIter", cv2.undistortPoints)  # 4.x names the overload with criteria
+    xy = undistort(pixels.reshape(-1, 1, 2), K, dist, R=None, P=None, criteria=_UNDISTORT_CRITERIA)
+    return np.concatenate([xy.reshape(h, w, 2), np.ones((h, w, 1))], axis=-1)
+
+
+def render_board(rays: np.ndarray, rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 image of the printed board at pose (rvec, tvec), with the lens distortion baked into `rays`."""
+    R = cv2.Rodrigues(rvec)[0]
+    plane_to_rays = np.column_stack([R[:, 0], R[:, 1], tvec])  # board (X, Y, 1) metres -> ray
+    p = rays @ np.linalg.inv(plane_to_rays).T
+    xy = p[..., :2] / p[..., 2:]
+    # Texture pixel centres are integers, so inner corner (0, 0) sits half a pixel before the edge of square 1.
+    texture_px = xy * (TEXTURE_SQUARE_PX / SQUARE_M) + 2 * TEXTURE_SQUARE_PX - 0.5
+    texture = chessboard_image(BOARD, TEXTURE_SQUARE_PX)
+    image = cv2.remap(texture, texture_px[..., 0].astype(np.float32), texture_px[..., 1].astype(np.float32),
+                      cv2.INTER_LINEAR, borderValue=128)
+    return cv2.GaussianBlur(image, (0, 0), 0.7)  # a lens is never perfectly sharp
+
+
+def projected_corners(rvec, tvec, K=K_TRUE, dist=DIST_TRUE) -> np.ndarray:
+    img, _ = cv2.projectPoints(board_points(BOARD, SQUARE_M), rvec, tvec, K, dist)
+    return img.reshape(-1, 2)
+
+
+def projected_views(n: int, noise_px: float = 0.1, seed: int = 0) -> list[BoardView]:
+    rng = np.random.default_rng(seed)
+    return [BoardView(f"view{i}.png", SIZE, projected_corners(r, t) + rng.normal(0, noise_px, (BOARD[0] * BOARD[1], 2)))
+            for i, (r, t) in enumerate(board_poses(n, seed))]
+
+
+@pytest.fixture(scope="module")
+def rendered():
+    """12 rendered board photos (H, W) uint8, their true poses and the boards found in them."""
+    rays = pixel_rays(K_TRUE, DIST_TRUE, SIZE)
+    poses = board_poses(12)
+    images = [render_board(rays, r, t) for r, t in poses]
+    return images, poses, [find_board(im, BOARD, f"{i}.png") for i, im in enumerate(images)]
+
+
+def match_order(found: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """`found` corners relabelled to `truth`'s order: the detector may start from the opposite corner."""
+    return min((found, found[::-1]), key=lambda f: np.abs(f - truth).max())
+
+
+def test_find_board_sub_pixel(rendered):
+    _, poses, views = rendered
+    mean_errors = []
+    for view, (r, t) in zip(views, poses):
+        assert view.found and view.image_size == SIZE
+        truth = projected_corners(r, t)
+        err = np.linalg.norm(match_order(view.corners, truth) - truth, axis=1)
+        assert err.mean() < 0.2 and err.max() < 0.5
+        mean_errors.append(err.mean())
+    assert np.mean(mean_errors) < 0.08
+
+
+def test_find_board_large_image_refined_at_full_resolution(rendered, monkeypatch):
+    images, poses, _ = rendered
+    monkeypatch.setattr(calib, "MAX_DETECT_SIDE", 320)  # search at half size, as a 12 MP photo would be
+    view = find_board(images[0], BOARD)
+    truth = projected_corners(*poses[0])
+    assert view.found and np.abs(match_order(view.corners, truth) - truth).max() < 0.5
+
+
+def test_find_board_absent():
+    blank = np.full(SIZE[::-1], 200, np.uint8)
+    assert not find_board(blank, BOARD).found
+    assert not find_board(np.zeros((480, 640), np.uint8), BOARD).found
+
+
+def test_calibrate_recovers_intrinsics_from_rendered_photos(rendered):
+    cal = calibrate(rendered[2], BOARD, SQUARE_M)
+    K = cal.camera.K
+    assert abs(K[0, 0] / K_TRUE[0, 0] - 1) < 0.005 and abs(K[1, 1] / K_TRUE[1, 1] - 1) < 0.005
+    assert abs(K[0, 2] - K_TRUE[0, 2]) < 2 and abs(K[1, 2] - K_TRUE[1, 2]) < 2
+    assert abs(cal.camera.dist[0] - DIST_TRUE[0]) < 0.02
+    assert cal.rms_px < 0.2 and cal.outliers == () and cal.not_found == ()
+    assert cal.camera.source == "calibrated" and (cal.camera.width, cal.camera.height) == SIZE
+
+
+def test_calibration_yaml_round_trips(tmp_path):
+    cal = calibrate(projected_views(10), BOARD, SQUARE_M)
+    save_camera(cal.camera, tmp_path / "camera.yaml")
+    back = load_camera(tmp_path / "camera.yaml")
+    assert np.allclose(back.K, cal.camera.K) and np.allclose(back.dist, cal.camera.dist)
+    assert (back.width, back.height) == SIZE
+
+
+def test_per_view_errors_and_poses():
+    views = projected_views(8, noise_px=0.1)
+    cal = calibrate(views, BOARD, SQUARE_M)
+    # Per-view errors are RMS distances: with 0.1 px noise per axis they sit near 0.1·√2.
+    assert np.all((cal.errors_px > 0.08) & (cal.errors_px < 0.2))
+    assert np.sqrt(np.mean(cal.errors_px**2)) == pytest.approx(cal.rms_px, rel=1e-6)
+    for i, (r, t) in enumerate(board_poses(8)):
+        assert np.linalg.norm(cal.tvecs[i] - t) < 0.002
+    assert np.all(cal.intrinsics_std > 0) and np.all(cal.intrinsics_std < 2)
+
+
+def test_outlier_reported_and_dropping_it_improves_rms():
+    views = projected_views(12, noise_px=0.1)
+    rng = np.random.default_rng(7)
+    bad = BoardView("shaky.png", SIZE, views[5].corners + rng.normal(0, 3.0, views[5].corners.shape))
+    views[5] = bad
+    cal = calibrate(views, BOARD, SQUARE_M)
+    assert cal.outliers == (5,)
+    assert any(line.startswith("outliers") and "shaky.png" in line for line in format_report(cal).splitlines())
+    better = drop_outliers(cal)
+    assert better.excluded == (5,) and 5 not in better.used and better.outliers == ()
+    assert better.rms_px < cal.rms_px / 3
+    assert better.errors_px[5] > 2  # still scored, by its own pose under the new intrinsics
+    assert abs(better.camera.K[0, 0] / K_TRUE[0, 0] - 1) < 0.002
+    assert drop_outliers(better) is better
+
+
+def test_warnings_for_a_weak_calibration():
+    assert calibrate(projected_views(12), BOARD, SQUARE_M).warnings == []
+    rng = np.random.default_rng(0)
+    face_on = [BoardView(f"{z}.png", SIZE, projected_corners(np.zeros(3), np.array([-0.12, -0.075, z]))
+                         + rng.normal(0, 0.1, (54, 2))) for z in (0.4, 0.5, 0.6)]
+    assert any("tilted 30-45°" in w for w in calibrate(face_on, BOARD, SQUARE_M).warnings)
+    same = projected_views(1) * 3
+    assert any("focal length is uncertain" in w for w in calibrate(same, BOARD, SQUARE_M).warnings)
+    noisy = projected_views(8, noise_px=2.0)
+    cal = calibrate(noisy, BOARD, SQUARE_M)
+    assert any(w.startswith("RMS") for w in cal.warnings) and "warning: RMS" in format_report(cal)
+
+
+def test_not_found_views_are_listed_and_skipped():
+    views = projected_views(5)
+    views.insert(2, BoardView("blurry.png", SIZE, None))
+    cal = calibrate(views, BOARD, SQUARE_M)
+    assert cal.not_found == (2,) and np.isnan(cal.errors_px[2]) and np.isnan(cal.tvecs[2]).all()
+    assert cal.used == (0, 1, 3, 4, 5)
+    assert "blurry.png" in format_report(cal) and "not found" in format_report(cal)
+
+
+@pytest.mark.parametrize("text, board", [("9x6", (9, 6)), ("9X6", (9, 6)), ("7 x 5", (7, 5)), ("9×6", (9, 6))])
+def test_parse_board(text, board):
+    assert parse_board(text) == board
+
+
+@pytest.mark.parametrize("text", ["9", "9x", "x6", "9x6x2", "9,6", "a x b", "-9x6", "2x6", "9x0", ""])
+def test_parse_board_rejects(text):
+    with pytest.raises(CalibrationError, match="inner corners"):
+        parse_board(text)
+
+
+def test_calibrate_errors():
+    views = projected_views(4)
+    with pytest.raises(CalibrationError, match="not found in any of the 2"):
+        calibrate([BoardView("a", SIZE, None), BoardView("b", SIZE, None)], BOARD, SQUARE_M)
+    with pytest.raises(CalibrationError, match="found in 2 usable image.*at least 3"):
+        calibrate(views[:2] + [BoardView("c", SIZE, None)], BOARD, SQUARE_M)
+    with pytest.raises(CalibrationError, match="at least 3"):
+        calibrate(views, BOARD, SQUARE_M, exclude=(0, 1))
+    with pytest.raises(CalibrationError, match="portrait.png"):
+        calibrate(views + [BoardView("portrait.png", SIZE[::-1], views[0].corners)], BOARD, SQUARE_M)
+    with pytest.raises(CalibrationError, match="54 corners.*other.png"):
+        calibrate(views + [BoardView("other.png", SIZE, views[0].corners[:40])], BOARD, SQUARE_M)
+    for square in (0.0, -0.03, float("nan"), float("inf")):
+        with pytest.raises(CalibrationError, match="square size"):
+            calibrate(views, BOARD, square)
+
+
+def test_chessboard_image_has_the_requested_inner_corners():
+    image = chessboard_image((7, 5), square_px=30)
+    assert image.shape == (30 * 6 + 60, 30 * 8 + 60)
+    assert find_board(image, (7, 5)).found
+
+
+def write_photos(folder, images) -> list[str]:
+    paths = []
+    for i, image in enumerate(images):
+        paths.append(str(folder / f"board{i:02d}.png"))
+        cv2.imwrite(paths[-1], image)
+    return paths
+
+
+def test_cli_calibrate_writes_a_camera_file_recognize_can_read(rendered, tmp_path, capsys):
+    paths = write_photos(tmp_path, rendered[0][:5] + [np.full(SIZE[::-1], 255, np.uint8)])
+    out = tmp_path / "cam.yaml"
+    assert main(["calibrate", *paths, "--board", "9x6", "--square", "0.03", "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "overall RMS" in text and "board05.png" in text and "not found" in text and f"wrote {out}" in text
+    cam = load_camera(out)
+    assert abs(cam.K[0, 0] / K_TRUE[0, 0] - 1) < 0.01 and cam.has_distortion
+
+
+def test_cli_calibrate_drop_outliers(tmp_path, capsys, monkeypatch):
+    views = projected_views(10)
+    views[3] = BoardView("board03.png", SIZE, views[3].corners + np.random.default_rng(1).normal(0, 3, (54, 2)))
+    by_name = {f"board{i:02d}.png": BoardView(f"board{i:02d}.png", SIZE, v.corners) for i, v in enumerate(views)}
+    monkeypatch.setattr(calib, "find_board", lambda gray, board, name: by_name[name])
+    paths = write_photos(tmp_path, [np.zeros((SIZE[1], SIZE[0]), np.uint8)] * 10)
+    out = tmp_path / "cam.yaml"
+    assert main(["calibrate", *paths, "--board", "9x6", "--square", "0.03", "-o", str(out), "--drop-outliers"]) == 0
+    text = capsys.readouterr().out
+    assert "board03.png" in text and "dropped as an outlier" in text
+    assert load_camera(out).K[0, 0] == pytest.approx(K_TRUE[0, 0], rel=0.002)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--board", "9by6", "--square", "0.03"], "COLSxROWS"),
+    (["--board", "9x6", "--square", "0"], "square size"),
+])
+def test_cli_calibrate_bad_options(tmp_path, capsys, argv, message):
+    paths = write_photos(tmp_path, [np.full((100, 100), 255, np.uint8)])
+    assert main(["calibrate", *paths, *argv, "-o", str(tmp_path / "c.yaml")]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "c.yaml").exists()
+
+
+def test_cli_calibrate_board_nowhere(tmp_path, capsys):
+    paths = write_photos(tmp_path, [np.full((480, 640), 255, np.uint8)] * 3)
+    assert main(["calibrate", *paths, "--board", "9x6", "--square", "0.03", "-o", str(tmp_path / "c.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert "not found in any of the 3 image(s)" in err and "inner corners" in err
+
+
+def test_cli_calibrate_unreadable_image_is_reported(rendered, tmp_path, capsys):
+    paths = write_photos(tmp_path, rendered[0][:3])
+    (tmp_path / "broken.jpg").write_bytes(b"not a jpeg")
+    out = tmp_path / "c.yaml"
+    assert main(["calibrate", *paths, str(tmp_path / "broken.jpg"), "--board", "9x6", "--square", "0.03",
+                 "-o", str(out)]) == 1
+    assert "broken.jpg" in capsys.readouterr().err and out.exists()

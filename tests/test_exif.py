@@ -1,0 +1,135 @@
+"""EXIF intrinsics: JPEGs with lens EXIF built byte by byte (and once by Pillow, as a cross-check)."""
+
+import io
+import math
+import struct
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pipeline.exif import LensExif, camera_from_exif, focal_px, read_lens_exif
+
+FOCAL, FOCAL_35, PLANE_X, PLANE_UNIT, PIXEL_X, PIXEL_Y = 0x920A, 0xA405, 0xA20E, 0xA210, 0xA002, 0xA003
+SHORT, LONG, RATIONAL = 3, 4, 5
+
+
+def tiff_block(tags: dict[int, tuple[int, object]], order: str = "<") -> bytes:
+    """A TIFF block whose IFD0 points to an Exif IFD holding `tags`: tag -> (type, int or (num, den))."""
+    exif_at = 8 + 18  # header, then IFD0 with its one entry
+    data_at = exif_at + 2 + 12 * len(tags) + 4
+    entries, data = b"", b""
+    for tag, (kind, value) in sorted(tags.items()):
+        if kind == RATIONAL:
+            entries += struct.pack(order + "HHII", tag, kind, 1, data_at + len(data))
+            data += struct.pack(order + "II", *value)
+        elif kind == SHORT:  # left-justified in the 4-byte value field, whatever the byte order
+            entries += struct.pack(order + "HHIH2x", tag, kind, 1, value)
+        else:
+            entries += struct.pack(order + "HHII", tag, kind, 1, value)
+    header = (b"II" if order == "<" else b"MM") + struct.pack(order + "HI", 42, 8)
+    ifd0 = struct.pack(order + "HHHII", 1, 0x8769, LONG, 1, exif_at) + struct.pack(order + "I", 0)
+    return header + ifd0 + struct.pack(order + "H", len(tags)) + entries + struct.pack(order + "I", 0) + data
+
+
+def jpeg_with_exif(tiff: bytes, width: int = 64, height: int = 48) -> bytes:
+    jpeg = cv2.imencode(".jpg", np.zeros((height, width, 3), np.uint8))[1].tobytes()
+    app1 = b"Exif\x00\x00" + tiff
+    return jpeg[:2] + b"\xff\xe1" + struct.pack(">H", len(app1) + 2) + app1 + jpeg[2:]
+
+
+PHONE = {FOCAL: (RATIONAL, (42, 10)), FOCAL_35: (SHORT, 26), PIXEL_X: (LONG, 4032), PIXEL_Y: (LONG, 3024)}
+# 50 mm lens on a 23.5 mm wide, 6000 px APS-C sensor; FocalPlaneXResolution in pixels per inch.
+DSLR = {FOCAL: (RATIONAL, (50, 1)), FOCAL_35: (SHORT, 75), PLANE_X: (RATIONAL, (6000 * 254, 235)),
+        PLANE_UNIT: (SHORT, 2), PIXEL_X: (SHORT, 6000), PIXEL_Y: (SHORT, 4000)}
+
+
+@pytest.mark.parametrize("order", ["<", ">"])
+def test_phone_35mm_equivalent(order):
+    cam = camera_from_exif(jpeg_with_exif(tiff_block(PHONE, order)), 4032, 3024)
+    # 26 mm over the 43.27 mm full-frame diagonal, times the 5040 px image diagonal.
+    assert cam.K[0, 0] == pytest.approx(26 * 5040 / math.hypot(36, 24)) == cam.K[1, 1]
+    assert (cam.K[0, 2], cam.K[1, 2]) == (2016, 1512) and not cam.has_distortion
+    assert cam.source == "EXIF focal length 4.2 mm (35 mm equiv 26 mm)"
+    hfov = math.degrees(2 * math.atan(2016 / cam.K[0, 0]))
+    assert 65 < hfov < 70  # what a 26 mm-equivalent phone camera sees across its long side
+
+
+@pytest.mark.parametrize("order", ["<", ">"])
+def test_focal_plane_resolution_is_preferred(order):
+    jpeg = jpeg_with_exif(tiff_block(DSLR, order))
+    f_full = 50 * 6000 / 23.5
+    assert camera_from_exif(jpeg, 6000, 4000).K[0, 0] == pytest.approx(f_full)
+    assert camera_from_exif(jpeg, 1500, 1000).K[0, 0] == pytest.approx(f_full / 4)  # resized
+    portrait = camera_from_exif(jpeg, 1000, 1500)  # rotated by EXIF orientation when decoded
+    assert portrait.K[0, 0] == pytest.approx(f_full / 4) and portrait.K[0, 2] == 500
+
+
+def test_focal_plane_units():
+    per_mm = {**DSLR, PLANE_X: (RATIONAL, (6000 * 10, 235)), PLANE_UNIT: (SHORT, 4)}
+    assert camera_from_exif(jpeg_with_exif(tiff_block(per_mm)), 6000, 4000).K[0, 0] == pytest.approx(50 * 6000 / 23.5)
+    lens = read_lens_exif(jpeg_with_exif(tiff_block(DSLR)))
+    assert lens == LensExif(50.0, 75.0, pytest.approx(6000 / 23.5), (6000, 4000))
+
+
+def test_only_true_focal_length_is_not_enough():
+    jpeg = jpeg_with_exif(tiff_block({FOCAL: (RATIONAL, (42, 10))}))
+    assert read_lens_exif(jpeg).focal_mm == pytest.approx(4.2)
+    assert camera_from_exif(jpeg, 4032, 3024) is None
+
+
+def test_implausible_values_are_skipped():
+    bogus_plane = {**DSLR, PLANE_X: (RATIONAL, (1, 1))}  # 1 px per inch: a 0.1° field of view
+    cam = camera_from_exif(jpeg_with_exif(tiff_block(bogus_plane)), 6000, 4000)
+    assert cam.K[0, 0] == pytest.approx(75 * math.hypot(6000, 4000) / math.hypot(36, 24))
+    assert camera_from_exif(jpeg_with_exif(tiff_block({FOCAL_35: (SHORT, 1)})), 640, 480) is None
+    assert camera_from_exif(jpeg_with_exif(tiff_block({FOCAL: (RATIONAL, (42, 0)), FOCAL_35: (SHORT, 0)})),
+                            640, 480) is None
+
+
+def test_no_exif():
+    plain = cv2.imencode(".jpg", np.zeros((8, 8, 3), np.uint8))[1].tobytes()
+    png = cv2.imencode(".png", np.zeros((8, 8, 3), np.uint8))[1].tobytes()
+    for data in (plain, png, b"", b"\xff\xd8", b"\xff\xd8\xff\xe1\x00\x08Exif\x00\x00"):
+        assert read_lens_exif(data) is None and camera_from_exif(data, 8, 8) is None
+
+
+def test_reads_exif_written_by_pillow():
+    Image = pytest.importorskip("PIL.Image")
+    from PIL import ExifTags, TiffImagePlugin
+
+    exif = Image.Exif()
+    exif_ifd = exif.get_ifd(ExifTags.IFD.Exif)
+    exif_ifd[ExifTags.Base.FocalLength] = TiffImagePlugin.IFDRational(57, 10)
+    exif_ifd[ExifTags.Base.FocalLengthIn35mmFilm] = 24
+    buf = io.BytesIO()
+    Image.new("RGB", (400, 300)).save(buf, "JPEG", exif=exif)
+    cam = camera_from_exif(buf.getvalue(), 400, 300)
+    assert cam.K[0, 0] == pytest.approx(24 * 500 / math.hypot(36, 24))
+    assert cam.source == "EXIF focal length 5.7 mm (35 mm equiv 24 mm)"
+
+
+def test_focal_px_without_pixel_dimensions_assumes_the_recorded_size():
+    lens = LensExif(focal_mm=50.0, focal_35mm=None, plane_px_per_mm=6000 / 23.5, pixel_size=None)
+    assert focal_px(lens, 6000, 4000) == pytest.approx(50 * 6000 / 23.5)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=200))
+def test_arbitrary_bytes_never_raise(data):
+    camera = camera_from_exif(b"\xff\xd8" + data, 640, 480)  # must not raise, whatever the bytes
+    assert camera is None or camera.K[0, 0] > 0
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.data())
+def test_corrupted_exif_never_raises(data):
+    jpeg = bytearray(jpeg_with_exif(tiff_block(DSLR, data.draw(st.sampled_from(["<", ">"])))))
+    exif_end = 4 + 2 + 6 + len(tiff_block(DSLR)) + 2
+    for _ in range(data.draw(st.integers(1, 8))):
+        jpeg[data.draw(st.integers(2, exif_end))] = data.draw(st.integers(0, 255))
+    cut = data.draw(st.integers(2, len(jpeg)))
+    camera = camera_from_exif(bytes(jpeg[:cut]), 6000, 4000)
+    assert camera is None or camera.K[0, 0] > 0
