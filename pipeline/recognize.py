@@ -19,7 +19,8 @@ from .homography import HomographyEstimate, estimate_homography
 from .image import to_gray
 from .library import Library, LibrarySign
 from .match import Matches, ratio_match
-from .pose import Pose, estimate_pose
+from .plaque import PlaqueMatch, match_plaque, refine_ecc
+from .pose import Pose, PoseError, estimate_pose
 from .segment import Box, Segmentation, segment
 from .settings import Settings
 
@@ -30,6 +31,8 @@ MAX_SIDE_RATIO = 8.0
 # Corners may leave the image (a sign at the frame edge), but not by more than this many image sizes.
 MAX_CORNER_EXCURSION = 0.5
 MIN_QUAD_AREA_PX = 64.0
+# Below this ECC correlation the dense alignment has latched onto something other than the sign.
+MIN_ECC = 0.5
 
 
 @dataclass(eq=False)
@@ -86,7 +89,11 @@ class Attempt:
 
 @dataclass(eq=False)
 class Recognition:
-    """Everything the pipeline computed for one image; `attempt` is the region the answer came from."""
+    """Everything the pipeline computed for one image; `attempt` is the region the answer came from.
+
+    H: the final homography (library px -> image px) of the recognised sign, after refinement;
+    ecc: the correlation of the dense alignment that refined it (None when not refined).
+    """
 
     image_size: tuple[int, int]
     settings: Settings
@@ -94,22 +101,34 @@ class Recognition:
     segmentation: Segmentation | None = field(repr=False)
     attempts: list[Attempt] = field(repr=False)
     attempt: Attempt | None = field(repr=False)
+    plaque: PlaqueMatch | None = field(repr=False)
+    H: np.ndarray | None = field(repr=False)
+    ecc: float | None
     pose: Pose | None
     timing_ms: dict[str, float]
     warnings: list[str]
+    sign_corners_px: np.ndarray | None = field(repr=False, default=None)
 
     @property
     def best(self) -> SignScore | None:
+        """The winning sign's feature score, when features decided."""
         a = self.attempt
         return a.scores[a.winner] if a is not None and a.winner is not None else None
 
     @property
+    def by_plaque(self) -> bool:
+        """True when the plaque fallback, not features, recognised the sign."""
+        return self.best is None and self.plaque is not None and self.plaque.sign is not None
+
+    @property
     def label(self) -> str | None:
-        return self.best.sign if self.best is not None else None
+        if self.best is not None:
+            return self.best.sign
+        return self.plaque.sign if self.by_plaque else None
 
     @property
     def recognized(self) -> bool:
-        return self.best is not None
+        return self.label is not None
 
     @property
     def scores(self) -> list[SignScore]:
@@ -120,12 +139,12 @@ class Recognition:
         return self.attempt.margin if self.attempt is not None else 0
 
     @property
-    def H(self) -> np.ndarray | None:
-        return self.best.H if self.best is not None else None
-
-    @property
     def corners(self) -> np.ndarray | None:
-        return self.best.corners if self.best is not None else None
+        """(4, 2) image px of the recognised sign's TL, TR, BR, BL through the final H."""
+        if self.H is None:
+            return None
+        hom = project(self.H, self.sign_corners_px)
+        return hom[:, :2] / hom[:, 2:]
 
     def to_json(self, image: str) -> dict:
         """The CLI's and API's JSON schema for one image."""
@@ -318,15 +337,74 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     if chosen is None and attempts:
         chosen = max(attempts, key=lambda a: a.best_inliers)
 
-    pose = None
-    if chosen is not None and chosen.winner is not None:
-        best = chosen.scores[chosen.winner]
+    plaque = None
+    if (chosen is None or chosen.winner is None) and settings.plaque_fallback and segmentation is not None:
         t0 = time.perf_counter()
-        inl = best.estimate.inliers
-        pose = estimate_pose(best.H, best.src[inl], best.dst[inl], library[best.sign], camera,
-                             settings.pose_method, settings.ambiguity_ratio)
+        plaque = read_plaques(gray, segmentation, library, settings)
+        timing["match"] += (time.perf_counter() - t0) * 1e3
+        if plaque is not None and plaque.sign is not None:
+            warnings.append(f"recognised by the plaque fallback (correlation {plaque.ncc[plaque.sign]:.2f}): "
+                            "too few feature inliers")
+
+    H, ecc, pose, sign = None, None, None, None
+    winner = winner_homography(chosen, plaque, library)
+    if winner is not None:
+        t0 = time.perf_counter()
+        H, src, dst, sign = winner
+        if settings.refine == "ecc":
+            refined = refine_ecc(gray, sign, H)
+            if refined is not None and refined[1] >= MIN_ECC:
+                H, ecc = refined
+                src, dst = grid_correspondences(H, sign)
+            else:
+                warnings.append("dense refinement did not converge; H and pose come from the matches alone")
+        try:
+            pose = estimate_pose(H, src, dst, sign, camera, settings.pose_method, settings.ambiguity_ratio)
+        except PoseError as exc:
+            warnings.append(f"no pose: {exc}")
         timing["pose"] = (time.perf_counter() - t0) * 1e3
-        if pose.ambiguous:
+        if pose is not None and pose.ambiguous:
             warnings.append("pose is ambiguous: the two planar solutions fit almost equally well")
     timing["total"] = (time.perf_counter() - t_start) * 1e3
-    return Recognition((width, height), settings, camera, segmentation, attempts, chosen, pose, timing, warnings)
+    return Recognition((width, height), settings, camera, segmentation, attempts, chosen, plaque, H, ecc, pose,
+                       timing, warnings, sign.corners_px if sign is not None else None)
+
+
+def read_plaques(gray: np.ndarray, segmentation: Segmentation, library: Library,
+                 settings: Settings) -> PlaqueMatch | None:
+    """The first candidate blob that reads as a library sign's plaque, else the first that is a quad."""
+    first = None
+    for blob in segmentation.blobs:
+        match = match_plaque(gray, segmentation.labels, blob, library, settings.min_plaque_ncc,
+                             settings.plaque_margin)
+        if match is not None and match.sign is not None:
+            return match
+        first = first or match
+    return first
+
+
+def grid_correspondences(H: np.ndarray, sign: LibrarySign, n: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """An n x n grid over the sign (library px) and its image through H: (n*n, 2) each.
+
+    After dense alignment every pixel of the sign supports H, so a grid stands in for the matches.
+    """
+    w, h = sign.size_px
+    gu, gv = np.meshgrid(np.linspace(0, w, n), np.linspace(0, h, n))
+    src = np.column_stack([gu.ravel(), gv.ravel()])
+    hom = project(H, src)
+    return src, hom[:, :2] / hom[:, 2:]
+
+
+def winner_homography(attempt: Attempt | None, plaque: PlaqueMatch | None, library: Library):
+    """(H, src (N, 2) library px, dst (N, 2) image px, sign) of the winner, or None without one.
+
+    For the plaque fallback, a grid over the sign mapped through the outline's H stands in for matches.
+    """
+    if attempt is not None and attempt.winner is not None:
+        best = attempt.scores[attempt.winner]
+        inl = best.estimate.inliers
+        return best.H, best.src[inl], best.dst[inl], library[best.sign]
+    if plaque is not None and plaque.sign is not None:
+        sign = library[plaque.sign]
+        return (plaque.H, *grid_correspondences(plaque.H, sign), sign)
+    return None

@@ -40,6 +40,7 @@ NORMALIZATIONS = ("scale", "minmax")
 DETECTORS = ("sift", "orb")
 RANSAC_METHODS = ("own", "cv2_ransac", "usac_magsac", "usac_accurate")
 POSE_METHODS = ("paper", "ippe", "ippe_lm")
+REFINE_METHODS = ("ecc", "none")
 
 
 @dataclass(frozen=True)
@@ -93,7 +94,18 @@ class Settings:
     min_margin: int = _num(5, 0, 1000, "Decision",
                            "The winner needs this many more inliers than the runner-up", step=1)
 
+    # Plaque fallback
+    plaque_fallback: bool = _flag(True, "Plaque",
+                                  "When features fail, read white quad blobs as plaques: outline, correlation, ECC")
+    min_plaque_ncc: float = _num(0.6, 0.0, 1.0, "Plaque",
+                                 "Least correlation between a rectified blob and a library sign to accept it",
+                                 step=0.01)
+    plaque_margin: float = _num(0.15, 0.0, 1.0, "Plaque",
+                                "The best sign's correlation must beat the runner-up's by this much", step=0.01)
+
     # Pose
+    refine: str = _choice("ecc", REFINE_METHODS, "Pose",
+                          "ecc: align the sign densely to the image to refine H before the pose; none: use H as fitted")
     pose_method: str = _choice("ippe_lm", POSE_METHODS, "Pose",
                                "paper: decompose H; ippe: planar PnP on all inliers; ippe_lm: ippe refined by LM")
     ambiguity_ratio: float = _num(0.8, 0.0, 1.0, "Pose",
@@ -187,6 +199,8 @@ PRESETS: dict[str, Settings] = {
         ransac_iterations=50,
         min_inliers=4,
         min_margin=0,
+        plaque_fallback=False,
+        refine="none",
         pose_method="paper",
     ),
     "default": Settings(),
