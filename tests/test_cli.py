@@ -1,0 +1,95 @@
+"""The `signpose` command line, run as a user runs it: a subprocess on real files."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENES = ROOT / "sample_images" / "scenes"
+POSE_KEYS = {"R", "t", "camera_position", "quaternion_wxyz", "euler_deg", "reprojection_rmse_px", "ambiguous",
+             "covariance"}
+TIMING_KEYS = {"segment", "features", "match", "ransac", "pose", "total"}
+
+
+def signpose(*args, cwd=ROOT):
+    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], cwd=cwd, capture_output=True,
+                          text=True, timeout=300)
+
+
+def check_schema(obj):
+    assert set(obj) == {"image", "recognized", "label", "scores", "homography", "corners", "pose", "timing_ms",
+                        "warnings"}
+    assert isinstance(obj["recognized"], bool) and obj["recognized"] == (obj["label"] is not None)
+    for s in obj["scores"]:
+        assert set(s) == {"sign", "matches", "inliers", "reason"}
+        assert isinstance(s["matches"], int) and isinstance(s["inliers"], int)
+    assert set(obj["timing_ms"]) == TIMING_KEYS
+    assert all(isinstance(w, str) for w in obj["warnings"])
+    if obj["recognized"]:
+        assert len(obj["homography"]) == 3 and all(len(r) == 3 for r in obj["homography"])
+        assert len(obj["corners"]) == 4 and all(len(c) == 2 for c in obj["corners"])
+        pose = obj["pose"]
+        assert set(pose) == POSE_KEYS
+        assert len(pose["t"]) == 3 and len(pose["quaternion_wxyz"]) == 4
+        assert set(pose["euler_deg"]) == {"yaw", "pitch", "roll"}
+        assert pose["covariance"] is None or (len(pose["covariance"]) == 6 and len(pose["covariance"][0]) == 6)
+    else:
+        assert obj["homography"] is None and obj["corners"] is None and obj["pose"] is None
+
+
+def test_json_schema_and_labels_on_sample_scenes():
+    truth = json.loads((SCENES / "truth.json").read_text())["images"]
+    names = sorted(truth)
+    result = signpose("recognize", *[SCENES / n for n in names], "--camera", SCENES / "camera.yaml", "--json")
+    assert result.returncode == 0, result.stderr
+    lines = [json.loads(line) for line in result.stdout.splitlines()]
+    assert len(lines) == len(names)
+    for name, obj in zip(names, lines):
+        check_schema(obj)
+        assert obj["label"] == truth[name]["label"], (name, obj["scores"], obj["warnings"])
+        assert not any("assumed" in w for w in obj["warnings"])
+
+
+def test_bad_files_get_an_error_line_and_the_rest_still_run(tmp_path):
+    good = sorted(SCENES.glob("*.jpg"))[0]
+    fake = tmp_path / "notes.jpg"
+    fake.write_text("this is not a jpeg")
+    empty = tmp_path / "empty.png"
+    empty.write_bytes(b"")
+    result = signpose("recognize", fake, good, empty, tmp_path / "missing.jpg", "--json")
+    assert result.returncode != 0
+    objs = [json.loads(line) for line in result.stdout.splitlines()]
+    assert [("error" in o) for o in objs] == [True, False, True, True]
+    assert "not a readable image" in objs[0]["error"] and "empty" in objs[2]["error"]
+    check_schema(objs[1])
+    assert "assumed" in " ".join(objs[1]["warnings"])  # no --camera: the assumed FOV is said
+    table = signpose("recognize", fake, good)
+    assert table.returncode != 0 and "error" in table.stdout and good.name in table.stdout
+
+
+@pytest.mark.parametrize("option, content, message", [
+    ("--settings", '{"threshold": 2}', "threshold must be between"),
+    ("--settings", '{"colour": 1}', "unknown setting"),
+    ("--camera", '{"fx": 0, "fy": 1, "cx": 1, "cy": 1}', "positive"),
+])
+def test_bad_settings_and_camera_files_are_one_clear_line(tmp_path, option, content, message):
+    path = tmp_path / "file.json"
+    path.write_text(content)
+    result = signpose("recognize", sorted(SCENES.glob("*.jpg"))[0], option, path)
+    assert result.returncode == 2
+    assert message in result.stderr and "Traceback" not in result.stderr
+
+
+def test_bad_library_is_a_clear_error(tmp_path):
+    (tmp_path / "library.json").write_text('{"signs": [{"id": "../x", "image": "a.png", "width_m": 0.6}]}')
+    result = signpose("recognize", sorted(SCENES.glob("*.jpg"))[0], "--library", tmp_path)
+    assert result.returncode == 2 and "id '../x'" in result.stderr
+
+
+def test_readable_table(tmp_path):
+    result = signpose("recognize", *sorted(SCENES.glob("*.jpg"))[:3], "--camera", SCENES / "camera.yaml")
+    assert result.returncode == 0
+    assert result.stdout.splitlines()[0].split()[:4] == ["image", "label", "inliers", "margin"]
