@@ -1,0 +1,609 @@
+"""The one holder of `signpose serve` state: settings, library, camera, images and their results.
+
+The FastAPI routes and the viser scene share one `Workspace` (docs/web-contract.md). The
+pipeline runs on a thread pool (OpenCV releases the GIL, so threads use every core). After a
+change, one re-run thread waits until changes stop for `debounce_s` (at most `max_wait_s`),
+takes a `Snapshot` of the state and re-runs every image whose result is stale, each with its
+own `StageCache` so a RANSAC change does not re-detect features. A newer change supersedes the
+run in progress: images not yet started are skipped and one new run follows, so a slider storm
+costs one or two runs, not one per change. Every result is tagged with the snapshot it was
+computed from and never mixes two states.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import mimetypes
+import os
+import re
+import secrets
+import threading
+import time
+import warnings
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import cv2
+import numpy as np
+from PIL import Image, UnidentifiedImageError
+
+from pipeline.camera import Camera, load_camera
+from pipeline.features import library_features
+from pipeline.image import ImageError, decode_image
+from pipeline.library import ID_PATTERN, SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, make_sign, \
+    validate_sign_entry
+from pipeline.recognize import Recognition, StageCache, recognize
+from pipeline.settings import PRESETS, Settings, SettingsError, load_settings
+
+from .state import StateDir, StoredImage
+
+log = logging.getLogger(__name__)
+
+SAMPLE_SCENES = SAMPLE_LIBRARY.parent / "scenes"
+# An expected label saying "this image shows no library sign" (a negative); not a valid sign id
+# clash in practice, and refused as the id of a new sign.
+NO_SIGN = "none"
+MAX_NAME_CHARS = 200
+IMAGE_ID = re.compile(r"^[0-9a-f]{12}$")
+EVENT_KINDS = ("settings", "results", "library", "camera", "images")
+
+
+class Conflict(ValueError):
+    """A request the current state refuses (too many images, duplicate sign id, ...); the message says why."""
+
+
+class ImageTooLarge(ImageError):
+    """An image whose pixel count exceeds the limit (a decompression bomb or a huge scan)."""
+
+
+@dataclass(frozen=True)
+class WorkspaceConfig:
+    """Options of `signpose serve` (sizes in bytes and pixels, times in seconds)."""
+
+    state_dir: Path = Path("signpose_state")
+    library_dir: Path | None = None  # None: the state's library; on a fresh state the samples
+    camera_file: Path | None = None  # None: the state's camera
+    settings_file: Path | None = None  # None: the state's settings
+    load_samples: bool = True  # on a fresh state with the sample library, load sample_images/scenes
+    max_images: int = 500
+    max_pixels: int = 40_000_000
+    max_upload_bytes: int = 25_000_000
+    workers: int = os.cpu_count() or 1
+    debounce_s: float = 0.15
+    max_wait_s: float = 1.0
+
+
+@dataclass(frozen=True)
+class Event:
+    """A change notice; `kind` is one of EVENT_KINDS, `payload` JSON-ready (see the contract)."""
+
+    kind: str
+    payload: dict
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """Everything a result depends on. `generation` grows with every change to any of it."""
+
+    generation: int
+    settings_version: int
+    settings: Settings
+    library: Library
+    camera: Camera | None
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One image's latest result and the snapshot it came from (replaced as a whole, never torn)."""
+
+    recognition: Recognition | None = None
+    settings_version: int = 0
+    generation: int = -1
+    error: str | None = None
+
+
+@dataclass(eq=False)
+class ImageRecord:
+    """One loaded image. `image` is (H, W, 3) uint8 BGR; `file` its stored name in the state directory."""
+
+    id: str
+    name: str
+    expected: str | None
+    image: np.ndarray = field(repr=False)
+    file: str
+    media_type: str
+    cache: StageCache = field(default_factory=StageCache, repr=False)
+    outcome: Outcome = field(default_factory=Outcome)
+    # Held while the pipeline uses `cache`: StageCache is not thread-safe and a sweep may run
+    # alongside a re-run.
+    lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    @property
+    def recognition(self) -> Recognition | None:
+        return self.outcome.recognition
+
+    @property
+    def settings_version(self) -> int:
+        return self.outcome.settings_version
+
+    @property
+    def error(self) -> str | None:
+        return self.outcome.error
+
+    @property
+    def width(self) -> int:
+        return int(self.image.shape[1])
+
+    @property
+    def height(self) -> int:
+        return int(self.image.shape[0])
+
+    def stored(self) -> StoredImage:
+        return StoredImage(self.id, self.name, self.expected, self.file, self.media_type)
+
+
+def is_correct(expected: str | None, recognition: Recognition) -> bool | None:
+    """Whether `recognition` matches `expected` (None when the image is unlabelled)."""
+    if expected is None:
+        return None
+    return recognition.label == (None if expected == NO_SIGN else expected)
+
+
+def status_of(record: ImageRecord, generation: int) -> str:
+    """"pending" (no result for the current state yet), "error", "correct", "wrong", "recognized" or "none"."""
+    outcome = record.outcome
+    if outcome.generation != generation:
+        return "pending"
+    if outcome.error is not None or outcome.recognition is None:
+        return "error"
+    correct = is_correct(record.expected, outcome.recognition)
+    if correct is not None:
+        return "correct" if correct else "wrong"
+    return "recognized" if outcome.recognition.recognized else "none"
+
+
+def display_name(name: str) -> str:
+    """A client's file name reduced to something safe to show (it never becomes a path)."""
+    base = name.replace("\\", "/").rsplit("/", 1)[-1]
+    base = "".join(ch for ch in base if ch.isprintable()).strip()
+    return base[:MAX_NAME_CHARS] or "image"
+
+
+def check_image_header(data: bytes, name: str, max_pixels: int) -> str:
+    """The media type of encoded image `data`, after checking its header says at most `max_pixels` px.
+
+    Reads only the header (no pixel data is decoded), so a small file claiming a huge image
+    is refused before it can take gigabytes of memory.
+    """
+    if not data:
+        raise ImageError(f"{name}: file is empty")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(io.BytesIO(data)) as im:
+                width, height = im.size
+                media_type = im.get_format_mimetype() or "application/octet-stream"
+    except Image.DecompressionBombError:
+        raise ImageTooLarge(f"{name}: the image has more than {max_pixels / 1e6:g} megapixels; "
+                            "downscale it before uploading") from None
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError):
+        raise ImageError(f"{name}: not an image file (use JPEG, PNG, TIFF, WebP or BMP)") from None
+    if width * height > max_pixels:
+        raise ImageTooLarge(f"{name}: {width}x{height} px is {width * height / 1e6:.1f} megapixels, more than "
+                            f"the limit of {max_pixels / 1e6:g}; downscale it before uploading")
+    return media_type
+
+
+def decode_upload(data: bytes, name: str, max_pixels: int) -> tuple[np.ndarray, str]:
+    """Check and decode an uploaded image: ((H, W, 3) uint8 BGR, media type). Raises ImageError."""
+    media_type = check_image_header(data, name, max_pixels)
+    return decode_image(data, name), media_type
+
+
+def sample_scenes(folder: Path = SAMPLE_SCENES) -> list[tuple[Path, str | None]]:
+    """(image path, expected label) of the sample scenes; negatives are expected `NO_SIGN`."""
+    try:
+        truth = json.loads((folder / "truth.json").read_text(encoding="utf-8"))["images"]
+    except (OSError, ValueError, KeyError, TypeError):
+        log.warning("no usable %s; starting without sample scenes", folder / "truth.json")
+        return []
+    return [(path, (truth[path.name].get("label") or NO_SIGN) if path.name in truth else None)
+            for path in sorted(folder.glob("*.jpg"))]
+
+
+class Workspace:
+    """Server state shared by the HTTP API and the viser scene (the interface is in docs/web-contract.md).
+
+    Thread-safe: routes call it from FastAPI's thread pool, the scene from viser's threads.
+    Call `close()` to stop its threads.
+    """
+
+    def __init__(self, config: WorkspaceConfig = WorkspaceConfig()) -> None:
+        self.config = config
+        self.state = StateDir(config.state_dir)
+        self._lock = threading.RLock()  # guards _snap, _records and the state directory
+        self._idle = threading.Condition(self._lock)
+        self._records: dict[str, ImageRecord] = {}
+        self._subscribers: list[Callable[[Event], None]] = []
+        self._pool = ThreadPoolExecutor(max_workers=max(1, config.workers), thread_name_prefix="signpose-pipeline")
+        self._dirty = False
+        self._first_change = self._last_change = 0.0
+        self._batch_running = False
+        self._in_flight = 0
+        self._closed = False
+
+        library, _ = self.state.open_library(config.library_dir, SAMPLE_LIBRARY)
+        settings = self.state.load_settings() or PRESETS["default"]
+        if config.settings_file is not None:
+            settings = load_settings(config.settings_file)
+            self.state.save_settings(settings)
+        camera = self.state.load_camera()
+        if config.camera_file is not None:
+            camera = load_camera(config.camera_file)
+            self.state.save_camera(camera)
+        self._snap = Snapshot(1, 1, settings, library, camera)
+
+        stored = self.state.load_images()
+        self.state.sweep(stored or [], library)
+        for entry, image in zip(stored or [], self._pool.map(self._decode_stored, stored or [])):
+            if image is not None:
+                self._records[entry.id] = ImageRecord(entry.id, entry.name, entry.expected, image, entry.file,
+                                                      entry.media_type)
+        if len(self._records) != len(stored or []):
+            self.state.save_images([r.stored() for r in self._records.values()])
+
+        self._runner = threading.Thread(target=self._rerun_loop, name="signpose-rerun", daemon=True)
+        self._runner.start()
+        if stored is None and config.load_samples and self.state.library_origin() == SAMPLE_LIBRARY.resolve():
+            self._load_samples()
+        elif self._records:
+            self._request_rerun()
+
+    def _decode_stored(self, entry: StoredImage) -> np.ndarray | None:
+        try:
+            return decode_image(self.state.read_image(entry.file), entry.name)
+        except (OSError, ImageError) as exc:  # a file damaged on disk: drop it rather than refuse to start
+            log.warning("dropping stored image %s (%s): %s", entry.name, entry.file, exc)
+            return None
+
+    # ---- state
+
+    @property
+    def snapshot(self) -> Snapshot:
+        return self._snap
+
+    @property
+    def settings(self) -> Settings:
+        return self._snap.settings
+
+    @property
+    def settings_version(self) -> int:
+        return self._snap.settings_version
+
+    @property
+    def library(self) -> Library:
+        return self._snap.library
+
+    @property
+    def camera(self) -> Camera | None:
+        return self._snap.camera
+
+    def _load_samples(self) -> None:
+        for path, expected in sample_scenes():
+            try:
+                self.add_image(path.name, path.read_bytes(), expected)
+            except (OSError, ValueError) as exc:
+                log.warning("sample scene %s not loaded: %s", path, exc)
+
+    # ---- images
+
+    def images(self) -> list[ImageRecord]:
+        """All images, in upload order."""
+        with self._lock:
+            return list(self._records.values())
+
+    def get(self, image_id: str) -> ImageRecord:
+        """The image with `image_id`; KeyError when there is none."""
+        return self._records[image_id]
+
+    def check_expected(self, expected: str | None) -> str | None:
+        """`expected` normalised ("" -> None), or LibraryError naming the known labels."""
+        if expected is None or expected == "":
+            return None
+        if expected != NO_SIGN and expected not in self.library.ids:
+            raise LibraryError(f"expected label {expected!r} is not a sign in the library; use one of "
+                               f"{', '.join(self.library.ids)}, {NO_SIGN!r} for an image without a sign, "
+                               "or leave it empty")
+        return expected
+
+    def add_image(self, name: str, data: bytes, expected: str | None) -> ImageRecord:
+        """Decode, store and queue one image for processing (see `add_images`)."""
+        return self.add_images([(name, data, expected)])[0]
+
+    def add_images(self, uploads: list[tuple[str, bytes, str | None]]) -> list[ImageRecord]:
+        """Decode, store and queue (name, encoded bytes, expected label) uploads, all or none.
+
+        Raises ImageError (ImageTooLarge for too many pixels), LibraryError for an unknown
+        expected label, Conflict when the images would exceed `max_images`.
+        """
+        with self._lock:
+            free = self.config.max_images - len(self._records)
+        if len(uploads) > free:
+            raise Conflict(f"the workspace holds {self.config.max_images - free} images and its limit is "
+                           f"{self.config.max_images}; delete some before adding {len(uploads)} more")
+        checked = [(display_name(name), data, self.check_expected(expected)) for name, data, expected in uploads]
+        decoded = list(self._pool.map(lambda u: decode_upload(u[1], u[0], self.config.max_pixels), checked))
+        records = []
+        with self._lock:
+            if len(self._records) + len(checked) > self.config.max_images:
+                raise Conflict(f"the workspace reached its limit of {self.config.max_images} images; "
+                               "delete some first")
+            for (name, data, expected), (image, media_type) in zip(checked, decoded):
+                image_id = secrets.token_hex(6)
+                file = image_id + _extension(media_type)
+                self.state.write_image(file, data)
+                records.append(ImageRecord(image_id, name, expected, image, file, media_type))
+            self._records.update((r.id, r) for r in records)
+            self.state.save_images([r.stored() for r in self._records.values()])
+            for record in records:
+                self._submit(record)
+        self._emit("images", {"ids": [r.id for r in self.images()]})
+        return records
+
+    def set_expected(self, image_id: str, expected: str | None) -> ImageRecord:
+        with self._lock:
+            record = self._records[image_id]
+            record.expected = self.check_expected(expected)
+            self.state.save_images([r.stored() for r in self._records.values()])
+        self._emit("images", {"ids": [r.id for r in self.images()]})
+        return record
+
+    def remove_image(self, image_id: str) -> None:
+        """Forget an image and delete its stored file; KeyError when there is none."""
+        with self._lock:
+            record = self._records.pop(image_id)
+            self.state.save_images([r.stored() for r in self._records.values()])
+            self.state.remove_image(record.file)
+        self._emit("images", {"ids": [r.id for r in self.images()]})
+
+    def image_path(self, record: ImageRecord) -> Path:
+        return self.state.image_path(record.file)
+
+    # ---- settings, camera, library (each change schedules a re-run)
+
+    def _change(self, **changes: Any) -> Snapshot:
+        """Swap in a new snapshot with `changes`; the caller holds the lock."""
+        snap = self._snap
+        bump = "settings" in changes
+        self._snap = Snapshot(
+            generation=snap.generation + 1,
+            settings_version=snap.settings_version + bump,
+            settings=changes.get("settings", snap.settings),
+            library=changes.get("library", snap.library),
+            camera=changes["camera"] if "camera" in changes else snap.camera,
+        )
+        return self._snap
+
+    def update_settings(self, changes: dict) -> Settings:
+        """Apply a full or partial settings dict; SettingsError (message for the user) when invalid."""
+        with self._lock:
+            return self.replace_settings(Settings.from_dict(changes, base=self.settings))
+
+    def replace_settings(self, settings: Settings) -> Settings:
+        """Make `settings` current (a no-op when nothing changes) and schedule a re-run."""
+        with self._lock:
+            if settings == self.settings:
+                return settings
+            self.state.save_settings(settings)
+            snap = self._change(settings=settings)
+        self._emit("settings", {"version": snap.settings_version, "settings": settings.to_dict()})
+        self._request_rerun()
+        return settings
+
+    def set_camera(self, camera: Camera | None) -> None:
+        """Use `camera` for every image (None: a 60° hfov camera assumed per image)."""
+        with self._lock:
+            self.state.save_camera(camera)
+            self._change(camera=camera)
+        self._emit("camera", {"camera": camera.to_json() if camera is not None else None})
+        self._request_rerun()
+
+    def _set_library(self, signs: list[LibrarySign]) -> None:
+        """Replace the library (the caller holds the lock and has written the sign files)."""
+        library = Library(root=self.state.library_dir, signs=signs)
+        self.state.save_library(library)
+        self._change(library=library)
+        for record in self._records.values():
+            # Cached matches are keyed by sign id, which a new sign may reuse: start afresh.
+            record.cache = StageCache()
+
+    def add_sign(self, sign_id: str, data: bytes, name: str = "", text: str = "",
+                 width_m: float = 0.0, height_m: float | None = None) -> LibrarySign:
+        """Add a library sign from an encoded image; LibraryError / ImageError when unusable, Conflict on a taken id."""
+        if sign_id == NO_SIGN:
+            raise LibraryError(f"{NO_SIGN!r} is reserved for images without a sign; choose another id")
+        entry = validate_sign_entry({"id": sign_id, "name": name or sign_id, "text": text,
+                                     "image": f"{sign_id}-{secrets.token_hex(4)}.png", "width_m": width_m,
+                                     "height_m": height_m}, "new sign")
+        image, _ = decode_upload(data, f"sign {sign_id}", self.config.max_pixels)
+        sign = make_sign(entry, cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), f"sign {sign_id}")
+        with self._lock:
+            if sign_id in self.library.ids:
+                raise Conflict(f"the library already has a sign {sign_id!r}; delete it first or choose another id")
+            # PNG whatever was uploaded: lossless, and what GET /api/library/{id}/image promises.
+            self.state.write_library_file(sign.image_file, cv2.imencode(".png", image)[1].tobytes())
+            self._set_library([*self.library.signs, sign])
+        self._emit("library", {"ids": self.library.ids})
+        self._request_rerun()
+        return sign
+
+    def remove_sign(self, sign_id: str) -> None:
+        """Delete a library sign (results naming it are re-run); KeyError if unknown, Conflict if it is the last."""
+        with self._lock:
+            sign = self.library[sign_id]
+            if len(self.library.signs) == 1:
+                raise Conflict("cannot delete the library's last sign; add another sign first")
+            self._set_library([s for s in self.library.signs if s.id != sign_id])
+            self.state.remove_library_file(sign.image_file)
+        self._emit("library", {"ids": self.library.ids})
+        self._request_rerun()
+
+    def sign_path(self, sign_id: str) -> Path:
+        """The image file of a library sign; KeyError if unknown."""
+        library = self.library
+        return library.root / library[sign_id].image_file
+
+    # ---- events
+
+    def subscribe(self, callback: Callable[[Event], None]) -> Callable[[], None]:
+        """Call `callback(event)` on every change, from worker threads; returns the unsubscribe function."""
+        with self._lock:
+            self._subscribers.append(callback)
+
+        def unsubscribe() -> None:
+            with self._lock:
+                if callback in self._subscribers:
+                    self._subscribers.remove(callback)
+
+        return unsubscribe
+
+    def _emit(self, kind: str, payload: dict) -> None:
+        with self._lock:
+            subscribers = list(self._subscribers)
+        for callback in subscribers:
+            try:
+                callback(Event(kind, payload))
+            except Exception:  # one broken subscriber must not stop the others or the pipeline
+                log.exception("event subscriber failed on %s", kind)
+
+    # ---- processing
+
+    @property
+    def busy(self) -> bool:
+        """Whether any image is being processed or a re-run is due."""
+        with self._lock:
+            return self._dirty or self._batch_running or self._in_flight > 0
+
+    def progress(self) -> dict:
+        """The "results" event payload: {version, running, done, total} for the current state."""
+        with self._lock:
+            generation = self._snap.generation
+            done = sum(r.outcome.generation == generation for r in self._records.values())
+            return {"version": self._snap.settings_version, "running": self.busy, "done": done,
+                    "total": len(self._records)}
+
+    def wait_idle(self, timeout: float) -> bool:
+        """Block until every result is current (True) or `timeout` seconds pass (False)."""
+        with self._idle:
+            return self._idle.wait_for(lambda: not self.busy, timeout)
+
+    def _submit(self, record: ImageRecord) -> None:
+        """Process a new image now, outside the debounce (the caller holds the lock)."""
+        self._in_flight += 1
+        self._pool.submit(self._process_and_report, record)
+
+    def _process_and_report(self, record: ImageRecord) -> None:
+        try:
+            self._process(record, self._snap)
+        finally:
+            with self._lock:
+                self._in_flight -= 1
+                self._idle.notify_all()
+            self._emit("results", self.progress())
+
+    def _process(self, record: ImageRecord, snap: Snapshot) -> None:
+        """Bring one image's result up to `snap`, unless a newer change or a removal made that pointless."""
+        if snap is not self._snap or record.id not in self._records or self._closed:
+            return
+        with record.lock:
+            if record.outcome.generation >= snap.generation:
+                return
+            try:
+                outcome = Outcome(recognize(record.image, snap.library, snap.settings, snap.camera, record.cache),
+                                  snap.settings_version, snap.generation)
+            except Exception as exc:  # a pipeline failure on one image must not stop the others
+                log.exception("pipeline failed on %s", record.name)
+                outcome = Outcome(None, snap.settings_version, snap.generation, f"pipeline failed: {exc}")
+            record.outcome = outcome
+
+    def _request_rerun(self) -> None:
+        with self._lock:
+            now = time.monotonic()
+            if not self._dirty:
+                self._first_change = now
+            self._dirty = True
+            self._last_change = now
+            self._idle.notify_all()
+
+    def _rerun_loop(self) -> None:
+        while True:
+            with self._idle:
+                self._idle.wait_for(lambda: self._dirty or self._closed)
+                if self._closed:
+                    return
+                # Debounce: wait for a quiet spell, but not past max_wait_s, so a long slider
+                # drag still shows intermediate results.
+                while not self._closed:
+                    due = min(self._last_change + self.config.debounce_s, self._first_change + self.config.max_wait_s)
+                    if time.monotonic() >= due:
+                        break
+                    self._idle.wait(due - time.monotonic())
+                self._dirty = False
+                self._batch_running = True
+                snap = self._snap
+                stale = [r for r in self._records.values() if r.outcome.generation != snap.generation]
+            try:
+                self._run_batch(snap, stale)
+            finally:
+                with self._lock:
+                    self._batch_running = False
+                    self._idle.notify_all()
+                self._emit("results", self.progress())
+
+    def _run_batch(self, snap: Snapshot, records: list[ImageRecord]) -> None:
+        if records:
+            library_features(snap.library, snap.settings)  # once here, not once per worker
+        futures = [self._pool.submit(self._process, record, snap) for record in records]
+        for future in as_completed(futures):
+            future.result()
+            self._emit("results", self.progress())
+
+    # ---- one-off runs
+
+    def recognize_upload(self, data: bytes, name: str) -> Recognition:
+        """Recognise an uploaded image with the current state without keeping it (ImageError when unusable)."""
+        image, _ = decode_upload(data, name, self.config.max_pixels)
+        snap = self._snap
+        return self._pool.submit(recognize, image, snap.library, snap.settings, snap.camera).result()
+
+    def run_with(self, record: ImageRecord, settings: Settings) -> Recognition:
+        """Recognise one stored image under `settings`, re-using (and feeding) its stage cache."""
+        snap = self._snap
+        with record.lock:
+            return recognize(record.image, snap.library, settings, snap.camera, record.cache)
+
+    def sweep(self, param: str, values: list[float], records: list[ImageRecord]) -> list[list[Recognition]]:
+        """Re-run `records` with `param` set to each value: results [value index][record index].
+
+        Values run in order per image (each run reuses what its cache holds), images in parallel.
+        SettingsError when a value is invalid.
+        """
+        variants = [self.settings.replace(**{param: v}) for v in values]
+        per_image = list(self._pool.map(lambda r: [self.run_with(r, s) for s in variants], records))
+        return [[runs[i] for runs in per_image] for i in range(len(variants))]
+
+    def close(self) -> None:
+        """Stop the re-run thread and the pool (waits for the images being processed)."""
+        with self._lock:
+            self._closed = True
+            self._idle.notify_all()
+        self._runner.join(timeout=10)
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _extension(media_type: str) -> str:
+    return mimetypes.guess_extension(media_type) or ".bin"

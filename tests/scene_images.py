@@ -1,0 +1,50 @@
+"""Quick synthetic photos for server tests: a library sign warped onto a noisy wall, as JPEG bytes.
+
+pipeline.synth renders realistic rooms but takes seconds per scene; these take milliseconds.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+
+import cv2
+import numpy as np
+
+from pipeline.library import Library
+
+SIZE = (640, 480)  # (w, h) px
+
+
+def wall(seed: int) -> np.ndarray:
+    """(h, w) uint8 mid-gray noise: darker than any sign's white."""
+    rng = np.random.default_rng(seed)
+    return (rng.random((SIZE[1], SIZE[0])) * 50 + 60).astype(np.uint8)
+
+
+def sign_photo(library: Library, sign_id: str, seed: int = 0) -> bytes:
+    """JPEG of `sign_id` seen slightly obliquely in the middle of a wall."""
+    sign = library[sign_id]
+    w, h = sign.size_px
+    rng = np.random.default_rng(seed)
+    jitter = rng.uniform(-15, 15, (4, 2))
+    dst = np.float32([[170, 160], [470, 175], [460, 300], [180, 290]] + jitter)
+    H = cv2.getPerspectiveTransform(np.float32([[0, 0], [w, 0], [w, h], [0, h]]), dst)
+    warped = cv2.warpPerspective(sign.image, H, SIZE)
+    inside = cv2.warpPerspective(np.full_like(sign.image, 255), H, SIZE) > 0
+    gray = np.where(inside, warped, wall(seed))
+    return cv2.imencode(".jpg", cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR), [cv2.IMWRITE_JPEG_QUALITY, 92])[1].tobytes()
+
+
+def empty_photo(seed: int = 0) -> bytes:
+    """JPEG of a wall without a sign."""
+    return cv2.imencode(".jpg", wall(seed))[1].tobytes()
+
+
+def png_bomb(width: int = 20_000, height: int = 20_000) -> bytes:
+    """A tiny PNG whose header claims `width` x `height` px: decoding it would need gigabytes."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + \
+        chunk(b"IEND", b"")

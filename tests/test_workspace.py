@@ -1,0 +1,254 @@
+"""The Workspace behind `signpose serve`: re-run scheduling, result tagging, caches, limits, persistence."""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import app.workspace as workspace_module
+import pipeline.recognize
+from app.state import StateDir, atomic_write
+from app.workspace import NO_SIGN, SAMPLE_SCENES, Conflict, ImageTooLarge, Workspace, WorkspaceConfig
+from pipeline.camera import Camera
+from pipeline.image import ImageError
+from pipeline.library import SAMPLE_LIBRARY, LibraryError, load_library
+from pipeline.settings import SettingsError
+from scene_images import empty_photo, png_bomb, sign_photo
+
+LIBRARY = load_library(SAMPLE_LIBRARY)
+IDLE_TIMEOUT_S = 30
+
+
+@pytest.fixture
+def make_workspace(tmp_path):
+    """Workspaces on `tmp_path/state` (the same directory each call), closed after the test."""
+    opened: list[Workspace] = []
+
+    def make(**options) -> Workspace:
+        options = {"state_dir": tmp_path / "state", "load_samples": False, "workers": 2, **options}
+        ws = Workspace(WorkspaceConfig(**options))
+        opened.append(ws)
+        return ws
+
+    yield make
+    for ws in opened:
+        ws.close()
+
+
+@pytest.fixture
+def counting(monkeypatch):
+    """Counts of recognize() runs and of feature detections in photos (library signs excluded)."""
+    counts = {"recognize": 0, "detect": 0}
+    lock = threading.Lock()
+
+    def wrap(module, name):
+        original = getattr(module, name)
+
+        def counted(*args, **kwargs):
+            with lock:
+                counts[name] += 1
+            return original(*args, **kwargs)
+
+        monkeypatch.setattr(module, name, counted)
+
+    wrap(workspace_module, "recognize")
+    wrap(pipeline.recognize, "detect")
+    return counts
+
+
+def add_signs(ws: Workspace, ids=("security_compound", "chief_of_security")) -> list:
+    records = [ws.add_image(f"{sid}.jpg", sign_photo(LIBRARY, sid, seed=i), sid) for i, sid in enumerate(ids)]
+    assert ws.wait_idle(IDLE_TIMEOUT_S)
+    return records
+
+
+def test_images_are_processed_and_tagged(make_workspace):
+    ws = make_workspace()
+    records = add_signs(ws)
+    negative = ws.add_image("wall.jpg", empty_photo(), NO_SIGN)
+    assert ws.wait_idle(IDLE_TIMEOUT_S)
+    for record in [*records, negative]:
+        assert workspace_module.status_of(record, ws.snapshot.generation) == "correct"
+        assert record.settings_version == ws.settings_version == 1
+    assert records[0].recognition.label == "security_compound"
+    assert ws.progress() == {"version": 1, "running": False, "done": 3, "total": 3}
+
+
+def test_slider_storm_coalesces_into_few_runs_and_ends_on_the_last_value(make_workspace, counting):
+    ws = make_workspace(debounce_s=0.15, max_wait_s=1.0)
+    records = add_signs(ws)
+    runs_before = counting["recognize"]
+    history = {ws.settings_version: ws.settings}
+    mixed = []
+
+    def check(event):
+        # Every result must have been computed entirely under the settings of the version it carries.
+        if event.kind == "settings":
+            history[event.payload["version"]] = ws.settings.from_dict(event.payload["settings"])
+        for record in ws.images():
+            rec = record.recognition
+            if rec is not None and record.settings_version in history and \
+                    rec.settings != history[record.settings_version]:
+                mixed.append((record.id, record.settings_version))
+
+    ws.subscribe(check)
+    values = np.linspace(1.0, 6.0, 100)
+    for value in values:  # 100 changes in ~2 s
+        ws.update_settings({"ransac_threshold_px": round(float(value), 2)})
+        time.sleep(0.02)
+    assert ws.settings_version == 101
+    assert ws.wait_idle(IDLE_TIMEOUT_S)
+    batches = (counting["recognize"] - runs_before) / len(records)
+    assert batches <= 5, f"{batches} re-runs for one storm: changes are not coalesced"
+    assert not mixed
+    for record in records:
+        assert record.settings_version == 101
+        assert record.recognition.settings.ransac_threshold_px == 6.0
+
+
+def test_ransac_change_reuses_features_but_a_detector_change_does_not(make_workspace, counting):
+    ws = make_workspace()
+    add_signs(ws)
+    detections = counting["detect"]
+    assert detections > 0
+    ws.update_settings({"ransac_iterations": 300, "ransac_threshold_px": 3.0})
+    assert ws.wait_idle(IDLE_TIMEOUT_S)
+    assert counting["detect"] == detections, "a RANSAC change re-detected features"
+    ws.update_settings({"contrast_threshold": 0.02})
+    assert ws.wait_idle(IDLE_TIMEOUT_S)
+    assert counting["detect"] > detections
+
+
+def test_unchanged_settings_do_not_bump_the_version(make_workspace, counting):
+    ws = make_workspace()
+    add_signs(ws)
+    runs = counting["recognize"]
+    ws.update_settings({"threshold": ws.settings.threshold})
+    assert ws.settings_version == 1
+    assert ws.wait_idle(IDLE_TIMEOUT_S) and counting["recognize"] == runs
+
+
+def test_invalid_settings_are_refused_with_the_settings_message(make_workspace):
+    ws = make_workspace()
+    for bad, words in (({"threshold": float("nan")}, "finite"), ({"threshold": 1.5}, "between"),
+                       ({"thresold": 0.5}, "unknown setting"), ({"candidates": "3"}, "number")):
+        with pytest.raises(SettingsError, match=words):
+            ws.update_settings(bad)
+    assert ws.settings_version == 1
+
+
+def test_deleting_a_sign_reruns_the_results_that_named_it(make_workspace):
+    ws = make_workspace()
+    record = add_signs(ws, ("security_compound",))[0]
+    ws.remove_sign("security_compound")
+    assert ws.wait_idle(IDLE_TIMEOUT_S)
+    assert record.recognition.label != "security_compound"
+    assert workspace_module.status_of(record, ws.snapshot.generation) == "wrong"
+    assert not (ws.state.library_dir / LIBRARY["security_compound"].image_file).exists()
+
+
+def test_library_limits(make_workspace):
+    ws = make_workspace()
+    png = (ws.state.library_dir / LIBRARY["chief_of_security"].image_file).read_bytes()
+    with pytest.raises(Conflict, match="already has"):
+        ws.add_sign("chief_of_security", png, width_m=0.6, height_m=0.24)
+    with pytest.raises(LibraryError, match="id"):
+        ws.add_sign("../etc", png, width_m=0.6, height_m=0.24)
+    with pytest.raises(LibraryError, match="reserved"):
+        ws.add_sign(NO_SIGN, png, width_m=0.6, height_m=0.24)
+    with pytest.raises(LibraryError, match="aspect"):
+        ws.add_sign("squashed", png, width_m=0.6, height_m=0.6)
+    for sign_id in LIBRARY.ids[:-1]:
+        ws.remove_sign(sign_id)
+    with pytest.raises(Conflict, match="last sign"):
+        ws.remove_sign(LIBRARY.ids[-1])
+
+
+def test_bad_images_are_refused_before_anything_is_stored(make_workspace):
+    ws = make_workspace(max_images=3, max_pixels=1_000_000)
+    good = sign_photo(LIBRARY, "security_compound")
+    cases = [(b"", "empty"), (b"this is not a jpeg", "not an image"), (good[: len(good) // 2], "truncated"),
+             (png_bomb(2000, 1000), "megapixels"), (png_bomb(), "megapixels")]
+    for data, words in cases:
+        with pytest.raises(ImageError, match=words):
+            ws.add_images([("ok.jpg", good, None), ("bad.jpg", data, None)])
+    with pytest.raises(ImageTooLarge):
+        ws.add_image("bomb.png", png_bomb(), None)
+    with pytest.raises(LibraryError, match="not a sign in the library"):
+        ws.add_image("x.jpg", good, "no_such_sign")
+    assert ws.images() == [] and not any(ws.state.images_dir.glob("*.jpg"))
+    ws.add_images([("a.jpg", good, None)] * 3)
+    with pytest.raises(Conflict, match="limit is 3"):
+        ws.add_image("b.jpg", good, None)
+
+
+def test_state_survives_a_restart(make_workspace, tmp_path):
+    ws = make_workspace()
+    records = add_signs(ws)
+    ws.update_settings({"threshold": 0.55})
+    ws.set_camera(Camera(np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]), width=640, height=480, source="t"))
+    ws.set_expected(records[1].id, NO_SIGN)
+    sign_png = sign_photo(LIBRARY, "ministry_of_torture")  # any image will do as a sign
+    ws.add_sign("new_sign", sign_png, name="New", width_m=0.64, height_m=0.48)
+    ws.remove_image(records[0].id)
+    ws.close()
+
+    again = make_workspace()
+    assert again.settings.threshold == 0.55
+    assert again.camera is not None and again.camera.K[0, 0] == 500.0
+    assert "new_sign" in again.library.ids and again.library["new_sign"].name == "New"
+    assert [(r.id, r.name, r.expected) for r in again.images()] == [(records[1].id, records[1].name, NO_SIGN)]
+    assert again.wait_idle(IDLE_TIMEOUT_S) and again.images()[0].recognition is not None
+    # The state's library folder is a library in its own right.
+    assert "new_sign" in load_library(again.state.library_dir).ids
+
+
+def test_explicit_library_replaces_the_states_copy(make_workspace, tmp_path):
+    other = tmp_path / "other_library"
+    other.mkdir()
+    sign = LIBRARY["chief_of_security"]
+    (other / sign.image_file).write_bytes((SAMPLE_LIBRARY / sign.image_file).read_bytes())
+    (other / "library.json").write_text(json.dumps({"signs": [sign.to_json()]}))
+    make_workspace().close()
+    assert make_workspace(library_dir=other).library.ids == ["chief_of_security"]
+    assert make_workspace().library.ids == ["chief_of_security"]  # kept until another --library
+
+
+def test_orphans_of_a_crash_are_swept(make_workspace):
+    ws = make_workspace()
+    ws.add_image("a.jpg", sign_photo(LIBRARY, "security_compound"), None)
+    ws.close()
+    state = StateDir(ws.state.root)
+    (state.images_dir / "deadbeef0000.jpg").write_bytes(b"written, but the index never named it")
+    (state.images_dir / ".index.json.x.tmp").write_bytes(b"half")
+    make_workspace()
+    assert sorted(p.name for p in state.images_dir.iterdir()) == sorted([ws.images()[0].file, "index.json"])
+
+
+def test_atomic_write_keeps_the_old_file_when_interrupted(tmp_path, monkeypatch):
+    path = tmp_path / "settings.json"
+    atomic_write(path, b"old")
+
+    def crash(*_):
+        raise OSError("power cut")
+
+    monkeypatch.setattr(os, "replace", crash)
+    with pytest.raises(OSError):
+        atomic_write(path, b"new")
+    assert path.read_bytes() == b"old"
+    assert [p.name for p in tmp_path.iterdir()] == ["settings.json"]
+
+
+@pytest.mark.skipif(not (SAMPLE_SCENES / "truth.json").exists(), reason="no sample scenes yet")
+def test_a_fresh_state_starts_with_the_labelled_sample_scenes(make_workspace):
+    ws = make_workspace(load_samples=True)
+    truth = json.loads((SAMPLE_SCENES / "truth.json").read_text())["images"]
+    assert sorted(r.name for r in ws.images()) == sorted(p.name for p in Path(SAMPLE_SCENES).glob("*.jpg"))
+    for record in ws.images():
+        assert record.expected == (truth[record.name]["label"] or NO_SIGN)
