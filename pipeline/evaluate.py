@@ -1,0 +1,307 @@
+"""Accuracy and timing on labelled datasets: the paper's Table 1, plus pose and corner errors.
+
+A dataset is a folder of images labelled either by `truth.json` (written by `pipeline.synth`)::
+
+    {"camera": "camera.yaml",
+     "images": {"scene_000.jpg": {"label": "security_compound", "category": "easy",
+                                  "R": [[...]x3], "t": [...], "H": [[...]x3], "corners": [[x, y]x4]}}}
+
+(only "label" is required; pose fields may be null) or by sub-folders named after the sign ids,
+`dir/<label>/*.jpg`, where `none` or `negative` holds images without a sign. A `camera.yaml`
+next to them is used when no camera is given.
+
+Errors are measured where the truth has a pose and the sign was identified correctly:
+rotation as the geodesic angle between true and estimated R (degrees), translation as
+|t_est - t_true| / |t_true| (percent of the camera-sign distance), corners as the mean
+distance of the four corners (image px).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .camera import Camera, CameraError, load_camera
+from .image import ImageError, read_image
+from .library import Library
+from .pose import rotation_error_deg
+from .recognize import recognize
+from .settings import Settings
+
+IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}
+NEGATIVE_FOLDERS = {"none", "negative"}
+NONE = "none"  # the confusion matrix's row and column for "no sign"
+
+
+class DatasetError(ValueError):
+    """A dataset folder or truth file that cannot be used; the message says which and why."""
+
+
+@dataclass(eq=False)
+class Sample:
+    """One labelled image. `label` None means no sign; pose fields are None when unknown.
+
+    R (3, 3), t (3,) metres: X_cam = R·X_sign + t. H (3, 3): library px -> image px.
+    corners (4, 2): image px, TL, TR, BR, BL. `params`: whatever else the truth recorded.
+    """
+
+    path: Path
+    label: str | None
+    category: str | None = None
+    R: np.ndarray | None = field(default=None, repr=False)
+    t: np.ndarray | None = field(default=None, repr=False)
+    H: np.ndarray | None = field(default=None, repr=False)
+    corners: np.ndarray | None = field(default=None, repr=False)
+    params: dict = field(default_factory=dict, repr=False)
+
+
+@dataclass(eq=False)
+class Dataset:
+    """A named list of samples and, when the folder has one, its camera."""
+
+    name: str
+    root: Path
+    samples: list[Sample]
+    camera: Camera | None = None
+
+    def __len__(self) -> int:
+        return len(self.samples)
+
+
+@dataclass(eq=False)
+class ImageResult:
+    """The pipeline's answer on one sample and its errors against the truth (None: not measurable)."""
+
+    dataset: str
+    sample: Sample
+    predicted: str | None
+    time_ms: float
+    rotation_error_deg: float | None = None
+    translation_error_pct: float | None = None
+    corner_error_px: float | None = None
+    error: str | None = None  # the image could not be read
+
+    @property
+    def correct(self) -> bool:
+        return self.error is None and self.predicted == self.sample.label
+
+    @property
+    def false_positive(self) -> bool:
+        return self.sample.label is None and self.predicted is not None
+
+
+@dataclass(frozen=True)
+class Summary:
+    """Figures over a set of results. Errors are None when nothing was measurable."""
+
+    images: int
+    correct: int
+    negatives: int
+    false_positives: int
+    mean_time_ms: float
+    median_time_ms: float
+    p90_time_ms: float
+    rotation_deg: tuple[float, float] | None  # median, p90
+    translation_pct: tuple[float, float] | None  # median, p90
+    corner_px: tuple[float, float] | None  # median, p90
+
+    @property
+    def accuracy(self) -> float:
+        return self.correct / self.images if self.images else math.nan
+
+
+@dataclass(eq=False)
+class Report:
+    """Per-image results, per-dataset summaries and the confusion matrix over `labels`.
+
+    confusion[i, j] counts images whose truth is labels[i] and answer labels[j]; the last label
+    is "none" (no sign).
+    """
+
+    settings: Settings
+    results: list[ImageResult]
+    datasets: dict[str, Summary]
+    total: Summary
+    labels: list[str]
+    confusion: np.ndarray
+
+
+def _matrix(value, shape: tuple[int, ...], what: str) -> np.ndarray | None:
+    if value is None:
+        return None
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise DatasetError(f"{what} must be numbers") from None
+    if array.shape != shape or not np.all(np.isfinite(array)):
+        raise DatasetError(f"{what} must be {'x'.join(map(str, shape))} finite numbers; got shape {array.shape}")
+    return array
+
+
+def _load_truth(root: Path) -> tuple[list[Sample], Path | None]:
+    truth_path = root / "truth.json"
+    try:
+        truth = json.loads(truth_path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"{truth_path} is not valid JSON: {exc}") from None
+    images = truth.get("images") if isinstance(truth, dict) else None
+    if not isinstance(images, dict) or not images:
+        raise DatasetError(f'{truth_path} must hold {{"images": {{"file.jpg": {{"label": ...}}}}}} with at least one image')
+    samples = []
+    for name, entry in images.items():
+        where = f"{truth_path} image {name!r}"
+        if not isinstance(entry, dict) or "label" not in entry:
+            raise DatasetError(f'{where}: each image needs an object with "label" (a sign id or null)')
+        label = entry["label"]
+        if label is not None and not isinstance(label, str):
+            raise DatasetError(f"{where}: label must be a sign id or null; got {label!r}")
+        path = root / name
+        if not path.is_file():
+            raise DatasetError(f"{where}: file {path} not found")
+        samples.append(Sample(
+            path, label, entry.get("category"),
+            _matrix(entry.get("R"), (3, 3), f"{where}: R"), _matrix(entry.get("t"), (3,), f"{where}: t"),
+            _matrix(entry.get("H"), (3, 3), f"{where}: H"), _matrix(entry.get("corners"), (4, 2), f"{where}: corners"),
+            entry.get("params") or {},
+        ))
+    camera = truth.get("camera")
+    return samples, None if camera is None else root / camera
+
+
+def _load_folders(root: Path) -> list[Sample]:
+    samples = []
+    for folder in sorted(p for p in root.iterdir() if p.is_dir()):
+        label = None if folder.name.lower() in NEGATIVE_FOLDERS else folder.name
+        category = "negative" if label is None else None
+        samples += [Sample(path, label, category) for path in sorted(folder.iterdir())
+                    if path.suffix.lower() in IMAGE_SUFFIXES]
+    return samples
+
+
+def load_dataset(root: str | Path) -> Dataset:
+    """Samples of the dataset folder `root`, labelled by `truth.json` or by sub-folder names."""
+    root = Path(root)
+    if not root.is_dir():
+        raise DatasetError(f"{root} is not a folder")
+    camera_path = root / "camera.yaml"
+    if (root / "truth.json").is_file():
+        samples, named = _load_truth(root)
+        camera_path = named or camera_path
+    else:
+        samples = _load_folders(root)
+    if not samples:
+        raise DatasetError(f"{root}: no truth.json and no images in label sub-folders (<label>/*.jpg, none/*.jpg)")
+    camera = None
+    if camera_path.is_file():
+        try:
+            camera = load_camera(camera_path)
+        except CameraError as exc:
+            raise DatasetError(str(exc)) from None
+    return Dataset(root.name, root, samples, camera)
+
+
+def _percentiles(values: list[float]) -> tuple[float, float] | None:
+    if not values:
+        return None
+    return float(np.median(values)), float(np.percentile(values, 90))
+
+
+def summarize(results: Sequence[ImageResult]) -> Summary:
+    """Counts, times and error percentiles over `results` (any subset: a dataset, a category)."""
+    times = [r.time_ms for r in results if r.error is None] or [math.nan]
+
+    def errors(name: str) -> list[float]:
+        return [getattr(r, name) for r in results if getattr(r, name) is not None]
+
+    return Summary(
+        images=len(results),
+        correct=sum(r.correct for r in results),
+        negatives=sum(r.sample.label is None for r in results),
+        false_positives=sum(r.false_positive for r in results),
+        mean_time_ms=float(np.mean(times)),
+        median_time_ms=float(np.median(times)),
+        p90_time_ms=float(np.percentile(times, 90)),
+        rotation_deg=_percentiles(errors("rotation_error_deg")),
+        translation_pct=_percentiles(errors("translation_error_pct")),
+        corner_px=_percentiles(errors("corner_error_px")),
+    )
+
+
+def _measure(dataset: str, sample: Sample, library: Library, settings: Settings,
+             camera: Camera | None) -> ImageResult:
+    try:
+        image = read_image(sample.path)
+    except ImageError as exc:
+        return ImageResult(dataset, sample, None, math.nan, error=str(exc))
+    rec = recognize(image, library, settings, camera)
+    result = ImageResult(dataset, sample, rec.label, rec.timing_ms["total"])
+    if not result.correct or sample.label is None:
+        return result
+    if rec.pose is not None and sample.R is not None and sample.t is not None:
+        result.rotation_error_deg = rotation_error_deg(sample.R, rec.pose.R)
+        result.translation_error_pct = float(100 * np.linalg.norm(rec.pose.t - sample.t) / np.linalg.norm(sample.t))
+    if rec.corners is not None and sample.corners is not None:
+        result.corner_error_px = float(np.linalg.norm(rec.corners - sample.corners, axis=1).mean())
+    return result
+
+
+def evaluate(datasets: Sequence[Dataset], library: Library, settings: Settings, camera: Camera | None = None,
+             progress: Callable[[int, int], None] | None = None) -> Report:
+    """Run the pipeline on every sample and compare with the truth.
+
+    `camera`, when given, is used for every dataset; otherwise each dataset's own camera file,
+    and without one the pipeline's assumed camera. `progress(done, total)` follows each image.
+    """
+    unknown = sorted({s.label for d in datasets for s in d.samples if s.label is not None} - set(library.ids))
+    if unknown:
+        raise DatasetError(f"label(s) {', '.join(unknown)} are not in the library ({', '.join(library.ids)})")
+    total = sum(len(d) for d in datasets)
+    results: list[ImageResult] = []
+    for dataset in datasets:
+        for sample in dataset.samples:
+            results.append(_measure(dataset.name, sample, library, settings, camera or dataset.camera))
+            if progress:
+                progress(len(results), total)
+    labels = [*library.ids, NONE]
+    confusion = np.zeros((len(labels), len(labels)), int)
+    for r in results:
+        if r.error is None:
+            confusion[labels.index(r.sample.label or NONE), labels.index(r.predicted or NONE)] += 1
+    by_dataset = {d.name: summarize([r for r in results if r.dataset == d.name]) for d in datasets}
+    return Report(settings, results, by_dataset, summarize(results), labels, confusion)
+
+
+def _pair(value: tuple[float, float] | None, unit: str) -> str:
+    return "-" if value is None else f"{value[0]:.2f} / {value[1]:.2f}{unit}"
+
+
+def format_table(report: Report) -> str:
+    """Readable text: per-dataset table, the confusion matrix and the images answered wrongly."""
+    head = (f"{'dataset':<16}{'images':>7}{'correct':>8}{'accuracy':>10}{'avg time':>11}{'false pos':>10}"
+            f"   {'rotation med/p90':>17}{'translation med/p90':>21}{'corners med/p90':>18}")
+    lines = [head, "-" * len(head)]
+    rows = list(report.datasets.items())
+    if len(rows) > 1:
+        rows.append(("all", report.total))
+    for name, s in rows:
+        fp = f"{s.false_positives}/{s.negatives}" if s.negatives else "-"
+        lines.append(f"{name:<16}{s.images:>7}{s.correct:>8}{100 * s.accuracy:>9.1f}%{s.mean_time_ms:>8.1f} ms"
+                     f"{fp:>10}   {_pair(s.rotation_deg, '°'):>17}{_pair(s.translation_pct, '%'):>21}"
+                     f"{_pair(s.corner_px, ' px'):>18}")
+    width = max(len(label) for label in report.labels) + 2
+    lines += ["", "confusion (rows: truth, columns: answer)",
+              " " * width + "".join(f"{label:>{width}}" for label in report.labels)]
+    for label, row in zip(report.labels, report.confusion):
+        lines.append(f"{label:<{width}}" + "".join(f"{n:>{width}}" for n in row))
+    wrong = [r for r in report.results if not r.correct]
+    if wrong:
+        lines += ["", "wrong answers:"]
+        for r in wrong:
+            what = r.error or f"truth {r.sample.label or NONE}, answer {r.predicted or NONE}"
+            lines.append(f"  {r.dataset}/{r.sample.path.name}: {what}")
+    return "\n".join(lines)

@@ -1,0 +1,113 @@
+import json
+import shutil
+from pathlib import Path
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+import pytest
+
+import pipeline.evaluate as evaluate_module
+from pipeline.evaluate import DatasetError, evaluate, format_table, load_dataset, summarize
+from pipeline.library import load_library
+from pipeline.settings import preset
+
+SET3 = Path(__file__).resolve().parent.parent / "sample_images" / "datasets" / "set3"
+
+
+@pytest.fixture(scope="module")
+def library():
+    return load_library()
+
+
+def test_loads_truth_json_with_camera():
+    dataset = load_dataset(SET3)
+    assert dataset.name == "set3" and len(dataset) == 5
+    assert dataset.camera is not None and (dataset.camera.width, dataset.camera.height) == (640, 480)
+    positives = [s for s in dataset.samples if s.label is not None]
+    assert positives and all(s.R.shape == (3, 3) and s.corners.shape == (4, 2) for s in positives)
+    assert all(s.R is None and s.category == "negative" for s in dataset.samples if s.label is None)
+
+
+def test_loads_label_folders(tmp_path):
+    images = sorted(SET3.glob("*.jpg"))
+    for folder, image in zip(["security_compound", "none", "Negative"], images):
+        (tmp_path / folder).mkdir()
+        shutil.copy(image, tmp_path / folder / image.name)
+    (tmp_path / "none" / "notes.txt").write_text("not an image")
+    dataset = load_dataset(tmp_path)
+    assert sorted((s.label or "-", s.path.parent.name) for s in dataset.samples) == [
+        ("-", "Negative"), ("-", "none"), ("security_compound", "security_compound")]
+    assert dataset.camera is None
+
+
+@pytest.mark.parametrize("truth, message", [
+    ({"images": {}}, "at least one image"),
+    ({"images": {"missing.jpg": {"label": None}}}, "not found"),
+    ({"images": {"a.jpg": {"label": 3}}}, "label must be"),
+    ({"images": {"a.jpg": {"label": "x", "R": [[1, 0], [0, 1]]}}}, "R must be 3x3"),
+])
+def test_rejects_bad_truth(tmp_path, truth, message):
+    cv2.imwrite(str(tmp_path / "a.jpg"), np.zeros((8, 8, 3), np.uint8))
+    (tmp_path / "truth.json").write_text(json.dumps(truth))
+    with pytest.raises(DatasetError, match=message):
+        load_dataset(tmp_path)
+
+
+def test_rejects_empty_folder_and_unknown_labels(tmp_path, library):
+    with pytest.raises(DatasetError, match="no truth.json"):
+        load_dataset(tmp_path)
+    (tmp_path / "exit_sign").mkdir()
+    shutil.copy(next(SET3.glob("*.jpg")), tmp_path / "exit_sign" / "a.jpg")
+    with pytest.raises(DatasetError, match="exit_sign"):
+        evaluate([load_dataset(tmp_path)], library, preset("default"))
+
+
+def fake_recognize(answers):
+    """A stand-in for pipeline.recognize answering from the truth, or the label in `answers[file]`."""
+    truth = {s.path.name: s for s in load_dataset(SET3).samples}
+
+    def recognize(image, library, settings, camera):
+        sample = next(s for name, s in truth.items() if np.array_equal(image, cv2.imread(str(SET3 / name))))
+        label = answers.get(sample.path.name, sample.label)
+        pose = None if sample.R is None else SimpleNamespace(R=sample.R, t=sample.t * 1.02)
+        return SimpleNamespace(label=label, pose=pose, corners=None if sample.corners is None else sample.corners + [3, 4],
+                               timing_ms={"total": 10.0})
+    return recognize
+
+
+def test_counts_errors_and_confusion(monkeypatch, library):
+    dataset = load_dataset(SET3)
+    negative = next(s.path.name for s in dataset.samples if s.label is None)
+    positive = next(s for s in dataset.samples if s.label is not None)
+    other = next(i for i in library.ids if i != positive.label)
+    monkeypatch.setattr(evaluate_module, "recognize",
+                        fake_recognize({negative: "security_compound", positive.path.name: other}))
+    calls = []
+    report = evaluate([dataset], library, preset("default"), progress=lambda i, n: calls.append((i, n)))
+    assert calls == [(i, 5) for i in range(1, 6)]
+    s = report.datasets["set3"]
+    assert (s.images, s.correct, s.negatives, s.false_positives) == (5, 3, 1, 1)
+    assert s.mean_time_ms == 10.0
+    assert s.rotation_deg == pytest.approx((0.0, 0.0), abs=1e-6)
+    assert s.translation_pct[0] == pytest.approx(2.0)
+    assert s.corner_px[0] == pytest.approx(5.0)
+    labels = report.labels
+    assert labels[-1] == "none" and report.confusion.sum() == 5
+    assert report.confusion[labels.index("none"), labels.index("security_compound")] == 1
+    assert report.confusion[labels.index(positive.label), labels.index(other)] == 1
+    text = format_table(report)
+    assert "set3" in text and "wrong answers" in text and negative in text
+
+
+def test_summary_of_nothing_measurable():
+    s = summarize([])
+    assert s.images == 0 and s.rotation_deg is None and np.isnan(s.accuracy)
+
+
+def test_runs_the_real_pipeline(library):
+    report = evaluate([load_dataset(SET3)], library, preset("default"))
+    s = report.datasets["set3"]
+    assert s.images == 5 and s.correct >= 4 and s.false_positives == 0
+    assert s.rotation_deg is not None and s.rotation_deg[0] < 5
+    assert "set3" in format_table(report)
