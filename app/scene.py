@@ -23,13 +23,14 @@ import threading
 import time
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol
+from typing import Any, Callable
 
 import cv2
 import numpy as np
 import viser
 import viser.transforms as tf
 
+from app.workspace import Event, ImageRecord, Workspace, is_correct
 from pipeline.library import Library, LibrarySign
 from pipeline.recognize import Recognition
 from pipeline.settings import Settings, SettingsError, settings_schema
@@ -42,7 +43,7 @@ THUMBNAIL_WIDTH_PX = 160
 SIGN_TEXTURE_MAX_WIDTH_PX = 1024
 # Above this many slider positions a slider cannot hit a chosen value; use a number box.
 MAX_SLIDER_POSITIONS = 10_000
-DEFAULT_FRUSTUM_WIDTH_M = 0.5
+DEFAULT_FRUSTUM_WIDTH_M = 0.25
 AMBIGUOUS_RGB = (230, 30, 30)
 # tab10 without its red, which marks ambiguous poses.
 LABEL_RGB = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (148, 103, 189),
@@ -52,19 +53,6 @@ OUTLINE_RGB = (60, 60, 60)
 # Cameras usually stand in front of the sign (z < 0): start to its left and above, looking past it.
 INITIAL_VIEW_POSITION_M = (-1.8, -1.0, -2.2)
 INITIAL_VIEW_LOOK_AT_M = (0.0, 0.0, -0.8)
-
-
-class Workspace(Protocol):
-    """The part of app.workspace.Workspace the scene uses (see docs/web-contract.md)."""
-
-    settings: Settings
-    settings_version: int
-    library: Library
-
-    def images(self) -> list[Any]: ...
-    def add_image(self, name: str, data: bytes, expected: str | None) -> Any: ...
-    def update_settings(self, changes: dict) -> Settings: ...
-    def subscribe(self, callback: Callable[[Any], None]) -> Callable[[], None]: ...
 
 
 # --------------------------------------------------------------------------- geometry
@@ -81,15 +69,21 @@ def frustum_shape(width_px: int, height_px: int, K: np.ndarray) -> tuple[float, 
     return 2.0 * math.atan2(height_px / 2.0, K[1, 1]), width_px / height_px
 
 
-def frustum_scale(fov: float, aspect: float, plane_width_m: float) -> float:
-    """The `scale` at which viser draws a frustum's image plane `plane_width_m` wide.
+def frustum_image_plane(fov: float, aspect: float, scale: float) -> tuple[float, float, float]:
+    """(half width, half height, depth) in metres, camera frame, of the photo viser draws on a frustum.
 
-    viser normalises each frustum to a fixed volume before scaling (CameraFrustumVariants.tsx):
-    the image plane sits at depth 1/v and spans ±tan(fov/2)·aspect/v with v = ∛(tan²(fov/2)·aspect/3).
+    viser normalises each frustum to a fixed volume before applying `scale`
+    (CameraFrustumVariants.tsx): with v = ∛(tan²(fov/2)·aspect/3) the image plane sits at depth
+    scale/v and spans ±scale·tan(fov/2)·aspect/v by ±scale·tan(fov/2)/v.
     """
     tan = math.tan(fov / 2.0)
     volume = (tan * tan * aspect / 3.0) ** (1.0 / 3.0)
-    return plane_width_m * volume / (2.0 * tan * aspect)
+    return scale * tan * aspect / volume, scale * tan / volume, scale / volume
+
+
+def frustum_scale(fov: float, aspect: float, plane_width_m: float) -> float:
+    """The `scale` at which viser draws a frustum's photo `plane_width_m` wide."""
+    return plane_width_m / (2.0 * frustum_image_plane(fov, aspect, 1.0)[0])
 
 
 def image_plane_points(uv: np.ndarray, width_px: int, height_px: int, fov: float, aspect: float,
@@ -99,9 +93,7 @@ def image_plane_points(uv: np.ndarray, width_px: int, height_px: int, fov: float
     The photo fills the frustum's image plane edge to edge, so a pixel maps linearly onto it
     (exact for a centred principal point and square pixels, which the frustum drawing assumes).
     """
-    tan = math.tan(fov / 2.0)
-    volume = (tan * tan * aspect / 3.0) ** (1.0 / 3.0)
-    half_w, half_h, depth = scale * tan * aspect / volume, scale * tan / volume, scale / volume
+    half_w, half_h, depth = frustum_image_plane(fov, aspect, scale)
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
     x = (2.0 * uv[:, 0] / width_px - 1.0) * half_w
     y = (2.0 * uv[:, 1] / height_px - 1.0) * half_h
@@ -118,8 +110,8 @@ def fit_width(image: np.ndarray, max_width: int) -> np.ndarray:
 
 
 def label_rgb(library: Library, label: str) -> tuple[int, int, int]:
-    ids = library.ids
-    return LABEL_RGB[ids.index(label) % len(LABEL_RGB)] if label in ids else LABEL_RGB[-1]
+    """A colour per library sign, stable while the library's order is."""
+    return LABEL_RGB[library.ids.index(label) % len(LABEL_RGB)]
 
 
 # --------------------------------------------------------------------------- settings panel
@@ -317,7 +309,7 @@ class SceneHandle:
             # Events arriving during this pause fold into a single next redraw.
             time.sleep(REDRAW_INTERVAL_S)
 
-    def _on_event(self, event: Any) -> None:
+    def _on_event(self, event: Event) -> None:
         if event.kind == "settings":
             self.panel.show(event.payload["settings"], event.payload["version"])
             return
@@ -369,9 +361,10 @@ class SceneHandle:
             position, wxyz = np.asarray(nodes.frustum.position), np.asarray(nodes.frustum.wxyz)
         axes = tf.SO3(wxyz).as_matrix()
         forward = axes[:, 2]
-        # Orbit around the point where the optical axis meets the sign plane (z = 0) when it does.
-        depth = -position[2] / forward[2] if forward[2] > 1e-6 else 0.0
-        depth = depth if depth > 0 else float(np.linalg.norm(position)) or 1.0
+        # Orbit around where the optical axis meets the sign plane (z = 0); a camera facing away
+        # from it orbits a point as far ahead as the camera is from the sign.
+        meets_sign = position[2] < 0 < forward[2]
+        depth = -position[2] / forward[2] if meets_sign else max(float(np.linalg.norm(position)), 1.0)
         with client.atomic():
             client.camera.position = position
             client.camera.look_at = position + depth * forward
@@ -438,7 +431,7 @@ class SceneHandle:
             thickness=2.0, thickness_units="screen")
         return SignNodes(frame, plane, outline)
 
-    def _draw_camera(self, record: Any, library: Library) -> None:
+    def _draw_camera(self, record: ImageRecord, library: Library) -> None:
         rec: Recognition = record.recognition
         sign = library[rec.label]
         width_px, height_px = rec.image_size
@@ -458,17 +451,16 @@ class SceneHandle:
                 old.remove()
             frustum = self._add_frustum(record, rec.label, fov, aspect, scale, color, position, wxyz)
             label = self.server.scene.add_label(f"{frustum.name}/label", _camera_text(record))
-        best = rec.best
-        inliers = best.estimate.inliers
-        on_sign = sign.to_metric(best.src[inliers])
-        on_photo = image_plane_points(best.dst[inliers], width_px, height_px, fov, aspect, scale)
+        sign_px, image_px = matched_points(rec, sign)
+        on_sign = sign.to_metric(sign_px)
+        on_photo = image_plane_points(image_px, width_px, height_px, fov, aspect, scale)
         on_photo_world = on_photo @ tf.SO3(wxyz).as_matrix().T + position
         matches = self.server.scene.add_line_segments(
             f"/signs/{rec.label}/matches/{record.id}", np.stack([on_sign, on_photo_world], axis=1), color,
             thickness=1.0, thickness_units="screen", visible=self.show_matches.value)
         self.cameras[record.id] = CameraNodes(rec.label, rec, frustum, label, matches)
 
-    def _add_frustum(self, record: Any, sign_id: str, fov: float, aspect: float, scale: float,
+    def _add_frustum(self, record: ImageRecord, sign_id: str, fov: float, aspect: float, scale: float,
                      color: tuple[int, int, int], position: np.ndarray, wxyz: np.ndarray) -> viser.CameraFrustumHandle:
         thumbnail = self._thumbnails.get(record.id)
         if thumbnail is None:
@@ -481,27 +473,39 @@ class SceneHandle:
         return frustum
 
 
-def _has_pose(record: Any) -> bool:
+def matched_points(rec: Recognition, sign: LibrarySign) -> tuple[np.ndarray, np.ndarray]:
+    """(library px, image px), (N, 2) each, that tie the recognised `sign` to the photo.
+
+    The RANSAC inliers when features decided; for the plaque fallback, which has no feature
+    matches, the sign's corners and their image through the final H.
+    """
+    best = rec.best
+    if best is not None:
+        return best.src[best.estimate.inliers], best.dst[best.estimate.inliers]
+    return sign.corners_px, rec.corners
+
+
+def _has_pose(record: ImageRecord) -> bool:
     rec = record.recognition
     return rec is not None and rec.recognized and rec.pose is not None
 
 
-def _camera_text(record: Any) -> str:
+def _camera_text(record: ImageRecord) -> str:
     rec: Recognition = record.recognition
     notes = []
     if rec.pose.ambiguous:
         notes.append("ambiguous pose")
-    if record.expected is not None and record.expected != rec.label:
+    if is_correct(record.expected, rec) is False:
         notes.append(f"expected {record.expected}")
     return " · ".join([record.name, *notes])
 
 
-def status_markdown(records: list[Any], progress: dict[str, Any]) -> str:
+def status_markdown(records: list[ImageRecord], progress: dict[str, Any]) -> str:
     """One status line: image counts, correctness, median time per image and re-run progress."""
     done = [r.recognition for r in records if r.recognition is not None]
     recognised = sum(rec.recognized for rec in done)
     labelled = [r for r in records if r.expected is not None and r.recognition is not None]
-    correct = sum(r.recognition.label == r.expected for r in labelled)
+    correct = sum(is_correct(r.expected, r.recognition) for r in labelled)
     parts = [f"**{len(records)}** images", f"**{recognised}** recognised",
              f"**{correct}**/{len(labelled)} correct", f"**{len(done) - recognised}** no sign"]
     errors = sum(r.error is not None for r in records)
@@ -528,7 +532,7 @@ def attach(server: viser.ViserServer, workspace: Workspace) -> SceneHandle:
                                  disabled=True)
         show_matches = gui.add_checkbox("Inlier matches", True,
                                         hint="Lines from each inlier on the sign to its pixel on the photo")
-        frustum_width = gui.add_slider("Photo width (m)", 0.05, 5.0, 0.05, DEFAULT_FRUSTUM_WIDTH_M,
+        frustum_width = gui.add_slider("Photo width (m)", 0.05, 2.0, 0.05, DEFAULT_FRUSTUM_WIDTH_M,
                                        hint="Drawn width of each camera's photo, in metres")
     # `scene` is bound below, before any client can connect and edit a setting.
     panel = add_settings_panel(gui, workspace.settings, lambda changes, client: scene._apply_settings(changes, client))
