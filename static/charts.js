@@ -5,7 +5,7 @@ const INK = "#57606a";
 const GRID = "#d8dee4";
 const FONT = "10px system-ui, sans-serif";
 export const COLORS = {
-  threshold: "#0969da", suggested: "#1a7f37", white: "#8c959f", high: "#bc4c00",
+  threshold: "#0969da", suggested: "#1a7f37", white: "#57606a", background: "#9a6700", high: "#bc4c00",
   bars: "#8c959f", correct: "#1a7f37", margin: "#8250df", band: "rgba(26,127,55,0.12)",
 };
 
@@ -48,7 +48,7 @@ function marker(p, value, color, label, dash = [], row = 0) {
   ctx.fillStyle = color;
   ctx.textBaseline = "top";
   ctx.textAlign = x(value) > PAD.left + p.w * 0.65 ? "right" : "left";
-  ctx.fillText(` ${label} `, x(value), y(1) + 2 + row * 12);
+  if (label) ctx.fillText(` ${label} `, x(value), y(1) + 2 + row * 12);
   ctx.restore();
 }
 
@@ -59,7 +59,8 @@ export function valueAt(canvas, clientX, x0, x1) {
   return Math.min(x1, Math.max(x0, x0 + ((clientX - left) / w) * (x1 - x0)));
 }
 
-/** 256-bin histogram of normalised gray in [0, 1], log counts (the sign is a small part of most frames). */
+/** 256-bin histogram of the normalised gray in the calibration region, log counts so that both the
+ *  sign's white and its dark text show. */
 export function drawHistogram(canvas, calib, settings) {
   const p = plot(canvas, 0, 1);
   const { ctx, x, y } = p;
@@ -79,8 +80,10 @@ export function drawHistogram(canvas, calib, settings) {
   ctx.textAlign = "center";
   ctx.fillText("log count", 0, 0);
   ctx.restore();
-  marker(p, calib.white_level, COLORS.white, `white ${calib.white_level?.toFixed(2)}`, [2, 3], 2);
-  marker(p, calib.suggested_threshold, COLORS.suggested, `suggested ${calib.suggested_threshold?.toFixed(2)}`, [5, 3], 1);
+  // Only the settings are labelled on the chart; the measured levels are named in the legend below.
+  marker(p, calib.background_level, COLORS.background, "", [1, 2]);
+  marker(p, calib.white_level, COLORS.white, "", [2, 3]);
+  marker(p, calib.suggested_threshold, COLORS.suggested, "", [5, 3]);
   marker(p, settings.high_threshold, COLORS.high, `high ${settings.high_threshold?.toFixed(2)}`, [], 1);
   marker(p, settings.threshold, COLORS.threshold, `threshold ${settings.threshold.toFixed(2)}`);
 }
@@ -96,8 +99,10 @@ function series(p, xs, ys, max, color) {
   xs.forEach((v, i) => ctx.fillRect(x(v) - 2, y(ys[i] / max) - 2, 4, 4));
 }
 
-/** Correct count (left axis) and smallest margin (right axis) against the swept threshold. */
-export function drawSweep(canvas, sweep, threshold) {
+const num = (v) => (Number.isInteger(v) ? String(v) : v.toFixed(2));
+
+/** Correct count (left axis) and smallest margin (right axis) against the swept setting's value. */
+export function drawSweep(canvas, sweep, current) {
   const xs = sweep.values;
   const p = plot(canvas, xs[0], xs[xs.length - 1]);
   const { ctx, x, y, w } = p;
@@ -119,8 +124,8 @@ export function drawSweep(canvas, sweep, threshold) {
   ctx.fillStyle = COLORS.margin;
   ctx.fillText(String(maxMargin), PAD.left + w + 4, y(1));
   ctx.fillText("0", PAD.left + w + 4, y(0));
-  marker(p, sweep.centre, COLORS.suggested, `centre ${sweep.centre?.toFixed(2)}`, [5, 3], 1);
-  if (threshold >= xs[0] && threshold <= xs[xs.length - 1]) {
-    marker(p, threshold, COLORS.threshold, `threshold ${threshold.toFixed(2)}`);
+  marker(p, sweep.centre, COLORS.suggested, `centre ${num(sweep.centre ?? 0)}`, [5, 3], 1);
+  if (current >= xs[0] && current <= xs[xs.length - 1]) {
+    marker(p, current, COLORS.threshold, `now ${num(current)}`);
   }
 }

@@ -3,6 +3,7 @@
 
 import { api, failureOf, get } from "./api.js";
 import { drawHistogram, drawSweep, valueAt } from "./charts.js";
+import { fillExpected, refreshImages } from "./gallery.js";
 import { setSetting } from "./settings.js";
 import { state, on, select, signName } from "./store.js";
 import { $, el, fill, fmt, report } from "./ui.js";
@@ -14,8 +15,10 @@ let calib = null;           // POST /api/calibrate/threshold answer for the show
 let sweep = null;           // GET /api/sweep answer plus the settings it ran under
 const boxes = new Map();    // image id -> calibration box [x0, y0, x1, y1] in image px
 
+let libraryVersion = 0;      // library edits change the match figures without a new settings version
+
 const stageUrl = (stage, query = "") =>
-  `/api/images/${detail.id}/stages/${stage}?v=${detail.settings_version}${query}`;
+  `/api/images/${detail.id}/stages/${stage}?v=${detail.settings_version}.${libraryVersion}${query}`;
 
 /** A figure whose <img> shows the server's reason (e.g. "no blob") when the stage cannot be drawn. */
 function stageFigure(title, link = true) {
@@ -57,13 +60,13 @@ function renderHead() {
   badge.textContent = detail.status;
   badge.className = `badge status-${detail.status}`;
   const parts = [
-    detail.label ? el("b", {}, signName(detail.label)) : el("b", {}, "no sign"),
-    detail.expected ? `expected ${signName(detail.expected)}` : "no expected label",
+    el("b", {}, detail.label ? signName(detail.label) : "no sign"),
     `${detail.inliers ?? "–"} inliers`, `margin ${detail.margin ?? "–"}`,
     r?.timing_ms?.total !== undefined ? `${fmt(r.timing_ms.total, 0)} ms` : null,
     `${detail.width}×${detail.height}`,
   ].filter(Boolean);
   fill($("#detail-summary"), ...parts.flatMap((p, i) => (i ? [el("span.sep", {}, "·"), p] : [p])));
+  if (document.activeElement !== $("#detail-expected")) fillExpected($("#detail-expected"), detail.expected ?? "");
   const warnings = [detail.error, ...(r?.warnings ?? [])].filter(Boolean);
   fill($("#detail-warnings"), ...warnings.map((w) => el("li", {}, w)));
 }
@@ -162,11 +165,10 @@ async function load(id) {
   try {
     const body = await get(`/api/images/${encodeURIComponent(id)}`);
     if (token !== loadToken) return;
-    const first = detail?.id !== body.id;
     detail = body;
     shownKey = keyOf(body);
     render();
-    if (first) calibrate();
+    calibrate();   // the detected sign's region moves with the result
   } catch (err) {
     if (token === loadToken) report(err);
   }
@@ -200,31 +202,38 @@ async function calibrate() {
   const id = detail.id;
   const rect = boxes.get(id) ?? null;
   try {
-    const body = await api("POST", "/api/calibrate/threshold", { image_id: id, rect });
-    if (detail?.id !== id) return;
-    calib = body;
-    renderCalib();
+    calib = await api("POST", "/api/calibrate/threshold", { image_id: id, rect });
   } catch (err) {
-    report(err);
+    // Shown beside the histogram, where the person is looking (e.g. "no sign found: draw a box").
+    calib = { error: err.message };
   }
+  if (detail?.id === id) renderCalib();
 }
 
 function renderCalib() {
   const out = $("#calib-result");
-  if (!calib) { fill(out); return; }
+  $("#histogram").hidden = !calib?.histogram;
+  if (!calib?.histogram) {
+    fill(out, calib?.error ? el("span.warn", {}, calib.error) : null);
+    return;
+  }
   drawHistogram($("#histogram"), calib, state.settings);
-  const where = calib.rect
-    ? `box ${calib.rect[2] - calib.rect[0]}×${calib.rect[3] - calib.rect[1]} px`
-    : "whole image (drag a box on the sign for a sharper estimate)";
+  const [x0, y0, x1, y1] = calib.rect ?? [];
+  const where = boxes.has(detail.id) ? `your box ${x1 - x0}×${y1 - y0} px`
+    : `${calib.source ?? "whole image"} (drag a box on the sign to choose another region)`;
   const suggestion = calib.suggested_threshold;
   fill(out,
-    el("span", {}, `${where}: white level `, el("b", {}, fmt(calib.white_level)), " → suggested ",
-      el("b.suggested", {}, fmt(suggestion))),
+    el("span.calib-where", {}, where),
+    el("span", {}, el("i.swatch.white"), "white ", el("b", {}, fmt(calib.white_level))),
+    calib.background_level !== null && calib.background_level !== undefined
+      ? el("span", {}, el("i.swatch.background"), "surroundings ", el("b", {}, fmt(calib.background_level))) : null,
+    el("span", {}, el("i.swatch.suggested"), "suggested ", el("b.suggested", {}, fmt(suggestion))),
     suggestion !== null && suggestion !== undefined ? el("button.primary", {
       type: "button", id: "apply-threshold", title: "Set the threshold to the suggested value",
       disabled: Math.abs(suggestion - state.settings.threshold) < 1e-9,
       onclick: () => setSetting("threshold", suggestion),
-    }, "apply") : null);
+    }, "apply") : null,
+    calib.warning ? el("span.warn", {}, calib.warning) : null);
 }
 
 function bindDrag() {
@@ -262,19 +271,34 @@ function bindDrag() {
   });
 }
 
-// ---- threshold sweep
+// ---- sweep of one setting over the labelled images
 
-const sweepKey = (s) => JSON.stringify({ ...s, threshold: null });
+/** The settings a sweep depends on: all but the swept one, so moving that one keeps it current. */
+const sweepKey = (settings, param) => JSON.stringify({ ...settings, [param]: null });
+
+function fillSweepParams() {
+  const select = $("#sweep-param");
+  fill(select, state.schema.filter((e) => e.type === "float" || e.type === "int")
+    .map((e) => el("option", { value: e.name }, e.name)));
+  select.value = "threshold";
+  select.onchange = () => {
+    const entry = state.schema.find((e) => e.name === select.value);
+    $("#sweep-lo").value = entry.min;
+    $("#sweep-hi").value = entry.max;
+    for (const id of ["#sweep-lo", "#sweep-hi"]) $(id).step = entry.step ?? "any";
+  };
+}
 
 async function runSweep() {
   const button = $("#run-sweep");
-  const params = new URLSearchParams({
-    param: "threshold", lo: $("#sweep-lo").value, hi: $("#sweep-hi").value, steps: $("#sweep-steps").value,
+  const param = $("#sweep-param").value;
+  const query = new URLSearchParams({
+    param, lo: $("#sweep-lo").value, hi: $("#sweep-hi").value, steps: $("#sweep-steps").value,
   });
   button.disabled = true;
   button.textContent = "sweeping…";
   try {
-    sweep = { ...(await get(`/api/sweep?${params}`)), key: sweepKey(state.settings) };
+    sweep = { ...(await get(`/api/sweep?${query}`)), key: sweepKey(state.settings, param) };
     renderSweep();
   } catch (err) {
     report(err);
@@ -287,35 +311,37 @@ async function runSweep() {
 function renderSweep() {
   const info = $("#sweep-info");
   const canvas = $("#sweep");
-  canvas.hidden = !sweep?.labelled;
-  if (!sweep) return;
-  if (!sweep.labelled) {
-    fill(info, el("span.warn", {}, "No labelled images: upload with an expected label to sweep."));
+  const labelled = state.images.some((i) => i.expected !== null);
+  $("#run-sweep").disabled = !labelled;
+  canvas.hidden = !sweep;
+  if (!labelled) {
+    fill(info, el("span.muted", {}, "Give images an expected label (above, or when uploading) to sweep."));
     return;
   }
-  drawSweep(canvas, sweep, state.settings.threshold);
-  const stale = sweep.key !== sweepKey(state.settings);
+  if (!sweep) { fill(info); return; }
+  drawSweep(canvas, sweep, state.settings[sweep.param]);
   fill(info,
     el("span", {}, el("i.swatch.correct"), `correct of ${sweep.labelled} labelled`),
     el("span", {}, el("i.swatch.margin"), "smallest margin"),
     sweep.band
-      ? el("span", {}, "working band ", el("b", {}, `${fmt(sweep.band[0])}–${fmt(sweep.band[1])}`),
+      ? el("span", {}, `${sweep.param} works over `, el("b", {}, `${fmt(sweep.band[0])}–${fmt(sweep.band[1])}`),
         ", centre ", el("b.suggested", {}, fmt(sweep.centre)))
-      : el("span.warn", {}, "no threshold gets every labelled image right"),
+      : el("span.warn", {}, `no ${sweep.param} value gets every labelled image right`),
     sweep.centre !== null && sweep.centre !== undefined ? el("button.primary", {
-      type: "button", title: "Set the threshold to the centre of the working band",
-      onclick: () => setSetting("threshold", sweep.centre),
+      type: "button", title: `Set ${sweep.param} to the centre of the working band`,
+      onclick: () => setSetting(sweep.param, sweep.centre),
     }, "apply centre") : null,
-    stale ? el("span.warn", {}, "other settings changed since: run again") : null);
+    sweep.key !== sweepKey(state.settings, sweep.param)
+      ? el("span.warn", {}, "other settings changed since: run again") : null);
 }
 
-/** Clicking a chart sets the threshold there: faster than finding the slider. */
+/** Clicking a chart sets the value there: faster than finding the slider. */
 function bindChartClicks() {
   $("#histogram").addEventListener("click", (e) =>
     setSetting("threshold", valueAt(e.currentTarget, e.clientX, 0, 1)));
   $("#sweep").addEventListener("click", (e) => {
     const xs = sweep.values;
-    setSetting("threshold", valueAt(e.currentTarget, e.clientX, xs[0], xs[xs.length - 1]));
+    setSetting(sweep.param, valueAt(e.currentTarget, e.clientX, xs[0], xs[xs.length - 1]));
   });
 }
 
@@ -336,6 +362,7 @@ export function initDetail() {
   fill($("#stages"), ...stages.map((s) => s.figure.fig));
   bindDrag();
   bindChartClicks();
+  fillSweepParams();
   $("#run-sweep").onclick = runSweep;
   $("#prev").onclick = () => step(-1);
   $("#next").onclick = () => step(1);
@@ -346,11 +373,24 @@ export function initDetail() {
     else if (e.key === "ArrowRight") step(1);
     else if (e.key === "Escape") select(null);
   });
+  $("#detail-expected").onchange = async (e) => {
+    try {
+      await api("PATCH", `/api/images/${detail.id}`, { expected: e.target.value || null });
+    } catch (err) {
+      report(err);
+    }
+    refreshImages();
+  };
   on("select", (id) => (id ? load(id) : close()));
+  on("library", () => {
+    libraryVersion += 1;
+    if (detail) load(detail.id);
+  });
   on("images", () => {
     const img = state.images.find((i) => i.id === state.selected);
     if (state.selected && !img) select(null);
     else if (img && keyOf(img) !== shownKey) load(img.id);
+    renderSweep();
   });
   let normalization = null;
   on("settings", (s) => {

@@ -23,9 +23,10 @@ function uploadRow(file) {
       bar.style.width = `${Math.round(p * 100)}%`;
       status.textContent = p < 1 ? `${Math.round(p * 100)}%` : "processing…";
     },
-    done(summary) {
+    done() {
       row.classList.add("ok");
-      status.textContent = summary.label ? `✓ ${signName(summary.label)}` : `✓ ${summary.status}`;
+      // Recognition runs in the background; the card shows its result when it lands.
+      status.textContent = "✓ added";
       setTimeout(() => row.remove(), 3000);
     },
     fail(message) {
@@ -41,8 +42,8 @@ async function send({ file, expected, row }) {
   form.append("files", file);
   form.append("expected", expected);
   try {
-    const body = await upload("/api/images", form, row.progress);
-    row.done(body.images[0]);
+    await upload("/api/images", form, row.progress);
+    row.done();
     refreshImages();
   } catch (err) {
     row.fail(err.message);
@@ -85,12 +86,11 @@ function bindUpload() {
   });
 }
 
-function fillExpected() {
-  const select = $("#expected");
-  const keep = select.value;
-  fill(select, el("option", { value: "" }, "unknown"),
+/** Options for an expected-label select: unlabelled, "none" (no sign in the photo) or a library sign. */
+export function fillExpected(select, value = select.value) {
+  fill(select, el("option", { value: "" }, "unknown"), el("option", { value: "none" }, "no sign"),
     ...state.library.map((s) => el("option", { value: s.id }, s.name)));
-  select.value = state.library.some((s) => s.id === keep) ? keep : "";
+  select.value = value === "none" || state.library.some((s) => s.id === value) ? value : "";
 }
 
 // ---- gallery
@@ -125,6 +125,7 @@ function updateCard({ card, parts }, img) {
   for (const s of STATUSES) card.classList.toggle(`status-${s}`, img.status === s);
   card.classList.toggle("selected", img.id === state.selected);
   card.dataset.status = img.status;
+  card.dataset.version = img.settings_version;
   parts.badge.textContent = img.status;
   parts.name.textContent = img.name;
   parts.name.title = img.name;
@@ -162,7 +163,8 @@ function renderCounts() {
     el("span.count", {}, `${state.images.length} images`),
     labelled ? el("span.count.accuracy", { title: "correct / images with an expected label" },
       `${counts.correct}/${labelled} correct`) : null,
-    ...STATUSES.filter((s) => counts[s]).map((s) =>
+    // "correct" is already in the accuracy figure.
+    ...STATUSES.filter((s) => counts[s] && !(s === "correct" && labelled)).map((s) =>
       el(`span.count.status-${s}`, { title: s }, el("i.dot"), `${counts[s]} ${s}`)));
 }
 
@@ -179,8 +181,8 @@ export const refreshImages = throttle(async () => {
 
 export function initGallery() {
   bindUpload();
-  fillExpected();
-  on("library", fillExpected);
+  fillExpected($("#expected"));
+  on("library", () => fillExpected($("#expected")));
   on("images", renderGallery);
   on("select", () => {
     for (const [id, { card }] of cards) card.classList.toggle("selected", id === state.selected);

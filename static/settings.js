@@ -168,7 +168,7 @@ export function apply(payload, force = false) {
 /** Change settings from elsewhere on the page (calibration, sweep): same path as a form edit. */
 export function setSetting(name, value) {
   const c = controls.get(name);
-  c.write(value);
+  c.write(typeof value === "number" ? snap(value, c.entry) : value);
   edit(name);
 }
 

@@ -30,4 +30,4 @@ export function select(id) {
   emit("select", id);
 }
 
-export const signName = (id) => state.library.find((s) => s.id === id)?.name ?? id;
+export const signName = (id) => (id === "none" ? "no sign" : state.library.find((s) => s.id === id)?.name ?? id);
