@@ -1,0 +1,310 @@
+"""Plane-to-plane homographies: normalised DLT, the paper's fixed-iteration RANSAC, OpenCV backends.
+
+Homographies map library-sign pixels (src) to image pixels (dst), act on homogeneous column
+vectors (x, y, 1) and are scaled so that H[2, 2] = 1 (see `normalize_scale`). A point whose
+mapped homogeneous coordinate w is not positive lies on or beyond the vanishing line: with that
+scaling, w > 0 means "on the same side of the camera as the src origin", which for a library
+sign (origin at its top-left corner) means in front of the camera.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .settings import RANSAC_METHODS
+
+# Mapped w at or below this counts as at/behind infinity (w is ~1 for H[2, 2] = 1 near the src origin).
+_MIN_W = 1e-12
+# A sample triple is collinear when twice its triangle's area is below this fraction of its
+# longest side squared: scale-free, and it also catches repeated or nearly coincident points.
+_MIN_TRIANGLE_SHAPE = 1e-3
+# The four triples of a 4-point sample; each must be non-collinear for the DLT to be determined.
+_TRIPLES = np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]])
+# Refit/re-classify rounds after RANSAC: the inlier set settles in one or two.
+_MAX_REFITS = 3
+# Hypotheses scored per block, so that (block, N) error arrays stay around 8 MB at any N.
+_SCORE_BLOCK_ELEMENTS = 1 << 20
+
+
+@dataclass(frozen=True, eq=False)
+class HomographyEstimate:
+    """A robust homography fit.
+
+    `H`: (3, 3) float64 library px -> image px with H[2, 2] = 1, or None when estimation failed.
+    `inliers`: (N,) bool over the input matches. `iterations`: hypotheses drawn (for OpenCV
+    backends the maximum allowed, since OpenCV does not report how many it used).
+    `method`: one of `pipeline.settings.RANSAC_METHODS`.
+    """
+
+    H: np.ndarray | None
+    inliers: np.ndarray
+    iterations: int
+    method: str
+
+    @property
+    def n_inliers(self) -> int:
+        return int(np.count_nonzero(self.inliers))
+
+
+def _as_points(pts: np.ndarray, name: str) -> np.ndarray:
+    """`pts` as a contiguous (N, 2) float64 array; anything else is a ValueError."""
+    arr = np.ascontiguousarray(pts, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise ValueError(f"{name} must have shape (N, 2); got {arr.shape}")
+    return arr
+
+
+def _as_matches(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Matched (N, 2) src and dst points, checked to have the same length."""
+    src, dst = _as_points(src, "src"), _as_points(dst, "dst")
+    if len(src) != len(dst):
+        raise ValueError(f"src and dst must have the same length; got {len(src)} and {len(dst)}")
+    return src, dst
+
+
+def _normalize_batch(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Hartley normalisation of (B, N, 2) points: returns T (B, 3, 3) and T-mapped points (B, N, 2)."""
+    centroid = pts.mean(axis=1, keepdims=True)
+    centred = pts - centroid
+    mean_dist = np.linalg.norm(centred, axis=2).mean(axis=1)
+    # Coincident points have no scale; leave them unscaled and let the DLT report degeneracy.
+    scale = np.sqrt(2.0) / np.where(mean_dist > 0, mean_dist, np.sqrt(2.0))
+    T = np.zeros((len(pts), 3, 3))
+    T[:, 0, 0] = T[:, 1, 1] = scale
+    T[:, :2, 2] = -scale[:, None] * centroid[:, 0, :]
+    T[:, 2, 2] = 1.0
+    return T, centred * scale[:, None, None]
+
+
+def normalize_points(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Hartley normalisation of (N, 2) points (px).
+
+    Returns T (3, 3), the similarity moving the centroid to the origin and scaling the mean
+    distance from it to sqrt(2), and the normalised points (N, 2) = T applied to `pts`.
+    """
+    T, pts_n = _normalize_batch(_as_points(pts, "pts")[None])
+    return T[0], pts_n[0]
+
+
+def normalize_scale(H: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) homographies scaled to H[2, 2] = 1.
+
+    When H[2, 2] is ~0 (the src origin maps to infinity) the unit-Frobenius-norm scaling is
+    returned instead, so the result is always finite.
+    """
+    H = np.asarray(H, dtype=np.float64)
+    h22 = H[..., 2, 2]
+    frob = np.linalg.norm(H, axis=(-2, -1))
+    usable = np.abs(h22) > 1e-12 * frob
+    scale = np.where(usable, h22, np.where(frob > 0, frob, 1.0))
+    return H / scale[..., None, None]
+
+
+def dlt_homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Normalised DLT for a batch: src, dst (B, N, 2) px with N >= 4 -> H (B, 3, 3), H[2, 2] = 1.
+
+    Each H minimises the algebraic error of its N correspondences; all B systems go through one
+    batched SVD, which is what keeps RANSAC's thousands of minimal fits fast.
+    """
+    src = np.asarray(src, dtype=np.float64)
+    dst = np.asarray(dst, dtype=np.float64)
+    if src.shape != dst.shape or src.ndim != 3 or src.shape[2] != 2 or src.shape[1] < 4:
+        raise ValueError(f"src and dst must both have shape (B, N>=4, 2); got {src.shape} and {dst.shape}")
+    B, N = src.shape[:2]
+    T_src, s = _normalize_batch(src)
+    T_dst, d = _normalize_batch(dst)
+    x, y = s[..., 0], s[..., 1]
+    u, v = d[..., 0], d[..., 1]
+    one, zero = np.ones_like(x), np.zeros_like(x)
+    rows_u = np.stack([-x, -y, -one, zero, zero, zero, u * x, u * y, u], axis=-1)
+    rows_v = np.stack([zero, zero, zero, -x, -y, -one, v * x, v * y, v], axis=-1)
+    A = np.stack([rows_u, rows_v], axis=2).reshape(B, 2 * N, 9)
+    # full_matrices=True gives all nine right singular vectors even for the 8 x 9 minimal system,
+    # but would also build a (2N, 2N) U for large N; the reduced SVD has them once 2N >= 9.
+    _, _, vh = np.linalg.svd(A, full_matrices=2 * N < 9)
+    H_n = vh[:, -1, :].reshape(B, 3, 3)
+    return normalize_scale(np.linalg.inv(T_dst) @ H_n @ T_src)
+
+
+def dlt_homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Normalised DLT: src, dst (N, 2) px with N >= 4 -> H (3, 3) with H[2, 2] = 1."""
+    src, dst = _as_matches(src, dst)
+    return dlt_homographies(src[None], dst[None])[0]
+
+
+def transfer_errors(H: np.ndarray, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Forward reprojection distance |H src - dst| in dst px.
+
+    H: (3, 3) or (B, 3, 3); src, dst: (N, 2) px. Returns (N,) or (B, N). Points that H maps to
+    or beyond infinity (w <= 0, see the module docstring) get +inf.
+    """
+    src, dst = _as_matches(src, dst)
+    H = np.asarray(H, dtype=np.float64)
+    # Coordinates-first (..., 3, N) keeps each row contiguous: the batched case is RANSAC's hot loop.
+    mapped = H @ np.vstack([src.T, np.ones(len(src))])
+    w = mapped[..., 2, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        du = mapped[..., 0, :] / w - dst[:, 0]
+        dv = mapped[..., 1, :] / w - dst[:, 1]
+        dist = np.sqrt(du * du + dv * dv)
+    return np.where(w > _MIN_W, dist, np.inf)
+
+
+def _draw_samples(rng: np.random.Generator, n: int, count: int) -> np.ndarray:
+    """(count, 4) indices into n >= 4 points, each row 4 distinct indices drawn uniformly.
+
+    The k-th pick is drawn from the n - k unused indices by shifting past the earlier picks
+    in ascending order: exact, vectorised and with no rejection loop.
+    """
+    picks = np.empty((count, 4), dtype=np.intp)
+    for k in range(4):
+        r = rng.integers(0, n - k, size=count)
+        for earlier in np.sort(picks[:, :k], axis=1).T:
+            r += r >= earlier
+        picks[:, k] = r
+    return picks
+
+
+def _triangle_signs(pts: np.ndarray) -> np.ndarray:
+    """For (B, 4, 2) samples, (B, 4) orientation of each triple: +1, -1, or 0 when collinear."""
+    a, b, c = (pts[:, _TRIPLES[:, i]] for i in range(3))
+    ab, ac, bc = b - a, c - a, c - b
+    cross = ab[..., 0] * ac[..., 1] - ab[..., 1] * ac[..., 0]
+    longest_sq = np.maximum.reduce([(e * e).sum(-1) for e in (ab, ac, bc)])
+    collinear = np.abs(cross) <= _MIN_TRIANGLE_SHAPE * longest_sq
+    return np.where(collinear, 0, np.sign(cross))
+
+
+def _usable_samples(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """(B,) bool: the (B, 4, 2) src/dst samples determine a homography that can be real.
+
+    Rejects samples with a collinear triple on either side, and samples whose triples change
+    orientation inconsistently: a homography keeping all four points in front of the camera
+    flips either every triangle or none.
+    """
+    s, d = _triangle_signs(src), _triangle_signs(dst)
+    agree = s * d
+    return np.all(agree == 1, axis=1) | np.all(agree == -1, axis=1)
+
+
+def _failed(n: int, iterations: int, method: str) -> HomographyEstimate:
+    """The result of an estimation that found no homography among n matches."""
+    return HomographyEstimate(H=None, inliers=np.zeros(n, dtype=bool), iterations=iterations, method=method)
+
+
+def _best_consensus(src: np.ndarray, dst: np.ndarray, samples: np.ndarray, threshold: float) -> np.ndarray | None:
+    """Fit every usable sample (S, 4) by DLT; the (N,) inlier mask of the one with most inliers,
+    or None when no sample is usable.
+
+    Ties go to the earliest sample, so the result depends only on the sample order.
+    """
+    samples = samples[_usable_samples(src[samples], dst[samples])]
+    best: np.ndarray | None = None
+    block = max(1, _SCORE_BLOCK_ELEMENTS // len(src))
+    for start in range(0, len(samples), block):
+        chunk = samples[start:start + block]
+        inliers = transfer_errors(dlt_homographies(src[chunk], dst[chunk]), src, dst) < threshold
+        counts = inliers.sum(axis=1)
+        i = int(np.argmax(counts))
+        if best is None or counts[i] > best.sum():
+            best = inliers[i]
+    return best
+
+
+def _refine(src: np.ndarray, dst: np.ndarray, inliers: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """Refit H by DLT on all inliers and re-classify with it; repeat while the inlier set grows.
+
+    The minimal-sample H interpolates 4 noisy points and extrapolates poorly; the least-squares
+    refit is kept even if a borderline match drops out, and usually admits a few more.
+    Returns (H, inliers under that H).
+    """
+    for _ in range(_MAX_REFITS):
+        H = dlt_homography(src[inliers], dst[inliers])
+        refit_inliers = transfer_errors(H, src, dst) < threshold
+        grew = refit_inliers.sum() > inliers.sum()
+        inliers = refit_inliers
+        if not grew:
+            break
+    return H, inliers
+
+
+def ransac_homography(src: np.ndarray, dst: np.ndarray, iterations: int = 50, threshold: float = 3.0,
+                      seed: int = 0) -> HomographyEstimate:
+    """The paper's RANSAC: exactly `iterations` random 4-point DLT hypotheses, most inliers wins.
+
+    src, dst: (N, 2) library px and image px of the matches. A match is an inlier when its
+    forward transfer error is below `threshold` image px. Samples come from
+    `np.random.default_rng(seed)`, so a seed always gives the same answer. Degenerate samples
+    (see `_usable_samples`) are drawn but not fitted: they still count as iterations. The
+    winner's inliers are then refitted (`_refine`). Fewer than 4 matches, or no usable sample,
+    gives H None.
+    """
+    src, dst = _as_matches(src, dst)
+    if len(src) < 4:
+        return _failed(len(src), 0, "own")
+    samples = _draw_samples(np.random.default_rng(seed), len(src), iterations)
+    best = _best_consensus(src, dst, samples, threshold)
+    if best is None or best.sum() < 4:
+        return _failed(len(src), iterations, "own")
+    H, inliers = _refine(src, dst, best, threshold)
+    return HomographyEstimate(H=H, inliers=inliers, iterations=iterations, method="own")
+
+
+def _usac_params(method: str, iterations: int, threshold: float, confidence: float, seed: int) -> cv2.UsacParams:
+    """UsacParams reproducing OpenCV's `cv2.USAC_MAGSAC` / `cv2.USAC_ACCURATE` presets, plus a seed.
+
+    The flag presets always seed USAC's generator with 0; only UsacParams exposes the state.
+    The values mirror OpenCV's `setParameters` for each flag (with seed 0 the results are identical).
+    """
+    p = cv2.UsacParams()
+    p.threshold = threshold
+    p.confidence = confidence
+    p.maxIterations = iterations
+    p.randomGeneratorState = seed
+    p.sampler = cv2.SAMPLING_UNIFORM
+    p.neighborsSearch = cv2.NEIGH_GRID
+    if method == "usac_magsac":
+        p.score, p.loMethod, p.loSampleSize, p.loIterations = cv2.SCORE_METHOD_MAGSAC, cv2.LOCAL_OPTIM_SIGMA, 75, 15
+        p.final_polisher = cv2.MAGSAC
+    else:
+        p.score, p.loMethod, p.loSampleSize, p.loIterations = cv2.SCORE_METHOD_MSAC, cv2.LOCAL_OPTIM_GC, 20, 25
+        p.final_polisher = cv2.COV_POLISHER
+    return p
+
+
+def _cv2_homography(src: np.ndarray, dst: np.ndarray, method: str, iterations: int, threshold: float,
+                    confidence: float, seed: int) -> HomographyEstimate:
+    """An OpenCV backend; inliers are re-classified with the returned H (see `estimate_homography`)."""
+    if len(src) < 4:
+        return _failed(len(src), 0, method)
+    if method == "cv2_ransac":
+        H, _ = cv2.findHomography(src, dst, cv2.RANSAC, threshold, maxIters=iterations, confidence=confidence)
+    else:
+        H, _ = cv2.findHomography(src, dst, _usac_params(method, iterations, threshold, confidence, seed))
+    if H is None or H.shape != (3, 3) or not np.all(np.isfinite(H)):
+        return _failed(len(src), iterations, method)
+    H = normalize_scale(H)
+    return HomographyEstimate(H=H, inliers=transfer_errors(H, src, dst) < threshold, iterations=iterations,
+                              method=method)
+
+
+def estimate_homography(src: np.ndarray, dst: np.ndarray, method: str = "own", iterations: int = 500,
+                        threshold: float = 4.0, confidence: float = 0.999, seed: int = 0) -> HomographyEstimate:
+    """Robust homography library px -> image px from (N, 2) matches by `method` (`RANSAC_METHODS`).
+
+    "own": `ransac_homography` (fixed `iterations`, `confidence` unused). "cv2_ransac":
+    `cv2.findHomography(..., cv2.RANSAC)`, which seeds its own generator with a constant, so it
+    is deterministic but ignores `seed`. "usac_magsac" / "usac_accurate": OpenCV's USAC presets
+    with `seed` as the generator state. OpenCV backends stop adaptively at `confidence` and do
+    not report how many hypotheses they drew: `iterations` in the result is the maximum allowed.
+    Every backend's inliers are the matches whose forward transfer error under the returned H is
+    below `threshold` px, so inlier counts mean the same thing whichever backend produced them.
+    """
+    if method not in RANSAC_METHODS:
+        raise ValueError(f"unknown homography method {method!r}; choose from {', '.join(RANSAC_METHODS)}")
+    if method == "own":
+        return ransac_homography(src, dst, iterations=iterations, threshold=threshold, seed=seed)
+    return _cv2_homography(*_as_matches(src, dst), method, iterations, threshold, confidence, seed)

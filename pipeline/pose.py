@@ -1,0 +1,364 @@
+"""Camera 6-DOF pose from a sign's homography or its inlier matches.
+
+Frames: the sign frame has its origin at the sign centre, x right, y down the sign, z into the
+wall, metres. The camera frame is OpenCV's: x right, y down, z forward. A pose (R, t) maps sign
+points into the camera, X_cam = R·X_sign + t, so the camera sits at -Rᵀt in the sign frame.
+
+Distortion: every error (RMSE, IPPE solution errors, covariance) is measured in the original,
+distorted image against the measured pixels, projecting with the camera's distortion. The
+closed-form starts (the paper's H decomposition, IPPE) need an ideal pinhole image, so they run
+on points undistorted here to 1e-10 px (OpenCV's default `undistortPoints` stops after five
+iterations, which is pixels off under strong distortion). Levenberg-Marquardt refinement then
+works on the measured pixels with the distortion model, where the noise actually is.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .camera import Camera
+from .homography import dlt_homography, normalize_scale
+from .library import LibrarySign
+from .settings import POSE_METHODS
+
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-10)
+# Sign points whose spread across their main direction is below this fraction of the spread
+# along it are collinear: they determine no homography and no pose.
+_MIN_SPREAD_RATIO = 1e-6
+# JᵀJ with a condition number past this has no usable inverse: the pose is unconstrained along some axis.
+_MAX_COVARIANCE_CONDITION = 1e12
+
+
+class PoseError(ValueError):
+    """No pose can be computed from the given points or homography; the message says why."""
+
+
+@dataclass(frozen=True, eq=False)
+class Pose:
+    """A camera pose relative to a sign.
+
+    `R` (3, 3) and `t` (3,) metres map sign-frame points into the camera frame.
+    `reprojection_rmse_px`: root mean squared distance, in image px, between the measured points
+    and the sign points projected with this pose and the camera's distortion.
+    `solution_errors`: (best, second) RMSE px of IPPE's two planar solutions, whichever method
+    produced the pose (None only for poses built elsewhere). `ambiguous`: the second solution
+    explains the points nearly as well as the best (see `estimate_pose`).
+    `covariance`: (6, 6) over [rotation vector (rad, 3), translation (m, 3)], or None.
+    """
+
+    R: np.ndarray
+    t: np.ndarray
+    method: str
+    reprojection_rmse_px: float
+    ambiguous: bool
+    solution_errors: tuple[float, float] | None
+    covariance: np.ndarray | None
+
+    @property
+    def camera_position(self) -> np.ndarray:
+        """(3,) camera centre in the sign frame, metres: -Rᵀt."""
+        return -self.R.T @ self.t
+
+    @property
+    def quaternion_wxyz(self) -> np.ndarray:
+        """(4,) unit quaternion (w, x, y, z), w >= 0, of R (sign frame -> camera frame)."""
+        return quaternion_wxyz(self.R)
+
+    @property
+    def euler_deg(self) -> dict[str, float]:
+        """R as yaw, pitch, roll in degrees with R = Rz(yaw)·Ry(pitch)·Rx(roll) (see `euler_zyx_deg`)."""
+        yaw, pitch, roll = euler_zyx_deg(self.R)
+        return {"yaw": yaw, "pitch": pitch, "roll": roll}
+
+    def to_json(self) -> dict:
+        """Plain-Python, JSON-safe summary; non-finite numbers become None."""
+        return {
+            "R": _json_numbers(self.R),
+            "t": _json_numbers(self.t),
+            "camera_position": _json_numbers(self.camera_position),
+            "quaternion_wxyz": _json_numbers(self.quaternion_wxyz),
+            "euler_deg": {k: _json_numbers(v) for k, v in self.euler_deg.items()},
+            "reprojection_rmse_px": _json_numbers(self.reprojection_rmse_px),
+            "ambiguous": bool(self.ambiguous),
+            "covariance": None if self.covariance is None else _json_numbers(self.covariance),
+        }
+
+
+def _json_numbers(x):
+    """A number or (nested) array as plain floats / nested lists, with NaN and ±inf as None."""
+    if np.ndim(x) == 0:
+        value = float(x)
+        return value if math.isfinite(value) else None
+    return [_json_numbers(v) for v in x]
+
+
+def rotation_error_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
+    """Geodesic angle in degrees between two (3, 3) rotations: the angle of R_aᵀ·R_b.
+
+    Uses atan2(sin, cos) of the relative rotation, accurate at small and large angles alike
+    (arccos of the trace loses half the digits near zero).
+    """
+    D = np.asarray(R_a, dtype=np.float64).T @ np.asarray(R_b, dtype=np.float64)
+    sin = 0.5 * np.linalg.norm([D[2, 1] - D[1, 2], D[0, 2] - D[2, 0], D[1, 0] - D[0, 1]])
+    cos = 0.5 * (np.trace(D) - 1.0)
+    return math.degrees(math.atan2(sin, cos))
+
+
+def quaternion_wxyz(R: np.ndarray) -> np.ndarray:
+    """(4,) unit quaternion (w, x, y, z) of the (3, 3) rotation R, sign chosen so w >= 0."""
+    rvec = cv2.Rodrigues(np.asarray(R, dtype=np.float64))[0].ravel()
+    angle = float(np.linalg.norm(rvec))
+    if angle == 0.0:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    return np.concatenate([[math.cos(angle / 2)], math.sin(angle / 2) * rvec / angle])
+
+
+def euler_zyx_deg(R: np.ndarray) -> tuple[float, float, float]:
+    """(yaw, pitch, roll) in degrees with R = Rz(yaw)·Ry(pitch)·Rx(roll); pitch in [-90, 90].
+
+    At gimbal lock (pitch = ±90°) only yaw ∓ roll is defined; roll is reported as 0.
+    """
+    R = np.asarray(R, dtype=np.float64)
+    cos_pitch = math.hypot(R[0, 0], R[1, 0])
+    pitch = math.atan2(-R[2, 0], cos_pitch)
+    if cos_pitch < 1e-9:
+        yaw, roll = math.atan2(-R[0, 1], R[1, 1]), 0.0
+    else:
+        yaw, roll = math.atan2(R[1, 0], R[0, 0]), math.atan2(R[2, 1], R[2, 2])
+    return math.degrees(yaw), math.degrees(pitch), math.degrees(roll)
+
+
+def _nearest_rotation(M: np.ndarray) -> np.ndarray:
+    """The rotation (det +1) closest to (3, 3) M in Frobenius norm (polar decomposition by SVD)."""
+    U, _, Vt = np.linalg.svd(M)
+    return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+
+
+def pose_from_homography(H_metric: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Decompose a sign-plane homography into (R (3, 3), t (3,) metres), as in the paper / AprilTag.
+
+    H_metric (3, 3) maps sign-plane metres (X, Y, 1) to image px; K (3, 3) is the camera matrix.
+    K⁻¹H = s·[r1 r2 t]: |s| is the geometric mean of the first two column norms (splitting the
+    disagreement between them evenly), its sign puts the sign in front of the camera (t_z > 0),
+    and [r1 r2 r1×r2] is projected onto the nearest rotation.
+    """
+    M = np.linalg.solve(np.asarray(K, dtype=np.float64), np.asarray(H_metric, dtype=np.float64))
+    scale = math.sqrt(np.linalg.norm(M[:, 0]) * np.linalg.norm(M[:, 1]))
+    if not (math.isfinite(scale) and scale > 0):
+        raise PoseError("homography is degenerate: it collapses the sign plane")
+    M = M / math.copysign(scale, M[2, 2])
+    r1, r2, t = M[:, 0], M[:, 1], M[:, 2]
+    return _nearest_rotation(np.column_stack([r1, r2, np.cross(r1, r2)])), t
+
+
+def homography_from_pose(R: np.ndarray, t: np.ndarray, K: np.ndarray, sign: LibrarySign) -> np.ndarray:
+    """(3, 3) homography library px -> image px (no distortion) of `sign` seen with pose (R, t).
+
+    H = K·[r1 r2 t]·sign.pixel_to_metric, scaled to H[2, 2] = 1.
+    """
+    R = np.asarray(R, dtype=np.float64)
+    P = np.column_stack([R[:, 0], R[:, 1], np.asarray(t, dtype=np.float64).ravel()])
+    return normalize_scale(np.asarray(K, dtype=np.float64) @ P @ sign.pixel_to_metric)
+
+
+def undistort_pixels(pts: np.ndarray, camera: Camera) -> np.ndarray:
+    """(N, 2) measured image px -> (N, 2) px of an ideal pinhole camera with the same K.
+
+    Iterates to 1e-10 px (see the module docstring); returns the points unchanged without distortion.
+    """
+    pts = np.ascontiguousarray(pts, dtype=np.float64).reshape(-1, 1, 2)
+    if not camera.has_distortion:
+        return pts.reshape(-1, 2)
+    if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x names the overload taking criteria
+        out = cv2.undistortPointsIter(pts, camera.K, camera.dist, None, camera.K, _UNDISTORT_CRITERIA)
+    else:
+        out = cv2.undistortPoints(pts, camera.K, camera.dist, None, None, camera.K, _UNDISTORT_CRITERIA)
+    return out.reshape(-1, 2)
+
+
+def _project(R: np.ndarray, t: np.ndarray, obj: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Project (N, 3) sign points with pose (R, t) and distortion: (N, 2) px and the (2N, 6)
+    Jacobian of the stacked (u, v) per point with respect to [rotation vector, t]."""
+    rvec = cv2.Rodrigues(R)[0]
+    img, jac = cv2.projectPoints(obj, rvec, np.asarray(t, dtype=np.float64).reshape(3, 1), camera.K, camera.dist)
+    return img.reshape(-1, 2), jac[:, :6]
+
+
+def _rmse(residuals: np.ndarray) -> float:
+    """Root mean squared length of (N, 2) residual vectors."""
+    return float(np.sqrt(np.mean(np.sum(residuals**2, axis=1))))
+
+
+def _covariance(residuals: np.ndarray, jacobian: np.ndarray) -> np.ndarray | None:
+    """(6, 6) covariance σ²(JᵀJ)⁻¹ with σ² = SSE / (2N - 6), from (N, 2) residuals px and the
+    (2N, 6) Jacobian; None when there are no degrees of freedom left or JᵀJ is singular."""
+    dof = residuals.size - 6
+    JtJ = jacobian.T @ jacobian
+    if dof <= 0 or np.linalg.cond(JtJ) > _MAX_COVARIANCE_CONDITION:
+        return None
+    sigma_sq = float(np.sum(residuals**2)) / dof
+    return sigma_sq * np.linalg.inv(JtJ)
+
+
+def _in_front(R: np.ndarray, t: np.ndarray, obj: np.ndarray) -> bool:
+    """All (N, 3) sign points have positive depth in the camera."""
+    return bool(np.all(obj @ R[2] + t[2] > 0))
+
+
+def _comparable(best: float, second: float, ratio: float) -> bool:
+    """best / second > ratio, with equal errors (both zero included) counting as comparable."""
+    return best == second or best > ratio * second
+
+
+def _check_spread(obj: np.ndarray) -> None:
+    """Raise PoseError unless the (N, 3) z = 0 sign points span the plane (not all on one line)."""
+    spread = np.linalg.svd(obj[:, :2] - obj[:, :2].mean(axis=0), compute_uv=False)
+    if not spread[-1] > _MIN_SPREAD_RATIO * spread[0]:
+        raise PoseError("the inlier points lie on a line: they do not determine a pose")
+
+
+def _rotation_onto_ray(v: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation turning the optical axis onto the ray through normalised image point v (2,)."""
+    ray = np.append(v, 1.0) / math.hypot(np.linalg.norm(v), 1.0)
+    axis = np.array([-ray[1], ray[0], 0.0])  # optical axis × ray
+    sin = float(np.linalg.norm(axis))
+    if sin == 0.0:
+        return np.eye(3)
+    return cv2.Rodrigues(axis / sin * math.atan2(sin, ray[2]))[0]
+
+
+def _ippe_rotations(J: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """IPPE's two plane rotations (Collins & Bartoli 2014) from the Jacobian J (2, 2) of the
+    plane -> normalised-image homography at the plane origin, which it maps to v (2,).
+
+    The rotation's third-row entries b = ±√(1 - (σ2/σ1)²)·(A's second right singular vector) come
+    from the SVD of A = σ1·R̃ and are never NaN; the textbook √(1 - |R̃ column|²) goes negative by
+    rounding near fronto-parallel views.
+    """
+    Rv = _rotation_onto_ray(v)
+    B = np.hstack([np.eye(2), -v[:, None]]) @ Rv[:, :2]
+    A = np.linalg.solve(B, J)
+    _, sigma, Vt = np.linalg.svd(A)
+    R22 = A / sigma[0]
+    b = math.sqrt(max(0.0, 1.0 - (sigma[1] / sigma[0]) ** 2)) * Vt[1]
+    rotations = []
+    for flip in (1.0, -1.0):
+        c1, c2 = np.append(R22[:, 0], flip * b[0]), np.append(R22[:, 1], flip * b[1])
+        rotations.append(Rv @ np.column_stack([c1, c2, np.cross(c1, c2)]))
+    return rotations[0], rotations[1]
+
+
+def _translation_given_rotation(R: np.ndarray, plane: np.ndarray, rays: np.ndarray) -> np.ndarray:
+    """(3,) t minimising the algebraic error of (N, 2) plane points (m, z = 0) seen along (N, 2)
+    normalised image rays under rotation R: (R p + t) × (ray, 1) = 0, two rows per point."""
+    q = plane @ R[:, :2].T
+    n = len(plane)
+    A = np.zeros((2 * n, 3))
+    A[0::2, 0] = A[1::2, 1] = 1.0
+    A[0::2, 2], A[1::2, 2] = -rays[:, 0], -rays[:, 1]
+    rhs = np.empty(2 * n)
+    rhs[0::2] = rays[:, 0] * q[:, 2] - q[:, 0]
+    rhs[1::2] = rays[:, 1] * q[:, 2] - q[:, 1]
+    return np.linalg.lstsq(A, rhs, rcond=None)[0]
+
+
+def _ippe_solutions(obj: np.ndarray, ideal_px: np.ndarray, K: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """IPPE's two planar poses [(R, t), (R, t)] for (N >= 4, 3) z = 0 sign points seen at (N, 2) ideal px.
+
+    The same decomposition as `cv2.solvePnPGeneric(..., SOLVEPNP_IPPE)`, done here because
+    OpenCV's returns NaN for fronto-parallel views of exact correspondences, and a wrong rotation
+    when the rotation is a half-turn (a camera rolled exactly 180°): both common in synthetic scenes.
+    """
+    centroid = obj.mean(axis=0)
+    plane = obj[:, :2] - centroid[:2]
+    rays = (np.column_stack([ideal_px, np.ones(len(ideal_px))]) @ np.linalg.inv(K).T)[:, :2]
+    H = dlt_homography(plane, rays)  # H[2, 2] = 1: the centroid maps to (v, 1)
+    v = H[:2, 2]
+    J = H[:2, :2] - np.outer(v, H[2, :2])
+    solutions = []
+    for R in _ippe_rotations(J, v):
+        t_centred = _translation_given_rotation(R, plane, rays)
+        solutions.append((R, t_centred - R @ centroid))
+    return solutions
+
+
+def _refine_lm(R: np.ndarray, t: np.ndarray, obj: np.ndarray, measured_px: np.ndarray,
+               camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Levenberg-Marquardt on the distorted reprojection error, starting from (R, t)."""
+    rvec, tvec = cv2.solvePnPRefineLM(obj, measured_px, camera.K, camera.dist, cv2.Rodrigues(R)[0],
+                                      t.reshape(3, 1).copy())
+    return cv2.Rodrigues(rvec)[0], tvec.ravel()
+
+
+def _paper_pose(H: np.ndarray, src_px: np.ndarray, ideal_px: np.ndarray, sign: LibrarySign,
+                camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Decompose the sign's homography; under distortion H is refitted on the undistorted points
+    first, since the given H was fitted to distorted pixels and is no plane-to-pinhole map."""
+    H_ideal = dlt_homography(src_px, ideal_px) if camera.has_distortion else H
+    return pose_from_homography(H_ideal @ np.linalg.inv(sign.pixel_to_metric), camera.K)
+
+
+def _correspondences(H: np.ndarray, src_px: np.ndarray, dst_px: np.ndarray,
+                     sign: LibrarySign) -> tuple[np.ndarray, np.ndarray, bool]:
+    """(src (N, 2), dst (N, 2), measured): the inliers, or with fewer than 4 of them the sign's
+    corners mapped through H (`measured` False: residuals then say nothing about the noise)."""
+    src_px = np.ascontiguousarray(src_px, dtype=np.float64).reshape(-1, 2)
+    dst_px = np.ascontiguousarray(dst_px, dtype=np.float64).reshape(-1, 2)
+    if len(src_px) != len(dst_px):
+        raise ValueError(f"src_px and dst_px must have the same length; got {len(src_px)} and {len(dst_px)}")
+    if len(src_px) >= 4:
+        return src_px, dst_px, True
+    corners = sign.corners_px
+    return corners, cv2.perspectiveTransform(corners.reshape(-1, 1, 2), H).reshape(-1, 2), False
+
+
+def estimate_pose(H: np.ndarray, src_px: np.ndarray, dst_px: np.ndarray, sign: LibrarySign, camera: Camera,
+                  method: str = "ippe_lm", ambiguity_ratio: float = 0.8) -> Pose:
+    """Camera pose relative to `sign` from its homography and inlier matches.
+
+    H (3, 3): library px -> image px. src_px (N, 2): library px of the inliers; dst_px (N, 2):
+    their measured (distorted) image px. With fewer than 4 inliers the sign's corners mapped
+    through H stand in for them, and the covariance is None.
+
+    method: "paper" decomposes H (`pose_from_homography`); "ippe" takes the better of IPPE's two
+    planar solutions; "ippe_lm" refines that by Levenberg-Marquardt. IPPE's two solutions are
+    computed for every method: the pose is `ambiguous` when both put the sign in front of the
+    camera and best / second RMSE > `ambiguity_ratio` (or the two are equal), i.e. the flipped
+    pose explains the points nearly as well (typical for small, near-frontal signs).
+    The covariance linearises the reprojection at the returned pose (see `_covariance`); for
+    "paper", whose pose does not minimise reprojection error, it is an approximation.
+
+    Raises PoseError when the points or H admit no pose.
+    """
+    if method not in POSE_METHODS:
+        raise ValueError(f"unknown pose method {method!r}; choose from {', '.join(POSE_METHODS)}")
+    src_px, dst_px, measured = _correspondences(H, src_px, dst_px, sign)
+    obj = sign.to_metric(src_px)
+    ideal_px = undistort_pixels(dst_px, camera)
+
+    _check_spread(obj)
+    solutions = _ippe_solutions(obj, ideal_px, camera.K)
+    errors = [_rmse(_project(R_s, t_s, obj, camera)[0] - dst_px) for R_s, t_s in solutions]
+    order = np.argsort(errors)
+    best = solutions[order[0]]
+    solution_errors = (errors[order[0]], errors[order[1]])
+    ambiguous = _comparable(*solution_errors, ambiguity_ratio) and all(_in_front(*s, obj) for s in solutions)
+
+    if method == "paper":
+        R, t = _paper_pose(H, src_px, ideal_px, sign, camera)
+    elif method == "ippe":
+        R, t = best
+    else:
+        R, t = _refine_lm(*best, obj, dst_px, camera)
+
+    projected, jacobian = _project(R, t, obj, camera)
+    residuals = projected - dst_px
+    return Pose(
+        R=R, t=t, method=method, reprojection_rmse_px=_rmse(residuals), ambiguous=bool(ambiguous),
+        solution_errors=solution_errors,
+        covariance=_covariance(residuals, jacobian) if measured else None,
+    )
