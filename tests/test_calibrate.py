@@ -8,7 +8,9 @@ import pipeline.calibrate as calib
 from app.cli import main
 from pipeline.calibrate import (BoardView, CalibrationError, board_points, calibrate, chessboard_image,
                                 drop_outliers, find_board, format_report, parse_board)
-from pipeline.camera import load_camera, save_camera
+from pipeline.camera import Camera, load_camera, save_camera
+from pipeline.library import LibrarySign
+from pipeline.pose import estimate_pose, rotation_error_deg
 
 SIZE = (640, 480)
 K_TRUE = np.array([[520.0, 0, 318.0], [0, 515.0, 243.0], [0, 0, 1]])
@@ -262,3 +264,30 @@ def test_cli_calibrate_unreadable_image_is_reported(rendered, tmp_path, capsys):
     assert main(["calibrate", *paths, str(tmp_path / "broken.jpg"), "--board", "9x6", "--square", "0.03",
                  "-o", str(out)]) == 1
     assert "broken.jpg" in capsys.readouterr().err and out.exists()
+
+
+@pytest.mark.parametrize("method", ["ippe_lm", "paper"])
+def test_pose_uses_the_lens_distortion(method):
+    """Under strong barrel distortion a sign off-centre gives a visibly wrong pose when the distortion
+    is ignored, and the true pose when the calibrated distortion is used."""
+    K = np.array([[420.0, 0, 320], [0, 420.0, 240], [0, 0, 1]])
+    dist = np.array([-0.38, 0.16, 0.0, 0.0, 0.0])
+    sign = LibrarySign("plate", "plate", "", "plate.png", 0.6, 0.3, np.zeros((150, 300), np.uint8))
+    src = np.stack(np.meshgrid(np.linspace(10, 290, 8), np.linspace(10, 140, 5)), -1).reshape(-1, 2)
+    rvec, tvec = np.array([0.15, -0.5, 0.05]), np.array([-0.55, -0.35, 1.6])
+    dst, _ = cv2.projectPoints(sign.to_metric(src), rvec, tvec, K, dist)
+    dst = dst.reshape(-1, 2) + np.random.default_rng(1).normal(0, 0.1, (len(src), 2))
+    H = cv2.findHomography(src, dst)[0]
+    R_true = cv2.Rodrigues(rvec)[0]
+    true_position = -R_true.T @ tvec
+
+    def errors(camera):
+        pose = estimate_pose(H, src, dst, sign, camera, method)
+        return (np.linalg.norm(pose.camera_position - true_position), rotation_error_deg(pose.R, R_true),
+                pose.reprojection_rmse_px)
+
+    pos_ok, rot_ok, rmse_ok = errors(Camera(K, dist, 640, 480, "calibrated"))
+    pos_bad, rot_bad, rmse_bad = errors(Camera(K, np.zeros(5), 640, 480, "calibrated, distortion ignored"))
+    assert pos_ok < 0.02 and rot_ok < 0.5 and rmse_ok < 0.2  # 1.8 m away, 0.1 px noise
+    assert pos_bad > 0.3 and rot_bad > 10
+    assert rmse_bad > 3 * rmse_ok
