@@ -1,0 +1,134 @@
+"""Run `signpose serve` and Debian's Chromium (through Playwright) for the browser tests and
+tools/screenshot.py. Never downloads a browser: without /usr/bin/chromium the callers skip."""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+
+ROOT = Path(__file__).resolve().parents[1]
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
+                 "--disable-background-networking"]
+SCENES = ROOT / "sample_images" / "scenes"
+VIEWPORT = {"width": 1600, "height": 1000}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextlib.contextmanager
+def serve(state_dir: Path, log_path: Path, timeout: float = 300):
+    """`signpose serve` on a free loopback port; yields its base URL once /api/health answers
+    (which is after the sample scenes a fresh state starts with have been processed)."""
+    port = free_port()
+    base = f"http://127.0.0.1:{port}"
+    with open(log_path, "wb") as log:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "app.cli", "serve", "--port", str(port),
+             "--state-dir", str(state_dir)],
+            cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+        try:
+            deadline = time.monotonic() + timeout
+            while True:
+                if proc.poll() is not None:
+                    raise RuntimeError(f"signpose serve exited with {proc.returncode}:\n{log_path.read_text()[-3000:]}")
+                try:
+                    if httpx.get(f"{base}/api/health", timeout=2).json()["status"] == "ok":
+                        break
+                except httpx.HTTPError:
+                    pass
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"signpose serve not healthy after {timeout:.0f} s:\n"
+                                       f"{log_path.read_text()[-3000:]}")
+                time.sleep(0.2)
+            yield base
+        finally:
+            proc.terminate()
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+def launch(playwright):
+    return playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+
+
+def open_page(browser, base: str):
+    """The tool's page, loaded, with page errors collected in `page.errors`."""
+    page = browser.new_page(viewport=VIEWPORT)
+    page.errors = []
+    page.on("pageerror", lambda exc: page.errors.append(str(exc)))
+    page.goto(f"{base}/")
+    page.wait_for_selector("#settings-form .field")
+    return page
+
+
+def upload(page, files: list[Path], expected: str = "") -> None:
+    """Add images through the file picker, labelled `expected` ("" = unknown), and wait for their cards."""
+    before = page.locator(".card").count()
+    page.select_option("#expected", expected)
+    page.set_input_files("#file-picker", [str(f) for f in files])
+    page.wait_for_function(
+        "n => document.querySelectorAll('.card:not([data-status=pending])').length >= n",
+        arg=before + len(files), timeout=120_000)
+
+
+def set_setting(page, name: str, value) -> None:
+    """Change one setting through its form control, as a user would."""
+    control = page.locator(f"#set-{name}")
+    if isinstance(value, bool):
+        control.set_checked(value)
+    else:
+        control.fill(str(value))
+        control.dispatch_event("change")
+
+
+def wait_server_idle(api, timeout: float = 120) -> int:
+    """Until every image has a result for the current settings; returns that settings version.
+
+    `api`: an httpx.Client on the server's base URL.
+    """
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        body = api.get("/api/images").json()
+        if not body["running"] and all(i["status"] != "pending" for i in body["images"]):
+            return body["version"]
+        time.sleep(0.1)
+    raise TimeoutError(f"images still being processed after {timeout} s")
+
+
+def wait_setting(page, api, expected: dict, timeout: float = 120) -> None:
+    """Until the server holds `expected` settings, has re-run every image under them, and the
+    page's gallery shows those results."""
+    deadline = time.monotonic() + timeout
+    while True:
+        current = api.get("/api/settings").json()["settings"]
+        if all(current[k] == v for k, v in expected.items()):
+            break
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"server settings never became {expected}; last: "
+                               f"{ {k: current[k] for k in expected} }")
+        time.sleep(0.05)
+    version = wait_server_idle(api, timeout)
+    page.wait_for_function(
+        "v => [...document.querySelectorAll('.card')].every(c => Number(c.dataset.version) >= v"
+        " && c.dataset.status !== 'pending')", arg=version, timeout=timeout * 1000)
+
+
+def stage_images_loaded(page, selector: str) -> list[dict]:
+    """name + naturalWidth of every <img> under `selector`, once each has finished loading or failing."""
+    page.wait_for_function(
+        "s => [...document.querySelectorAll(s)].every(i => i.complete)", arg=selector, timeout=30_000)
+    return page.eval_on_selector_all(selector, "imgs => imgs.map(i => ({src: i.src, w: i.naturalWidth}))")

@@ -1,0 +1,209 @@
+"""End to end in a real browser: the page (static/) against `signpose serve`, driven by Playwright
+in Debian's Chromium. Skipped only when /usr/bin/chromium is missing."""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+import browser_harness as harness
+
+TRUTH = json.loads((harness.SCENES / "truth.json").read_text())["images"]
+# An easy scene with a sign: recognised at the default settings.
+SCENE = next(name for name, t in sorted(TRUTH.items()) if t["label"] and t["category"] == "easy")
+LABEL = TRUTH[SCENE]["label"]
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory):
+    if not harness.CHROMIUM.exists():
+        reason = f"{harness.CHROMIUM} not found: install Debian's chromium to run the browser tests"
+        print(reason)
+        pytest.skip(reason)
+    tmp = tmp_path_factory.mktemp("serve")
+    with harness.serve(tmp / "state", tmp / "serve.log") as url:
+        yield url
+
+
+@pytest.fixture(scope="module")
+def browser(base):
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = harness.launch(p)
+        yield browser
+        browser.close()
+
+
+@pytest.fixture
+def page(browser, base):
+    page = harness.open_page(browser, base)
+    yield page
+    errors = page.errors
+    page.close()
+    assert not errors, f"uncaught errors in the page: {errors}"
+
+
+@pytest.fixture
+def api(base):
+    with httpx.Client(base_url=base, timeout=30) as client:
+        yield client
+
+
+@pytest.fixture(autouse=True)
+def default_settings(api):
+    """Every test starts from the default preset, whatever the previous one changed."""
+    api.post("/api/settings/preset/default").raise_for_status()
+    harness.wait_server_idle(api)
+
+
+def sign_name(api, sign_id: str) -> str:
+    return next(s["name"] for s in api.get("/api/library").json() if s["id"] == sign_id)
+
+
+def uploaded_scene(api) -> str:
+    """The id of an uploaded copy of SCENE (uploading it through the API when no test has)."""
+    for img in api.get("/api/images").json()["images"]:
+        if img["name"] == f"upload-{SCENE}":
+            return img["id"]
+    files = {"files": (f"upload-{SCENE}", (harness.SCENES / SCENE).read_bytes(), "image/jpeg")}
+    r = api.post("/api/images", files=files, data={"expected": LABEL})
+    r.raise_for_status()
+    harness.wait_server_idle(api)
+    return r.json()["images"][0]["id"]
+
+
+def open_detail(page, image_id: str) -> None:
+    page.click(f'.card[data-id="{image_id}"]')
+    page.wait_for_function("id => !document.querySelector('#detail').hidden && "
+                           "document.querySelector('#detail-name').textContent !== ''", arg=image_id)
+
+
+def test_upload_recognise_and_inspect(page, api, tmp_path):
+    before = page.locator(".card").count()
+    upload = tmp_path / f"upload-{SCENE}"
+    upload.write_bytes((harness.SCENES / SCENE).read_bytes())
+    harness.upload(page, [upload], expected=LABEL)
+    card = page.locator(".card").nth(before)
+    assert card.locator(".card-name").inner_text() == upload.name
+    name = sign_name(api, LABEL)
+    assert card.locator(".card-label").inner_text() == name
+    assert card.get_attribute("data-status") == "correct"
+
+    open_detail(page, card.get_attribute("data-id"))
+    assert page.inner_text("#detail-name") == upload.name
+    sizes = harness.stage_images_loaded(page, "#detail .stage img")
+    assert len(sizes) == 5 + 2 * len(api.get("/api/library").json())   # input, 4 stages, 2 per sign
+    assert all(s["w"] > 0 for s in sizes), f"stage images that did not load: {[s for s in sizes if not s['w']]}"
+    assert page.inner_text("#scores tr.winner td:first-child") == name
+    pose = page.inner_text("#pose")
+    assert re.search(r"[+-]\d+\.\d{3}", pose) and "px RMSE" in pose
+    assert page.locator("#intrinsics dl").count() == 1
+    page.screenshot(path=str(tmp_path / "signpose.png"))
+    print(f"screenshot: {tmp_path / 'signpose.png'}")
+
+
+def test_threshold_control_changes_the_result(page, api):
+    image_id = uploaded_scene(api)
+    card = page.locator(f'.card[data-id="{image_id}"]')
+    name = sign_name(api, LABEL)
+    assert card.locator(".card-label").inner_text() == name
+    open_detail(page, image_id)
+
+    # No pixel is that white, and without the full-frame fallback there is nothing left to search.
+    harness.set_setting(page, "full_frame_fallback", False)
+    harness.set_setting(page, "threshold", 0.99)
+    harness.wait_setting(page, api, {"threshold": 0.99, "full_frame_fallback": False})
+    assert card.locator(".card-label").inner_text() == "no sign"
+    assert card.get_attribute("data-status") == "wrong"
+    page.wait_for_function("() => document.querySelector('#detail-summary').textContent.startsWith('no sign')")
+
+    harness.set_setting(page, "threshold", 0.6)
+    harness.set_setting(page, "full_frame_fallback", True)
+    harness.wait_setting(page, api, {"threshold": 0.6, "full_frame_fallback": True})
+    assert card.locator(".card-label").inner_text() == name
+    assert card.get_attribute("data-status") == "correct"
+
+
+def test_form_follows_changes_made_elsewhere_without_echo(page, api):
+    # What the viser sliders do: change a setting through the API, not through this page.
+    version = api.put("/api/settings", json={"ratio": 0.7, "candidates": 5}).json()["version"]
+    page.wait_for_function("() => document.querySelector('#set-ratio').value === '0.7'")
+    assert page.input_value("#set-candidates") == "5"
+    assert page.locator('.field[data-name="ratio"]').get_attribute("class").split().count("changed") == 1
+    time.sleep(1)   # longer than the form's debounce: an echo would have been sent by now
+    assert api.get("/api/settings").json()["version"] == version
+
+
+def test_presets_export_and_import(page, api, tmp_path):
+    paper = api.get("/api/presets").json()["paper"]
+    page.click('#presets button[value="paper"]')
+    harness.wait_setting(page, api, paper)
+    page.wait_for_selector('#presets button[value="paper"].active')
+    assert float(page.input_value("#set-threshold")) == paper["threshold"]
+
+    with page.expect_download() as download:
+        page.click("#export-settings")
+    assert download.value.suggested_filename == "signpose-settings.json"
+    assert json.loads(Path(download.value.path()).read_text()) == paper
+
+    partial = tmp_path / "partial.json"
+    partial.write_text(json.dumps({"ratio": 0.66}))
+    page.set_input_files("#import-settings", str(partial))
+    page.wait_for_function("() => document.querySelector('#set-ratio').value === '0.66'")
+    assert api.get("/api/settings").json()["settings"] == {**paper, "ratio": 0.66}
+
+    partial.write_text(json.dumps({"ratio": "high"}))
+    page.set_input_files("#import-settings", str(partial))
+    page.locator(".toast.error", has_text="ratio must be a number").wait_for()
+
+
+def test_api_errors_are_shown(page, api, tmp_path):
+    broken = tmp_path / "broken.jpg"
+    broken.write_text("not a picture")
+    page.set_input_files("#file-picker", str(broken))
+    failed = page.locator(".upload.failed .upload-status")
+    failed.wait_for()
+    detail = api.post("/api/images", files={"files": ("broken.jpg", b"not a picture", "image/jpeg")}).json()["detail"]
+    assert failed.inner_text() == detail
+
+    # The server refuses an upper gate below the threshold; the page says why and shows the kept value.
+    page.check('.field[data-name="high_threshold"] input[type=checkbox]')
+    harness.set_setting(page, "high_threshold", 0.3)
+    toast = page.locator(".toast.error .toast-msg").last
+    toast.wait_for()
+    assert "high_threshold (0.3) must be above threshold" in toast.inner_text()
+    page.wait_for_function("() => !document.querySelector('.field[data-name=high_threshold] "
+                           "input[type=checkbox]').checked")
+    assert api.get("/api/settings").json()["settings"]["high_threshold"] is None
+
+
+def test_threshold_calibration_and_sweep(page, api):
+    image_id = uploaded_scene(api)
+    open_detail(page, image_id)
+    page.wait_for_selector("#histogram:not([hidden])")
+    box = page.locator("#drag-area").bounding_box()
+    page.mouse.move(box["x"] + 0.3 * box["width"], box["y"] + 0.3 * box["height"])
+    page.mouse.down()
+    page.mouse.move(box["x"] + 0.6 * box["width"], box["y"] + 0.6 * box["height"], steps=5)
+    page.mouse.up()
+    page.wait_for_function("() => document.querySelector('#calib-result').textContent.startsWith('your box')")
+    suggested = float(page.inner_text("#calib-result b.suggested"))
+    if page.locator("#apply-threshold").is_enabled():
+        page.click("#apply-threshold")
+        harness.wait_setting(page, api, {"threshold": suggested})
+
+    page.click("#run-sweep")
+    page.wait_for_selector("#sweep:not([hidden])", timeout=120_000)
+    assert "labelled" in page.inner_text("#sweep-info")
+
+
+def test_viser_scene_connects(page):
+    scene = page.frame_locator("#scene")
+    scene.locator("canvas").first.wait_for(timeout=30_000)
+    scene.get_by_text("Connected", exact=True).wait_for(timeout=30_000)
