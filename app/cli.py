@@ -147,6 +147,41 @@ def cmd_calibrate(args) -> int:
     return 1 if unreadable else 0
 
 
+def cmd_serve(args) -> int:
+    from app.server import bind, create_app, serve
+    from app.state import StateError
+    from app.workspace import WorkspaceConfig
+
+    config = WorkspaceConfig(
+        state_dir=Path(args.state_dir), library_dir=Path(args.library) if args.library else None,
+        camera_file=Path(args.camera) if args.camera else None,
+        settings_file=Path(args.settings) if args.settings else None,
+        max_images=args.max_images, max_pixels=round(args.max_megapixels * 1e6),
+        max_upload_bytes=round(args.max_upload_mb * 1e6),
+    )
+    try:
+        sock = bind(args.host, args.port)
+    except OSError as exc:
+        raise CliError(f"cannot listen on {args.host}:{args.port} ({exc.strerror}); choose another --port") from None
+    try:
+        app = create_app(config)
+    except (StateError, SettingsError, CameraError, LibraryError) as exc:
+        sock.close()
+        raise CliError(str(exc)) from None
+    workspace = app.state.workspace
+    if workspace.busy:
+        print(f"processing {len(workspace.images())} image(s) from {config.state_dir} ...", file=sys.stderr)
+        workspace.wait_idle(timeout=300)
+    host, port = sock.getsockname()[:2]
+    print(f"signpose serving {len(workspace.images())} image(s): open http://{host}:{port}/ "
+          f"(3D view: /viser/, API docs: /docs; Ctrl+C stops)", flush=True)
+    if host in ("0.0.0.0", "::"):
+        print("warning: listening on every network interface: anyone who can reach this machine can see "
+              "and change the workspace", file=sys.stderr)
+    serve(app, sock)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="signpose", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -176,6 +211,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", default="camera.yaml", help="ROS camera_info YAML to write (default camera.yaml)")
     p.add_argument("--drop-outliers", action="store_true", help="recalibrate without the views whose error stands out")
     p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("serve", help="the browser tool: tune settings, inspect every stage, 3D view (one port)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    p.add_argument("--port", type=int, default=8000, help="port (default 8000)")
+    p.add_argument("--library", help="sign library folder, copied into the state directory "
+                                     "(default: the state's library; on a fresh state the samples)")
+    p.add_argument("--camera", help="camera file (default: the state's camera, else 60° hfov assumed)")
+    p.add_argument("--settings", help="settings JSON to start from (default: the state's settings)")
+    p.add_argument("--state-dir", default="signpose_state",
+                   help="where settings, library, camera and images survive restarts (default ./signpose_state)")
+    p.add_argument("--max-images", type=int, default=500, help="most images held at once (default 500)")
+    p.add_argument("--max-megapixels", type=float, default=40.0, help="largest image accepted (default 40)")
+    p.add_argument("--max-upload-mb", type=float, default=25.0, help="largest request body in MB (default 25)")
+    p.set_defaults(func=cmd_serve)
     return parser
 
 

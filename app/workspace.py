@@ -34,8 +34,7 @@ from PIL import Image, UnidentifiedImageError
 from pipeline.camera import Camera, load_camera
 from pipeline.features import library_features
 from pipeline.image import ImageError, decode_image
-from pipeline.library import ID_PATTERN, SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, make_sign, \
-    validate_sign_entry
+from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, make_sign, validate_sign_entry
 from pipeline.recognize import Recognition, StageCache, recognize
 from pipeline.settings import PRESETS, Settings, SettingsError, load_settings
 
@@ -153,14 +152,13 @@ def is_correct(expected: str | None, recognition: Recognition) -> bool | None:
     return recognition.label == (None if expected == NO_SIGN else expected)
 
 
-def status_of(record: ImageRecord, generation: int) -> str:
+def status_of(expected: str | None, outcome: Outcome, generation: int) -> str:
     """"pending" (no result for the current state yet), "error", "correct", "wrong", "recognized" or "none"."""
-    outcome = record.outcome
     if outcome.generation != generation:
         return "pending"
     if outcome.error is not None or outcome.recognition is None:
         return "error"
-    correct = is_correct(record.expected, outcome.recognition)
+    correct = is_correct(expected, outcome.recognition)
     if correct is not None:
         return "correct" if correct else "wrong"
     return "recognized" if outcome.recognition.recognized else "none"

@@ -41,6 +41,11 @@ def empty_photo(seed: int = 0) -> bytes:
     return cv2.imencode(".jpg", wall(seed))[1].tobytes()
 
 
+def tiny_photo() -> bytes:
+    """A valid 64 x 48 px JPEG of a few hundred bytes."""
+    return cv2.imencode(".jpg", np.full((48, 64), 90, np.uint8))[1].tobytes()
+
+
 def png_bomb(width: int = 20_000, height: int = 20_000) -> bytes:
     """A tiny PNG whose header claims `width` x `height` px: decoding it would need gigabytes."""
     def chunk(kind: bytes, data: bytes) -> bytes:

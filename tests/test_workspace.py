@@ -74,7 +74,7 @@ def test_images_are_processed_and_tagged(make_workspace):
     negative = ws.add_image("wall.jpg", empty_photo(), NO_SIGN)
     assert ws.wait_idle(IDLE_TIMEOUT_S)
     for record in [*records, negative]:
-        assert workspace_module.status_of(record, ws.snapshot.generation) == "correct"
+        assert workspace_module.status_of(record.expected, record.outcome, ws.snapshot.generation) == "correct"
         assert record.settings_version == ws.settings_version == 1
     assert records[0].recognition.label == "security_compound"
     assert ws.progress() == {"version": 1, "running": False, "done": 3, "total": 3}
@@ -149,7 +149,7 @@ def test_deleting_a_sign_reruns_the_results_that_named_it(make_workspace):
     ws.remove_sign("security_compound")
     assert ws.wait_idle(IDLE_TIMEOUT_S)
     assert record.recognition.label != "security_compound"
-    assert workspace_module.status_of(record, ws.snapshot.generation) == "wrong"
+    assert workspace_module.status_of(record.expected, record.outcome, ws.snapshot.generation) == "wrong"
     assert not (ws.state.library_dir / LIBRARY["security_compound"].image_file).exists()
 
 

@@ -1,0 +1,201 @@
+"""PNG figures of each pipeline stage for one image, drawn with OpenCV.
+
+All figures are BGR uint8, scaled down so their longer side is at most `MAX_SIDE_PX`; line
+widths and text scale with the image so they stay visible on 12-megapixel photos.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from pipeline.image import to_gray
+from pipeline.library import Library
+from pipeline.recognize import Attempt, Recognition, SignScore
+from pipeline.segment import Box, Segmentation, segment
+
+STAGES = ("input", "gray", "mask", "blob", "crop", "matches", "inliers")
+MAX_SIDE_PX = 1600
+MATCH_PANEL_HEIGHT_PX = 600
+# BGR
+GREEN, RED, YELLOW, ORANGE, CYAN, WHITE, BLACK = (60, 200, 60), (60, 60, 230), (0, 220, 255), (0, 140, 255), \
+    (230, 200, 0), (255, 255, 255), (0, 0, 0)
+DIM = 0.35
+
+
+class FigureError(LookupError):
+    """A figure that cannot be drawn for this result (e.g. an unknown sign); the message says why."""
+
+
+def _pen(shape: tuple[int, ...]) -> tuple[int, float]:
+    """(line thickness px, font scale) readable on an image of `shape` after downscaling to MAX_SIDE_PX."""
+    side = max(shape[:2])
+    unit = max(1.0, side / 800)
+    return max(1, round(2 * unit)), 0.6 * unit
+
+
+def _label(img: np.ndarray, text: str, org: tuple[int, int], color) -> None:
+    """`text` on a black band, so it reads on any background; `org` is its bottom-left corner."""
+    thick, scale = _pen(img.shape)
+    (w, h), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)
+    x, y = max(0, org[0]), max(org[1], h + base)
+    cv2.rectangle(img, (x, y - h - base), (x + w + 2 * base, y + base), BLACK, cv2.FILLED)
+    cv2.putText(img, text, (x + base, y), cv2.FONT_HERSHEY_SIMPLEX, scale, color, thick, cv2.LINE_AA)
+
+
+def _fit(img: np.ndarray, max_side: int = MAX_SIDE_PX) -> np.ndarray:
+    scale = max_side / max(img.shape[:2])
+    return cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) if scale < 1 else img
+
+
+def _bgr(img: np.ndarray) -> np.ndarray:
+    return cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img.ndim == 2 else img.copy()
+
+
+def _box(img: np.ndarray, box: Box, color, text: str | None = None) -> None:
+    thick, _ = _pen(img.shape)
+    x0, y0, x1, y1 = box
+    cv2.rectangle(img, (x0, y0), (x1 - 1, y1 - 1), color, thick, cv2.LINE_AA)
+    if text:
+        _label(img, text, (x0 + 4, y0 - 6), color)
+
+
+def _quad(img: np.ndarray, corners: np.ndarray, color) -> None:
+    thick, _ = _pen(img.shape)
+    pts = np.round(corners).astype(np.int32)
+    cv2.polylines(img, [pts], True, color, thick + 1, cv2.LINE_AA)
+
+
+def segmentation_of(image: np.ndarray, recognition: Recognition) -> Segmentation:
+    """The result's segmentation, or (segment_mode "none") what thresholding would have given."""
+    return recognition.segmentation or segment(to_gray(image), recognition.settings)
+
+
+def chosen_blob(recognition: Recognition) -> int | None:
+    """Index into the segmentation's blobs of the region the answer came from, if it was a blob."""
+    attempt = recognition.attempt
+    if attempt is None or not attempt.source.startswith("blob "):
+        return None
+    return int(attempt.source.split()[1]) - 1
+
+
+def draw_input(image: np.ndarray, recognition: Recognition) -> np.ndarray:
+    """The photo with every searched region and the detected sign's outline and label."""
+    img = image.copy()
+    for attempt in recognition.attempts:
+        _box(img, attempt.region, YELLOW if attempt is recognition.attempt else ORANGE, attempt.source)
+    best = recognition.best
+    if best is not None and best.corners is not None:
+        _quad(img, best.corners, GREEN)
+        x, y = np.min(best.corners, axis=0)
+        _label(img, f"{best.sign} ({best.n_inliers} inliers, margin {recognition.margin})",
+               (max(0, int(x)), int(y) - 8), GREEN)
+    else:
+        _label(img, "no sign", (10, 10), RED)
+    return img
+
+
+def draw_gray(image: np.ndarray, recognition: Recognition) -> np.ndarray:
+    """The normalised gray image the threshold applies to."""
+    return np.round(segmentation_of(image, recognition).gray * 255).astype(np.uint8)
+
+
+def draw_mask(image: np.ndarray, recognition: Recognition) -> np.ndarray:
+    """White where the normalised gray passes the threshold."""
+    return segmentation_of(image, recognition).mask
+
+
+def draw_blob(image: np.ndarray, recognition: Recognition) -> np.ndarray:
+    """The photo dimmed, candidate blobs tinted: the chosen one green, the others orange, with their crops."""
+    seg = segmentation_of(image, recognition)
+    img = (image * DIM).astype(np.uint8)
+    chosen = chosen_blob(recognition)
+    for i, (blob, crop) in enumerate(zip(seg.blobs, seg.crops)):
+        color = GREEN if i == chosen else ORANGE
+        pixels = seg.labels == blob.label
+        img[pixels] = (0.5 * image[pixels] + 0.5 * np.array(color)).astype(np.uint8)
+        _box(img, crop, color, f"blob {i + 1}: {blob.area} px")
+    if not seg.blobs:
+        _label(img, "no blob above the threshold", (10, 10), RED)
+    return img
+
+
+def _region(recognition: Recognition, width: int, height: int) -> tuple[Attempt | None, Box]:
+    attempt = recognition.attempt
+    return attempt, attempt.region if attempt is not None else (0, 0, width, height)
+
+
+def draw_crop(image: np.ndarray, recognition: Recognition) -> np.ndarray:
+    """The region the answer came from, with its keypoints."""
+    attempt, (x0, y0, x1, y1) = _region(recognition, image.shape[1], image.shape[0])
+    img = image[y0:y1, x0:x1].copy()
+    if attempt is not None:
+        thick, _ = _pen(img.shape)
+        for (x, y), size in zip(attempt.features.xy, attempt.features.size):
+            cv2.circle(img, (round(x - x0), round(y - y0)), max(2, round(size / 2)), CYAN, max(1, thick // 2),
+                       cv2.LINE_AA)
+        _label(img, f"{attempt.source}: {len(attempt.features)} keypoints", (6, 6), CYAN)
+    return img
+
+
+def pick_score(recognition: Recognition, library: Library, sign_id: str | None) -> SignScore:
+    """The score for `sign_id`; by default the winner, else the sign with the most inliers."""
+    scores = recognition.scores
+    if sign_id is None:
+        if recognition.best is not None:
+            return recognition.best
+        if not scores:
+            raise FigureError("no region was searched, so there are no matches to show")
+        return max(scores, key=lambda s: (s.n_inliers, s.n_matches))
+    for score in scores:
+        if score.sign == sign_id:
+            return score
+    if sign_id in library.ids:
+        raise FigureError(f"this result predates sign {sign_id!r}; wait for the re-run to finish")
+    raise FigureError(f"sign {sign_id!r} is not in the library; choose one of {', '.join(library.ids)}")
+
+
+def draw_matches(image: np.ndarray, recognition: Recognition, library: Library, sign_id: str | None,
+                 inliers_only: bool) -> np.ndarray:
+    """Library sign left, searched region of the photo right, a line per match.
+
+    All ratio-test matches (inliers green, outliers red), or only the inliers together with
+    the sign's outline as the homography maps it.
+    """
+    score = pick_score(recognition, library, sign_id)
+    _, (x0, y0, x1, y1) = _region(recognition, image.shape[1], image.shape[0])
+    sign_img = library[score.sign].image if score.sign in library.ids else np.zeros((64, 64), np.uint8)
+    left, right = _bgr(sign_img), image[y0:y1, x0:x1]
+    s_left, s_right = MATCH_PANEL_HEIGHT_PX / left.shape[0], MATCH_PANEL_HEIGHT_PX / right.shape[0]
+    left = cv2.resize(left, (round(left.shape[1] * s_left), MATCH_PANEL_HEIGHT_PX), interpolation=cv2.INTER_AREA)
+    right = cv2.resize(right, (round(right.shape[1] * s_right), MATCH_PANEL_HEIGHT_PX), interpolation=cv2.INTER_AREA)
+    img = np.hstack([left, right])
+    shift = np.array([left.shape[1], 0.0])
+    inliers = score.estimate.inliers if score.estimate is not None else np.zeros(score.n_matches, bool)
+    for src, dst, ok in zip(score.src, score.dst, inliers):
+        if inliers_only and not ok:
+            continue
+        a = np.round(src * s_left).astype(int)
+        b = np.round((dst - (x0, y0)) * s_right + shift).astype(int)
+        cv2.line(img, tuple(a), tuple(b), GREEN if ok else RED, 1, cv2.LINE_AA)
+    if inliers_only and score.corners is not None:
+        _quad(img, (score.corners - (x0, y0)) * s_right + shift, GREEN)
+    what = f"{score.n_inliers} inliers" if inliers_only else f"{score.n_matches} matches, {score.n_inliers} inliers"
+    _label(img, f"{score.sign}: {what}" + (f" ({score.reason})" if score.reason else ""), (8, 8), WHITE)
+    return img
+
+
+def stage_figure(stage: str, image: np.ndarray, recognition: Recognition, library: Library,
+                 sign_id: str | None = None) -> np.ndarray:
+    """The figure for `stage` (one of STAGES); FigureError when it cannot be drawn."""
+    if stage in ("matches", "inliers"):
+        img = draw_matches(image, recognition, library, sign_id, inliers_only=stage == "inliers")
+    else:
+        draw = {"input": draw_input, "gray": draw_gray, "mask": draw_mask, "blob": draw_blob, "crop": draw_crop}
+        img = draw[stage](image, recognition)
+    return _fit(img)
+
+
+def png(img: np.ndarray) -> bytes:
+    # Level 1: figures are made on demand while a person waits; size matters less than time.
+    return cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 1])[1].tobytes()

@@ -1,0 +1,586 @@
+"""`signpose serve`: the page, the JSON API, OpenAPI docs and the viser client on one port.
+
+`create_app` builds the FastAPI app around one `Workspace` (docs/web-contract.md lists every
+endpoint). Routes are thin: they validate, call the workspace or the pipeline off the event
+loop (plain `def` routes run in a thread pool) and shape the answer. Domain errors become 4xx
+with the pipeline's own message: SettingsError, CameraError, LibraryError and ImageError 422,
+ImageTooLarge and oversized bodies 413, Conflict 409, unknown ids 404.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import io
+import json
+import socket
+import tempfile
+import tomllib
+from collections.abc import AsyncIterable
+from importlib import metadata
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import viser
+from fastapi import APIRouter, Depends, FastAPI, File, Form, HTTPException, Query, Request, Response, UploadFile, status
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, JSONResponse
+from fastapi.sse import EventSourceResponse, ServerSentEvent
+from fastapi.staticfiles import StaticFiles
+from pydantic import ValidationError
+from starlette.concurrency import run_in_threadpool
+from starlette.datastructures import Headers, UploadFile as FormFile
+from starlette.types import ASGIApp, Receive, Scope, Send
+
+from pipeline.camera import Camera, CameraError, camera_from_json, load_camera
+from pipeline.image import ImageError
+from pipeline.library import ID_PATTERN, LibraryError
+from pipeline.recognize import Recognition
+from pipeline.settings import PRESETS, Settings, SettingsError, settings_schema
+
+from . import figures, tuning
+from .api_models import (
+    AttemptOut, CalibrateIn, CalibrateOut, CameraIntrinsics, CameraModel, CameraOut, ExpectedIn, Health, ImageDetail,
+    ImagesOut, ImageSummary, RecognitionOut, SettingField, SettingsOut, SignOut, SweepOut, UploadOut,
+)
+from .viser_proxy import mount_viser
+from .workspace import (
+    IMAGE_ID, Conflict, ImageRecord, ImageTooLarge, Workspace, WorkspaceConfig, display_name, is_correct, status_of,
+)
+
+STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
+CAMERA_SUFFIXES = (".yaml", ".yml", ".json", ".xml")
+MAX_SWEEP_STEPS = 101
+BACKLOG = 2048  # uvicorn's default
+
+
+def package_version() -> str:
+    """The installed signpose version, else (a source checkout) the one in pyproject.toml."""
+    try:
+        return metadata.version("signpose")
+    except metadata.PackageNotFoundError:
+        pyproject = Path(__file__).resolve().parent.parent / "pyproject.toml"
+        return tomllib.loads(pyproject.read_text(encoding="utf-8"))["project"]["version"]
+
+
+# ---------------------------------------------------------------- request size limit
+
+class UploadLimit:
+    """Refuse request bodies over `max_bytes` with 413: at once when Content-Length says so,
+    else as soon as the bytes received pass the limit, so nothing larger is ever buffered."""
+
+    def __init__(self, app: ASGIApp, max_bytes: int) -> None:
+        self.app = app
+        self.max_bytes = max_bytes
+
+    def message(self, size: int | None) -> str:
+        size_text = f"{size / 1e6:.1f} MB, " if size is not None else ""
+        return (f"the upload is {size_text}more than the limit of {self.max_bytes / 1e6:.1f} MB per request; "
+                "send fewer or smaller files per request")
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        declared = Headers(scope=scope).get("content-length", "")
+        if declared.isdigit() and int(declared) > self.max_bytes:
+            await JSONResponse({"detail": self.message(int(declared))}, status.HTTP_413_CONTENT_TOO_LARGE)(
+                scope, receive, send)
+            return
+        received = 0
+
+        async def counting_receive():
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > self.max_bytes:
+                    # Raised inside the app's body parsing; FastAPI turns it into the response.
+                    raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE, self.message(None))
+            return message
+
+        await self.app(scope, counting_receive, send)
+
+
+# ---------------------------------------------------------------- dependencies
+
+
+def get_workspace(request: Request) -> Workspace:
+    return request.app.state.workspace
+
+
+WorkspaceDep = Annotated[Workspace, Depends(get_workspace)]
+
+
+def find_record(workspace: Workspace, image_id: str) -> ImageRecord:
+    try:
+        if IMAGE_ID.match(image_id):
+            return workspace.get(image_id)
+    except KeyError:
+        pass
+    raise HTTPException(status.HTTP_404_NOT_FOUND, f"no image with id {image_id!r}; GET /api/images lists them")
+
+
+def get_record(image_id: str, workspace: WorkspaceDep) -> ImageRecord:
+    return find_record(workspace, image_id)
+
+
+RecordDep = Annotated[ImageRecord, Depends(get_record)]
+
+
+def get_sign_id(sign_id: str, workspace: WorkspaceDep) -> str:
+    if not ID_PATTERN.match(sign_id) or sign_id not in workspace.library.ids:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"no sign {sign_id!r} in the library; known: {', '.join(workspace.library.ids)}")
+    return sign_id
+
+
+SignIdDep = Annotated[str, Depends(get_sign_id)]
+
+
+def recognition_of(record: ImageRecord) -> Recognition:
+    """The image's latest result (possibly from older settings); 409 while there is none."""
+    outcome = record.outcome
+    if outcome.recognition is not None:
+        return outcome.recognition
+    if outcome.error is not None:
+        raise HTTPException(status.HTTP_409_CONFLICT, f"{record.name}: {outcome.error}")
+    raise HTTPException(status.HTTP_409_CONFLICT, f"{record.name} is still being processed; try again in a moment")
+
+
+# ---------------------------------------------------------------- shaping
+
+
+def summary(workspace: Workspace, record: ImageRecord) -> ImageSummary:
+    outcome = record.outcome
+    rec = outcome.recognition
+    return ImageSummary(
+        id=record.id, name=record.name, expected=record.expected,
+        label=rec.label if rec else None, recognized=bool(rec and rec.recognized),
+        inliers=rec.best.n_inliers if rec and rec.best else 0, margin=rec.margin if rec else 0,
+        status=status_of(record.expected, outcome, workspace.snapshot.generation),
+        settings_version=outcome.settings_version,
+        width=record.width, height=record.height, error=outcome.error,
+    )
+
+
+def intrinsics(camera: Camera | None) -> CameraIntrinsics | None:
+    return None if camera is None else CameraIntrinsics(**camera.to_json())
+
+
+def detail(workspace: Workspace, record: ImageRecord) -> ImageDetail:
+    rec = record.outcome.recognition
+    attempts = [] if rec is None else [
+        AttemptOut(source=a.source, region=a.region, margin=a.margin,
+                   winner=a.scores[a.winner].sign if a.winner is not None else None)
+        for a in rec.attempts
+    ]
+    return ImageDetail(**summary(workspace, record).model_dump(),
+                       result=rec.to_json(record.name) if rec else None,
+                       camera=intrinsics(rec.camera) if rec else None, attempts=attempts)
+
+
+def read_upload(file: UploadFile) -> tuple[str, bytes]:
+    """(display name, bytes) of an uploaded file; the size is already bounded by UploadLimit."""
+    return display_name(file.filename or "upload"), file.file.read()
+
+
+def camera_from_upload(name: str, data: bytes) -> Camera:
+    """Parse an uploaded camera file (ROS / OpenCV YAML or JSON); CameraError names the upload, not a temp path."""
+    suffix = Path(name).suffix.lower()
+    with tempfile.TemporaryDirectory(prefix="signpose-camera-") as tmp:
+        path = Path(tmp) / ("camera" + (suffix if suffix in CAMERA_SUFFIXES else ".yaml"))
+        path.write_bytes(data)
+        try:
+            camera = load_camera(path)
+        except CameraError as exc:
+            raise CameraError(str(exc).replace(str(path), name)) from None
+    return dataclasses.replace(camera, source=f"upload:{name}")
+
+
+# ---------------------------------------------------------------- routes
+
+
+def _error_handler(code: int):
+    async def handler(request: Request, exc: Exception) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=code)
+    return handler
+
+
+api = APIRouter(prefix="/api")
+NUMERIC_SETTINGS = [f["name"] for f in settings_schema() if f["type"] in ("int", "float")]
+INTEGER_SETTINGS = {f["name"] for f in settings_schema() if f["type"] == "int"}
+
+
+@api.get("/health", response_model=Health, tags=["server"])
+def health(workspace: WorkspaceDep) -> Health:
+    return Health(version=package_version(), images=len(workspace.images()), busy=workspace.busy)
+
+
+@api.get("/events", response_class=EventSourceResponse, tags=["server"])
+async def events(workspace: WorkspaceDep) -> AsyncIterable[ServerSentEvent]:
+    """Server-sent events: `settings`, `results`, `library`, `camera`, `images` (payloads in the contract).
+
+    Starts with the current `settings` and `results`. Events of one kind that arrive faster
+    than they are sent collapse into the newest.
+    """
+    loop = asyncio.get_running_loop()
+    latest: dict[str, dict] = {}
+    wake = asyncio.Event()
+
+    def store(event) -> None:
+        latest[event.kind] = event.payload
+        wake.set()
+
+    unsubscribe = workspace.subscribe(lambda event: loop.call_soon_threadsafe(store, event))
+    try:
+        snap = workspace.snapshot
+        yield ServerSentEvent(event="settings",
+                              data={"version": snap.settings_version, "settings": snap.settings.to_dict()})
+        yield ServerSentEvent(event="results", data=workspace.progress())
+        while True:
+            await wake.wait()
+            wake.clear()
+            pending = dict(latest)
+            latest.clear()
+            for kind, payload in pending.items():
+                yield ServerSentEvent(event=kind, data=payload)
+    finally:
+        unsubscribe()
+
+
+# ---- settings
+
+def settings_out(workspace: Workspace) -> SettingsOut:
+    snap = workspace.snapshot
+    return SettingsOut(version=snap.settings_version, settings=snap.settings)
+
+
+@api.get("/settings", response_model=SettingsOut, tags=["settings"])
+def get_settings(workspace: WorkspaceDep) -> SettingsOut:
+    return settings_out(workspace)
+
+
+@api.put("/settings", response_model=SettingsOut, tags=["settings"])
+def put_settings(changes: dict[str, Any], workspace: WorkspaceDep) -> SettingsOut:
+    """Change some or all settings; every image is re-run (debounced). 422 names the bad value."""
+    workspace.update_settings(changes)
+    return settings_out(workspace)
+
+
+@api.get("/settings/schema", response_model=list[SettingField], tags=["settings"])
+def get_schema() -> list[dict]:
+    return settings_schema()
+
+
+@api.get("/presets", response_model=dict[str, Settings], tags=["settings"])
+def get_presets() -> dict[str, Settings]:
+    return PRESETS
+
+
+@api.post("/settings/preset/{name}", response_model=SettingsOut, tags=["settings"])
+def apply_preset(name: str, workspace: WorkspaceDep) -> SettingsOut:
+    if name not in PRESETS:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no preset {name!r}; choose from {', '.join(PRESETS)}")
+    workspace.replace_settings(PRESETS[name])
+    return settings_out(workspace)
+
+
+@api.get("/settings/export", tags=["settings"],
+         responses={200: {"content": {"application/json": {}}, "description": "signpose-settings.json"}})
+def export_settings(workspace: WorkspaceDep) -> Response:
+    return Response(json.dumps(workspace.settings.to_dict(), indent=2) + "\n", media_type="application/json",
+                    headers={"Content-Disposition": 'attachment; filename="signpose-settings.json"'})
+
+
+@api.post("/settings/import", response_model=SettingsOut, tags=["settings"])
+def import_settings(file: Annotated[UploadFile, File(description="settings JSON, full or partial")],
+                    workspace: WorkspaceDep) -> SettingsOut:
+    """Apply a settings file (as written by export or `--settings`) over the current settings."""
+    name, data = read_upload(file)
+    try:
+        changes = json.loads(data)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise SettingsError(f"{name} is not valid JSON: {exc}") from None
+    workspace.update_settings(changes)
+    return settings_out(workspace)
+
+
+# ---- library
+
+@api.get("/library", response_model=list[SignOut], tags=["library"])
+def get_library(workspace: WorkspaceDep) -> list[SignOut]:
+    return [SignOut.of(s) for s in workspace.library.signs]
+
+
+@api.get("/library/{sign_id}/image", response_class=FileResponse, tags=["library"])
+def get_sign_image(sign_id: SignIdDep, workspace: WorkspaceDep) -> FileResponse:
+    return FileResponse(workspace.sign_path(sign_id))
+
+
+@api.post("/library", response_model=SignOut, status_code=status.HTTP_201_CREATED, tags=["library"])
+def add_sign(file: Annotated[UploadFile, File(description="the sign, photographed flat or as artwork")],
+             id: Annotated[str, Form(description="1-64 of a-z, 0-9, _ and -")],
+             width_m: Annotated[float, Form(description="physical width, metres")],
+             workspace: WorkspaceDep,
+             name: Annotated[str, Form()] = "", text: Annotated[str, Form()] = "",
+             height_m: Annotated[float | None, Form(description="metres; default from the image aspect")] = None,
+             ) -> SignOut:
+    _, data = read_upload(file)
+    return SignOut.of(workspace.add_sign(id, data, name, text, width_m, height_m))
+
+
+@api.delete("/library/{sign_id}", status_code=status.HTTP_204_NO_CONTENT, tags=["library"])
+def delete_sign(sign_id: SignIdDep, workspace: WorkspaceDep) -> None:
+    """Delete a sign; images whose result named it are re-run with the rest of the library."""
+    workspace.remove_sign(sign_id)
+
+
+# ---- images
+
+@api.post("/images", response_model=UploadOut, status_code=status.HTTP_201_CREATED, tags=["images"])
+def add_images(files: Annotated[list[UploadFile], File(description="one or more images")],
+               workspace: WorkspaceDep,
+               expected: Annotated[list[str], Form(description='per file, in order: a sign id, "none" or ""')] = [],
+               ) -> UploadOut:
+    """Add images; each is processed in the background (status "pending" until done). All or nothing."""
+    if expected and len(expected) != len(files):
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"got {len(expected)} expected labels for {len(files)} files; "
+                            "send one per file (\"\" for none) or leave them out")
+    uploads = [(*read_upload(f), e) for f, e in zip(files, expected or [None] * len(files))]
+    return UploadOut(images=[summary(workspace, r) for r in workspace.add_images(uploads)])
+
+
+@api.get("/images", response_model=ImagesOut, tags=["images"])
+def list_images(workspace: WorkspaceDep) -> ImagesOut:
+    progress = workspace.progress()
+    return ImagesOut(version=progress["version"], running=progress["running"],
+                     images=[summary(workspace, r) for r in workspace.images()])
+
+
+@api.get("/images/{image_id}", response_model=ImageDetail, tags=["images"])
+def get_image(record: RecordDep, workspace: WorkspaceDep) -> ImageDetail:
+    return detail(workspace, record)
+
+
+@api.patch("/images/{image_id}", response_model=ImageSummary, tags=["images"])
+def set_expected(body: ExpectedIn, record: RecordDep, workspace: WorkspaceDep) -> ImageSummary:
+    """Set or clear the label the image should get."""
+    return summary(workspace, workspace.set_expected(record.id, body.expected))
+
+
+@api.delete("/images/{image_id}", status_code=status.HTTP_204_NO_CONTENT, tags=["images"])
+def delete_image(record: RecordDep, workspace: WorkspaceDep) -> None:
+    try:
+        workspace.remove_image(record.id)
+    except KeyError:  # deleted by a concurrent request
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"image {record.id!r} was already deleted") from None
+
+
+@api.get("/images/{image_id}/file", response_class=FileResponse, tags=["images"])
+def get_image_file(record: RecordDep, workspace: WorkspaceDep) -> FileResponse:
+    return FileResponse(workspace.image_path(record), media_type=record.media_type, filename=record.name,
+                        content_disposition_type="inline")
+
+
+@api.get("/images/{image_id}/stages/{stage}", tags=["images"],
+         responses={200: {"content": {"image/png": {}}, "description": "PNG figure"}})
+def get_stage(record: RecordDep, stage: Literal[figures.STAGES], workspace: WorkspaceDep,  # type: ignore[valid-type]
+              sign: Annotated[str | None, Query(description="matches/inliers: the sign to match against")] = None,
+              ) -> Response:
+    """A figure of one pipeline stage for the image's latest result (header X-Settings-Version)."""
+    rec = recognition_of(record)
+    try:
+        img = figures.stage_figure(stage, record.image, rec, workspace.library, sign)
+    except figures.FigureError as exc:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, str(exc)) from None
+    return Response(figures.png(img), media_type="image/png",
+                    headers={"X-Settings-Version": str(record.outcome.settings_version)})
+
+
+@api.post("/recognize", response_model=RecognitionOut, tags=["images"])
+def recognize_once(file: Annotated[UploadFile, File()], workspace: WorkspaceDep) -> dict:
+    """Recognise one image with the current settings, library and camera without keeping it."""
+    name, data = read_upload(file)
+    return workspace.recognize_upload(data, name).to_json(name)
+
+
+# ---- tuning
+
+@api.post("/calibrate/threshold", response_model=CalibrateOut, tags=["tuning"])
+def calibrate_threshold(body: CalibrateIn, workspace: WorkspaceDep) -> tuning.ThresholdSuggestion:
+    """Measure the sign's white and suggest a threshold just below it (the paper: 0.8 measured, 0.75 set)."""
+    record = find_record(workspace, body.image_id)
+    w, h = record.width, record.height
+    if body.rect is not None:
+        x0, y0, x1, y1 = body.rect
+        x0, y0, x1, y1 = max(0, x0), max(0, y0), min(w, x1), min(h, y1)
+        if x1 - x0 < 2 or y1 - y0 < 2:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                f"rect {list(body.rect)} does not cover at least 2x2 px of the {w}x{h} image; "
+                                "give [x0, y0, x1, y1] in image pixels with x0 < x1 and y0 < y1")
+        inside, source = tuning.rect_mask((x0, y0, x1, y1), w, h), "rectangle"
+    else:
+        region = tuning.sign_region(recognition_of(record), w, h)
+        if region is None:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                f"no sign or white blob was found in {record.name}; "
+                                "draw a rectangle around the sign and send it as rect")
+        inside, source = region
+    return tuning.suggest_threshold(record.image, workspace.settings.normalization, inside, source)
+
+
+@api.get("/sweep", response_model=SweepOut, tags=["tuning"])
+def sweep(workspace: WorkspaceDep,
+          param: Annotated[str, Query(description=f"a numeric setting: {', '.join(NUMERIC_SETTINGS)}")] = "threshold",
+          lo: float = 0.3, hi: float = 0.9,
+          steps: Annotated[int, Query(ge=2, le=MAX_SWEEP_STEPS)] = 13) -> SweepOut:
+    """Re-run every labelled image for each of `steps` values of `param` from `lo` to `hi`."""
+    if param not in NUMERIC_SETTINGS:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"cannot sweep {param!r}; choose a numeric setting: {', '.join(NUMERIC_SETTINGS)}")
+    if not lo < hi:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"lo ({lo}) must be below hi ({hi})")
+    labelled = [r for r in workspace.images() if r.expected is not None]
+    if not labelled:
+        raise HTTPException(status.HTTP_409_CONFLICT,
+                            "no labelled images to sweep over: give images an expected label "
+                            "(when uploading, or PATCH /api/images/{id})")
+    values = tuning.sweep_values(lo, hi, steps, param in INTEGER_SETTINGS)
+    runs = workspace.sweep(param, values, labelled)
+    correct, min_margin = [], []
+    for recs in runs:
+        good = [rec for record, rec in zip(labelled, recs) if is_correct(record.expected, rec)]
+        correct.append(len(good))
+        min_margin.append(min((rec.margin for rec in good if rec.recognized), default=None))
+    band = tuning.working_band(values, [c == len(labelled) for c in correct])
+    return SweepOut(param=param, values=values, correct=correct, min_margin=min_margin, band=band,
+                    centre=None if band is None else (band[0] + band[1]) / 2, labelled=len(labelled))
+
+
+# ---- camera
+
+@api.get("/camera", response_model=CameraOut, tags=["camera"])
+def get_camera(workspace: WorkspaceDep) -> CameraOut:
+    return CameraOut(camera=intrinsics(workspace.camera))
+
+
+@api.put("/camera", response_model=CameraOut, tags=["camera"], openapi_extra={"requestBody": {
+    "required": True,
+    "content": {
+        "application/json": {"schema": CameraModel.model_json_schema()},
+        "multipart/form-data": {"schema": {
+            "type": "object", "required": ["file"],
+            "properties": {"file": {"type": "string", "format": "binary",
+                                    "description": "ROS camera_info YAML, OpenCV YAML/JSON or {fx, fy, cx, cy}"}},
+        }},
+    },
+}})
+async def put_camera(request: Request, workspace: WorkspaceDep) -> CameraOut:
+    """Set the camera from JSON intrinsics or an uploaded camera file; every image is re-run."""
+    content_type = request.headers.get("content-type", "")
+    if content_type.startswith("multipart/form-data"):
+        async with request.form() as form:
+            file = form.get("file")
+            if not isinstance(file, FormFile):
+                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                    "send the camera file as the multipart field 'file'")
+            name, data = display_name(file.filename or "camera"), await file.read()
+        camera = await run_in_threadpool(camera_from_upload, name, data)
+    elif content_type.startswith("application/json"):
+        try:
+            body = CameraModel.model_validate_json(await request.body())
+        except ValidationError as exc:
+            raise RequestValidationError(exc.errors(include_url=False)) from None
+        camera = camera_from_json(body.model_dump(), source="json")
+    else:
+        raise HTTPException(status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
+                            "send JSON intrinsics {fx, fy, cx, cy, dist, width, height} "
+                            "or a multipart camera file in the field 'file'")
+    await run_in_threadpool(workspace.set_camera, camera)
+    return CameraOut(camera=intrinsics(camera))
+
+
+@api.delete("/camera", response_model=CameraOut, tags=["camera"])
+def delete_camera(workspace: WorkspaceDep) -> CameraOut:
+    """Forget the camera: a 60° horizontal field of view is assumed per image."""
+    workspace.set_camera(None)
+    return CameraOut(camera=None)
+
+
+def _attach_scene(server: viser.ViserServer, workspace: Workspace):
+    """The colleague-owned viser scene, when app/scene.py exists; its handle (with close()) or None."""
+    try:
+        from app import scene
+    except ModuleNotFoundError as exc:
+        if exc.name != "app.scene":
+            raise
+        return None
+    return scene.attach(server, workspace)
+
+
+def create_app(source: Workspace | WorkspaceConfig) -> FastAPI:
+    """The signpose app around `source`: a Workspace the caller owns and closes, or a config to
+    build one from (then the app closes it at shutdown). The viser server starts with the app."""
+    owned = not isinstance(source, Workspace)
+    workspace = Workspace(source) if owned else source
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI):
+        # viser prints its private address unconditionally; people should only see ours.
+        with contextlib.redirect_stdout(io.StringIO()):
+            server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+        app.state.viser_url = f"ws://127.0.0.1:{server.get_port()}"
+        scene = _attach_scene(server, workspace)
+        try:
+            yield
+        finally:
+            if scene is not None:
+                scene.close()
+            server.stop()
+            if owned:
+                await run_in_threadpool(workspace.close)
+
+    app = FastAPI(title="signpose", version=package_version(), lifespan=lifespan,
+                  summary="Recognise known planar signs and recover the camera pose; tune every step.")
+    app.state.workspace = workspace
+    app.add_middleware(UploadLimit, max_bytes=workspace.config.max_upload_bytes)
+    for error, code in ((SettingsError, 422), (CameraError, 422), (LibraryError, 422), (ImageError, 422),
+                        (ImageTooLarge, 413), (Conflict, 409)):
+        app.add_exception_handler(error, _error_handler(code))
+    app.include_router(api)
+    mount_viser(app)
+    app.mount("/", StaticFiles(directory=STATIC_DIR, html=True, check_dir=False), name="static")
+    return app
+
+
+def bind(host: str, port: int) -> socket.socket:
+    """A listening socket on (host, port); OSError with the reason when it is taken or not ours.
+
+    Listening from here on, so the URL can be printed at once: connections made before the
+    server runs wait in the backlog.
+    """
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+        sock.listen(BACKLOG)
+    except OSError:
+        sock.close()
+        raise
+    sock.set_inheritable(True)
+    return sock
+
+
+def serve(app: FastAPI, sock: socket.socket) -> None:
+    """Run `app` on the bound `sock` with one uvicorn worker until Ctrl+C or SIGTERM."""
+    import uvicorn
+
+    config = uvicorn.Config(app, workers=1, log_level="warning", timeout_graceful_shutdown=2)
+    try:
+        uvicorn.Server(config).run(sockets=[sock])
+    except KeyboardInterrupt:  # uvicorn re-raises the Ctrl+C it handled; the shutdown is already done
+        pass

@@ -1,0 +1,117 @@
+"""Helping a person choose settings: threshold calibration from a sign's gray levels, and sweeps.
+
+Gray levels are the pipeline's normalised gray in [0, 1] (`pipeline.segment.normalize_gray`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from pipeline.image import to_gray
+from pipeline.recognize import Recognition
+from pipeline.segment import Box, normalize_gray
+
+HISTOGRAM_BINS = 256
+# The paper measured the sign at 0.8 and thresholded at 0.75: just below the sign's white.
+WHITE_MARGIN = 0.05
+# The ring of surroundings compared with the sign is this fraction of the region's size wide.
+RING_FRACTION = 0.15
+MIN_RING_PX = 4
+BACKGROUND_PERCENTILE = 90
+
+
+@dataclass(frozen=True)
+class ThresholdSuggestion:
+    """Gray levels of a sign region and the threshold they suggest.
+
+    white_level: the sign's white (median of the brightest half of the region); background_level:
+    the bright end (90th percentile) of a ring around the region, None when the region fills
+    the image; histogram: 256 counts over [0, 1] inside the region; rect: the region's bounding box.
+    """
+
+    white_level: float
+    background_level: float | None
+    suggested_threshold: float
+    histogram: list[int]
+    rect: Box
+    source: str
+    warning: str | None
+
+
+def sign_region(recognition: Recognition, width: int, height: int) -> tuple[np.ndarray, str] | None:
+    """(H, W) bool mask of where the pipeline found the sign, and what it is; None when it found nothing.
+
+    The detected sign's quad when there is one, else the blob of the region searched last.
+    """
+    if recognition.corners is not None:
+        mask = np.zeros((height, width), np.uint8)
+        cv2.fillPoly(mask, [np.round(recognition.corners).astype(np.int32)], 1)
+        if mask.any():
+            return mask.astype(bool), "detected sign"
+    seg, attempt = recognition.segmentation, recognition.attempt
+    if seg is not None and attempt is not None and attempt.source.startswith("blob "):
+        blob = seg.blobs[int(attempt.source.split()[1]) - 1]
+        return seg.labels == blob.label, "blob"
+    return None
+
+
+def rect_mask(rect: Box, width: int, height: int) -> np.ndarray:
+    mask = np.zeros((height, width), bool)
+    x0, y0, x1, y1 = rect
+    mask[y0:y1, x0:x1] = True
+    return mask
+
+
+def suggest_threshold(image: np.ndarray, normalization: str, inside: np.ndarray, source: str) -> ThresholdSuggestion:
+    """Suggest a segmentation threshold from the gray levels inside the (H, W) bool mask `inside`.
+
+    Slightly below the sign's white, but above the brightest part of its surroundings, so the
+    sign comes out as one blob separate from the wall.
+    """
+    gray = normalize_gray(to_gray(image), normalization)
+    values = gray[inside]
+    white = float(np.median(values[values >= np.median(values)]))
+    ys, xs = np.nonzero(inside)
+    rect = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
+    ring_px = max(MIN_RING_PX, round(RING_FRACTION * max(rect[2] - rect[0], rect[3] - rect[1])))
+    grown = cv2.dilate(inside.astype(np.uint8), np.ones((2 * ring_px + 1, 2 * ring_px + 1), np.uint8)).astype(bool)
+    ring = gray[grown & ~inside]
+    background = float(np.percentile(ring, BACKGROUND_PERCENTILE)) if ring.size else None
+    suggested, warning = white - WHITE_MARGIN, None
+    if background is not None and suggested <= background:
+        suggested = (white + background) / 2
+        if white <= background:
+            warning = ("the sign is not brighter than its surroundings: no threshold separates it; "
+                       "try normalization 'minmax' or segment_mode 'none'")
+    histogram = np.histogram(values, bins=HISTOGRAM_BINS, range=(0.0, 1.0))[0]
+    return ThresholdSuggestion(
+        white_level=round(white, 4),
+        background_level=None if background is None else round(background, 4),
+        suggested_threshold=round(float(np.clip(suggested, 0.0, 1.0)), 2),
+        histogram=histogram.tolist(), rect=rect, source=source, warning=warning,
+    )
+
+
+def sweep_values(lo: float, hi: float, steps: int, integer: bool) -> list[float]:
+    """`steps` evenly spaced values from `lo` to `hi`; whole and distinct for an integer setting."""
+    values = np.linspace(lo, hi, steps)
+    if integer:
+        return sorted({int(round(v)) for v in values})
+    return [round(float(v), 10) for v in values]
+
+
+def working_band(values: list[float], all_correct: list[bool]) -> tuple[float, float] | None:
+    """The longest run of consecutive values (the first on a tie) where every labelled image is right."""
+    best: tuple[int, int] | None = None
+    start = None
+    for i, ok in enumerate([*all_correct, False]):
+        if ok and start is None:
+            start = i
+        elif not ok and start is not None:
+            if best is None or i - start > best[1] - best[0]:
+                best = (start, i)
+            start = None
+    return None if best is None else (values[best[0]], values[best[1] - 1])

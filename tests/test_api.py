@@ -1,0 +1,448 @@
+"""The `signpose serve` HTTP API, SSE and viser relay, against a real uvicorn server on a free loopback port."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import httpx
+import pytest
+import uvicorn
+import viser
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import connect
+
+from app.server import bind, create_app
+from app.workspace import Workspace, WorkspaceConfig
+from pipeline.library import SAMPLE_LIBRARY, load_library
+from pipeline.synth import synthetic_camera
+from pipeline.camera import ros_camera_yaml
+from scene_images import empty_photo, png_bomb, sign_photo, tiny_photo
+
+LIBRARY = load_library(SAMPLE_LIBRARY)
+REPO = Path(__file__).resolve().parent.parent
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+MAX_UPLOAD = 2_000_000
+MAX_IMAGES = 20
+TIMEOUT_S = 30
+VISER_PROTOCOL = f"viser-v{viser.__version__}"
+
+
+@contextmanager
+def running(app):
+    """Serve `app` with uvicorn on a free loopback port in a thread; yields the base URL."""
+    sock = bind("127.0.0.1", 0)
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", timeout_graceful_shutdown=1))
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + TIMEOUT_S
+    while not server.started:
+        assert thread.is_alive() and time.monotonic() < deadline, "uvicorn did not start"
+        time.sleep(0.02)
+    try:
+        yield f"http://127.0.0.1:{sock.getsockname()[1]}"
+    finally:
+        server.should_exit = True
+        thread.join(TIMEOUT_S)
+
+
+def config(state_dir: Path, **options) -> WorkspaceConfig:
+    return WorkspaceConfig(state_dir=state_dir, load_samples=False, workers=2, max_upload_bytes=MAX_UPLOAD,
+                           max_images=MAX_IMAGES, max_pixels=1_000_000, **options)
+
+
+@pytest.fixture(scope="module")
+def base_url(tmp_path_factory):
+    workspace = Workspace(config(tmp_path_factory.mktemp("api") / "state"))
+    try:
+        with running(create_app(workspace)) as url:
+            yield url
+    finally:
+        workspace.close()
+
+
+@pytest.fixture
+def client(base_url):
+    with httpx.Client(base_url=base_url, timeout=TIMEOUT_S) as c:
+        yield c
+
+
+def upload(client, *images: tuple[str, bytes, str | None]) -> httpx.Response:
+    files = [("files", (name, data, "image/jpeg")) for name, data, _ in images]
+    data = {"expected": [e or "" for _, _, e in images]} if any(e is not None for *_, e in images) else None
+    return client.post("/api/images", files=files, data=data)
+
+
+def wait_done(client) -> list[dict]:
+    """The image summaries once no re-run is running or pending."""
+    deadline = time.monotonic() + TIMEOUT_S
+    while time.monotonic() < deadline:
+        body = client.get("/api/images").json()
+        if not body["running"] and all(i["status"] != "pending" for i in body["images"]):
+            return body["images"]
+        time.sleep(0.05)
+    raise AssertionError("images still pending")
+
+
+def add_photos(client, *sign_ids: str) -> list[str]:
+    """Upload a labelled photo per sign id ("none": a wall without a sign); their ids once processed."""
+    r = upload(client, *[(f"{sid}.jpg", empty_photo(i) if sid == "none" else sign_photo(LIBRARY, sid, seed=i), sid)
+                         for i, sid in enumerate(sign_ids)])
+    assert r.status_code == 201, r.text
+    ids = [i["id"] for i in r.json()["images"]]
+    wait_done(client)
+    return ids
+
+
+def assert_error(r: httpx.Response, code: int, *words: str) -> None:
+    assert r.status_code == code, r.text
+    detail = r.json()["detail"]
+    text = detail if isinstance(detail, str) else json.dumps(detail)
+    for word in words:
+        assert word in text, f"{word!r} not in {text!r}"
+
+
+# ---------------------------------------------------------------- server
+
+def test_health_docs_and_every_contract_path_in_openapi(client):
+    assert client.get("/api/health").json() | {"version": "x", "images": 0} == \
+        {"status": "ok", "version": "x", "images": 0, "busy": False}
+    assert client.get("/docs").status_code == 200
+    paths = client.get("/openapi.json").json()["paths"]
+    for path in ("/api/health", "/api/settings", "/api/settings/schema", "/api/presets",
+                 "/api/settings/preset/{name}", "/api/settings/export", "/api/settings/import", "/api/library",
+                 "/api/library/{sign_id}/image", "/api/library/{sign_id}", "/api/images", "/api/images/{image_id}",
+                 "/api/images/{image_id}/file", "/api/images/{image_id}/stages/{stage}", "/api/recognize",
+                 "/api/calibrate/threshold", "/api/sweep", "/api/camera", "/api/events"):
+        assert path in paths, path
+
+
+def test_events_stream_starts_with_the_state_and_follows_changes(client, base_url):
+    with httpx.Client(base_url=base_url, timeout=TIMEOUT_S) as listener, \
+            listener.stream("GET", "/api/events") as stream:
+        assert stream.headers["content-type"].startswith("text/event-stream")
+        events = iter_events(stream)
+        kind, first = next(events)
+        assert kind == "settings" and "threshold" in first["settings"]
+        assert next(events)[0] == "results"
+        version = client.put("/api/settings", json={"min_margin": 6}).json()["version"]
+        assert any(k == "settings" and p["version"] == version for k, p in events)
+    client.put("/api/settings", json={"min_margin": 5})
+
+
+def iter_events(stream):
+    kind = None
+    for line in stream.iter_lines():
+        if line.startswith("event:"):
+            kind = line.split(":", 1)[1].strip()
+        elif line.startswith("data:"):
+            yield kind, json.loads(line.split(":", 1)[1])
+
+
+# ---------------------------------------------------------------- settings
+
+def test_settings_read_change_and_refuse_bad_values(client):
+    before = client.get("/api/settings").json()
+    r = client.put("/api/settings", json={"ratio": 0.7})
+    assert r.status_code == 200 and r.json()["version"] == before["version"] + 1
+    assert r.json()["settings"]["ratio"] == 0.7
+    raw = {"content": b'{"threshold": NaN}', "headers": {"content-type": "application/json"}}
+    assert_error(client.put("/api/settings", **raw), 422, "threshold", "finite")
+    assert_error(client.put("/api/settings", content=b'{"threshold": Infinity}',
+                            headers={"content-type": "application/json"}), 422, "finite")
+    assert_error(client.put("/api/settings", json={"threshold": 1.2}), 422, "between 0.0 and 1.0")
+    assert_error(client.put("/api/settings", json={"treshold": 0.5}), 422, "unknown setting", "treshold")
+    assert_error(client.put("/api/settings", json={"max_features": "many"}), 422, "max_features", "number")
+    assert_error(client.put("/api/settings", json={"detector": "surf"}), 422, "sift")
+    assert client.put("/api/settings", json=[1, 2]).status_code == 422
+    assert client.get("/api/settings").json()["version"] == before["version"] + 1
+    client.put("/api/settings", json={"ratio": before["settings"]["ratio"]})
+
+
+def test_schema_presets_export_and_import(client):
+    schema = {f["name"]: f for f in client.get("/api/settings/schema").json()}
+    assert schema["threshold"] | {"help": ""} == schema["threshold"] | {
+        "type": "float", "group": "Segmentation", "min": 0.0, "max": 1.0, "help": ""}
+    assert schema["detector"]["choices"] == ["sift", "orb"]
+    presets = client.get("/api/presets").json()
+    assert set(presets) == {"paper", "default"} and presets["paper"]["threshold"] == 0.75
+    assert client.post("/api/settings/preset/paper").json()["settings"]["threshold"] == 0.75
+    assert_error(client.post("/api/settings/preset/fast"), 404, "paper", "default")
+
+    exported = client.get("/api/settings/export")
+    assert exported.headers["content-disposition"] == 'attachment; filename="signpose-settings.json"'
+    client.post("/api/settings/preset/default")
+    r = client.post("/api/settings/import", files={"file": ("s.json", exported.content, "application/json")})
+    assert r.status_code == 200 and r.json()["settings"] == presets["paper"]
+    assert_error(client.post("/api/settings/import", files={"file": ("s.json", b"{oops", "application/json")}),
+                 422, "s.json", "not valid JSON")
+    assert_error(client.post("/api/settings/import", files={"file": ("s.json", b'{"ratio": 7}', "application/json")}),
+                 422, "ratio")
+    client.post("/api/settings/preset/default")
+
+
+# ---------------------------------------------------------------- library
+
+def test_library_list_image_add_and_delete(client):
+    signs = client.get("/api/library").json()
+    assert [s["id"] for s in signs] == LIBRARY.ids
+    assert set(signs[0]) == {"id", "name", "text", "image", "width_m", "height_m"}
+    image = client.get(f"/api/library/{signs[0]['id']}/image")
+    assert image.status_code == 200 and image.content.startswith(PNG_SIGNATURE)
+
+    photo = sign_photo(LIBRARY, "security_compound")  # 640 x 480
+    form = {"id": "door_plate", "name": "Door plate", "width_m": "0.4", "height_m": "0.3"}
+    r = client.post("/api/library", files={"file": ("d.jpg", photo, "image/jpeg")}, data=form)
+    assert r.status_code == 201 and r.json()["id"] == "door_plate" and r.json()["image"].endswith(".png")
+    assert client.get("/api/library/door_plate/image").content.startswith(PNG_SIGNATURE)
+    assert_error(client.post("/api/library", files={"file": ("d.jpg", photo, "image/jpeg")}, data=form),
+                 409, "already has")
+    for bad, words in (({"id": "../../etc/passwd"}, ("id", "a-z")), ({"id": "Caps"}, ("id",)),
+                       ({"width_m": "nan"}, ("width_m",)), ({"width_m": "-1"}, ("width_m",)),
+                       ({"width_m": "400"}, ("metres",)), ({"height_m": "0.1"}, ("aspect",))):
+        r = client.post("/api/library", files={"file": ("d.jpg", photo, "image/jpeg")}, data=form | {"id": "x"} | bad)
+        assert_error(r, 422, *words)
+    assert_error(client.post("/api/library", files={"file": ("d.jpg", b"GIF89a nope", "image/gif")},
+                             data=form | {"id": "y"}), 422, "not an image")
+    assert client.get("/api/library/..%2F..%2Fstate/image").status_code == 404
+    assert_error(client.get("/api/library/passwd/image"), 404, "no sign", "known")
+    assert client.delete("/api/library/door_plate").status_code == 204
+    assert_error(client.delete("/api/library/door_plate"), 404, "door_plate", "known")
+    assert [s["id"] for s in client.get("/api/library").json()] == LIBRARY.ids
+
+
+# ---------------------------------------------------------------- images
+
+def test_upload_list_detail_label_and_delete(client):
+    photo = sign_photo(LIBRARY, "chief_of_security")
+    r = upload(client, ("chief.jpg", photo, "chief_of_security"), ("wall.jpg", empty_photo(), "none"),
+               ("unlabelled.jpg", sign_photo(LIBRARY, "security_compound"), None))
+    assert r.status_code == 201
+    ids = [i["id"] for i in r.json()["images"]]
+    summaries = {i["id"]: i for i in wait_done(client)}
+    assert [summaries[i]["status"] for i in ids] == ["correct", "correct", "recognized"]
+    chief = summaries[ids[0]]
+    assert chief["label"] == "chief_of_security" and chief["inliers"] > 12 and (chief["width"], chief["height"]) == (
+        640, 480)
+
+    detail = client.get(f"/api/images/{ids[0]}").json()
+    assert detail["result"]["label"] == "chief_of_security" and len(detail["result"]["corners"]) == 4
+    assert detail["result"]["pose"]["camera_position"] is not None
+    assert detail["camera"]["source"].startswith("assumed") and detail["attempts"][-1]["winner"] == "chief_of_security"
+    file = client.get(f"/api/images/{ids[0]}/file")
+    assert file.content == photo and file.headers["content-type"] == "image/jpeg"
+
+    r = client.patch(f"/api/images/{ids[2]}", json={"expected": "ministry_of_torture"})
+    assert r.status_code == 200 and r.json()["status"] == "wrong"
+    assert_error(client.patch(f"/api/images/{ids[2]}", json={"expected": "ministry"}), 422, "not a sign", "none")
+    for image_id in ids:
+        assert client.delete(f"/api/images/{image_id}").status_code == 204
+    assert_error(client.get(f"/api/images/{ids[0]}"), 404, ids[0])
+    assert_error(client.delete(f"/api/images/{ids[0]}"), 404)
+    assert_error(client.get("/api/images/..%2F..%2Fsettings.json/file"), 404)
+
+
+def test_stage_figures(client):
+    image_id = add_photos(client, "ministry_of_torture")[0]
+    for stage in ("input", "gray", "mask", "blob", "crop", "matches", "inliers"):
+        r = client.get(f"/api/images/{image_id}/stages/{stage}")
+        assert r.status_code == 200 and r.content.startswith(PNG_SIGNATURE), stage
+        assert r.headers["content-type"] == "image/png" and r.headers["x-settings-version"].isdigit()
+    assert client.get(f"/api/images/{image_id}/stages/matches?sign=security_compound").status_code == 200
+    assert_error(client.get(f"/api/images/{image_id}/stages/matches?sign=nope"), 404, "not in the library")
+    assert_error(client.get(f"/api/images/{image_id}/stages/sift"), 422, "input")
+    client.delete(f"/api/images/{image_id}")
+
+
+@pytest.mark.parametrize("name, data, expected, code, words", [
+    ("empty.jpg", b"", None, 422, ("empty.jpg", "empty")),
+    ("notes.jpg", b"meeting at 10, bring the photos", None, 422, ("notes.jpg", "not an image")),
+    ("cut.jpg", sign_photo(LIBRARY, "security_compound")[:9000], None, 422, ("cut.jpg", "truncated")),
+    ("bomb.png", png_bomb(1500, 1000), None, 413, ("bomb.png", "1500x1000", "megapixels")),
+    ("huge_bomb.png", png_bomb(), None, 413, ("megapixels",)),
+    ("x.jpg", sign_photo(LIBRARY, "security_compound"), "no_such_sign", 422, ("no_such_sign", "security_compound")),
+])
+def test_bad_uploads_get_a_clear_4xx_and_nothing_is_kept(client, name, data, expected, code, words):
+    before = len(client.get("/api/images").json()["images"])
+    r = upload(client, ("fine.jpg", sign_photo(LIBRARY, "chief_of_security"), None), (name, data, expected))
+    assert_error(r, code, *words)
+    assert len(client.get("/api/images").json()["images"]) == before
+    assert client.get("/api/health").json()["status"] == "ok"
+
+
+def test_upload_count_and_label_mismatches(client):
+    photo = tiny_photo()
+    assert_error(upload(client, *[(f"{i}.jpg", photo, None) for i in range(MAX_IMAGES + 1)]), 409,
+                 f"limit is {MAX_IMAGES}", "delete some")
+    r = client.post("/api/images", files=[("files", ("a.jpg", photo, "image/jpeg"))] * 2, data={"expected": ["none"]})
+    assert_error(r, 422, "1 expected labels for 2 files")
+    assert_error(client.post("/api/images"), 422, "files")
+
+
+def http_exchange(base_url: str, head: bytes, chunks=()) -> tuple[int, dict]:
+    """Send a raw request head and body chunks; (status, JSON body) of the response, read until the server closes."""
+    host, port = base_url.removeprefix("http://").split(":")
+    response = b""
+    with socket.create_connection((host, int(port)), timeout=TIMEOUT_S) as sock:
+        try:
+            sock.sendall(head)
+            for chunk in chunks:
+                sock.sendall(chunk)
+        except (BrokenPipeError, ConnectionResetError):  # refused mid-body: the answer is already on its way
+            pass
+        try:
+            while data := sock.recv(65536):
+                response += data
+        except ConnectionResetError:  # closed with our unsent bytes unread; what arrived is still here
+            pass
+    status_line, _, body = response.partition(b"\r\n\r\n")
+    return int(status_line.split(b" ", 2)[1]), json.loads(body)
+
+
+def test_oversized_bodies_are_refused_before_or_while_they_arrive(base_url, client):
+    # Declared too large: refused from the headers alone, the body is never sent.
+    head = (b"POST /api/images HTTP/1.1\r\nHost: t\r\nContent-Type: multipart/form-data; boundary=b\r\n"
+            b"Content-Length: 30000000\r\nConnection: close\r\n\r\n")
+    status, body = http_exchange(base_url, head)
+    assert status == 413 and "30.0 MB" in body["detail"] and "2.0 MB" in body["detail"]
+    # Streamed without a length: refused as soon as the bytes received pass the limit.
+    head = (b"POST /api/images HTTP/1.1\r\nHost: t\r\nContent-Type: multipart/form-data; boundary=b\r\n"
+            b"Transfer-Encoding: chunked\r\nConnection: close\r\n\r\n")
+    part = b"--b\r\nContent-Disposition: form-data; name=\"files\"; filename=\"big.jpg\"\r\n\r\n"
+    block = b"x" * 65536
+    chunks = [b"%x\r\n%s\r\n" % (len(part), part)] + [b"%x\r\n%s\r\n" % (len(block), block)] * (
+        MAX_UPLOAD // len(block) + 2)
+    status, body = http_exchange(base_url, head, chunks)
+    assert status == 413 and "limit of 2.0 MB" in body["detail"]
+    assert client.get("/api/health").status_code == 200
+
+
+def test_stateless_recognize(client):
+    before = len(client.get("/api/images").json()["images"])
+    r = client.post("/api/recognize", files={"file": ("p.jpg", sign_photo(LIBRARY, "security_compound"), "image/jpeg")})
+    assert r.status_code == 200
+    body = r.json()
+    assert body["image"] == "p.jpg" and body["label"] == "security_compound" and len(body["homography"]) == 3
+    assert {"scores", "pose", "timing_ms", "warnings", "corners", "recognized"} <= set(body)
+    assert len(client.get("/api/images").json()["images"]) == before
+    assert_error(client.post("/api/recognize", files={"file": ("e.jpg", b"", "image/jpeg")}), 422, "empty")
+
+
+# ---------------------------------------------------------------- tuning
+
+def test_threshold_calibration(client):
+    sign_id, wall_id = add_photos(client, "security_compound", "none")
+    auto = client.post("/api/calibrate/threshold", json={"image_id": sign_id}).json()
+    assert auto["source"] == "detected sign" and auto["white_level"] > 0.9
+    assert auto["background_level"] < auto["suggested_threshold"] < auto["white_level"]
+    assert len(auto["histogram"]) == 256 and sum(auto["histogram"]) > 10_000
+    rect = client.post("/api/calibrate/threshold", json={"image_id": sign_id, "rect": [200, 180, 440, 280]}).json()
+    assert rect["source"] == "rectangle" and rect["rect"] == [200, 180, 440, 280]
+    assert sum(rect["histogram"]) == 240 * 100
+    assert_error(client.post("/api/calibrate/threshold", json={"image_id": sign_id, "rect": [700, 0, 900, 50]}),
+                 422, "640x480")
+    assert_error(client.post("/api/calibrate/threshold", json={"image_id": wall_id}), 422, "rectangle")
+    assert_error(client.post("/api/calibrate/threshold", json={"image_id": "0123456789ab"}), 404)
+    for image_id in (sign_id, wall_id):
+        client.delete(f"/api/images/{image_id}")
+
+
+def test_sweep_finds_the_working_band(client):
+    ids = add_photos(client, "security_compound", "chief_of_security", "none")
+    r = client.get("/api/sweep", params={"param": "threshold", "lo": 0.1, "hi": 0.99, "steps": 9})
+    assert r.status_code == 200, r.text
+    sweep = r.json()
+    assert sweep["labelled"] >= 3 and len(sweep["values"]) == len(sweep["correct"]) == 9
+    lo, hi = sweep["band"]
+    assert lo <= sweep["centre"] <= hi and sweep["correct"][sweep["values"].index(lo)] == sweep["labelled"]
+    assert all(m is None or m >= 0 for m in sweep["min_margin"])
+    ints = client.get("/api/sweep", params={"param": "min_inliers", "lo": 4, "hi": 6, "steps": 5}).json()
+    assert ints["values"] == [4, 5, 6]
+    assert_error(client.get("/api/sweep", params={"param": "detector"}), 422, "numeric setting", "threshold")
+    assert_error(client.get("/api/sweep", params={"lo": 0.9, "hi": 0.3}), 422, "below")
+    assert_error(client.get("/api/sweep", params={"lo": 0.5, "hi": 1.5}), 422, "threshold", "between")
+    assert client.get("/api/sweep", params={"steps": 1}).status_code == 422
+    for image_id in ids:
+        client.delete(f"/api/images/{image_id}")
+
+
+# ---------------------------------------------------------------- camera
+
+def test_camera_json_file_errors_and_reset(client):
+    assert client.get("/api/camera").json() == {"camera": None}
+    r = client.put("/api/camera", json={"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640, "height": 480})
+    assert r.status_code == 200 and r.json()["camera"]["fx"] == 600 and r.json()["camera"]["source"] == "json"
+    yaml_text = ros_camera_yaml(synthetic_camera((640, 480)), "synthetic").encode()
+    r = client.put("/api/camera", files={"file": ("cam.yaml", yaml_text, "application/x-yaml")})
+    assert r.status_code == 200 and r.json()["camera"]["source"] == "upload:cam.yaml"
+    assert client.get("/api/camera").json() == r.json()
+    r = client.put("/api/camera", files={"file": ("cam.yaml", b"camera_matrix: {rows: 3, cols: 3, data: [1, 2]}",
+                                                   "application/x-yaml")})
+    assert_error(r, 422, "cam.yaml", "3x3")
+    assert "/tmp" not in r.json()["detail"]
+    assert_error(client.put("/api/camera", files={"file": ("c.yaml", b": : :", "application/x-yaml")}), 422, "c.yaml")
+    assert_error(client.put("/api/camera", json={"fx": -5, "fy": 600, "cx": 320, "cy": 240}), 422, "positive")
+    assert_error(client.put("/api/camera", json={"fx": 600}), 422, "fy")
+    assert_error(client.put("/api/camera", content=b"fx=600", headers={"content-type": "text/plain"}), 415, "JSON")
+    assert client.delete("/api/camera").json() == {"camera": None}
+
+
+# ---------------------------------------------------------------- viser
+
+def test_viser_client_is_served_and_its_websocket_relayed(client, base_url):
+    page = client.get("/viser/")
+    assert page.status_code == 200 and "<title>Viser</title>" in page.text
+    assert client.get("/viser", follow_redirects=False).headers["location"] == "/viser/"
+    ws_url = base_url.replace("http://", "ws://")
+    for path in ("/viser", "/viser/"):  # what the client derives from its page URL, and the page URL itself
+        with connect(ws_url + path, subprotocols=[VISER_PROTOCOL], max_size=None, open_timeout=10) as ws:
+            assert ws.subprotocol == VISER_PROTOCOL
+            assert isinstance(ws.recv(timeout=10), bytes)  # viser's first (msgpack) message batch
+    with connect(ws_url + "/viser/", subprotocols=["viser-v0.0.0"], open_timeout=10) as ws:
+        with pytest.raises(ConnectionClosed) as closed:
+            ws.recv(timeout=10)
+    assert closed.value.rcvd.code == 1002 and "Version mismatch" in closed.value.rcvd.reason
+
+
+# ---------------------------------------------------------------- restart and CLI
+
+def test_state_survives_a_restart(tmp_path):
+    photo = sign_photo(LIBRARY, "chief_of_security")
+    with running(create_app(config(tmp_path / "state"))) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        image_id = upload(c, ("chief.jpg", photo, "chief_of_security")).json()["images"][0]["id"]
+        c.put("/api/settings", json={"threshold": 0.65})
+        c.put("/api/camera", json={"fx": 550, "fy": 550, "cx": 320, "cy": 240})
+    with running(create_app(config(tmp_path / "state"))) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        assert c.get("/api/settings").json()["settings"]["threshold"] == 0.65
+        assert c.get("/api/camera").json()["camera"]["fx"] == 550
+        (image,) = wait_done(c)
+        assert (image["id"], image["name"], image["status"]) == (image_id, "chief.jpg", "correct")
+        assert c.get(f"/api/images/{image_id}/file").content == photo
+
+
+def test_serve_command_prints_its_url_stops_on_ctrl_c_and_refuses_a_taken_port(tmp_path):
+    library = tmp_path / "library"  # a copy, so the sample scenes are not loaded and processed
+    shutil.copytree(SAMPLE_LIBRARY, library)
+    serve = [sys.executable, "-m", "app.cli", "serve", "--library", str(library)]
+    proc = subprocess.Popen([*serve, "--port", "0", "--state-dir", str(tmp_path / "state")], cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        assert "open http://127.0.0.1:" in line, line + proc.stderr.read()
+        url = line.split("open ", 1)[1].split()[0].rstrip("/")
+        assert httpx.get(url + "/api/health", timeout=TIMEOUT_S).json()["status"] == "ok"
+        taken = [*serve, "--port", url.rsplit(":", 1)[1], "--state-dir", str(tmp_path / "other")]
+        refused = subprocess.run(taken, cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
+        assert refused.returncode == 2 and "cannot listen" in refused.stderr and "--port" in refused.stderr
+    finally:
+        proc.send_signal(signal.SIGINT)
+        _, stderr = proc.communicate(timeout=TIMEOUT_S)
+    assert proc.returncode == 0 and "Traceback" not in stderr
