@@ -339,7 +339,7 @@ class SceneHandle:
                 event.client.add_notification("Image not added", str(exc), color="red", auto_close_seconds=8.0)
             log.info("upload %s rejected: %s", file.name, exc)
 
-    def _on_view_option(self, _event: viser.GuiEvent) -> None:
+    def _on_view_option(self, _event: viser.GuiEvent | None = None) -> None:
         with self._lock:
             for sign_id, nodes in self.signs.items():
                 nodes.frame.visible = sign_id == self.world.value
@@ -416,7 +416,7 @@ class SceneHandle:
             self.world.options = options
             self.world.value = keep or (counts.most_common(1)[0][0] if counts else NO_WORLD)
         self.world.disabled = not counts
-        self._on_view_option(None)
+        self._on_view_option()
 
     def _add_sign(self, sign: LibrarySign) -> SignNodes:
         root = f"/signs/{sign.id}"
