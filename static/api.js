@@ -1,7 +1,7 @@
 // Thin client for the signpose HTTP API (docs/web-contract.md). Every failure becomes an
 // Error whose message is the server's `detail`, so callers can show it as is.
 
-export class ApiError extends Error {
+class ApiError extends Error {
   constructor(status, message) {
     super(message);
     this.status = status;

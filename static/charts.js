@@ -4,7 +4,7 @@ const PAD = { left: 34, right: 34, top: 10, bottom: 20 };
 const INK = "#57606a";
 const GRID = "#d8dee4";
 const FONT = "10px system-ui, sans-serif";
-export const COLORS = {
+const COLORS = {
   threshold: "#0969da", suggested: "#1a7f37", white: "#57606a", background: "#9a6700", high: "#bc4c00",
   bars: "#8c959f", correct: "#1a7f37", margin: "#8250df", band: "rgba(26,127,55,0.12)",
 };

@@ -9,13 +9,13 @@ import { state, on, select, signName } from "./store.js";
 import { $, el, fill, fmt, report } from "./ui.js";
 
 let detail = null;          // GET /api/images/{id} of the shown image
-let shownKey = "";          // id + version + status: reload only when the result can differ
+let shownKey = "";          // keyOf(shown image): reload only when the result can differ
 let loadToken = 0;          // drops responses that arrive after a newer request
 let calib = null;           // POST /api/calibrate/threshold answer for the shown image
 let sweep = null;           // GET /api/sweep answer plus the settings it ran under
+let sweeping = false;
 const boxes = new Map();    // image id -> calibration box [x0, y0, x1, y1] in image px
-
-let libraryVersion = 0;      // library edits change the match figures without a new settings version
+let libraryVersion = 0;     // library edits change the match figures without a new settings version
 
 const stageUrl = (stage, query = "") =>
   `/api/images/${detail.id}/stages/${stage}?v=${detail.settings_version}.${libraryVersion}${query}`;
@@ -26,7 +26,8 @@ function stageFigure(title, link = true) {
   const note = el("div.stage-note");
   const box = link ? el("a.stage-img", { target: "_blank", title: `${title}: open full size` }, img, note)
     : el("div.stage-img", {}, img, note);
-  const fig = el("figure.stage", {}, box, el("figcaption", {}, title));
+  const caption = el("figcaption", {}, title);
+  const fig = el("figure.stage", {}, box, caption);
   img.onload = () => fig.classList.remove("missing");
   img.onerror = async () => {
     const src = img.src;
@@ -36,8 +37,9 @@ function stageFigure(title, link = true) {
     note.textContent = message;
   };
   return {
-    fig, img,
-    set(url) {
+    fig,
+    set(url, title) {
+      if (title) caption.textContent = title;
       if (link) box.href = url;
       if (img.getAttribute("src") !== url) img.src = url;
     },
@@ -45,10 +47,8 @@ function stageFigure(title, link = true) {
 }
 
 const input = stageFigure("input · detected sign outlined · drag a box on the sign to calibrate", false);
-const stages = ["gray", "mask", "blob", "crop"].map((s) => ({
-  stage: s,
-  figure: stageFigure({ gray: "normalised gray", mask: "binary mask", blob: "largest blob", crop: "crop" }[s]),
-}));
+const stages = Object.entries({ gray: "normalised gray", mask: "binary mask", blob: "largest blob", crop: "crop" })
+  .map(([stage, title]) => ({ stage, figure: stageFigure(title) }));
 
 // ---- rendering
 
@@ -93,9 +93,8 @@ function renderScores() {
     el("tbody", {}, (detail.attempts ?? []).map((a) => el("tr", {},
       el("td", {}, a.source), el("td.mono", {}, a.region ? a.region.join(", ") : "–"),
       el("td", {}, a.winner ? signName(a.winner) : "–"), el("td.num", {}, a.margin ?? "–")))));
-  const timing = Object.entries(r?.timing_ms ?? {}).filter(([k]) => k !== "total");
-  fill($("#timing"), ...timing.map(([k, v]) => el("span", {}, `${k} `, el("b", {}, fmt(v, 1))),
-  ), r?.timing_ms ? el("span", {}, "total ", el("b", {}, `${fmt(r.timing_ms.total, 1)} ms`)) : null);
+  fill($("#timing"), Object.entries(r?.timing_ms ?? {}).map(([stage, ms]) =>
+    el("span", {}, `${stage} `, el("b", {}, `${fmt(ms, 1)}${stage === "total" ? " ms" : ""}`))));
 }
 
 const kv = (key, value, cls = "") => [el("dt", {}, key), el(`dd${cls}`, {}, value)];
@@ -111,7 +110,7 @@ function renderPose() {
     const sd = (pose.covariance ?? []).map((row, i) => Math.sqrt(Math.max(row[i] ?? 0, 0)));
     const signed = (v, d) => (v === null || v === undefined ? "–" : `${v >= 0 ? "+" : ""}${v.toFixed(d)}`);
     fill(box, el("dl.pose", {},
-      kv("camera x y z", el("span.triple", {}, ...[x, y, z].map((v) => el("span", {}, signed(v, 3)))), ""),
+      kv("camera x y z", el("span.triple", {}, ...[x, y, z].map((v) => el("span", {}, signed(v, 3))))),
       kv("distance", `${fmt(Math.hypot(x, y, z), 3)} m`),
       kv("yaw pitch roll", el("span.triple", {}, ...[e.yaw, e.pitch, e.roll].map((v) => el("span", {}, `${signed(v, 1)}°`)))),
       kv("reprojection", `${fmt(pose.reprojection_rmse_px, 2)} px RMSE`),
@@ -134,20 +133,30 @@ function renderPose() {
       kv("source", cam.source ?? "given")) : null);
 }
 
+// One row per library sign, kept across renders so unchanged figures are not fetched again.
+let matchRows = new Map();   // sign id -> {row, reason, raw, inliers}
+
+function buildMatchRows() {
+  matchRows = new Map(state.library.map((sign) => {
+    const parts = { reason: el("span.reason"), raw: stageFigure("ratio-test matches"), inliers: stageFigure("RANSAC inliers") };
+    parts.row = el("div.match-row", {}, el("div.match-head", {}, el("b", {}, sign.name), parts.reason),
+      parts.raw.fig, parts.inliers.fig);
+    return [sign.id, parts];
+  }));
+  fill($("#match-grid"), ...[...matchRows.values()].map((m) => m.row));
+}
+
 function renderMatches() {
   const r = detail.result;
-  fill($("#match-grid"), ...state.library.map((sign) => {
-    const score = r?.scores?.find((s) => s.sign === sign.id);
-    const query = `&sign=${encodeURIComponent(sign.id)}`;
-    const raw = stageFigure(`${score?.matches ?? "–"} ratio-test matches`);
-    const inl = stageFigure(`${score?.inliers ?? "–"} RANSAC inliers`);
-    raw.set(stageUrl("matches", query));
-    inl.set(stageUrl("inliers", query));
-    const won = r?.label === sign.id;
-    return el(`div.match-row${won ? ".winner" : ""}`, {},
-      el("div.match-head", {}, el("b", {}, sign.name), el("span.reason", {}, won ? "winner" : score?.reason ?? "")),
-      raw.fig, inl.fig);
-  }));
+  for (const [id, m] of matchRows) {
+    const score = r?.scores?.find((s) => s.sign === id);
+    const won = r?.label === id;
+    m.row.classList.toggle("winner", won);
+    m.reason.textContent = won ? "winner" : score?.reason ?? "";
+    const query = `&sign=${encodeURIComponent(id)}`;
+    m.raw.set(stageUrl("matches", query), `${score?.matches ?? "–"} ratio-test matches`);
+    m.inliers.set(stageUrl("inliers", query), `${score?.inliers ?? "–"} RANSAC inliers`);
+  }
 }
 
 function render() {
@@ -220,19 +229,19 @@ function renderCalib() {
   drawHistogram($("#histogram"), calib, state.settings);
   const [x0, y0, x1, y1] = calib.rect ?? [];
   const where = boxes.has(detail.id) ? `your box ${x1 - x0}×${y1 - y0} px`
-    : `${calib.source ?? "whole image"} (drag a box on the sign to choose another region)`;
+    : `${calib.source} (drag a box on the sign to measure another region)`;
   const suggestion = calib.suggested_threshold;
   fill(out,
     el("span.calib-where", {}, where),
     el("span", {}, el("i.swatch.white"), "white ", el("b", {}, fmt(calib.white_level))),
-    calib.background_level !== null && calib.background_level !== undefined
+    calib.background_level !== null
       ? el("span", {}, el("i.swatch.background"), "surroundings ", el("b", {}, fmt(calib.background_level))) : null,
     el("span", {}, el("i.swatch.suggested"), "suggested ", el("b.suggested", {}, fmt(suggestion))),
-    suggestion !== null && suggestion !== undefined ? el("button.primary", {
+    el("button.primary", {
       type: "button", id: "apply-threshold", title: "Set the threshold to the suggested value",
       disabled: Math.abs(suggestion - state.settings.threshold) < 1e-9,
       onclick: () => setSetting("threshold", suggestion),
-    }, "apply") : null,
+    }, "apply"),
     calib.warning ? el("span.warn", {}, calib.warning) : null);
 }
 
@@ -263,7 +272,7 @@ function bindDrag() {
     if (!start) return;
     const rect = rectFrom(e);
     start = null;
-    // A click without a drag goes back to the whole-image histogram.
+    // A click without a drag goes back to the region the pipeline found.
     if (rect[2] - rect[0] < 4 || rect[3] - rect[1] < 4) boxes.delete(detail.id);
     else boxes.set(detail.id, rect);
     renderBox();
@@ -295,6 +304,7 @@ async function runSweep() {
   const query = new URLSearchParams({
     param, lo: $("#sweep-lo").value, hi: $("#sweep-hi").value, steps: $("#sweep-steps").value,
   });
+  sweeping = true;
   button.disabled = true;
   button.textContent = "sweeping…";
   try {
@@ -303,6 +313,7 @@ async function runSweep() {
   } catch (err) {
     report(err);
   } finally {
+    sweeping = false;
     button.disabled = false;
     button.textContent = "run sweep";
   }
@@ -312,7 +323,7 @@ function renderSweep() {
   const info = $("#sweep-info");
   const canvas = $("#sweep");
   const labelled = state.images.some((i) => i.expected !== null);
-  $("#run-sweep").disabled = !labelled;
+  $("#run-sweep").disabled = !labelled || sweeping;
   canvas.hidden = !sweep;
   if (!labelled) {
     fill(info, el("span.muted", {}, "Give images an expected label (above, or when uploading) to sweep."));
@@ -327,7 +338,7 @@ function renderSweep() {
       ? el("span", {}, `${sweep.param} works over `, el("b", {}, `${fmt(sweep.band[0])}–${fmt(sweep.band[1])}`),
         ", centre ", el("b.suggested", {}, fmt(sweep.centre)))
       : el("span.warn", {}, `no ${sweep.param} value gets every labelled image right`),
-    sweep.centre !== null && sweep.centre !== undefined ? el("button.primary", {
+    sweep.centre !== null ? el("button.primary", {
       type: "button", title: `Set ${sweep.param} to the centre of the working band`,
       onclick: () => setSetting(sweep.param, sweep.centre),
     }, "apply centre") : null,
@@ -382,8 +393,10 @@ export function initDetail() {
     refreshImages();
   };
   on("select", (id) => (id ? load(id) : close()));
+  buildMatchRows();
   on("library", () => {
     libraryVersion += 1;
+    buildMatchRows();
     if (detail) load(detail.id);
   });
   on("images", () => {
@@ -392,10 +405,7 @@ export function initDetail() {
     else if (img && keyOf(img) !== shownKey) load(img.id);
     renderSweep();
   });
-  let normalization = null;
-  on("settings", (s) => {
-    if (detail && s.normalization !== normalization && normalization !== null) calibrate();
-    normalization = s.normalization;
+  on("settings", () => {   // the threshold markers move
     renderCalib();
     renderSweep();
   });

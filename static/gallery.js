@@ -6,7 +6,7 @@ import { $, el, fill, report, throttle, toast } from "./ui.js";
 
 const PARALLEL_UPLOADS = 3;
 const IMAGE_FILE = /\.(jpe?g|png|bmp|tiff?|webp|pgm|ppm)$/i;
-export const STATUSES = ["correct", "wrong", "recognized", "none", "pending", "error"];
+const STATUSES = ["correct", "wrong", "recognized", "none", "pending", "error"];
 
 const queue = [];
 let active = 0;
@@ -21,7 +21,7 @@ function uploadRow(file) {
   return {
     progress(p) {
       bar.style.width = `${Math.round(p * 100)}%`;
-      status.textContent = p < 1 ? `${Math.round(p * 100)}%` : "processing…";
+      status.textContent = p < 1 ? `${Math.round(p * 100)}%` : "checking…";
     },
     done() {
       row.classList.add("ok");
@@ -57,7 +57,7 @@ function pump() {
   }
 }
 
-export function enqueue(files) {
+function enqueue(files) {
   const expected = $("#expected").value;
   for (const file of files) {
     if (!file.type.startsWith("image/") && !IMAGE_FILE.test(file.name)) {
@@ -172,7 +172,6 @@ export const refreshImages = throttle(async () => {
   try {
     const body = await get("/api/images");
     state.images = body.images;
-    state.running = body.running;
     emit("images", state.images);
   } catch (err) {
     report(err);

@@ -66,7 +66,7 @@ function numericControl(entry, id, change) {
     enabled.addEventListener("change", () => {
       // Re-enabling starts from the top of the range, the least restrictive upper gate.
       if (enabled.checked && num.value === "") num.value = entry.max;
-      write(read() ?? (enabled.checked ? entry.max : null));
+      write(read());
       change();
     });
   }
@@ -150,8 +150,9 @@ export function apply(payload, force = false) {
     if (!(name in settings)) continue;
     const busy = name in pending || inflight.has(name) || dragging === name
       || (document.activeElement?.id === `set-${name}` && c.entry.type !== "bool");
-    if (!busy || force) c.write(settings[name]);
-    if (!busy || force) markChanged(name, settings[name]);
+    if (busy && !force) continue;
+    c.write(settings[name]);
+    markChanged(name, settings[name]);
   }
   for (const group of document.querySelectorAll("#settings-form details")) {
     const n = group.querySelectorAll(".field.changed").length;
@@ -197,15 +198,14 @@ function buildToolbar() {
 }
 
 // Camera intrinsics: the pose is only as good as these, so show where they come from.
-export async function loadCamera() {
+async function loadCamera() {
   try {
-    const body = await get("/api/camera");
-    const cam = body && "camera" in body ? body.camera : body;
+    const { camera: cam } = await get("/api/camera");
     const box = $("#camera-info");
-    box.classList.toggle("warn", !cam || String(cam.source || "").startsWith("assumed"));
-    box.textContent = cam && cam.fx
+    box.classList.toggle("warn", !cam);
+    box.textContent = cam
       ? `fx ${cam.fx.toFixed(1)} fy ${cam.fy.toFixed(1)} cx ${cam.cx.toFixed(1)} cy ${cam.cy.toFixed(1)}`
-        + `${cam.width ? ` @ ${cam.width}×${cam.height}` : ""} — ${cam.source ?? "given"}`
+        + `${cam.width ? ` @ ${cam.width}×${cam.height}` : ""} — ${cam.source}`
       : "No camera file: 60° horizontal FOV assumed per image; poses are approximate.";
   } catch (err) {
     report(err);

@@ -8,13 +8,12 @@ export const state = {
   presets: {},
   library: [],         // [{id, name, text, ...}]
   images: [],          // [ImageSummary] in upload order
-  running: false,
   selected: null,      // id of the image in the detail view
 };
 
 const bus = new EventTarget();
 
-/** Events: settings, library, images, select, progress ({running, done, total}). */
+/** Events: settings, library, images, select, camera. */
 export function emit(name, detail) {
   bus.dispatchEvent(new CustomEvent(name, { detail }));
 }

@@ -40,15 +40,13 @@ export function report(err) {
   toast(err?.message || String(err), "error");
 }
 
-/** Call `fn` once `ms` after the last call; `flush()` runs a pending call at once. */
+/** Call `fn` once `ms` after the last call. */
 export function debounce(fn, ms) {
   let timer = null;
-  const debounced = (...args) => {
+  return (...args) => {
     clearTimeout(timer);
-    timer = setTimeout(() => { timer = null; fn(...args); }, ms);
+    timer = setTimeout(() => fn(...args), ms);
   };
-  debounced.pending = () => timer !== null;
-  return debounced;
 }
 
 /** Run `fn` at most once per `ms`, always including a trailing call so the last state is shown. */

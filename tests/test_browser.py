@@ -3,6 +3,7 @@ in Debian's Chromium. Skipped only when /usr/bin/chromium is missing."""
 
 from __future__ import annotations
 
+import base64
 import json
 import re
 import time
@@ -106,6 +107,23 @@ def test_upload_recognise_and_inspect(page, api, tmp_path):
     assert page.locator("#intrinsics dl").count() == 1
     page.screenshot(path=str(tmp_path / "signpose.png"))
     print(f"screenshot: {tmp_path / 'signpose.png'}")
+
+
+def test_drop_many_files_with_progress(page, api):
+    before = page.locator(".card").count()
+    names = [f"drop-{i}-{SCENE}" for i in range(2)]
+    data = base64.b64encode((harness.SCENES / SCENE).read_bytes()).decode()
+    page.evaluate("""([names, data]) => {
+        const bytes = Uint8Array.from(atob(data), (c) => c.charCodeAt(0));
+        const transfer = new DataTransfer();
+        for (const name of names) transfer.items.add(new File([bytes], name, { type: "image/jpeg" }));
+        document.body.dispatchEvent(new DragEvent("drop", { dataTransfer: transfer, bubbles: true }));
+    }""", [names, data])
+    assert page.locator(".upload .progress").count() >= 2   # one progress bar per file
+    page.wait_for_function("n => document.querySelectorAll('.card:not([data-status=pending])').length >= n",
+                           arg=before + 2, timeout=120_000)
+    # Sent in parallel, so they may arrive in any order.
+    assert sorted(page.locator(".card .card-name").all_inner_texts()[before:]) == names
 
 
 def test_threshold_control_changes_the_result(page, api):
