@@ -29,18 +29,22 @@ def decode_image(data: bytes, name: str = "image") -> np.ndarray:
     return image
 
 
-def read_image(path: str | Path) -> np.ndarray:
-    """Read an image file from disk as (H, W, 3) uint8 BGR."""
+def read_file(path: str | Path) -> bytes:
+    """The bytes of an image file, with `ImageError` for what a user can fix (missing, a folder, no access)."""
     path = Path(path)
     try:
-        data = path.read_bytes()
+        return path.read_bytes()
     except FileNotFoundError:
         raise ImageError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise ImageError(f"{path}: is a directory") from None
     except PermissionError:
         raise ImageError(f"{path}: permission denied") from None
-    return decode_image(data, str(path))
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read an image file from disk as (H, W, 3) uint8 BGR."""
+    return decode_image(read_file(path), str(path))
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:

@@ -93,3 +93,17 @@ def test_readable_table(tmp_path):
     result = signpose("recognize", *sorted(SCENES.glob("*.jpg"))[:3], "--camera", SCENES / "camera.yaml")
     assert result.returncode == 0
     assert result.stdout.splitlines()[0].split()[:4] == ["image", "label", "inliers", "margin"]
+
+
+def test_exif_focal_length_is_used_without_a_camera_file(tmp_path):
+    from PIL import Image
+
+    src = SCENES / json.loads((SCENES / "truth.json").read_text())["camera"]
+    assert src.exists()
+    scene = next(n for n, t in json.loads((SCENES / "truth.json").read_text())["images"].items() if t["label"])
+    exif = Image.Exif()
+    exif[0x8769] = {0x920A: 4.0, 0xA405: 28}  # Exif IFD: FocalLength 4 mm, 35 mm equivalent 28 mm
+    path = tmp_path / "with_exif.jpg"
+    Image.open(SCENES / scene).save(path, exif=exif, quality=95)
+    obj = json.loads(signpose("recognize", path, "--json").stdout)
+    assert any("EXIF" in w for w in obj["warnings"]) and not any("assumed" in w for w in obj["warnings"])
