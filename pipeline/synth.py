@@ -199,7 +199,7 @@ def _noise(rng: np.random.Generator, beta: float, stretch: float = 1.0) -> np.nd
     """(TEX_SIZE, TEX_SIZE) periodic 1/f^beta noise, zero mean, unit std.
 
     Filtering white noise in the Fourier domain makes it tile seamlessly; `stretch` > 1 damps
-    vertical frequencies, elongating it along rows' perpendicular (wood grain running down).
+    vertical frequencies, so features run long down the texture (wood grain along v).
     """
     n = TEX_SIZE
     out = np.fft.irfft2(np.fft.rfft2(rng.standard_normal((n, n))) * _noise_filter(beta, stretch), s=(n, n))
@@ -215,22 +215,23 @@ def _noise_filter(beta: float, stretch: float) -> np.ndarray:
     return f**-beta
 
 
-def _cells(rng: np.random.Generator, period_m: float, spread: float, rows: bool = True,
-           cols: bool = True) -> np.ndarray:
-    """(TEX_SIZE, TEX_SIZE) multiplier constant per tile/plank, 1 ± spread; period divides 4 m."""
+def _cells(rng: np.random.Generator, period_m: float, spread: float, planks: bool = False) -> np.ndarray:
+    """(TEX_SIZE, TEX_SIZE) multiplier 1 ± spread, constant per square tile (or per vertical plank).
+
+    `period_m` must divide the 4 m tile so cells repeat seamlessly.
+    """
     count = round(TEX_SIZE / TEX_PX_PER_M / period_m)
-    values = 1 + spread * rng.standard_normal((count if rows else 1, count if cols else 1))
     idx = np.arange(TEX_SIZE) * count // TEX_SIZE
-    return values[np.ix_(idx if rows else idx * 0, idx if cols else idx * 0)].astype(np.float32)
+    values = 1 + spread * rng.standard_normal((1 if planks else count, count))
+    return values[np.ix_(idx * (not planks), idx)].astype(np.float32)
 
 
-def _grid_lines(period_m: float, width_m: float, rows: bool = True, cols: bool = True) -> np.ndarray:
-    """(TEX_SIZE, TEX_SIZE) coverage in [0, 1] of joints every `period_m` (grout, seams)."""
+def _grid_lines(period_m: float, width_m: float, planks: bool = False) -> np.ndarray:
+    """(TEX_SIZE, TEX_SIZE) coverage in [0, 1] of joints every `period_m`: a grout grid, or plank seams."""
     x = np.arange(TEX_SIZE) / TEX_PX_PER_M
     d = np.abs((x + period_m / 2) % period_m - period_m / 2)
     line = np.clip(width_m / 2 - d + 0.5 / TEX_PX_PER_M, 0, 1 / TEX_PX_PER_M) * TEX_PX_PER_M
-    z = np.zeros_like(line)
-    return np.maximum.outer(line if rows else z, line if cols else z).astype(np.float32)
+    return np.maximum.outer(line * (not planks), line).astype(np.float32)
 
 
 def _shade(base: np.ndarray, variation: np.ndarray) -> np.ndarray:
@@ -245,8 +246,8 @@ def _wood(rng: np.random.Generator, plank_m: float, value: tuple[float, float]) 
     """Planks running along v, `plank_m` wide, with grain and dark seams."""
     base = _linear(_srgb(rng, value, (0.35, 0.65), (0.05, 0.1)))
     grain = 1 + 0.12 * _noise(rng, 1.6, stretch=14) + 0.05 * _noise(rng, 0.8, stretch=4)
-    planks = _cells(rng, plank_m, 0.12, rows=False)
-    seams = _grid_lines(plank_m, 0.003, rows=False)
+    planks = _cells(rng, plank_m, 0.12, planks=True)
+    seams = _grid_lines(plank_m, 0.003, planks=True)
     return _mix(_shade(base, grain * planks), base * 0.35, seams)
 
 

@@ -1,0 +1,103 @@
+"""Accuracy benchmark on synthetic scenes: the `paper` and `default` presets side by side.
+
+Renders N scenes (default 300) from a fixed seed - easy, hard and negatives in
+`pipeline.synth.DEFAULT_WEIGHTS` proportions - runs both presets on them and prints accuracy by
+category and hard look, false positives on negatives, rotation / translation / corner errors and
+time per image. The README's figures come from:
+
+    python bench/accuracy.py [--n 300] [--seed 0] [--data DIR]
+
+`--data DIR` keeps the rendered scenes (and re-uses them when DIR already holds a truth.json).
+Not a timed test: rendering takes about a second a scene.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+from tqdm import tqdm
+
+from pipeline.evaluate import ImageResult, Report, evaluate, load_dataset, summarize
+from pipeline.library import load_library
+from pipeline.settings import preset
+from pipeline.synth import HARD_MODES, generate_dataset
+
+PRESETS = ("paper", "default")
+
+
+def _fraction(results: list[ImageResult], hit: Callable[[ImageResult], bool]) -> str:
+    if not results:
+        return "-"
+    n = sum(hit(r) for r in results)
+    return f"{100 * n / len(results):5.1f}% ({n}/{len(results)})"
+
+
+def _pair(value: tuple[float, float] | None, digits: int = 2) -> str:
+    return "-" if value is None else f"{value[0]:.{digits}f} / {value[1]:.{digits}f}"
+
+
+def rows(report: Report, both_right: set[str]) -> list[tuple[str, str]]:
+    """(row name, value) for one preset; `both_right`: images every preset identified correctly."""
+    results = report.results
+
+    def of(category: str, look: str | None = None) -> list[ImageResult]:
+        return [r for r in results if r.sample.category == category
+                and (look is None or r.sample.params.get("look") == look)]
+
+    positives = [r for r in results if r.sample.label is not None]
+    negatives = of("negative")
+    summary = summarize(positives)
+    common = summarize([r for r in positives if r.sample.path.name in both_right])
+    out = [("easy: identified", _fraction(of("easy"), lambda r: r.correct)),
+           ("hard: identified", _fraction(of("hard"), lambda r: r.correct))]
+    out += [(f"  hard, {look}", _fraction(of("hard", look), lambda r: r.correct)) for look in HARD_MODES]
+    out += [
+        ("negatives: false positives", _fraction(negatives, lambda r: r.false_positive)),
+        ("positives: wrong sign", _fraction(positives, lambda r: r.predicted not in (None, r.sample.label))),
+        ("rotation error med / p90 (deg)", _pair(summary.rotation_deg)),
+        ("translation error med / p90 (% dist)", _pair(summary.translation_pct)),
+        ("corner error med / p90 (px)", _pair(summary.corner_px)),
+        ("  same, images both got right: rot (deg)", _pair(common.rotation_deg)),
+        ("  same, images both got right: corner (px)", _pair(common.corner_px)),
+        ("time per image med / p90 (ms)", _pair((report.total.median_time_ms, report.total.p90_time_ms), 0)),
+    ]
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--n", type=int, default=300, help="scenes to render (default 300)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--data", type=Path, help="folder for the scenes (default: a temporary folder)")
+    args = parser.parse_args()
+
+    library = load_library()
+    with tempfile.TemporaryDirectory() as tmp:
+        data = args.data or Path(tmp)
+        if not (data / "truth.json").is_file():
+            with tqdm(total=args.n, desc="render", unit="scene") as bar:
+                generate_dataset(data, library, n=args.n, seed=args.seed, progress=lambda i, n: bar.update(1))
+        dataset = load_dataset(data)
+        reports = {}
+        for name in PRESETS:
+            with tqdm(total=len(dataset), desc=name, unit="img") as bar:
+                reports[name] = evaluate([dataset], library, preset(name), progress=lambda i, n: bar.update(1))
+
+    both_right = set.intersection(*({r.sample.path.name for r in rep.results if r.correct and r.sample.label}
+                                    for rep in reports.values()))
+    table = {name: dict(rows(rep, both_right)) for name, rep in reports.items()}
+    names = list(next(iter(table.values())))
+    width = max(map(len, names)) + 2
+    counts = {c: sum(s.category == c for s in dataset.samples) for c in ("easy", "hard", "negative")}
+    print(f"\n{len(dataset)} synthetic scenes, seed {args.seed}: "
+          + ", ".join(f"{n} {c}" for c, n in counts.items()) + f"; {dataset.camera.width}x{dataset.camera.height}")
+    print(f"{'':<{width}}" + "".join(f"{name:>24}" for name in PRESETS))
+    for row in names:
+        print(f"{row:<{width}}" + "".join(f"{table[name][row]:>24}" for name in PRESETS))
+
+
+if __name__ == "__main__":
+    main()
