@@ -221,7 +221,21 @@ def test_threshold_calibration_and_sweep(page, api):
     assert "labelled" in page.inner_text("#sweep-info")
 
 
-def test_viser_scene_connects(page):
+def test_viser_scene_connects_and_shares_the_settings(page, api):
     scene = page.frame_locator("#scene")
     scene.locator("canvas").first.wait_for(timeout=30_000)
     scene.get_by_text("Connected", exact=True).wait_for(timeout=30_000)
+
+    # The same threshold in viser's Segmentation folder and in the page's form, both ways.
+    scene.get_by_text("Segmentation", exact=True).click()
+    slider_id = scene.locator("label").get_by_text("threshold", exact=True).get_attribute("for")
+    thumb = scene.locator(f'[id="{slider_id}"] [role="slider"]')
+    assert thumb.get_attribute("aria-valuenow") == "0.6"
+    thumb.focus()
+    thumb.press("ArrowRight")
+    page.wait_for_function("() => document.querySelector('#set-threshold').value === '0.61'")
+    harness.wait_setting(page, api, {"threshold": 0.61})
+
+    harness.set_setting(page, "threshold", 0.55)
+    harness.wait_setting(page, api, {"threshold": 0.55})
+    page.wait_for_function("el => el.getAttribute('aria-valuenow') === '0.55'", arg=thumb.element_handle())
