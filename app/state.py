@@ -142,11 +142,11 @@ class StateDir:
         origin = meta.get("copied_from") if isinstance(meta, dict) else None
         return Path(origin) if isinstance(origin, str) else None
 
-    def open_library(self, source: Path | None, default: Path) -> tuple[Library, bool]:
+    def open_library(self, source: Path | None, default: Path) -> Library:
         """The state's library, first copied from `source` (or `default` on a fresh state).
 
         A `source` other than the one the state was copied from replaces the state's library
-        (edits made to the old one are dropped). Returns (library, whether it was copied now).
+        (edits made to the old one are dropped).
         """
         meta = self.library_dir / "library.json"
         wanted = Path(source).resolve() if source is not None else None
@@ -162,7 +162,7 @@ class StateDir:
                 raise StateError(str(exc)) from None
             self._copy_library(library, copy_from)
         try:
-            return load_library(self.library_dir), copy_from is not None
+            return load_library(self.library_dir)
         except LibraryError as exc:
             raise StateError(f"{exc}; delete {self.library_dir} to start again from --library") from None
 

@@ -223,7 +223,8 @@ class Workspace:
     def __init__(self, config: WorkspaceConfig = WorkspaceConfig()) -> None:
         self.config = config
         self.state = StateDir(config.state_dir)
-        self._lock = threading.RLock()  # guards _snap, _records and the state directory
+        self._lock = threading.RLock()  # guards _snap, _records and the images and library on disk
+        self._disk_lock = threading.Lock()  # orders writes of settings.json and camera.json
         self._idle = threading.Condition(self._lock)
         self._records: dict[str, ImageRecord] = {}
         self._subscribers: list[Callable[[Event], None]] = []
@@ -234,7 +235,7 @@ class Workspace:
         self._in_flight = 0
         self._closed = False
 
-        library, _ = self.state.open_library(config.library_dir, SAMPLE_LIBRARY)
+        library = self.state.open_library(config.library_dir, SAMPLE_LIBRARY)
         settings = self.state.load_settings() or PRESETS["default"]
         if config.settings_file is not None:
             settings = load_settings(config.settings_file)
@@ -329,28 +330,37 @@ class Workspace:
         expected label, Conflict when the images would exceed `max_images`.
         """
         with self._lock:
-            free = self.config.max_images - len(self._records)
-        if len(uploads) > free:
-            raise Conflict(f"the workspace holds {self.config.max_images - free} images and its limit is "
-                           f"{self.config.max_images}; delete some before adding {len(uploads)} more")
+            self._check_capacity(len(uploads))  # before decoding anything
         checked = [(display_name(name), data, self.check_expected(expected)) for name, data, expected in uploads]
-        decoded = list(self._pool.map(lambda u: decode_upload(u[1], u[0], self.config.max_pixels), checked))
+        # Decoded here, in the caller's thread: the pipeline pool may be busy with a long re-run.
+        decoded = [decode_upload(data, name, self.config.max_pixels) for name, data, _ in checked]
         records = []
-        with self._lock:
-            if len(self._records) + len(checked) > self.config.max_images:
-                raise Conflict(f"the workspace reached its limit of {self.config.max_images} images; "
-                               "delete some first")
+        try:
+            # Files first, outside the lock (each write is fsync'd); until the index names them a
+            # crash leaves only orphans, which the next start sweeps.
             for (name, data, expected), (image, media_type) in zip(checked, decoded):
                 image_id = secrets.token_hex(6)
-                file = image_id + _extension(media_type)
-                self.state.write_image(file, data)
-                records.append(ImageRecord(image_id, name, expected, image, file, media_type))
-            self._records.update((r.id, r) for r in records)
-            self.state.save_images([r.stored() for r in self._records.values()])
+                records.append(ImageRecord(image_id, name, expected, image, image_id + _extension(media_type),
+                                           media_type))
+                self.state.write_image(records[-1].file, data)
+            with self._lock:
+                self._check_capacity(len(records))  # again: another upload may have landed meanwhile
+                self.state.save_images([r.stored() for r in [*self._records.values(), *records]])
+                self._records.update((r.id, r) for r in records)
+                for record in records:
+                    self._submit(record)
+        except BaseException:
             for record in records:
-                self._submit(record)
+                self.state.remove_image(record.file)
+            raise
         self._emit("images", {"ids": [r.id for r in self.images()]})
         return records
+
+    def _check_capacity(self, adding: int) -> None:
+        held = len(self._records)
+        if held + adding > self.config.max_images:
+            raise Conflict(f"the workspace holds {held} images and its limit is {self.config.max_images}; "
+                           f"delete some before adding {adding} more")
 
     def set_expected(self, image_id: str, expected: str | None) -> ImageRecord:
         with self._lock:
@@ -388,16 +398,23 @@ class Workspace:
 
     def update_settings(self, changes: dict) -> Settings:
         """Apply a full or partial settings dict; SettingsError (message for the user) when invalid."""
-        with self._lock:
-            return self.replace_settings(Settings.from_dict(changes, base=self.settings))
+        return self._set_settings(lambda current: Settings.from_dict(changes, base=current))
 
     def replace_settings(self, settings: Settings) -> Settings:
-        """Make `settings` current (a no-op when nothing changes) and schedule a re-run."""
+        """Make `settings` current and schedule a re-run."""
+        return self._set_settings(lambda _: settings)
+
+    def _set_settings(self, make: Callable[[Settings], Settings]) -> Settings:
+        # Merge and swap under the lock, so concurrent partial changes all land. Write to disk after
+        # releasing it (an fsync takes ~10 ms; readers should not wait), always the newest settings
+        # so the last write wins; notify last, so no subscriber runs while the workspace is locked.
         with self._lock:
+            settings = make(self.settings)
             if settings == self.settings:
                 return settings
-            self.state.save_settings(settings)
             snap = self._change(settings=settings)
+        with self._disk_lock:
+            self.state.save_settings(self.settings)
         self._emit("settings", {"version": snap.settings_version, "settings": settings.to_dict()})
         self._request_rerun()
         return settings
@@ -405,8 +422,9 @@ class Workspace:
     def set_camera(self, camera: Camera | None) -> None:
         """Use `camera` for every image (None: a 60° hfov camera assumed per image)."""
         with self._lock:
-            self.state.save_camera(camera)
             self._change(camera=camera)
+        with self._disk_lock:  # as in _set_settings
+            self.state.save_camera(self.camera)
         self._emit("camera", {"camera": camera.to_json() if camera is not None else None})
         self._request_rerun()
 
@@ -482,9 +500,8 @@ class Workspace:
 
     @property
     def busy(self) -> bool:
-        """Whether any image is being processed or a re-run is due."""
-        with self._lock:
-            return self._dirty or self._batch_running or self._in_flight > 0
+        """Whether any image is being processed or a re-run is due (advisory: read without the lock)."""
+        return self._dirty or self._batch_running or self._in_flight > 0
 
     def progress(self) -> dict:
         """The "results" event payload: {version, running, done, total} for the current state."""
@@ -573,10 +590,13 @@ class Workspace:
     # ---- one-off runs
 
     def recognize_upload(self, data: bytes, name: str) -> Recognition:
-        """Recognise an uploaded image with the current state without keeping it (ImageError when unusable)."""
+        """Recognise an uploaded image with the current state without keeping it (ImageError when unusable).
+
+        Runs in the caller's thread (a request worker), not behind a re-run in the pipeline pool.
+        """
         image, _ = decode_upload(data, name, self.config.max_pixels)
         snap = self._snap
-        return self._pool.submit(recognize, image, snap.library, snap.settings, snap.camera).result()
+        return recognize(image, snap.library, snap.settings, snap.camera)
 
     def run_with(self, record: ImageRecord, settings: Settings) -> Recognition:
         """Recognise one stored image under `settings`, re-using (and feeding) its stage cache."""

@@ -134,6 +134,23 @@ def test_unchanged_settings_do_not_bump_the_version(make_workspace, counting):
     assert ws.wait_idle(IDLE_TIMEOUT_S) and counting["recognize"] == runs
 
 
+def test_concurrent_partial_changes_all_land(make_workspace):
+    ws = make_workspace()
+
+    def change(key, values):
+        for value in values:
+            ws.update_settings({key: value})
+
+    threads = [threading.Thread(target=change, args=("ratio", [0.7, 0.71, 0.72] * 10)),
+               threading.Thread(target=change, args=("min_margin", [6, 7, 8] * 10))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert (ws.settings.ratio, ws.settings.min_margin) == (0.72, 8)
+    assert ws.state.load_settings() == ws.settings
+
+
 def test_invalid_settings_are_refused_with_the_settings_message(make_workspace):
     ws = make_workspace()
     for bad, words in (({"threshold": float("nan")}, "finite"), ({"threshold": 1.5}, "between"),
