@@ -116,6 +116,7 @@ def test_health_docs_and_every_contract_path_in_openapi(client):
     assert client.get("/api/health").json() | {"version": "x", "images": 0} == \
         {"status": "ok", "version": "x", "images": 0, "busy": False}
     assert client.get("/docs").status_code == 200
+    assert client.get("/").headers["content-type"].startswith("text/html")  # the page, from static/
     paths = client.get("/openapi.json").json()["paths"]
     for path in ("/api/health", "/api/settings", "/api/settings/schema", "/api/presets",
                  "/api/settings/preset/{name}", "/api/settings/export", "/api/settings/import", "/api/library",
@@ -243,7 +244,9 @@ def test_upload_list_detail_label_and_delete(client):
     r = client.patch(f"/api/images/{ids[2]}", json={"expected": "ministry_of_torture"})
     assert r.status_code == 200 and r.json()["status"] == "wrong"
     assert_error(client.patch(f"/api/images/{ids[2]}", json={"expected": "ministry"}), 422, "not a sign", "none")
-    for image_id in ids:
+    sneaky = upload(client, ("../../../etc/cron.d/x.jpg", tiny_photo(), None)).json()["images"][0]
+    assert sneaky["name"] == "x.jpg"  # a label only: stored under a server-chosen name
+    for image_id in [*ids, sneaky["id"]]:
         assert client.delete(f"/api/images/{image_id}").status_code == 204
     assert_error(client.get(f"/api/images/{ids[0]}"), 404, ids[0])
     assert_error(client.delete(f"/api/images/{ids[0]}"), 404)
@@ -372,6 +375,12 @@ def test_sweep_finds_the_working_band(client):
     assert client.get("/api/sweep", params={"steps": 1}).status_code == 422
     for image_id in ids:
         client.delete(f"/api/images/{image_id}")
+
+
+def test_sweep_needs_labelled_images(tmp_path):
+    with running(create_app(config(tmp_path / "state"))) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        upload(c, ("unlabelled.jpg", tiny_photo(), None))
+        assert_error(c.get("/api/sweep"), 409, "no labelled images", "expected label")
 
 
 # ---------------------------------------------------------------- camera
