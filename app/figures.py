@@ -108,7 +108,7 @@ def draw_mask(image: np.ndarray, recognition: Recognition) -> np.ndarray:
 def draw_blob(image: np.ndarray, recognition: Recognition) -> np.ndarray:
     """The photo dimmed, candidate blobs tinted: the chosen one green, the others orange, with their crops."""
     seg = segmentation_of(image, recognition)
-    img = (image * DIM).astype(np.uint8)
+    img = cv2.convertScaleAbs(image, alpha=DIM)  # uint8 throughout: no float copy of a large photo
     chosen = chosen_blob(recognition)
     for i, (blob, crop) in enumerate(zip(seg.blobs, seg.crops)):
         color = GREEN if i == chosen else ORANGE
