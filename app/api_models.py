@@ -111,7 +111,8 @@ class CameraIntrinsics(CameraModel):
 
 
 class CameraOut(BaseModel):
-    camera: CameraIntrinsics | None = Field(description="null: a 60° horizontal field of view is assumed per image")
+    camera: CameraIntrinsics | None = Field(
+        description="null: per image, its EXIF focal length if it has one, else a 60° horizontal field of view")
 
 
 class AttemptOut(BaseModel):
@@ -152,6 +153,7 @@ class SweepOut(BaseModel):
     values: list[float]
     correct: list[int] = Field(description="labelled images recognised correctly, per value")
     min_margin: list[int | None] = Field(description="smallest inlier margin among correct recognitions, per value")
-    band: tuple[float, float] | None = Field(description="the longest run of values where every labelled image is right")
+    band: tuple[float, float] | None = Field(
+        description="the longest run of values where every labelled image is right")
     centre: float | None
     labelled: int

@@ -505,7 +505,7 @@ async def put_camera(request: Request, workspace: WorkspaceDep) -> CameraOut:
 
 @api.delete("/camera", response_model=CameraOut, tags=["camera"])
 def delete_camera(workspace: WorkspaceDep) -> CameraOut:
-    """Forget the camera: a 60° horizontal field of view is assumed per image."""
+    """Forget the camera: per image, its EXIF focal length if it has one, else a 60° hfov."""
     workspace.set_camera(None)
     return CameraOut(camera=None)
 

@@ -32,6 +32,7 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from pipeline.camera import Camera, load_camera
+from pipeline.exif import camera_from_exif
 from pipeline.features import library_features
 from pipeline.image import ImageError, decode_image
 from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, make_sign, validate_sign_entry
@@ -107,7 +108,8 @@ class Outcome:
 
 @dataclass(eq=False)
 class ImageRecord:
-    """One loaded image. `image` is (H, W, 3) uint8 BGR; `file` its stored name in the state directory."""
+    """One loaded image. `image` is (H, W, 3) uint8 BGR; `file` its stored name in the state directory;
+    `exif_camera` the intrinsics its EXIF implies, used while the workspace has no camera."""
 
     id: str
     name: str
@@ -115,6 +117,7 @@ class ImageRecord:
     image: np.ndarray = field(repr=False)
     file: str
     media_type: str
+    exif_camera: Camera | None = None
     cache: StageCache = field(default_factory=StageCache, repr=False)
     outcome: Outcome = field(default_factory=Outcome)
     # Held while the pipeline uses `cache`: StageCache is not thread-safe and a sweep may run
@@ -196,10 +199,14 @@ def check_image_header(data: bytes, name: str, max_pixels: int) -> str:
     return media_type
 
 
-def decode_upload(data: bytes, name: str, max_pixels: int) -> tuple[np.ndarray, str]:
-    """Check and decode an uploaded image: ((H, W, 3) uint8 BGR, media type). Raises ImageError."""
+def decode_upload(data: bytes, name: str, max_pixels: int) -> tuple[np.ndarray, str, Camera | None]:
+    """Check and decode an uploaded image: ((H, W, 3) uint8 BGR, media type, camera from its EXIF or None).
+
+    Raises ImageError.
+    """
     media_type = check_image_header(data, name, max_pixels)
-    return decode_image(data, name), media_type
+    image = decode_image(data, name)
+    return image, media_type, camera_from_exif(data, image.shape[1], image.shape[0])
 
 
 def sample_scenes(folder: Path = SAMPLE_SCENES) -> list[tuple[Path, str | None]]:
@@ -248,10 +255,11 @@ class Workspace:
 
         stored = self.state.load_images()
         self.state.sweep(stored or [], library)
-        for entry, image in zip(stored or [], self._pool.map(self._decode_stored, stored or [])):
-            if image is not None:
+        for entry, decoded in zip(stored or [], self._pool.map(self._decode_stored, stored or [])):
+            if decoded is not None:
+                image, exif_camera = decoded
                 self._records[entry.id] = ImageRecord(entry.id, entry.name, entry.expected, image, entry.file,
-                                                      entry.media_type)
+                                                      entry.media_type, exif_camera)
         if len(self._records) != len(stored or []):
             self.state.save_images([r.stored() for r in self._records.values()])
 
@@ -262,9 +270,11 @@ class Workspace:
         elif self._records:
             self._request_rerun()
 
-    def _decode_stored(self, entry: StoredImage) -> np.ndarray | None:
+    def _decode_stored(self, entry: StoredImage) -> tuple[np.ndarray, Camera | None] | None:
         try:
-            return decode_image(self.state.read_image(entry.file), entry.name)
+            data = self.state.read_image(entry.file)
+            image = decode_image(data, entry.name)
+            return image, camera_from_exif(data, image.shape[1], image.shape[0])
         except (OSError, ImageError) as exc:  # a file damaged on disk: drop it rather than refuse to start
             log.warning("dropping stored image %s (%s): %s", entry.name, entry.file, exc)
             return None
@@ -338,10 +348,10 @@ class Workspace:
         try:
             # Files first, outside the lock (each write is fsync'd); until the index names them a
             # crash leaves only orphans, which the next start sweeps.
-            for (name, data, expected), (image, media_type) in zip(checked, decoded):
+            for (name, data, expected), (image, media_type, exif_camera) in zip(checked, decoded):
                 image_id = secrets.token_hex(6)
                 records.append(ImageRecord(image_id, name, expected, image, image_id + _extension(media_type),
-                                           media_type))
+                                           media_type, exif_camera))
                 self.state.write_image(records[-1].file, data)
             with self._lock:
                 self._check_capacity(len(records))  # again: another upload may have landed meanwhile
@@ -420,7 +430,7 @@ class Workspace:
         return settings
 
     def set_camera(self, camera: Camera | None) -> None:
-        """Use `camera` for every image (None: a 60° hfov camera assumed per image)."""
+        """Use `camera` for every image (None: each image's EXIF focal length, else a 60° hfov assumed)."""
         with self._lock:
             self._change(camera=camera)
         with self._disk_lock:  # as in _set_settings
@@ -445,7 +455,7 @@ class Workspace:
         entry = validate_sign_entry({"id": sign_id, "name": name or sign_id, "text": text,
                                      "image": f"{sign_id}-{secrets.token_hex(4)}.png", "width_m": width_m,
                                      "height_m": height_m}, "new sign")
-        image, _ = decode_upload(data, f"sign {sign_id}", self.config.max_pixels)
+        image, _, _ = decode_upload(data, f"sign {sign_id}", self.config.max_pixels)
         sign = make_sign(entry, cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), f"sign {sign_id}")
         with self._lock:
             if sign_id in self.library.ids:
@@ -538,8 +548,9 @@ class Workspace:
             if record.outcome.generation >= snap.generation:
                 return
             try:
-                outcome = Outcome(recognize(record.image, snap.library, snap.settings, snap.camera, record.cache),
-                                  snap.settings_version, snap.generation)
+                rec = recognize(record.image, snap.library, snap.settings, snap.camera or record.exif_camera,
+                                record.cache)
+                outcome = Outcome(rec, snap.settings_version, snap.generation)
             except Exception as exc:  # a pipeline failure on one image must not stop the others
                 log.exception("pipeline failed on %s", record.name)
                 outcome = Outcome(None, snap.settings_version, snap.generation, f"pipeline failed: {exc}")
@@ -594,15 +605,15 @@ class Workspace:
 
         Runs in the caller's thread (a request worker), not behind a re-run in the pipeline pool.
         """
-        image, _ = decode_upload(data, name, self.config.max_pixels)
+        image, _, exif_camera = decode_upload(data, name, self.config.max_pixels)
         snap = self._snap
-        return recognize(image, snap.library, snap.settings, snap.camera)
+        return recognize(image, snap.library, snap.settings, snap.camera or exif_camera)
 
     def run_with(self, record: ImageRecord, settings: Settings) -> Recognition:
         """Recognise one stored image under `settings`, re-using (and feeding) its stage cache."""
         snap = self._snap
         with record.lock:
-            return recognize(record.image, snap.library, settings, snap.camera, record.cache)
+            return recognize(record.image, snap.library, settings, snap.camera or record.exif_camera, record.cache)
 
     def sweep(self, param: str, values: list[float], records: list[ImageRecord]) -> list[list[Recognition]]:
         """Re-run `records` with `param` set to each value: results [value index][record index].

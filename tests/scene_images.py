@@ -5,11 +5,13 @@ pipeline.synth renders realistic rooms but takes seconds per scene; these take m
 
 from __future__ import annotations
 
+import io
 import struct
 import zlib
 
 import cv2
 import numpy as np
+from PIL import Image
 
 from pipeline.library import Library
 
@@ -39,6 +41,15 @@ def sign_photo(library: Library, sign_id: str, seed: int = 0) -> bytes:
 def empty_photo(seed: int = 0) -> bytes:
     """JPEG of a wall without a sign."""
     return cv2.imencode(".jpg", wall(seed))[1].tobytes()
+
+
+def with_focal_exif(jpeg: bytes, focal_35mm_mm: float) -> bytes:
+    """`jpeg` re-saved with an EXIF 35 mm-equivalent focal length, as phone cameras write it."""
+    exif = Image.Exif()
+    exif[0x8769] = {0xA405: focal_35mm_mm}  # Exif IFD: FocalLengthIn35mmFilm
+    out = io.BytesIO()
+    Image.open(io.BytesIO(jpeg)).save(out, "JPEG", exif=exif, quality=95)
+    return out.getvalue()
 
 
 def tiny_photo() -> bytes:

@@ -19,7 +19,7 @@ from pipeline.camera import Camera
 from pipeline.image import ImageError
 from pipeline.library import SAMPLE_LIBRARY, LibraryError, load_library
 from pipeline.settings import SettingsError
-from scene_images import empty_photo, png_bomb, sign_photo
+from scene_images import empty_photo, png_bomb, sign_photo, with_focal_exif
 
 LIBRARY = load_library(SAMPLE_LIBRARY)
 IDLE_TIMEOUT_S = 30
@@ -78,6 +78,16 @@ def test_images_are_processed_and_tagged(make_workspace):
         assert record.settings_version == ws.settings_version == 1
     assert records[0].recognition.label == "security_compound"
     assert ws.progress() == {"version": 1, "running": False, "done": 3, "total": 3}
+
+
+def test_photos_use_their_exif_focal_length_until_a_camera_is_set(make_workspace):
+    ws = make_workspace()
+    record = ws.add_image("phone.jpg", with_focal_exif(sign_photo(LIBRARY, "security_compound"), 26), None)
+    assert ws.wait_idle(IDLE_TIMEOUT_S)
+    assert record.recognition.camera.source.startswith("EXIF")
+    ws.set_camera(Camera(np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]), source="calibrated"))
+    assert ws.wait_idle(IDLE_TIMEOUT_S)
+    assert record.recognition.camera.source == "calibrated"
 
 
 def test_slider_storm_coalesces_into_few_runs_and_ends_on_the_last_value(make_workspace, counting):
