@@ -8,6 +8,7 @@ from pipeline.homography import (
     dlt_homographies,
     dlt_homography,
     estimate_homography,
+    minimal_homographies,
     normalize_points,
     normalize_scale,
     ransac_homography,
@@ -67,6 +68,22 @@ def test_batched_dlt_equals_single():
     single = np.stack([dlt_homography(s, d) for s, d in zip(src, dst)])
     assert batched.shape == (40, 3, 3)
     assert np.allclose(batched, single, rtol=1e-10, atol=1e-12)
+
+
+def test_minimal_solver_equals_dlt():
+    rng = np.random.default_rng(11)
+    src = rng.uniform([0, 0], [800, 320], (200, 4, 2))
+    dst = apply(STRONG, src.reshape(-1, 2)).reshape(src.shape) + rng.normal(0, 30, src.shape)
+    assert np.allclose(minimal_homographies(src, dst), dlt_homographies(src, dst), rtol=1e-9, atol=1e-12)
+
+
+def test_adaptive_ransac_stops_early_on_clear_data():
+    src, dst, outlier = matches(MILD, 200, 0.2, 0.5, seed=12)
+    fixed = ransac_homography(src, dst, iterations=500, threshold=3.0, seed=0)
+    adaptive = ransac_homography(src, dst, iterations=500, threshold=3.0, seed=0, confidence=0.999)
+    assert fixed.iterations == 500 and adaptive.iterations < 100
+    assert np.array_equal(adaptive.inliers, fixed.inliers) and corner_error(adaptive.H, MILD) < 1.0
+    assert estimate_homography(src, dst, "own", 500, 3.0, 0.999, 0, adaptive=False).iterations == 500
 
 
 def test_normalize_scale_guards_zero_h22():
