@@ -197,30 +197,51 @@ def quad_problem(H: np.ndarray, sign: LibrarySign, width: int, height: int) -> t
     return corners, None
 
 
+def nbytes(value) -> int:
+    """Bytes held by the numpy arrays in a stage result (a dataclass, list or tuple of them)."""
+    if isinstance(value, np.ndarray):
+        return value.nbytes
+    if isinstance(value, (list, tuple)):
+        return sum(nbytes(v) for v in value)
+    if hasattr(value, "__dict__"):
+        return sum(nbytes(v) for v in vars(value).values())
+    return 0
+
+
 class StageCache:
     """Results of earlier stages for one image, keyed by the settings each stage depends on.
 
-    Least recently used entries are dropped beyond `max_entries`, so a slider sweep over many
-    values cannot grow memory without bound.
+    Least recently used entries are dropped beyond `max_entries` or `max_bytes` of arrays, so a
+    slider sweep over many values cannot grow memory without bound (a segmentation of a 12 MP
+    photo alone holds about 100 MB).
     """
 
-    def __init__(self, max_entries: int = 64) -> None:
+    def __init__(self, max_entries: int = 64, max_bytes: int = 64 * 2**20) -> None:
         self.max_entries = max_entries
-        self._entries: OrderedDict[tuple, object] = OrderedDict()
+        self.max_bytes = max_bytes
+        self._entries: OrderedDict[tuple, tuple[object, int]] = OrderedDict()
+        self._bytes = 0
 
     def get(self, key: tuple, compute):
         """The entry under `key`, computing and storing it first when absent."""
         if key in self._entries:
             self._entries.move_to_end(key)
-            return self._entries[key]
+            return self._entries[key][0]
         value = compute()
-        self._entries[key] = value
-        if len(self._entries) > self.max_entries:
-            self._entries.popitem(last=False)
+        size = nbytes(value)
+        self._entries[key] = (value, size)
+        self._bytes += size
+        # The newest entry stays even when it alone exceeds the budget: it is the one in use.
+        while len(self._entries) > 1 and (len(self._entries) > self.max_entries or self._bytes > self.max_bytes):
+            self._bytes -= self._entries.popitem(last=False)[1][1]
         return value
 
     def __len__(self) -> int:
         return len(self._entries)
+
+    @property
+    def bytes(self) -> int:
+        return self._bytes
 
 
 def cached(cache: StageCache | None, key: tuple, compute):
