@@ -151,7 +151,8 @@ def _load_truth(root: Path) -> tuple[list[Sample], Path | None]:
         raise DatasetError(f"{truth_path} is not valid JSON: {exc}") from None
     images = truth.get("images") if isinstance(truth, dict) else None
     if not isinstance(images, dict) or not images:
-        raise DatasetError(f'{truth_path} must hold {{"images": {{"file.jpg": {{"label": ...}}}}}} with at least one image')
+        raise DatasetError(f'{truth_path} must hold {{"images": {{"file.jpg": {{"label": ...}}}}}} '
+                           "with at least one image")
     samples = []
     for name, entry in images.items():
         where = f"{truth_path} image {name!r}"

@@ -84,7 +84,7 @@ class Scene:
 
 @dataclass(frozen=True)
 class _Look:
-    """Pose and imaging ranges for one category (widths in px at REFERENCE_WIDTH)."""
+    """Pose and imaging ranges of one look: easy, or one way of being hard (widths in px at REFERENCE_WIDTH)."""
 
     mode: str
     off_axis_deg: tuple[float, float]
@@ -413,7 +413,8 @@ def _paper(rng: np.random.Generator) -> tuple[np.ndarray, tuple[float, float]]:
     return _linear(img), (w_m, h_m)
 
 
-def _latin_plaque(rng: np.random.Generator, size_m: tuple[float, float] | None = None) -> tuple[np.ndarray, tuple[float, float]]:
+def _latin_plaque(rng: np.random.Generator,
+                  size_m: tuple[float, float] | None = None) -> tuple[np.ndarray, tuple[float, float]]:
     """A white sign with Latin text - a distractor that segments exactly like a library sign."""
     if size_m is None:
         w_m = rng.uniform(0.3, 0.8)
@@ -447,7 +448,8 @@ def _whiteboard(rng: np.random.Generator) -> tuple[np.ndarray, tuple[float, floa
     for _ in range(rng.integers(0, 12)):
         color = [(30, 30, 30), (160, 60, 20), (30, 30, 170), (40, 120, 40)][rng.integers(4)]
         if rng.random() < 0.5:
-            pts = np.cumsum(rng.normal(0, 6, (rng.integers(10, 60), 2)), axis=0) + [rng.uniform(0, w), rng.uniform(0, h)]
+            steps = rng.normal(0, 6, (rng.integers(10, 60), 2))
+            pts = np.cumsum(steps, axis=0) + [rng.uniform(0, w), rng.uniform(0, h)]
             cv2.polylines(img, [pts.astype(np.int32)], False, color, 2, cv2.LINE_AA)
         else:
             words = " ".join(rng.choice(LATIN_WORDS, rng.integers(1, 4)))
@@ -490,7 +492,10 @@ def _door(rng: np.random.Generator) -> tuple[np.ndarray, tuple[float, float]]:
     w_m, h_m = leaf_w + 2 * frame_m, leaf_h + frame_m
     ppm = 200
     w, h, f = round(w_m * ppm), round(h_m * ppm), round(frame_m * ppm)
-    frame_color = _srgb(rng, (0.3, 0.9), (0.0, 0.3)) if rng.random() < 0.6 else _srgb(rng, (0.3, 0.6), (0.4, 0.7), (0.05, 0.1))
+    if rng.random() < 0.6:
+        frame_color = _srgb(rng, (0.3, 0.9), (0.0, 0.3))  # painted
+    else:
+        frame_color = _srgb(rng, (0.3, 0.6), (0.4, 0.7), (0.05, 0.1))  # wood
     img = np.full((h, w, 3), frame_color, np.uint8)
     if rng.random() < 0.5:  # wood veneer
         leaf = _srgb(rng, (0.3, 0.7), (0.35, 0.7), (0.04, 0.1))
@@ -657,9 +662,9 @@ def _raycast(planes: list[_Plane], K: np.ndarray, size: tuple[int, int], R: np.n
 class _Layout:
     """Non-overlapping decal placement on the visible parts of the room's surfaces."""
 
-    def __init__(self, planes: list[_Plane], coarse: _Hits, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+    def __init__(self, planes: list[_Plane], coarse: _Hits, R: np.ndarray, t: np.ndarray,
                  rng: np.random.Generator):
-        self.planes, self.K, self.R, self.t, self.rng = planes, K, R, t, rng
+        self.planes, self.R, self.t, self.rng = planes, R, t, rng
         self.taken: dict[int, list[tuple[float, float, float, float]]] = {i: [] for i in range(len(planes))}
         self.decals: list[_Decal] = []
         self.visible: dict[int, tuple[float, float, float, float, float]] = {}
@@ -791,7 +796,8 @@ def _lights(rng: np.random.Generator, planes: list[_Plane], layout: _Layout, loo
         layout.add(5, (x - w / 2, z - h / 2, x + w / 2, z + h / 2), picture, "light", emission=rng.uniform(4, 8))
     if look.side_lamp:
         side = 1 if rng.random() < 0.5 else -1
-        pos = np.array([side * rng.uniform(0.4, 0.9) * sign_size[0] * 2, rng.uniform(-0.4, 0.4), -rng.uniform(0.15, 0.4)])
+        pos = np.array([side * rng.uniform(0.4, 0.9) * sign_size[0] * 2, rng.uniform(-0.4, 0.4),
+                        -rng.uniform(0.15, 0.4)])
         lights.append((pos, rng.uniform(2, 4) * float(pos @ pos)))
     return lights, rng.uniform(0.15, 0.6)
 
@@ -939,7 +945,7 @@ def render_scene(library: Library, sign_id: str | None, camera: Camera, rng: np.
     K = camera.K
     coarse_K = np.diag([1 / 8, 1 / 8, 1]) @ K
     coarse = _raycast(planes, coarse_K, (camera.width // 8, camera.height // 8), R, -R.T @ t)
-    layout = _Layout(planes, coarse, K, R, t, rng)
+    layout = _Layout(planes, coarse, R, t, rng)
     _layout_clutter(layout, rng, room, door, sign_size, sign_shown=sign_id is not None)
     lights, ambient = _lights(rng, planes, layout, look, sign_size)
     decals = layout.decals
@@ -954,7 +960,9 @@ def render_scene(library: Library, sign_id: str | None, camera: Camera, rng: np.
                 "ceiling": _ceiling_texture(rng)}
     textures = {name: _mipmap(texture) for name, (_, texture) in surfaces.items()}
     skirting = (rng.uniform(0.06, 0.15), _linear(_srgb(rng, (0.1, 0.9), (0.0, 0.4))))
-    supersample = np.array([[SUPERSAMPLE, 0, (SUPERSAMPLE - 1) / 2], [0, SUPERSAMPLE, (SUPERSAMPLE - 1) / 2], [0, 0, 1]])
+    # Output pixel i averages supersampled pixels SUPERSAMPLE·i ... SUPERSAMPLE·i + SUPERSAMPLE - 1 (INTER_AREA).
+    offset = (SUPERSAMPLE - 1) / 2
+    supersample = np.array([[SUPERSAMPLE, 0, offset], [0, SUPERSAMPLE, offset], [0, 0, 1]])
     big = (camera.width * SUPERSAMPLE, camera.height * SUPERSAMPLE)
     radiance = _render_radiance(planes, textures, decals, lights, ambient, skirting, supersample @ K, big, R, t)
     radiance = cv2.resize(radiance, (camera.width, camera.height), interpolation=cv2.INTER_AREA)

@@ -71,8 +71,8 @@ def fake_recognize(answers):
         sample = next(s for name, s in truth.items() if np.array_equal(image, cv2.imread(str(SET3 / name))))
         label = answers.get(sample.path.name, sample.label)
         pose = None if sample.R is None else SimpleNamespace(R=sample.R, t=sample.t * 1.02)
-        return SimpleNamespace(label=label, pose=pose, corners=None if sample.corners is None else sample.corners + [3, 4],
-                               timing_ms={"total": 10.0})
+        corners = None if sample.corners is None else sample.corners + [3, 4]
+        return SimpleNamespace(label=label, pose=pose, corners=corners, timing_ms={"total": 10.0})
     return recognize
 
 
