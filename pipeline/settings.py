@@ -157,10 +157,11 @@ def _check_field(f: dataclasses.Field, value: Any) -> None:
     is_int = isinstance(f.default, int) and not isinstance(f.default, bool)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise SettingsError(f"{name} must be a number; got {value!r}")
-    if is_int and not float(value).is_integer():
-        raise SettingsError(f"{name} must be a whole number; got {value!r}")
-    if not math.isfinite(value):
+    # Only floats can be non-finite or fractional; float() of a huge JSON integer would overflow.
+    if isinstance(value, float) and not math.isfinite(value):
         raise SettingsError(f"{name} must be finite; got {value!r}")
+    if is_int and isinstance(value, float) and not value.is_integer():
+        raise SettingsError(f"{name} must be a whole number; got {value!r}")
     if not meta["min"] <= value <= meta["max"]:
         raise SettingsError(f"{name} must be between {meta['min']} and {meta['max']}; got {value!r}")
 

@@ -19,6 +19,7 @@ def test_paper_preset_is_the_published_method():
     ({"threshold": -0.1}, "between"),
     ({"ransac_iterations": 2.5}, "whole number"),
     ({"ransac_iterations": "50"}, "number"),
+    ({"ransac_iterations": 10**400}, "between"),  # a JSON integer too big for a float
     ({"full_frame_fallback": 1}, "true or false"),
     ({"detector": "akaze"}, "one of"),
     ({"thresold": 0.5}, "unknown setting"),
