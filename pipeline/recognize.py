@@ -375,7 +375,9 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     if winner is not None:
         t0 = time.perf_counter()
         H, src, dst, sign = winner
-        if settings.refine == "ecc":
+        # A plaque's outline is too crude for a pose: the fallback always refines densely.
+        from_plaque = chosen is None or chosen.winner is None
+        if settings.refine == "ecc" or from_plaque:
             refined = refine_ecc(gray, sign, H)
             if refined is not None and refined[1] >= MIN_ECC:
                 H, ecc = refined

@@ -50,9 +50,9 @@ class Settings:
     # Segmentation
     segment_mode: str = _choice("threshold", SEGMENT_MODES, "Segmentation",
                                 "threshold: find bright plaques first; none: search the full frame")
-    normalization: str = _choice("scale", NORMALIZATIONS, "Segmentation",
+    normalization: str = _choice("minmax", NORMALIZATIONS, "Segmentation",
                                  "Grayscale to [0,1]: scale divides by 255, minmax stretches min..max (the paper)")
-    threshold: float = _num(0.6, 0.0, 1.0, "Segmentation",
+    threshold: float = _num(0.75, 0.0, 1.0, "Segmentation",
                             "Normalised gray level above which a pixel counts as white", step=0.01)
     high_threshold: float | None = _num(None, 0.0, 1.0, "Segmentation",
                                         "Optional upper gate: pixels brighter than this are not sign (glare)",
@@ -90,7 +90,7 @@ class Settings:
 
     # Decision
     min_matches: int = _num(8, 4, 1000, "Decision", "A sign with fewer ratio-test matches is rejected", step=1)
-    min_inliers: int = _num(12, 4, 1000, "Decision", "A sign with fewer RANSAC inliers is rejected", step=1)
+    min_inliers: int = _num(10, 4, 1000, "Decision", "A sign with fewer RANSAC inliers is rejected", step=1)
     min_margin: int = _num(5, 0, 1000, "Decision",
                            "The winner needs this many more inliers than the runner-up", step=1)
 
@@ -104,8 +104,9 @@ class Settings:
                                 "The best sign's correlation must beat the runner-up's by this much", step=0.01)
 
     # Pose
-    refine: str = _choice("ecc", REFINE_METHODS, "Pose",
-                          "ecc: align the sign densely to the image to refine H before the pose; none: use H as fitted")
+    refine: str = _choice("none", REFINE_METHODS, "Pose",
+                          "ecc: align the sign densely to refine H (lower corner error, but on synthetic scenes "
+                          "a slightly worse pose than IPPE on the inliers); the plaque fallback always refines")
     pose_method: str = _choice("ippe_lm", POSE_METHODS, "Pose",
                                "paper: decompose H; ippe: planar PnP on all inliers; ippe_lm: ippe refined by LM")
     ambiguity_ratio: float = _num(0.8, 0.0, 1.0, "Pose",
