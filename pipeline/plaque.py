@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from .library import Library, LibrarySign
-from .segment import Blob
+from .segment import Blob, expand_box
 
 # Width in px at which a rectified plaque is compared with the library; small enough that a
 # 60 px sign is not invented detail, large enough to tell three words apart.
@@ -28,6 +28,7 @@ COMPARE_BLUR_SIGMA = 1.0
 MIN_QUAD_FILL = 0.9
 ECC_INSET = 0.04  # fraction of the sign cut from each side before dense alignment
 ECC_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 60, 1e-5)
+ECC_CROP_MARGIN = 0.25  # image kept around the sign for ECC, as a fraction of its bounding box
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,14 +128,25 @@ def refine_ecc(gray: np.ndarray, sign: LibrarySign, H: np.ndarray) -> tuple[np.n
     template = small[iy:small.shape[0] - iy, ix:small.shape[1] - ix]
     # template px -> library px, aligning pixel centres as cv2.resize does
     to_library = np.array([[1 / sx, 0, (ix + 0.5) / sx - 0.5], [0, 1 / sy, (iy + 0.5) / sy - 0.5], [0, 0, 1]])
-    warp = (H @ to_library).astype(np.float32)
+    # ECC smooths and differentiates its whole input image before iterating: give it only the
+    # neighbourhood of the sign, with room for the alignment to move.
+    x0, y0, x1, y1 = expand_box(_bbox(corners), ECC_CROP_MARGIN, gray.shape[1], gray.shape[0])
+    to_crop = np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1]], dtype=np.float64)
+    warp = (to_crop @ H @ to_library).astype(np.float32)
     try:
-        cc, warp = cv2.findTransformECC(template, gray, warp / warp[2, 2], cv2.MOTION_HOMOGRAPHY,
+        cc, warp = cv2.findTransformECC(template, gray[y0:y1, x0:x1], warp / warp[2, 2], cv2.MOTION_HOMOGRAPHY,
                                         ECC_CRITERIA, None, 3)
     except cv2.error:
         return None
-    refined = warp.astype(np.float64) @ np.linalg.inv(to_library)
+    refined = np.linalg.inv(to_crop) @ warp.astype(np.float64) @ np.linalg.inv(to_library)
     return refined / refined[2, 2], float(cc)
+
+
+def _bbox(pts: np.ndarray) -> tuple[int, int, int, int]:
+    """The integer `Box` enclosing (N, 2) image px."""
+    x0, y0 = np.floor(pts.min(axis=0)).astype(int)
+    x1, y1 = np.ceil(pts.max(axis=0)).astype(int) + 1
+    return int(x0), int(y0), int(x1), int(y1)
 
 
 def match_plaque(gray: np.ndarray, labels: np.ndarray, blob: Blob, library: Library,

@@ -263,7 +263,8 @@ def score_sign(sign: LibrarySign, query: Features, train: Features, settings: Se
         score.reason = f"too few matches ({len(matches)} < {max(4, settings.min_matches)})"
         return score
     score.estimate = estimate_homography(src, dst, settings.ransac_method, settings.ransac_iterations,
-                                         settings.ransac_threshold_px, settings.ransac_confidence, settings.seed)
+                                         settings.ransac_threshold_px, settings.ransac_confidence, settings.seed,
+                                         settings.ransac_adaptive)
     timing["ransac"] += (time.perf_counter() - t1) * 1e3
     if score.estimate.H is None:
         score.reason = "no homography found"

@@ -85,7 +85,10 @@ class Settings:
     ransac_threshold_px: float = _num(4.0, 0.1, 50.0, "RANSAC",
                                       "Reprojection distance in image px under which a match is an inlier", step=0.1)
     ransac_confidence: float = _num(0.999, 0.5, 0.999999, "RANSAC",
-                                    "Confidence for OpenCV backends' adaptive stopping", step=0.001)
+                                    "Confidence for adaptive stopping (OpenCV backends, and own with ransac_adaptive)",
+                                    step=0.001)
+    ransac_adaptive: bool = _flag(True, "RANSAC",
+                                  "Own RANSAC: stop before ransac_iterations once ransac_confidence is reached")
     seed: int = _num(0, 0, 2**31 - 1, "RANSAC", "Random seed: the same seed gives the same answer", step=1)
 
     # Decision
@@ -199,6 +202,7 @@ PRESETS: dict[str, Settings] = {
         ratio=0.667,
         ransac_method="own",
         ransac_iterations=50,
+        ransac_adaptive=False,
         min_inliers=4,
         min_margin=0,
         plaque_fallback=False,
