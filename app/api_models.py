@@ -124,6 +124,8 @@ class AttemptOut(BaseModel):
 
 class ImageDetail(ImageSummary):
     result: RecognitionOut | None
+    settings: Settings | None = Field(description="the settings the result was computed under: those of "
+                                                  "settings_version (GET /api/settings?version=N)")
     camera: CameraIntrinsics | None = Field(description="intrinsics used for this image")
     attempts: list[AttemptOut]
 

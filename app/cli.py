@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -148,23 +149,28 @@ def cmd_calibrate(args) -> int:
 
 
 def cmd_serve(args) -> int:
+    from app.security import TOKEN_ENV, access_token
     from app.server import bind, create_app, serve
     from app.state import StateError
     from app.workspace import WorkspaceConfig
 
+    for name in ("max_images", "max_megapixels", "max_upload_mb", "request_timeout"):
+        if not getattr(args, name) > 0:
+            raise CliError(f"--{name.replace('_', '-')} must be positive; got {getattr(args, name)}")
     config = WorkspaceConfig(
         state_dir=Path(args.state_dir), library_dir=Path(args.library) if args.library else None,
         camera_file=Path(args.camera) if args.camera else None,
         settings_file=Path(args.settings) if args.settings else None,
         max_images=args.max_images, max_pixels=round(args.max_megapixels * 1e6),
-        max_upload_bytes=round(args.max_upload_mb * 1e6),
+        max_upload_bytes=round(args.max_upload_mb * 1e6), request_timeout_s=args.request_timeout,
     )
+    token = access_token(args.host, args.token or os.environ.get(TOKEN_ENV))
     try:
         sock = bind(args.host, args.port)
     except OSError as exc:
         raise CliError(f"cannot listen on {args.host}:{args.port} ({exc.strerror}); choose another --port") from None
     try:
-        app = create_app(config)
+        app = create_app(config, token=token)
     except (StateError, SettingsError, CameraError, LibraryError) as exc:
         sock.close()
         raise CliError(str(exc)) from None
@@ -173,11 +179,13 @@ def cmd_serve(args) -> int:
         print(f"processing {len(workspace.images())} image(s) from {config.state_dir} ...", file=sys.stderr)
         workspace.wait_idle(timeout=300)
     host, port = sock.getsockname()[:2]
-    print(f"signpose serving {len(workspace.images())} image(s): open http://{host}:{port}/ "
+    url = f"http://{host}:{port}/" + (f"?token={token}" if token else "")
+    print(f"signpose serving {len(workspace.images())} image(s): open {url} "
           f"(3D view: /viser/, API docs: /docs; Ctrl+C stops)", flush=True)
-    if host in ("0.0.0.0", "::"):
-        print("warning: listening on every network interface: anyone who can reach this machine can see "
-              "and change the workspace", file=sys.stderr)
+    if token:
+        print("every request needs the token in that address (share it only with your team); from other "
+              "machines use this one's network address in place of the host; scripts send the header "
+              "'Authorization: Bearer <token>'", file=sys.stderr)
     serve(app, sock)
     return 0
 
@@ -213,7 +221,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("serve", help="the browser tool: tune settings, inspect every stage, 3D view (one port)")
-    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to listen on (default 127.0.0.1: this machine only); any other needs a token")
+    p.add_argument("--token", help="access token for every request (default: $SIGNPOSE_TOKEN; beyond loopback "
+                                   "without either, a random one is made and printed)")
     p.add_argument("--port", type=int, default=8000, help="port (default 8000)")
     p.add_argument("--library", help="sign library folder, copied into the state directory "
                                      "(default: the state's library; on a fresh state the samples)")
@@ -224,6 +235,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-images", type=int, default=500, help="most images held at once (default 500)")
     p.add_argument("--max-megapixels", type=float, default=40.0, help="largest image accepted (default 40)")
     p.add_argument("--max-upload-mb", type=float, default=25.0, help="largest request body in MB (default 25)")
+    p.add_argument("--request-timeout", type=float, default=120.0,
+                   help="longest a request waits for pipeline work (recognise, sweep) in seconds (default 120)")
     p.set_defaults(func=cmd_serve)
     return parser
 

@@ -3,8 +3,9 @@
 `create_app` builds the FastAPI app around one `Workspace` (docs/web-contract.md lists every
 endpoint). Routes are thin: they validate, call the workspace or the pipeline off the event
 loop (plain `def` routes run in a thread pool) and shape the answer. Domain errors become 4xx
-with the pipeline's own message: SettingsError, CameraError, LibraryError and ImageError 422,
-ImageTooLarge and oversized bodies 413, Conflict 409, unknown ids 404.
+with the pipeline's own message: SettingsError, CameraError, LibraryError, ImageError and
+PipelineError 422, ImageTooLarge and oversized bodies 413, Conflict 409, unknown ids 404, pipeline
+work past the request time limit 503. app/security.py guards access and sets security headers.
 """
 
 from __future__ import annotations
@@ -16,12 +17,14 @@ import io
 import json
 import socket
 import tempfile
+import threading
 import tomllib
-from collections.abc import AsyncIterable
+from collections.abc import AsyncIterable, Callable
 from importlib import metadata
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, TypeVar
 
+import anyio
 import viser
 from fastapi import APIRouter, Depends, FastAPI, File, Form, HTTPException, Query, Request, Response, UploadFile, status
 from fastapi.exceptions import RequestValidationError
@@ -36,7 +39,6 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from pipeline.camera import Camera, CameraError, camera_from_json, load_camera
 from pipeline.image import ImageError
 from pipeline.library import ID_PATTERN, LibraryError
-from pipeline.recognize import Recognition
 from pipeline.settings import PRESETS, Settings, SettingsError, settings_schema
 
 from . import figures, tuning
@@ -44,15 +46,18 @@ from .api_models import (
     AttemptOut, CalibrateIn, CalibrateOut, CameraIntrinsics, CameraModel, CameraOut, ExpectedIn, Health, ImageDetail,
     ImagesOut, ImageSummary, RecognitionOut, SettingField, SettingsOut, SignOut, SweepOut, UploadOut,
 )
+from .security import AccessGuard, SecurityHeaders
 from .viser_proxy import mount_viser
 from .workspace import (
-    IMAGE_ID, Conflict, ImageRecord, ImageTooLarge, Workspace, WorkspaceConfig, display_name, is_correct, status_of,
+    IMAGE_ID, SETTINGS_HISTORY, Conflict, ImageRecord, ImageTooLarge, Outcome, PipelineError, Workspace, WorkspaceConfig, display_name,
+    is_correct, status_of,
 )
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
 CAMERA_SUFFIXES = (".yaml", ".yml", ".json", ".xml")
 MAX_SWEEP_STEPS = 101
 BACKLOG = 2048  # uvicorn's default
+T = TypeVar("T")
 
 
 def package_version() -> str:
@@ -139,21 +144,63 @@ def get_sign_id(sign_id: str, workspace: WorkspaceDep) -> str:
 SignIdDep = Annotated[str, Depends(get_sign_id)]
 
 
-def recognition_of(record: ImageRecord) -> Recognition:
-    """The image's latest result (possibly from older settings); 409 while there is none."""
+class BodyType:
+    """A dependency: 415 unless the request body is `media_type`. Without it FastAPI would only
+    report the fields of a body it did not parse as missing, or the body as not a dictionary."""
+
+    def __init__(self, media_type: str, how: str) -> None:
+        self.media_type = media_type
+        self.how = how
+
+    def __call__(self, request: Request) -> None:
+        content_type = request.headers.get("content-type", "")
+        if content_type.split(";", 1)[0].strip().lower() != self.media_type:
+            raise HTTPException(status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
+                                f"send {self.how}; got Content-Type {content_type or 'none'!r}")
+
+
+MULTIPART = Depends(BodyType("multipart/form-data", "the file(s) as multipart/form-data, as a browser form or "
+                                                    "curl -F does"))
+JSON_BODY = Depends(BodyType("application/json", "a JSON body with the header Content-Type: application/json"))
+
+
+def result_of(record: ImageRecord) -> Outcome:
+    """The image's latest outcome that has a result (possibly from older settings); 409 while there is none.
+
+    Read once: the result and its settings version must come from the same run.
+    """
     outcome = record.outcome
     if outcome.recognition is not None:
-        return outcome.recognition
+        return outcome
     if outcome.error is not None:
         raise HTTPException(status.HTTP_409_CONFLICT, f"{record.name}: {outcome.error}")
     raise HTTPException(status.HTTP_409_CONFLICT, f"{record.name} is still being processed; try again in a moment")
 
 
+async def within_time_limit(workspace: Workspace, what: str, work: Callable[[threading.Event], T]) -> T:
+    """`work(stop)` in a worker thread; 503 once it runs past the request time limit.
+
+    A stuck pipeline call cannot be killed: the request is answered, the thread abandoned, and
+    `stop` set so that work able to end early (a sweep between runs) does.
+    """
+    limit = workspace.config.request_timeout_s
+    stop = threading.Event()
+    try:
+        with anyio.fail_after(limit):
+            return await anyio.to_thread.run_sync(work, stop, abandon_on_cancel=True)
+    except TimeoutError:
+        stop.set()
+        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
+                            f"{what} took longer than the {limit:g} s limit (signpose serve --request-timeout); "
+                            "try fewer images or steps, or lighter settings") from None
+
+
 # ---------------------------------------------------------------- shaping
 
 
-def summary(workspace: Workspace, record: ImageRecord) -> ImageSummary:
-    outcome = record.outcome
+def summary(workspace: Workspace, record: ImageRecord, outcome: Outcome | None = None) -> ImageSummary:
+    """The image's summary from `outcome` (default: its latest)."""
+    outcome = record.outcome if outcome is None else outcome
     rec = outcome.recognition
     return ImageSummary(
         id=record.id, name=record.name, expected=record.expected,
@@ -170,14 +217,15 @@ def intrinsics(camera: Camera | None) -> CameraIntrinsics | None:
 
 
 def detail(workspace: Workspace, record: ImageRecord) -> ImageDetail:
-    rec = record.outcome.recognition
+    outcome = record.outcome  # once: summary, result and settings must come from the same run
+    rec = outcome.recognition
     attempts = [] if rec is None else [
         AttemptOut(source=a.source, region=a.region, margin=a.margin,
                    winner=a.scores[a.winner].sign if a.winner is not None else None)
         for a in rec.attempts
     ]
-    return ImageDetail(**summary(workspace, record).model_dump(),
-                       result=rec.to_json(record.name) if rec else None,
+    return ImageDetail(**summary(workspace, record, outcome).model_dump(),
+                       result=rec.to_json(record.name) if rec else None, settings=rec.settings if rec else None,
                        camera=intrinsics(rec.camera) if rec else None, attempts=attempts)
 
 
@@ -258,11 +306,21 @@ def settings_out(workspace: Workspace) -> SettingsOut:
 
 
 @api.get("/settings", response_model=SettingsOut, tags=["settings"])
-def get_settings(workspace: WorkspaceDep) -> SettingsOut:
-    return settings_out(workspace)
+def get_settings(workspace: WorkspaceDep,
+                 version: Annotated[int | None, Query(ge=1, description="an earlier settings version")] = None,
+                 ) -> SettingsOut:
+    """The current settings, or those of an earlier `version` (to check what a result was computed under)."""
+    if version is None:
+        return settings_out(workspace)
+    try:
+        return SettingsOut(version=version, settings=workspace.settings_at(version))
+    except KeyError:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"settings version {version} is not kept; the current one is "
+                            f"{workspace.settings_version} and the last {SETTINGS_HISTORY} are kept") from None
 
 
-@api.put("/settings", response_model=SettingsOut, tags=["settings"])
+@api.put("/settings", response_model=SettingsOut, tags=["settings"], dependencies=[JSON_BODY])
 def put_settings(changes: dict[str, Any], workspace: WorkspaceDep) -> SettingsOut:
     """Change some or all settings; every image is re-run (debounced). 422 names the bad value."""
     workspace.update_settings(changes)
@@ -294,7 +352,7 @@ def export_settings(workspace: WorkspaceDep) -> Response:
                     headers={"Content-Disposition": 'attachment; filename="signpose-settings.json"'})
 
 
-@api.post("/settings/import", response_model=SettingsOut, tags=["settings"])
+@api.post("/settings/import", response_model=SettingsOut, tags=["settings"], dependencies=[MULTIPART])
 def import_settings(file: Annotated[UploadFile, File(description="settings JSON, full or partial")],
                     workspace: WorkspaceDep) -> SettingsOut:
     """Apply a settings file (as written by export or `--settings`) over the current settings."""
@@ -319,7 +377,8 @@ def get_sign_image(sign_id: SignIdDep, workspace: WorkspaceDep) -> FileResponse:
     return FileResponse(workspace.sign_path(sign_id))
 
 
-@api.post("/library", response_model=SignOut, status_code=status.HTTP_201_CREATED, tags=["library"])
+@api.post("/library", response_model=SignOut, status_code=status.HTTP_201_CREATED, tags=["library"],
+          dependencies=[MULTIPART])
 def add_sign(file: Annotated[UploadFile, File(description="the sign, photographed flat or as artwork")],
              id: Annotated[str, Form(description="1-64 of a-z, 0-9, _ and -")],
              width_m: Annotated[float, Form(description="physical width, metres")],
@@ -339,7 +398,8 @@ def delete_sign(sign_id: SignIdDep, workspace: WorkspaceDep) -> None:
 
 # ---- images
 
-@api.post("/images", response_model=UploadOut, status_code=status.HTTP_201_CREATED, tags=["images"])
+@api.post("/images", response_model=UploadOut, status_code=status.HTTP_201_CREATED, tags=["images"],
+          dependencies=[MULTIPART])
 def add_images(files: Annotated[list[UploadFile], File(description="one or more images")],
                workspace: WorkspaceDep,
                expected: Annotated[list[str], Form(description='per file, in order: a sign id, "none" or ""')] = [],
@@ -365,7 +425,7 @@ def get_image(record: RecordDep, workspace: WorkspaceDep) -> ImageDetail:
     return detail(workspace, record)
 
 
-@api.patch("/images/{image_id}", response_model=ImageSummary, tags=["images"])
+@api.patch("/images/{image_id}", response_model=ImageSummary, tags=["images"], dependencies=[JSON_BODY])
 def set_expected(body: ExpectedIn, record: RecordDep, workspace: WorkspaceDep) -> ImageSummary:
     """Set or clear the label the image should get."""
     return summary(workspace, workspace.set_expected(record.id, body.expected))
@@ -391,25 +451,26 @@ def get_stage(record: RecordDep, stage: Literal[figures.STAGES], workspace: Work
               sign: Annotated[str | None, Query(description="matches/inliers: the sign to match against")] = None,
               ) -> Response:
     """A figure of one pipeline stage for the image's latest result (header X-Settings-Version)."""
-    rec = recognition_of(record)
+    outcome = result_of(record)
     try:
-        img = figures.stage_figure(stage, record.image, rec, workspace.library, sign)
+        img = figures.stage_figure(stage, record.image, outcome.recognition, workspace.library, sign)
     except figures.FigureError as exc:
         raise HTTPException(status.HTTP_404_NOT_FOUND, str(exc)) from None
     return Response(figures.png(img), media_type="image/png",
-                    headers={"X-Settings-Version": str(record.outcome.settings_version)})
+                    headers={"X-Settings-Version": str(outcome.settings_version)})
 
 
-@api.post("/recognize", response_model=RecognitionOut, tags=["images"])
-def recognize_once(file: Annotated[UploadFile, File()], workspace: WorkspaceDep) -> dict:
+@api.post("/recognize", response_model=RecognitionOut, tags=["images"], dependencies=[MULTIPART])
+async def recognize_once(file: Annotated[UploadFile, File()], workspace: WorkspaceDep) -> dict:
     """Recognise one image with the current settings, library and camera without keeping it."""
-    name, data = read_upload(file)
-    return workspace.recognize_upload(data, name).to_json(name)
+    name, data = display_name(file.filename or "upload"), await file.read()
+    rec = await within_time_limit(workspace, f"recognising {name}", lambda _: workspace.recognize_upload(data, name))
+    return rec.to_json(name)
 
 
 # ---- tuning
 
-@api.post("/calibrate/threshold", response_model=CalibrateOut, tags=["tuning"])
+@api.post("/calibrate/threshold", response_model=CalibrateOut, tags=["tuning"], dependencies=[JSON_BODY])
 def calibrate_threshold(body: CalibrateIn, workspace: WorkspaceDep) -> tuning.ThresholdSuggestion:
     """Measure the sign's white and suggest a threshold just below it (the paper: 0.8 measured, 0.75 set)."""
     record = find_record(workspace, body.image_id)
@@ -423,7 +484,7 @@ def calibrate_threshold(body: CalibrateIn, workspace: WorkspaceDep) -> tuning.Th
                                 "give [x0, y0, x1, y1] in image pixels with x0 < x1 and y0 < y1")
         inside, source = tuning.rect_mask((x0, y0, x1, y1), w, h), "rectangle"
     else:
-        region = tuning.sign_region(recognition_of(record), w, h)
+        region = tuning.sign_region(result_of(record).recognition, w, h)
         if region is None:
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                                 f"no sign or white blob was found in {record.name}; "
@@ -433,7 +494,7 @@ def calibrate_threshold(body: CalibrateIn, workspace: WorkspaceDep) -> tuning.Th
 
 
 @api.get("/sweep", response_model=SweepOut, tags=["tuning"])
-def sweep(workspace: WorkspaceDep,
+async def sweep(workspace: WorkspaceDep,
           param: Annotated[str, Query(description=f"a numeric setting: {', '.join(NUMERIC_SETTINGS)}")] = "threshold",
           lo: float = 0.3, hi: float = 0.9,
           steps: Annotated[int, Query(ge=2, le=MAX_SWEEP_STEPS)] = 13) -> SweepOut:
@@ -449,7 +510,8 @@ def sweep(workspace: WorkspaceDep,
                             "no labelled images to sweep over: give images an expected label "
                             "(when uploading, or PATCH /api/images/{id})")
     values = tuning.sweep_values(lo, hi, steps, param in INTEGER_SETTINGS)
-    runs = workspace.sweep(param, values, labelled)
+    runs = await within_time_limit(workspace, f"the sweep of {param} over {len(labelled)} images",
+                                   lambda stop: workspace.sweep(param, values, labelled, stop))
     correct, min_margin = [], []
     for recs in runs:
         good = [rec for record, rec in zip(labelled, recs) if is_correct(record.expected, rec)]
@@ -521,9 +583,13 @@ def _attach_scene(server: viser.ViserServer, workspace: Workspace):
     return scene.attach(server, workspace)
 
 
-def create_app(source: Workspace | WorkspaceConfig) -> FastAPI:
+def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) -> FastAPI:
     """The signpose app around `source`: a Workspace the caller owns and closes, or a config to
-    build one from (then the app closes it at shutdown). The viser server starts with the app."""
+    build one from (then the app closes it at shutdown). The viser server starts with the app.
+
+    With `token`, every request and websocket must carry it (app/security.py); without, only
+    requests addressed to a loopback host are answered.
+    """
     owned = not isinstance(source, Workspace)
     workspace = Workspace(source) if owned else source
 
@@ -546,9 +612,12 @@ def create_app(source: Workspace | WorkspaceConfig) -> FastAPI:
     app = FastAPI(title="signpose", version=package_version(), lifespan=lifespan,
                   summary="Recognise known planar signs and recover the camera pose; tune every step.")
     app.state.workspace = workspace
+    # The last added runs first: headers on every answer, then access, then the body limit.
     app.add_middleware(UploadLimit, max_bytes=workspace.config.max_upload_bytes)
+    app.add_middleware(AccessGuard, token=token)
+    app.add_middleware(SecurityHeaders)
     for error, code in ((SettingsError, 422), (CameraError, 422), (LibraryError, 422), (ImageError, 422),
-                        (ImageTooLarge, 413), (Conflict, 409)):
+                        (PipelineError, 422), (ImageTooLarge, 413), (Conflict, 409)):
         app.add_exception_handler(error, _error_handler(code))
     app.include_router(api)
     mount_viser(app)

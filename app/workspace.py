@@ -49,6 +49,8 @@ SAMPLE_SCENES = SAMPLE_LIBRARY.parent / "scenes"
 NO_SIGN = "none"
 MAX_NAME_CHARS = 200
 IMAGE_ID = re.compile(r"^[0-9a-f]{12}$")
+# Settings versions whose settings are kept, so a result's version can be checked against them.
+SETTINGS_HISTORY = 1000
 EVENT_KINDS = ("settings", "results", "library", "camera", "images")
 
 
@@ -58,6 +60,10 @@ class Conflict(ValueError):
 
 class ImageTooLarge(ImageError):
     """An image whose pixel count exceeds the limit (a decompression bomb or a huge scan)."""
+
+
+class PipelineError(ValueError):
+    """The pipeline failed on an image, typically numerically under extreme settings or intrinsics."""
 
 
 @dataclass(frozen=True)
@@ -72,6 +78,7 @@ class WorkspaceConfig:
     max_images: int = 500
     max_pixels: int = 40_000_000
     max_upload_bytes: int = 25_000_000
+    request_timeout_s: float = 120.0  # longest a request waits for pipeline work (recognise, sweep)
     workers: int = os.cpu_count() or 1
     debounce_s: float = 0.15
     max_wait_s: float = 1.0
@@ -252,6 +259,7 @@ class Workspace:
             camera = load_camera(config.camera_file)
             self.state.save_camera(camera)
         self._snap = Snapshot(1, 1, settings, library, camera)
+        self._history: dict[int, Settings] = {1: settings}  # settings_version -> settings, oldest first
 
         stored = self.state.load_images()
         self.state.sweep(stored or [], library)
@@ -292,6 +300,10 @@ class Workspace:
     @property
     def settings_version(self) -> int:
         return self._snap.settings_version
+
+    def settings_at(self, version: int) -> Settings:
+        """The settings of `version` (one of the last SETTINGS_HISTORY); KeyError when not kept."""
+        return self._history[version]
 
     @property
     def library(self) -> Library:
@@ -404,6 +416,10 @@ class Workspace:
             library=changes.get("library", snap.library),
             camera=changes["camera"] if "camera" in changes else snap.camera,
         )
+        if bump:
+            self._history[self._snap.settings_version] = self._snap.settings
+            if len(self._history) > SETTINGS_HISTORY:
+                del self._history[next(iter(self._history))]
         return self._snap
 
     def update_settings(self, changes: dict) -> Settings:
@@ -548,12 +564,11 @@ class Workspace:
             if record.outcome.generation >= snap.generation:
                 return
             try:
-                rec = recognize(record.image, snap.library, snap.settings, snap.camera or record.exif_camera,
-                                record.cache)
+                rec = run_pipeline(record.name, record.image, snap.library, snap.settings,
+                                   snap.camera or record.exif_camera, record.cache)
                 outcome = Outcome(rec, snap.settings_version, snap.generation)
-            except Exception as exc:  # a pipeline failure on one image must not stop the others
-                log.exception("pipeline failed on %s", record.name)
-                outcome = Outcome(None, snap.settings_version, snap.generation, f"pipeline failed: {exc}")
+            except PipelineError as exc:  # a failure on one image must not stop the others
+                outcome = Outcome(None, snap.settings_version, snap.generation, str(exc))
             record.outcome = outcome
 
     def _request_rerun(self) -> None:
@@ -601,29 +616,42 @@ class Workspace:
     # ---- one-off runs
 
     def recognize_upload(self, data: bytes, name: str) -> Recognition:
-        """Recognise an uploaded image with the current state without keeping it (ImageError when unusable).
+        """Recognise an uploaded image with the current state without keeping it.
 
         Runs in the caller's thread (a request worker), not behind a re-run in the pipeline pool.
+        Raises ImageError when the upload is unusable, PipelineError when the pipeline fails on it.
         """
         image, _, exif_camera = decode_upload(data, name, self.config.max_pixels)
         snap = self._snap
-        return recognize(image, snap.library, snap.settings, snap.camera or exif_camera)
+        return run_pipeline(name, image, snap.library, snap.settings, snap.camera or exif_camera)
 
     def run_with(self, record: ImageRecord, settings: Settings) -> Recognition:
         """Recognise one stored image under `settings`, re-using (and feeding) its stage cache."""
         snap = self._snap
         with record.lock:
-            return recognize(record.image, snap.library, settings, snap.camera or record.exif_camera, record.cache)
+            return run_pipeline(record.name, record.image, snap.library, settings,
+                                snap.camera or record.exif_camera, record.cache)
 
-    def sweep(self, param: str, values: list[float], records: list[ImageRecord]) -> list[list[Recognition]]:
+    def sweep(self, param: str, values: list[float], records: list[ImageRecord],
+              stop: threading.Event | None = None) -> list[list[Recognition]]:
         """Re-run `records` with `param` set to each value: results [value index][record index].
 
         Values run in order per image (each run reuses what its cache holds), images in parallel.
-        SettingsError when a value is invalid.
+        SettingsError when a value is invalid, PipelineError when the pipeline fails. Setting
+        `stop` (the caller gave up waiting) ends it early with TimeoutError, freeing the pool.
         """
         variants = [self.settings.replace(**{param: v}) for v in values]
-        per_image = list(self._pool.map(lambda r: [self.run_with(r, s) for s in variants], records))
-        return [[runs[i] for runs in per_image] for i in range(len(variants))]
+
+        def runs(record: ImageRecord) -> list[Recognition]:
+            out = []
+            for settings in variants:
+                if stop is not None and stop.is_set():
+                    raise TimeoutError("sweep abandoned")
+                out.append(self.run_with(record, settings))
+            return out
+
+        per_image = list(self._pool.map(runs, records))
+        return [[results[i] for results in per_image] for i in range(len(variants))]
 
     def close(self) -> None:
         """Stop the re-run thread and the pool (waits for the images being processed)."""
@@ -632,6 +660,18 @@ class Workspace:
             self._idle.notify_all()
         self._runner.join(timeout=10)
         self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+def run_pipeline(name: str, image: np.ndarray, library: Library, settings: Settings, camera: Camera | None,
+                 cache: StageCache | None = None) -> Recognition:
+    """`recognize`, with any failure inside it (numerical trouble deep in OpenCV or numpy under
+    extreme settings or intrinsics) turned into a PipelineError that names the image."""
+    try:
+        return recognize(image, library, settings, camera, cache)
+    except Exception as exc:
+        log.exception("pipeline failed on %s", name)
+        raise PipelineError(f"pipeline failed on {name}: {exc}; check the camera intrinsics and the settings") \
+            from exc
 
 
 def _extension(media_type: str) -> str:

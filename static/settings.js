@@ -105,6 +105,9 @@ function buildField(entry) {
 
 function buildForm() {
   const groups = Map.groupBy(state.schema, (e) => e.group);
+  // Fields apply as they change; Enter must not submit (and reload) the page. Not an inline
+  // onsubmit: the Content-Security-Policy allows no inline script.
+  $("#settings-form").addEventListener("submit", (event) => event.preventDefault());
   fill($("#settings-form"), ...[...groups].map(([group, entries]) =>
     el("details.group", { open: true },
       el("summary", {}, group, el("span.group-count", {})),

@@ -66,10 +66,13 @@ def launch(playwright):
 
 
 def open_page(browser, base: str):
-    """The tool's page, loaded, with page errors collected in `page.errors`."""
+    """The tool's page, loaded, with page errors and Content-Security-Policy refusals (in the page
+    or the viser iframe) collected in `page.errors`."""
     page = browser.new_page(viewport=VIEWPORT)
     page.errors = []
     page.on("pageerror", lambda exc: page.errors.append(str(exc)))
+    page.on("console", lambda msg: msg.type == "error" and "Content Security Policy" in msg.text
+            and page.errors.append(msg.text))
     page.goto(f"{base}/")
     page.wait_for_selector("#settings-form .field")
     return page

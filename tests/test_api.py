@@ -3,55 +3,30 @@
 from __future__ import annotations
 
 import json
-import shutil
 import signal
-import socket
 import subprocess
 import sys
-import threading
-import time
-from contextlib import contextmanager
 from pathlib import Path
 
 import httpx
 import pytest
-import uvicorn
 import viser
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
-from app.server import bind, create_app
+from app.server import create_app
 from app.workspace import Workspace, WorkspaceConfig
 from pipeline.library import SAMPLE_LIBRARY, load_library
 from pipeline.synth import synthetic_camera
 from pipeline.camera import ros_camera_yaml
 from scene_images import empty_photo, png_bomb, sign_photo, tiny_photo
+from serving import REPO, TIMEOUT_S, assert_error, http_exchange, running, start_serve, upload, wait_done
 
 LIBRARY = load_library(SAMPLE_LIBRARY)
-REPO = Path(__file__).resolve().parent.parent
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 MAX_UPLOAD = 2_000_000
 MAX_IMAGES = 20
-TIMEOUT_S = 30
 VISER_PROTOCOL = f"viser-v{viser.__version__}"
-
-
-@contextmanager
-def running(app):
-    """Serve `app` with uvicorn on a free loopback port in a thread; yields the base URL."""
-    sock = bind("127.0.0.1", 0)
-    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", timeout_graceful_shutdown=1))
-    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + TIMEOUT_S
-    while not server.started:
-        assert thread.is_alive() and time.monotonic() < deadline, "uvicorn did not start"
-        time.sleep(0.02)
-    try:
-        yield f"http://127.0.0.1:{sock.getsockname()[1]}"
-    finally:
-        server.should_exit = True
-        thread.join(TIMEOUT_S)
 
 
 def config(state_dir: Path, **options) -> WorkspaceConfig:
@@ -75,23 +50,6 @@ def client(base_url):
         yield c
 
 
-def upload(client, *images: tuple[str, bytes, str | None]) -> httpx.Response:
-    files = [("files", (name, data, "image/jpeg")) for name, data, _ in images]
-    data = {"expected": [e or "" for _, _, e in images]} if any(e is not None for *_, e in images) else None
-    return client.post("/api/images", files=files, data=data)
-
-
-def wait_done(client) -> list[dict]:
-    """The image summaries once no re-run is running or pending."""
-    deadline = time.monotonic() + TIMEOUT_S
-    while time.monotonic() < deadline:
-        body = client.get("/api/images").json()
-        if not body["running"] and all(i["status"] != "pending" for i in body["images"]):
-            return body["images"]
-        time.sleep(0.05)
-    raise AssertionError("images still pending")
-
-
 def add_photos(client, *sign_ids: str) -> list[str]:
     """Upload a labelled photo per sign id ("none": a wall without a sign); their ids once processed."""
     r = upload(client, *[(f"{sid}.jpg", empty_photo(i) if sid == "none" else sign_photo(LIBRARY, sid, seed=i), sid)
@@ -100,14 +58,6 @@ def add_photos(client, *sign_ids: str) -> list[str]:
     ids = [i["id"] for i in r.json()["images"]]
     wait_done(client)
     return ids
-
-
-def assert_error(r: httpx.Response, code: int, *words: str) -> None:
-    assert r.status_code == code, r.text
-    detail = r.json()["detail"]
-    text = detail if isinstance(detail, str) else json.dumps(detail)
-    for word in words:
-        assert word in text, f"{word!r} not in {text!r}"
 
 
 # ---------------------------------------------------------------- server
@@ -287,37 +237,17 @@ def test_upload_count_and_label_mismatches(client):
                  f"limit is {MAX_IMAGES}", "delete some")
     r = client.post("/api/images", files=[("files", ("a.jpg", photo, "image/jpeg"))] * 2, data={"expected": ["none"]})
     assert_error(r, 422, "1 expected labels for 2 files")
-    assert_error(client.post("/api/images"), 422, "files")
-
-
-def http_exchange(base_url: str, head: bytes, chunks=()) -> tuple[int, dict]:
-    """Send a raw request head and body chunks; (status, JSON body) of the response, read until the server closes."""
-    host, port = base_url.removeprefix("http://").split(":")
-    response = b""
-    with socket.create_connection((host, int(port)), timeout=TIMEOUT_S) as sock:
-        try:
-            sock.sendall(head)
-            for chunk in chunks:
-                sock.sendall(chunk)
-        except (BrokenPipeError, ConnectionResetError):  # refused mid-body: the answer is already on its way
-            pass
-        try:
-            while data := sock.recv(65536):
-                response += data
-        except ConnectionResetError:  # closed with our unsent bytes unread; what arrived is still here
-            pass
-    status_line, _, body = response.partition(b"\r\n\r\n")
-    return int(status_line.split(b" ", 2)[1]), json.loads(body)
+    assert_error(client.post("/api/images", files={"expected": (None, "none")}), 422, "files")
 
 
 def test_oversized_bodies_are_refused_before_or_while_they_arrive(base_url, client):
     # Declared too large: refused from the headers alone, the body is never sent.
-    head = (b"POST /api/images HTTP/1.1\r\nHost: t\r\nContent-Type: multipart/form-data; boundary=b\r\n"
+    head = (b"POST /api/images HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: multipart/form-data; boundary=b\r\n"
             b"Content-Length: 30000000\r\nConnection: close\r\n\r\n")
     status, body = http_exchange(base_url, head)
     assert status == 413 and "30.0 MB" in body["detail"] and "2.0 MB" in body["detail"]
     # Streamed without a length: refused as soon as the bytes received pass the limit.
-    head = (b"POST /api/images HTTP/1.1\r\nHost: t\r\nContent-Type: multipart/form-data; boundary=b\r\n"
+    head = (b"POST /api/images HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: multipart/form-data; boundary=b\r\n"
             b"Transfer-Encoding: chunked\r\nConnection: close\r\n\r\n")
     part = b"--b\r\nContent-Disposition: form-data; name=\"files\"; filename=\"big.jpg\"\r\n\r\n"
     block = b"x" * 65536
@@ -438,17 +368,13 @@ def test_state_survives_a_restart(tmp_path):
 
 
 def test_serve_command_prints_its_url_stops_on_ctrl_c_and_refuses_a_taken_port(tmp_path):
-    library = tmp_path / "library"  # a copy, so the sample scenes are not loaded and processed
-    shutil.copytree(SAMPLE_LIBRARY, library)
-    serve = [sys.executable, "-m", "app.cli", "serve", "--library", str(library)]
-    proc = subprocess.Popen([*serve, "--port", "0", "--state-dir", str(tmp_path / "state")], cwd=REPO,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc, url = start_serve(tmp_path / "state")
     try:
-        line = proc.stdout.readline()
-        assert "open http://127.0.0.1:" in line, line + proc.stderr.read()
-        url = line.split("open ", 1)[1].split()[0].rstrip("/")
+        assert url.startswith("http://127.0.0.1:") and "token" not in url
+        url = url.rstrip("/")
         assert httpx.get(url + "/api/health", timeout=TIMEOUT_S).json()["status"] == "ok"
-        taken = [*serve, "--port", url.rsplit(":", 1)[1], "--state-dir", str(tmp_path / "other")]
+        taken = [sys.executable, "-m", "app.cli", "serve", "--port", url.rsplit(":", 1)[1],
+                 "--state-dir", str(tmp_path / "other")]
         refused = subprocess.run(taken, cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
         assert refused.returncode == 2 and "cannot listen" in refused.stderr and "--port" in refused.stderr
     finally:
