@@ -17,6 +17,7 @@ from pipeline.segment import Box, Segmentation, segment
 STAGES = ("input", "gray", "mask", "blob", "crop", "matches", "inliers")
 MAX_SIDE_PX = 1600
 MATCH_PANEL_HEIGHT_PX = 600
+MATCH_PANEL_MAX_WIDTH_PX = 4 * MATCH_PANEL_HEIGHT_PX
 # BGR
 GREEN, RED, YELLOW, ORANGE, CYAN, WHITE, BLACK = (60, 200, 60), (60, 60, 230), (0, 220, 255), (0, 140, 255), \
     (230, 200, 0), (255, 255, 255), (0, 0, 0)
@@ -44,8 +45,12 @@ def _label(img: np.ndarray, text: str, org: tuple[int, int], color) -> None:
 
 
 def _fit(img: np.ndarray, max_side: int = MAX_SIDE_PX) -> np.ndarray:
-    scale = max_side / max(img.shape[:2])
-    return cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) if scale < 1 else img
+    h, w = img.shape[:2]
+    scale = max_side / max(h, w)
+    if scale >= 1:
+        return img
+    # At least 1 px each way: a 4000 x 1 px strip would otherwise shrink to nothing.
+    return cv2.resize(img, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
 
 
 def _bgr(img: np.ndarray) -> np.ndarray:
@@ -155,6 +160,15 @@ def pick_score(recognition: Recognition, library: Library, sign_id: str | None) 
     raise FigureError(f"sign {sign_id!r} is not in the library; choose one of {', '.join(library.ids)}")
 
 
+def _panel(img: np.ndarray) -> tuple[np.ndarray, float]:
+    """`img` scaled to MATCH_PANEL_HEIGHT_PX tall, but at most MATCH_PANEL_MAX_WIDTH_PX wide (a
+    4000 x 1 px region would otherwise become gigabytes) and then padded to that height; and the scale."""
+    h, w = img.shape[:2]
+    scale = min(MATCH_PANEL_HEIGHT_PX / h, MATCH_PANEL_MAX_WIDTH_PX / w)
+    out = cv2.resize(img, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
+    return cv2.copyMakeBorder(out, 0, MATCH_PANEL_HEIGHT_PX - out.shape[0], 0, 0, cv2.BORDER_CONSTANT), scale
+
+
 def draw_matches(image: np.ndarray, recognition: Recognition, library: Library, sign_id: str | None,
                  inliers_only: bool) -> np.ndarray:
     """Library sign left, searched region of the photo right, a line per match.
@@ -166,9 +180,7 @@ def draw_matches(image: np.ndarray, recognition: Recognition, library: Library, 
     _, (x0, y0, x1, y1) = _region(recognition, image.shape[1], image.shape[0])
     sign_img = library[score.sign].image if score.sign in library.ids else np.zeros((64, 64), np.uint8)
     left, right = _bgr(sign_img), image[y0:y1, x0:x1]
-    s_left, s_right = MATCH_PANEL_HEIGHT_PX / left.shape[0], MATCH_PANEL_HEIGHT_PX / right.shape[0]
-    left = cv2.resize(left, (round(left.shape[1] * s_left), MATCH_PANEL_HEIGHT_PX), interpolation=cv2.INTER_AREA)
-    right = cv2.resize(right, (round(right.shape[1] * s_right), MATCH_PANEL_HEIGHT_PX), interpolation=cv2.INTER_AREA)
+    (left, s_left), (right, s_right) = _panel(left), _panel(right)
     img = np.hstack([left, right])
     shift = np.array([left.shape[1], 0.0])
     inliers = score.estimate.inliers if score.estimate is not None else np.zeros(score.n_matches, bool)
