@@ -49,7 +49,7 @@ from .api_models import (
 from .security import AccessGuard, SecurityHeaders
 from .viser_proxy import mount_viser
 from .workspace import (
-    IMAGE_ID, SETTINGS_HISTORY, Conflict, ImageRecord, ImageTooLarge, Outcome, PipelineError, Workspace, WorkspaceConfig, display_name,
+    IMAGE_ID, Conflict, ImageRecord, ImageTooLarge, Outcome, PipelineError, Workspace, WorkspaceConfig, display_name,
     is_correct, status_of,
 )
 
@@ -315,9 +315,9 @@ def get_settings(workspace: WorkspaceDep,
     try:
         return SettingsOut(version=version, settings=workspace.settings_at(version))
     except KeyError:
-        raise HTTPException(status.HTTP_404_NOT_FOUND,
-                            f"settings version {version} is not kept; the current one is "
-                            f"{workspace.settings_version} and the last {SETTINGS_HISTORY} are kept") from None
+        kept = workspace.settings_versions()
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"settings version {version} is not kept; "
+                                                       f"versions {kept.start} to {kept.stop - 1} are") from None
 
 
 @api.put("/settings", response_model=SettingsOut, tags=["settings"], dependencies=[JSON_BODY])

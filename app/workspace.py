@@ -302,8 +302,13 @@ class Workspace:
         return self._snap.settings_version
 
     def settings_at(self, version: int) -> Settings:
-        """The settings of `version` (one of the last SETTINGS_HISTORY); KeyError when not kept."""
+        """The settings of `version` (one of `settings_versions()`); KeyError when not kept."""
         return self._history[version]
+
+    def settings_versions(self) -> range:
+        """The settings versions whose settings are kept: the last SETTINGS_HISTORY."""
+        with self._lock:
+            return range(next(iter(self._history)), self._snap.settings_version + 1)
 
     @property
     def library(self) -> Library:

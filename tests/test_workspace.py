@@ -90,10 +90,28 @@ def test_photos_use_their_exif_focal_length_until_a_camera_is_set(make_workspace
     assert record.recognition.camera.source == "calibrated"
 
 
-def test_slider_storm_coalesces_into_few_runs_and_ends_on_the_last_value(make_workspace, counting):
+def test_slider_storm_coalesces_into_few_runs_and_ends_on_the_last_value(make_workspace, counting, monkeypatch):
     ws = make_workspace(debounce_s=0.15, max_wait_s=1.0)
     records = add_signs(ws)
     runs_before = counting["recognize"]
+    queued = {"now": 0, "most": 0}
+    queue_lock = threading.Lock()
+    submit = ws._pool.submit
+
+    def watched_submit(fn, *args):
+        # Images waiting for a pipeline worker: more than one batch's worth means re-runs pile up.
+        with queue_lock:
+            queued["now"] += 1
+            queued["most"] = max(queued["most"], queued["now"])
+
+        def start(*a):
+            with queue_lock:
+                queued["now"] -= 1
+            return fn(*a)
+
+        return submit(start, *args)
+
+    monkeypatch.setattr(ws._pool, "submit", watched_submit)
     history = {ws.settings_version: ws.settings}
     mixed = []
 
@@ -116,6 +134,7 @@ def test_slider_storm_coalesces_into_few_runs_and_ends_on_the_last_value(make_wo
     assert ws.wait_idle(IDLE_TIMEOUT_S)
     batches = (counting["recognize"] - runs_before) / len(records)
     assert batches <= 5, f"{batches} re-runs for one storm: changes are not coalesced"
+    assert 1 <= queued["most"] <= len(records), f"{queued['most']} images queued: more than one re-run pending"
     assert not mixed
     for record in records:
         assert record.settings_version == 101
