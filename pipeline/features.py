@@ -51,23 +51,36 @@ def create_detector(settings: Settings):
 
 def feature_key(settings: Settings) -> tuple:
     """The settings that change what `detect` returns for a given image region."""
-    return settings.detector, settings.max_features, settings.contrast_threshold, settings.min_crop_size
+    return (settings.detector, settings.max_features, settings.contrast_threshold, settings.min_crop_size,
+            settings.max_crop_size)
+
+
+def region_scale(long_side: int, settings: Settings, full_frame: bool = False) -> float:
+    """The factor a region whose longer side is `long_side` px is resized by before detection.
+
+    Below `settings.min_crop_size` it is upscaled (at most `MAX_UPSCALE` times), so a sign 60 px
+    wide still yields enough keypoints. A crop above `settings.max_crop_size` (when not 0) is
+    downscaled: SIFT's cost grows with the area, and a blob that large is a sign seen large
+    enough to match from fewer pixels. The full frame is not: a small sign anywhere in it
+    needs every pixel.
+    """
+    if 0 < long_side < settings.min_crop_size:
+        return min(settings.min_crop_size / long_side, MAX_UPSCALE)
+    if 0 < settings.max_crop_size < long_side and not full_frame:
+        return settings.max_crop_size / long_side
+    return 1.0
 
 
 def detect(gray: np.ndarray, settings: Settings, region: Box | None = None) -> Features:
-    """Detect and describe keypoints of an (H, W) uint8 image inside `region` (default: all of it).
-
-    Regions whose longer side is below `settings.min_crop_size` are upscaled first (at most
-    `MAX_UPSCALE` times), so a sign 60 px wide still yields enough keypoints.
-    """
+    """Detect and describe keypoints of an (H, W) uint8 image inside `region` (default: all of it),
+    resized first by `region_scale`."""
     h, w = gray.shape
     x0, y0, x1, y1 = region if region is not None else (0, 0, w, h)
     patch = gray[y0:y1, x0:x1]
-    long_side = max(patch.shape)
-    scale = 1.0
-    if 0 < long_side < settings.min_crop_size:
-        scale = min(settings.min_crop_size / long_side, MAX_UPSCALE)
-        patch = cv2.resize(patch, None, fx=scale, fy=scale, interpolation=cv2.INTER_CUBIC)
+    scale = region_scale(max(patch.shape), settings, patch.shape == gray.shape)
+    if scale != 1.0:
+        patch = cv2.resize(patch, None, fx=scale, fy=scale,
+                           interpolation=cv2.INTER_CUBIC if scale > 1 else cv2.INTER_AREA)
     keypoints, descriptors = create_detector(settings).detectAndCompute(patch, None)
     dim, dtype = (32, np.uint8) if settings.detector == "orb" else (128, np.float32)
     if descriptors is None or not keypoints:
@@ -81,8 +94,8 @@ def detect(gray: np.ndarray, settings: Settings, region: Box | None = None) -> F
 
 
 def sign_features(sign: LibrarySign, settings: Settings) -> Features:
-    """Features of a library sign image, in library pixels (never upscaled)."""
-    return detect(sign.image, settings.replace(min_crop_size=0))
+    """Features of a library sign image, in library pixels (never resized)."""
+    return detect(sign.image, settings.replace(min_crop_size=0, max_crop_size=0))
 
 
 def library_features(library: Library, settings: Settings) -> dict[str, Features]:
