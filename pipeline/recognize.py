@@ -18,7 +18,7 @@ from .features import Features, detect, feature_key, library_features
 from .homography import HomographyEstimate, estimate_homography
 from .image import to_gray
 from .library import Library, LibrarySign
-from .match import Matches, ratio_match
+from .match import Matches, match_library
 from .plaque import PlaqueMatch, match_plaque, refine_ecc
 from .pose import Pose, PoseError, estimate_pose
 from .segment import Box, Segmentation, segment
@@ -248,16 +248,12 @@ def cached(cache: StageCache | None, key: tuple, compute):
     return compute() if cache is None else cache.get(key, compute)
 
 
-def score_sign(sign: LibrarySign, query: Features, train: Features, settings: Settings,
-               image_size: tuple[int, int], timing: dict[str, float], cache: StageCache | None = None) -> SignScore:
-    """Match `query` against one sign's features, fit H by RANSAC and check it."""
-    t0 = time.perf_counter()
-    key = ("match", *feature_key(settings), query.region, sign.id, settings.ratio)
-    matches = cached(cache, key, lambda: ratio_match(query.descriptors, train.descriptors, settings.ratio, query.norm))
+def score_sign(sign: LibrarySign, query: Features, train: Features, matches: Matches, settings: Settings,
+               image_size: tuple[int, int], timing: dict[str, float]) -> SignScore:
+    """Fit H to the `matches` between `query` and one sign's features by RANSAC and check it."""
+    t1 = time.perf_counter()
     src = train.xy[matches.train_idx].astype(np.float64)
     dst = query.xy[matches.query_idx].astype(np.float64)
-    t1 = time.perf_counter()
-    timing["match"] += (t1 - t0) * 1e3
     score = SignScore(sign.id, matches, src, dst, None, None)
     if len(matches) < max(4, settings.min_matches):
         score.reason = f"too few matches ({len(matches)} < {max(4, settings.min_matches)})"
@@ -300,9 +296,15 @@ def search_region(gray: np.ndarray, region: Box, source: str, library: Library,
     t0 = time.perf_counter()
     query = cached(cache, ("features", *feature_key(settings), region), lambda: detect(gray, settings, region))
     lib = library_features(library, settings)
-    timing["features"] += (time.perf_counter() - t0) * 1e3
+    t1 = time.perf_counter()
+    timing["features"] += (t1 - t0) * 1e3
+    trains = [lib[sign.id].descriptors for sign in library.signs]
+    matches = cached(cache, ("match", *feature_key(settings), region, settings.ratio),
+                     lambda: match_library(query.descriptors, trains, settings.ratio, query.norm))
+    timing["match"] += (time.perf_counter() - t1) * 1e3
     size = (gray.shape[1], gray.shape[0])
-    scores = [score_sign(sign, query, lib[sign.id], settings, size, timing, cache) for sign in library.signs]
+    scores = [score_sign(sign, query, lib[sign.id], m, settings, size, timing)
+              for sign, m in zip(library.signs, matches)]
     winner, margin = decide(scores, settings)
     return Attempt(region, source, query, scores, winner, margin)
 
