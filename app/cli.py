@@ -1,4 +1,4 @@
-"""`signpose` command line: recognize, synth, evaluate, serve."""
+"""`signpose` command line: recognize, synth, evaluate, calibrate, serve."""
 
 from __future__ import annotations
 
@@ -11,7 +11,8 @@ from pathlib import Path
 from tqdm import tqdm
 
 from pipeline.camera import Camera, CameraError, load_camera
-from pipeline.image import ImageError, read_image
+from pipeline.exif import camera_from_exif
+from pipeline.image import ImageError, decode_image, read_file, read_image
 from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
 from pipeline.recognize import Recognition, recognize
 from pipeline.settings import PRESETS, Settings, SettingsError, load_settings, preset
@@ -65,11 +66,15 @@ def cmd_recognize(args) -> int:
     failed = 0
     if not args.json:
         print(f"{'image':<28} {'label':<22} {'inliers':>7} {'margin':>6}  pose")
-    for path in tqdm(args.images, desc="recognize", unit="img", disable=args.json or len(args.images) < 10,
+    for path in tqdm(args.images, desc="recognize", unit="img", disable=args.json or len(args.images) < 10 or not sys.stderr.isatty(),
                      leave=False, file=sys.stderr):
         name = str(path)
         try:
-            rec = recognize(read_image(path), library, settings, camera)
+            data = read_file(path)
+            image = decode_image(data, name)
+            # Without a camera file, a JPEG's EXIF focal length beats the assumed field of view.
+            cam = camera or camera_from_exif(data, image.shape[1], image.shape[0])
+            rec = recognize(image, library, settings, cam)
         except ImageError as exc:
             failed += 1
             if args.json:
