@@ -1,0 +1,221 @@
+"""Load test: many people on one `signpose serve` at once, while one of them changes settings.
+
+Starts `signpose serve` on 127.0.0.1 (a fresh state with the sample library) unless `--url` names
+a running one. Each of `--clients` simulated users loops for `--seconds`: upload a sample scene,
+read it until it has a result, check that result against the settings of the version it is
+tagged with (GET /api/settings?version=N), fetch the original back and compare the bytes, find it
+in the list, delete it. One more user changes two settings every half second, so results are
+computed, superseded and re-run throughout. Prints requests served, p50 / p99 latency, 5xx
+count, lost uploads and results whose settings do not match their version's; exit status 1
+unless every one of the failure counts is 0. The README's figures come from:
+
+    python bench/load.py --clients 16 --seconds 60
+
+tests/test_load.py runs a short one (4 clients, 8 s).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import itertools
+import json
+import signal
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from urllib.parse import urlsplit
+
+import httpx
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))
+from serving import start_serve  # noqa: E402  (the tests' way of starting the real command)
+
+from app.security import is_loopback  # noqa: E402
+
+SCENES = ROOT / "sample_images" / "scenes"
+SETTINGS_EVERY_S = 0.5
+# Values that keep the samples recognisable: the point is re-runs, not failures.
+SETTINGS_CYCLE = [{"ransac_threshold_px": t, "ratio": r} for t, r in ((3.0, 0.72), (4.0, 0.75), (5.0, 0.78))]
+POLL_S = 0.1
+RESULT_WAIT_S = 60.0  # an acknowledged upload with no result after this long counts as unfinished
+REQUEST_TIMEOUT_S = 60.0
+
+
+@dataclass
+class Tally:
+    latencies_s: list[float] = field(default_factory=list)
+    server_errors: list[str] = field(default_factory=list)  # 5xx
+    failed: list[str] = field(default_factory=list)  # no answer at all, or a 4xx to a valid request
+    lost: list[str] = field(default_factory=list)  # acknowledged uploads gone or changed
+    unfinished: list[str] = field(default_factory=list)  # acknowledged uploads never processed
+    mixed: list[str] = field(default_factory=list)  # results not computed under their version's settings
+    uploads: int = 0
+    checked: int = 0
+    settings_changes: int = 0
+
+    def report(self, clients: int, seconds: float) -> dict:
+        latencies = np.array(self.latencies_s) * 1000 if self.latencies_s else np.zeros(1)
+        return {
+            "clients": clients, "seconds": seconds, "requests": len(self.latencies_s),
+            "requests_per_s": round(len(self.latencies_s) / seconds, 1),
+            "p50_ms": round(float(np.percentile(latencies, 50)), 1),
+            "p99_ms": round(float(np.percentile(latencies, 99)), 1),
+            "uploads": self.uploads, "results_checked": self.checked, "settings_changes": self.settings_changes,
+            "server_errors": len(self.server_errors), "failed": len(self.failed), "lost_uploads": len(self.lost),
+            "unfinished": len(self.unfinished), "mixed_results": len(self.mixed),
+            "examples": (self.server_errors + self.failed + self.lost + self.unfinished + self.mixed)[:5],
+        }
+
+
+class Session:
+    """One simulated user's HTTP client, timing and classifying every answer."""
+
+    def __init__(self, client: httpx.AsyncClient, tally: Tally) -> None:
+        self.client = client
+        self.tally = tally
+
+    async def request(self, method: str, url: str, ok: tuple[int, ...] = (200,), **kwargs) -> httpx.Response | None:
+        """The response, or None when there was none or it was not one of `ok` (tallied)."""
+        started = time.perf_counter()
+        try:
+            response = await self.client.request(method, url, **kwargs)
+        except httpx.HTTPError as exc:
+            self.tally.failed.append(f"{method} {url}: {type(exc).__name__} {exc}")
+            return None
+        self.tally.latencies_s.append(time.perf_counter() - started)
+        if response.status_code >= 500:
+            self.tally.server_errors.append(f"{method} {url}: {response.status_code} {response.text[:200]}")
+        elif response.status_code not in ok:
+            self.tally.failed.append(f"{method} {url}: {response.status_code} {response.text[:200]}")
+        return response if response.status_code in ok else None
+
+
+class History:
+    """Settings by version, asked of the server once each."""
+
+    def __init__(self, session: Session) -> None:
+        self.session = session
+        self.known: dict[int, dict] = {}
+
+    async def settings(self, version: int) -> dict | None:
+        if version not in self.known:
+            r = await self.session.request("GET", "/api/settings", params={"version": version})
+            if r is None:
+                return None
+            self.known[version] = r.json()["settings"]
+        return self.known[version]
+
+
+async def user(session: Session, history: History, photos: itertools.cycle, deadline: float) -> None:
+    tally = session.tally
+    while time.monotonic() < deadline:
+        name, data = next(photos)
+        r = await session.request("POST", "/api/images", ok=(201,), files={"files": (name, data, "image/jpeg")})
+        if r is None:
+            continue
+        tally.uploads += 1
+        image_id = r.json()["images"][0]["id"]
+        detail = await first_result(session, image_id)
+        if detail is None:
+            continue
+        expected = await history.settings(detail["settings_version"])
+        if expected is not None and detail["settings"] != expected:
+            tally.mixed.append(f"{image_id}: tagged version {detail['settings_version']} but computed under "
+                               f"other settings")
+        tally.checked += 1
+        original = await session.request("GET", f"/api/images/{image_id}/file")
+        listed = await session.request("GET", "/api/images")
+        if (original is not None and original.content != data) or \
+                (listed is not None and image_id not in {i["id"] for i in listed.json()["images"]}):
+            tally.lost.append(f"{image_id} ({name}): original changed or not listed")
+        await session.request("DELETE", f"/api/images/{image_id}", ok=(204,))
+
+
+async def first_result(session: Session, image_id: str) -> dict | None:
+    """The image's detail once it has a result (from any settings version); None if lost or unfinished."""
+    give_up = time.monotonic() + RESULT_WAIT_S
+    while time.monotonic() < give_up:
+        r = await session.request("GET", f"/api/images/{image_id}", ok=(200, 404))
+        if r is not None and r.status_code == 404:
+            session.tally.lost.append(f"{image_id}: acknowledged, then unknown")
+            return None
+        if r is not None and (r.json()["result"] is not None or r.json()["error"] is not None):
+            if r.json()["error"] is not None:
+                session.tally.failed.append(f"{image_id}: {r.json()['error']}")
+                return None
+            return r.json()
+        await asyncio.sleep(POLL_S)
+    session.tally.unfinished.append(f"{image_id}: no result after {RESULT_WAIT_S:.0f} s")
+    return None
+
+
+async def tuner(session: Session, deadline: float) -> None:
+    for change in itertools.cycle(SETTINGS_CYCLE):
+        if time.monotonic() >= deadline:
+            return
+        if await session.request("PUT", "/api/settings", json=change) is not None:
+            session.tally.settings_changes += 1
+        await asyncio.sleep(SETTINGS_EVERY_S)
+
+
+async def run(url: str, clients: int, seconds: float, headers: dict | None = None) -> dict:
+    """Load `url` with `clients` users and one tuner for `seconds`; the report (see Tally.report)."""
+    photos = itertools.cycle([(p.name, p.read_bytes()) for p in sorted(SCENES.glob("*.jpg"))])
+    tally = Tally()
+    limits = httpx.Limits(max_connections=clients + 2)
+    async with httpx.AsyncClient(base_url=url, timeout=REQUEST_TIMEOUT_S, limits=limits, headers=headers) as client:
+        session = Session(client, tally)
+        history = History(session)
+        started = time.monotonic()
+        deadline = started + seconds
+        await asyncio.gather(tuner(session, deadline), *[user(session, history, photos, deadline)
+                                                         for _ in range(clients)])
+        elapsed = time.monotonic() - started
+    return tally.report(clients, elapsed)
+
+
+def passed(report: dict) -> bool:
+    return all(report[k] == 0 for k in ("server_errors", "failed", "lost_uploads", "unfinished", "mixed_results"))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--clients", type=int, default=16, help="simulated users uploading and reading (default 16)")
+    parser.add_argument("--seconds", type=float, default=60.0, help="how long they keep at it (default 60)")
+    parser.add_argument("--url", help="a running signpose serve on this machine (default: start one)")
+    parser.add_argument("--token", help="its access token, if it needs one")
+    parser.add_argument("--json", action="store_true", help="print the report as one JSON object")
+    args = parser.parse_args(argv)
+    if args.url and not is_loopback(urlsplit(args.url).hostname or ""):
+        parser.error(f"--url {args.url}: load only a server on this machine (127.0.0.1)")
+    headers = {"Authorization": f"Bearer {args.token}"} if args.token else None
+    if args.url:
+        report = asyncio.run(run(args.url.rstrip("/"), args.clients, args.seconds, headers))
+    else:
+        with tempfile.TemporaryDirectory(prefix="signpose-load-") as tmp:
+            proc, url = start_serve(Path(tmp) / "state")
+            try:
+                report = asyncio.run(run(url.rstrip("/"), args.clients, args.seconds, headers))
+            finally:
+                proc.send_signal(signal.SIGINT)
+                proc.communicate(timeout=30)
+    if args.json:
+        print(json.dumps(report))
+    else:
+        print(f"{report['clients']} clients + 1 changing settings every {SETTINGS_EVERY_S} s, "
+              f"{report['seconds']:.0f} s against {args.url or 'a fresh signpose serve on 127.0.0.1'}")
+        for key in ("requests", "requests_per_s", "p50_ms", "p99_ms", "uploads", "results_checked",
+                    "settings_changes", "server_errors", "failed", "lost_uploads", "unfinished", "mixed_results"):
+            print(f"  {key:<18} {report[key]}")
+        for example in report["examples"]:
+            print(f"  e.g. {example}")
+    return 0 if passed(report) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

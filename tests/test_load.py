@@ -1,0 +1,21 @@
+"""A short run of bench/load.py: 4 users uploading and reading results for 8 s while a fifth changes
+settings, against a real `signpose serve` on 127.0.0.1. The 60 s, 16-user figures are in the README."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+from serving import REPO
+
+
+def test_concurrent_users_lose_nothing_and_every_result_matches_its_settings_version():
+    run = subprocess.run([sys.executable, "bench/load.py", "--clients", "4", "--seconds", "8", "--json"],
+                         cwd=REPO, capture_output=True, text=True, timeout=180)
+    report = json.loads(run.stdout.splitlines()[-1])
+    assert run.returncode == 0, report["examples"]
+    assert report["server_errors"] == report["lost_uploads"] == report["mixed_results"] == 0
+    assert report["failed"] == report["unfinished"] == 0
+    # It did work: results under several settings versions were checked.
+    assert report["results_checked"] >= 8 and report["settings_changes"] >= 10
