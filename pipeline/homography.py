@@ -256,34 +256,43 @@ def hypotheses_needed(n_inliers: int, n: int, confidence: float) -> float:
     return math.log1p(-confidence) / math.log1p(-p_clean)
 
 
+def _block_best(src: np.ndarray, dst: np.ndarray, samples: np.ndarray, threshold: float) -> np.ndarray | None:
+    """The (N,) inlier mask of the usable sample (of (B, 4)) with most inliers, the earliest on ties;
+    None when no sample is usable."""
+    s, d = src[samples], dst[samples]
+    s_areas, d_areas = _triangle_areas(s), _triangle_areas(d)
+    usable = _usable_samples(s_areas, d_areas)
+    if not usable.any():
+        return None
+    H = _homographies_from_areas(s[usable], d[usable], s_areas[0][usable], d_areas[0][usable])
+    inliers = _inlier_masks(H, src, dst, threshold)
+    return inliers[int(np.argmax(np.count_nonzero(inliers, axis=1)))]
+
+
 def _best_consensus(src: np.ndarray, dst: np.ndarray, samples: np.ndarray, threshold: float,
                     confidence: float | None = None) -> tuple[np.ndarray | None, int]:
     """Fit the usable samples (S, 4) in order; the (N,) inlier mask of the one with most inliers
     (None when no sample is usable) and how many samples were used.
 
-    With `confidence`, stop after the first block by which `hypotheses_needed` for the best
-    consensus so far was drawn; without it, use every sample. Ties go to the earliest sample,
-    so the result depends only on the sample order.
+    Without `confidence` every sample is used. With it, a first block of `_ADAPTIVE_BLOCK`, then
+    on in one block to as many as `hypotheses_needed` says the best consensus so far still
+    needs, until that many were drawn. Ties go to the earliest sample, so the result depends
+    only on the sample order.
     """
     best: np.ndarray | None = None
-    block = max(1, _SCORE_BLOCK_ELEMENTS // len(src))
-    if confidence is not None:
-        block = min(block, _ADAPTIVE_BLOCK)
-    for start in range(0, len(samples), block):
-        s, d = src[samples[start:start + block]], dst[samples[start:start + block]]
-        s_areas, d_areas = _triangle_areas(s), _triangle_areas(d)
-        usable = _usable_samples(s_areas, d_areas)
-        if usable.any():
-            H = _homographies_from_areas(s[usable], d[usable], s_areas[0][usable], d_areas[0][usable])
-            inliers = _inlier_masks(H, src, dst, threshold)
-            counts = np.count_nonzero(inliers, axis=1)
-            i = int(np.argmax(counts))
-            if best is None or counts[i] > np.count_nonzero(best):
-                best = inliers[i]
-        drawn = min(start + block, len(samples))
-        if confidence is not None and best is not None and drawn >= hypotheses_needed(best.sum(), len(src), confidence):
-            return best, drawn
-    return best, len(samples)
+    max_block = max(1, _SCORE_BLOCK_ELEMENTS // len(src))  # bounds the (block, N) arrays
+    target = len(samples) if confidence is None else min(_ADAPTIVE_BLOCK, len(samples))
+    drawn = 0
+    while drawn < target:
+        stop = min(target, drawn + max_block)
+        found = _block_best(src, dst, samples[drawn:stop], threshold)
+        if found is not None and (best is None or np.count_nonzero(found) > np.count_nonzero(best)):
+            best = found
+        drawn = stop
+        if confidence is not None and drawn == target:
+            needed = math.inf if best is None else hypotheses_needed(np.count_nonzero(best), len(src), confidence)
+            target = len(samples) if needed >= len(samples) else max(drawn, math.ceil(needed))
+    return best, drawn
 
 
 def _refine(src: np.ndarray, dst: np.ndarray, inliers: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:

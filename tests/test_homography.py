@@ -86,6 +86,12 @@ def test_adaptive_ransac_stops_early_on_clear_data():
     assert estimate_homography(src, dst, "own", 500, 3.0, 0.999, 0, adaptive=False).iterations == 500
 
 
+def test_adaptive_ransac_draws_all_without_a_usable_sample():
+    src = np.column_stack([np.linspace(0, 800, 20), np.full(20, 160.0)])
+    est = ransac_homography(src, src * 0.5 + 10, iterations=300, seed=0, confidence=0.999)
+    assert est.iterations == 300 and est.H is None
+
+
 def test_normalize_scale_guards_zero_h22():
     H = np.array([[1.0, 0, 0], [0, 1, 0], [1, 0, 0]])
     scaled, guarded = normalize_scale(np.stack([MILD * -3, H]))
