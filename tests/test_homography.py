@@ -203,3 +203,19 @@ def test_dlt_round_trip_property(offsets, n, seed):
     H_est = dlt_homography(src, apply(H, src))
     assert corner_error(H_est, H) < 1e-6
     assert transfer_errors(H_est, src, apply(H, src)).max() < 1e-6
+
+
+@settings(max_examples=40, deadline=None)
+@given(offsets=corner_offsets, n=st.integers(30, 150), outlier_fraction=st.floats(0.0, 0.5),
+       noise_px=st.floats(0.0, 1.0), seed=st.integers(0, 2**16), adaptive=st.booleans())
+def test_own_ransac_recovers_h_and_its_inliers_property(offsets, n, outlier_fraction, noise_px, seed, adaptive):
+    quad = SIGN_CORNERS + np.reshape(offsets, (4, 2)) * [800, 320]
+    H = cv2.getPerspectiveTransform(SIGN_CORNERS.astype(np.float32), quad.astype(np.float32)).astype(np.float64)
+    src, dst, outlier = matches(H, n, outlier_fraction, noise_px, seed)
+    est = ransac_homography(src, dst, iterations=500, threshold=3.0, seed=seed,
+                            confidence=0.999 if adaptive else None)
+    assert est.H is not None and corner_error(est.H, H) < 1e-6 + 4 * noise_px
+    # A 3 px threshold keeps all but the inliers whose noise exceeds 3 sigma (about 1 %) and takes
+    # an outlier only when it lands within 3 px of where H puts its match (odds ~3e-5 each).
+    assert np.sum(est.inliers & ~outlier) >= 0.9 * np.sum(~outlier)
+    assert np.sum(est.inliers & outlier) <= 1
