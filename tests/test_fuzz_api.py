@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, settings
 from schemathesis.checks import not_a_server_error
 
 from app.server import create_app
-from app.workspace import Workspace, WorkspaceConfig
+from app.workspace import WorkspaceConfig
 from pipeline.library import SAMPLE_LIBRARY, load_library
 from scene_images import sign_photo
 from serving import TIMEOUT_S, running, upload, wait_done
@@ -18,17 +18,14 @@ from serving import TIMEOUT_S, running, upload, wait_done
 
 @pytest.fixture(scope="module")
 def base_url(tmp_path_factory):
-    workspace = Workspace(WorkspaceConfig(state_dir=tmp_path_factory.mktemp("fuzz") / "state", load_samples=False,
-                                          workers=2, max_upload_bytes=2_000_000))
-    try:
-        with running(create_app(workspace)) as url:
-            with httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:  # something for sweeps and figures to use
-                upload(c, ("compound.jpg", sign_photo(load_library(SAMPLE_LIBRARY), "security_compound"),
-                           "security_compound"))
-                wait_done(c)
-            yield url
-    finally:
-        workspace.close()
+    config = WorkspaceConfig(state_dir=tmp_path_factory.mktemp("fuzz") / "state", load_samples=False, workers=2,
+                             max_upload_bytes=2_000_000)
+    with running(create_app(config)) as url:
+        with httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:  # something for sweeps and figures to use
+            upload(c, ("compound.jpg", sign_photo(load_library(SAMPLE_LIBRARY), "security_compound"),
+                       "security_compound"))
+            wait_done(c)
+        yield url
 
 
 @pytest.fixture

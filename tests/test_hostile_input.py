@@ -21,7 +21,7 @@ from PIL import Image
 
 import app.workspace as workspace_module
 from app.server import create_app
-from app.workspace import Workspace, WorkspaceConfig
+from app.workspace import WorkspaceConfig
 from pipeline.library import SAMPLE_LIBRARY, load_library
 from scene_images import png_bomb, sign_photo
 from serving import TIMEOUT_S, assert_error, http_exchange, running, upload
@@ -39,13 +39,9 @@ def root(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def base_url(root):
-    workspace = Workspace(WorkspaceConfig(state_dir=root / "state", load_samples=False, workers=2,
-                                          max_upload_bytes=2_000_000))
-    try:
-        with running(create_app(workspace)) as url:
-            yield url
-    finally:
-        workspace.close()
+    config = WorkspaceConfig(state_dir=root / "state", load_samples=False, workers=2, max_upload_bytes=2_000_000)
+    with running(create_app(config)) as url:
+        yield url
 
 
 @pytest.fixture
@@ -283,27 +279,24 @@ def test_malformed_camera_json_changes_nothing(client, body):
 
 def test_deleting_a_sign_that_results_still_name(tmp_path):
     # Re-runs held off, so the results keep naming the deleted sign while every route is asked about them.
-    workspace = Workspace(WorkspaceConfig(state_dir=tmp_path / "state", load_samples=False, workers=1,
-                                          debounce_s=3600, max_wait_s=3600))
-    try:
-        with running(create_app(workspace)) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
-            r = upload(c, ("compound.jpg", sign_photo(LIBRARY, "security_compound"), "security_compound"))
-            image_id = r.json()["images"][0]["id"]
-            assert processed(c, image_id)["label"] == "security_compound"
-            assert c.delete("/api/library/security_compound").status_code == 204
-            detail = c.get(f"/api/images/{image_id}").json()
-            assert detail["label"] == "security_compound" and detail["status"] == "pending"
-            assert detail["expected"] == "security_compound"  # kept: the person may add the sign back
-            for stage in STAGES:
-                assert c.get(f"/api/images/{image_id}/stages/{stage}").status_code == 200, stage
-            # The result's own matches against the deleted sign can still be drawn; a sign never known cannot.
-            assert c.get(f"/api/images/{image_id}/stages/matches?sign=security_compound").status_code == 200
-            assert_error(c.get(f"/api/images/{image_id}/stages/matches?sign=never_known"), 404, "not in the library")
-            assert c.post("/api/calibrate/threshold", json={"image_id": image_id}).status_code == 200
-            assert_error(c.patch(f"/api/images/{image_id}", json={"expected": "security_compound"}), 422,
-                         "not a sign in the library")
-            assert c.get("/api/sweep", params={"steps": 2}).json()["correct"] == [0, 0]  # it cannot be right now
-            assert_error(c.get("/api/library/security_compound/image"), 404)
-            assert c.get("/api/health").json()["status"] == "ok"
-    finally:
-        workspace.close()
+    config = WorkspaceConfig(state_dir=tmp_path / "state", load_samples=False, workers=1, debounce_s=3600,
+                             max_wait_s=3600)
+    with running(create_app(config)) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        r = upload(c, ("compound.jpg", sign_photo(LIBRARY, "security_compound"), "security_compound"))
+        image_id = r.json()["images"][0]["id"]
+        assert processed(c, image_id)["label"] == "security_compound"
+        assert c.delete("/api/library/security_compound").status_code == 204
+        detail = c.get(f"/api/images/{image_id}").json()
+        assert detail["label"] == "security_compound" and detail["status"] == "pending"
+        assert detail["expected"] == "security_compound"  # kept: the person may add the sign back
+        for stage in STAGES:
+            assert c.get(f"/api/images/{image_id}/stages/{stage}").status_code == 200, stage
+        # The result's own matches against the deleted sign can still be drawn; a sign never known cannot.
+        assert c.get(f"/api/images/{image_id}/stages/matches?sign=security_compound").status_code == 200
+        assert_error(c.get(f"/api/images/{image_id}/stages/matches?sign=never_known"), 404, "not in the library")
+        assert c.post("/api/calibrate/threshold", json={"image_id": image_id}).status_code == 200
+        assert_error(c.patch(f"/api/images/{image_id}", json={"expected": "security_compound"}), 422,
+                     "not a sign in the library")
+        assert c.get("/api/sweep", params={"steps": 2}).json()["correct"] == [0, 0]  # it cannot be right now
+        assert_error(c.get("/api/library/security_compound/image"), 404)
+        assert c.get("/api/health").json()["status"] == "ok"

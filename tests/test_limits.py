@@ -16,7 +16,7 @@ import pytest
 import app.workspace as workspace_module
 from app.cli import main
 from app.server import create_app
-from app.workspace import Workspace, WorkspaceConfig
+from app.workspace import WorkspaceConfig
 from pipeline.library import SAMPLE_LIBRARY, load_library
 from scene_images import sign_photo
 from serving import TIMEOUT_S, assert_error, running, upload, wait_done
@@ -26,32 +26,28 @@ LIMIT_S = 0.5
 
 
 def test_a_stuck_pipeline_call_answers_503_and_the_server_goes_on(tmp_path, monkeypatch):
-    workspace = Workspace(WorkspaceConfig(state_dir=tmp_path / "state", load_samples=False, workers=1,
-                                          request_timeout_s=LIMIT_S))
-    try:
-        with running(create_app(workspace)) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
-            photo = sign_photo(LIBRARY, "security_compound")
-            upload(c, ("compound.jpg", photo, "security_compound"))
-            wait_done(c)
-            release, calls = threading.Event(), []
+    config = WorkspaceConfig(state_dir=tmp_path / "state", load_samples=False, workers=1, request_timeout_s=LIMIT_S)
+    with running(create_app(config)) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        photo = sign_photo(LIBRARY, "security_compound")
+        upload(c, ("compound.jpg", photo, "security_compound"))
+        wait_done(c)
+        release, calls = threading.Event(), []
 
-            def stuck(*args, **kwargs):  # returns, so only the stop request can end the sweep early
-                calls.append(args)
-                release.wait(TIMEOUT_S)
+        def stuck(*args, **kwargs):  # returns, so only the stop request can end the sweep early
+            calls.append(args)
+            release.wait(TIMEOUT_S)
 
-            monkeypatch.setattr(workspace_module, "recognize", stuck)
-            started = time.monotonic()
-            r = c.post("/api/recognize", files={"file": ("stuck.jpg", photo, "image/jpeg")})
-            assert_error(r, 503, "stuck.jpg", f"{LIMIT_S:g} s limit", "--request-timeout")
-            assert_error(c.get("/api/sweep", params={"steps": 13}), 503, "sweep", "--request-timeout")
-            assert time.monotonic() - started < 10 * LIMIT_S
-            assert c.get("/api/health").json()["status"] == "ok"  # answered while both calls hang
-            release.set()
-            time.sleep(5 * LIMIT_S)
-            # The abandoned sweep stopped after the run in progress instead of doing all 13.
-            assert len(calls) == 2
-    finally:
-        workspace.close()
+        monkeypatch.setattr(workspace_module, "recognize", stuck)
+        started = time.monotonic()
+        r = c.post("/api/recognize", files={"file": ("stuck.jpg", photo, "image/jpeg")})
+        assert_error(r, 503, "stuck.jpg", f"{LIMIT_S:g} s limit", "--request-timeout")
+        assert_error(c.get("/api/sweep", params={"steps": 13}), 503, "sweep", "--request-timeout")
+        assert time.monotonic() - started < 10 * LIMIT_S
+        assert c.get("/api/health").json()["status"] == "ok"  # answered while both calls hang
+        release.set()
+        time.sleep(5 * LIMIT_S)
+        # The abandoned sweep stopped after the run in progress instead of doing all 13.
+        assert len(calls) == 2
 
 
 @pytest.mark.parametrize("option, value", [("--max-upload-mb", "0"), ("--max-megapixels", "-1"),
@@ -64,24 +60,21 @@ def test_serve_refuses_limits_that_are_not_positive(tmp_path, capsys, option, va
 
 def test_results_can_be_checked_against_the_settings_of_their_version(tmp_path, monkeypatch):
     monkeypatch.setattr(workspace_module, "SETTINGS_HISTORY", 3)
-    workspace = Workspace(WorkspaceConfig(state_dir=tmp_path / "state", load_samples=False, workers=1))
-    try:
-        with running(create_app(workspace)) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
-            image_id = upload(c, ("compound.jpg", sign_photo(LIBRARY, "security_compound"), None)) \
-                .json()["images"][0]["id"]
-            sent = {}
-            for ratio in (0.7, 0.71, 0.72, 0.73):
-                body = c.put("/api/settings", json={"ratio": ratio}).json()
-                sent[body["version"]] = body["settings"]
-            wait_done(c)
-            detail = c.get(f"/api/images/{image_id}").json()
-            assert detail["settings_version"] == max(sent) and detail["settings"] == sent[max(sent)]
-            for version in sorted(sent)[-3:]:
-                assert c.get("/api/settings", params={"version": version}).json() == \
-                    {"version": version, "settings": sent[version]}
-            kept = f"versions {max(sent) - 2} to {max(sent)} are"
-            assert_error(c.get("/api/settings", params={"version": min(sent)}), 404, "not kept", kept)
-            assert_error(c.get("/api/settings", params={"version": 99}), 404, kept)
-            assert c.get("/api/settings", params={"version": 0}).status_code == 422
-    finally:
-        workspace.close()
+    config = WorkspaceConfig(state_dir=tmp_path / "state", load_samples=False, workers=1)
+    with running(create_app(config)) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        image_id = upload(c, ("compound.jpg", sign_photo(LIBRARY, "security_compound"), None)) \
+            .json()["images"][0]["id"]
+        sent = {}
+        for ratio in (0.7, 0.71, 0.72, 0.73):
+            body = c.put("/api/settings", json={"ratio": ratio}).json()
+            sent[body["version"]] = body["settings"]
+        wait_done(c)
+        detail = c.get(f"/api/images/{image_id}").json()
+        assert detail["settings_version"] == max(sent) and detail["settings"] == sent[max(sent)]
+        for version in sorted(sent)[-3:]:
+            assert c.get("/api/settings", params={"version": version}).json() == \
+                {"version": version, "settings": sent[version]}
+        kept = f"versions {max(sent) - 2} to {max(sent)} are"
+        assert_error(c.get("/api/settings", params={"version": min(sent)}), 404, "not kept", kept)
+        assert_error(c.get("/api/settings", params={"version": 99}), 404, kept)
+        assert c.get("/api/settings", params={"version": 0}).status_code == 422
