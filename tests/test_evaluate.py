@@ -84,7 +84,8 @@ def test_counts_errors_and_confusion(monkeypatch, library):
     monkeypatch.setattr(evaluate_module, "recognize",
                         fake_recognize({negative: "security_compound", positive.path.name: other}))
     calls = []
-    report = evaluate([dataset], library, preset("default"), progress=lambda i, n: calls.append((i, n)))
+    # One worker: the stand-in recognize is patched into this process only.
+    report = evaluate([dataset], library, preset("default"), progress=lambda i, n: calls.append((i, n)), workers=1)
     assert calls == [(i, 5) for i in range(1, 6)]
     s = report.datasets["set3"]
     assert (s.images, s.correct, s.negatives, s.false_positives) == (5, 3, 1, 1)
@@ -111,3 +112,11 @@ def test_runs_the_real_pipeline(library):
     assert s.images == 5 and s.correct >= 4 and s.false_positives == 0
     assert s.rotation_deg is not None and s.rotation_deg[0] < 5
     assert "set3" in format_table(report)
+
+
+def test_worker_processes_give_the_same_answers(library):
+    dataset = load_dataset(SET3)
+    alone, pooled = (evaluate([dataset], library, preset("default"), workers=w) for w in (1, 2))
+    assert [r.sample.path for r in pooled.results] == [s.path for s in dataset.samples]
+    assert [(r.predicted, r.rotation_error_deg) for r in pooled.results] == \
+        [(r.predicted, r.rotation_error_deg) for r in alone.results]
