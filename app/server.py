@@ -554,8 +554,8 @@ async def put_camera(request: Request, workspace: WorkspaceDep) -> CameraOut:
     elif content_type.startswith("application/json"):
         try:
             body = CameraModel.model_validate_json(await request.body())
-        except ValidationError as exc:
-            raise RequestValidationError(exc.errors(include_url=False)) from None
+        except ValidationError as exc:  # without the input: bytes that are not UTF-8 cannot go back as JSON
+            raise RequestValidationError(exc.errors(include_url=False, include_input=False)) from None
         camera = camera_from_json(body.model_dump(), source="json")
     else:
         raise HTTPException(status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,

@@ -268,10 +268,12 @@ def test_malformed_camera_files_change_nothing(client, name):
     {"fx": 0, "fy": 600, "cx": 320, "cy": 240}, {"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": -640},
     {"fx": 600, "fy": 600, "cx": 320}, {"fx": "600", "fy": [600], "cx": 320, "cy": 240},
     {"fx": 600, "fy": 600, "cx": 320, "cy": 240, "dist": "none"}, [600, 600, 320, 240],
+    json.dumps({"fx": 600, "fy": 600, "cx": 320, "cy": 240}).encode()[:-1] + b', "x": "\xff\xfe"}', b"\xff\x4c",
 ])
 def test_malformed_camera_json_changes_nothing(client, body):
     before = client.get("/api/camera").json()
-    assert client.put("/api/camera", json=body).status_code == 422
+    raw = body if isinstance(body, bytes) else json.dumps(body).encode()
+    assert client.put("/api/camera", content=raw, headers={"content-type": "application/json"}).status_code == 422
     assert client.get("/api/camera").json() == before
 
 
