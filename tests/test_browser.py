@@ -230,11 +230,13 @@ def test_viser_scene_connects_and_shares_the_settings(page, api):
     scene.get_by_text("Segmentation", exact=True).click()
     slider_id = scene.locator("label").get_by_text("threshold", exact=True).get_attribute("for")
     thumb = scene.locator(f'[id="{slider_id}"] [role="slider"]')
-    assert thumb.get_attribute("aria-valuenow") == "0.6"
+    default = api.get("/api/presets").json()["default"]["threshold"]  # the autouse fixture applied it
+    assert float(thumb.get_attribute("aria-valuenow")) == default
     thumb.focus()
-    thumb.press("ArrowRight")
-    page.wait_for_function("() => document.querySelector('#set-threshold').value === '0.61'")
-    harness.wait_setting(page, api, {"threshold": 0.61})
+    thumb.press("ArrowRight")  # one step of 0.01
+    nudged = round(default + 0.01, 2)
+    page.wait_for_function("v => Number(document.querySelector('#set-threshold').value) === v", arg=nudged)
+    harness.wait_setting(page, api, {"threshold": nudged})
 
     harness.set_setting(page, "threshold", 0.55)
     harness.wait_setting(page, api, {"threshold": 0.55})
