@@ -70,8 +70,13 @@ def access_token(host: str, given: str | None) -> str | None:
     return None if is_loopback(host) else secrets.token_urlsafe(18)
 
 
-def _host_name(netloc: str) -> str:
-    return urlsplit(f"//{netloc}").hostname or ""
+def _netloc(url: str) -> tuple[str, str]:
+    """(host name, host[:port]) of `url`, lower case; empty for what does not parse (a stray "[")."""
+    try:
+        parts = urlsplit(url)
+        return parts.hostname or "", parts.netloc.lower()
+    except ValueError:
+        return "", ""
 
 
 class AccessGuard:
@@ -85,12 +90,13 @@ class AccessGuard:
         """(status, message) when the request may not proceed whoever sends it; None when it may."""
         headers = Headers(scope=scope)
         host = headers.get("host", "")
-        if self.token is None and not is_loopback(_host_name(host)):
+        host_name, netloc = _netloc(f"//{host}")
+        if self.token is None and not is_loopback(host_name):
             return 403, (f"this signpose server only answers requests for this machine (got Host {host!r}); "
                          "open it as http://127.0.0.1:<port>/, or restart it with --host and share its token")
         origin = headers.get("origin")
         writes = scope["type"] == "websocket" or scope["method"] not in SAFE_METHODS
-        if writes and origin is not None and urlsplit(origin).netloc.lower() != host.lower():
+        if writes and origin is not None and (not netloc or _netloc(origin)[1] != netloc):
             return 403, f"cross-site request from {origin!r} refused; use the page this server serves"
         return None
 

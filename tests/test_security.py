@@ -106,6 +106,7 @@ def test_without_a_token_only_requests_for_this_machine_are_answered(open_url):
         assert httpx.get(open_url + "/api/health", headers={"Host": host}).status_code == 200, host
     # DNS rebinding: a page on evil.example whose name now resolves to 127.0.0.1.
     assert_error(httpx.get(open_url + "/api/images", headers={"Host": f"evil.example:{port}"}), 403, "this machine")
+    assert_error(httpx.get(open_url + "/api/images", headers={"Host": "["}), 403, "this machine")
 
 
 def test_cross_site_writes_and_websockets_are_refused(open_url):
@@ -115,6 +116,7 @@ def test_cross_site_writes_and_websockets_are_refused(open_url):
                          ("DELETE", "/api/camera"), ("POST", "/api/images")):
         r = httpx.request(method, open_url + path, json={"threshold": 0.5}, headers={"Origin": "http://evil.example"})
         assert_error(r, 403, "cross-site", "evil.example")
+    assert_error(httpx.put(open_url + "/api/settings", json={}, headers={"Origin": "http://["}), 403, "cross-site")
     assert httpx.get(open_url + "/api/settings").json() == before
     assert httpx.get(open_url + "/api/settings", headers={"Origin": "http://evil.example"}).status_code == 200
     r = httpx.put(open_url + "/api/settings", json={"threshold": before["settings"]["threshold"]},
