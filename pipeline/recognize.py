@@ -33,6 +33,8 @@ MAX_CORNER_EXCURSION = 0.5
 MIN_QUAD_AREA_PX = 64.0
 # Below this ECC correlation the dense alignment has latched onto something other than the sign.
 MIN_ECC = 0.5
+# refine="auto" aligns densely below this many inliers, where a point-based pose wanders.
+AUTO_ECC_MAX_INLIERS = 30
 
 
 @dataclass(eq=False)
@@ -378,9 +380,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     if winner is not None:
         t0 = time.perf_counter()
         H, src, dst, sign = winner
-        # A plaque's outline is too crude for a pose: the fallback always refines densely.
-        from_plaque = chosen is None or chosen.winner is None
-        if settings.refine == "ecc" or from_plaque:
+        if wants_dense_refinement(settings.refine, chosen):
             refined = refine_ecc(gray, sign, H)
             if refined is not None and refined[1] >= MIN_ECC:
                 H, ecc = refined
@@ -397,6 +397,19 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     timing["total"] = (time.perf_counter() - t_start) * 1e3
     return Recognition((width, height), settings, camera, segmentation, attempts, chosen, plaque, H, ecc, pose,
                        timing, warnings, sign.corners_px if sign is not None else None)
+
+
+def wants_dense_refinement(refine: str, attempt: Attempt | None) -> bool:
+    """Whether to refine the winner's H by ECC under the `refine` setting.
+
+    A plaque's outline is too crude for a pose, so the plaque fallback always refines. With
+    many inliers IPPE on the points is the better pose; with few, dense alignment is (measured
+    on synthetic scenes), hence "auto".
+    """
+    from_plaque = attempt is None or attempt.winner is None
+    if refine == "ecc" or from_plaque:
+        return True
+    return refine == "auto" and attempt.scores[attempt.winner].n_inliers < AUTO_ECC_MAX_INLIERS
 
 
 def read_plaques(gray: np.ndarray, segmentation: Segmentation, library: Library,

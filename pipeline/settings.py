@@ -40,7 +40,7 @@ NORMALIZATIONS = ("scale", "minmax")
 DETECTORS = ("sift", "orb")
 RANSAC_METHODS = ("own", "cv2_ransac", "usac_magsac", "usac_accurate")
 POSE_METHODS = ("paper", "ippe", "ippe_lm")
-REFINE_METHODS = ("ecc", "none")
+REFINE_METHODS = ("auto", "ecc", "none")
 
 
 @dataclass(frozen=True)
@@ -110,9 +110,10 @@ class Settings:
                                 "The best sign's correlation must beat the runner-up's by this much", step=0.01)
 
     # Pose
-    refine: str = _choice("none", REFINE_METHODS, "Pose",
-                          "ecc: align the sign densely to refine H (lower corner error, but on synthetic scenes "
-                          "a slightly worse pose than IPPE on the inliers); the plaque fallback always refines")
+    refine: str = _choice("auto", REFINE_METHODS, "Pose",
+                          "ecc: align the sign densely to refine H; auto: only when the winner has few inliers "
+                          "(there it beats the points; with many it is slightly worse); the plaque fallback "
+                          "always refines")
     pose_method: str = _choice("ippe_lm", POSE_METHODS, "Pose",
                                "paper: decompose H; ippe: planar PnP on all inliers; ippe_lm: ippe refined by LM")
     ambiguity_ratio: float = _num(0.8, 0.0, 1.0, "Pose",
