@@ -71,7 +71,7 @@ class Settings:
     min_crop_size: int = _num(320, 0, 2000, "Features",
                               "Crops whose longer side is below this many px are upscaled to it before detection",
                               step=10)
-    max_crop_size: int = _num(0, 0, 8000, "Features",
+    max_crop_size: int = _num(400, 0, 8000, "Features",
                               "Crops (not the full frame) whose longer side is above this many px are downscaled "
                               "to it before detection; 0: never", step=10)
     contrast_threshold: float = _num(0.03, 0.001, 0.2, "Features",
@@ -203,6 +203,7 @@ PRESETS: dict[str, Settings] = {
         candidates=1,
         full_frame_fallback=False,
         min_crop_size=0,
+        max_crop_size=0,
         ratio=0.667,
         ransac_method="own",
         ransac_iterations=50,
