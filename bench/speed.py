@@ -1,0 +1,326 @@
+"""Speed benchmark: a naive OpenCV-tutorial pipeline, the `paper` and `default` presets side by side.
+
+The same N synthetic scenes (pipeline.synth, fixed seed, easy / hard / negative mix) at
+640x480 and at 1280x960 (the same seed gives the same scenes at either size). On each image the
+three configurations run back to back, so load on the machine hits them alike. Per
+configuration: median and p90 ms per image, the mean of each stage, the peak memory of a
+fresh process, accuracy by category beside it, and the median over images of naive time /
+configuration time. Then: SIFT alone on the crop the default preset chose (the floor the
+pipeline cannot go below), a RANSAC and a ratio slider change re-run on the loaded images with
+their StageCaches, and evaluate's wall time on 2 worker processes against 1.
+
+    python bench/speed.py [--n 200] [--seed 0] [--data DIR] [--quick]
+
+Scenes are rendered once into --data (default: signpose-speed in the temp folder) and re-used;
+1280x960 takes several seconds a scene, so the first run renders for a while.
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing
+import os
+import statistics
+import tempfile
+import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from unittest import mock
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+import pipeline.recognize as recognize_module
+from pipeline.camera import Camera
+from pipeline.evaluate import Dataset, evaluate, keep_freed_memory, load_dataset
+from pipeline.features import detect
+from pipeline.image import read_image, to_gray
+from pipeline.library import Library, load_library
+from pipeline.pose import rotation_error_deg
+from pipeline.recognize import STAGES, StageCache, recognize
+from pipeline.settings import Settings, preset
+from pipeline.synth import CATEGORIES, generate_dataset
+
+SIZES = ((640, 480), (1280, 960))
+CONFIGS = ("naive", "paper", "default")
+MIN_MATCH_COUNT = 10  # the tutorial's: fewer inliers is "no sign"
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One configuration on one image: its answer, rotation (3, 3) or None, and ms per stage plus "total"."""
+
+    label: str | None
+    R: np.ndarray | None
+    timing_ms: dict[str, float]
+
+
+def naive_recognize(image: np.ndarray, library: Library, camera: Camera) -> Outcome:
+    """What a user writes from OpenCV's feature-homography tutorial, timed per stage.
+
+    Gray conversion and SIFT on the full frame; every library image's SIFT recomputed for each query; brute-force
+    2-NN with Lowe's ratio 0.75; cv2.findHomography RANSAC at 5 px per sign; the sign with most
+    inliers wins if it has MIN_MATCH_COUNT of them; cv2.solvePnP on its four projected corners.
+    """
+    timing = dict.fromkeys(STAGES, 0.0)
+    clock = time.perf_counter()
+
+    def lap(stage: str) -> None:
+        nonlocal clock
+        now = time.perf_counter()
+        timing[stage] += (now - clock) * 1e3
+        clock = now
+
+    sift = cv2.SIFT_create()
+    kp, des = sift.detectAndCompute(to_gray(image), None)
+    signs = [(sign, *sift.detectAndCompute(sign.image, None)) for sign in library.signs]
+    lap("features")
+    best = (0, None, None)
+    for sign, kp_sign, des_sign in signs if des is not None and len(kp) >= 2 else ():
+        pairs = cv2.BFMatcher().knnMatch(des_sign, des, k=2)
+        good = [m for m, n in (p for p in pairs if len(p) == 2) if m.distance < 0.75 * n.distance]
+        lap("match")
+        if len(good) >= 4:
+            src = np.float32([kp_sign[m.queryIdx].pt for m in good]).reshape(-1, 1, 2)
+            dst = np.float32([kp[m.trainIdx].pt for m in good]).reshape(-1, 1, 2)
+            H, mask = cv2.findHomography(src, dst, cv2.RANSAC, 5.0)
+            if H is not None and mask.sum() > best[0]:
+                best = (int(mask.sum()), sign, H)
+        lap("ransac")
+    inliers, sign, H = best
+    if inliers < MIN_MATCH_COUNT:
+        timing["total"] = sum(timing.values())
+        return Outcome(None, None, timing)
+    corners = cv2.perspectiveTransform(sign.corners_px.reshape(-1, 1, 2), H)
+    _, rvec, _ = cv2.solvePnP(sign.to_metric(sign.corners_px), corners, camera.K, camera.dist)
+    lap("pose")
+    timing["total"] = sum(timing.values())
+    return Outcome(sign.id, cv2.Rodrigues(rvec)[0], timing)
+
+
+def runner(name: str) -> Callable[[np.ndarray, Library, Camera], tuple[Outcome, tuple | None]]:
+    """(image -> (Outcome, region the answer came from or None)) for a configuration in CONFIGS."""
+    if name == "naive":
+        return lambda image, library, camera: (naive_recognize(image, library, camera), None)
+    settings = preset(name)
+
+    def run(image: np.ndarray, library: Library, camera: Camera) -> tuple[Outcome, tuple | None]:
+        rec = recognize(image, library, settings, camera)
+        region = rec.attempt.region if rec.attempt is not None else None
+        return Outcome(rec.label, rec.pose.R if rec.pose is not None else None, rec.timing_ms), region
+    return run
+
+
+def scenes(data: Path, size: tuple[int, int], n: int, seed: int, library: Library) -> Dataset:
+    """The first n scenes of `size` (w, h) from `seed`, rendered into `data` unless already there."""
+    root = data / f"{size[0]}x{size[1]}-seed{seed}"
+    if not (root / "truth.json").is_file() or len(load_dataset(root)) < n:
+        with tqdm(total=n, desc=f"render {size[0]}x{size[1]}", unit="scene") as bar:
+            generate_dataset(root, library, n=n, seed=seed, size=size, progress=lambda i, total: bar.update(1))
+    dataset = load_dataset(root)
+    dataset.samples = dataset.samples[:n]
+    return dataset
+
+
+def floor_ms(gray: np.ndarray, settings: Settings, region: tuple | None) -> float:
+    """ms of the pipeline's own SIFT (crop resizing included) on `region` alone."""
+    t0 = time.perf_counter()
+    detect(gray, settings, region)
+    return (time.perf_counter() - t0) * 1e3
+
+
+def measure(dataset: Dataset, library: Library) -> tuple[dict[str, list[Outcome]], list[float]]:
+    """Every configuration on every image, interleaved; and the floor of each default run."""
+    runs = {name: runner(name) for name in CONFIGS}
+    for run in runs.values():  # library features, imports and first-call costs out of the figures
+        run(read_image(dataset.samples[0].path), library, dataset.camera)
+    outcomes: dict[str, list[Outcome]] = {name: [] for name in CONFIGS}
+    floors, default = [], preset("default")
+    for sample in tqdm(dataset.samples, desc=f"{dataset.camera.width}x{dataset.camera.height}", unit="img"):
+        image = read_image(sample.path)
+        regions = {}
+        for name, run in runs.items():
+            outcome, regions[name] = run(image, library, dataset.camera)
+            outcomes[name].append(outcome)
+        floors.append(floor_ms(to_gray(image), default, regions["default"]))
+    return outcomes, floors
+
+
+def _rss_kb(field: str) -> int:
+    """A `VmRSS` / `VmHWM` line of /proc/self/status, in kB."""
+    with open("/proc/self/status") as status:
+        return next(int(line.split()[1]) for line in status if line.startswith(field + ":"))
+
+
+def _peak_rss_mb(name: str, paths: list[Path], camera: Camera) -> float:
+    """In a fresh process: peak RSS (MB) above the process's own after loading and one warm-up image.
+
+    Linux: writing 5 to /proc/self/clear_refs resets the peak (VmHWM) to the current RSS.
+    """
+    library, run = load_library(), runner(name)
+    run(read_image(paths[0]), library, camera)
+    images = [read_image(p) for p in paths]
+    Path("/proc/self/clear_refs").write_text("5")
+    baseline = _rss_kb("VmRSS")
+    for image in images:
+        run(image, library, camera)
+    return (_rss_kb("VmHWM") - baseline) / 1024
+
+
+def peak_memory(dataset: Dataset, count: int) -> dict[str, float]:
+    """`_peak_rss_mb` of each configuration over the first `count` images, each in a new process."""
+    paths = [s.path for s in dataset.samples[:count]]
+    peaks = {}
+    for name in CONFIGS:
+        with ProcessPoolExecutor(1, multiprocessing.get_context("spawn")) as pool:
+            peaks[name] = pool.submit(_peak_rss_mb, name, paths, dataset.camera).result()
+    return peaks
+
+
+def rerun(dataset: Dataset, library: Library) -> list[str]:
+    """Time slider changes over all loaded images, each with its StageCache, as `signpose serve`
+    re-runs them: one image after another, and on a pool of one thread per core like its own.
+
+    Checks that features are not extracted again: a region the first run already searched must
+    come from the cache.
+    """
+    settings = preset("default")
+    images = [read_image(s.path) for s in dataset.samples]
+    caches = [StageCache() for _ in images]
+    t0 = time.perf_counter()
+    searched = [{a.region for a in recognize(im, library, settings, dataset.camera, c).attempts}
+                for im, c in zip(images, caches)]
+    lines = [f"{len(images)} images loaded and run once: {time.perf_counter() - t0:.2f} s"]
+    changes = {"RANSAC threshold": {"ransac_threshold_px": settings.ransac_threshold_px - 1.0},
+               "ratio": {"ratio": settings.ratio + 0.05}}
+    for what, change in changes.items():
+        changed = settings.replace(**change)
+        with mock.patch.object(recognize_module, "detect", wraps=detect) as spy:
+            t0 = time.perf_counter()
+            again = 0
+            for image, cache, regions in zip(images, caches, searched):
+                spy.reset_mock()
+                recognize(image, library, changed, dataset.camera, cache)
+                again += sum(call.args[2] in regions for call in spy.call_args_list)
+            alone = time.perf_counter() - t0
+        with ThreadPoolExecutor(os.cpu_count()) as pool:
+            t0 = time.perf_counter()
+            list(pool.map(lambda job: recognize(job[0], library, changed, dataset.camera, job[1]), zip(images, caches)))
+            pooled = time.perf_counter() - t0
+        lines.append(f"one {what} change, all {len(images)} re-run: {alone:.2f} s one by one "
+                     f"({alone / len(images) * 1e3:.1f} ms an image), {pooled:.2f} s on {os.cpu_count()} threads; "
+                     f"features re-extracted: {again}")
+    return lines
+
+
+def batch_speedup(dataset: Dataset, library: Library, repeats: int) -> str:
+    """evaluate's wall time on 1 core, on 1 worker whose OpenCV calls use every core, and on 2
+    worker processes, beside the same images on a pool of 2 threads (as `signpose serve` runs
+    them); alternated, best of `repeats` each."""
+    settings, threads = preset("default"), cv2.getNumThreads()
+
+    def on_threads() -> None:
+        with ThreadPoolExecutor(2) as pool:
+            list(pool.map(lambda s: recognize(read_image(s.path), library, settings, dataset.camera), dataset.samples))
+
+    runs = {"1 worker on 1 core": lambda: evaluate([dataset], library, settings, workers=1),
+            "1 worker, OpenCV on all cores": lambda: evaluate([dataset], library, settings, workers=1),
+            "2 workers": lambda: evaluate([dataset], library, settings, workers=2),
+            "2 threads": on_threads}
+    best = dict.fromkeys(runs, np.inf)
+    for _ in range(repeats):
+        for name, run in runs.items():
+            cv2.setNumThreads(1 if name == "1 worker on 1 core" else threads)
+            t0 = time.perf_counter()
+            run()
+            best[name] = min(best[name], time.perf_counter() - t0)
+    cv2.setNumThreads(threads)
+    return (f"evaluate on {len(dataset)} images, best of {repeats}: "
+            + ", ".join(f"{name} {seconds:.2f} s" for name, seconds in best.items())
+            + f"; 2 workers vs 1 core {best['1 worker on 1 core'] / best['2 workers']:.2f}x, "
+            f"vs 1 worker {best['1 worker, OpenCV on all cores'] / best['2 workers']:.2f}x")
+
+
+def _percent(outcomes: list[Outcome], dataset: Dataset, category: str) -> str:
+    hits = [o.label == s.label for o, s in zip(outcomes, dataset.samples) if s.category == category]
+    return f"{100 * sum(hits) / len(hits):.0f}%" if hits else "-"
+
+
+def _rotation(outcomes: list[Outcome], dataset: Dataset) -> str:
+    errors = [rotation_error_deg(s.R, o.R) for o, s in zip(outcomes, dataset.samples)
+              if s.label is not None and o.label == s.label and o.R is not None]
+    return f"{statistics.median(errors):.2f}" if errors else "-"
+
+
+def table(dataset: Dataset, outcomes: dict[str, list[Outcome]], memory: dict[str, float]) -> list[str]:
+    """One row per configuration: times, stages, memory, accuracy by category, ratio to naive."""
+    naive = np.array([o.timing_ms["total"] for o in outcomes["naive"]])
+    head = (f"{'':<8}{'median':>8}{'p90':>8}{'vs naive':>9} |" + "".join(f"{s:>9}" for s in STAGES)
+            + f" |{'peak MB':>8} |" + "".join(f"{c:>9}" for c in CATEGORIES) + f"{'rot med':>9}")
+    lines = [head, "-" * len(head)]
+    for name, runs in outcomes.items():
+        total = np.array([o.timing_ms["total"] for o in runs])
+        stages = "".join(f"{np.mean([o.timing_ms[s] for o in runs]):>9.1f}" for s in STAGES)
+        accuracy = "".join(f"{_percent(runs, dataset, c):>9}" for c in CATEGORIES)
+        lines.append(f"{name:<8}{np.median(total):>8.1f}{np.percentile(total, 90):>8.1f}"
+                     f"{np.median(naive / total):>8.1f}x |{stages} |{memory[name]:>8.1f} |{accuracy}"
+                     f"{_rotation(runs, dataset):>9}")
+    return lines
+
+
+def default_lines(dataset: Dataset, outcomes: dict[str, list[Outcome]], floors: list[float]) -> list[str]:
+    """The default preset against the naive reference by category, and against its floor."""
+    default = np.array([o.timing_ms["total"] for o in outcomes["default"]])
+    ratio = np.array([o.timing_ms["total"] for o in outcomes["naive"]]) / default
+    category = np.array([s.category for s in dataset.samples])
+    floors = np.array(floors)
+    return ["default vs naive, median per image by category: "
+            + ", ".join(f"{c} {np.median(ratio[category == c]):.1f}x" for c in CATEGORIES if np.any(category == c))
+            + f"; at least 8x on {np.mean(ratio >= 8):.0%} of images",
+            f"floor, SIFT alone on the crop default chose: median {np.median(floors):.1f} ms; default / floor: "
+            f"median per image {np.median(default / floors):.2f}, ratio of medians "
+            f"{np.median(default) / np.median(floors):.2f}"]
+
+
+def machine() -> str:
+    with open("/proc/cpuinfo") as cpuinfo:
+        model = next((line.split(":", 1)[1].strip() for line in cpuinfo if line.startswith("model name")), "?")
+    return f"{os.cpu_count()} cores, {model}, OpenCV {cv2.__version__}, {cv2.getNumThreads()} OpenCV threads"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--n", type=int, default=200, help="scenes per size (default 200)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--data", type=Path, default=Path(tempfile.gettempdir()) / "signpose-speed",
+                        help="folder the scenes are rendered into and re-used from")
+    parser.add_argument("--memory-images", type=int, default=20, help="images per peak-memory run (default 20)")
+    parser.add_argument("--quick", action="store_true",
+                        help="640x480 only, at most 50 scenes, 5 images per memory run, evaluate once")
+    args = parser.parse_args()
+    n, sizes, memory_images, repeats = args.n, SIZES, args.memory_images, 2
+    if args.quick:
+        n, sizes, memory_images, repeats = min(n, 50), SIZES[:1], 5, 1
+
+    keep_freed_memory()  # as evaluate's workers do; every configuration runs in this process alike
+    library = load_library()
+    report = [machine(), f"load average at start: {os.getloadavg()[0]:.2f}"]
+    for size in sizes:
+        dataset = scenes(args.data, size, n, args.seed, library)
+        outcomes, floors = measure(dataset, library)
+        counts = ", ".join(f"{sum(s.category == c for s in dataset.samples)} {c}" for c in CATEGORIES)
+        report += ["", f"{size[0]}x{size[1]}: {len(dataset)} scenes ({counts}), seed {args.seed}; ms per image, "
+                       "stage means in ms, peak RSS above a warm process in MB, rotation error median in degrees"]
+        report += table(dataset, outcomes, peak_memory(dataset, memory_images))
+        report += default_lines(dataset, outcomes, floors)
+        if size == sizes[0]:
+            report += ["", *rerun(dataset, library), batch_speedup(dataset, library, repeats)]
+    report.append(f"load average at end: {os.getloadavg()[0]:.2f}")
+    print("\n".join(report))
+
+
+if __name__ == "__main__":
+    main()
