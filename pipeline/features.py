@@ -86,7 +86,7 @@ def detect(gray: np.ndarray, settings: Settings, region: Box | None = None) -> F
     if descriptors is None or not keypoints:
         return Features(np.zeros((0, 2), np.float32), np.zeros(0, np.float32), np.zeros((0, dim), dtype),
                         (x0, y0, x1, y1), scale, settings.detector)
-    pts = np.array([k.pt for k in keypoints], dtype=np.float32)
+    pts = cv2.KeyPoint_convert(keypoints).reshape(-1, 2)
     # cv2.resize aligns pixel centres: x_src = (x_dst + 0.5) / scale - 0.5.
     xy = (pts + 0.5) / scale - 0.5 + np.array([x0, y0], dtype=np.float32)
     size = np.array([k.size for k in keypoints], dtype=np.float32) / scale
