@@ -11,6 +11,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from pipeline.camera import Camera, CameraError, load_camera
+from pipeline.evaluate import keep_freed_memory
 from pipeline.exif import camera_from_exif
 from pipeline.image import ImageError, decode_image, read_file, read_image
 from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
@@ -63,6 +64,7 @@ def format_row(name: str, rec: Recognition) -> str:
 
 def cmd_recognize(args) -> int:
     library, settings, camera = load_inputs(args)
+    keep_freed_memory()  # this process exists to run the pipeline: about 25 % faster per image
     failed = 0
     if not args.json:
         print(f"{'image':<28} {'label':<22} {'inliers':>7} {'margin':>6}  pose")
