@@ -54,6 +54,7 @@ const stages = Object.entries({ gray: "normalised gray", mask: "binary mask", bl
 
 function renderHead() {
   const r = detail.result;
+  $("#detail").dataset.id = detail.id;  // which image is shown, for tests and deep links
   $("#detail-name").textContent = detail.name;
   $("#detail-name").title = `${detail.name} · ${detail.width}×${detail.height} px`;
   const badge = $("#detail-badge");

@@ -81,8 +81,9 @@ def uploaded_scene(api) -> str:
 
 def open_detail(page, image_id: str) -> None:
     page.click(f'.card[data-id="{image_id}"]')
+    # A previously opened image stays on show until this one's detail has loaded.
     page.wait_for_function("id => !document.querySelector('#detail').hidden && "
-                           "document.querySelector('#detail-name').textContent !== ''", arg=image_id)
+                           "document.querySelector('#detail').dataset.id === id", arg=image_id)
 
 
 def test_upload_recognise_and_inspect(page, api, tmp_path):
