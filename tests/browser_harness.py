@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import httpx
+from serving import wait_idle
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = Path("/usr/bin/chromium")
@@ -103,13 +104,7 @@ def wait_server_idle(api, timeout: float = 120) -> int:
 
     `api`: an httpx.Client on the server's base URL.
     """
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        body = api.get("/api/images").json()
-        if not body["running"] and all(i["status"] != "pending" for i in body["images"]):
-            return body["version"]
-        time.sleep(0.1)
-    raise TimeoutError(f"images still being processed after {timeout} s")
+    return wait_idle(api, timeout)["version"]
 
 
 def wait_setting(page, api, expected: dict, timeout: float = 120) -> None:

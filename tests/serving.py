@@ -70,15 +70,20 @@ def upload(client, *images: tuple[str, bytes, str | None]) -> httpx.Response:
     return client.post("/api/images", files=files, data=data)
 
 
-def wait_done(client) -> list[dict]:
-    """The image summaries once no re-run is running or pending."""
-    deadline = time.monotonic() + TIMEOUT_S
+def wait_idle(client, timeout: float = TIMEOUT_S) -> dict:
+    """The `GET /api/images` body once no re-run is running and no image is pending."""
+    deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         body = client.get("/api/images").json()
         if not body["running"] and all(i["status"] != "pending" for i in body["images"]):
-            return body["images"]
+            return body
         time.sleep(0.05)
-    raise AssertionError("images still pending")
+    raise TimeoutError(f"images still being processed after {timeout} s")
+
+
+def wait_done(client) -> list[dict]:
+    """The image summaries once no re-run is running or pending."""
+    return wait_idle(client)["images"]
 
 
 def assert_error(r: httpx.Response, code: int, *words: str) -> None:
