@@ -49,10 +49,14 @@ def create_detector(settings: Settings):
     return cv2.SIFT_create(nfeatures=settings.max_features, contrastThreshold=settings.contrast_threshold)
 
 
+def detector_key(settings: Settings) -> tuple:
+    """The settings that change the detector itself (all that matters for library signs)."""
+    return settings.detector, settings.max_features, settings.contrast_threshold
+
+
 def feature_key(settings: Settings) -> tuple:
     """The settings that change what `detect` returns for a given image region."""
-    return (settings.detector, settings.max_features, settings.contrast_threshold, settings.min_crop_size,
-            settings.max_crop_size)
+    return *detector_key(settings), settings.min_crop_size, settings.max_crop_size
 
 
 def region_scale(long_side: int, settings: Settings, full_frame: bool = False) -> float:
@@ -100,7 +104,7 @@ def sign_features(sign: LibrarySign, settings: Settings) -> Features:
 
 def library_features(library: Library, settings: Settings) -> dict[str, Features]:
     """Features of every library sign, computed once per feature settings and cached on the library."""
-    key = ("features", *feature_key(settings)[:3])
+    key = ("features", *detector_key(settings))
     cached = library.cache.get(key)
     if cached is None or cached.keys() != set(library.ids):
         cached = {sign.id: sign_features(sign, settings) for sign in library.signs}
