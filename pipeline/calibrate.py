@@ -16,6 +16,8 @@ import numpy as np
 from .camera import Camera
 
 MIN_VIEWS = 3
+# More inner corners per side than any printable board has; the detector's cost grows with them.
+MAX_BOARD_SIDE = 100
 # findChessboardCornersSB cost grows with the pixel count and it finds boards just as well at
 # this size; the corners are then refined at full resolution.
 MAX_DETECT_SIDE = 1600
@@ -112,11 +114,34 @@ class Calibration:
         return out
 
     @property
+    def outlier_threshold_px(self) -> float:
+        """Error above which a used view is an outlier, px (see `outlier_threshold`)."""
+        return outlier_threshold(self.errors_px[list(self.used)])
+
+    @property
     def outliers(self) -> tuple[int, ...]:
-        """Indices of used views whose error is far above the rest (see `outlier_threshold`)."""
-        used = list(self.used)
-        limit = outlier_threshold(self.errors_px[used])
-        return tuple(i for i in used if self.errors_px[i] > limit)
+        """Indices of used views whose error is far above the rest (above `outlier_threshold_px`)."""
+        limit = self.outlier_threshold_px
+        return tuple(i for i in self.used if self.errors_px[i] > limit)
+
+    def to_json(self) -> dict:
+        """JSON-ready summary: the camera, RMS, standard deviations of fx, fy, cx, cy and the outlier
+        threshold (px), warnings, and per view (in input order) whether the board was found, its RMS
+        error (px), its tilt (degrees), and whether it is an outlier or was left out of the fit."""
+        outliers, tilts = set(self.outliers), self.tilts_deg
+        return {
+            "board": list(self.board), "square_m": self.square_m, "rms_px": self.rms_px,
+            "camera": self.camera.to_json(),
+            "intrinsics_std": dict(zip(("fx", "fy", "cx", "cy"), self.intrinsics_std.tolist())),
+            "outlier_threshold_px": self.outlier_threshold_px, "used": len(self.used), "warnings": self.warnings,
+            "views": [{"name": v.name, "found": v.found, "error_px": _finite_or_none(self.errors_px[i]),
+                       "tilt_deg": _finite_or_none(tilts[i]), "outlier": i in outliers, "excluded": i in self.excluded}
+                      for i, v in enumerate(self.views)],
+        }
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
 
 
 def parse_board(text: str) -> tuple[int, int]:
@@ -128,11 +153,22 @@ def parse_board(text: str) -> tuple[int, int]:
 
 
 def check_board(board: tuple[int, int]) -> tuple[int, int]:
+    """`board` as (cols, rows) ints; CalibrationError unless each side has 3 to MAX_BOARD_SIDE inner corners."""
     cols, rows = board
     if cols < 3 or rows < 3:
         raise CalibrationError(f"board needs at least 3x3 inner corners; got {cols}x{rows} "
                                "(count the corners where four squares meet, not the squares)")
+    if cols > MAX_BOARD_SIDE or rows > MAX_BOARD_SIDE:
+        raise CalibrationError(f"board sides have at most {MAX_BOARD_SIDE} inner corners; got {cols}x{rows}")
     return int(cols), int(rows)
+
+
+def check_square(square_m: float) -> float:
+    """`square_m` as a float; CalibrationError unless it is a positive, finite number of metres."""
+    if not (isinstance(square_m, (int, float)) and math.isfinite(square_m) and square_m > 0):
+        raise CalibrationError(f"square size must be a positive number of metres (e.g. 0.025 for 25 mm); "
+                               f"got {square_m}")
+    return float(square_m)
 
 
 def board_points(board: tuple[int, int], square_m: float) -> np.ndarray:
@@ -208,8 +244,7 @@ def calibrate(views: list[BoardView], board: tuple[int, int], square_m: float,
         fits noise and extrapolates wildly towards the image corners.
     """
     board = check_board(board)
-    if not (math.isfinite(square_m) and square_m > 0):
-        raise CalibrationError(f"square size must be a positive number of metres; got {square_m}")
+    square_m = check_square(square_m)
     views = tuple(views)
     found = [i for i, v in enumerate(views) if v.found]
     if not found:
@@ -286,9 +321,8 @@ def format_report(calibration: Calibration) -> str:
         "distortion k1 k2 p1 p2 k3: " + " ".join(f"{v:.5g}" for v in d),
     ]
     if outliers:
-        limit = outlier_threshold(c.errors_px[list(c.used)])
         names = ", ".join(f"{c.views[i].name} ({c.errors_px[i]:.2f} px)" for i in sorted(outliers))
-        lines.append(f"outliers (error > {limit:.2f} px): {names}; "
+        lines.append(f"outliers (error > {c.outlier_threshold_px:.2f} px): {names}; "
                      "retake or drop them (signpose calibrate --drop-outliers)")
     lines += [f"warning: {w}" for w in c.warnings]
     return "\n".join(lines)

@@ -1,64 +1,19 @@
 """Chessboard calibration: rendered and projected views of a board under known intrinsics."""
 
+import json
+
 import cv2
 import numpy as np
 import pytest
 
 import pipeline.calibrate as calib
 from app.cli import main
-from pipeline.calibrate import (BoardView, CalibrationError, board_points, calibrate, chessboard_image,
-                                drop_outliers, find_board, format_report, parse_board)
+from chessboards import BOARD, DIST_TRUE, K_TRUE, SIZE, SQUARE_M, board_poses, projected_corners, render_boards
+from pipeline.calibrate import (BoardView, CalibrationError, calibrate, chessboard_image, drop_outliers, find_board,
+                                format_report, parse_board)
 from pipeline.camera import Camera, load_camera, save_camera
 from pipeline.library import LibrarySign
 from pipeline.pose import estimate_pose, rotation_error_deg
-
-SIZE = (640, 480)
-K_TRUE = np.array([[520.0, 0, 318.0], [0, 515.0, 243.0], [0, 0, 1]])
-DIST_TRUE = np.array([-0.12, 0.05, 0.001, -0.0005, 0.0])
-BOARD = (9, 6)
-SQUARE_M = 0.03
-TEXTURE_SQUARE_PX = 40
-_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
-
-
-def board_poses(n: int, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
-    """n (rvec (3,), tvec (3,) m) board poses, 0.35-0.55 m away, tilted up to ~30° and spread over the frame."""
-    rng = np.random.default_rng(seed)
-    centre = np.array([(BOARD[0] - 1) / 2, (BOARD[1] - 1) / 2, 0]) * SQUARE_M
-    poses = []
-    for _ in range(n):
-        rvec = np.concatenate([rng.uniform(-0.5, 0.5, 2), rng.uniform(-0.3, 0.3, 1)])
-        offset = np.array([rng.uniform(-0.08, 0.08), rng.uniform(-0.06, 0.06), rng.uniform(0.35, 0.55)])
-        poses.append((rvec, offset - cv2.Rodrigues(rvec)[0] @ centre))
-    return poses
-
-
-def pixel_rays(K: np.ndarray, dist: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """(H, W, 3) homogeneous normalised ray of every pixel centre of the distorted image."""
-    w, h = size
-    pixels = np.stack(np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)), -1)
-    undistort = getattr(cv2, "undistortPointsIter", cv2.undistortPoints)  # 4.x names the overload with criteria
-    xy = undistort(pixels.reshape(-1, 1, 2), K, dist, R=None, P=None, criteria=_UNDISTORT_CRITERIA)
-    return np.concatenate([xy.reshape(h, w, 2), np.ones((h, w, 1))], axis=-1)
-
-
-def render_board(rays: np.ndarray, rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
-    """(H, W) uint8 image of the printed board at pose (rvec, tvec), with the lens distortion baked into `rays`."""
-    R = cv2.Rodrigues(rvec)[0]
-    plane_to_rays = np.column_stack([R[:, 0], R[:, 1], tvec])  # board (X, Y, 1) metres -> ray
-    p = rays @ np.linalg.inv(plane_to_rays).T
-    xy = p[..., :2] / p[..., 2:]
-    # Texture pixel centres are integers, so inner corner (0, 0) sits half a pixel before the edge of square 1.
-    texture_px = xy * (TEXTURE_SQUARE_PX / SQUARE_M) + 2 * TEXTURE_SQUARE_PX - 0.5
-    texture = chessboard_image(BOARD, TEXTURE_SQUARE_PX)
-    image = cv2.remap(texture, texture_px[..., 0].astype(np.float32), texture_px[..., 1].astype(np.float32),
-                      cv2.INTER_LINEAR, borderValue=128)
-    return cv2.GaussianBlur(image, (0, 0), 0.7)  # a lens is never perfectly sharp
-
-
-def projected_corners(rvec, tvec, K=K_TRUE, dist=DIST_TRUE) -> np.ndarray:
-    img, _ = cv2.projectPoints(board_points(BOARD, SQUARE_M), rvec, tvec, K, dist)
-    return img.reshape(-1, 2)
 
 
 def projected_views(n: int, noise_px: float = 0.1, seed: int = 0) -> list[BoardView]:
@@ -70,9 +25,7 @@ def projected_views(n: int, noise_px: float = 0.1, seed: int = 0) -> list[BoardV
 @pytest.fixture(scope="module")
 def rendered():
     """12 rendered board photos (H, W) uint8, their true poses and the boards found in them."""
-    rays = pixel_rays(K_TRUE, DIST_TRUE, SIZE)
-    poses = board_poses(12)
-    images = [render_board(rays, r, t) for r, t in poses]
+    images, poses = render_boards(12)
     return images, poses, [find_board(im, BOARD, f"{i}.png") for i, im in enumerate(images)]
 
 
@@ -152,6 +105,25 @@ def test_outlier_reported_and_dropping_it_improves_rms():
     assert drop_outliers(better) is better
 
 
+def test_to_json_reports_every_view_and_the_outlier_threshold():
+    views = projected_views(8)
+    views[2] = BoardView("shaky.png", SIZE, views[2].corners + np.random.default_rng(3).normal(0, 3.0, (54, 2)))
+    views.insert(4, BoardView("blurry.png", SIZE, None))
+    cal = calibrate(views, BOARD, SQUARE_M)
+    out = cal.to_json()
+    assert out["rms_px"] == cal.rms_px and out["used"] == 8 and out["board"] == [9, 6] and out["square_m"] == SQUARE_M
+    assert out["camera"]["fx"] == cal.camera.K[0, 0] and set(out["intrinsics_std"]) == {"fx", "fy", "cx", "cy"}
+    assert [v["name"] for v in out["views"]] == [v.name for v in views]
+    shaky, blurry = out["views"][2], out["views"][4]
+    assert shaky["outlier"] and shaky["error_px"] > out["outlier_threshold_px"] == cal.outlier_threshold_px
+    assert blurry == {"name": "blurry.png", "found": False, "error_px": None, "tilt_deg": None, "outlier": False,
+                      "excluded": False}
+    assert sum(v["outlier"] for v in out["views"]) == 1 and 0 < out["views"][0]["tilt_deg"] < 45
+    dropped = drop_outliers(cal).to_json()["views"][2]
+    assert dropped["excluded"] and not dropped["outlier"] and dropped["error_px"] > 2
+    json.dumps(out)  # plain JSON: no NaN, no numpy arrays
+
+
 def test_warnings_for_a_weak_calibration():
     assert calibrate(projected_views(12), BOARD, SQUARE_M).warnings == []
     rng = np.random.default_rng(0)
@@ -179,7 +151,7 @@ def test_parse_board(text, board):
     assert parse_board(text) == board
 
 
-@pytest.mark.parametrize("text", ["9", "9x", "x6", "9x6x2", "9,6", "a x b", "-9x6", "2x6", "9x0", ""])
+@pytest.mark.parametrize("text", ["9", "9x", "x6", "9x6x2", "9,6", "a x b", "-9x6", "2x6", "9x0", "", "101x6"])
 def test_parse_board_rejects(text):
     with pytest.raises(CalibrationError, match="inner corners"):
         parse_board(text)
