@@ -3,7 +3,8 @@
 Layout (every file name is chosen by the server, never by a client)::
 
     settings.json           the current settings; a plain settings file (`--settings` reads it)
-    camera.json             {fx, fy, cx, cy, dist, width, height, source}; absent: assumed per image
+    camera.json             {fx, fy, cx, cy, dist, width, height, source}; absent: EXIF or assumed per image
+    assumed_fov.json        {"hfov_deg": float}: the field of view assumed without camera or EXIF; absent: 60°
     library/library.json    a complete sign library (`signpose recognize --library <state>/library`
                             works), plus "copied_from": the library folder it started as a copy of
     library/<image files>
@@ -27,7 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pipeline.camera import Camera, CameraError, camera_from_json
+from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, camera_from_json, check_hfov
 from pipeline.library import Library, LibraryError, load_library
 from pipeline.settings import Settings, SettingsError, load_settings
 
@@ -102,6 +103,7 @@ class StateDir:
             raise StateError(f"cannot create the state directory {self.root}: {exc.strerror}") from None
         self.settings_path = self.root / "settings.json"
         self.camera_path = self.root / "camera.json"
+        self.fov_path = self.root / "assumed_fov.json"
         self.library_dir = self.root / "library"
         self.images_dir = self.root / "images"
         self.index_path = self.images_dir / "index.json"
@@ -133,6 +135,20 @@ class StateDir:
             remove_file(self.camera_path)
         else:
             atomic_write_json(self.camera_path, camera.to_json())
+
+    def load_assumed_hfov(self) -> float | None:
+        """The horizontal field of view (degrees) to assume for images without camera or EXIF, if one was set."""
+        if not self.fov_path.exists():
+            return None
+        try:
+            hfov = json.loads(self.fov_path.read_text(encoding="utf-8"))["hfov_deg"]
+            return check_hfov(hfov)
+        except (UnicodeDecodeError, json.JSONDecodeError, TypeError, KeyError, CameraError) as exc:
+            raise StateError(f"{self.fov_path}: {exc}; fix or delete it to assume "
+                             f"{ASSUMED_HFOV_DEG:g}°") from None
+
+    def save_assumed_hfov(self, hfov_deg: float) -> None:
+        atomic_write_json(self.fov_path, {"hfov_deg": hfov_deg})
 
     # ---- library
 

@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-from pipeline.camera import Camera, load_camera
+from pipeline.camera import ASSUMED_HFOV_DEG, Camera, assumed_camera, check_hfov, load_camera
 from pipeline.exif import camera_from_exif
 from pipeline.features import library_features
 from pipeline.image import ImageError, decode_image
@@ -94,13 +94,22 @@ class Event:
 
 @dataclass(frozen=True)
 class Snapshot:
-    """Everything a result depends on. `generation` grows with every change to any of it."""
+    """Everything a result depends on. `generation` grows with every change to any of it.
+
+    `camera` None: per image its EXIF focal length, else `assumed_hfov_deg` (horizontal, degrees).
+    """
 
     generation: int
     settings_version: int
     settings: Settings
     library: Library
     camera: Camera | None
+    assumed_hfov_deg: float = ASSUMED_HFOV_DEG
+
+    def camera_for(self, exif_camera: Camera | None, width: int, height: int) -> Camera:
+        """The intrinsics a `width` x `height` px image is recognised with: the workspace's camera, else
+        the image's EXIF focal length, else the assumed field of view."""
+        return self.camera or exif_camera or assumed_camera(width, height, self.assumed_hfov_deg)
 
 
 @dataclass(frozen=True)
@@ -258,7 +267,8 @@ class Workspace:
         if config.camera_file is not None:
             camera = load_camera(config.camera_file)
             self.state.save_camera(camera)
-        self._snap = Snapshot(1, 1, settings, library, camera)
+        hfov = self.state.load_assumed_hfov() or ASSUMED_HFOV_DEG
+        self._snap = Snapshot(1, 1, settings, library, camera, hfov)
         self._history: dict[int, Settings] = {1: settings}  # settings_version -> settings, oldest first
 
         stored = self.state.load_images()
@@ -420,6 +430,7 @@ class Workspace:
             settings=changes.get("settings", snap.settings),
             library=changes.get("library", snap.library),
             camera=changes["camera"] if "camera" in changes else snap.camera,
+            assumed_hfov_deg=changes.get("assumed_hfov_deg", snap.assumed_hfov_deg),
         )
         if bump:
             self._history[self._snap.settings_version] = self._snap.settings
@@ -451,12 +462,29 @@ class Workspace:
         return settings
 
     def set_camera(self, camera: Camera | None) -> None:
-        """Use `camera` for every image (None: each image's EXIF focal length, else a 60° hfov assumed)."""
+        """Use `camera` for every image (None: each image's EXIF focal length, else the assumed field of view)."""
         with self._lock:
             self._change(camera=camera)
         with self._disk_lock:  # as in _set_settings
             self.state.save_camera(self.camera)
-        self._emit("camera", {"camera": camera.to_json() if camera is not None else None})
+        self._camera_changed()
+
+    def set_assumed_hfov(self, hfov_deg: float) -> None:
+        """Assume a `hfov_deg` horizontal field of view (degrees) for images without camera or EXIF
+        intrinsics; CameraError outside ASSUMED_HFOV_RANGE_DEG."""
+        hfov_deg = check_hfov(hfov_deg)
+        with self._lock:
+            if hfov_deg == self._snap.assumed_hfov_deg:
+                return
+            self._change(assumed_hfov_deg=hfov_deg)
+        with self._disk_lock:
+            self.state.save_assumed_hfov(self._snap.assumed_hfov_deg)
+        self._camera_changed()
+
+    def _camera_changed(self) -> None:
+        snap = self._snap
+        self._emit("camera", {"camera": snap.camera.to_json() if snap.camera is not None else None,
+                              "assumed_hfov_deg": snap.assumed_hfov_deg})
         self._request_rerun()
 
     def _set_library(self, signs: list[LibrarySign]) -> None:
@@ -570,7 +598,7 @@ class Workspace:
                 return
             try:
                 rec = run_pipeline(record.name, record.image, snap.library, snap.settings,
-                                   snap.camera or record.exif_camera, record.cache)
+                                   snap.camera_for(record.exif_camera, record.width, record.height), record.cache)
                 outcome = Outcome(rec, snap.settings_version, snap.generation)
             except PipelineError as exc:  # a failure on one image must not stop the others
                 outcome = Outcome(None, snap.settings_version, snap.generation, str(exc))
@@ -628,14 +656,15 @@ class Workspace:
         """
         image, _, exif_camera = decode_upload(data, name, self.config.max_pixels)
         snap = self._snap
-        return run_pipeline(name, image, snap.library, snap.settings, snap.camera or exif_camera)
+        return run_pipeline(name, image, snap.library, snap.settings,
+                            snap.camera_for(exif_camera, image.shape[1], image.shape[0]))
 
     def run_with(self, record: ImageRecord, settings: Settings) -> Recognition:
         """Recognise one stored image under `settings`, re-using (and feeding) its stage cache."""
         snap = self._snap
         with record.lock:
             return run_pipeline(record.name, record.image, snap.library, settings,
-                                snap.camera or record.exif_camera, record.cache)
+                                snap.camera_for(record.exif_camera, record.width, record.height), record.cache)
 
     def sweep(self, param: str, values: list[float], records: list[ImageRecord],
               stop: threading.Event | None = None) -> list[list[Recognition]]:
@@ -670,13 +699,21 @@ class Workspace:
 def run_pipeline(name: str, image: np.ndarray, library: Library, settings: Settings, camera: Camera | None,
                  cache: StageCache | None = None) -> Recognition:
     """`recognize`, with any failure inside it (numerical trouble deep in OpenCV or numpy under
-    extreme settings or intrinsics) turned into a PipelineError that names the image."""
+    extreme settings or intrinsics) turned into a PipelineError that names the image.
+
+    A result computed with an assumed camera always says so in its warnings.
+    """
     try:
-        return recognize(image, library, settings, camera, cache)
+        rec = recognize(image, library, settings, camera, cache)
     except Exception as exc:
         log.exception("pipeline failed on %s", name)
         raise PipelineError(f"pipeline failed on {name}: {exc}; check the camera intrinsics and the settings") \
             from exc
+    # recognize() warns only about a camera it assumed itself, not about one the workspace chose.
+    if rec.camera.is_assumed and not any(rec.camera.source in w for w in rec.warnings):
+        rec.warnings.append(f"no camera set and no EXIF focal length: {rec.camera.source}, "
+                            "so the pose is approximate")
+    return rec
 
 
 def _extension(media_type: str) -> str:

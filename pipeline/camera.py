@@ -15,6 +15,8 @@ import numpy as np
 import yaml
 
 ASSUMED_HFOV_DEG = 60.0
+# Fields of view one may assume: rectilinear lenses from a long telephoto to an ultra-wide.
+ASSUMED_HFOV_RANGE_DEG = (10.0, 140.0)
 
 
 class CameraError(ValueError):
@@ -86,6 +88,14 @@ class Camera:
         K = self.K
         return {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "dist": self.dist.tolist(),
                 "width": self.width, "height": self.height, "source": self.source}
+
+
+def check_hfov(hfov_deg: float) -> float:
+    """`hfov_deg` as a float; CameraError unless it is a horizontal field of view in ASSUMED_HFOV_RANGE_DEG."""
+    lo, hi = ASSUMED_HFOV_RANGE_DEG
+    if isinstance(hfov_deg, bool) or not isinstance(hfov_deg, (int, float)) or not lo <= hfov_deg <= hi:
+        raise CameraError(f"the horizontal field of view must be {lo:g}° to {hi:g}°; got {hfov_deg!r}")
+    return float(hfov_deg)
 
 
 def assumed_camera(width: int, height: int, hfov_deg: float = ASSUMED_HFOV_DEG) -> Camera:

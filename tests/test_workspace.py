@@ -15,7 +15,7 @@ import app.workspace as workspace_module
 import pipeline.recognize
 from app.state import StateDir, atomic_write
 from app.workspace import NO_SIGN, SAMPLE_SCENES, Conflict, ImageTooLarge, Workspace, WorkspaceConfig
-from pipeline.camera import Camera
+from pipeline.camera import Camera, CameraError
 from pipeline.image import ImageError
 from pipeline.library import SAMPLE_LIBRARY, LibraryError, load_library
 from pipeline.settings import SettingsError
@@ -88,6 +88,25 @@ def test_photos_use_their_exif_focal_length_until_a_camera_is_set(make_workspace
     ws.set_camera(Camera(np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]), source="calibrated"))
     assert ws.wait_idle(IDLE_TIMEOUT_S)
     assert record.recognition.camera.source == "calibrated"
+
+
+def test_assumed_field_of_view_is_used_and_said_until_a_camera_is_set(make_workspace):
+    ws = make_workspace()
+    record = ws.add_image("plain.jpg", sign_photo(LIBRARY, "security_compound"), None)
+    assert ws.wait_idle(IDLE_TIMEOUT_S)
+    default = record.recognition
+    assert default.camera.is_assumed and "60°" in default.camera.source
+    assert sum("approximate" in w for w in default.warnings) == 1
+    ws.set_assumed_hfov(90)
+    assert ws.wait_idle(IDLE_TIMEOUT_S)
+    assert record.recognition.camera.K[0, 0] == pytest.approx(320.0)  # half the width at 45°
+    assert any("90°" in w and "approximate" in w for w in record.recognition.warnings)
+    ws.set_camera(Camera(np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]), source="calibrated"))
+    assert ws.wait_idle(IDLE_TIMEOUT_S)
+    assert record.recognition.camera.source == "calibrated"
+    assert not any("approximate" in w for w in record.recognition.warnings)
+    with pytest.raises(CameraError, match="10° to 140°"):
+        ws.set_assumed_hfov(179)
 
 
 def test_slider_storm_coalesces_into_few_runs_and_ends_on_the_last_value(make_workspace, counting, monkeypatch):
@@ -239,6 +258,7 @@ def test_state_survives_a_restart(make_workspace, tmp_path):
     records = add_signs(ws)
     ws.update_settings({"threshold": 0.55})
     ws.set_camera(Camera(np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]), width=640, height=480, source="t"))
+    ws.set_assumed_hfov(72)
     ws.set_expected(records[1].id, NO_SIGN)
     sign_png = sign_photo(LIBRARY, "ministry_of_torture")  # any image will do as a sign
     ws.add_sign("new_sign", sign_png, name="New", width_m=0.64, height_m=0.48)
@@ -247,7 +267,7 @@ def test_state_survives_a_restart(make_workspace, tmp_path):
 
     again = make_workspace()
     assert again.settings.threshold == 0.55
-    assert again.camera is not None and again.camera.K[0, 0] == 500.0
+    assert again.camera is not None and again.camera.K[0, 0] == 500.0 and again.snapshot.assumed_hfov_deg == 72
     assert "new_sign" in again.library.ids and again.library["new_sign"].name == "New"
     assert [(r.id, r.name, r.expected) for r in again.images()] == [(records[1].id, records[1].name, NO_SIGN)]
     assert again.wait_idle(IDLE_TIMEOUT_S) and again.images()[0].recognition is not None
