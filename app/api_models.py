@@ -107,12 +107,75 @@ class CameraModel(BaseModel):
 
 
 class CameraIntrinsics(CameraModel):
-    source: str
+    source: str = Field(description='where the numbers came from, e.g. "upload:cam.yaml", "json", '
+                                    '"calibration: 15 views, RMS 0.21 px", "EXIF focal length 4.2 mm", '
+                                    '"assumed 60° horizontal field of view"')
+    kind: Literal["calibration", "file", "typed", "exif", "assumed"] = Field(
+        description="the source for people: chessboard calibration, a camera file, intrinsics typed in "
+                    "(PUT /api/camera JSON), the photo's EXIF focal length, or an assumed field of view")
 
 
 class CameraOut(BaseModel):
     camera: CameraIntrinsics | None = Field(
-        description="null: per image, its EXIF focal length if it has one, else a 60° horizontal field of view")
+        description="null: per image, its EXIF focal length if it has one, else assumed_hfov_deg")
+    assumed_hfov_deg: float = Field(description="horizontal field of view assumed for images without camera or EXIF")
+    exif_images: int = Field(description="images with an EXIF focal length, which they use while camera is null")
+
+
+class AssumedFovIn(BaseModel):
+    hfov_deg: float = Field(description="horizontal field of view, degrees (10 to 140)")
+
+
+class BoardSpec(BaseModel):
+    """A printed chessboard: inner corners (where four squares meet) across and down, and the square side."""
+
+    cols: int = Field(description="inner corners across: squares across minus one (3 to 100)")
+    rows: int = Field(description="inner corners down: squares down minus one (3 to 100)")
+    square_m: float = Field(description="side of one printed square as measured on the print, metres")
+
+
+class CalibrationView(BaseModel):
+    id: str
+    name: str
+    width: int
+    height: int
+    found: bool = Field(description="whether the board was found in the photo")
+    error_px: float | None = Field(None, description="RMS reprojection error of this photo under the fitted "
+                                                     "camera, px; null until calibrated or when not found")
+    tilt_deg: float | None = Field(None, description="angle between the board's normal and the optical axis")
+    outlier: bool = Field(False, description="error far above the others' (above outlier_threshold_px)")
+    excluded: bool = Field(False, description="left out of the fit as an outlier (run with drop_outliers)")
+
+
+class IntrinsicsStd(BaseModel):
+    """Standard deviations of the fitted intrinsics, px."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+
+class CalibrationResult(BaseModel):
+    rms_px: float = Field(description="RMS reprojection error over every corner of the photos fitted, px")
+    camera: CameraIntrinsics
+    intrinsics_std: IntrinsicsStd
+    outlier_threshold_px: float
+    used: int = Field(description="photos the intrinsics were fitted to")
+    warnings: list[str] = Field(description="reasons to distrust the result, each with what to do")
+
+
+class CalibrationOut(BaseModel):
+    revision: int = Field(description="+1 on every change; an answer with a lower one is out of date")
+    board: BoardSpec
+    min_views: int = Field(description="photos with the board found that a calibration needs at least")
+    max_views: int = Field(description="photos the calibration holds at most")
+    views: list[CalibrationView] = Field(description="in upload order")
+    result: CalibrationResult | None = Field(description="null until run, and again after every change")
+
+
+class CalibrationRunIn(BaseModel):
+    drop_outliers: bool = Field(False, description="fit once more without the outliers of the first fit")
 
 
 class AttemptOut(BaseModel):

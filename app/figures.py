@@ -1,4 +1,4 @@
-"""PNG figures of each pipeline stage for one image, drawn with OpenCV.
+"""PNG figures of each pipeline stage for one image, and of calibration photos, drawn with OpenCV.
 
 All figures are BGR uint8, scaled down so their longer side is at most `MAX_SIDE_PX`; line
 widths and text scale with the image so they stay visible on 12-megapixel photos.
@@ -9,6 +9,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from pipeline.calibrate import BoardView
+from pipeline.camera import Camera
 from pipeline.image import to_gray
 from pipeline.library import Library
 from pipeline.recognize import Attempt, Recognition, SignScore
@@ -44,7 +46,7 @@ def _label(img: np.ndarray, text: str, org: tuple[int, int], color) -> None:
     cv2.putText(img, text, (x + base, y), cv2.FONT_HERSHEY_SIMPLEX, scale, color, thick, cv2.LINE_AA)
 
 
-def _fit(img: np.ndarray, max_side: int = MAX_SIDE_PX) -> np.ndarray:
+def fit(img: np.ndarray, max_side: int = MAX_SIDE_PX) -> np.ndarray:
     h, w = img.shape[:2]
     scale = max_side / max(h, w)
     if scale >= 1:
@@ -205,7 +207,39 @@ def stage_figure(stage: str, image: np.ndarray, recognition: Recognition, librar
     else:
         draw = {"input": draw_input, "gray": draw_gray, "mask": draw_mask, "blob": draw_blob, "crop": draw_crop}
         img = draw[stage](image, recognition)
-    return _fit(img)
+    return fit(img)
+
+
+def draw_board(preview: np.ndarray, view: BoardView, board: tuple[int, int], camera: Camera | None,
+               max_side: int) -> np.ndarray:
+    """A calibration photo with the chessboard corners found in it, at most `max_side` px a side.
+
+    preview: (h, w) uint8 gray copy of the photo (any size with the photo's aspect); `view` holds
+    the corners in the full photo's px. With `camera`, the photo and its corners are undistorted
+    by it, so the board's rows show straight.
+    """
+    img = _bgr(fit(preview, max_side))
+    h, w = img.shape[:2]
+    corners = None
+    if view.found:
+        # Pixel centres: full-res (x + 0.5) * scale - 0.5, as find_board scales its detections.
+        scale = np.array([w / view.image_size[0], h / view.image_size[1]])
+        corners = ((view.corners + 0.5) * scale - 0.5).astype(np.float32).reshape(-1, 1, 2)
+    if camera is not None:
+        cam, _ = camera.for_image(w, h)  # scaled to the figure; a rounding-level aspect change is harmless
+        img = cv2.undistort(img, cam.K, cam.dist)
+        if corners is not None:
+            corners = cv2.undistortPoints(corners, cam.K, cam.dist, P=cam.K)
+    if corners is None:
+        _label(img, "board not found", (8, 8), RED)
+    else:
+        cv2.drawChessboardCorners(img, board, corners, True)
+    return img
+
+
+def jpeg(img: np.ndarray) -> bytes:
+    # Calibration photos are photos: JPEG is a tenth of the PNG's size at no visible cost.
+    return cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes()
 
 
 def png(img: np.ndarray) -> bytes:

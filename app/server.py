@@ -3,9 +3,11 @@
 `create_app` builds the FastAPI app around one `Workspace` (docs/web-contract.md lists every
 endpoint). Routes are thin: they validate, call the workspace or the pipeline off the event
 loop (plain `def` routes run in a thread pool) and shape the answer. Domain errors become 4xx
-with the pipeline's own message: SettingsError, CameraError, LibraryError, ImageError and
-PipelineError 422, ImageTooLarge and oversized bodies 413, Conflict 409, unknown ids 404, pipeline
-work past the request time limit 503. app/security.py guards access and sets security headers.
+with the pipeline's own message: SettingsError, CameraError, LibraryError, ImageError,
+CalibrationError and PipelineError 422, ImageTooLarge and oversized bodies 413, Conflict 409,
+unknown ids 404, pipeline work past the request time limit 503. app/security.py guards access
+and sets security headers. The camera calibration session (app/calibration.py) sits beside the
+Workspace and reaches the routes through its own dependency.
 """
 
 from __future__ import annotations
@@ -36,16 +38,19 @@ from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import Headers, UploadFile as FormFile
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from pipeline.camera import Camera, CameraError, camera_from_json, load_camera
+from pipeline.calibrate import MIN_VIEWS, Calibration, CalibrationError
+from pipeline.camera import Camera, CameraError, camera_from_json, load_camera, ros_camera_yaml
 from pipeline.image import ImageError
 from pipeline.library import ID_PATTERN, LibraryError
 from pipeline.settings import PRESETS, Settings, SettingsError, settings_schema
 
 from . import figures, tuning
 from .api_models import (
-    AttemptOut, CalibrateIn, CalibrateOut, CameraIntrinsics, CameraModel, CameraOut, ExpectedIn, Health, ImageDetail,
+    AssumedFovIn, AttemptOut, BoardSpec, CalibrateIn, CalibrateOut, CalibrationOut, CalibrationResult,
+    CalibrationRunIn, CalibrationView, CameraIntrinsics, CameraModel, CameraOut, ExpectedIn, Health, ImageDetail,
     ImagesOut, ImageSummary, RecognitionOut, SettingField, SettingsOut, SignOut, SweepOut, UploadOut,
 )
+from .calibration import PREVIEW_MAX_SIDE, CalibrationSession, CalibrationState, calibrated_camera
 from .security import AccessGuard, SecurityHeaders
 from .viser_proxy import mount_viser
 from .workspace import (
@@ -144,6 +149,13 @@ def get_sign_id(sign_id: str, workspace: WorkspaceDep) -> str:
 SignIdDep = Annotated[str, Depends(get_sign_id)]
 
 
+def get_calibration(request: Request) -> CalibrationSession:
+    return request.app.state.calibration
+
+
+CalibrationDep = Annotated[CalibrationSession, Depends(get_calibration)]
+
+
 class BodyType:
     """A dependency: 415 unless the request body is `media_type`. Without it FastAPI would only
     report the fields of a body it did not parse as missing, or the body as not a dictionary."""
@@ -212,8 +224,22 @@ def summary(workspace: Workspace, record: ImageRecord, outcome: Outcome | None =
     )
 
 
+def camera_kind(source: str) -> str:
+    """Where intrinsics came from, for people (CameraIntrinsics.kind), from their `source`."""
+    for prefix, kind in (("assumed", "assumed"), ("EXIF", "exif"), ("calibrat", "calibration"), ("json", "typed")):
+        if source.startswith(prefix):
+            return kind
+    return "file"  # file:<path>, upload:<name>, or a camera made by a script
+
+
 def intrinsics(camera: Camera | None) -> CameraIntrinsics | None:
-    return None if camera is None else CameraIntrinsics(**camera.to_json())
+    return None if camera is None else CameraIntrinsics(**camera.to_json(), kind=camera_kind(camera.source))
+
+
+def camera_out(workspace: Workspace) -> CameraOut:
+    snap = workspace.snapshot
+    return CameraOut(camera=intrinsics(snap.camera), assumed_hfov_deg=snap.assumed_hfov_deg,
+                     exif_images=sum(r.exif_camera is not None for r in workspace.images()))
 
 
 def detail(workspace: Workspace, record: ImageRecord) -> ImageDetail:
@@ -526,7 +552,7 @@ async def sweep(workspace: WorkspaceDep,
 
 @api.get("/camera", response_model=CameraOut, tags=["camera"])
 def get_camera(workspace: WorkspaceDep) -> CameraOut:
-    return CameraOut(camera=intrinsics(workspace.camera))
+    return camera_out(workspace)
 
 
 @api.put("/camera", response_model=CameraOut, tags=["camera"], openapi_extra={"requestBody": {
@@ -562,14 +588,117 @@ async def put_camera(request: Request, workspace: WorkspaceDep) -> CameraOut:
                             "send JSON intrinsics {fx, fy, cx, cy, dist, width, height} "
                             "or a multipart camera file in the field 'file'")
     await run_in_threadpool(workspace.set_camera, camera)
-    return CameraOut(camera=intrinsics(camera))
+    return await run_in_threadpool(camera_out, workspace)
 
 
 @api.delete("/camera", response_model=CameraOut, tags=["camera"])
 def delete_camera(workspace: WorkspaceDep) -> CameraOut:
-    """Forget the camera: per image, its EXIF focal length if it has one, else a 60° hfov."""
+    """Forget the camera: per image, its EXIF focal length if it has one, else the assumed field of view."""
     workspace.set_camera(None)
-    return CameraOut(camera=None)
+    return camera_out(workspace)
+
+
+@api.put("/camera/assumed", response_model=CameraOut, tags=["camera"], dependencies=[JSON_BODY])
+def put_assumed_fov(body: AssumedFovIn, workspace: WorkspaceDep) -> CameraOut:
+    """The horizontal field of view to assume for images without camera or EXIF; they are re-run."""
+    workspace.set_assumed_hfov(body.hfov_deg)
+    return camera_out(workspace)
+
+
+# ---- camera calibration from chessboard photos (app/calibration.py)
+
+def calibration_out(state: CalibrationState, max_views: int) -> CalibrationOut:
+    summary = state.result.to_json() if state.result is not None else None
+    views = [CalibrationView(**(summary["views"][i] if summary else {"name": p.name, "found": p.view.found}),
+                             id=p.id, width=p.view.image_size[0], height=p.view.image_size[1])
+             for i, p in enumerate(state.photos)]
+    result = None if summary is None else CalibrationResult.model_validate(
+        {**summary, "camera": intrinsics(calibrated_camera(state.result))})
+    return CalibrationOut(revision=state.revision, min_views=MIN_VIEWS, max_views=max_views, views=views,
+                          board=BoardSpec(cols=state.board[0], rows=state.board[1], square_m=state.square_m),
+                          result=result)
+
+
+def fitted(state: CalibrationState) -> Calibration:
+    """The state's calibration; 409 when there is none."""
+    if state.result is None:
+        raise Conflict("no calibration yet: add photos of the board, then run the calibration")
+    return state.result
+
+
+@api.get("/calibration", response_model=CalibrationOut, tags=["calibration"])
+def get_calibration_state(calibration: CalibrationDep) -> CalibrationOut:
+    """The board, every photo (board found or not, its error), and the result of the last run, if current."""
+    return calibration_out(calibration.state, calibration.max_photos)
+
+
+@api.post("/calibration/images", response_model=CalibrationOut, status_code=status.HTTP_201_CREATED,
+          tags=["calibration"], dependencies=[MULTIPART])
+def add_calibration_photos(files: Annotated[list[UploadFile], File(description="photos of the chessboard")],
+                           calibration: CalibrationDep) -> CalibrationOut:
+    """Add photos and search each for the board (all or nothing). The last result is dropped."""
+    return calibration_out(calibration.add([read_upload(f) for f in files]), calibration.max_photos)
+
+
+@api.delete("/calibration", response_model=CalibrationOut, tags=["calibration"])
+def clear_calibration(calibration: CalibrationDep) -> CalibrationOut:
+    """Forget every calibration photo (the board size stays; the workspace camera is not touched)."""
+    return calibration_out(calibration.clear(), calibration.max_photos)
+
+
+@api.put("/calibration/board", response_model=CalibrationOut, tags=["calibration"], dependencies=[JSON_BODY])
+def set_calibration_board(body: BoardSpec, calibration: CalibrationDep) -> CalibrationOut:
+    """Set the board; every photo is searched again when the corner counts change. 422 names a bad value."""
+    return calibration_out(calibration.set_board((body.cols, body.rows), body.square_m), calibration.max_photos)
+
+
+@api.post("/calibration/run", response_model=CalibrationOut, tags=["calibration"], dependencies=[JSON_BODY])
+def run_calibration(body: CalibrationRunIn, calibration: CalibrationDep) -> CalibrationOut:
+    """Fit the intrinsics to the photos where the board was found (422 says why it cannot)."""
+    return calibration_out(calibration.run(body.drop_outliers), calibration.max_photos)
+
+
+@api.get("/calibration/views/{view_id}/image", tags=["calibration"],
+         responses={200: {"content": {"image/jpeg": {}}, "description": "JPEG figure"}})
+def get_calibration_view(view_id: str, calibration: CalibrationDep,
+                         overlay: Annotated[Literal["corners", "undistorted"], Query(
+                             description="corners: the corners found; undistorted: undistorted by the result")]
+                         = "corners",
+                         max_side: Annotated[int, Query(ge=32, le=PREVIEW_MAX_SIDE)] = PREVIEW_MAX_SIDE) -> Response:
+    """One calibration photo with the board's corners drawn (header X-Calibration-Revision)."""
+    state = calibration.state  # once: photo, board and result must agree
+    try:
+        photo = state.photo(view_id)
+    except KeyError:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"no calibration photo with id {view_id!r}; GET /api/calibration lists them") from None
+    camera = fitted(state).camera if overlay == "undistorted" else None
+    img = figures.draw_board(photo.preview, photo.view, state.board, camera, max_side)
+    return Response(figures.jpeg(img), media_type="image/jpeg",
+                    headers={"X-Calibration-Revision": str(state.revision)})
+
+
+@api.delete("/calibration/views/{view_id}", status_code=status.HTTP_204_NO_CONTENT, tags=["calibration"])
+def delete_calibration_view(view_id: str, calibration: CalibrationDep) -> None:
+    try:
+        calibration.remove(view_id)
+    except KeyError:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no calibration photo with id {view_id!r}") from None
+
+
+@api.post("/calibration/apply", response_model=CameraOut, tags=["calibration"])
+def apply_calibration(calibration: CalibrationDep, workspace: WorkspaceDep) -> CameraOut:
+    """Use the calibrated camera for every image (as PUT /api/camera does); they are re-run."""
+    workspace.set_camera(calibrated_camera(fitted(calibration.state)))
+    return camera_out(workspace)
+
+
+@api.get("/calibration/camera.yaml", tags=["calibration"],
+         responses={200: {"content": {"application/x-yaml": {}}, "description": "ROS camera_info YAML"}})
+def get_calibration_yaml(calibration: CalibrationDep) -> Response:
+    """The calibrated camera as a ROS camera_info file (signpose recognize --camera reads it)."""
+    return Response(ros_camera_yaml(calibrated_camera(fitted(calibration.state))), media_type="application/x-yaml",
+                    headers={"Content-Disposition": 'attachment; filename="camera.yaml"'})
 
 
 def _attach_scene(server: viser.ViserServer, workspace: Workspace):
@@ -612,12 +741,13 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
     app = FastAPI(title="signpose", version=package_version(), lifespan=lifespan,
                   summary="Recognise known planar signs and recover the camera pose; tune every step.")
     app.state.workspace = workspace
+    app.state.calibration = CalibrationSession(workspace.config.max_pixels)
     # The last added runs first: headers on every answer, then access, then the body limit.
     app.add_middleware(UploadLimit, max_bytes=workspace.config.max_upload_bytes)
     app.add_middleware(AccessGuard, token=token)
     app.add_middleware(SecurityHeaders)
     for error, code in ((SettingsError, 422), (CameraError, 422), (LibraryError, 422), (ImageError, 422),
-                        (PipelineError, 422), (ImageTooLarge, 413), (Conflict, 409)):
+                        (PipelineError, 422), (CalibrationError, 422), (ImageTooLarge, 413), (Conflict, 409)):
         app.add_exception_handler(error, _error_handler(code))
     app.include_router(api)
     mount_viser(app)

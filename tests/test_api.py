@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import signal
 import subprocess
 import sys
@@ -19,7 +20,7 @@ from app.workspace import Workspace, WorkspaceConfig
 from pipeline.library import SAMPLE_LIBRARY, load_library
 from pipeline.synth import synthetic_camera
 from pipeline.camera import ros_camera_yaml
-from scene_images import empty_photo, png_bomb, sign_photo, tiny_photo
+from scene_images import empty_photo, png_bomb, sign_photo, tiny_photo, with_focal_exif
 from serving import REPO, TIMEOUT_S, assert_error, http_exchange, running, start_serve, upload, wait_done
 
 LIBRARY = load_library(SAMPLE_LIBRARY)
@@ -72,7 +73,10 @@ def test_health_docs_and_every_contract_path_in_openapi(client):
                  "/api/settings/preset/{name}", "/api/settings/export", "/api/settings/import", "/api/library",
                  "/api/library/{sign_id}/image", "/api/library/{sign_id}", "/api/images", "/api/images/{image_id}",
                  "/api/images/{image_id}/file", "/api/images/{image_id}/stages/{stage}", "/api/recognize",
-                 "/api/calibrate/threshold", "/api/sweep", "/api/camera", "/api/events"):
+                 "/api/calibrate/threshold", "/api/sweep", "/api/camera", "/api/camera/assumed", "/api/events",
+                 "/api/calibration", "/api/calibration/images", "/api/calibration/board", "/api/calibration/run",
+                 "/api/calibration/views/{view_id}/image", "/api/calibration/views/{view_id}",
+                 "/api/calibration/apply", "/api/calibration/camera.yaml"):
         assert path in paths, path
 
 
@@ -315,13 +319,18 @@ def test_sweep_needs_labelled_images(tmp_path):
 
 # ---------------------------------------------------------------- camera
 
+NO_CAMERA = {"camera": None, "assumed_hfov_deg": 60.0, "exif_images": 0}
+
+
 def test_camera_json_file_errors_and_reset(client):
-    assert client.get("/api/camera").json() == {"camera": None}
+    assert client.get("/api/camera").json() == NO_CAMERA
     r = client.put("/api/camera", json={"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640, "height": 480})
     assert r.status_code == 200 and r.json()["camera"]["fx"] == 600 and r.json()["camera"]["source"] == "json"
+    assert r.json()["camera"]["kind"] == "typed"
     yaml_text = ros_camera_yaml(synthetic_camera((640, 480)), "synthetic").encode()
     r = client.put("/api/camera", files={"file": ("cam.yaml", yaml_text, "application/x-yaml")})
     assert r.status_code == 200 and r.json()["camera"]["source"] == "upload:cam.yaml"
+    assert r.json()["camera"]["kind"] == "file"
     assert client.get("/api/camera").json() == r.json()
     r = client.put("/api/camera", files={"file": ("cam.yaml", b"camera_matrix: {rows: 3, cols: 3, data: [1, 2]}",
                                                    "application/x-yaml")})
@@ -331,7 +340,31 @@ def test_camera_json_file_errors_and_reset(client):
     assert_error(client.put("/api/camera", json={"fx": -5, "fy": 600, "cx": 320, "cy": 240}), 422, "positive")
     assert_error(client.put("/api/camera", json={"fx": 600}), 422, "fy")
     assert_error(client.put("/api/camera", content=b"fx=600", headers={"content-type": "text/plain"}), 415, "JSON")
-    assert client.delete("/api/camera").json() == {"camera": None}
+    assert client.delete("/api/camera").json() == NO_CAMERA
+
+
+def test_assumed_field_of_view_for_photos_without_camera_or_exif(client):
+    plain, phone = (i["id"] for i in upload(client, ("plain.jpg", sign_photo(LIBRARY, "security_compound"), None), (
+        "phone.jpg", with_focal_exif(sign_photo(LIBRARY, "chief_of_security"), 26), None)).json()["images"])
+    wait_done(client)
+    r = client.put("/api/camera/assumed", json={"hfov_deg": 75})
+    assert r.status_code == 200 and r.json() == NO_CAMERA | {"assumed_hfov_deg": 75.0, "exif_images": 1}
+    wait_done(client)
+    camera = client.get(f"/api/images/{plain}").json()["camera"]
+    assert camera["kind"] == "assumed" and "75°" in camera["source"]
+    assert camera["fx"] == pytest.approx(320 / math.tan(math.radians(75 / 2)))
+    warnings = client.get(f"/api/images/{plain}").json()["result"]["warnings"]
+    assert any("75°" in w and "approximate" in w for w in warnings), warnings
+    assert client.get(f"/api/images/{phone}").json()["camera"]["kind"] == "exif"  # EXIF comes first
+    for bad in (5, 170, float("nan")):
+        assert_error(client.put("/api/camera/assumed", content=json.dumps({"hfov_deg": bad}),
+                                headers={"content-type": "application/json"}), 422, "10° to 140°")
+    for bad in ("wide", None):
+        assert_error(client.put("/api/camera/assumed", json={"hfov_deg": bad}), 422, "hfov_deg")
+    assert client.get("/api/camera").json()["assumed_hfov_deg"] == 75.0
+    client.put("/api/camera/assumed", json={"hfov_deg": 60})
+    for image_id in (plain, phone):
+        client.delete(f"/api/images/{image_id}")
 
 
 # ---------------------------------------------------------------- viser

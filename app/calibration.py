@@ -1,0 +1,163 @@
+"""The camera calibration session of `signpose serve`: chessboard photos, the board found in each
+and the intrinsics fitted to them (pipeline/calibrate.py does the work; docs/calibration.md says how
+to take the photos).
+
+One session per server, shared by everyone using it, like the Workspace. It lives in memory only:
+the photos are a means to a camera, and the camera, once applied, is kept by the Workspace.
+Detection and fitting run in the caller's thread (a request worker, off the event loop).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import secrets
+import threading
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipeline.calibrate import (BoardView, Calibration, CalibrationError, calibrate, check_board, check_square, drop_outliers,
+                                find_board)
+from pipeline.camera import Camera
+from pipeline.image import to_gray
+
+from .figures import fit
+from .workspace import Conflict, decode_upload
+
+# Figures of calibration photos are drawn from a copy this size: enough for a full-width preview.
+PREVIEW_MAX_SIDE = 1280
+MAX_PHOTOS = 60  # 15-20 make a good calibration; the encoded photos are held in memory
+DEFAULT_BOARD = (9, 6)
+DEFAULT_SQUARE_M = 0.025
+
+
+@dataclass(frozen=True, eq=False)
+class CalibrationPhoto:
+    """One uploaded photo.
+
+    data: its encoded bytes, decoded again at full resolution to search for a new board size.
+    preview: (h, w) uint8 gray copy, at most PREVIEW_MAX_SIDE px a side, for figures.
+    view: the board found in it, corners in full-resolution px.
+    """
+
+    id: str
+    name: str
+    data: bytes = field(repr=False)
+    preview: np.ndarray = field(repr=False)
+    view: BoardView
+
+
+@dataclass(frozen=True)
+class CalibrationState:
+    """The session at one moment, replaced as a whole on every change (`revision` + 1).
+
+    board: (cols, rows) inner corners; square_m: side of a printed square, metres.
+    result: the calibration of `photos` (views in this order) under this board, or None when
+    nothing has been fitted since the last change.
+    """
+
+    revision: int = 0
+    board: tuple[int, int] = DEFAULT_BOARD
+    square_m: float = DEFAULT_SQUARE_M
+    photos: tuple[CalibrationPhoto, ...] = ()
+    result: Calibration | None = None
+
+    def photo(self, photo_id: str) -> CalibrationPhoto:
+        """The photo with `photo_id`; KeyError when there is none."""
+        for photo in self.photos:
+            if photo.id == photo_id:
+                return photo
+        raise KeyError(photo_id)
+
+
+def read_gray(name: str, data: bytes, max_pixels: int) -> np.ndarray:
+    """An uploaded photo as (H, W) uint8 gray; ImageError / ImageTooLarge as for any upload."""
+    image, _, _ = decode_upload(data, name, max_pixels)
+    return to_gray(image)
+
+
+class CalibrationSession:
+    """Thread-safe holder of one CalibrationState. Readers take `state` (never torn); every change
+    is serialised by one lock, except the board search of new photos, which runs outside it so
+    that uploads sent side by side use every core."""
+
+    def __init__(self, max_pixels: int, max_photos: int = MAX_PHOTOS) -> None:
+        self.max_pixels = max_pixels
+        self.max_photos = max_photos
+        self._lock = threading.Lock()
+        self._state = CalibrationState()
+
+    @property
+    def state(self) -> CalibrationState:
+        return self._state
+
+    def _commit(self, state: CalibrationState, **changes) -> CalibrationState:
+        """Swap in `state` with `changes`, the next revision and no result (the caller holds the lock)."""
+        self._state = dataclasses.replace(state, revision=self._state.revision + 1, result=None, **changes)
+        return self._state
+
+    def _check_room(self, adding: int) -> None:
+        held = len(self._state.photos)
+        if held + adding > self.max_photos:
+            raise Conflict(f"the calibration holds {held} photos and its limit is {self.max_photos}; "
+                           f"delete some before adding {adding} more (15-20 good ones are enough)")
+
+    def add(self, uploads: list[tuple[str, bytes]]) -> CalibrationState:
+        """Add photos (display name, encoded bytes) and search each for the board. All or nothing:
+        ImageError for a file that is not a usable image, Conflict past the photo limit."""
+        self._check_room(len(uploads))
+        grays = [read_gray(name, data, self.max_pixels) for name, data in uploads]
+        while True:
+            board = self._state.board
+            photos = tuple(CalibrationPhoto(secrets.token_hex(6), name, data, fit(gray, PREVIEW_MAX_SIDE),
+                                            find_board(gray, board, name))
+                           for (name, data), gray in zip(uploads, grays))
+            with self._lock:
+                if self._state.board != board:
+                    continue  # the board size changed during the search: search for the new one
+                self._check_room(len(photos))
+                return self._commit(self._state, photos=self._state.photos + photos)
+
+    def set_board(self, board: tuple[int, int], square_m: float) -> CalibrationState:
+        """Use a board of `board` (cols, rows) inner corners and `square_m` metre squares; every photo
+        is searched again when the corner counts change. CalibrationError for impossible values."""
+        board, square_m = check_board(board), check_square(square_m)
+        with self._lock:
+            state = self._state
+            photos = state.photos
+            if board != state.board:
+                photos = tuple(dataclasses.replace(
+                    p, view=find_board(read_gray(p.name, p.data, self.max_pixels), board, p.name)) for p in photos)
+            return self._commit(state, board=board, square_m=square_m, photos=photos)
+
+    def remove(self, photo_id: str) -> CalibrationState:
+        """Forget one photo; KeyError when there is none with `photo_id`."""
+        with self._lock:
+            state = self._state
+            state.photo(photo_id)
+            return self._commit(state, photos=tuple(p for p in state.photos if p.id != photo_id))
+
+    def clear(self) -> CalibrationState:
+        """Forget every photo (the board stays)."""
+        with self._lock:
+            return self._commit(self._state, photos=())
+
+    def run(self, without_outliers: bool = False) -> CalibrationState:
+        """Fit the intrinsics to the photos where the board was found, then, with `without_outliers`,
+        once more without the outliers. CalibrationError when they cannot give a calibration."""
+        with self._lock:
+            state = self._state
+            if not state.photos:
+                raise CalibrationError(f"no calibration photos yet: add 15-20 photos of the {state.board[0]}x"
+                                       f"{state.board[1]} board (docs/calibration.md says how to take them)")
+            result = calibrate([p.view for p in state.photos], state.board, state.square_m)
+            if without_outliers:
+                result = drop_outliers(result)
+            self._state = dataclasses.replace(state, revision=state.revision + 1, result=result)
+            return self._state
+
+
+def calibrated_camera(result: Calibration) -> Camera:
+    """The fitted camera, its source naming how it was made (kept with it in the state directory)."""
+    return dataclasses.replace(result.camera, source=f"calibration: {len(result.used)} views, "
+                                                     f"RMS {result.rms_px:.2f} px")

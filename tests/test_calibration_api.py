@@ -1,0 +1,175 @@
+"""Camera calibration in `signpose serve` (/api/calibration), against a real uvicorn server on a free
+loopback port, with chessboard photos rendered under known intrinsics (tests/chessboards.py)."""
+
+from __future__ import annotations
+
+import cv2
+import httpx
+import numpy as np
+import pytest
+
+from app.server import create_app
+from app.workspace import WorkspaceConfig
+from chessboards import BOARD, K_TRUE, SIZE, SQUARE_M, render_boards
+from pipeline.camera import load_camera
+from pipeline.library import SAMPLE_LIBRARY, load_library
+from scene_images import sign_photo
+from serving import TIMEOUT_S, assert_error, running, upload, wait_done
+
+N_PHOTOS = 12
+BOARD_SPEC = {"cols": BOARD[0], "rows": BOARD[1], "square_m": SQUARE_M}
+
+
+@pytest.fixture(scope="module")
+def photos() -> list[tuple[str, bytes]]:
+    """(name, PNG bytes) of N_PHOTOS board photos through K_TRUE and its distortion."""
+    images, _ = render_boards(N_PHOTOS)
+    return [(f"board{i:02d}.png", cv2.imencode(".png", im)[1].tobytes()) for i, im in enumerate(images)]
+
+
+@pytest.fixture(scope="module")
+def base_url(tmp_path_factory):
+    config = WorkspaceConfig(state_dir=tmp_path_factory.mktemp("calibration") / "state", load_samples=False,
+                             workers=2, max_upload_bytes=4_000_000, max_pixels=1_000_000)
+    with running(create_app(config)) as url:  # the app owns and closes the workspace
+        yield url
+
+
+@pytest.fixture
+def client(base_url):
+    """A client on a calibration with no photos and the rendered board, and no workspace camera."""
+    with httpx.Client(base_url=base_url, timeout=TIMEOUT_S) as c:
+        assert c.delete("/api/calibration").status_code == 200
+        assert c.put("/api/calibration/board", json=BOARD_SPEC).status_code == 200
+        yield c
+        c.delete("/api/camera")
+
+
+def add(client, photos: list[tuple[str, bytes]]) -> httpx.Response:
+    return client.post("/api/calibration/images", files=[("files", (n, d, "image/png")) for n, d in photos])
+
+
+def blank_png() -> bytes:
+    return cv2.imencode(".png", np.full(SIZE[::-1], 200, np.uint8))[1].tobytes()
+
+
+def test_upload_run_apply_and_download(client, photos, tmp_path):
+    sign = upload(client, ("sign.jpg", sign_photo(load_library(SAMPLE_LIBRARY), "security_compound"), None))
+    sign_id = sign.json()["images"][0]["id"]
+    wait_done(client)
+    assert client.get(f"/api/images/{sign_id}").json()["camera"]["kind"] == "assumed"
+
+    first = add(client, photos[:6] + [("blank.png", blank_png())])
+    assert first.status_code == 201, first.text
+    state = add(client, photos[6:]).json()
+    assert [v["name"] for v in state["views"]] == [n for n, _ in photos[:6]] + ["blank.png"] + \
+        [n for n, _ in photos[6:]]
+    assert [v["found"] for v in state["views"]] == [True] * 6 + [False] + [True] * 6
+    assert state["revision"] > first.json()["revision"] and state["result"] is None
+    assert all((v["width"], v["height"]) == SIZE and v["error_px"] is None for v in state["views"])
+
+    state = client.post("/api/calibration/run", json={}).json()
+    result = state["result"]
+    cam = result["camera"]
+    assert cam["fx"] == pytest.approx(K_TRUE[0, 0], rel=0.005) and cam["fy"] == pytest.approx(K_TRUE[1, 1], rel=0.005)
+    assert abs(cam["cx"] - K_TRUE[0, 2]) < 2 and abs(cam["cy"] - K_TRUE[1, 2]) < 2
+    assert (cam["width"], cam["height"]) == SIZE and cam["kind"] == "calibration"
+    assert result["rms_px"] < 0.3 and result["used"] == N_PHOTOS and result["warnings"] == []
+    assert all(0 < s < 3 for s in result["intrinsics_std"].values())
+    errors = [v["error_px"] for v in state["views"]]
+    assert errors[6] is None and all(0 < e < 0.5 for e in errors[:6] + errors[7:])
+    assert client.get("/api/calibration").json() == state
+
+    view_id = state["views"][0]["id"]
+    for overlay in ("corners", "undistorted"):
+        r = client.get(f"/api/calibration/views/{view_id}/image", params={"overlay": overlay})
+        assert r.status_code == 200 and r.headers["content-type"] == "image/jpeg"
+        figure = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR)
+        assert figure.shape[:2] == SIZE[::-1]
+        # drawChessboardCorners colours the corners: a gray photo gains saturated pixels.
+        assert cv2.cvtColor(figure, cv2.COLOR_BGR2HSV)[..., 1].max() > 200
+    thumb = client.get(f"/api/calibration/views/{view_id}/image", params={"max_side": 160})
+    assert cv2.imdecode(np.frombuffer(thumb.content, np.uint8), cv2.IMREAD_COLOR).shape[:2] == (120, 160)
+
+    yaml_file = tmp_path / "camera.yaml"
+    r = client.get("/api/calibration/camera.yaml")
+    assert r.status_code == 200 and "attachment" in r.headers["content-disposition"]
+    yaml_file.write_bytes(r.content)
+    back = load_camera(yaml_file)
+    assert back.K[0, 0] == pytest.approx(cam["fx"]) and back.K[1, 2] == pytest.approx(cam["cy"])
+    assert back.dist.tolist() == pytest.approx(cam["dist"]) and (back.width, back.height) == SIZE
+
+    applied = client.post("/api/calibration/apply")
+    assert applied.status_code == 200 and applied.json()["camera"] == cam
+    assert client.get("/api/camera").json() == applied.json()
+    wait_done(client)
+    used = client.get(f"/api/images/{sign_id}").json()["camera"]
+    assert used == cam and used["source"].startswith(f"calibration: {N_PHOTOS} views")
+    client.delete(f"/api/images/{sign_id}")
+
+
+def test_outliers_can_be_dropped_and_photos_deleted(client, photos):
+    rng = np.random.default_rng(5)
+    image = cv2.imdecode(np.frombuffer(photos[3][1], np.uint8), cv2.IMREAD_GRAYSCALE)
+    # Stretched by 3 % in x: the board is found, but its corners fit no camera the others agree on.
+    warped = cv2.resize(image, None, fx=1.03, fy=1.0)[:, :SIZE[0]]
+    warped = np.clip(warped + rng.normal(0, 2, warped.shape), 0, 255).astype(np.uint8)
+    state = add(client, photos[:8] + [("warped.png", cv2.imencode(".png", warped)[1].tobytes())]).json()
+    assert all(v["found"] for v in state["views"])
+    state = client.post("/api/calibration/run", json={"drop_outliers": False}).json()
+    warped_view = state["views"][8]
+    assert warped_view["outlier"] and warped_view["error_px"] > state["result"]["outlier_threshold_px"]
+    rms = state["result"]["rms_px"]
+    state = client.post("/api/calibration/run", json={"drop_outliers": True}).json()
+    assert state["views"][8]["excluded"] and state["result"]["used"] == 8 and state["result"]["rms_px"] < rms / 2
+
+    assert client.delete(f"/api/calibration/views/{warped_view['id']}").status_code == 204
+    state = client.get("/api/calibration").json()
+    assert len(state["views"]) == 8 and state["result"] is None  # a change drops the stale result
+    assert_error(client.delete(f"/api/calibration/views/{warped_view['id']}"), 404, "no calibration photo")
+
+
+def test_a_new_board_size_searches_every_photo_again(client, photos):
+    add(client, photos[:3])
+    state = client.put("/api/calibration/board", json=BOARD_SPEC | {"cols": 7, "rows": 5}).json()
+    assert state["board"]["cols"] == 7 and not any(v["found"] for v in state["views"])
+    assert_error(client.post("/api/calibration/run", json={}), 422, "7x5 board was not found", "inner corners")
+    state = client.put("/api/calibration/board", json=BOARD_SPEC | {"square_m": 0.02}).json()
+    assert all(v["found"] for v in state["views"]) and state["board"]["square_m"] == 0.02
+    assert client.post("/api/calibration/run", json={}).json()["result"]["used"] == 3
+
+
+def test_bad_input_gets_a_clear_4xx_and_changes_nothing(client, photos):
+    before = client.get("/api/calibration").json()
+    assert_error(add(client, [photos[0], ("notes.png", b"these are not pixels")]), 422, "notes.png",
+                 "not an image")
+    assert_error(client.post("/api/calibration/images", files={"files": ("empty.png", b"", "image/png")}), 422,
+                 "empty")
+    for bad, words in (({"cols": 2}, ("at least 3x3", "inner corners")), ({"rows": 0}, ("inner corners",)),
+                       ({"cols": 500}, ("at most 100",)), ({"square_m": 0}, ("square size", "metres")),
+                       ({"square_m": -0.02}, ("square size",)), ({"cols": "nine"}, ("cols",)),
+                       ({"square_m": None}, ("square_m",))):
+        assert_error(client.put("/api/calibration/board", json=BOARD_SPEC | bad), 422, *words)
+    assert_error(client.put("/api/calibration/board", content=b"9x6", headers={"content-type": "text/plain"}), 415,
+                 "JSON")
+    assert client.get("/api/calibration").json() == before
+
+    assert_error(client.post("/api/calibration/run", json={}), 422, "no calibration photos")
+    add(client, photos[:2] + [("blank.png", blank_png())])
+    assert_error(client.post("/api/calibration/run", json={}), 422, "found in 2 usable image(s)", "at least 3")
+    for r in (client.post("/api/calibration/apply"), client.get("/api/calibration/camera.yaml")):
+        assert_error(r, 409, "run the calibration")
+    view_id = client.get("/api/calibration").json()["views"][0]["id"]
+    assert_error(client.get(f"/api/calibration/views/{view_id}/image", params={"overlay": "undistorted"}), 409,
+                 "run the calibration")
+    assert client.get(f"/api/calibration/views/{view_id}/image", params={"overlay": "sideways"}).status_code == 422
+    assert_error(client.get("/api/calibration/views/123456789abc/image"), 404, "no calibration photo")
+    assert client.get("/api/camera").json()["camera"] is None
+    assert client.get("/api/health").json()["status"] == "ok"
+
+
+def test_photo_limit(client, photos):
+    session = client.get("/api/calibration").json()
+    assert session["max_views"] >= 20 and session["min_views"] == 3
+    assert_error(add(client, [photos[0]] * (session["max_views"] + 1)), 409, "limit is", "delete some")
+    assert client.get("/api/calibration").json()["views"] == []
