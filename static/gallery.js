@@ -1,89 +1,27 @@
-// Upload queue (one request per file, so each gets its own progress bar) and the image gallery.
+// Image uploads (with a progress bar per file) and the image gallery.
 
-import { api, get, upload } from "./api.js";
+import { api, get } from "./api.js";
 import { state, emit, on, select, signName } from "./store.js";
-import { $, el, fill, report, throttle, toast } from "./ui.js";
+import { $, el, fill, report, throttle } from "./ui.js";
+import { dropTarget, filesForm, uploadQueue } from "./uploads.js";
 
-const PARALLEL_UPLOADS = 3;
-const IMAGE_FILE = /\.(jpe?g|png|bmp|tiff?|webp|pgm|ppm)$/i;
 const STATUSES = ["correct", "wrong", "recognized", "none", "pending", "error"];
 
-const queue = [];
-let active = 0;
-
-function uploadRow(file) {
-  const bar = el("div.bar");
-  const status = el("span.upload-status", {}, "queued");
-  const row = el("li.upload", {}, el("span.upload-name", { title: file.name }, file.name),
-    el("div.progress", {}, bar), status,
-    el("button.icon", { type: "button", title: "Dismiss", onclick: () => row.remove() }, "×"));
-  $("#uploads").append(row);
-  return {
-    progress(p) {
-      bar.style.width = `${Math.round(p * 100)}%`;
-      status.textContent = p < 1 ? `${Math.round(p * 100)}%` : "checking…";
-    },
-    done() {
-      row.classList.add("ok");
-      // Recognition runs in the background; the card shows its result when it lands.
-      status.textContent = "✓ added";
-      setTimeout(() => row.remove(), 3000);
-    },
-    fail(message) {
-      row.classList.add("failed");
-      status.textContent = message;
-      status.title = message;
-    },
-  };
-}
-
-async function send({ file, expected, row }) {
-  const form = new FormData();
-  form.append("files", file);
-  form.append("expected", expected);
-  try {
-    await upload("/api/images", form, row.progress);
-    row.done();
-    refreshImages();
-  } catch (err) {
-    row.fail(err.message);
-  }
-}
-
-function pump() {
-  while (active < PARALLEL_UPLOADS && queue.length) {
-    active += 1;
-    send(queue.shift()).finally(() => { active -= 1; pump(); });
-  }
-}
-
-function enqueue(files) {
-  const expected = $("#expected").value;
-  for (const file of files) {
-    if (!file.type.startsWith("image/") && !IMAGE_FILE.test(file.name)) {
-      toast(`${file.name}: not an image file, skipped`, "error");
-      continue;
-    }
-    queue.push({ file, expected, row: uploadRow(file) });
-  }
-  pump();
-}
-
 function bindUpload() {
+  const enqueue = uploadQueue({
+    list: $("#uploads"),
+    url: "/api/images",
+    form: (file) => filesForm(file, { expected: $("#expected").value }),
+    done: () => {
+      refreshImages();
+      // Recognition runs in the background; the card shows its result when it lands.
+      return "✓ added";
+    },
+  });
   const picker = $("#file-picker");
   picker.onchange = () => { enqueue(picker.files); picker.value = ""; };
   // The whole page is a drop target: aiming at a small box is needless friction.
-  let depth = 0;
-  const zone = document.body;
-  zone.addEventListener("dragenter", (e) => { e.preventDefault(); depth += 1; zone.classList.add("dragging"); });
-  zone.addEventListener("dragleave", () => { depth -= 1; if (depth <= 0) { depth = 0; zone.classList.remove("dragging"); } });
-  zone.addEventListener("dragover", (e) => e.preventDefault());
-  zone.addEventListener("drop", (e) => {
-    e.preventDefault();
-    depth = 0;
-    zone.classList.remove("dragging");
-    enqueue(e.dataTransfer.files);
-  });
+  dropTarget(document.body, enqueue);
 }
 
 /** Options for an expected-label select: unlabelled, "none" (no sign in the photo) or a library sign. */

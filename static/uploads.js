@@ -1,0 +1,102 @@
+// Upload queues: one request per file, so each file gets its own progress bar, a few at a time.
+// Used by the image gallery and the camera calibration.
+
+import { upload } from "./api.js";
+import { el, toast } from "./ui.js";
+
+const PARALLEL_UPLOADS = 3;
+const IMAGE_FILE = /\.(jpe?g|png|bmp|tiff?|webp|pgm|ppm)$/i;
+
+function uploadRow(list, file) {
+  const bar = el("div.bar");
+  const status = el("span.upload-status", {}, "queued");
+  const row = el("li.upload", {}, el("span.upload-name", { title: file.name }, file.name),
+    el("div.progress", {}, bar), status,
+    el("button.icon", { type: "button", title: "Dismiss", onclick: () => row.remove() }, "×"));
+  list.append(row);
+  return {
+    progress(p) {
+      bar.style.width = `${Math.round(p * 100)}%`;
+      status.textContent = p < 1 ? `${Math.round(p * 100)}%` : "checking…";
+    },
+    done(message) {
+      row.classList.add("ok");
+      status.textContent = message;
+      setTimeout(() => row.remove(), 3000);
+    },
+    fail(message) {
+      row.classList.add("failed");
+      status.textContent = message;
+      status.title = message;
+    },
+  };
+}
+
+/** A multipart form with `file` as the field "files" (what the upload routes take) and `fields`. */
+export function filesForm(file, fields = {}) {
+  const form = new FormData();
+  form.append("files", file);
+  for (const [name, value] of Object.entries(fields)) form.append(name, value);
+  return form;
+}
+
+/**
+ * A queue that POSTs each image file to `url` as the multipart form `form(file)` (built when the
+ * file is queued, so it keeps the choices made then), with a progress row in `list`.
+ * `done(body)` gets each JSON answer and returns the row's closing message; `idle()` runs when
+ * the queue has emptied. Returns `enqueue(files)`.
+ */
+export function uploadQueue({ list, url, form, done, idle = () => {} }) {
+  const queue = [];
+  let active = 0;
+
+  async function send({ body, row }) {
+    try {
+      row.done(done(await upload(url, body, row.progress)));
+    } catch (err) {
+      row.fail(err.message);
+    }
+  }
+
+  function pump() {
+    while (active < PARALLEL_UPLOADS && queue.length) {
+      active += 1;
+      send(queue.shift()).finally(() => {
+        active -= 1;
+        pump();
+        if (!active && !queue.length) idle();
+      });
+    }
+  }
+
+  return function enqueue(files) {
+    for (const file of files) {
+      if (!file.type.startsWith("image/") && !IMAGE_FILE.test(file.name)) {
+        toast(`${file.name}: not an image file, skipped`, "error");
+        continue;
+      }
+      queue.push({ body: form(file), row: uploadRow(list, file) });
+    }
+    pump();
+  };
+}
+
+/** Make `zone` a drop target for files, shown with the class "dragging" while files are over it. */
+export function dropTarget(zone, onFiles) {
+  let depth = 0;
+  // Stopped here: a drop zone inside another (a dialog over the page) must not feed both.
+  const handle = (e) => { e.preventDefault(); e.stopPropagation(); };
+  zone.addEventListener("dragenter", (e) => { handle(e); depth += 1; zone.classList.add("dragging"); });
+  zone.addEventListener("dragleave", (e) => {
+    handle(e);
+    depth -= 1;
+    if (depth <= 0) { depth = 0; zone.classList.remove("dragging"); }
+  });
+  zone.addEventListener("dragover", handle);
+  zone.addEventListener("drop", (e) => {
+    handle(e);
+    depth = 0;
+    zone.classList.remove("dragging");
+    onFiles(e.dataTransfer.files);
+  });
+}
