@@ -1,6 +1,7 @@
 // Entry point: load the initial state, wire the views, and follow the server's event stream.
 
 import { get } from "./api.js";
+import { initCamera } from "./camera.js";
 import { initDetail } from "./detail.js";
 import { initGallery, refreshImages } from "./gallery.js";
 import { apply as applySettings, initSettings } from "./settings.js";
@@ -59,6 +60,7 @@ async function main() {
   const [health] = await Promise.all([get("/api/health"), loadLibrary()]);
   $("#app-version").textContent = `v${health.version}`;
   await initSettings();
+  initCamera();
   initGallery();
   initDetail();
   const wanted = new URLSearchParams(location.hash.slice(1)).get("image");

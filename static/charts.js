@@ -1,4 +1,5 @@
-// Canvas charts for threshold calibration: the gray histogram and the threshold sweep.
+// Canvas charts: the gray histogram and the threshold sweep (threshold calibration), and the
+// per-photo reprojection errors of a camera calibration.
 
 const PAD = { left: 34, right: 34, top: 10, bottom: 20 };
 const INK = "#57606a";
@@ -7,10 +8,12 @@ const FONT = "10px system-ui, sans-serif";
 const COLORS = {
   threshold: "#0969da", suggested: "#1a7f37", white: "#57606a", background: "#9a6700", high: "#bc4c00",
   bars: "#8c959f", correct: "#1a7f37", margin: "#8250df", band: "rgba(26,127,55,0.12)",
+  outlier: "#cf222e", excluded: "#d0d7de", selected: "#0969da",
 };
 
-/** Size the canvas for the device's pixel ratio and return plot-area transforms for x in [x0, x1]. */
-function plot(canvas, x0, x1) {
+/** Size the canvas for the device's pixel ratio and return plot-area transforms for x in [x0, x1];
+ *  `ticks`: label five values along x (off for charts that label their own categories). */
+function plot(canvas, x0, x1, ticks = true) {
   const ratio = window.devicePixelRatio || 1;
   const width = canvas.clientWidth, height = canvas.clientHeight;
   canvas.width = Math.round(width * ratio);
@@ -27,7 +30,7 @@ function plot(canvas, x0, x1) {
   ctx.fillStyle = INK;
   ctx.textAlign = "center";
   ctx.textBaseline = "top";
-  for (let i = 0; i <= 4; i++) {
+  for (let i = 0; ticks && i <= 4; i++) {
     const v = x0 + ((x1 - x0) * i) / 4;
     ctx.fillText(Number(v.toFixed(2)).toString(), x(v), PAD.top + h + 4);
   }
@@ -128,4 +131,58 @@ export function drawSweep(canvas, sweep, current) {
   if (current >= xs[0] && current <= xs[xs.length - 1]) {
     marker(p, current, COLORS.threshold, `now ${num(current)}`);
   }
+}
+
+function level(p, f, color, label, dash = []) {
+  const { ctx, y, w } = p;
+  ctx.save();
+  ctx.strokeStyle = color;
+  ctx.fillStyle = color;
+  ctx.setLineDash(dash);
+  ctx.beginPath();
+  ctx.moveTo(PAD.left, Math.round(y(f)) + 0.5);
+  ctx.lineTo(PAD.left + w, Math.round(y(f)) + 0.5);
+  ctx.stroke();
+  ctx.textAlign = "left";
+  ctx.textBaseline = "middle";
+  ctx.fillText(label, PAD.left + w + 3, y(f));
+  ctx.restore();
+}
+
+/** One bar per calibration photo: its RMS reprojection error (px) under the fitted camera. Outliers
+ *  are red, photos left out of the fit pale, photos without a board an empty slot; the dashed
+ *  line is the outlier threshold, the solid one the overall RMS. `selected`: index to outline. */
+export function drawViewErrors(canvas, views, result, selected) {
+  const n = Math.max(views.length, 1);
+  const p = plot(canvas, 0, n, false);
+  const { ctx, x, y } = p;
+  const errors = views.map((v) => v.error_px ?? 0);
+  const top = Math.max(...errors, result.outlier_threshold_px, result.rms_px) * 1.1;
+  const barW = x(1) - x(0);
+  views.forEach((v, i) => {
+    const f = (v.error_px ?? 0) / top;
+    ctx.fillStyle = v.excluded ? COLORS.excluded : v.outlier ? COLORS.outlier : COLORS.bars;
+    ctx.fillRect(x(i + 0.15), y(f), barW * 0.7, y(0) - y(f));
+    if (i === selected) {
+      ctx.strokeStyle = COLORS.selected;
+      ctx.lineWidth = 2;
+      ctx.strokeRect(x(i + 0.08), y(1), barW * 0.84, y(0) - y(1));
+    }
+    ctx.fillStyle = INK;
+    ctx.textAlign = "center";
+    ctx.textBaseline = "top";
+    if (barW >= 12 || i % Math.ceil(12 / barW) === 0) ctx.fillText(String(i + 1), x(i + 0.5), y(0) + 4);
+    if (!v.found) ctx.fillText("–", x(i + 0.5), y(0) - 12);
+  });
+  ctx.textAlign = "right";
+  ctx.textBaseline = "middle";
+  ctx.fillText(top.toFixed(2), PAD.left - 4, y(1));
+  ctx.fillText("0", PAD.left - 4, y(0));
+  level(p, result.outlier_threshold_px / top, COLORS.outlier, "outlier", [4, 3]);
+  level(p, result.rms_px / top, COLORS.suggested, "RMS");
+}
+
+/** Index of the bar under a click at `clientX` on a chart of `n` bars drawn by drawViewErrors. */
+export function barAt(canvas, clientX, n) {
+  return Math.min(n - 1, Math.floor(valueAt(canvas, clientX, 0, n)));
 }

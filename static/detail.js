@@ -2,6 +2,7 @@
 // calibration tools (box-drag histogram, sweep over all labelled images).
 
 import { api, failureOf, get } from "./api.js";
+import { approximateNote, KIND_LABELS } from "./camera.js";
 import { drawHistogram, drawSweep, valueAt } from "./charts.js";
 import { fillExpected, refreshImages } from "./gallery.js";
 import { setSetting } from "./settings.js";
@@ -121,17 +122,27 @@ function renderPose() {
         + `${sd.slice(3).map((s) => fmt(s * 100, 1)).join(" ")} cm`) : null,
     ), el("p.hint", {}, "metres in the sign frame: origin at the sign centre, x right, y down, z into the wall"));
   }
-  const cam = detail.camera;
-  const assumed = !cam || String(cam.source ?? "").startsWith("assumed");
-  fill($("#intrinsics"),
-    assumed ? el("p.warn", {}, `No camera file, so ${cam?.source ?? "a 60° horizontal field of view"} is assumed: `
-      + "distance and angles are approximate. Load the camera's calibration in the settings panel.") : null,
-    cam ? el("dl.pose", {},
+  renderIntrinsics(detail.camera);
+}
+
+/** The intrinsics the pose was computed with, where they came from, and whether that makes it approximate. */
+function renderIntrinsics(cam) {
+  const box = $("#intrinsics");
+  box.dataset.kind = cam?.kind ?? "";
+  if (!cam) {
+    fill(box, el("p.muted", {}, "no result yet"));
+    return;
+  }
+  const note = approximateNote(cam);
+  fill(box,
+    note ? el("p.warn", {}, note) : null,
+    el("dl.pose", {},
+      kv("source", el("span", {}, el("b.kind", {}, KIND_LABELS[cam.kind]),
+        cam.kind === "typed" ? null : ` · ${cam.source}`), ".plain"),
       kv("fx fy", `${fmt(cam.fx, 1)} ${fmt(cam.fy, 1)} px`),
       kv("cx cy", `${fmt(cam.cx, 1)} ${fmt(cam.cy, 1)} px`),
       kv("distortion", (cam.dist ?? []).every((d) => d === 0) ? "none" : cam.dist.map((d) => fmt(d, 4)).join(" ")),
-      kv("size", cam.width ? `${cam.width}×${cam.height}` : "any"),
-      kv("source", cam.source ?? "given")) : null);
+      kv("size", cam.width ? `${cam.width}×${cam.height}` : "any")));
 }
 
 // One row per library sign, kept across renders so unchanged figures are not fetched again.
@@ -380,7 +391,8 @@ export function initDetail() {
   $("#next").onclick = () => step(1);
   $("#detail-close").onclick = () => select(null);
   document.addEventListener("keydown", (e) => {
-    if (e.target.closest("input, select, textarea") || !state.selected) return;
+    // Keys typed in a field, or in the Camera dialog over the page, are not for the detail view.
+    if (e.target.closest("input, select, textarea, dialog") || !state.selected) return;
     if (e.key === "ArrowLeft") step(-1);
     else if (e.key === "ArrowRight") step(1);
     else if (e.key === "Escape") select(null);

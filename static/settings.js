@@ -3,7 +3,7 @@
 // controls, which fires no input events, so nothing is echoed back.
 
 import { api, get } from "./api.js";
-import { state, emit, on } from "./store.js";
+import { state, emit } from "./store.js";
 import { $, el, fill, debounce, download, report, toast } from "./ui.js";
 
 const controls = new Map();   // name -> {entry, row, read(), write(value)}
@@ -200,41 +200,6 @@ function buildToolbar() {
   };
 }
 
-// Camera intrinsics: the pose is only as good as these, so show where they come from.
-async function loadCamera() {
-  try {
-    const { camera: cam } = await get("/api/camera");
-    const box = $("#camera-info");
-    box.classList.toggle("warn", !cam);
-    box.textContent = cam
-      ? `fx ${cam.fx.toFixed(1)} fy ${cam.fy.toFixed(1)} cx ${cam.cx.toFixed(1)} cy ${cam.cy.toFixed(1)}`
-        + `${cam.width ? ` @ ${cam.width}×${cam.height}` : ""} — ${cam.source}`
-      : "No camera file: 60° horizontal FOV assumed per image; poses are approximate.";
-  } catch (err) {
-    report(err);
-  }
-}
-
-function buildCamera() {
-  const file = $("#camera-file");
-  file.onchange = async () => {
-    const form = new FormData();
-    form.append("file", file.files[0]);
-    try {
-      await api("PUT", "/api/camera", form);
-      toast(`camera ${file.files[0].name} loaded`, "info");
-    } catch (err) {
-      report(err);
-    }
-    file.value = "";
-    loadCamera();
-  };
-  $("#camera-reset").onclick = async () => {
-    try { await api("DELETE", "/api/camera"); } catch (err) { report(err); }
-    loadCamera();
-  };
-}
-
 export async function initSettings() {
   const [schema, current, presets] = await Promise.all([
     get("/api/settings/schema"), get("/api/settings"), get("/api/presets")]);
@@ -242,8 +207,5 @@ export async function initSettings() {
   state.presets = presets;
   buildForm();
   buildToolbar();
-  buildCamera();
   apply(current, true);
-  loadCamera();
-  on("camera", loadCamera);
 }

@@ -9,10 +9,13 @@ import re
 import time
 from pathlib import Path
 
+import cv2
 import httpx
+import numpy as np
 import pytest
 
 import browser_harness as harness
+from chessboards import K_TRUE, render_boards
 
 TRUTH = json.loads((harness.SCENES / "truth.json").read_text())["images"]
 # An easy scene with a sign: recognised at the default settings.
@@ -242,3 +245,91 @@ def test_viser_scene_connects_and_shares_the_settings(page, api):
     harness.set_setting(page, "threshold", 0.55)
     harness.wait_setting(page, api, {"threshold": 0.55})
     page.wait_for_function("el => el.getAttribute('aria-valuenow') === '0.55'", arg=thumb.element_handle())
+
+
+# ---------------------------------------------------------------- camera
+
+@pytest.fixture
+def no_camera(api):
+    """The test starts and ends with no camera, no calibration photos and the 60° assumed FOV."""
+    def reset():
+        api.delete("/api/camera").raise_for_status()
+        api.delete("/api/calibration").raise_for_status()
+        api.put("/api/camera/assumed", json={"hfov_deg": 60}).raise_for_status()
+        harness.wait_server_idle(api)
+    reset()
+    yield
+    reset()
+
+
+def shown_intrinsics(page, kind: str) -> str:
+    """The detail view's intrinsics once they come from `kind`."""
+    page.wait_for_function("k => document.querySelector('#intrinsics').dataset.kind === k", arg=kind,
+                           timeout=60_000)
+    return page.inner_text("#intrinsics")
+
+
+def test_calibrate_with_chessboard_photos_and_apply(page, api, tmp_path, no_camera):
+    images, _ = render_boards(8)
+    photos = [tmp_path / f"board{i}.png" for i in range(len(images))] + [tmp_path / "blank.png"]
+    for path, image in zip(photos, [*images, np.full((480, 640), 200, np.uint8)]):
+        cv2.imwrite(str(path), image)
+    image_id = uploaded_scene(api)
+    open_detail(page, image_id)
+    assert "approximate" in shown_intrinsics(page, "assumed")
+
+    page.click("#camera-open")
+    page.set_input_files("#calib-picker", [str(p) for p in photos])
+    page.wait_for_selector("#calib-uploads .upload .progress")   # a progress bar per photo
+    page.wait_for_selector("#calib-rms", timeout=120_000)        # fitted once the last upload is in
+    assert page.locator("#calib-views .view-card").count() == len(photos)
+    assert page.locator('#calib-views .view-card[data-found="false"]').count() == 1
+    thumbs = harness.stage_images_loaded(page, "#calib-views img")
+    assert len(thumbs) == len(photos) and all(t["w"] > 0 and "overlay=corners" in t["src"] for t in thumbs)
+    assert page.is_visible("#calib-chart")
+    inked = page.evaluate("""() => {
+        const c = document.querySelector('#calib-chart');
+        const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+        let n = 0;
+        for (let i = 3; i < d.length; i += 4) n += d[i] > 0;
+        return n; }""")
+    assert inked > 1000, "the error chart is blank"
+    fx = float(page.inner_text('#calib-summary dd[data-key="fx"]').split()[0])
+    assert fx == pytest.approx(K_TRUE[0, 0], rel=0.005)
+
+    page.click('#preview-mode button[value="undistorted"]')
+    preview = harness.stage_images_loaded(page, "#calib-preview")[0]
+    assert "overlay=undistorted" in preview["src"] and preview["w"] > 0
+
+    page.click("#calib-apply")
+    page.click("#camera-close")
+    page.wait_for_function("() => document.querySelector('#camera-info').textContent.includes('calibration:')")
+    assert page.is_hidden("#assumed-fov")
+    text = shown_intrinsics(page, "calibration")
+    assert "chessboard calibration" in text and f"{fx:.1f}" in text and "approximate" not in text
+    assert api.get(f"/api/images/{image_id}").json()["camera"]["fx"] == pytest.approx(fx, abs=0.05)
+
+
+def test_assumed_field_of_view_and_typed_intrinsics(page, api, no_camera):
+    image_id = uploaded_scene(api)
+    open_detail(page, image_id)
+    assert page.is_visible("#assumed-fov") and "approximate" in page.inner_text("#camera-info")
+    page.fill("#hfov-num", "75")
+    page.dispatch_event("#hfov-num", "change")
+    page.wait_for_function("() => document.querySelector('#intrinsics').textContent.includes('75°')", timeout=60_000)
+    assert "approximate" in shown_intrinsics(page, "assumed")
+    assert api.get("/api/camera").json()["assumed_hfov_deg"] == 75
+
+    page.click("#camera-open")
+    page.click('#camera-tabs button[value="typed"]')
+    assert page.input_value("#typed-width") == "640"   # filled in from the assumed camera
+    for key, value in {"fx": "600", "fy": "601", "cx": "321", "cy": "239"}.items():
+        page.fill(f"#typed-{key}", value)
+    page.fill("#typed-dist", "-0.1 0.02 0 0 0")
+    page.click("#typed-form button[type=submit]")
+    page.click("#camera-close")
+    text = shown_intrinsics(page, "typed")
+    assert "600.0 601.0" in text and "-0.1000" in text and "approximate" not in text
+    assert api.get("/api/camera").json()["camera"] | {"source": ""} == {
+        "fx": 600, "fy": 601, "cx": 321, "cy": 239, "dist": [-0.1, 0.02, 0, 0, 0], "width": 640, "height": 480,
+        "source": "", "kind": "typed"}

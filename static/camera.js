@@ -1,0 +1,390 @@
+// Camera intrinsics, which every pose depends on: the summary in the settings panel (with the
+// assumed field of view while no camera is set) and the Camera dialog, which calibrates from
+// chessboard photos (/api/calibration) or takes intrinsics typed in.
+
+import { api, get } from "./api.js";
+import { barAt, drawViewErrors } from "./charts.js";
+import { on, state } from "./store.js";
+import { $, el, fill, fmt, debounce, download, report, toast } from "./ui.js";
+import { dropTarget, filesForm, uploadQueue } from "./uploads.js";
+
+/** CameraIntrinsics.kind, for people. */
+export const KIND_LABELS = {
+  calibration: "chessboard calibration", file: "camera file", typed: "typed in",
+  exif: "EXIF focal length", assumed: "assumed field of view",
+};
+const THUMB_SIDE = 320;
+const PREVIEW_SIDE = 1280;
+
+let camera = null;        // GET /api/camera
+let calib = null;         // GET /api/calibration, the newest revision seen
+let selected = null;      // id of the calibration photo in the preview
+let picked = false;       // `selected` was clicked, not chosen for the person
+let previewMode = "corners";
+let hfovHeld = false;     // the slider is under the pointer: server answers must not yank it
+
+/** "fx 520.1 fy 515.0 cx 318.0 cy 243.0 px @ 640×480" */
+export const intrinsicsText = (cam) => `fx ${fmt(cam.fx, 1)} fy ${fmt(cam.fy, 1)} cx ${fmt(cam.cx, 1)} `
+  + `cy ${fmt(cam.cy, 1)} px${cam.width ? ` @ ${cam.width}×${cam.height}` : ""}`;
+
+/** Where `cam` came from, in a few words ("typed in", "upload:cam.yaml", "calibration: 12 views, …"). */
+export const sourceText = (cam) => (cam.kind === "typed" ? KIND_LABELS.typed : cam.source);
+
+/** Why a pose computed with `cam` is approximate, or null when its intrinsics were measured. */
+export function approximateNote(cam) {
+  const fix = "Calibrate the camera (settings panel › Camera › calibrate…) for accurate poses.";
+  if (cam.kind === "exif") {
+    return `Intrinsics from the photo's ${cam.source}, without lens distortion and with the principal point `
+      + `assumed central: distance and angles are approximate. ${fix}`;
+  }
+  if (cam.kind === "assumed") {
+    return `No camera set and no EXIF focal length: ${cam.source}, so distance and angles are approximate. ${fix}`;
+  }
+  return null;
+}
+
+// ---- the settings panel's summary and the assumed field of view
+
+/** 35 mm-equivalent focal length (mm) of a horizontal field of view: a full frame is 36 mm wide. */
+const equivalentMm = (hfov) => 18 / Math.tan((hfov * Math.PI) / 360);
+
+function renderHfovNote(hfov) {
+  const img = state.images.find((i) => i.width);
+  const px = img ? `, fx = fy ≈ ${fmt(img.width / 2 / Math.tan((hfov * Math.PI) / 360), 0)} px at ${img.width} px wide` : "";
+  $("#hfov-note").textContent = `≈ ${fmt(equivalentMm(hfov), 0)} mm focal length (35 mm equivalent)${px}`;
+}
+
+function renderCamera() {
+  const { camera: cam, assumed_hfov_deg: hfov, exif_images: exif } = camera;
+  const info = $("#camera-info");
+  info.classList.toggle("warn", !cam);
+  const total = state.images.length;
+  info.textContent = cam
+    ? `${intrinsicsText(cam)} — ${sourceText(cam)}`
+    : `No camera set, so poses are approximate: ${exif
+      ? `${exif} of ${total} images use their EXIF focal length, the others` : "every image uses"} `
+      + `the field of view assumed below. Calibrate for accurate poses.`;
+  $("#assumed-fov").hidden = Boolean(cam);
+  if (!hfovHeld) {
+    $("#hfov").value = hfov;
+    $("#hfov-num").value = hfov;
+    renderHfovNote(hfov);
+  }
+  $("#dialog-camera").textContent = cam ? `in use: ${intrinsicsText(cam)} · ${sourceText(cam)}`
+    : "in use: none (EXIF or assumed field of view)";
+}
+
+async function loadCamera() {
+  try {
+    camera = await get("/api/camera");
+    renderCamera();
+  } catch (err) {
+    report(err);
+  }
+}
+
+const putHfov = debounce(async (hfov) => {
+  try {
+    camera = await api("PUT", "/api/camera/assumed", { hfov_deg: hfov });
+  } catch (err) {
+    report(err);
+    hfovHeld = false;   // show the server's value again
+  }
+  renderCamera();
+}, 200);
+
+function bindSidebar() {
+  const file = $("#camera-file");
+  file.onchange = async () => {
+    const form = new FormData();
+    form.append("file", file.files[0]);
+    try {
+      await api("PUT", "/api/camera", form);
+      toast(`camera ${file.files[0].name} loaded`, "info");
+    } catch (err) {
+      report(err);
+    }
+    file.value = "";
+    loadCamera();
+  };
+  $("#camera-reset").onclick = async () => {
+    try { await api("DELETE", "/api/camera"); } catch (err) { report(err); }
+    loadCamera();
+  };
+  const range = $("#hfov"), num = $("#hfov-num");
+  const change = (value) => {
+    const hfov = Math.min(140, Math.max(10, Number(value)));
+    range.value = num.value = hfov;
+    renderHfovNote(hfov);
+    putHfov(hfov);
+  };
+  range.addEventListener("pointerdown", () => { hfovHeld = true; });
+  window.addEventListener("pointerup", () => { hfovHeld = false; });
+  range.addEventListener("input", () => change(range.value));
+  num.addEventListener("change", () => num.value !== "" && change(num.value));
+}
+
+// ---- the dialog: calibration from chessboard photos
+
+const board = () => calib.board;
+const figureUrl = (id, overlay, side) => {
+  const b = board();
+  // Figures change with the board searched for and, undistorted, with the result.
+  const key = overlay === "undistorted" ? `${b.cols}x${b.rows}.${calib.revision}` : `${b.cols}x${b.rows}`;
+  return `/api/calibration/views/${id}/image?overlay=${overlay}&max_side=${side}&v=${key}`;
+};
+
+/** Show a calibration state unless a newer one has been shown already (answers may cross). */
+function show(body) {
+  if (calib && body.revision < calib.revision) return;
+  calib = body;
+  renderCalibration();
+}
+
+async function loadCalibration() {
+  try {
+    show(await get("/api/calibration"));
+  } catch (err) {
+    report(err);
+  }
+}
+
+/** A calibration request whose answer is the new state; errors (a person can act on) as toasts. */
+async function change(method, url, body) {
+  try {
+    show(await api(method, url, body));
+    return true;
+  } catch (err) {
+    report(err);
+    loadCalibration();   // the inputs show what the server holds again
+    return false;
+  }
+}
+
+function viewCard(view, index) {
+  const flags = [view.found ? null : "board not found", view.outlier ? "outlier" : null,
+    view.excluded ? "left out of the fit" : null].filter(Boolean);
+  return el(`div.view-card${view.found ? "" : ".notfound"}${view.outlier ? ".outlier" : ""}`
+    + `${view.excluded ? ".excluded" : ""}${view.id === selected ? ".selected" : ""}`, {
+    tabIndex: 0, role: "button", dataset: { id: view.id, found: view.found },
+    title: `${view.name} · ${view.width}×${view.height}${flags.length ? ` · ${flags.join(", ")}` : ""}`,
+    onclick: () => selectView(view.id),
+    onkeydown: (e) => { if (e.key === "Enter" || e.key === " ") { e.preventDefault(); selectView(view.id); } },
+  },
+  el("div.thumb-box", {}, el("img.thumb", { src: figureUrl(view.id, "corners", THUMB_SIDE), alt: "", decoding: "async" })),
+  el("div.card-name", {}, `${index + 1}. ${view.name}`),
+  el("div.card-stats", {}, view.found
+    ? [el("span", {}, view.error_px === null ? "found" : `${fmt(view.error_px, 3)} px`),
+      view.tilt_deg === null ? null : el("span", { title: "board tilt from facing the camera" }, `${fmt(view.tilt_deg, 0)}°`),
+      view.outlier ? el("b.bad", {}, "outlier") : null, view.excluded ? el("span", {}, "dropped") : null]
+    : el("span.bad", {}, "board not found")),
+  el("button.icon.remove", {
+    type: "button", title: "Remove this photo",
+    onclick: async (e) => {
+      e.stopPropagation();
+      try { await api("DELETE", `/api/calibration/views/${view.id}`); } catch (err) { report(err); }
+      loadCalibration();
+    },
+  }, "×"));
+}
+
+function renderSummary() {
+  const found = calib.views.filter((v) => v.found).length;
+  const r = calib.result;
+  const b = board();
+  if (!r) {
+    fill($("#calib-summary"), el("p.muted", {}, calib.views.length
+      ? `${calib.views.length} photos, the ${b.cols}×${b.rows} board found in ${found}`
+        + (found < calib.min_views ? ` (at least ${calib.min_views} needed; 15–20 recommended)` : ": run the calibration")
+      : "No photos yet."));
+    return;
+  }
+  const cam = r.camera, sd = r.intrinsics_std;
+  const outliers = calib.views.filter((v) => v.outlier).length;
+  fill($("#calib-summary"), el("dl.pose", {},
+    [el("dt", {}, "RMS"), el("dd", { id: "calib-rms" }, `${fmt(r.rms_px, 3)} px from ${r.used} of ${calib.views.length} photos`
+      + (outliers ? ` · ${outliers} outlier${outliers > 1 ? "s" : ""} (> ${fmt(r.outlier_threshold_px, 2)} px)` : ""))],
+    ...["fx", "fy", "cx", "cy"].map((k) => [el("dt", {}, k), el("dd", { dataset: { key: k } }, `${fmt(cam[k], 2)} ± ${fmt(sd[k], 2)} px`)]),
+    [el("dt", {}, "distortion"), el("dd", {}, cam.dist.map((d) => fmt(d, 4)).join(" "))],
+    [el("dt", {}, "image size"), el("dd", {}, `${cam.width}×${cam.height}`)],
+    [el("dt", {}, "board"), el("dd", {}, `${b.cols}×${b.rows} inner corners, ${fmt(b.square_m * 1000, 1)} mm squares`)]));
+}
+
+function renderChart() {
+  const r = calib.result;
+  $("#calib-chart-box").hidden = !r;
+  if (r) drawViewErrors($("#calib-chart"), calib.views, r, calib.views.findIndex((v) => v.id === selected));
+}
+
+function renderPreview() {
+  const view = calib.views.find((v) => v.id === selected);
+  $("#calib-preview-box").hidden = !view;
+  if (!view) return;
+  if (!calib.result) previewMode = "corners";
+  for (const button of document.querySelectorAll("#preview-mode button")) {
+    button.classList.toggle("active", button.value === previewMode);
+    button.disabled = button.value === "undistorted" && !calib.result;
+  }
+  $("#preview-name").textContent = `· ${view.name}`;
+  const url = figureUrl(view.id, previewMode, PREVIEW_SIDE);
+  if ($("#calib-preview").getAttribute("src") !== url) $("#calib-preview").src = url;
+}
+
+function renderCalibration() {
+  const b = board();
+  for (const [id, value] of [["#board-cols", b.cols], ["#board-rows", b.rows], ["#board-square", b.square_m * 1000]]) {
+    if (document.activeElement !== $(id)) $(id).value = Number(value.toFixed(3));
+  }
+  const current = calib.views.find((v) => v.id === selected);
+  if (!current || (!picked && !current.found)) {
+    picked = false;
+    selected = (calib.views.find((v) => v.found) ?? calib.views[0])?.id ?? null;
+  }
+  fill($("#calib-views"), ...calib.views.map(viewCard));
+  $("#calib-empty").hidden = calib.views.length > 0;
+  const found = calib.views.filter((v) => v.found).length;
+  $("#calib-run").disabled = found < calib.min_views;
+  $("#calib-drop").disabled = !calib.views.some((v) => v.outlier);
+  $("#calib-apply").disabled = $("#calib-yaml").disabled = !calib.result;
+  renderSummary();
+  fill($("#calib-warnings"), ...(calib.result?.warnings ?? []).map((w) => el("li", {}, w)));
+  renderChart();
+  renderPreview();
+}
+
+function selectView(id) {
+  selected = id;
+  picked = true;
+  for (const card of document.querySelectorAll("#calib-views .view-card")) {
+    card.classList.toggle("selected", card.dataset.id === id);
+  }
+  renderChart();
+  renderPreview();
+}
+
+const run = (dropOutliers) => change("POST", "/api/calibration/run", { drop_outliers: dropOutliers });
+
+function bindCalibration() {
+  const enqueue = uploadQueue({
+    list: $("#calib-uploads"),
+    url: "/api/calibration/images",
+    form: (file) => filesForm(file),
+    done: (body) => {
+      show(body);
+      // The photo just added is the last one in the state its request answers with.
+      return body.views.at(-1)?.found ? "✓ board found" : "✓ added, but the board was not found";
+    },
+    // Once a batch is in, fit at once when it can be: the chart is what people add photos for.
+    idle: () => {
+      if (calib && calib.views.filter((v) => v.found).length >= calib.min_views) run(false);
+    },
+  });
+  const picker = $("#calib-picker");
+  picker.onchange = () => { enqueue(picker.files); picker.value = ""; };
+  dropTarget($("#camera-dialog"), (files) => {
+    showTab("calibrate");
+    enqueue(files);
+  });
+  const putBoard = () => change("PUT", "/api/calibration/board", {
+    cols: Number($("#board-cols").value), rows: Number($("#board-rows").value),
+    square_m: Number($("#board-square").value) / 1000,
+  });
+  for (const id of ["#board-cols", "#board-rows", "#board-square"]) $(id).addEventListener("change", putBoard);
+  $("#calib-run").onclick = () => run(false);
+  $("#calib-drop").onclick = () => run(true);
+  $("#calib-apply").onclick = async () => {
+    try {
+      camera = await api("POST", "/api/calibration/apply");
+      renderCamera();
+      toast("calibrated camera applied: every image is being re-run with it", "info");
+    } catch (err) {
+      report(err);
+    }
+  };
+  $("#calib-yaml").onclick = () => download("/api/calibration/camera.yaml");
+  $("#calib-clear").onclick = () => {
+    if (calib?.views.length && confirm(`Remove all ${calib.views.length} calibration photos?`)) {
+      change("DELETE", "/api/calibration");
+    }
+  };
+  $("#calib-chart").addEventListener("click", (e) => {
+    const view = calib.views[barAt(e.currentTarget, e.clientX, calib.views.length)];
+    if (view) selectView(view.id);
+  });
+  for (const button of document.querySelectorAll("#preview-mode button")) {
+    button.onclick = () => { previewMode = button.value; renderPreview(); };
+  }
+  new ResizeObserver(() => calib && renderChart()).observe($("#calib-chart-box"));
+}
+
+// ---- the dialog: intrinsics typed in
+
+const TYPED = ["fx", "fy", "cx", "cy", "width", "height"];
+
+function fillTyped() {
+  const cam = calib?.result?.camera ?? camera?.camera;
+  const img = state.images.find((i) => i.width);
+  // Rounded: a thousandth of a pixel, six significant digits of distortion, are beyond any calibration.
+  const put = (values, dist) => {
+    for (const k of TYPED) $(`#typed-${k}`).value = values[k] === null ? "" : Number(values[k].toFixed(3));
+    $("#typed-dist").value = dist.map((d) => Number(d.toPrecision(6))).join(" ");
+  };
+  if (cam) put(cam, cam.dist);
+  else if (img) {   // the assumed camera of the first image
+    const f = img.width / 2 / Math.tan((camera.assumed_hfov_deg * Math.PI) / 360);
+    put({ fx: f, fy: f, cx: img.width / 2, cy: img.height / 2, width: img.width, height: img.height }, []);
+  }
+}
+
+function bindTyped() {
+  $("#typed-fill").onclick = fillTyped;
+  $("#typed-form").addEventListener("submit", async (e) => {
+    e.preventDefault();
+    const dist = $("#typed-dist").value.split(/[\s,]+/).filter(Boolean).map(Number);
+    if (dist.some(Number.isNaN)) {
+      toast("distortion: give numbers separated by spaces, in OpenCV's order k1 k2 p1 p2 k3", "error");
+      return;
+    }
+    const value = (k) => ($(`#typed-${k}`).value === "" ? null : Number($(`#typed-${k}`).value));
+    const body = Object.fromEntries(TYPED.map((k) => [k, value(k)]));
+    try {
+      camera = await api("PUT", "/api/camera", { ...body, dist });
+      renderCamera();
+      toast("typed intrinsics applied: every image is being re-run with them", "info");
+    } catch (err) {
+      report(err);
+    }
+  });
+}
+
+// ---- wiring
+
+function showTab(name) {
+  for (const button of document.querySelectorAll("#camera-tabs button")) {
+    button.classList.toggle("active", button.value === name);
+  }
+  $("#tab-calibrate").hidden = name !== "calibrate";
+  $("#tab-typed").hidden = name !== "typed";
+  if (name === "typed" && $("#typed-fx").value === "") fillTyped();
+}
+
+export function initCamera() {
+  bindSidebar();
+  bindCalibration();
+  bindTyped();
+  const dialog = $("#camera-dialog");
+  $("#camera-open").onclick = () => {
+    showTab("calibrate");
+    dialog.showModal();
+    loadCalibration();
+  };
+  $("#camera-close").onclick = () => dialog.close();
+  for (const button of document.querySelectorAll("#camera-tabs button")) button.onclick = () => showTab(button.value);
+  on("camera", loadCamera);
+  let imageCount = -1;
+  on("images", (images) => {
+    // Only a new or removed image changes how many use their EXIF focal length.
+    if (images.length !== imageCount) { imageCount = images.length; loadCamera(); }
+  });
+  loadCamera();
+}
