@@ -235,7 +235,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--port", type=int, default=8000, help="port (default 8000)")
     p.add_argument("--library", help="sign library folder, copied into the state directory "
                                      "(default: the state's library; on a fresh state the samples)")
-    p.add_argument("--camera", help="camera file (default: the state's camera, else per image its EXIF or 60° hfov)")
+    p.add_argument("--camera", help="camera file (default: the state's camera, else per image its EXIF focal length "
+                                    "or the assumed field of view, 60° unless set in the page)")
     p.add_argument("--settings", help="settings JSON to start from (default: the state's settings)")
     p.add_argument("--state-dir", default="signpose_state",
                    help="where settings, library, camera and images survive restarts (default ./signpose_state)")
