@@ -81,13 +81,16 @@ def test_upload_run_apply_and_download(client, photos, tmp_path):
     assert client.get("/api/calibration").json() == state
 
     view_id = state["views"][0]["id"]
+    figures = {}
     for overlay in ("corners", "undistorted"):
         r = client.get(f"/api/calibration/views/{view_id}/image", params={"overlay": overlay})
         assert r.status_code == 200 and r.headers["content-type"] == "image/jpeg"
-        figure = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR)
-        assert figure.shape[:2] == SIZE[::-1]
+        figures[overlay] = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR)
+        assert figures[overlay].shape[:2] == SIZE[::-1]
         # drawChessboardCorners colours the corners: a gray photo gains saturated pixels.
-        assert cv2.cvtColor(figure, cv2.COLOR_BGR2HSV)[..., 1].max() > 200
+        assert cv2.cvtColor(figures[overlay], cv2.COLOR_BGR2HSV)[..., 1].max() > 200
+    # Undistorting moves the edges of the frame by pixels (k1 = -0.12): the two figures differ.
+    assert np.abs(figures["corners"].astype(int) - figures["undistorted"]).mean() > 2
     thumb = client.get(f"/api/calibration/views/{view_id}/image", params={"max_side": 160})
     assert cv2.imdecode(np.frombuffer(thumb.content, np.uint8), cv2.IMREAD_COLOR).shape[:2] == (120, 160)
 
