@@ -19,7 +19,6 @@ distance of the four corners (image px).
 from __future__ import annotations
 
 import ctypes
-import json
 import math
 import multiprocessing
 import os
@@ -34,6 +33,7 @@ import numpy as np
 from .camera import Camera, CameraError, load_camera
 from .features import library_features
 from .image import ImageError, read_image
+from .jsonfile import read_json
 from .library import Library
 from .pose import rotation_error_deg
 from .recognize import recognize
@@ -151,10 +151,7 @@ def _matrix(value, shape: tuple[int, ...], what: str) -> np.ndarray | None:
 
 def _load_truth(root: Path) -> tuple[list[Sample], Path | None]:
     truth_path = root / "truth.json"
-    try:
-        truth = json.loads(truth_path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DatasetError(f"{truth_path} is not valid JSON: {exc}") from None
+    truth = read_json(truth_path, DatasetError)
     images = truth.get("images") if isinstance(truth, dict) else None
     if not isinstance(images, dict) or not images:
         raise DatasetError(f'{truth_path} must hold {{"images": {{"file.jpg": {{"label": ...}}}}}} '

@@ -20,6 +20,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .jsonfile import read_json
+
 SAMPLE_LIBRARY = Path(__file__).resolve().parent.parent / "sample_images" / "library"
 ID_PATTERN = re.compile(r"^[a-z0-9][a-z0-9_-]{0,63}$")
 # Aspect ratios of image and physical size may differ by this much before it is an error:
@@ -146,10 +148,7 @@ def load_library(root: str | Path = SAMPLE_LIBRARY) -> Library:
     meta_path = root / "library.json"
     if not meta_path.is_file():
         raise LibraryError(f"{root} is not a sign library: {meta_path} not found")
-    try:
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise LibraryError(f"{meta_path} is not valid JSON: {exc}") from None
+    meta = read_json(meta_path, LibraryError)
     entries = meta.get("signs") if isinstance(meta, dict) else None
     if not isinstance(entries, list) or not entries:
         raise LibraryError(f'{meta_path} must hold {{"signs": [...]}} with at least one sign')

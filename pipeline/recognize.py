@@ -52,6 +52,7 @@ class SignScore:
     estimate: HomographyEstimate | None = field(repr=False)
     corners: np.ndarray | None = field(repr=False)
     reason: str | None = None
+    skipped: bool = False  # not fitted: too few matches to win or to narrow the winner's margin
 
     @property
     def n_matches(self) -> int:
@@ -60,6 +61,11 @@ class SignScore:
     @property
     def n_inliers(self) -> int:
         return self.estimate.n_inliers if self.estimate is not None else 0
+
+    @property
+    def inlier_bound(self) -> int:
+        """Its inliers, or for a sign not fitted because it could not matter, at most its matches."""
+        return self.n_matches if self.skipped else self.n_inliers
 
     @property
     def inlier_ratio(self) -> float:
@@ -75,7 +81,11 @@ class SignScore:
 
 @dataclass(eq=False)
 class Attempt:
-    """One candidate region searched: its features, every sign's score and the decision."""
+    """One candidate region searched: its features, every sign's score and the decision.
+
+    margin: the best sign's inliers minus the runner-up's, counting a sign that was not fitted
+    at its match count (so a lower bound on the margin fitting every sign would give).
+    """
 
     region: Box
     source: str  # "blob 1", "blob 2", ..., "full frame"
@@ -250,17 +260,20 @@ def cached(cache: StageCache | None, key: tuple, compute):
     return compute() if cache is None else cache.get(key, compute)
 
 
+def match_points(query: Features, train: Features, matches: Matches) -> tuple[np.ndarray, np.ndarray]:
+    """(M, 2) float64 library px and (M, 2) float64 image px of the matched keypoints."""
+    return train.xy[matches.train_idx].astype(np.float64), query.xy[matches.query_idx].astype(np.float64)
+
+
 def score_sign(sign: LibrarySign, query: Features, train: Features, matches: Matches, settings: Settings,
                image_size: tuple[int, int], timing: dict[str, float]) -> SignScore:
     """Fit H to the `matches` between `query` and one sign's features by RANSAC and check it."""
     t1 = time.perf_counter()
-    src = train.xy[matches.train_idx].astype(np.float64)
-    dst = query.xy[matches.query_idx].astype(np.float64)
-    score = SignScore(sign.id, matches, src, dst, None, None)
+    score = SignScore(sign.id, matches, *match_points(query, train, matches), None, None)
     if len(matches) < max(4, settings.min_matches):
         score.reason = f"too few matches ({len(matches)} < {max(4, settings.min_matches)})"
         return score
-    score.estimate = estimate_homography(src, dst, settings.ransac_method, settings.ransac_iterations,
+    score.estimate = estimate_homography(score.src, score.dst, settings.ransac_method, settings.ransac_iterations,
                                          settings.ransac_threshold_px, settings.ransac_confidence, settings.seed,
                                          settings.ransac_adaptive)
     timing["ransac"] += (time.perf_counter() - t1) * 1e3
@@ -274,6 +287,30 @@ def score_sign(sign: LibrarySign, query: Features, train: Features, matches: Mat
     return score
 
 
+def score_signs(library: Library, query: Features, lib: dict[str, Features], matches: list[Matches],
+                settings: Settings, image_size: tuple[int, int], timing: dict[str, float]) -> list[SignScore]:
+    """Every library sign's score, in library order.
+
+    Signs are fitted in order of their match count. Once a sign is valid, a sign with no more
+    matches than the leader's inliers minus `min_margin` can neither win nor narrow the margin
+    below `min_margin` (its inliers are at most its matches), so RANSAC on it is skipped: the
+    decision is the one fitting it would give, and `decide` counts it at its match count.
+    """
+    scores: dict[str, SignScore] = {}
+    leader = None
+    for sign, m in sorted(zip(library.signs, matches), key=lambda sm: -len(sm[1])):
+        if leader is not None and max(4, settings.min_matches) <= len(m) <= leader - settings.min_margin:
+            scores[sign.id] = SignScore(sign.id, m, *match_points(query, lib[sign.id], m), None, None,
+                                        f"not fitted: {len(m)} matches cannot challenge the leader's "
+                                        f"{leader} inliers", skipped=True)
+            continue
+        score = score_sign(sign, query, lib[sign.id], m, settings, image_size, timing)
+        if score.reason is None:
+            leader = max(leader or 0, score.n_inliers)
+        scores[sign.id] = score
+    return [scores[sign.id] for sign in library.signs]
+
+
 def decide(scores: list[SignScore], settings: Settings) -> tuple[int | None, int]:
     """Index of the winning sign (or None) and its inlier margin over the runner-up.
 
@@ -284,7 +321,7 @@ def decide(scores: list[SignScore], settings: Settings) -> tuple[int | None, int
     if not valid:
         return None, 0
     best = valid[0]
-    runner_up = max((scores[i].n_inliers for i in order if i != best), default=0)
+    runner_up = max((scores[i].inlier_bound for i in order if i != best), default=0)
     margin = scores[best].n_inliers - runner_up
     if margin < settings.min_margin:
         scores[best].reason = f"margin over the runner-up too small ({margin} < {settings.min_margin})"
@@ -304,9 +341,7 @@ def search_region(gray: np.ndarray, region: Box, source: str, library: Library,
     matches = cached(cache, ("match", *feature_key(settings), region, settings.ratio),
                      lambda: match_library(query.descriptors, trains, settings.ratio, query.norm))
     timing["match"] += (time.perf_counter() - t1) * 1e3
-    size = (gray.shape[1], gray.shape[0])
-    scores = [score_sign(sign, query, lib[sign.id], m, settings, size, timing)
-              for sign, m in zip(library.signs, matches)]
+    scores = score_signs(library, query, lib, matches, settings, (gray.shape[1], gray.shape[0]), timing)
     winner, margin = decide(scores, settings)
     return Attempt(region, source, query, scores, winner, margin)
 

@@ -8,6 +8,7 @@ candidates, so a larger white object (a door, a whiteboard) does not hide the si
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -31,26 +32,47 @@ class Blob:
 class Segmentation:
     """Intermediates of segmentation, all (H, W) like the input.
 
-    gray: normalised float32 in [0, 1]; mask: uint8 0/255 white pixels; labels: int32 component ids;
-    blobs: candidate blobs, largest first; crops: one `Box` per blob, with margin, clipped to the image.
+    source: the uint8 gray image segmented; normalization: its `normalize_gray` mode;
+    mask: uint8 0/255 white pixels; labels: int32 component ids; blobs: candidate blobs, largest
+    first; crops: one `Box` per blob, with margin, clipped to the image.
     """
 
-    gray: np.ndarray = field(repr=False)
+    source: np.ndarray = field(repr=False)
+    normalization: str
     mask: np.ndarray = field(repr=False)
     labels: np.ndarray = field(repr=False)
     blobs: list[Blob]
     crops: list[Box]
 
+    @cached_property
+    def gray(self) -> np.ndarray:
+        """(H, W) float32 normalised gray in [0, 1], the image the threshold applies to.
+
+        Computed on first use: thresholding needs only `threshold_lut`, and a float copy of
+        every image would cost time and memory on each run for a figure few look at."""
+        return normalize_gray(self.source, self.normalization)
+
 
 def normalize_gray(gray: np.ndarray, mode: str) -> np.ndarray:
     """(H, W) uint8 -> float32 in [0, 1]. "scale": /255. "minmax": (g - min) / (max - min), the paper's remap."""
-    g = gray.astype(np.float32)
+    return normalize_levels(gray, mode)[gray]
+
+
+def normalize_levels(gray: np.ndarray, mode: str) -> np.ndarray:
+    """(256,) float32: what `normalize_gray` maps each uint8 level of `gray` to."""
+    levels = np.arange(256, dtype=np.float32)
     if mode == "scale":
-        return g / 255.0
-    lo, hi = float(g.min()), float(g.max())
+        return levels / 255.0
+    lo, hi = (float(v) for v in cv2.minMaxLoc(gray)[:2])
     if hi <= lo:
-        return np.zeros_like(g)
-    return (g - lo) / (hi - lo)
+        return np.zeros(256, np.float32)
+    return (levels - lo) / (hi - lo)
+
+
+def threshold_lut(gray: np.ndarray, mode: str, threshold: float, high_threshold: float | None) -> np.ndarray:
+    """(256,) uint8 lookup table: 255 for the levels of uint8 `gray` whose normalised value passes
+    `threshold_mask`. Applied with cv2.LUT it gives the same mask without a float image."""
+    return threshold_mask(normalize_levels(gray, mode), threshold, high_threshold)
 
 
 def threshold_mask(gray01: np.ndarray, threshold: float, high_threshold: float | None) -> np.ndarray:
@@ -71,8 +93,7 @@ def expand_box(bbox: Box, margin: float, width: int, height: int) -> Box:
 def segment(gray: np.ndarray, settings: Settings) -> Segmentation:
     """Find candidate sign regions in an (H, W) uint8 gray image."""
     h, w = gray.shape
-    gray01 = normalize_gray(gray, settings.normalization)
-    mask = threshold_mask(gray01, settings.threshold, settings.high_threshold)
+    mask = cv2.LUT(gray, threshold_lut(gray, settings.normalization, settings.threshold, settings.high_threshold))
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
     areas = stats[1:, cv2.CC_STAT_AREA]
     order = np.argsort(-areas, kind="stable")
@@ -84,4 +105,5 @@ def segment(gray: np.ndarray, settings: Settings) -> Segmentation:
         x, y, bw, bh = (int(v) for v in stats[i + 1, :4])
         blobs.append(Blob(label=int(i + 1), area=int(areas[i]), bbox=(x, y, x + bw, y + bh)))
     crops = [expand_box(b.bbox, settings.crop_margin, w, h) for b in blobs]
-    return Segmentation(gray=gray01, mask=mask, labels=labels, blobs=blobs, crops=crops)
+    return Segmentation(source=gray, normalization=settings.normalization, mask=mask, labels=labels,
+                        blobs=blobs, crops=crops)

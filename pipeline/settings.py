@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .jsonfile import read_json
+
 
 class SettingsError(ValueError):
     """A settings value or file that cannot be used; the message says which and why."""
@@ -227,14 +229,7 @@ def preset(name: str) -> Settings:
 
 def load_settings(path: str | Path, base: Settings | None = None) -> Settings:
     """Read settings JSON (full or partial) from `path`."""
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise SettingsError(f"settings file not found: {path}") from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise SettingsError(f"settings file {path} is not valid JSON: {exc}") from None
-    return Settings.from_dict(data, base=base)
+    return Settings.from_dict(read_json(Path(path), SettingsError, "settings file"), base=base)
 
 
 def save_settings(settings: Settings, path: str | Path) -> None:

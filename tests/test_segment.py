@@ -1,6 +1,8 @@
 import numpy as np
 
-from pipeline.segment import expand_box, normalize_gray, segment
+import pytest
+
+from pipeline.segment import expand_box, normalize_gray, segment, threshold_mask
 from pipeline.settings import Settings
 
 
@@ -40,3 +42,15 @@ def test_expand_box_clips_to_image():
 
 def test_all_black_image_has_no_blobs():
     assert segment(np.zeros((50, 50), np.uint8), Settings()).blobs == []
+
+
+@pytest.mark.parametrize("normalization", ["scale", "minmax"])
+@pytest.mark.parametrize("threshold, high_threshold", [(0.75, None), (0.5, 0.9), (0.6, 0.61)])
+def test_mask_is_the_threshold_of_the_normalised_gray(normalization, threshold, high_threshold):
+    # segment thresholds uint8 levels through a lookup table; it must agree pixel for pixel
+    # with thresholding the float image the figures show, edge levels included.
+    img = np.random.default_rng(0).integers(30, 221, (120, 160), dtype=np.uint8)
+    seg = segment(img, Settings(normalization=normalization, threshold=threshold, high_threshold=high_threshold))
+    expected = threshold_mask(normalize_gray(img, normalization), threshold, high_threshold)
+    assert np.array_equal(seg.mask, expected)
+    assert np.array_equal(seg.gray, normalize_gray(img, normalization))
