@@ -4,6 +4,7 @@ tools/screenshot.py. Never downloads a browser: without /usr/bin/chromium the ca
 from __future__ import annotations
 
 import contextlib
+import re
 import socket
 import subprocess
 import sys
@@ -81,12 +82,24 @@ def open_page(browser, base: str):
 
 def upload(page, files: list[Path], expected: str = "") -> None:
     """Add images through the file picker, labelled `expected` ("" = unknown), and wait for their cards."""
-    before = page.locator(".card").count()
     page.select_option("#expected", expected)
     page.set_input_files("#file-picker", [str(f) for f in files])
+    wait_cards(page, [f.name for f in files])
+
+
+def wait_cards(page, names: list[str]) -> None:
+    """Until the gallery has a card with a result for each of `names`.
+
+    By name, not by count: the cards of images already on the server may still be arriving."""
     page.wait_for_function(
-        "n => document.querySelectorAll('.card:not([data-status=pending])').length >= n",
-        arg=before + len(files), timeout=120_000)
+        """names => names.every(n => [...document.querySelectorAll('.card:not([data-status=pending]) .card-name')]
+                                        .some((e) => e.textContent === n))""",
+        arg=names, timeout=120_000)
+
+
+def card(page, name: str):
+    """The gallery card of the image called `name`."""
+    return page.locator(".card").filter(has=page.locator(".card-name", has_text=re.compile(f"^{re.escape(name)}$")))
 
 
 def set_setting(page, name: str, value) -> None:

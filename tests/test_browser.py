@@ -90,12 +90,10 @@ def open_detail(page, image_id: str) -> None:
 
 
 def test_upload_recognise_and_inspect(page, api, tmp_path):
-    before = page.locator(".card").count()
     upload = tmp_path / f"upload-{SCENE}"
     upload.write_bytes((harness.SCENES / SCENE).read_bytes())
     harness.upload(page, [upload], expected=LABEL)
-    card = page.locator(".card").nth(before)
-    assert card.locator(".card-name").inner_text() == upload.name
+    card = harness.card(page, upload.name)
     name = sign_name(api, LABEL)
     assert card.locator(".card-label").inner_text() == name
     assert card.get_attribute("data-status") == "correct"
@@ -114,7 +112,6 @@ def test_upload_recognise_and_inspect(page, api, tmp_path):
 
 
 def test_drop_many_files_with_progress(page, api):
-    before = page.locator(".card").count()
     names = [f"drop-{i}-{SCENE}" for i in range(2)]
     data = base64.b64encode((harness.SCENES / SCENE).read_bytes()).decode()
     page.evaluate("""([names, data]) => {
@@ -124,10 +121,7 @@ def test_drop_many_files_with_progress(page, api):
         document.body.dispatchEvent(new DragEvent("drop", { dataTransfer: transfer, bubbles: true }));
     }""", [names, data])
     assert page.locator(".upload .progress").count() >= 2   # one progress bar per file
-    page.wait_for_function("n => document.querySelectorAll('.card:not([data-status=pending])').length >= n",
-                           arg=before + 2, timeout=120_000)
-    # Sent in parallel, so they may arrive in any order.
-    assert sorted(page.locator(".card .card-name").all_inner_texts()[before:]) == names
+    harness.wait_cards(page, names)   # sent in parallel, so they may arrive in any order
 
 
 def test_threshold_control_changes_the_result(page, api):
