@@ -7,7 +7,8 @@ configuration: median and p90 ms per image, the mean of each stage, the peak mem
 fresh process, accuracy by category beside it, and the median over images of naive time /
 configuration time. Then: SIFT alone on the crop the default preset chose (the floor the
 pipeline cannot go below), a RANSAC and a ratio slider change re-run on the loaded images with
-their StageCaches, and evaluate's wall time on 2 worker processes against 1.
+their StageCaches, evaluate's wall time on 2 worker processes against 1, and a full re-run of
+every image in `signpose serve`'s Workspace on one pipeline worker per core against one.
 
     python bench/speed.py [--n 200] [--seed 0] [--data DIR] [--quick]
 
@@ -34,6 +35,7 @@ import numpy as np
 from tqdm import tqdm
 
 import pipeline.recognize as recognize_module
+from app.workspace import Workspace, WorkspaceConfig
 from pipeline.camera import Camera
 from pipeline.evaluate import Dataset, evaluate, keep_freed_memory, load_dataset
 from pipeline.features import detect
@@ -216,32 +218,60 @@ def rerun(dataset: Dataset, library: Library) -> list[str]:
     return lines
 
 
-def batch_speedup(dataset: Dataset, library: Library, repeats: int) -> str:
-    """evaluate's wall time on 1 core, on 1 worker whose OpenCV calls use every core, and on 2
-    worker processes, beside the same images on a pool of 2 threads (as `signpose serve` runs
-    them); alternated, best of `repeats` each."""
-    settings, threads = preset("default"), cv2.getNumThreads()
-
-    def on_threads() -> None:
-        with ThreadPoolExecutor(2) as pool:
-            list(pool.map(lambda s: recognize(read_image(s.path), library, settings, dataset.camera), dataset.samples))
-
-    runs = {"1 worker on 1 core": lambda: evaluate([dataset], library, settings, workers=1),
-            "1 worker, OpenCV on all cores": lambda: evaluate([dataset], library, settings, workers=1),
-            "2 workers": lambda: evaluate([dataset], library, settings, workers=2),
-            "2 threads": on_threads}
+def best_times(runs: dict[str, Callable[[], None]], repeats: int) -> dict[str, float]:
+    """Best wall time in s of each run over `repeats` rounds, alternated so that load hits them
+    alike; runs named "... on 1 core" get one OpenCV thread, the others all of them."""
+    threads = cv2.getNumThreads()
     best = dict.fromkeys(runs, np.inf)
     for _ in range(repeats):
         for name, run in runs.items():
-            cv2.setNumThreads(1 if name == "1 worker on 1 core" else threads)
+            cv2.setNumThreads(1 if name.endswith("on 1 core") else threads)
             t0 = time.perf_counter()
             run()
             best[name] = min(best[name], time.perf_counter() - t0)
     cv2.setNumThreads(threads)
+    return best
+
+
+def batch_speedup(dataset: Dataset, library: Library, repeats: int) -> str:
+    """evaluate's wall time on 1 core, on 1 worker whose OpenCV calls use every core, and on 2
+    worker processes; best of `repeats` each."""
+    settings = preset("default")
+    best = best_times({"1 worker on 1 core": lambda: evaluate([dataset], library, settings, workers=1),
+                       "1 worker, OpenCV on all cores": lambda: evaluate([dataset], library, settings, workers=1),
+                       "2 workers": lambda: evaluate([dataset], library, settings, workers=2)}, repeats)
     return (f"evaluate on {len(dataset)} images, best of {repeats}: "
             + ", ".join(f"{name} {seconds:.2f} s" for name, seconds in best.items())
             + f"; 2 workers vs 1 core {best['1 worker on 1 core'] / best['2 workers']:.2f}x, "
             f"vs 1 worker {best['1 worker, OpenCV on all cores'] / best['2 workers']:.2f}x")
+
+
+def server_speedup(dataset: Dataset, repeats: int) -> str:
+    """A full re-run of every loaded image in `signpose serve`'s Workspace (a features setting
+    changed, so nothing is cached) on 1 pipeline worker on 1 core and on one worker per core."""
+    uploads = [(s.path.name, s.path.read_bytes(), s.label) for s in dataset.samples]
+    best = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for workers, name in ((1, "1 worker on 1 core"), (os.cpu_count() or 1, f"{os.cpu_count()} workers")):
+            config = WorkspaceConfig(state_dir=Path(tmp) / name, load_samples=False, workers=workers,
+                                     debounce_s=0.0)
+            workspace = Workspace(config)
+            try:
+                workspace.set_camera(dataset.camera)
+                workspace.add_images(uploads)
+                workspace.wait_idle(3600)
+                contrast = iter(np.linspace(0.031, 0.039, 2 * repeats))
+
+                def rerun_all() -> None:
+                    workspace.update_settings({"contrast_threshold": float(next(contrast))})
+                    workspace.wait_idle(3600)
+
+                best |= best_times({name: rerun_all}, repeats)
+            finally:
+                workspace.close()
+    one, many = best.values()
+    return (f"signpose serve, all {len(uploads)} images re-run after a features change, best of {repeats}: "
+            + ", ".join(f"{name} {seconds:.2f} s" for name, seconds in best.items()) + f"; {one / many:.2f}x")
 
 
 def _percent(outcomes: list[Outcome], dataset: Dataset, category: str) -> str:
@@ -317,7 +347,8 @@ def main() -> None:
         report += table(dataset, outcomes, peak_memory(dataset, memory_images))
         report += default_lines(dataset, outcomes, floors)
         if size == sizes[0]:
-            report += ["", *rerun(dataset, library), batch_speedup(dataset, library, repeats)]
+            report += ["", *rerun(dataset, library), batch_speedup(dataset, library, repeats),
+                       server_speedup(dataset, repeats)]
     report.append(f"load average at end: {os.getloadavg()[0]:.2f}")
     print("\n".join(report))
 
