@@ -16,8 +16,8 @@
 
 `SecurityHeaders` adds nosniff, same-origin framing (the page iframes `/viser/`), no referrer,
 and a Content-Security-Policy per area: strict for the page and the API (only its own scripts,
-styles and connections); viser's prebuilt client and FastAPI's /docs (Swagger UI from its CDN)
-get what they need to run and no more. No CORS headers are ever sent: other origins cannot read
+styles and connections); viser's prebuilt client and FastAPI's /docs (Swagger UI, served locally
+from the fastapi-offline package) get what they need to run and no more. No CORS headers are ever sent: other origins cannot read
 anything.
 """
 
@@ -45,10 +45,11 @@ PAGE_CSP = f"default-src 'self'; img-src 'self' data: blob:; {_COMMON_CSP}"
 VISER_CSP = ("default-src 'self'; script-src 'self' 'unsafe-inline' 'unsafe-eval' 'wasm-unsafe-eval' blob:; "
              "style-src 'self' 'unsafe-inline'; img-src 'self' data: blob:; font-src 'self' data:; "
              f"connect-src 'self' data: blob:; worker-src 'self' blob:; {_COMMON_CSP}")
-DOCS_CSP = ("default-src 'self'; script-src 'self' 'unsafe-inline' https://cdn.jsdelivr.net; "
-            "style-src 'self' 'unsafe-inline' https://cdn.jsdelivr.net; "
-            f"img-src 'self' data: https://fastapi.tiangolo.com; worker-src 'self' blob:; {_COMMON_CSP}")
+# Swagger UI's page starts it from an inline script and styles itself inline; ReDoc runs a blob: worker.
+DOCS_CSP = ("default-src 'self'; script-src 'self' 'unsafe-inline'; style-src 'self' 'unsafe-inline'; "
+            f"img-src 'self' data:; worker-src 'self' blob:; {_COMMON_CSP}")
 DOCS_PATHS = ("/docs", "/docs/oauth2-redirect", "/redoc")
+DOCS_ASSETS = "/docs-assets"  # where Swagger UI's and ReDoc's own files are served
 
 
 def is_loopback(host: str) -> bool:

@@ -33,6 +33,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.sse import EventSourceResponse, ServerSentEvent
 from fastapi.staticfiles import StaticFiles
+from fastapi_offline import FastAPIOffline
 from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import Headers, UploadFile as FormFile
@@ -51,7 +52,7 @@ from .api_models import (
     ImagesOut, ImageSummary, RecognitionOut, SettingField, SettingsOut, SignOut, SweepOut, UploadOut,
 )
 from .calibration import PREVIEW_MAX_SIDE, CalibrationSession, CalibrationState, calibrated_camera
-from .security import AccessGuard, SecurityHeaders
+from .security import DOCS_ASSETS, AccessGuard, SecurityHeaders
 from .viser_proxy import mount_viser
 from .workspace import (
     IMAGE_ID, Conflict, ImageRecord, ImageTooLarge, Outcome, PipelineError, Workspace, WorkspaceConfig, display_name,
@@ -738,8 +739,9 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
             if owned:
                 await run_in_threadpool(workspace.close)
 
-    app = FastAPI(title="signpose", version=package_version(), lifespan=lifespan,
-                  summary="Recognise known planar signs and recover the camera pose; tune every step.")
+    # Swagger UI and ReDoc from files installed with the package: a competition venue may have no internet.
+    app = FastAPIOffline(title="signpose", version=package_version(), lifespan=lifespan, static_url=DOCS_ASSETS,
+                         summary="Recognise known planar signs and recover the camera pose; tune every step.")
     app.state.workspace = workspace
     app.state.calibration = CalibrationSession(workspace.config.max_pixels)
     # The last added runs first: headers on every answer, then access, then the body limit.

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import signal
 import subprocess
 import sys
@@ -66,7 +67,10 @@ def add_photos(client, *sign_ids: str) -> list[str]:
 def test_health_docs_and_every_contract_path_in_openapi(client):
     assert client.get("/api/health").json() | {"version": "x", "images": 0} == \
         {"status": "ok", "version": "x", "images": 0, "busy": False}
-    assert client.get("/docs").status_code == 200
+    docs = client.get("/docs").text
+    assets = re.findall(r'(?:src|href)="([^"]+)"', docs)
+    assert assets and all(a.startswith("/docs-assets/") for a in assets), assets   # nothing from a CDN
+    assert all(client.get(a).status_code == 200 for a in assets)
     assert client.get("/").headers["content-type"].startswith("text/html")  # the page, from static/
     paths = client.get("/openapi.json").json()["paths"]
     for path in ("/api/health", "/api/settings", "/api/settings/schema", "/api/presets",
