@@ -114,6 +114,10 @@ class Settings:
                           "ecc: align the sign densely to refine H; auto: only when the winner has few inliers "
                           "(there it beats the points; with many it is slightly worse); the plaque fallback "
                           "always refines")
+    refine_outline: bool = _flag(True, "Pose",
+                                 "Refine the winner's homography from the plaque's four straight edges (needs a "
+                                 "library image cropped to the sign's edges); falls back to refine when an edge "
+                                 "is not found")
     pose_method: str = _choice("ippe_lm", POSE_METHODS, "Pose",
                                "paper: decompose H; ippe: planar PnP on all inliers; ippe_lm: ippe refined by LM")
     ambiguity_ratio: float = _num(0.8, 0.0, 1.0, "Pose",
@@ -212,6 +216,7 @@ PRESETS: dict[str, Settings] = {
         min_margin=0,
         plaque_fallback=False,
         refine="none",
+        refine_outline=False,
         pose_method="paper",
     ),
     "default": Settings(),
