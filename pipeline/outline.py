@@ -10,11 +10,14 @@ is too blurred or too small for features as well.
 Starting from a homography good to a few pixels, each side of the projected sign is sampled
 at points along it; at each, the image is read across the side (a short profile along its
 normal) and the strongest step with the side's dominant polarity is located to sub-pixel
-precision. A line is fitted to those edge points (RANSAC on pairs, then total least squares on
-the inliers), twice, the second time searching closer to the first result. The refinement is
-refused, and the input kept, when a side has too few consistent edge points or the corners
-move further than the search could justify. This assumes the library image is the whole
-sign, cropped to its edges, as `pipeline.library` requires.
+precision (the centroid of the derivative's peak, so a blurred ramp counts from its middle).
+A line is fitted to those edge points (RANSAC on pairs, then total least squares on the
+inliers). A second, narrower search from the fitted lines changed little on the synthetic
+scenes (rotation median 0.088 against 0.095 degrees, 4 fewer outlines accepted) and doubled
+the cost, so there is one. The refinement is refused, and the
+input kept, when a side has too few consistent edge points or the corners move further than
+the search could justify. This assumes the library image is the whole sign, cropped to its
+edges, as `pipeline.library` requires.
 """
 
 from __future__ import annotations
@@ -29,10 +32,10 @@ from .library import LibrarySign
 # Fraction of each side left out at either end: corners are rounded by blur and shared by two sides.
 END_MARGIN = 0.12
 # Most profiles per side, and the least spacing between them (image px).
-MAX_SAMPLES = 48
+MAX_SAMPLES = 32
 MIN_SPACING_PX = 2.0
-# Half-length of the first and second searches across a side (image px), and the profile step.
-SEARCH_PX = (8.0, 3.0)
+# Half-length of each search across a side (image px), one search per entry, and the profile step.
+SEARCH_PX = (8.0,)
 STEP_PX = 0.5
 # Profiles averaged along the side at each sample, this far apart (image px): less noise.
 TANGENT_OFFSETS_PX = (-1.0, 0.0, 1.0)
