@@ -21,6 +21,7 @@ from .library import Library, LibrarySign
 from .match import Matches, match_library
 from .outline import Outline, refine_outline
 from .plaque import PlaqueMatch, match_plaque, refine_ecc
+from .plaque_search import search_plaques
 from .pose import Pose, PoseError, estimate_pose
 from .segment import Box, Segmentation, segment
 from .settings import Settings
@@ -373,6 +374,12 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     if (chosen is None or chosen.winner is None) and settings.plaque_fallback and segmentation is not None:
         t0 = time.perf_counter()
         plaque = read_plaques(gray, segmentation, library, settings)
+        if (plaque is None or plaque.sign is None) and settings.plaque_search:
+            found = search_plaques(gray, segmentation, library, settings)
+            if found is not None:
+                plaque = found[0]
+                warnings.append(f"plaque found by the search at lower gray levels (aligned correlation "
+                                f"{found[1]:.2f})")
         timing["match"] += (time.perf_counter() - t0) * 1e3
         if plaque is not None and plaque.sign is not None:
             warnings.append(f"recognised by the plaque fallback (correlation {plaque.ncc[plaque.sign]:.2f}): "

@@ -109,6 +109,15 @@ class Settings:
     plaque_margin: float = _num(0.15, 0.0, 1.0, "Plaque",
                                 "The best sign's correlation must beat the runner-up's by this much", step=0.01)
 
+    plaque_search: bool = _flag(True, "Plaque",
+                                "When the plaque fallback finds nothing, look for quadrilateral plaques at lower gray "
+                                "levels too and accept one only after dense (ECC) alignment with a sign")
+    min_plaque_ecc: float = _num(0.85, 0.0, 1.0, "Plaque",
+                                 "Plaque search: least correlation after dense alignment to accept a sign", step=0.01)
+    plaque_ecc_margin: float = _num(0.1, 0.0, 1.0, "Plaque",
+                                    "Plaque search: the sign's aligned correlation must beat the next sign's by this "
+                                    "much", step=0.01)
+
     # Pose
     refine: str = _choice("auto", REFINE_METHODS, "Pose",
                           "ecc: align the sign densely to refine H; auto: only when the winner has few inliers "
