@@ -49,6 +49,8 @@ MIN_STEP = 1.0
 MIN_RELATIVE_STEP = 0.3
 LINE_RANSAC_ITERATIONS = 40
 SMOOTH_SIGMA = 0.7  # Gaussian smoothing of the image before reading profiles (px)
+# Length along a side over which profiles share noise (tangent offsets plus smoothing), px.
+CORRELATION_PX = 4.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -213,3 +215,49 @@ def refine_outline(gray: np.ndarray, sign: LibrarySign, H: np.ndarray,
         rms = float(np.sqrt(np.mean(np.concatenate(sq))))
     H_out = cv2.getPerspectiveTransform(sign.corners_px.astype(np.float32), corners.astype(np.float32))
     return Outline(corners, H_out.astype(np.float64) / H_out[2, 2], points, rms), None
+
+
+def outline_covariance(R: np.ndarray, t: np.ndarray, outline: Outline, sign: LibrarySign, camera) -> np.ndarray | None:
+    """(6, 6) covariance over [rotation vector (rad), translation (m)] of a pose (R, t) fitted to
+    `outline`, from its edge points: each measures only its distance across its side.
+
+    The grid of points a pose is fitted to after refinement is exact by construction, so its
+    residuals say nothing about the noise. Here each edge point's residual is its distance from
+    the projected library edge along that edge's image normal; σ² = SSE / (N - 6) and the
+    covariance is σ²(JᵀJ)⁻¹ with one row per point (the normal component of the projection's
+    Jacobian). None when there are too few points or JᵀJ is singular.
+    """
+    H_inv = np.linalg.inv(outline.H)
+    w, h = sign.size_px
+    lib_corners = sign.corners_px
+    rvec = cv2.Rodrigues(np.asarray(R, dtype=np.float64))[0]
+    tvec = np.asarray(t, dtype=np.float64).reshape(3, 1)
+    rows, residuals = [], []
+    for i, pts in enumerate(outline.points):
+        if not len(pts):
+            continue
+        # library point of each edge point: through H⁻¹, then onto the library side it belongs to
+        q = cv2.perspectiveTransform(pts[None].astype(np.float64), H_inv)[0]
+        a, b = lib_corners[i], lib_corners[(i + 1) % 4]
+        along = np.clip((q - a) @ (b - a) / float((b - a) @ (b - a)), 0.0, 1.0)
+        q = a + along[:, None] * (b - a)
+        obj = sign.to_metric(q)
+        proj, jac = cv2.projectPoints(obj, rvec, tvec, camera.K, camera.dist)
+        proj, jac = proj.reshape(-1, 2), jac[:, :6].reshape(-1, 2, 6)
+        # the side's normal in the image at each projected point
+        ends = cv2.projectPoints(sign.to_metric(np.array([a, b])), rvec, tvec, camera.K, camera.dist)[0].reshape(2, 2)
+        d = ends[1] - ends[0]
+        normal = np.array([-d[1], d[0]]) / max(float(np.hypot(*d)), 1e-12)
+        residuals.append((pts - proj) @ normal)
+        # Profiles closer than their footprint along the side share noise: weigh each side's rows
+        # by how many independent measurements its profiles amount to.
+        spacing = float(np.hypot(*d)) * (1 - 2 * END_MARGIN) / max(_expected(float(np.hypot(*d))) - 1, 1)
+        rows.append(np.einsum("k,nkj->nj", normal, jac) * np.sqrt(min(1.0, spacing / CORRELATION_PX)))
+    if not rows:
+        return None
+    r, J = np.concatenate(residuals), np.concatenate(rows)
+    dof = len(r) - 6
+    JtJ = J.T @ J
+    if dof <= 0 or np.linalg.cond(JtJ) > 1e12:
+        return None
+    return float(r @ r) / dof * np.linalg.inv(JtJ)

@@ -7,6 +7,7 @@ homography and a margin over the runner-up. "No sign" is a first-class answer.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -19,7 +20,7 @@ from .homography import HomographyEstimate, estimate_homography
 from .image import to_gray
 from .library import Library, LibrarySign
 from .match import Matches, match_library
-from .outline import Outline, refine_outline
+from .outline import Outline, outline_covariance, refine_outline
 from .plaque import PlaqueMatch, match_plaque, refine_ecc
 from .plaque_search import search_plaques
 from .pose import Pose, PoseError, estimate_pose
@@ -393,6 +394,9 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         H, src, dst, ecc, outline = refine_winner(gray, sign, H, src, dst, settings, chosen, warnings)
         try:
             pose = estimate_pose(H, src, dst, sign, camera, settings.pose_method, settings.ambiguity_ratio)
+            if outline is not None:
+                # the grid fitted is exact by construction: the noise is in the edge points
+                pose = dataclasses.replace(pose, covariance=outline_covariance(pose.R, pose.t, outline, sign, camera))
         except PoseError as exc:
             warnings.append(f"no pose: {exc}")
         timing["pose"] = (time.perf_counter() - t0) * 1e3
