@@ -24,7 +24,7 @@ from .segment import Blob, Segmentation, expand_box
 from .settings import Settings
 
 # Normalised gray levels the image is cut at, besides the segmentation threshold.
-LEVELS = (0.3, 0.4, 0.5, 0.6)
+LEVELS = (0.3, 0.45, 0.6)
 # A candidate's area, as a fraction of the image: from a plaque about 40 px wide at 640 x 480
 # up to a quarter of the frame.
 MIN_AREA_FRACTION = 0.0015
@@ -34,6 +34,8 @@ SAME_PLAQUE_IOU = 0.7
 # Only candidates correlating this well with some sign before alignment are aligned, at most MAX_ALIGNED.
 MIN_NCC = 0.45
 MAX_ALIGNED = 4
+# Plaques smaller than this squared (px²) must align better than settings.min_plaque_ecc; see required_correlation.
+FULL_TRUST_PX = 60.0
 # Quads wider than this (px) are aligned on a shrunk copy of their neighbourhood.
 MAX_ALIGN_WIDTH = 240.0
 
@@ -122,13 +124,23 @@ def _box(pts: np.ndarray) -> tuple[int, int, int, int]:
     return int(x0), int(y0), int(x1), int(y1)
 
 
+def required_correlation(corners: np.ndarray, min_ecc: float) -> float:
+    """The aligned correlation a quad (4, 2) image px must reach: `min_ecc` for a plaque of at
+    least FULL_TRUST_PX² pixels; for a smaller one, the shortfall from a perfect 1 allowed shrinks
+    with its area. With a few hundred pixels ECC's eight degrees of freedom fit other text too:
+    plaques of other text 24-30 px across (square root of the area) reached 0.82-0.87 with a
+    sign, where true signs of that size, legible only when sharp, reached 0.97-0.99."""
+    area = abs(cv2.contourArea(np.asarray(corners, np.float32)))
+    return 1.0 - (1.0 - min_ecc) * min(1.0, area / FULL_TRUST_PX**2)
+
+
 def search_plaques(gray: np.ndarray, segmentation: Segmentation, library: Library,
                    settings: Settings) -> tuple[PlaqueMatch, float] | None:
     """(plaque, its aligned correlation) of the first candidate that reads as a library sign, or None.
 
     Candidates are tried best correlation first. A candidate is accepted for its best-correlating
     sign when, after ECC alignment, that sign's correlation is at least `settings.min_plaque_ecc`
-    and beats the second-best-correlating sign's, aligned the same way, by
+    (more for small plaques: `required_correlation`) and beats the second-best-correlating sign's, aligned the same way, by
     `settings.plaque_ecc_margin`.
     """
     levels = tuple(sorted({*LEVELS, settings.threshold}, reverse=True))
@@ -142,7 +154,7 @@ def search_plaques(gray: np.ndarray, segmentation: Segmentation, library: Librar
             break
         ranked = sorted(scores, key=scores.get, reverse=True)
         H, cc = _aligned(gray, corners, rolls[ranked[0]], library[ranked[0]])
-        if H is None or cc < settings.min_plaque_ecc:
+        if H is None or cc < required_correlation(corners, settings.min_plaque_ecc):
             continue
         second = _aligned(gray, corners, rolls[ranked[1]], library[ranked[1]])[1] if len(ranked) > 1 else -1.0
         if cc - second >= settings.plaque_ecc_margin:

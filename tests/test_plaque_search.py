@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from pipeline.library import Library, load_library
-from pipeline.plaque_search import search_plaques
+from pipeline.plaque_search import required_correlation, search_plaques
 from pipeline.recognize import recognize
 from pipeline.segment import segment
 from pipeline.settings import preset
@@ -73,3 +73,14 @@ def test_another_sign_correlating_well_is_refused_after_alignment(library):
         assert (found[0].sign if found else None) == expected, shown
     image = scene(library["chief_of_security"])
     assert search_plaques(image, segment(image, settings), only, settings.replace(min_plaque_ecc=0.5)) is not None
+
+
+def test_small_plaques_must_align_better():
+    """ECC fits a few hundred pixels of other text too well: the bar rises as the plaque shrinks."""
+    def square(side):
+        return np.array([[0, 0], [side, 0], [side, side], [0, side]], float)
+
+    assert required_correlation(square(100), 0.85) == pytest.approx(0.85)
+    assert required_correlation(square(60), 0.85) == pytest.approx(0.85)
+    assert required_correlation(square(30), 0.85) == pytest.approx(1 - 0.15 / 4)
+    assert required_correlation(square(28), 0.85) > 0.87  # other text this small reached 0.87
