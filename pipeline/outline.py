@@ -38,7 +38,7 @@ MIN_SPACING_PX = 2.0
 SEARCH_PX = (8.0,)
 STEP_PX = 0.5
 # Profiles averaged along the side at each sample, this far apart (image px): less noise.
-TANGENT_OFFSETS_PX = (-1.0, 0.0, 1.0)
+TANGENT_OFFSETS_PX = (-0.75, 0.75)
 # Edge points further than this from a side's line are outliers (image px).
 LINE_INLIER_PX = 0.8
 # A side needs this fraction of its profiles on its line, and at least MIN_SIDE_POINTS of them.
@@ -135,9 +135,11 @@ def _edge_points(gray: np.ndarray, corners: np.ndarray, half: float) -> list[np.
     if not inside.any():
         return empty
     pos, base, normal, side = pos[inside], base[inside], normal[inside], side[inside]
-    # Smooth only the neighbourhood read, not the whole image.
-    x0, y0 = np.maximum(np.floor(pos.reshape(-1, 2).min(axis=0)).astype(int) - 3, 0)
-    x1, y1 = np.minimum(np.ceil(pos.reshape(-1, 2).max(axis=0)).astype(int) + 4, [w, h])
+    # Smooth only the neighbourhood read (every position is within half + 1 px of the quad's
+    # box), not the whole image.
+    reach = half + max(abs(o) for o in TANGENT_OFFSETS_PX) + 3
+    x0, y0 = np.maximum(np.floor(corners.min(axis=0) - reach).astype(int), 0)
+    x1, y1 = np.minimum(np.ceil(corners.max(axis=0) + reach).astype(int) + 1, [w, h])
     patch = cv2.GaussianBlur(gray[y0:y1, x0:x1].astype(np.float32), (0, 0), SMOOTH_SIGMA)
     flat = (pos - np.array([x0, y0])).reshape(-1, 1, 2).astype(np.float32)
     values = cv2.remap(patch, flat[..., 0], flat[..., 1], cv2.INTER_LINEAR).reshape(pos.shape[:3])
