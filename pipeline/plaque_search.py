@@ -84,9 +84,13 @@ def _correlations(gray: np.ndarray, corners: np.ndarray, library: Library) -> tu
     """Each sign's best correlation with the rectified quad over its four corner orders, and that order."""
     templates = library_templates(library)
     scores, rolls = {}, {}
+    patches: dict[tuple[int, tuple[int, int]], np.ndarray] = {}  # signs of one aspect share their patches
     for sign in library.signs:
-        by_roll = [ncc(rectify(gray, np.roll(corners, -k, axis=0), compare_size(sign)), templates[sign.id])
-                   for k in range(4)]
+        size = compare_size(sign)
+        for k in range(4):
+            if (k, size) not in patches:
+                patches[k, size] = rectify(gray, np.roll(corners, -k, axis=0), size)
+        by_roll = [ncc(patches[k, size], templates[sign.id]) for k in range(4)]
         rolls[sign.id] = int(np.argmax(by_roll))
         scores[sign.id] = float(by_roll[rolls[sign.id]])
     return scores, rolls
