@@ -7,6 +7,7 @@ homography and a margin over the runner-up. "No sign" is a first-class answer.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -19,7 +20,9 @@ from .homography import HomographyEstimate, estimate_homography
 from .image import to_gray
 from .library import Library, LibrarySign
 from .match import Matches, match_library
+from .outline import Outline, outline_covariance, refine_outline
 from .plaque import PlaqueMatch, match_plaque, refine_ecc
+from .plaque_search import search_plaques
 from .pose import Pose, PoseError, estimate_pose
 from .segment import Box, Segmentation, segment
 from .settings import Settings
@@ -104,7 +107,8 @@ class Recognition:
     """Everything the pipeline computed for one image; `attempt` is the region the answer came from.
 
     H: the final homography (library px -> image px) of the recognised sign, after refinement;
-    ecc: the correlation of the dense alignment that refined it (None when not refined).
+    ecc: the correlation of the dense alignment that refined it (None when not refined);
+    outline: the plaque outline that refined it instead (None when not refined so).
     """
 
     image_size: tuple[int, int]
@@ -120,6 +124,7 @@ class Recognition:
     timing_ms: dict[str, float]
     warnings: list[str]
     sign_corners_px: np.ndarray | None = field(repr=False, default=None)
+    outline: Outline | None = field(repr=False, default=None)
 
     @property
     def best(self) -> SignScore | None:
@@ -405,25 +410,28 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     if (chosen is None or chosen.winner is None) and settings.plaque_fallback and segmentation is not None:
         t0 = time.perf_counter()
         plaque = read_plaques(gray, segmentation, library, settings)
+        if (plaque is None or plaque.sign is None) and settings.plaque_search:
+            found = search_plaques(gray, segmentation, library, settings)
+            if found is not None:
+                plaque = found[0]
+                warnings.append(f"plaque found by the search at lower gray levels (aligned correlation "
+                                f"{found[1]:.2f})")
         timing["match"] += (time.perf_counter() - t0) * 1e3
         if plaque is not None and plaque.sign is not None:
             warnings.append(f"recognised by the plaque fallback (correlation {plaque.ncc[plaque.sign]:.2f}): "
                             "too few feature inliers")
 
-    H, ecc, pose, sign = None, None, None, None
+    H, ecc, pose, sign, outline = None, None, None, None, None
     winner = winner_homography(chosen, plaque, library)
     if winner is not None:
         t0 = time.perf_counter()
         H, src, dst, sign = winner
-        if wants_dense_refinement(settings.refine, chosen):
-            refined = refine_ecc(gray, sign, H)
-            if refined is not None and refined[1] >= MIN_ECC:
-                H, ecc = refined
-                src, dst = grid_correspondences(H, sign)
-            else:
-                warnings.append("dense refinement did not converge; H and pose come from the matches alone")
+        H, src, dst, ecc, outline = refine_winner(gray, sign, H, src, dst, settings, chosen, warnings)
         try:
             pose = estimate_pose(H, src, dst, sign, camera, settings.pose_method, settings.ambiguity_ratio)
+            if outline is not None:
+                # the grid fitted is exact by construction: the noise is in the edge points
+                pose = dataclasses.replace(pose, covariance=outline_covariance(pose.R, pose.t, outline, sign, camera))
         except PoseError as exc:
             warnings.append(f"no pose: {exc}")
         timing["pose"] = (time.perf_counter() - t0) * 1e3
@@ -431,7 +439,40 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
             warnings.append("pose is ambiguous: the two planar solutions fit almost equally well")
     timing["total"] = (time.perf_counter() - t_start) * 1e3
     return Recognition((width, height), settings, camera, segmentation, attempts, chosen, plaque, H, ecc, pose,
-                       timing, warnings, sign.corners_px if sign is not None else None)
+                       timing, warnings, sign.corners_px if sign is not None else None, outline)
+
+
+def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.ndarray, dst: np.ndarray,
+                  settings: Settings, attempt: Attempt | None, warnings: list[str]):
+    """(H, src, dst, ecc, outline): the winner's homography and the correspondences for its pose,
+    after refinement, with the ECC correlation or the plaque outline that refined it (else None).
+
+    The plaque's four edges (`refine_outline`) come first: where they are found, their H beats
+    both the feature inliers, which sit on the text away from the corners, and ECC (measured on
+    synthetic scenes: corner error median 0.98 -> 0.25 px, rotation median 1.27 -> 0.09
+    degrees). Otherwise ECC refines as `settings.refine` says, and the edges are looked for
+    again from its H, which may be closer than the first.
+    """
+    why = None
+    if settings.refine_outline:
+        outline, why = refine_outline(gray, sign, H, settings.seed)
+        if outline is not None:
+            return outline.H, *grid_correspondences(outline.H, sign), None, outline
+    ecc = None
+    if wants_dense_refinement(settings.refine, attempt):
+        refined = refine_ecc(gray, sign, H)
+        if refined is not None and refined[1] >= MIN_ECC:
+            H, ecc = refined
+            src, dst = grid_correspondences(H, sign)
+            if settings.refine_outline:
+                outline, why = refine_outline(gray, sign, H, settings.seed)
+                if outline is not None:
+                    return outline.H, *grid_correspondences(outline.H, sign), None, outline
+        else:
+            warnings.append("dense refinement did not converge; H and pose come from the matches alone")
+    if why is not None:
+        warnings.append(f"plaque outline not used: {why}")
+    return H, src, dst, ecc, None
 
 
 def wants_dense_refinement(refine: str, attempt: Attempt | None) -> bool:

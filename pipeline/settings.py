@@ -111,11 +111,25 @@ class Settings:
     plaque_margin: float = _num(0.15, 0.0, 1.0, "Plaque",
                                 "The best sign's correlation must beat the runner-up's by this much", step=0.01)
 
+    plaque_search: bool = _flag(True, "Plaque",
+                                "When the plaque fallback finds nothing, look for quadrilateral plaques at lower gray "
+                                "levels too and accept one only after dense (ECC) alignment with a sign")
+    min_plaque_ecc: float = _num(0.85, 0.0, 1.0, "Plaque",
+                                 "Plaque search: least correlation after dense alignment to accept a sign (plaques "
+                                 "under 60 x 60 px need more)", step=0.01)
+    plaque_ecc_margin: float = _num(0.1, 0.0, 1.0, "Plaque",
+                                    "Plaque search: the sign's aligned correlation must beat the next sign's by this "
+                                    "much", step=0.01)
+
     # Pose
     refine: str = _choice("auto", REFINE_METHODS, "Pose",
                           "ecc: align the sign densely to refine H; auto: only when the winner has few inliers "
                           "(there it beats the points; with many it is slightly worse); the plaque fallback "
                           "always refines")
+    refine_outline: bool = _flag(True, "Pose",
+                                 "Refine the winner's homography from the plaque's four straight edges (needs a "
+                                 "library image cropped to the sign's edges); falls back to refine when an edge "
+                                 "is not found")
     pose_method: str = _choice("ippe_lm", POSE_METHODS, "Pose",
                                "paper: decompose H; ippe: planar PnP on all inliers; ippe_lm: ippe refined by LM")
     ambiguity_ratio: float = _num(0.8, 0.0, 1.0, "Pose",
@@ -214,6 +228,7 @@ PRESETS: dict[str, Settings] = {
         min_margin=0,
         plaque_fallback=False,
         refine="none",
+        refine_outline=False,
         pose_method="paper",
     ),
     "default": Settings(),

@@ -1,0 +1,86 @@
+"""Plaque search: a dim, blurred sign that neither features nor the plaque fallback find."""
+
+import cv2
+import numpy as np
+import pytest
+
+from pipeline.library import Library, load_library
+from pipeline.plaque_search import required_correlation, search_plaques
+from pipeline.recognize import recognize
+from pipeline.segment import segment
+from pipeline.settings import preset
+
+CORNERS = np.array([[230.0, 250.0], [380.0, 243.0], [383.0, 305.0], [228.0, 309.0]])
+
+
+@pytest.fixture(scope="module")
+def library():
+    return load_library()
+
+
+def scene(sign=None, plaque_level: float = 150.0, blur: float = 1.5, exit_plaque=None, seed: int = 0) -> np.ndarray:
+    """A 640 x 480 gray wall under a bright lamp (which sets the normalisation's maximum, so the
+    plaques stay below the segmentation threshold), with `sign` at CORNERS and optionally a
+    plaque reading EXIT at `exit_plaque` (x, y), both as bright as `plaque_level`; blurred and noised."""
+    img = np.full((480, 640), 70, np.float32)
+    img[20:60, 250:400] = 255
+    if sign is not None:
+        big = 4  # rendered 4x larger and shrunk: anti-aliased edges; library pixel i covers [i, i + 1]
+        H = cv2.getPerspectiveTransform(sign.corners_px.astype(np.float32),
+                                        ((CORNERS + 0.5) * big - 0.5).astype(np.float32))
+        H = H @ np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]])
+        size = (640 * big, 480 * big)
+        plaque = cv2.warpPerspective(sign.image.astype(np.float32) * (plaque_level / 255), H, size)
+        cover = cv2.warpPerspective(np.ones_like(sign.image, np.float32), H, size)
+        wall = cv2.resize(img, size, interpolation=cv2.INTER_NEAREST)
+        img = cv2.resize(plaque + wall * (1 - cover), (640, 480), interpolation=cv2.INTER_AREA)
+    if exit_plaque is not None:
+        x0, y0 = exit_plaque
+        text = np.full((50, 125), plaque_level, np.uint8)
+        cv2.putText(text, "EXIT", (12, 38), cv2.FONT_HERSHEY_SIMPLEX, 1.3, 25, 3)
+        img[y0:y0 + 50, x0:x0 + 125] = text
+    img = cv2.GaussianBlur(img, (0, 0), blur) + np.random.default_rng(seed).normal(0, 3, img.shape)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("sign_id", ["security_compound", "ministry_of_torture", "chief_of_security"])
+def test_search_finds_the_sign_the_fallback_misses(library, sign_id):
+    image = scene(library[sign_id], exit_plaque=(420, 330))
+    found = recognize(image, library, preset("default"))
+    missed = recognize(image, library, preset("default").replace(plaque_search=False))
+    assert missed.label is None
+    assert found.label == sign_id and found.by_plaque
+    assert any("plaque found by the search" in w for w in found.warnings)
+    assert np.linalg.norm(found.corners - CORNERS, axis=1).mean() < 1.0
+
+
+def test_plaque_of_other_text_is_not_a_sign(library):
+    for where in ((250, 250), (100, 300), (400, 150)):
+        image = scene(exit_plaque=where)
+        assert recognize(image, library, preset("default")).label is None
+        assert search_plaques(image, segment(image, preset("default")), library, preset("default")) is None
+
+
+def test_another_sign_correlating_well_is_refused_after_alignment(library):
+    """chief_of_security correlates with security_compound at 0.7 before alignment; only after
+    dense alignment does it fall short, so a library without the shown sign must answer nothing."""
+    only = Library(library.root, [library["security_compound"]])
+    settings = preset("default")
+    for shown, expected in (("chief_of_security", None), ("ministry_of_torture", None),
+                            ("security_compound", "security_compound")):
+        image = scene(library[shown])
+        found = search_plaques(image, segment(image, settings), only, settings)
+        assert (found[0].sign if found else None) == expected, shown
+    image = scene(library["chief_of_security"])
+    assert search_plaques(image, segment(image, settings), only, settings.replace(min_plaque_ecc=0.5)) is not None
+
+
+def test_small_plaques_must_align_better():
+    """ECC fits a few hundred pixels of other text too well: the bar rises as the plaque shrinks."""
+    def square(side):
+        return np.array([[0, 0], [side, 0], [side, side], [0, side]], float)
+
+    assert required_correlation(square(100), 0.85) == pytest.approx(0.85)
+    assert required_correlation(square(60), 0.85) == pytest.approx(0.85)
+    assert required_correlation(square(30), 0.85) == pytest.approx(1 - 0.15 / 4)
+    assert required_correlation(square(28), 0.85) > 0.87  # other text this small reached 0.87
