@@ -454,7 +454,9 @@ def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.nd
     again from its H, which may be closer than the first.
     """
     why = None
-    if settings.refine_outline:
+    # A landmark searched without segmentation need not be a plaque with four straight edges.
+    use_outline = settings.refine_outline and settings.segment_mode != "none"
+    if use_outline:
         outline, why = refine_outline(gray, sign, H, settings.seed)
         if outline is not None:
             return outline.H, *grid_correspondences(outline.H, sign), None, outline
@@ -464,7 +466,7 @@ def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.nd
         if refined is not None and refined[1] >= MIN_ECC:
             H, ecc = refined
             src, dst = grid_correspondences(H, sign)
-            if settings.refine_outline:
+            if use_outline:
                 outline, why = refine_outline(gray, sign, H, settings.seed)
                 if outline is not None:
                     return outline.H, *grid_correspondences(outline.H, sign), None, outline

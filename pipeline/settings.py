@@ -129,7 +129,7 @@ class Settings:
     refine_outline: bool = _flag(True, "Pose",
                                  "Refine the winner's homography from the plaque's four straight edges (needs a "
                                  "library image cropped to the sign's edges); falls back to refine when an edge "
-                                 "is not found")
+                                 "is not found; not used with segment_mode none")
     pose_method: str = _choice("ippe_lm", POSE_METHODS, "Pose",
                                "paper: decompose H; ippe: planar PnP on all inliers; ippe_lm: ippe refined by LM")
     ambiguity_ratio: float = _num(0.8, 0.0, 1.0, "Pose",

@@ -87,6 +87,10 @@ def test_recognize_uses_the_outline_on_a_synthetic_scene():
     errors = [float(np.linalg.norm(r.corners - scene.corners, axis=1).mean()) for r in (with_outline, without)]
     assert errors[0] < 0.5 and errors[0] < errors[1], errors
     assert preset("paper").refine_outline is False
+    # A landmark searched without segmentation need not be a plaque: no outline, and no warning about it.
+    unsegmented = recognize(scene.image, library, preset("default").replace(segment_mode="none"), camera)
+    assert unsegmented.label == "chief_of_security" and unsegmented.outline is None
+    assert not any("outline" in w for w in unsegmented.warnings), unsegmented.warnings
 
 
 def test_pose_covariance_from_the_edges_matches_the_scatter(sign):
