@@ -409,13 +409,10 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     plaque = None
     if (chosen is None or chosen.winner is None) and settings.plaque_fallback and segmentation is not None:
         t0 = time.perf_counter()
-        plaque = read_plaques(gray, segmentation, library, settings)
-        if (plaque is None or plaque.sign is None) and settings.plaque_search:
-            found = search_plaques(gray, segmentation, library, settings)
-            if found is not None:
-                plaque = found[0]
-                warnings.append(f"plaque found by the search at lower gray levels (aligned correlation "
-                                f"{found[1]:.2f})")
+        plaque_key = ("plaque", *seg_key, settings.plaque_search, settings.min_plaque_ncc, settings.plaque_margin,
+                      settings.min_plaque_ecc, settings.plaque_ecc_margin)
+        plaque, notes = cached(cache, plaque_key, lambda: find_plaque(gray, segmentation, library, settings))
+        warnings += notes
         timing["match"] += (time.perf_counter() - t0) * 1e3
         if plaque is not None and plaque.sign is not None:
             warnings.append(f"recognised by the plaque fallback (correlation {plaque.ncc[plaque.sign]:.2f}): "
@@ -426,7 +423,17 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     if winner is not None:
         t0 = time.perf_counter()
         H, src, dst, sign = winner
-        H, src, dst, ecc, outline = refine_winner(gray, sign, H, src, dst, settings, chosen, warnings)
+        # A RANSAC or decision change usually leaves the winner's H as it was: refine it once.
+        refine_key = ("refine", sign.id, H.tobytes(), src.tobytes(), dst.tobytes(), settings.refine,
+                      wants_dense_refinement(settings.refine, chosen), settings.refine_outline,
+                      settings.segment_mode, settings.seed)
+
+        def refine() -> tuple:
+            notes: list[str] = []
+            return refine_winner(gray, sign, H, src, dst, settings, chosen, notes), notes
+
+        (H, src, dst, ecc, outline), notes = cached(cache, refine_key, refine)
+        warnings += notes
         try:
             pose = estimate_pose(H, src, dst, sign, camera, settings.pose_method, settings.ambiguity_ratio)
             if outline is not None:
@@ -440,6 +447,18 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     timing["total"] = (time.perf_counter() - t_start) * 1e3
     return Recognition((width, height), settings, camera, segmentation, attempts, chosen, plaque, H, ecc, pose,
                        timing, warnings, sign.corners_px if sign is not None else None, outline)
+
+
+def find_plaque(gray: np.ndarray, segmentation: Segmentation, library: Library,
+                settings: Settings) -> tuple[PlaqueMatch | None, list[str]]:
+    """The plaque fallback: the candidate blobs read as plaques, then (`settings.plaque_search`)
+    the search at lower gray levels. Returns (the plaque or None, warnings to report)."""
+    plaque = read_plaques(gray, segmentation, library, settings)
+    if (plaque is None or plaque.sign is None) and settings.plaque_search:
+        found = search_plaques(gray, segmentation, library, settings)
+        if found is not None:
+            return found[0], [f"plaque found by the search at lower gray levels (aligned correlation {found[1]:.2f})"]
+    return plaque, []
 
 
 def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.ndarray, dst: np.ndarray,

@@ -46,3 +46,27 @@ def test_a_clear_winner_skips_fitting_the_hopeless_signs(library):
             rec = recognize(read_image(SCENES / name), library, settings, load_camera(SCENES / "camera.yaml"))
             skipped += sum(s.skipped for s in rec.scores)
     assert skipped > 0
+
+
+def test_a_ransac_change_reuses_every_stage_it_does_not_affect(library):
+    # All scenes, so that negatives (plaque fallback and search) and refined winners are both covered.
+    import pipeline.recognize as recognize_module
+    from unittest import mock
+
+    from pipeline.recognize import StageCache
+
+    settings, camera = preset("default"), load_camera(SCENES / "camera.yaml")
+    changed = settings.replace(ransac_threshold_px=settings.ransac_threshold_px - 0.5)
+    for name in sorted(TRUTH):
+        image, cache = read_image(SCENES / name), StageCache()
+        recognize(image, library, settings, camera, cache)
+        fresh = recognize(image, library, changed, camera)
+        with mock.patch.object(recognize_module, "refine_winner", wraps=recognize_module.refine_winner) as refine, \
+                mock.patch.object(recognize_module, "find_plaque", wraps=recognize_module.find_plaque) as plaque:
+            again = recognize(image, library, changed, camera, cache)
+        assert again.label == fresh.label and again.warnings == fresh.warnings, name
+        assert (again.H is None and fresh.H is None) or (again.H == fresh.H).all(), name
+        assert plaque.call_count == 0, name
+        if again.H is not None and (again.best is None or (again.best.estimate.inliers
+                                                           == fresh.best.estimate.inliers).all()):
+            assert refine.call_count == 0, name
