@@ -130,7 +130,7 @@ def refine_ecc(gray: np.ndarray, sign: LibrarySign, H: np.ndarray) -> tuple[np.n
     to_library = np.array([[1 / sx, 0, (ix + 0.5) / sx - 0.5], [0, 1 / sy, (iy + 0.5) / sy - 0.5], [0, 0, 1]])
     # ECC smooths and differentiates its whole input image before iterating: give it only the
     # neighbourhood of the sign, with room for the alignment to move.
-    x0, y0, x1, y1 = expand_box(_bbox(corners), ECC_CROP_MARGIN, gray.shape[1], gray.shape[0])
+    x0, y0, x1, y1 = expand_box(bounding_box(corners), ECC_CROP_MARGIN, gray.shape[1], gray.shape[0])
     to_crop = np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1]], dtype=np.float64)
     warp = (to_crop @ H @ to_library).astype(np.float32)
     try:
@@ -142,11 +142,29 @@ def refine_ecc(gray: np.ndarray, sign: LibrarySign, H: np.ndarray) -> tuple[np.n
     return refined / refined[2, 2], float(cc)
 
 
-def _bbox(pts: np.ndarray) -> tuple[int, int, int, int]:
+def bounding_box(pts: np.ndarray) -> tuple[int, int, int, int]:
     """The integer `Box` enclosing (N, 2) image px."""
     x0, y0 = np.floor(pts.min(axis=0)).astype(int)
     x1, y1 = np.ceil(pts.max(axis=0)).astype(int) + 1
     return int(x0), int(y0), int(x1), int(y1)
+
+
+def plaque_correlations(gray: np.ndarray, corners: np.ndarray,
+                        library: Library) -> tuple[dict[str, float], dict[str, int]]:
+    """Each sign's best correlation with the plaque inside `corners` (4, 2) image px, over its
+    four cyclic corner orders (a plaque seen upright, sideways or upside down), and that order."""
+    templates = library_templates(library)
+    scores, rolls = {}, {}
+    patches: dict[tuple[int, tuple[int, int]], np.ndarray] = {}  # signs of one aspect share their patches
+    for sign in library.signs:
+        size = compare_size(sign)
+        for k in range(4):
+            if (k, size) not in patches:
+                patches[k, size] = rectify(gray, np.roll(corners, -k, axis=0), size)
+        by_roll = [ncc(patches[k, size], templates[sign.id]) for k in range(4)]
+        rolls[sign.id] = int(np.argmax(by_roll))
+        scores[sign.id] = float(by_roll[rolls[sign.id]])
+    return scores, rolls
 
 
 def match_plaque(gray: np.ndarray, labels: np.ndarray, blob: Blob, library: Library,
@@ -155,15 +173,7 @@ def match_plaque(gray: np.ndarray, labels: np.ndarray, blob: Blob, library: Libr
     corners = blob_quad(labels, blob)
     if corners is None:
         return None
-    templates = library_templates(library)
-    scores: dict[str, float] = {}
-    best_roll: dict[str, int] = {}
-    for sign in library.signs:
-        # The four cyclic corner orders cover a plaque seen upright, sideways or upside down.
-        by_roll = [ncc(rectify(gray, np.roll(corners, -k, axis=0), compare_size(sign)), templates[sign.id])
-                   for k in range(4)]
-        best_roll[sign.id] = int(np.argmax(by_roll))
-        scores[sign.id] = max(by_roll)
+    scores, best_roll = plaque_correlations(gray, corners, library)
     ranked = sorted(scores, key=scores.get, reverse=True)
     best = ranked[0]
     second = scores[ranked[1]] if len(ranked) > 1 else 0.0

@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from .library import Library
-from .plaque import PlaqueMatch, blob_quad, compare_size, library_templates, ncc, rectify, refine_ecc
+from .plaque import PlaqueMatch, blob_quad, bounding_box, plaque_correlations, refine_ecc
 from .segment import Blob, Segmentation, expand_box
 from .settings import Settings
 
@@ -80,22 +80,6 @@ def candidate_quads(gray01: np.ndarray, levels: tuple[float, ...],
     return found
 
 
-def _correlations(gray: np.ndarray, corners: np.ndarray, library: Library) -> tuple[dict[str, float], dict[str, int]]:
-    """Each sign's best correlation with the rectified quad over its four corner orders, and that order."""
-    templates = library_templates(library)
-    scores, rolls = {}, {}
-    patches: dict[tuple[int, tuple[int, int]], np.ndarray] = {}  # signs of one aspect share their patches
-    for sign in library.signs:
-        size = compare_size(sign)
-        for k in range(4):
-            if (k, size) not in patches:
-                patches[k, size] = rectify(gray, np.roll(corners, -k, axis=0), size)
-        by_roll = [ncc(patches[k, size], templates[sign.id]) for k in range(4)]
-        rolls[sign.id] = int(np.argmax(by_roll))
-        scores[sign.id] = float(by_roll[rolls[sign.id]])
-    return scores, rolls
-
-
 def _aligned(gray: np.ndarray, corners: np.ndarray, roll: int, sign) -> tuple[np.ndarray | None, float]:
     """(H, ECC correlation) of `sign` aligned densely from the quad in the given corner order; (None, -1) if ECC fails.
 
@@ -107,7 +91,7 @@ def _aligned(gray: np.ndarray, corners: np.ndarray, roll: int, sign) -> tuple[np
     width = float(np.max(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)))
     f = min(1.0, MAX_ALIGN_WIDTH / width)
     # image px -> shrunk neighbourhood px (pixel centres aligned as cv2.resize does)
-    x0, y0, x1, y1 = expand_box(_box(corners), 0.5, gray.shape[1], gray.shape[0])
+    x0, y0, x1, y1 = expand_box(bounding_box(corners), 0.5, gray.shape[1], gray.shape[0])
     to_small = np.array([[f, 0, (0.5 - x0) * f - 0.5], [0, f, (0.5 - y0) * f - 0.5], [0, 0, 1]])
     patch = gray[y0:y1, x0:x1]
     if f < 1.0:
@@ -120,12 +104,6 @@ def _aligned(gray: np.ndarray, corners: np.ndarray, roll: int, sign) -> tuple[np
         return None, -1.0
     H = np.linalg.inv(to_small) @ refined[0]
     return H / H[2, 2], refined[1]
-
-
-def _box(pts: np.ndarray) -> tuple[int, int, int, int]:
-    x0, y0 = np.floor(pts.min(axis=0)).astype(int)
-    x1, y1 = np.ceil(pts.max(axis=0)).astype(int) + 1
-    return int(x0), int(y0), int(x1), int(y1)
 
 
 def required_correlation(corners: np.ndarray, min_ecc: float) -> float:
@@ -150,7 +128,7 @@ def search_plaques(gray: np.ndarray, segmentation: Segmentation, library: Librar
     levels = tuple(sorted({*LEVELS, settings.threshold}, reverse=True))
     scored = []
     for blob, corners in candidate_quads(segmentation.gray, levels, segmentation, settings.threshold):
-        scores, rolls = _correlations(gray, corners, library)
+        scores, rolls = plaque_correlations(gray, corners, library)
         scored.append((max(scores.values()), blob, corners, scores, rolls))
     scored.sort(key=lambda c: -c[0])
     for best_ncc, blob, corners, scores, rolls in scored[:MAX_ALIGNED]:
