@@ -34,8 +34,8 @@ END_MARGIN = 0.12
 # Most profiles per side, and the least spacing between them (image px).
 MAX_SAMPLES = 32
 MIN_SPACING_PX = 2.0
-# Half-length of each search across a side (image px), one search per entry, and the profile step.
-SEARCH_PX = (8.0,)
+# Half-length of the search across a side (image px), and the profile step.
+SEARCH_PX = 8.0
 STEP_PX = 0.5
 # Profiles averaged along the side at each sample, this far apart (image px): less noise.
 TANGENT_OFFSETS_PX = (-0.75, 0.75)
@@ -190,31 +190,26 @@ def refine_outline(gray: np.ndarray, sign: LibrarySign, H: np.ndarray,
     near where H puts it; the caller then keeps H.
     """
     rng = np.random.default_rng(seed)
-    corners = cv2.perspectiveTransform(sign.corners_px[None], H)[0].astype(np.float64)
-    points: list[np.ndarray] = []
-    rms = 0.0
-    for half in SEARCH_PX:
-        lines, points, sq = [], [], []
-        found_per_side = _edge_points(gray, corners, half)
-        for i, pts in enumerate(found_per_side):
-            expected = _expected(float(np.hypot(*(corners[(i + 1) % 4] - corners[i]))))
-            fit = _robust_line(pts, rng) if len(pts) >= MIN_SIDE_POINTS else None
-            found = 0 if fit is None else int(fit[1].sum())
-            if found < max(MIN_SIDE_POINTS, MIN_INLIER_FRACTION * expected):
-                return None, f"side {i + 1}: {found} of {expected} profiles on a straight edge (search {half} px)"
-            line, inliers = fit
-            lines.append(line)
-            points.append(pts[inliers])
-            sq.append((pts[inliers] @ line[:2] + line[2]) ** 2)
-        new = [_intersect(lines[i - 1], lines[i]) for i in range(4)]  # corner i joins sides i-1 and i
-        if any(c is None for c in new):
-            return None, "two adjacent sides are parallel"
-        new = np.array(new)
-        moved = float(np.max(np.linalg.norm(new - corners, axis=1)))
-        if moved > 2 * half:
-            return None, f"a corner moved {moved:.1f} px, more than the search allows ({2 * half} px)"
-        corners = new
-        rms = float(np.sqrt(np.mean(np.concatenate(sq))))
+    start = cv2.perspectiveTransform(sign.corners_px[None], H)[0].astype(np.float64)
+    lines, points, sq = [], [], []
+    for i, pts in enumerate(_edge_points(gray, start, SEARCH_PX)):
+        expected = _expected(float(np.hypot(*(start[(i + 1) % 4] - start[i]))))
+        fit = _robust_line(pts, rng) if len(pts) >= MIN_SIDE_POINTS else None
+        found = 0 if fit is None else int(fit[1].sum())
+        if found < max(MIN_SIDE_POINTS, MIN_INLIER_FRACTION * expected):
+            return None, f"side {i + 1}: {found} of {expected} profiles on a straight edge (search {SEARCH_PX} px)"
+        line, inliers = fit
+        lines.append(line)
+        points.append(pts[inliers])
+        sq.append((pts[inliers] @ line[:2] + line[2]) ** 2)
+    corners = [_intersect(lines[i - 1], lines[i]) for i in range(4)]  # corner i joins sides i-1 and i
+    if any(c is None for c in corners):
+        return None, "two adjacent sides are parallel"
+    corners = np.array(corners)
+    moved = float(np.max(np.linalg.norm(corners - start, axis=1)))
+    if moved > 2 * SEARCH_PX:
+        return None, f"a corner moved {moved:.1f} px, more than the search allows ({2 * SEARCH_PX} px)"
+    rms = float(np.sqrt(np.mean(np.concatenate(sq))))
     H_out = cv2.getPerspectiveTransform(sign.corners_px.astype(np.float32), corners.astype(np.float32))
     return Outline(corners, H_out.astype(np.float64) / H_out[2, 2], points, rms), None
 
