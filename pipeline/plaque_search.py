@@ -15,12 +15,14 @@ dense alignment can, except on the smallest plaques, which must align better
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import cv2
 import numpy as np
 
 from .library import Library
 from .plaque import PlaqueMatch, blob_quad, bounding_box, plaque_correlations, refine_ecc
-from .segment import Blob, Segmentation, expand_box
+from .segment import Blob, Segmentation, box_iou, expand_box, threshold_lut
 from .settings import Settings
 
 # Normalised gray levels the image is cut at, besides the segmentation threshold.
@@ -40,44 +42,81 @@ FULL_TRUST_PX = 60.0
 MAX_ALIGN_WIDTH = 240.0
 
 
-def _iou(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> float:
-    w = min(a[2], b[2]) - max(a[0], b[0])
-    h = min(a[3], b[3]) - max(a[1], b[1])
-    if w <= 0 or h <= 0:
-        return 0.0
-    inter = w * h
-    return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
-
-
-def candidate_quads(gray01: np.ndarray, levels: tuple[float, ...],
-                    segmentation: Segmentation | None = None, threshold: float | None = None
-                    ) -> list[tuple[Blob, np.ndarray]]:
+def candidate_quads(gray: np.ndarray, normalization: str, levels: tuple[float, ...],
+                    segmentation: Segmentation | None = None, threshold: float | None = None,
+                    shrink: int = 1) -> list[tuple[Blob, np.ndarray]]:
     """(blob, corners (4, 2) image px TL, TR, BR, BL) of every quadrilateral component of plausible
-    size of the normalised (H, W) image cut at each level, one per plaque (the first level's).
+    size of the (H, W) uint8 image, normalised as `normalize_gray` does, cut at each level, one
+    per plaque (the first level's).
 
     At `threshold`, the cut `segmentation` made, only its candidate blobs are taken, as they are.
+    Other levels are cut at 1/`shrink` of the resolution, where connected components with their
+    statistics cost 1/shrink² (at 2, plaques under about 70 px across at 640 x 480 are lost
+    more often).
     """
-    h, w = gray01.shape
+    h, w = gray.shape
     lo, hi = MIN_AREA_FRACTION * h * w, MAX_AREA_FRACTION * h * w
+    small = gray if shrink == 1 else cv2.resize(gray, (max(1, w // shrink), max(1, h // shrink)),
+                                                 interpolation=cv2.INTER_AREA)
+    shrunk = np.array([w / small.shape[1], h / small.shape[0]])
     found: list[tuple[Blob, np.ndarray]] = []
     for level in levels:
         if segmentation is not None and level == threshold:
-            labels, blobs = segmentation.labels, [b for b in segmentation.blobs if lo <= b.area <= hi]
+            labels, blobs, f = segmentation.labels, [b for b in segmentation.blobs if lo <= b.area <= hi], np.ones(2)
         else:
-            n, labels, stats, _ = cv2.connectedComponentsWithStats((gray01 >= level).view(np.uint8), connectivity=8,
-                                                                   ltype=cv2.CV_32S)
-            areas = stats[1:, cv2.CC_STAT_AREA]
-            blobs = []
-            for i in np.flatnonzero((areas >= lo) & (areas <= hi)):
-                x, y, bw, bh = (int(v) for v in stats[i + 1, :4])
-                blobs.append(Blob(int(i + 1), int(areas[i]), (x, y, x + bw, y + bh)))
+            # the levels of the full image, so the cut means what it means at full resolution
+            mask = cv2.LUT(small, threshold_lut(gray, normalization, level, None))
+            f = shrunk
+            labels, blobs = _components(mask, lo / f.prod(), hi / f.prod())
         for blob in blobs:
-            if any(_iou(blob.bbox, other.bbox) > SAME_PLAQUE_IOU for other, _ in found):
+            # shrunk px -> image px, pixel centres aligned as cv2.resize does
+            x0, y0, x1, y1 = blob.bbox
+            box = (int(x0 * f[0]), int(y0 * f[1]), int(np.ceil(x1 * f[0])), int(np.ceil(y1 * f[1])))
+            if any(box_iou(box, other.bbox) > SAME_PLAQUE_IOU for other, _ in found):
                 continue
             quad = blob_quad(labels, blob)
             if quad is not None:
-                found.append((blob, quad))
+                found.append((Blob(blob.label, round(blob.area * f.prod()), box), (quad + 0.5) * f - 0.5))
     return found
+
+
+def _components(mask: np.ndarray, min_area: float, max_area: float) -> tuple[np.ndarray, list[Blob]]:
+    """(labels (H, W) int32, blobs) of the 8-connected components of a uint8 mask whose area in px
+    is within [min_area, max_area]."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    blobs = []
+    for i in np.flatnonzero((areas >= min_area) & (areas <= max_area)):
+        x, y, bw, bh = (int(v) for v in stats[i + 1, :4])
+        blobs.append(Blob(int(i + 1), int(areas[i]), (x, y, x + bw, y + bh)))
+    return labels, blobs
+
+
+@dataclass(frozen=True, eq=False)
+class QuadCandidate:
+    """A quadrilateral component of the normalised image at some gray level, read as a plaque:
+    its `blob`, `corners` (4, 2) image px TL, TR, BR, BL, each sign's correlation `ncc` and the
+    cyclic corner order `rolls` that gave it (`pipeline.plaque.plaque_correlations`)."""
+
+    blob: Blob
+    corners: np.ndarray = field(repr=False)
+    ncc: dict[str, float]
+    rolls: dict[str, int]
+
+    @property
+    def best_ncc(self) -> float:
+        return max(self.ncc.values())
+
+
+def ranked_quads(gray: np.ndarray, segmentation: Segmentation, library: Library,
+                 settings: Settings, shrink: int = 1) -> list[QuadCandidate]:
+    """Every quadrilateral candidate at `LEVELS` (cut at 1/`shrink` resolution) and at the
+    segmentation threshold, read as a plaque against every library sign, best correlation first."""
+    levels = tuple(sorted({*LEVELS, settings.threshold}, reverse=True))
+    found = [QuadCandidate(blob, corners, *plaque_correlations(gray, corners, library))
+             for blob, corners in candidate_quads(segmentation.source, segmentation.normalization, levels,
+                                                 segmentation, settings.threshold, shrink)]
+    return sorted(found, key=lambda q: -q.best_ncc)
 
 
 def _aligned(gray: np.ndarray, corners: np.ndarray, roll: int, sign) -> tuple[np.ndarray | None, float]:
@@ -116,30 +155,26 @@ def required_correlation(corners: np.ndarray, min_ecc: float) -> float:
     return 1.0 - (1.0 - min_ecc) * min(1.0, area / FULL_TRUST_PX**2)
 
 
-def search_plaques(gray: np.ndarray, segmentation: Segmentation, library: Library,
+def search_plaques(gray: np.ndarray, quads: list[QuadCandidate], library: Library,
                    settings: Settings) -> tuple[PlaqueMatch, float] | None:
-    """(plaque, its aligned correlation) of the first candidate that reads as a library sign, or None.
+    """(plaque, its aligned correlation) of the first of the `ranked_quads` that reads as a
+    library sign, or None.
 
     Candidates are tried best correlation first. A candidate is accepted for its best-correlating
     sign when, after ECC alignment, that sign's correlation is at least `settings.min_plaque_ecc`
     (more for small plaques: `required_correlation`) and beats the second-best-correlating sign's, aligned the same way, by
     `settings.plaque_ecc_margin`.
     """
-    levels = tuple(sorted({*LEVELS, settings.threshold}, reverse=True))
-    scored = []
-    for blob, corners in candidate_quads(segmentation.gray, levels, segmentation, settings.threshold):
-        scores, rolls = plaque_correlations(gray, corners, library)
-        scored.append((max(scores.values()), blob, corners, scores, rolls))
-    scored.sort(key=lambda c: -c[0])
-    for best_ncc, blob, corners, scores, rolls in scored[:MAX_ALIGNED]:
-        if best_ncc < MIN_NCC:
+    for quad in quads[:MAX_ALIGNED]:
+        if quad.best_ncc < MIN_NCC:
             break
-        ranked = sorted(scores, key=scores.get, reverse=True)
-        H, cc = _aligned(gray, corners, rolls[ranked[0]], library[ranked[0]])
-        if H is None or cc < required_correlation(corners, settings.min_plaque_ecc):
+        ranked = sorted(quad.ncc, key=quad.ncc.get, reverse=True)
+        H, cc = _aligned(gray, quad.corners, quad.rolls[ranked[0]], library[ranked[0]])
+        if H is None or cc < required_correlation(quad.corners, settings.min_plaque_ecc):
             continue
-        second = _aligned(gray, corners, rolls[ranked[1]], library[ranked[1]])[1] if len(ranked) > 1 else -1.0
+        second = (_aligned(gray, quad.corners, quad.rolls[ranked[1]], library[ranked[1]])[1]
+                  if len(ranked) > 1 else -1.0)
         if cc - second >= settings.plaque_ecc_margin:
             corners = cv2.perspectiveTransform(library[ranked[0]].corners_px[None], H)[0]
-            return PlaqueMatch(blob, corners, scores, ranked[0], H, None), cc
+            return PlaqueMatch(quad.blob, corners, quad.ncc, ranked[0], H, None), cc
     return None

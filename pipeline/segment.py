@@ -90,6 +90,16 @@ def expand_box(bbox: Box, margin: float, width: int, height: int) -> Box:
     return max(0, x0 - mx), max(0, y0 - my), min(width, x1 + mx), min(height, y1 + my)
 
 
+def box_iou(a: Box, b: Box) -> float:
+    """Intersection over union of two boxes."""
+    w = min(a[2], b[2]) - max(a[0], b[0])
+    h = min(a[3], b[3]) - max(a[1], b[1])
+    if w <= 0 or h <= 0:
+        return 0.0
+    inter = w * h
+    return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
+
+
 def segment(gray: np.ndarray, settings: Settings) -> Segmentation:
     """Find candidate sign regions in an (H, W) uint8 gray image."""
     h, w = gray.shape

@@ -64,6 +64,10 @@ class Settings:
                               "Margin added around a blob's bounding box, as a fraction of its size", step=0.01)
     min_blob_area: float = _num(0.0005, 0.0, 0.5, "Segmentation",
                                 "Smallest blob worth trying, as a fraction of the image area", step=0.0001)
+    plaque_candidates: int = _num(2, 0, 10, "Segmentation",
+                                  "Then search this many plaque-shaped regions found at lower gray levels, best "
+                                  "correlation with a sign first (one crop instead of the full frame when a lamp "
+                                  "pushed the sign below the threshold)", step=1)
     full_frame_fallback: bool = _flag(True, "Segmentation",
                                       "Search the full frame when no candidate blob yields a sign")
 
@@ -217,6 +221,7 @@ PRESETS: dict[str, Settings] = {
         normalization="minmax",
         threshold=0.75,
         candidates=1,
+        plaque_candidates=0,
         full_frame_fallback=False,
         min_crop_size=0,
         max_crop_size=0,

@@ -70,3 +70,36 @@ def test_a_ransac_change_reuses_every_stage_it_does_not_affect(library):
         if again.H is not None and (again.best is None or (again.best.estimate.inliers
                                                            == fresh.best.estimate.inliers).all()):
             assert refine.call_count == 0, name
+
+
+def _lit_scene(library, sign_id: str):
+    """A sign at gray level ~170 on a wall, below a lamp at 255 and a white door at 235: after
+    min-max normalisation the sign falls below the 0.75 threshold, and the lamp and door are
+    the largest white blobs."""
+    import cv2
+    import numpy as np
+
+    from tests.scene_images import SIZE, wall
+
+    sign = library[sign_id]
+    w, h = sign.size_px
+    dst = np.float32([[330, 250], [600, 262], [592, 370], [338, 360]])
+    H = cv2.getPerspectiveTransform(np.float32([[0, 0], [w, 0], [w, h], [0, h]]), dst)
+    warped = cv2.warpPerspective((sign.image * (170 / 255)).astype(np.uint8), H, SIZE)
+    inside = cv2.warpPerspective(np.full_like(sign.image, 255), H, SIZE) > 0
+    gray = np.where(inside, warped, wall(1))
+    gray[20:90, 60:420] = 255  # lamp
+    gray[150:470, 40:200] = 235  # door
+    return cv2.GaussianBlur(gray, (0, 0), 0.8)
+
+
+@pytest.mark.parametrize("sign_id", ["security_compound", "chief_of_security"])
+def test_a_sign_below_the_threshold_is_searched_in_its_plaque_crop_before_the_full_frame(library, sign_id):
+    image = _lit_scene(library, sign_id)
+    rec = recognize(image, library, preset("default"))
+    assert rec.label == sign_id
+    assert [a.source for a in rec.attempts] == ["blob 1", "plaque 1"]
+    x0, y0, x1, y1 = rec.attempt.region
+    assert x0 <= 330 and y0 <= 250 and x1 >= 600 and y1 >= 370 and (x1 - x0) * (y1 - y0) < 0.3 * 640 * 480
+    without = recognize(image, library, preset("default").replace(plaque_candidates=0))
+    assert without.label == sign_id and without.attempt.source == "full frame"
