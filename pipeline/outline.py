@@ -249,35 +249,31 @@ def outline_covariance(R: np.ndarray, t: np.ndarray, outline: Outline, sign: Lib
     covariance is σ²(JᵀJ)⁻¹ with one row per point (the normal component of the projection's
     Jacobian). None when there are too few points or JᵀJ is singular.
     """
-    H_inv = np.linalg.inv(outline.H)
-    w, h = sign.size_px
-    lib_corners = sign.corners_px
+    side = np.repeat(np.arange(4), [len(p) for p in outline.points])
+    if not len(side):
+        return None
+    pts = np.concatenate(outline.points)
     rvec = cv2.Rodrigues(np.asarray(R, dtype=np.float64))[0]
     tvec = np.asarray(t, dtype=np.float64).reshape(3, 1)
-    rows, residuals = [], []
-    for i, pts in enumerate(outline.points):
-        if not len(pts):
-            continue
-        # library point of each edge point: through H⁻¹, then onto the library side it belongs to
-        q = cv2.perspectiveTransform(pts[None].astype(np.float64), H_inv)[0]
-        a, b = lib_corners[i], lib_corners[(i + 1) % 4]
-        along = np.clip((q - a) @ (b - a) / float((b - a) @ (b - a)), 0.0, 1.0)
-        q = a + along[:, None] * (b - a)
-        obj = sign.to_metric(q)
-        proj, jac = cv2.projectPoints(obj, rvec, tvec, camera.K, camera.dist)
-        proj, jac = proj.reshape(-1, 2), jac[:, :6].reshape(-1, 2, 6)
-        # the side's normal in the image at each projected point
-        ends = cv2.projectPoints(sign.to_metric(np.array([a, b])), rvec, tvec, camera.K, camera.dist)[0].reshape(2, 2)
-        d = ends[1] - ends[0]
-        normal = np.array([-d[1], d[0]]) / max(float(np.hypot(*d)), 1e-12)
-        residuals.append((pts - proj) @ normal)
-        # Profiles closer than their footprint along the side share noise: weigh each side's rows
-        # by how many independent measurements its profiles amount to.
-        spacing = float(np.hypot(*d)) * (1 - 2 * END_MARGIN) / max(_expected(float(np.hypot(*d))) - 1, 1)
-        rows.append(np.einsum("k,nkj->nj", normal, jac) * np.sqrt(min(1.0, spacing / CORRELATION_PX)))
-    if not rows:
-        return None
-    r, J = np.concatenate(residuals), np.concatenate(rows)
+    # library point of each edge point: through H⁻¹, then onto the library side it belongs to
+    q = cv2.perspectiveTransform(pts[None].astype(np.float64), np.linalg.inv(outline.H))[0]
+    a = sign.corners_px
+    ab = a[[1, 2, 3, 0]] - a
+    along = np.sum((q - a[side]) * ab[side], axis=1) / np.sum(ab * ab, axis=1)[side]
+    q = a[side] + np.clip(along, 0.0, 1.0)[:, None] * ab[side]
+    proj, jac = cv2.projectPoints(sign.to_metric(q), rvec, tvec, camera.K, camera.dist)
+    proj, jac = proj.reshape(-1, 2), jac[:, :6].reshape(-1, 2, 6)
+    # each side's normal in the image, between its projected ends
+    ends = cv2.projectPoints(sign.to_metric(a), rvec, tvec, camera.K, camera.dist)[0].reshape(4, 2)
+    d = ends[[1, 2, 3, 0]] - ends
+    length = np.hypot(d[:, 0], d[:, 1])
+    normal = (np.column_stack([-d[:, 1], d[:, 0]]) / np.maximum(length, 1e-12)[:, None])[side]
+    r = np.sum((pts - proj) * normal, axis=1)
+    # Profiles closer than their footprint along the side share noise: weigh each side's rows
+    # by how many independent measurements its profiles amount to.
+    spacing = length * (1 - 2 * END_MARGIN) / np.maximum(_expected(length) - 1, 1)
+    weight = np.sqrt(np.minimum(1.0, spacing / CORRELATION_PX))
+    J = (normal[:, :1] * jac[:, 0] + normal[:, 1:] * jac[:, 1]) * weight[side, None]
     dof = len(r) - 6
     JtJ = J.T @ J
     if dof <= 0 or np.linalg.cond(JtJ) > 1e12:
