@@ -70,8 +70,7 @@ def _line_fits(pts: np.ndarray, side: np.ndarray, use: np.ndarray) -> np.ndarray
     for a side with fewer than two such points."""
     s, p = side[use], pts[use]
     n = np.bincount(s, minlength=4)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        centre = np.column_stack([np.bincount(s, p[:, 0], 4), np.bincount(s, p[:, 1], 4)]) / n[:, None]
+    centre = np.column_stack([np.bincount(s, p[:, 0], 4), np.bincount(s, p[:, 1], 4)]) / np.maximum(n, 1)[:, None]
     q = p - centre[s]
     sxx, syy, sxy = (np.bincount(s, w, 4) for w in (q[:, 0] * q[:, 0], q[:, 1] * q[:, 1], q[:, 0] * q[:, 1]))
     theta = 0.5 * np.arctan2(2 * sxy, sxx - syy)  # direction of largest spread
