@@ -73,7 +73,7 @@ def _normalize_batch(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Hartley normalisation of (B, N, 2) points: returns T (B, 3, 3) and T-mapped points (B, N, 2)."""
     centroid = pts.mean(axis=1, keepdims=True)
     centred = pts - centroid
-    mean_dist = np.linalg.norm(centred, axis=2).mean(axis=1)
+    mean_dist = np.sqrt(centred[..., 0] ** 2 + centred[..., 1] ** 2).mean(axis=1)
     # Coincident points have no scale; leave them unscaled and let the DLT report degeneracy.
     scale = np.sqrt(2.0) / np.where(mean_dist > 0, mean_dist, np.sqrt(2.0))
     T = np.zeros((len(pts), 3, 3))
@@ -122,10 +122,12 @@ def dlt_homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     T_dst, d = _normalize_batch(dst)
     x, y = s[..., 0], s[..., 1]
     u, v = d[..., 0], d[..., 1]
-    one, zero = np.ones_like(x), np.zeros_like(x)
-    rows_u = np.stack([-x, -y, -one, zero, zero, zero, u * x, u * y, u], axis=-1)
-    rows_v = np.stack([zero, zero, zero, -x, -y, -one, v * x, v * y, v], axis=-1)
-    A = np.stack([rows_u, rows_v], axis=2).reshape(B, 2 * N, 9)
+    A = np.zeros((B, N, 2, 9))  # per point a row for u, then one for v
+    A[..., 0, 0], A[..., 0, 1], A[..., 0, 2] = -x, -y, -1.0
+    A[..., 1, 3], A[..., 1, 4], A[..., 1, 5] = -x, -y, -1.0
+    A[..., 0, 6], A[..., 0, 7], A[..., 0, 8] = u * x, u * y, u
+    A[..., 1, 6], A[..., 1, 7], A[..., 1, 8] = v * x, v * y, v
+    A = A.reshape(B, 2 * N, 9)
     # full_matrices=True gives all nine right singular vectors even for the 8 x 9 minimal system,
     # but would also build a (2N, 2N) U for large N; the reduced SVD has them once 2N >= 9.
     _, _, vh = np.linalg.svd(A, full_matrices=2 * N < 9)
@@ -160,9 +162,12 @@ def _homographies_from_areas(src: np.ndarray, dst: np.ndarray, src_area: np.ndar
     ls, ld = lam(src_area), lam(dst_area)
     # mu / lam without the division: all three times lam0 lam1 lam2.
     coef = ld * ls[:, [1, 0, 0]] * ls[:, [2, 2, 1]]
-    hom_src, hom_dst = (np.concatenate([p[:, :3], np.ones((len(p), 3, 1))], axis=2) for p in (src, dst))
-    # Rows of adj(P) are cross products of P's columns: p2 x p3, p3 x p1, p1 x p2.
-    adj = np.cross(hom_src[:, [1, 2, 0]], hom_src[:, [2, 0, 1]])
+    hom_dst = np.concatenate([dst[:, :3], np.ones((len(dst), 3, 1))], axis=2)
+    # Rows of adj(P) are cross products of P's columns: p2 x p3, p3 x p1, p1 x p2, here with
+    # each point's w = 1 written out.
+    x, y = src[:, :3, 0], src[:, :3, 1]
+    x1, y1, x2, y2 = x[:, [1, 2, 0]], y[:, [1, 2, 0]], x[:, [2, 0, 1]], y[:, [2, 0, 1]]
+    adj = np.stack([y1 - y2, x2 - x1, x1 * y2 - y1 * x2], axis=2)
     return normalize_scale((hom_dst.transpose(0, 2, 1) * coef[:, None, :]) @ adj)
 
 

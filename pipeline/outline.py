@@ -64,85 +64,108 @@ class Outline:
     rms_px: float
 
 
-def _line_fit(pts: np.ndarray) -> np.ndarray:
-    """Total-least-squares line through (N, 2) points: (a, b, c) with a x + b y + c = 0, |(a, b)| = 1."""
-    centre = pts.mean(axis=0)
-    q = pts - centre
-    sxx, syy, sxy = float(q[:, 0] @ q[:, 0]), float(q[:, 1] @ q[:, 1]), float(q[:, 0] @ q[:, 1])
+def _line_fits(pts: np.ndarray, side: np.ndarray, use: np.ndarray) -> np.ndarray:
+    """Per side, the total-least-squares line through the (N, 2) points `pts` of that side (N,)
+    0..3 where `use` (N,) holds: (4, 3) rows (a, b, c) with a x + b y + c = 0, |(a, b)| = 1, NaN
+    for a side with fewer than two such points."""
+    s, p = side[use], pts[use]
+    n = np.bincount(s, minlength=4)
+    centre = np.column_stack([np.bincount(s, p[:, 0], 4), np.bincount(s, p[:, 1], 4)]) / np.maximum(n, 1)[:, None]
+    q = p - centre[s]
+    sxx, syy, sxy = (np.bincount(s, w, 4) for w in (q[:, 0] * q[:, 0], q[:, 1] * q[:, 1], q[:, 0] * q[:, 1]))
     theta = 0.5 * np.arctan2(2 * sxy, sxx - syy)  # direction of largest spread
-    normal = np.array([-np.sin(theta), np.cos(theta)])
-    return np.array([normal[0], normal[1], -normal @ centre])
+    a, b = -np.sin(theta), np.cos(theta)
+    lines = np.column_stack([a, b, -(a * centre[:, 0] + b * centre[:, 1])])
+    lines[n < 2] = np.nan
+    return lines
 
 
-def _robust_line(pts: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray] | None:
-    """(line (3,), inlier mask (N,)) of a RANSAC line through (N, 2) points, refitted on its inliers."""
-    n = len(pts)
-    if n < 2:
-        return None
-    i, j = rng.integers(0, n, size=(2, LINE_RANSAC_ITERATIONS))
+def _distances(pts: np.ndarray, side: np.ndarray, lines: np.ndarray) -> np.ndarray:
+    """(N,) distance (image px) of each of the (N, 2) points from its side's line in `lines` (4, 3); NaN without one."""
+    line = lines[side]
+    return np.abs(pts[:, 0] * line[:, 0] + pts[:, 1] * line[:, 1] + line[:, 2])
+
+
+def _robust_lines(pts: np.ndarray, side: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """RANSAC lines through the (N, 2) edge points `pts` of each side (N,) 0..3, sorted by side:
+    the line through the pair of a side's points with most points near it, then total least
+    squares on those points, re-classified and refitted twice. Returns lines (4, 3) as
+    `_line_fits` (NaN for a side without one) and the (N,) inlier mask of the last re-classification.
+
+    Sides draw their pairs from `rng` in order; the first side with fewer than MIN_SIDE_POINTS
+    points draws none and ends the drawing, since the outline is refused at that side anyway.
+    """
+    counts = np.bincount(side, minlength=4)
+    first = np.cumsum(counts) - counts
+    draws = []
+    for i in range(4):
+        if counts[i] < MIN_SIDE_POINTS:
+            break
+        draws.append(first[i] + rng.integers(0, counts[i], size=(2, LINE_RANSAC_ITERATIONS)))
+    if not draws:
+        return np.full((4, 3), np.nan), np.zeros(len(pts), dtype=bool)
+    i, j = np.concatenate(draws, axis=1)  # (S K,) each: side s's hypotheses at s K .. s K + K - 1
     d = pts[j] - pts[i]
     length = np.hypot(d[:, 0], d[:, 1])
     keep = length > 1e-6
-    if not keep.any():
-        return None
-    normal = np.column_stack([-d[keep, 1], d[keep, 0]]) / length[keep, None]  # (K, 2)
-    dist = np.abs(pts @ normal.T - np.sum(pts[i[keep]] * normal, axis=1))  # (N, K)
-    best = dist[:, np.argmax((dist < LINE_INLIER_PX).sum(axis=0))] < LINE_INLIER_PX
+    length = np.where(keep, length, 1.0)
+    nx, ny = -d[:, 1] / length, d[:, 0] / length
+    dist = np.abs(pts[:, :1] * nx + pts[:, 1:] * ny - (pts[i, 0] * nx + pts[i, 1] * ny))  # (N, S K)
+    hyp_side = np.repeat(np.arange(len(draws)), LINE_RANSAC_ITERATIONS)
+    votes = np.count_nonzero((dist < LINE_INLIER_PX) & (side[:, None] == hyp_side), axis=0)
+    votes[~keep] = -1  # pairs of coincident points define no line
+    best = np.argmax(votes.reshape(len(draws), -1), axis=1) + np.arange(len(draws)) * LINE_RANSAC_ITERATIONS
+    drawn = side < len(draws)
+    hyp = best[np.where(drawn, side, 0)]  # each point's side's best hypothesis
+    inliers = drawn & keep[hyp] & (dist[np.arange(len(pts)), hyp] < LINE_INLIER_PX)
     for _ in range(2):
-        if best.sum() < 2:
-            return None
-        line = _line_fit(pts[best])
-        best = np.abs(pts @ line[:2] + line[2]) < LINE_INLIER_PX
-    if best.sum() < 2:
-        return None
-    return _line_fit(pts[best]), best
+        inliers = _distances(pts, side, _line_fits(pts, side, inliers)) < LINE_INLIER_PX
+    return _line_fits(pts, side, inliers), inliers
 
 
 def _samples(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Where each side is read: base points (M, 2) on the sides, their side's unit tangent and
-    outward normal (M, 2) each, and the side index (M,). Sides run corner i -> i + 1, clockwise
-    on screen (y down), so the outward normal is the tangent turned a quarter left."""
-    bases, tangents, sides = [], [], []
-    for i in range(4):
-        a, b = corners[i], corners[(i + 1) % 4]
-        d = b - a
-        length = float(np.hypot(*d))
-        n = _expected(length)
-        s = np.linspace(END_MARGIN, 1 - END_MARGIN, n)
-        bases.append(a + s[:, None] * d)
-        tangents.append(np.repeat((d / max(length, 1e-12))[None], n, axis=0))
-        sides.append(np.full(n, i))
-    tangent = np.concatenate(tangents)
-    return np.concatenate(bases), tangent, np.column_stack([tangent[:, 1], -tangent[:, 0]]), np.concatenate(sides)
+    outward normal (M, 2) each, and the side index (M,), sorted. Sides run corner i -> i + 1,
+    clockwise on screen (y down), so the outward normal is the tangent turned a quarter left.
+    Along each side the bases are spaced as np.linspace(END_MARGIN, 1 - END_MARGIN, n) spaces them."""
+    d = corners[[1, 2, 3, 0]] - corners
+    length = np.hypot(d[:, 0], d[:, 1])
+    n = _expected(length)
+    side = np.repeat(np.arange(4), n)
+    first = np.cumsum(n) - n
+    s = (np.arange(len(side)) - first[side]) * (((1 - END_MARGIN) - END_MARGIN) / (n - 1))[side] + END_MARGIN
+    s[first + n - 1] = 1 - END_MARGIN
+    tangent = (d / np.maximum(length, 1e-12)[:, None])[side]
+    return corners[side] + s[:, None] * d[side], tangent, np.column_stack([tangent[:, 1], -tangent[:, 0]]), side
 
 
-def _expected(length: float) -> int:
-    """Profiles read across a side `length` px long."""
-    return int(min(MAX_SAMPLES, max(2, length * (1 - 2 * END_MARGIN) / MIN_SPACING_PX)))
+def _expected(length: np.ndarray) -> np.ndarray:
+    """Profiles read across sides `length` px long (int, shaped like `length`)."""
+    return np.clip(length * (1 - 2 * END_MARGIN) / MIN_SPACING_PX, 2, MAX_SAMPLES).astype(int)
 
 
-def _edge_points(gray: np.ndarray, corners: np.ndarray, half: float) -> list[np.ndarray]:
-    """Per side of the quad `corners` (4, 2), sub-pixel edge points (K, 2) image px found within
-    `half` px across it, at most one per profile."""
+def _edge_points(gray: np.ndarray, corners: np.ndarray, half: float) -> tuple[np.ndarray, np.ndarray]:
+    """Sub-pixel edge points (K, 2) image px found within `half` px across the sides of the quad
+    `corners` (4, 2), at most one per profile, and the side (K,) 0..3 of each, sorted."""
     base, tangent, normal, side = _samples(corners)
     offsets = np.arange(-half, half + STEP_PX / 2, STEP_PX)
-    # (M, T, O, 2) positions: along the side, beside it, across it
-    pos = (base[:, None, None, :] + np.asarray(TANGENT_OFFSETS_PX)[None, :, None, None] * tangent[:, None, None, :]
-           + offsets[None, None, :, None] * normal[:, None, None, :])
+    # (M, T, O) x and y: along the side, beside it, across it
+    along = np.asarray(TANGENT_OFFSETS_PX)[:, None]
+    x, y = ((base[:, i, None, None] + along * tangent[:, i, None, None]) + offsets * normal[:, i, None, None]
+            for i in (0, 1))
     h, w = gray.shape
-    inside = ((pos[..., 0] >= 0) & (pos[..., 0] <= w - 1) & (pos[..., 1] >= 0) & (pos[..., 1] <= h - 1)).all(axis=(1, 2))
-    empty = [np.zeros((0, 2)) for _ in range(4)]
+    inside = ((x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)).reshape(len(x), -1).all(axis=1)
     if not inside.any():
-        return empty
-    pos, base, normal, side = pos[inside], base[inside], normal[inside], side[inside]
+        return np.zeros((0, 2)), np.zeros(0, dtype=int)
+    x, y, base, normal, side = x[inside], y[inside], base[inside], normal[inside], side[inside]
     # Smooth only the neighbourhood read (every position is within half + 1 px of the quad's
     # box), not the whole image.
     reach = half + max(abs(o) for o in TANGENT_OFFSETS_PX) + 3
     x0, y0 = np.maximum(np.floor(corners.min(axis=0) - reach).astype(int), 0)
     x1, y1 = np.minimum(np.ceil(corners.max(axis=0) + reach).astype(int) + 1, [w, h])
     patch = cv2.GaussianBlur(gray[y0:y1, x0:x1].astype(np.float32), (0, 0), SMOOTH_SIGMA)
-    flat = (pos - np.array([x0, y0])).reshape(-1, 1, 2).astype(np.float32)
-    values = cv2.remap(patch, flat[..., 0], flat[..., 1], cv2.INTER_LINEAR).reshape(pos.shape[:3])
+    values = cv2.remap(patch, (x - x0).astype(np.float32).reshape(-1, 1), (y - y0).astype(np.float32).reshape(-1, 1),
+                       cv2.INTER_LINEAR).reshape(x.shape)
     profile = values.mean(axis=1)  # (M, O)
     deriv = np.empty_like(profile)
     deriv[:, 1:-1] = 0.5 * (profile[:, 2:] - profile[:, :-2])
@@ -156,9 +179,8 @@ def _edge_points(gray: np.ndarray, corners: np.ndarray, half: float) -> list[np.
     peak = np.argmax(signed, axis=1)
     height = signed[rows, peak]
     # A side's edge has much the same contrast all along it; far weaker steps are something else.
-    typical = np.array([np.median(height[side == i]) if np.any(side == i) else 0.0 for i in range(4)])
     ok = ((polarity[side] != 0) & (peak > 0) & (peak < len(offsets) - 1)
-          & (height > np.maximum(MIN_STEP * STEP_PX, MIN_RELATIVE_STEP * typical[side])))
+          & (height > np.maximum(MIN_STEP * STEP_PX, MIN_RELATIVE_STEP * _side_medians(height, side)[side])))
     rows, peak, height = rows[ok], peak[ok], height[ok]
     # The edge is the centroid of the derivative above half its peak, in the run holding the
     # peak: sub-pixel for a sharp step, the middle of the ramp for a blurred one.
@@ -171,15 +193,18 @@ def _edge_points(gray: np.ndarray, corners: np.ndarray, half: float) -> list[np.
     # A run that reaches the end of the profile may go on beyond it: its centroid is biased.
     whole = (left >= 0) & (right < len(offsets))
     rows, where = rows[whole], where[whole]
-    points = base[rows] + where[:, None] * normal[rows]
-    return [points[side[rows] == i] for i in range(4)]
+    return base[rows] + where[:, None] * normal[rows], side[rows]
 
 
-def _intersect(l1: np.ndarray, l2: np.ndarray) -> np.ndarray | None:
-    p = np.cross(l1, l2)
-    if abs(p[2]) < 1e-12:
-        return None
-    return p[:2] / p[2]
+def _side_medians(values: np.ndarray, side: np.ndarray) -> np.ndarray:
+    """(4,) np.median of the (M,) `values` of each side (M,) 0..3; 0 for a side without any."""
+    ordered = values[np.lexsort((values, side))]  # by side, then value
+    n = np.bincount(side, minlength=4)
+    first = np.cumsum(n) - n
+    medians = np.zeros(4, values.dtype)
+    has = n > 0
+    medians[has] = (ordered[(first + (n - 1) // 2)[has]] + ordered[(first + n // 2)[has]]) / 2
+    return medians
 
 
 def refine_outline(gray: np.ndarray, sign: LibrarySign, H: np.ndarray,
@@ -191,27 +216,26 @@ def refine_outline(gray: np.ndarray, sign: LibrarySign, H: np.ndarray,
     """
     rng = np.random.default_rng(seed)
     start = cv2.perspectiveTransform(sign.corners_px[None], H)[0].astype(np.float64)
-    lines, points, sq = [], [], []
-    for i, pts in enumerate(_edge_points(gray, start, SEARCH_PX)):
-        expected = _expected(float(np.hypot(*(start[(i + 1) % 4] - start[i]))))
-        fit = _robust_line(pts, rng) if len(pts) >= MIN_SIDE_POINTS else None
-        found = 0 if fit is None else int(fit[1].sum())
-        if found < max(MIN_SIDE_POINTS, MIN_INLIER_FRACTION * expected):
-            return None, f"side {i + 1}: {found} of {expected} profiles on a straight edge (search {SEARCH_PX} px)"
-        line, inliers = fit
-        lines.append(line)
-        points.append(pts[inliers])
-        sq.append((pts[inliers] @ line[:2] + line[2]) ** 2)
-    corners = [_intersect(lines[i - 1], lines[i]) for i in range(4)]  # corner i joins sides i-1 and i
-    if any(c is None for c in corners):
+    pts, side = _edge_points(gray, start, SEARCH_PX)
+    lines, inliers = _robust_lines(pts, side, rng)
+    found = np.bincount(side[inliers], minlength=4)
+    expected = _expected(np.hypot(*(start[[1, 2, 3, 0]] - start).T))
+    for i in range(4):
+        if found[i] < max(MIN_SIDE_POINTS, MIN_INLIER_FRACTION * expected[i]):
+            return None, f"side {i + 1}: {found[i]} of {expected[i]} profiles on a straight edge (search {SEARCH_PX} px)"
+    # corner i joins sides i - 1 and i: the cross product of their lines
+    (a1, b1, c1), (a2, b2, c2) = lines[[3, 0, 1, 2]].T, lines.T
+    w = a1 * b2 - b1 * a2
+    if np.any(np.abs(w) < 1e-12):
         return None, "two adjacent sides are parallel"
-    corners = np.array(corners)
-    moved = float(np.max(np.linalg.norm(corners - start, axis=1)))
+    corners = np.column_stack([(b1 * c2 - c1 * b2) / w, (c1 * a2 - a1 * c2) / w])
+    moved = float(np.max(np.hypot(*(corners - start).T)))
     if moved > 2 * SEARCH_PX:
         return None, f"a corner moved {moved:.1f} px, more than the search allows ({2 * SEARCH_PX} px)"
-    rms = float(np.sqrt(np.mean(np.concatenate(sq))))
+    rms = float(np.sqrt(np.mean(_distances(pts[inliers], side[inliers], lines) ** 2)))
     H_out = cv2.getPerspectiveTransform(sign.corners_px.astype(np.float32), corners.astype(np.float32))
-    return Outline(corners, H_out.astype(np.float64) / H_out[2, 2], points, rms), None
+    return Outline(corners, H_out.astype(np.float64) / H_out[2, 2], [pts[inliers & (side == i)] for i in range(4)],
+                   rms), None
 
 
 def outline_covariance(R: np.ndarray, t: np.ndarray, outline: Outline, sign: LibrarySign, camera) -> np.ndarray | None:
@@ -224,35 +248,31 @@ def outline_covariance(R: np.ndarray, t: np.ndarray, outline: Outline, sign: Lib
     covariance is σ²(JᵀJ)⁻¹ with one row per point (the normal component of the projection's
     Jacobian). None when there are too few points or JᵀJ is singular.
     """
-    H_inv = np.linalg.inv(outline.H)
-    w, h = sign.size_px
-    lib_corners = sign.corners_px
+    side = np.repeat(np.arange(4), [len(p) for p in outline.points])
+    if not len(side):
+        return None
+    pts = np.concatenate(outline.points)
     rvec = cv2.Rodrigues(np.asarray(R, dtype=np.float64))[0]
     tvec = np.asarray(t, dtype=np.float64).reshape(3, 1)
-    rows, residuals = [], []
-    for i, pts in enumerate(outline.points):
-        if not len(pts):
-            continue
-        # library point of each edge point: through H⁻¹, then onto the library side it belongs to
-        q = cv2.perspectiveTransform(pts[None].astype(np.float64), H_inv)[0]
-        a, b = lib_corners[i], lib_corners[(i + 1) % 4]
-        along = np.clip((q - a) @ (b - a) / float((b - a) @ (b - a)), 0.0, 1.0)
-        q = a + along[:, None] * (b - a)
-        obj = sign.to_metric(q)
-        proj, jac = cv2.projectPoints(obj, rvec, tvec, camera.K, camera.dist)
-        proj, jac = proj.reshape(-1, 2), jac[:, :6].reshape(-1, 2, 6)
-        # the side's normal in the image at each projected point
-        ends = cv2.projectPoints(sign.to_metric(np.array([a, b])), rvec, tvec, camera.K, camera.dist)[0].reshape(2, 2)
-        d = ends[1] - ends[0]
-        normal = np.array([-d[1], d[0]]) / max(float(np.hypot(*d)), 1e-12)
-        residuals.append((pts - proj) @ normal)
-        # Profiles closer than their footprint along the side share noise: weigh each side's rows
-        # by how many independent measurements its profiles amount to.
-        spacing = float(np.hypot(*d)) * (1 - 2 * END_MARGIN) / max(_expected(float(np.hypot(*d))) - 1, 1)
-        rows.append(np.einsum("k,nkj->nj", normal, jac) * np.sqrt(min(1.0, spacing / CORRELATION_PX)))
-    if not rows:
-        return None
-    r, J = np.concatenate(residuals), np.concatenate(rows)
+    # library point of each edge point: through H⁻¹, then onto the library side it belongs to
+    q = cv2.perspectiveTransform(pts[None].astype(np.float64), np.linalg.inv(outline.H))[0]
+    a = sign.corners_px
+    ab = a[[1, 2, 3, 0]] - a
+    along = np.sum((q - a[side]) * ab[side], axis=1) / np.sum(ab * ab, axis=1)[side]
+    q = a[side] + np.clip(along, 0.0, 1.0)[:, None] * ab[side]
+    proj, jac = cv2.projectPoints(sign.to_metric(q), rvec, tvec, camera.K, camera.dist)
+    proj, jac = proj.reshape(-1, 2), jac[:, :6].reshape(-1, 2, 6)
+    # each side's normal in the image, between its projected ends
+    ends = cv2.projectPoints(sign.to_metric(a), rvec, tvec, camera.K, camera.dist)[0].reshape(4, 2)
+    d = ends[[1, 2, 3, 0]] - ends
+    length = np.hypot(d[:, 0], d[:, 1])
+    normal = (np.column_stack([-d[:, 1], d[:, 0]]) / np.maximum(length, 1e-12)[:, None])[side]
+    r = np.sum((pts - proj) * normal, axis=1)
+    # Profiles closer than their footprint along the side share noise: weigh each side's rows
+    # by how many independent measurements its profiles amount to.
+    spacing = length * (1 - 2 * END_MARGIN) / np.maximum(_expected(length) - 1, 1)
+    weight = np.sqrt(np.minimum(1.0, spacing / CORRELATION_PX))
+    J = (normal[:, :1] * jac[:, 0] + normal[:, 1:] * jac[:, 1]) * weight[side, None]
     dof = len(r) - 6
     JtJ = J.T @ J
     if dof <= 0 or np.linalg.cond(JtJ) > 1e12:

@@ -132,6 +132,13 @@ def euler_zyx_deg(R: np.ndarray) -> tuple[float, float, float]:
     return math.degrees(yaw), math.degrees(pitch), math.degrees(roll)
 
 
+def _with_cross(c1: np.ndarray, c2: np.ndarray) -> np.ndarray:
+    """(3, 3) matrix with columns c1, c2 (3,) and c1 × c2: np.cross written out, since on one
+    pair of 3-vectors its axis handling costs several times the arithmetic."""
+    (a0, a1, a2), (b0, b1, b2) = c1.tolist(), c2.tolist()
+    return np.array([[a0, b0, a1 * b2 - a2 * b1], [a1, b1, a2 * b0 - a0 * b2], [a2, b2, a0 * b1 - a1 * b0]])
+
+
 def _nearest_rotation(M: np.ndarray) -> np.ndarray:
     """The rotation (det +1) closest to (3, 3) M in Frobenius norm (polar decomposition by SVD)."""
     U, _, Vt = np.linalg.svd(M)
@@ -152,7 +159,7 @@ def pose_from_homography(H_metric: np.ndarray, K: np.ndarray) -> tuple[np.ndarra
         raise PoseError("homography is degenerate: it collapses the sign plane")
     M = M / math.copysign(scale, M[2, 2])
     r1, r2, t = M[:, 0], M[:, 1], M[:, 2]
-    return _nearest_rotation(np.column_stack([r1, r2, np.cross(r1, r2)])), t
+    return _nearest_rotation(_with_cross(r1, r2)), t
 
 
 def homography_from_pose(R: np.ndarray, t: np.ndarray, K: np.ndarray, sign: LibrarySign) -> np.ndarray:
@@ -245,11 +252,9 @@ def _ippe_rotations(J: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarra
     _, sigma, Vt = np.linalg.svd(A)
     R22 = A / sigma[0]
     b = math.sqrt(max(0.0, 1.0 - (sigma[1] / sigma[0]) ** 2)) * Vt[1]
-    rotations = []
-    for flip in (1.0, -1.0):
-        c1, c2 = np.append(R22[:, 0], flip * b[0]), np.append(R22[:, 1], flip * b[1])
-        rotations.append(Rv @ np.column_stack([c1, c2, np.cross(c1, c2)]))
-    return rotations[0], rotations[1]
+    c1, c2 = np.append(R22[:, 0], b[0]), np.append(R22[:, 1], b[1])
+    flip = np.array([1.0, 1.0, -1.0])
+    return Rv @ _with_cross(c1, c2), Rv @ _with_cross(c1 * flip, c2 * flip)
 
 
 def _translation_given_rotation(R: np.ndarray, plane: np.ndarray, rays: np.ndarray) -> np.ndarray:

@@ -104,7 +104,9 @@ def segment(gray: np.ndarray, settings: Settings) -> Segmentation:
     """Find candidate sign regions in an (H, W) uint8 gray image."""
     h, w = gray.shape
     mask = cv2.LUT(gray, threshold_lut(gray, settings.normalization, settings.threshold, settings.high_threshold))
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
+    # Grana's block-based labelling gives the default (Spaghetti) labels and stats; on 640x480
+    # masks single-threaded it took 0.47 ms against 1.16, and two-threaded no longer.
+    n, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_GRANA)
     areas = stats[1:, cv2.CC_STAT_AREA]
     order = np.argsort(-areas, kind="stable")
     min_area = max(16, settings.min_blob_area * h * w)
