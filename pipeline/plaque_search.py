@@ -22,7 +22,7 @@ import numpy as np
 
 from .library import Library
 from .plaque import PlaqueMatch, blob_quad, bounding_box, plaque_correlations, refine_ecc
-from .segment import Blob, Segmentation, box_iou, expand_box, threshold_lut
+from .segment import Blob, Segmentation, box_iou, component_blob, expand_box, label_components, threshold_lut
 from .settings import Settings
 
 # Normalised gray levels the image is cut at, besides the segmentation threshold.
@@ -67,7 +67,9 @@ def candidate_quads(gray: np.ndarray, normalization: str, levels: tuple[float, .
             # the levels of the full image, so the cut means what it means at full resolution
             mask = cv2.LUT(small, threshold_lut(gray, normalization, level, None))
             f = shrunk
-            labels, blobs = _components(mask, lo / f.prod(), hi / f.prod())
+            labels, stats = label_components(mask)
+            areas = stats[1:, cv2.CC_STAT_AREA] * f.prod()
+            blobs = [component_blob(stats, int(i + 1)) for i in np.flatnonzero((areas >= lo) & (areas <= hi))]
         for blob in blobs:
             # shrunk px -> image px, pixel centres aligned as cv2.resize does
             x0, y0, x1, y1 = blob.bbox
@@ -78,18 +80,6 @@ def candidate_quads(gray: np.ndarray, normalization: str, levels: tuple[float, .
             if quad is not None:
                 found.append((Blob(blob.label, round(blob.area * f.prod()), box), (quad + 0.5) * f - 0.5))
     return found
-
-
-def _components(mask: np.ndarray, min_area: float, max_area: float) -> tuple[np.ndarray, list[Blob]]:
-    """(labels (H, W) int32, blobs) of the 8-connected components of a uint8 mask whose area in px
-    is within [min_area, max_area]."""
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
-    areas = stats[1:, cv2.CC_STAT_AREA]
-    blobs = []
-    for i in np.flatnonzero((areas >= min_area) & (areas <= max_area)):
-        x, y, bw, bh = (int(v) for v in stats[i + 1, :4])
-        blobs.append(Blob(int(i + 1), int(areas[i]), (x, y, x + bw, y + bh)))
-    return labels, blobs
 
 
 @dataclass(frozen=True, eq=False)
