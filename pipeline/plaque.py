@@ -93,22 +93,24 @@ def rectify(gray: np.ndarray, corners: np.ndarray, size: tuple[int, int]) -> np.
 
 
 def library_templates(library: Library) -> dict[str, np.ndarray]:
-    """Each sign at the comparison resolution, blurred like a rectified plaque; cached on the library."""
+    """Each sign at the comparison resolution, blurred like a rectified plaque and `standardized`;
+    cached on the library."""
     cached = library.cache.get("plaque_templates")
     if cached is None or cached.keys() != set(library.ids):
         cached = {}
         for sign in library.signs:
             small = cv2.resize(sign.image, compare_size(sign), interpolation=cv2.INTER_AREA)
-            cached[sign.id] = cv2.GaussianBlur(small.astype(np.float32), (0, 0), COMPARE_BLUR_SIGMA)
+            cached[sign.id] = standardized(cv2.GaussianBlur(small.astype(np.float32), (0, 0), COMPARE_BLUR_SIGMA))
         library.cache["plaque_templates"] = cached
     return cached
 
 
-def ncc(a: np.ndarray, b: np.ndarray) -> float:
-    """Zero-mean normalised cross-correlation of two equal-size patches, in [-1, 1]."""
-    a, b = a - a.mean(), b - b.mean()
-    denom = float(np.sqrt((a * a).sum() * (b * b).sum()))
-    return float((a * b).sum() / denom) if denom > 0 else 0.0
+def standardized(patch: np.ndarray) -> np.ndarray:
+    """`patch` less its mean, scaled to unit norm (all zeros if it is flat): the zero-mean
+    normalised cross-correlation of two such patches of equal size is their dot product."""
+    centred = patch - patch.mean()
+    norm = float(np.sqrt(np.vdot(centred, centred)))
+    return centred / norm if norm > 0 else centred
 
 
 def refine_ecc(gray: np.ndarray, sign: LibrarySign, H: np.ndarray) -> tuple[np.ndarray, float] | None:
@@ -160,8 +162,8 @@ def plaque_correlations(gray: np.ndarray, corners: np.ndarray,
         size = compare_size(sign)
         for k in range(4):
             if (k, size) not in patches:
-                patches[k, size] = rectify(gray, np.roll(corners, -k, axis=0), size)
-        by_roll = [ncc(patches[k, size], templates[sign.id]) for k in range(4)]
+                patches[k, size] = standardized(rectify(gray, np.roll(corners, -k, axis=0), size))
+        by_roll = [float(np.vdot(patches[k, size], templates[sign.id])) for k in range(4)]
         rolls[sign.id] = int(np.argmax(by_roll))
         scores[sign.id] = float(by_roll[rolls[sign.id]])
     return scores, rolls
