@@ -74,10 +74,10 @@ class Settings:
     # Features
     detector: str = _choice("sift", DETECTORS, "Features", "Local feature detector and descriptor")
     max_features: int = _num(2000, 50, 20000, "Features", "Most keypoints kept per image (strongest first)", step=50)
-    min_crop_size: int = _num(320, 0, 2000, "Features",
+    min_crop_size: int = _num(128, 0, 2000, "Features",
                               "Crops whose longer side is below this many px are upscaled to it before detection",
                               step=10)
-    max_crop_size: int = _num(400, 0, 8000, "Features",
+    max_crop_size: int = _num(160, 0, 8000, "Features",
                               "Crops (not the full frame) whose longer side is above this many px are downscaled "
                               "to it before detection; 0: never", step=10)
     contrast_threshold: float = _num(0.03, 0.001, 0.2, "Features",
