@@ -22,8 +22,9 @@ import ctypes
 import math
 import multiprocessing
 import os
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -286,9 +287,8 @@ def _start_worker(library: Library, settings: Settings) -> None:
     _worker_state = library, settings
 
 
-def _measure_in_worker(job: tuple[str, Sample, Camera | None]) -> ImageResult:
-    dataset, sample, camera = job
-    return _measure(dataset, sample, *_worker_state, camera)
+def _measure_chunk(jobs: list[tuple[str, Sample, Camera | None]]) -> list[ImageResult]:
+    return [_measure(dataset, sample, *_worker_state, camera) for dataset, sample, camera in jobs]
 
 
 def _measure_all(jobs: list[tuple[str, Sample, Camera | None]], library: Library, settings: Settings,
@@ -297,17 +297,45 @@ def _measure_all(jobs: list[tuple[str, Sample, Camera | None]], library: Library
 
     Processes, not threads: OpenCV releases the GIL inside SIFT, but RANSAC, matching and pose
     are many small numpy calls that hold it. Spawned rather than forked, since a fork copies
-    OpenCV's and OpenBLAS's thread pools in whatever state they are.
+    OpenCV's and OpenBLAS's thread pools in whatever state they are. This process is one of the
+    workers: it takes images from the front of the list at once, while the others, spawned
+    meanwhile (a fraction of a second each, most of a second's work at a few ms an image),
+    take chunks from the back.
     """
     if workers <= 1 or len(jobs) <= 1:
         yield from (_measure(name, sample, library, settings, camera) for name, sample, camera in jobs)
         return
     library_features(library, settings)  # computed here once, pickled to every worker with the library
     workers = min(workers, len(jobs))
-    with ProcessPoolExecutor(workers, multiprocessing.get_context("spawn"), initializer=_start_worker,
-                             initargs=(library, settings)) as pool:
-        # Small chunks: fewer round trips, and still an even share when images differ in cost.
-        yield from pool.map(_measure_in_worker, jobs, chunksize=max(1, min(8, len(jobs) // (4 * workers))))
+    # Small chunks: few round trips, and the two ends still meet evenly.
+    size = max(1, min(4, len(jobs) // (4 * workers)))
+    chunks = deque((start, jobs[start:start + size]) for start in range(0, len(jobs), size))
+    finished: dict[int, list[ImageResult]] = {}
+    running: dict[Future, int] = {}
+    next_start = 0
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)  # like the workers: one OpenCV thread per process
+    try:
+        with ProcessPoolExecutor(workers - 1, multiprocessing.get_context("spawn"), initializer=_start_worker,
+                                 initargs=(library, settings)) as pool:
+            while chunks or running:
+                while chunks and len(running) < 2 * (workers - 1):
+                    start, chunk = chunks.pop()
+                    running[pool.submit(_measure_chunk, chunk)] = start
+                if chunks:
+                    start, chunk = chunks.popleft()
+                    finished[start] = [_measure(name, sample, library, settings, camera)
+                                       for name, sample, camera in chunk]
+                else:
+                    wait(running, return_when=FIRST_COMPLETED)
+                for future in [f for f in running if f.done()]:
+                    finished[running.pop(future)] = future.result()
+                while next_start in finished:
+                    results = finished.pop(next_start)
+                    next_start += len(results)
+                    yield from results
+    finally:
+        cv2.setNumThreads(threads)
 
 
 def evaluate(datasets: Sequence[Dataset], library: Library, settings: Settings, camera: Camera | None = None,

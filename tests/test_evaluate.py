@@ -115,8 +115,12 @@ def test_runs_the_real_pipeline(library):
 
 
 def test_worker_processes_give_the_same_answers(library):
+    import cv2
+
     dataset = load_dataset(SET3)
+    threads = cv2.getNumThreads()
     alone, pooled = (evaluate([dataset], library, preset("default"), workers=w) for w in (1, 2))
+    assert cv2.getNumThreads() == threads  # this process worked on one thread, and is given its own back
     assert [r.sample.path for r in pooled.results] == [s.path for s in dataset.samples]
     assert [(r.predicted, r.rotation_error_deg) for r in pooled.results] == \
         [(r.predicted, r.rotation_error_deg) for r in alone.results]
