@@ -218,14 +218,14 @@ def rerun(dataset: Dataset, library: Library) -> list[str]:
     return lines
 
 
-def best_times(runs: dict[str, Callable[[], None]], repeats: int) -> dict[str, float]:
-    """Best wall time in s of each run over `repeats` rounds, alternated so that load hits them
-    alike; runs named "... on 1 core" get one OpenCV thread, the others all of them."""
+def best_times(runs: dict[str, tuple[int, Callable[[], None]]], repeats: int) -> dict[str, float]:
+    """Best wall time in s of each (OpenCV threads, run) over `repeats` rounds, alternated so
+    that load hits them alike."""
     threads = cv2.getNumThreads()
     best = dict.fromkeys(runs, np.inf)
     for _ in range(repeats):
-        for name, run in runs.items():
-            cv2.setNumThreads(1 if name.endswith("on 1 core") else threads)
+        for name, (opencv_threads, run) in runs.items():
+            cv2.setNumThreads(opencv_threads)
             t0 = time.perf_counter()
             run()
             best[name] = min(best[name], time.perf_counter() - t0)
@@ -236,10 +236,11 @@ def best_times(runs: dict[str, Callable[[], None]], repeats: int) -> dict[str, f
 def batch_speedup(dataset: Dataset, library: Library, repeats: int) -> str:
     """evaluate's wall time on 1 core, on 1 worker whose OpenCV calls use every core, and on 2
     worker processes; best of `repeats` each."""
-    settings = preset("default")
-    best = best_times({"1 worker on 1 core": lambda: evaluate([dataset], library, settings, workers=1),
-                       "1 worker, OpenCV on all cores": lambda: evaluate([dataset], library, settings, workers=1),
-                       "2 workers": lambda: evaluate([dataset], library, settings, workers=2)}, repeats)
+    settings, threads = preset("default"), cv2.getNumThreads()
+    best = best_times({"1 worker on 1 core": (1, lambda: evaluate([dataset], library, settings, workers=1)),
+                       "1 worker, OpenCV on all cores": (threads, lambda: evaluate([dataset], library, settings,
+                                                                                    workers=1)),
+                       "2 workers": (threads, lambda: evaluate([dataset], library, settings, workers=2))}, repeats)
     return (f"evaluate on {len(dataset)} images, best of {repeats}: "
             + ", ".join(f"{name} {seconds:.2f} s" for name, seconds in best.items())
             + f"; 2 workers vs 1 core {best['1 worker on 1 core'] / best['2 workers']:.2f}x, "
@@ -248,14 +249,16 @@ def batch_speedup(dataset: Dataset, library: Library, repeats: int) -> str:
 
 def server_speedup(dataset: Dataset, repeats: int) -> str:
     """A full re-run of every loaded image in `signpose serve`'s Workspace (a features setting
-    changed, so nothing is cached) on 1 pipeline worker on 1 core and on one worker per core."""
+    changed, so nothing is cached) on 1 pipeline worker on 1 core and on one worker per core
+    with the OpenCV threads the Workspace chooses."""
     uploads = [(s.path.name, s.path.read_bytes(), s.label) for s in dataset.samples]
-    best = {}
+    best, threads = {}, cv2.getNumThreads()
     with tempfile.TemporaryDirectory() as tmp:
         for workers, name in ((1, "1 worker on 1 core"), (os.cpu_count() or 1, f"{os.cpu_count()} workers")):
             config = WorkspaceConfig(state_dir=Path(tmp) / name, load_samples=False, workers=workers,
                                      debounce_s=0.0)
             workspace = Workspace(config)
+            opencv_threads = 1 if workers == 1 else cv2.getNumThreads()
             try:
                 workspace.set_camera(dataset.camera)
                 workspace.add_images(uploads)
@@ -266,9 +269,10 @@ def server_speedup(dataset: Dataset, repeats: int) -> str:
                     workspace.update_settings({"contrast_threshold": float(next(contrast))})
                     workspace.wait_idle(3600)
 
-                best |= best_times({name: rerun_all}, repeats)
+                best |= best_times({name: (opencv_threads, rerun_all)}, repeats)
             finally:
                 workspace.close()
+                cv2.setNumThreads(threads)
     one, many = best.values()
     return (f"signpose serve, all {len(uploads)} images re-run after a features change, best of {repeats}: "
             + ", ".join(f"{name} {seconds:.2f} s" for name, seconds in best.items()) + f"; {one / many:.2f}x")
