@@ -238,19 +238,22 @@ def refine_outline(gray: np.ndarray, sign: LibrarySign, H: np.ndarray,
                    rms), None
 
 
-def outline_covariance(R: np.ndarray, t: np.ndarray, outline: Outline, sign: LibrarySign, camera) -> np.ndarray | None:
-    """(6, 6) covariance over [rotation vector (rad), translation (m)] of a pose (R, t) fitted to
-    `outline`, from its edge points: each measures only its distance across its side.
+def outline_fit(R: np.ndarray, t: np.ndarray, outline: Outline, sign: LibrarySign,
+                camera) -> tuple[float, np.ndarray | None]:
+    """(RMS residual in image px, (6, 6) covariance over [rotation vector (rad), translation (m)])
+    of a pose (R, t) fitted to `outline`, from its edge points: each measures only its distance
+    across its side.
 
     The grid of points a pose is fitted to after refinement is exact by construction, so its
-    residuals say nothing about the noise. Here each edge point's residual is its distance from
-    the projected library edge along that edge's image normal; σ² = SSE / (N - 6) and the
-    covariance is σ²(JᵀJ)⁻¹ with one row per point (the normal component of the projection's
-    Jacobian). None when there are too few points or JᵀJ is singular.
+    residuals say nothing about the fit or the noise. Here each edge point's residual is its
+    distance from the projected library edge along that edge's image normal; σ² = SSE / (N - 6)
+    and the covariance is σ²(JᵀJ)⁻¹ with one row per point (the normal component of the
+    projection's Jacobian). The covariance is None when there are too few points or JᵀJ is
+    singular; the residual is NaN without points.
     """
     side = np.repeat(np.arange(4), [len(p) for p in outline.points])
     if not len(side):
-        return None
+        return float("nan"), None
     pts = np.concatenate(outline.points)
     rvec = cv2.Rodrigues(np.asarray(R, dtype=np.float64))[0]
     tvec = np.asarray(t, dtype=np.float64).reshape(3, 1)
@@ -273,8 +276,9 @@ def outline_covariance(R: np.ndarray, t: np.ndarray, outline: Outline, sign: Lib
     spacing = length * (1 - 2 * END_MARGIN) / np.maximum(_expected(length) - 1, 1)
     weight = np.sqrt(np.minimum(1.0, spacing / CORRELATION_PX))
     J = (normal[:, :1] * jac[:, 0] + normal[:, 1:] * jac[:, 1]) * weight[side, None]
+    rms = float(np.sqrt(r @ r / len(r)))
     dof = len(r) - 6
     JtJ = J.T @ J
     if dof <= 0 or np.linalg.cond(JtJ) > 1e12:
-        return None
-    return float(r @ r) / dof * np.linalg.inv(JtJ)
+        return rms, None
+    return rms, float(r @ r) / dof * np.linalg.inv(JtJ)

@@ -43,7 +43,10 @@ class Pose:
 
     `R` (3, 3) and `t` (3,) metres map sign-frame points into the camera frame.
     `reprojection_rmse_px`: root mean squared distance, in image px, between the measured points
-    and the sign points projected with this pose and the camera's distortion.
+    and the sign points projected with this pose and the camera's distortion. The measured
+    points are the feature inliers, or for a pose from the plaque's outline its edge points
+    (distance across their side); after ECC alone they are a grid through the aligned
+    homography, which the pose fits almost exactly.
     `solution_errors`: (best, second) RMSE px of IPPE's two planar solutions, whichever method
     produced the pose (None only for poses built elsewhere). `ambiguous`: the second solution
     explains the points nearly as well as the best (see `estimate_pose`).

@@ -21,7 +21,7 @@ from .homography import HomographyEstimate, estimate_homography
 from .image import to_gray
 from .library import Library, LibrarySign
 from .match import Matches, match_library
-from .outline import Outline, outline_covariance, refine_outline
+from .outline import Outline, outline_fit, refine_outline
 from .plaque import PlaqueMatch, match_plaque, refine_ecc
 from .plaque_search import MIN_NCC, SAME_PLAQUE_IOU, QuadCandidate, ranked_quads, search_plaques
 from .pose import Pose, PoseError, estimate_pose
@@ -476,8 +476,9 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         try:
             pose = estimate_pose(H, src, dst, sign, camera, settings.pose_method, settings.ambiguity_ratio)
             if outline is not None:
-                # the grid fitted is exact by construction: the noise is in the edge points
-                pose = dataclasses.replace(pose, covariance=outline_covariance(pose.R, pose.t, outline, sign, camera))
+                # the grid fitted is exact by construction: the fit and the noise show in the edge points
+                rmse, covariance = outline_fit(pose.R, pose.t, outline, sign, camera)
+                pose = dataclasses.replace(pose, reprojection_rmse_px=rmse, covariance=covariance)
         except PoseError as exc:
             warnings.append(f"no pose: {exc}")
         timing["pose"] = (time.perf_counter() - t0) * 1e3

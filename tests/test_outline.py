@@ -6,7 +6,7 @@ import pytest
 
 from pipeline.camera import assumed_camera
 from pipeline.library import load_library
-from pipeline.outline import outline_covariance, refine_outline
+from pipeline.outline import outline_fit, refine_outline
 from pipeline.pose import estimate_pose, homography_from_pose
 from pipeline.recognize import grid_correspondences, recognize
 from pipeline.settings import preset
@@ -105,7 +105,9 @@ def test_pose_covariance_from_the_edges_matches_the_scatter(sign):
                                     start_homography(sign, 3.0, seed + 100, corners))
         pose = estimate_pose(outline.H, *grid_correspondences(outline.H, sign), sign, camera)
         rotations.append(cv2.Rodrigues(pose.R)[0].ravel())
-        covariances.append(outline_covariance(pose.R, pose.t, outline, sign, camera))
+        rmse, covariance = outline_fit(pose.R, pose.t, outline, sign, camera)
+        assert 0.005 < rmse < 0.5  # the edge points' scatter across their sides
+        covariances.append(covariance)
     scatter = np.trace(np.cov(np.array(rotations).T))
     predicted = np.trace(np.mean(covariances, axis=0)[:3, :3])
     assert 0.4 < scatter / predicted < 2.5, (scatter, predicted)

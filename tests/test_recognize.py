@@ -103,3 +103,12 @@ def test_a_sign_below_the_threshold_is_searched_in_its_plaque_crop_before_the_fu
     assert x0 <= 330 and y0 <= 250 and x1 >= 600 and y1 >= 370 and (x1 - x0) * (y1 - y0) < 0.3 * 640 * 480
     without = recognize(image, library, preset("default").replace(plaque_candidates=0))
     assert without.label == sign_id and without.attempt.source == "full frame"
+
+
+def test_a_pose_from_the_outline_reports_the_edges_residual_not_the_grids(library):
+    """The pose is fitted to a grid through the outline's H, which it fits to ~0.01 px whatever
+    the image; the RMSE reported is that of the edge points across the projected sides."""
+    rec = recognize(read_image(SCENES / "scene_004.jpg"), library, preset("default"),
+                    load_camera(SCENES / "camera.yaml"))
+    assert rec.outline is not None
+    assert 0.02 < rec.pose.reprojection_rmse_px < 0.5
