@@ -608,16 +608,23 @@ def put_assumed_fov(body: AssumedFovIn, workspace: WorkspaceDep) -> CameraOut:
 
 # ---- camera calibration from chessboard photos (app/calibration.py)
 
-def calibration_out(state: CalibrationState, max_views: int) -> CalibrationOut:
+def calibration_out(calibration: CalibrationSession, state: CalibrationState) -> CalibrationOut:
+    """The response for `state`, a state of `calibration` (read once by the caller: photos, board
+    and result must agree)."""
     summary = state.result.to_json() if state.result is not None else None
     views = [CalibrationView(**(summary["views"][i] if summary else {"name": p.name, "found": p.view.found}),
                              id=p.id, width=p.view.image_size[0], height=p.view.image_size[1])
              for i, p in enumerate(state.photos)]
     result = None if summary is None else CalibrationResult.model_validate(
         {**summary, "camera": intrinsics(calibrated_camera(state.result))})
-    return CalibrationOut(revision=state.revision, min_views=MIN_VIEWS, max_views=max_views, views=views,
+    return CalibrationOut(revision=state.revision, min_views=MIN_VIEWS, max_views=calibration.max_photos, views=views,
                           board=BoardSpec(cols=state.board[0], rows=state.board[1], square_m=state.square_m),
                           result=result)
+
+
+def no_such_photo(view_id: str) -> HTTPException:
+    return HTTPException(status.HTTP_404_NOT_FOUND,
+                         f"no calibration photo with id {view_id!r}; GET /api/calibration lists them")
 
 
 def fitted(state: CalibrationState) -> Calibration:
@@ -630,7 +637,7 @@ def fitted(state: CalibrationState) -> Calibration:
 @api.get("/calibration", response_model=CalibrationOut, tags=["calibration"])
 def get_calibration_state(calibration: CalibrationDep) -> CalibrationOut:
     """The board, every photo (board found or not, its error), and the result of the last run, if current."""
-    return calibration_out(calibration.state, calibration.max_photos)
+    return calibration_out(calibration, calibration.state)
 
 
 @api.post("/calibration/images", response_model=CalibrationOut, status_code=status.HTTP_201_CREATED,
@@ -638,25 +645,25 @@ def get_calibration_state(calibration: CalibrationDep) -> CalibrationOut:
 def add_calibration_photos(files: Annotated[list[UploadFile], File(description="photos of the chessboard")],
                            calibration: CalibrationDep) -> CalibrationOut:
     """Add photos and search each for the board (all or nothing). The last result is dropped."""
-    return calibration_out(calibration.add([read_upload(f) for f in files]), calibration.max_photos)
+    return calibration_out(calibration, calibration.add([read_upload(f) for f in files]))
 
 
 @api.delete("/calibration", response_model=CalibrationOut, tags=["calibration"])
 def clear_calibration(calibration: CalibrationDep) -> CalibrationOut:
     """Forget every calibration photo (the board size stays; the workspace camera is not touched)."""
-    return calibration_out(calibration.clear(), calibration.max_photos)
+    return calibration_out(calibration, calibration.clear())
 
 
 @api.put("/calibration/board", response_model=CalibrationOut, tags=["calibration"], dependencies=[JSON_BODY])
 def set_calibration_board(body: BoardSpec, calibration: CalibrationDep) -> CalibrationOut:
     """Set the board; every photo is searched again when the corner counts change. 422 names a bad value."""
-    return calibration_out(calibration.set_board((body.cols, body.rows), body.square_m), calibration.max_photos)
+    return calibration_out(calibration, calibration.set_board((body.cols, body.rows), body.square_m))
 
 
 @api.post("/calibration/run", response_model=CalibrationOut, tags=["calibration"], dependencies=[JSON_BODY])
 def run_calibration(body: CalibrationRunIn, calibration: CalibrationDep) -> CalibrationOut:
     """Fit the intrinsics to the photos where the board was found (422 says why it cannot)."""
-    return calibration_out(calibration.run(body.drop_outliers), calibration.max_photos)
+    return calibration_out(calibration, calibration.run(body.drop_outliers))
 
 
 @api.get("/calibration/views/{view_id}/image", tags=["calibration"],
@@ -671,8 +678,7 @@ def get_calibration_view(view_id: str, calibration: CalibrationDep,
     try:
         photo = state.photo(view_id)
     except KeyError:
-        raise HTTPException(status.HTTP_404_NOT_FOUND,
-                            f"no calibration photo with id {view_id!r}; GET /api/calibration lists them") from None
+        raise no_such_photo(view_id) from None
     camera = fitted(state).camera if overlay == "undistorted" else None
     img = figures.draw_board(photo.preview, photo.view, state.board, camera, max_side)
     return Response(figures.jpeg(img), media_type="image/jpeg",
@@ -684,7 +690,7 @@ def delete_calibration_view(view_id: str, calibration: CalibrationDep) -> None:
     try:
         calibration.remove(view_id)
     except KeyError:
-        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no calibration photo with id {view_id!r}") from None
+        raise no_such_photo(view_id) from None
 
 
 @api.post("/calibration/apply", response_model=CameraOut, tags=["calibration"])
