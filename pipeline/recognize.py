@@ -410,7 +410,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     height, width = gray.shape
     if camera is None:
         camera = assumed_camera(width, height)
-        warnings.append(f"no camera file: {camera.source} assumed, so the pose is approximate")
+        warnings.append(f"no camera file: {camera.source}, so the pose is approximate")
     else:
         camera, scale_warnings = camera.for_image(width, height)
         warnings += scale_warnings

@@ -65,7 +65,8 @@ def test_bad_files_get_an_error_line_and_the_rest_still_run(tmp_path):
     assert [("error" in o) for o in objs] == [True, False, True, True]
     assert "not a readable image" in objs[0]["error"] and "empty" in objs[2]["error"]
     check_schema(objs[1])
-    assert "assumed" in " ".join(objs[1]["warnings"])  # no --camera: the assumed FOV is said
+    # no --camera: the assumed FOV is said, once
+    assert "no camera file: assumed 60° horizontal field of view, so the pose is approximate" in objs[1]["warnings"]
     table = signpose("recognize", fake, good)
     assert table.returncode != 0 and "error" in table.stdout and good.name in table.stdout
 
