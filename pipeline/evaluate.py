@@ -287,8 +287,13 @@ def _start_worker(library: Library, settings: Settings) -> None:
     _worker_state = library, settings
 
 
-def _measure_chunk(jobs: list[tuple[str, Sample, Camera | None]]) -> list[ImageResult]:
-    return [_measure(dataset, sample, *_worker_state, camera) for dataset, sample, camera in jobs]
+def _measure_jobs(jobs: list[tuple[str, Sample, Camera | None]], library: Library,
+                  settings: Settings) -> list[ImageResult]:
+    return [_measure(dataset, sample, library, settings, camera) for dataset, sample, camera in jobs]
+
+
+def _measure_in_worker(jobs: list[tuple[str, Sample, Camera | None]]) -> list[ImageResult]:
+    return _measure_jobs(jobs, *_worker_state)
 
 
 def _measure_all(jobs: list[tuple[str, Sample, Camera | None]], library: Library, settings: Settings,
@@ -321,11 +326,10 @@ def _measure_all(jobs: list[tuple[str, Sample, Camera | None]], library: Library
             while chunks or running:
                 while chunks and len(running) < 2 * (workers - 1):
                     start, chunk = chunks.pop()
-                    running[pool.submit(_measure_chunk, chunk)] = start
+                    running[pool.submit(_measure_in_worker, chunk)] = start
                 if chunks:
                     start, chunk = chunks.popleft()
-                    finished[start] = [_measure(name, sample, library, settings, camera)
-                                       for name, sample, camera in chunk]
+                    finished[start] = _measure_jobs(chunk, library, settings)
                 else:
                     wait(running, return_when=FIRST_COMPLETED)
                 for future in [f for f in running if f.done()]:

@@ -71,7 +71,8 @@ def candidate_quads(gray: np.ndarray, normalization: str, levels: tuple[float, .
             areas = stats[1:, cv2.CC_STAT_AREA] * f.prod()
             blobs = [component_blob(stats, int(i + 1)) for i in np.flatnonzero((areas >= lo) & (areas <= hi))]
         for blob in blobs:
-            # shrunk px -> image px, pixel centres aligned as cv2.resize does
+            # shrunk px -> image px: boxes outward to whole pixels, corners with pixel centres
+            # aligned as cv2.resize does
             x0, y0, x1, y1 = blob.bbox
             box = (int(x0 * f[0]), int(y0 * f[1]), int(np.ceil(x1 * f[0])), int(np.ceil(y1 * f[1])))
             if any(box_iou(box, other.bbox) > SAME_PLAQUE_IOU for other, _ in found):
