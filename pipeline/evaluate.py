@@ -22,10 +22,11 @@ import ctypes
 import math
 import multiprocessing
 import os
-from collections import deque
+import queue
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
+from multiprocessing.sharedctypes import Synchronized
 from pathlib import Path
 
 import cv2
@@ -237,6 +238,9 @@ def summarize(results: Sequence[ImageResult]) -> Summary:
     )
 
 
+Job = tuple[str, Sample, Camera | None]  # dataset name, sample, camera (None: the pipeline's assumed one)
+
+
 def _measure(dataset: str, sample: Sample, library: Library, settings: Settings,
              camera: Camera | None) -> ImageResult:
     try:
@@ -259,8 +263,9 @@ def _measure(dataset: str, sample: Sample, library: Library, settings: Settings,
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
 _TRIM_BYTES, _MMAP_BYTES = 128 << 20, 32 << 20  # 32 MB: glibc's largest mmap threshold
 
-# The library and settings of this worker process, set once by `_start_worker`.
-_worker_state: tuple[Library, Settings] | None = None
+# What `_start_worker` hands this worker process: library, settings, the jobs, the shared index of
+# the next job to take, and the queue that carries (job index, result) back.
+_worker_state: tuple[Library, Settings, list[Job], Synchronized, multiprocessing.Queue] | None = None
 
 
 def keep_freed_memory() -> None:
@@ -278,68 +283,96 @@ def keep_freed_memory() -> None:
         mallopt(_M_TRIM_THRESHOLD, _TRIM_BYTES)
 
 
-def _start_worker(library: Library, settings: Settings) -> None:
+def _start_worker(library: Library, settings: Settings, jobs: list[Job], next_job: Synchronized,
+                  done: multiprocessing.Queue) -> None:
     """Process-pool initializer. One OpenCV thread per worker: the pool already fills the cores,
     and more threads than cores only make them wait for each other."""
     global _worker_state
     cv2.setNumThreads(1)
     keep_freed_memory()
-    _worker_state = library, settings
+    _worker_state = library, settings, jobs, next_job, done
 
 
-def _measure_jobs(jobs: list[tuple[str, Sample, Camera | None]], library: Library,
-                  settings: Settings) -> list[ImageResult]:
-    return [_measure(dataset, sample, library, settings, camera) for dataset, sample, camera in jobs]
+def _take(next_job: Synchronized) -> int:
+    """The index of the next job nobody has taken yet, shared by all the processes."""
+    with next_job.get_lock():
+        index = next_job.value
+        next_job.value += 1
+    return index
 
 
-def _measure_in_worker(jobs: list[tuple[str, Sample, Camera | None]]) -> list[ImageResult]:
-    return _measure_jobs(jobs, *_worker_state)
+def _work_through_jobs() -> None:
+    """A worker's whole task: take jobs until none are left, sending each result back at once."""
+    library, settings, jobs, next_job, done = _worker_state
+    try:
+        while (index := _take(next_job)) < len(jobs):
+            dataset, sample, camera = jobs[index]
+            done.put((index, _measure(dataset, sample, library, settings, camera)))
+    finally:
+        # Flushed before the task ends, so every result is readable once the future is done.
+        done.close()
+        done.join_thread()
 
 
-def _measure_all(jobs: list[tuple[str, Sample, Camera | None]], library: Library, settings: Settings,
-                 workers: int) -> Iterator[ImageResult]:
+def _measure_all(jobs: list[Job], library: Library, settings: Settings, workers: int) -> Iterator[ImageResult]:
     """`_measure` of every (dataset name, sample, camera) job, in order, on `workers` processes.
 
     Processes, not threads: OpenCV releases the GIL inside SIFT, but RANSAC, matching and pose
-    are many small numpy calls that hold it. Spawned rather than forked, since a fork copies
-    OpenCV's and OpenBLAS's thread pools in whatever state they are. This process is one of the
-    workers: it takes images from the front of the list at once, while the others, spawned
-    meanwhile (a fraction of a second each, most of a second's work at a few ms an image),
-    take chunks from the back.
+    are many small numpy calls that hold it. Spawned rather than forked: a fork copies OpenCV's
+    thread pool in whatever state it is, and its workers hang. This process is one of the
+    workers and starts at once; the others join as soon as they are up (a fraction of a
+    second). Every process takes the next job from one shared counter, so none waits for
+    another to hand it work, and the last images end together.
     """
     if workers <= 1 or len(jobs) <= 1:
         yield from (_measure(name, sample, library, settings, camera) for name, sample, camera in jobs)
         return
     library_features(library, settings)  # computed here once, pickled to every worker with the library
-    workers = min(workers, len(jobs))
-    # Small chunks: few round trips, and the two ends still meet evenly.
-    size = max(1, min(4, len(jobs) // (4 * workers)))
-    chunks = deque((start, jobs[start:start + size]) for start in range(0, len(jobs), size))
-    finished: dict[int, list[ImageResult]] = {}
-    running: dict[Future, int] = {}
-    next_start = 0
+    context = multiprocessing.get_context("spawn")
+    next_job, done = context.Value("q", 0), context.Queue()
+    finished: dict[int, ImageResult] = {}
+    next_result = 0
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)  # like the workers: one OpenCV thread per process
+    helpers = min(workers, len(jobs)) - 1
     try:
-        with ProcessPoolExecutor(workers - 1, multiprocessing.get_context("spawn"), initializer=_start_worker,
-                                 initargs=(library, settings)) as pool:
-            while chunks or running:
-                while chunks and len(running) < 2 * (workers - 1):
-                    start, chunk = chunks.pop()
-                    running[pool.submit(_measure_in_worker, chunk)] = start
-                if chunks:
-                    start, chunk = chunks.popleft()
-                    finished[start] = _measure_jobs(chunk, library, settings)
-                else:
-                    wait(running, return_when=FIRST_COMPLETED)
-                for future in [f for f in running if f.done()]:
-                    finished[running.pop(future)] = future.result()
-                while next_start in finished:
-                    results = finished.pop(next_start)
-                    next_start += len(results)
-                    yield from results
+        with ProcessPoolExecutor(helpers, context, initializer=_start_worker,
+                                 initargs=(library, settings, jobs, next_job, done)) as pool:
+            tasks = [pool.submit(_work_through_jobs) for _ in range(helpers)]
+            try:
+                while next_result < len(jobs):
+                    if (index := _take(next_job)) < len(jobs):
+                        dataset, sample, camera = jobs[index]
+                        finished[index] = _measure(dataset, sample, library, settings, camera)
+                        finished.update(_receive(done, tasks, wait_s=0))
+                    else:
+                        finished.update(_receive(done, tasks, wait_s=0.1))
+                    while next_result in finished:
+                        yield finished.pop(next_result)
+                        next_result += 1
+            finally:
+                with next_job.get_lock():  # interrupted or closed early: the workers stop after their image
+                    next_job.value = len(jobs)
     finally:
         cv2.setNumThreads(threads)
+
+
+def _receive(done: multiprocessing.Queue, tasks: list[Future], wait_s: float) -> list[tuple[int, ImageResult]]:
+    """The results the workers have sent, waiting up to `wait_s` for the first; raises a worker's error,
+    or BrokenProcessPool if one died, once they have all stopped with results still missing."""
+    stopped = all(task.done() for task in tasks)  # before reading: a stopped worker has sent everything
+    received = []
+    try:
+        received.append(done.get(timeout=wait_s) if wait_s else done.get_nowait())
+        while True:
+            received.append(done.get_nowait())
+    except queue.Empty:
+        pass
+    if stopped and not received and wait_s:
+        for task in tasks:
+            task.result()
+        raise RuntimeError("evaluate's worker processes stopped before measuring every image")
+    return received
 
 
 def evaluate(datasets: Sequence[Dataset], library: Library, settings: Settings, camera: Camera | None = None,

@@ -1,4 +1,6 @@
 import json
+import math
+import time
 import shutil
 from pathlib import Path
 from types import SimpleNamespace
@@ -8,7 +10,8 @@ import numpy as np
 import pytest
 
 import pipeline.evaluate as evaluate_module
-from pipeline.evaluate import DatasetError, evaluate, format_table, load_dataset, summarize
+from pipeline.evaluate import (Dataset, DatasetError, ImageResult, Sample, evaluate, format_table, load_dataset,
+                               summarize)
 from pipeline.library import load_library
 from pipeline.settings import preset
 
@@ -114,13 +117,29 @@ def test_runs_the_real_pipeline(library):
     assert "set3" in format_table(report)
 
 
-def test_worker_processes_give_the_same_answers(library):
-    import cv2
+def _measured_here(dataset, sample, library, settings, camera):
+    """Stands in for `_measure` in this process only (the workers are spawned): slow, and marks its results."""
+    time.sleep(0.05)
+    return ImageResult(dataset, sample, None, math.nan, error="measured in the calling process")
 
-    dataset = load_dataset(SET3)
+
+def test_worker_processes_share_the_images_and_keep_their_order(monkeypatch, library):
+    datasets = [load_dataset(SET3)] * 8  # 40 images: enough for a worker to be up before they run out
+    alone = evaluate(datasets, library, preset("default"), workers=1)
+    monkeypatch.setattr(evaluate_module, "_measure", _measured_here)
     threads = cv2.getNumThreads()
-    alone, pooled = (evaluate([dataset], library, preset("default"), workers=w) for w in (1, 2))
+    pooled = evaluate(datasets, library, preset("default"), workers=2)
     assert cv2.getNumThreads() == threads  # this process worked on one thread, and is given its own back
-    assert [r.sample.path for r in pooled.results] == [s.path for s in dataset.samples]
-    assert [(r.predicted, r.rotation_error_deg) for r in pooled.results] == \
-        [(r.predicted, r.rotation_error_deg) for r in alone.results]
+    assert [r.sample.path for r in pooled.results] == [r.sample.path for r in alone.results]
+    by_worker = [(a, p) for a, p in zip(alone.results, pooled.results) if p.error is None]
+    assert 0 < len(by_worker) < len(pooled.results)  # both processes took images
+    assert [(p.predicted, p.rotation_error_deg) for _, p in by_worker] == \
+        [(a.predicted, a.rotation_error_deg) for a, _ in by_worker]
+
+
+def test_a_worker_error_reaches_the_caller(monkeypatch, library):
+    broken = Sample(path=None, label=None)  # the spawned worker's real _measure raises on it
+    dataset = Dataset("broken", SET3, [broken] * 40)
+    monkeypatch.setattr(evaluate_module, "_measure", _measured_here)
+    with pytest.raises(TypeError):
+        evaluate([dataset], library, preset("default"), workers=2)
