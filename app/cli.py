@@ -6,6 +6,7 @@ import argparse
 import json
 import os
 import sys
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 from tqdm import tqdm
@@ -96,16 +97,15 @@ def cmd_recognize(args) -> int:
 
 
 def cmd_synth(args) -> int:
-    from pipeline.synth import generate_dataset
+    from pipeline.synth import SynthError, generate_dataset
 
     try:
         library = load_library(args.library)
-    except LibraryError as exc:
+        with tqdm(total=args.n, desc="synth", unit="img", file=sys.stderr) as bar:
+            generate_dataset(Path(args.out_dir), library, n=args.n, seed=args.seed,
+                             progress=lambda i, n: bar.update(1))
+    except (LibraryError, SynthError, OSError) as exc:
         raise CliError(str(exc)) from None
-    bar = tqdm(total=args.n, desc="synth", unit="img", file=sys.stderr)
-    generate_dataset(Path(args.out_dir), library, n=args.n, seed=args.seed,
-                     progress=lambda i, n: bar.update(1))
-    bar.close()
     print(f"wrote {args.n} scenes, truth.json and camera.yaml to {args.out_dir}")
     return 0
 
@@ -119,8 +119,13 @@ def cmd_evaluate(args) -> int:
     except (ValueError, OSError) as exc:
         raise CliError(str(exc)) from None
     total = sum(len(d) for d in datasets)
-    with tqdm(total=total, desc="evaluate", unit="img", file=sys.stderr) as bar:
-        report = evaluate(datasets, library, settings, camera, progress=lambda *_: bar.update(1))
+    try:
+        with tqdm(total=total, desc="evaluate", unit="img", file=sys.stderr) as bar:
+            report = evaluate(datasets, library, settings, camera, progress=lambda *_: bar.update(1),
+                              workers=args.workers)
+    except BrokenProcessPool:
+        raise CliError("a worker process stopped before it finished (out of memory?); "
+                       "fewer workers, e.g. --workers 1, need less") from None
     print(format_table(report))
     return 0
 
@@ -197,6 +202,17 @@ def cmd_serve(args) -> int:
     return 0
 
 
+def positive_int(text: str) -> int:
+    """argparse type: a whole number of at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of at least 1")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="signpose", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -209,13 +225,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("synth", help="render synthetic scenes with ground truth")
     p.add_argument("out_dir")
-    p.add_argument("--n", type=int, default=20, help="number of scenes (default 20)")
+    p.add_argument("--n", type=positive_int, default=20, help="number of scenes (default 20)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--library", default=str(SAMPLE_LIBRARY))
     p.set_defaults(func=cmd_synth)
 
     p = sub.add_parser("evaluate", help="accuracy and timing on labelled datasets (the paper's Table 1)")
     p.add_argument("datasets", nargs="+", help="dataset folders: truth.json, or one sub-folder per label")
+    p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1,
+                   help="processes sharing the images, one core each (default: every core, here %(default)s)")
     add_common(p)
     p.set_defaults(func=cmd_evaluate)
 

@@ -108,3 +108,27 @@ def test_exif_focal_length_is_used_without_a_camera_file(tmp_path):
     Image.open(SCENES / scene).save(path, exif=exif, quality=95)
     obj = json.loads(signpose("recognize", path, "--json").stdout)
     assert any("EXIF" in w for w in obj["warnings"]) and not any("assumed" in w for w in obj["warnings"])
+
+
+def test_synth_then_evaluate_reports_a_table_with_a_progress_bar(tmp_path):
+    data = tmp_path / "scenes"
+    made = signpose("synth", "--n", 4, "--seed", 3, data)
+    assert made.returncode == 0 and len(list(data.glob("*.jpg"))) == 4 and (data / "truth.json").is_file()
+    result = signpose("evaluate", data, "--workers", 2)
+    assert result.returncode == 0
+    assert "4/4" in result.stderr  # the progress bar reached the end
+    row = next(line.split() for line in result.stdout.splitlines() if line.startswith("scenes "))
+    assert row[1] == "4" and int(row[2]) >= 3  # images, correct
+
+
+@pytest.mark.parametrize("args, message", [
+    (("synth", "--n", 0, "{tmp}/out"), "--n: '0' is not a whole number of at least 1"),
+    (("synth", "--n", 2, "{tmp}/file"), "File exists"),
+    (("evaluate", ROOT / "sample_images" / "datasets" / "set3", "--workers", "two"), "--workers: 'two'"),
+    (("evaluate", "{tmp}/file"), "file"),
+])
+def test_bad_synth_and_evaluate_arguments_are_one_clear_line(tmp_path, args, message):
+    (tmp_path / "file").write_text("not a dataset")
+    result = signpose(*(str(a).format(tmp=tmp_path) for a in args))
+    assert result.returncode == 2
+    assert message in result.stderr and "Traceback" not in result.stderr
