@@ -20,6 +20,7 @@ from pipeline.recognize import Recognition, recognize
 from pipeline.settings import PRESETS, Settings, SettingsError, load_settings, preset
 
 EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130  # the shell's 128 + SIGINT
 
 
 class CliError(Exception):
@@ -274,6 +275,9 @@ def main(argv: list[str] | None = None) -> int:
     except CliError as exc:
         print(f"signpose {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except KeyboardInterrupt:
+        print(f"signpose {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

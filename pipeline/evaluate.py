@@ -23,6 +23,7 @@ import math
 import multiprocessing
 import os
 import queue
+import signal
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -286,8 +287,10 @@ def keep_freed_memory() -> None:
 def _start_worker(library: Library, settings: Settings, jobs: list[Job], next_job: Synchronized,
                   done: multiprocessing.Queue) -> None:
     """Process-pool initializer. One OpenCV thread per worker: the pool already fills the cores,
-    and more threads than cores only make them wait for each other."""
+    and more threads than cores only make them wait for each other. Ctrl-C reaches the whole
+    process group: the calling process handles it and stops the workers after their image."""
     global _worker_state
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     cv2.setNumThreads(1)
     keep_freed_memory()
     _worker_state = library, settings, jobs, next_job, done

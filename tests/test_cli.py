@@ -1,6 +1,9 @@
 """The `signpose` command line, run as a user runs it: a subprocess on real files."""
 
 import json
+import os
+import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -132,3 +135,19 @@ def test_bad_synth_and_evaluate_arguments_are_one_clear_line(tmp_path, args, mes
     result = signpose(*(str(a).format(tmp=tmp_path) for a in args))
     assert result.returncode == 2
     assert message in result.stderr and "Traceback" not in result.stderr
+
+
+def test_ctrl_c_stops_evaluate_and_its_workers_with_one_line(tmp_path):
+    set3 = ROOT / "sample_images" / "datasets" / "set3"
+    # Ctrl-C in a terminal reaches the whole process group: the CLI and its worker processes.
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "evaluate", *[set3] * 40, "--workers", "2"], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    progress = ""
+    while not re.search(r"\| *([2-9]\d|1\d\d)/200 ", progress):  # 20 images in: the workers are measuring
+        char = proc.stderr.read(1)
+        assert char, f"evaluate ended before its progress bar moved: {progress}"
+        progress += char
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130
+    assert "signpose evaluate: interrupted" in err and "Traceback" not in err
