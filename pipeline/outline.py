@@ -61,7 +61,6 @@ class Outline:
     corners: np.ndarray = field(repr=False)
     H: np.ndarray = field(repr=False)
     points: list[np.ndarray] = field(repr=False)
-    rms_px: float
 
 
 def _line_fits(pts: np.ndarray, side: np.ndarray, use: np.ndarray) -> np.ndarray:
@@ -232,10 +231,8 @@ def refine_outline(gray: np.ndarray, sign: LibrarySign, H: np.ndarray,
     moved = float(np.max(np.hypot(*(corners - start).T)))
     if moved > 2 * SEARCH_PX:
         return None, f"a corner moved {moved:.1f} px, more than the search allows ({2 * SEARCH_PX} px)"
-    rms = float(np.sqrt(np.mean(_distances(pts[inliers], side[inliers], lines) ** 2)))
     H_out = cv2.getPerspectiveTransform(sign.corners_px.astype(np.float32), corners.astype(np.float32))
-    return Outline(corners, H_out.astype(np.float64) / H_out[2, 2], [pts[inliers & (side == i)] for i in range(4)],
-                   rms), None
+    return Outline(corners, H_out.astype(np.float64) / H_out[2, 2], [pts[inliers & (side == i)] for i in range(4)]), None
 
 
 def outline_fit(R: np.ndarray, t: np.ndarray, outline: Outline, sign: LibrarySign,
