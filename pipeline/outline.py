@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from .library import LibrarySign
+from .plaque import sign_corners, sign_to_quad
 
 # Fraction of each side left out at either end: corners are rounded by blur and shared by two sides.
 END_MARGIN = 0.12
@@ -214,7 +215,7 @@ def refine_outline(gray: np.ndarray, sign: LibrarySign, H: np.ndarray,
     near where H puts it; the caller then keeps H.
     """
     rng = np.random.default_rng(seed)
-    start = cv2.perspectiveTransform(sign.corners_px[None], H)[0].astype(np.float64)
+    start = sign_corners(sign, H)
     pts, side = _edge_points(gray, start, SEARCH_PX)
     lines, inliers = _robust_lines(pts, side, rng)
     found = np.bincount(side[inliers], minlength=4)
@@ -231,8 +232,7 @@ def refine_outline(gray: np.ndarray, sign: LibrarySign, H: np.ndarray,
     moved = float(np.max(np.hypot(*(corners - start).T)))
     if moved > 2 * SEARCH_PX:
         return None, f"a corner moved {moved:.1f} px, more than the search allows ({2 * SEARCH_PX} px)"
-    H_out = cv2.getPerspectiveTransform(sign.corners_px.astype(np.float32), corners.astype(np.float32))
-    return Outline(corners, H_out.astype(np.float64) / H_out[2, 2], [pts[inliers & (side == i)] for i in range(4)]), None
+    return Outline(corners, sign_to_quad(sign, corners), [pts[inliers & (side == i)] for i in range(4)]), None
 
 
 def outline_fit(R: np.ndarray, t: np.ndarray, outline: Outline, sign: LibrarySign,

@@ -78,6 +78,18 @@ def order_corners(quad: np.ndarray) -> np.ndarray:
     return np.roll(quad, -start, axis=0)
 
 
+def sign_to_quad(sign: LibrarySign, corners: np.ndarray) -> np.ndarray:
+    """The (3, 3) float64 homography (library px -> image px, H[2, 2] = 1) taking the sign's
+    corners onto `corners` (4, 2) image px TL, TR, BR, BL (cv2.getPerspectiveTransform wants float32)."""
+    H = cv2.getPerspectiveTransform(sign.corners_px.astype(np.float32), corners.astype(np.float32))
+    return H.astype(np.float64) / H[2, 2]
+
+
+def sign_corners(sign: LibrarySign, H: np.ndarray) -> np.ndarray:
+    """(4, 2) float64 image px of the sign's corners TL, TR, BR, BL through H (library px -> image px)."""
+    return cv2.perspectiveTransform(sign.corners_px[None], H)[0]
+
+
 def compare_size(sign: LibrarySign) -> tuple[int, int]:
     w, h = sign.size_px
     return COMPARE_WIDTH, max(8, round(COMPARE_WIDTH * h / w))
@@ -121,7 +133,7 @@ def refine_ecc(gray: np.ndarray, sign: LibrarySign, H: np.ndarray) -> tuple[np.n
     edge would look softer there than against the wall in the image and bias the scale.
     Returns (refined H, correlation coefficient), or None if ECC diverged.
     """
-    corners = cv2.perspectiveTransform(sign.corners_px[None], H)[0]
+    corners = sign_corners(sign, H)
     w, h = sign.size_px
     s = min(1.0, float(np.sqrt(abs(cv2.contourArea(corners.astype(np.float32))) / (w * h))))
     small = cv2.resize(sign.image, (max(16, round(w * s)), max(16, round(h * s))), interpolation=cv2.INTER_AREA)
@@ -186,5 +198,4 @@ def match_plaque(gray: np.ndarray, labels: np.ndarray, blob: Blob, library: Libr
         return PlaqueMatch(blob, corners, scores, None, None,
                            f"plaque correlation margin too small ({scores[best] - second:.2f} < {min_margin})")
     corners = np.roll(corners, -best_roll[best], axis=0)
-    H = cv2.getPerspectiveTransform(library[best].corners_px.astype(np.float32), corners.astype(np.float32))
-    return PlaqueMatch(blob, corners, scores, best, H.astype(np.float64) / H[2, 2], None)
+    return PlaqueMatch(blob, corners, scores, best, sign_to_quad(library[best], corners), None)

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from .library import Library
-from .plaque import PlaqueMatch, blob_quad, bounding_box, plaque_correlations, refine_ecc
+from .plaque import PlaqueMatch, blob_quad, bounding_box, plaque_correlations, refine_ecc, sign_corners, sign_to_quad
 from .segment import Blob, Segmentation, box_iou, component_blob, expand_box, label_components, threshold_lut
 from .settings import Settings
 
@@ -128,8 +128,7 @@ def _aligned(gray: np.ndarray, corners: np.ndarray, roll: int, sign) -> tuple[np
         patch = cv2.resize(patch, (max(1, round((x1 - x0) * f)), max(1, round((y1 - y0) * f))),
                            interpolation=cv2.INTER_AREA)
     small = cv2.perspectiveTransform(corners[None], to_small)[0]
-    start = cv2.getPerspectiveTransform(sign.corners_px.astype(np.float32), small.astype(np.float32)).astype(np.float64)
-    refined = refine_ecc(patch, sign, start / start[2, 2])
+    refined = refine_ecc(patch, sign, sign_to_quad(sign, small))
     if refined is None:
         return None, -1.0
     H = np.linalg.inv(to_small) @ refined[0]
@@ -166,6 +165,5 @@ def search_plaques(gray: np.ndarray, quads: list[QuadCandidate], library: Librar
         second = (_aligned(gray, quad.corners, quad.rolls[ranked[1]], library[ranked[1]])[1]
                   if len(ranked) > 1 else -1.0)
         if cc - second >= settings.plaque_ecc_margin:
-            corners = cv2.perspectiveTransform(library[ranked[0]].corners_px[None], H)[0]
-            return PlaqueMatch(quad.blob, corners, quad.ncc, ranked[0], H, None), cc
+            return PlaqueMatch(quad.blob, sign_corners(library[ranked[0]], H), quad.ncc, ranked[0], H, None), cc
     return None
