@@ -242,8 +242,9 @@ def summarize(results: Sequence[ImageResult]) -> Summary:
 Job = tuple[str, Sample, Camera | None]  # dataset name, sample, camera (None: the pipeline's assumed one)
 
 
-def _measure(dataset: str, sample: Sample, library: Library, settings: Settings,
-             camera: Camera | None) -> ImageResult:
+def _measure(job: Job, library: Library, settings: Settings) -> ImageResult:
+    """The pipeline's answer on one job's sample and its errors against the truth."""
+    dataset, sample, camera = job
     try:
         image = read_image(sample.path)
     except ImageError as exc:
@@ -309,8 +310,7 @@ def _work_through_jobs() -> None:
     library, settings, jobs, next_job, done = _worker_state
     try:
         while (index := _take(next_job)) < len(jobs):
-            dataset, sample, camera = jobs[index]
-            done.put((index, _measure(dataset, sample, library, settings, camera)))
+            done.put((index, _measure(jobs[index], library, settings)))
     finally:
         # Flushed before the task ends, so every result is readable once the future is done.
         done.close()
@@ -328,7 +328,7 @@ def _measure_all(jobs: list[Job], library: Library, settings: Settings, workers:
     another to hand it work, and the last images end together.
     """
     if workers <= 1 or len(jobs) <= 1:
-        yield from (_measure(name, sample, library, settings, camera) for name, sample, camera in jobs)
+        yield from (_measure(job, library, settings) for job in jobs)
         return
     library_features(library, settings)  # computed here once, pickled to every worker with the library
     context = multiprocessing.get_context("spawn")
@@ -345,8 +345,7 @@ def _measure_all(jobs: list[Job], library: Library, settings: Settings, workers:
             try:
                 while next_result < len(jobs):
                     if (index := _take(next_job)) < len(jobs):
-                        dataset, sample, camera = jobs[index]
-                        finished[index] = _measure(dataset, sample, library, settings, camera)
+                        finished[index] = _measure(jobs[index], library, settings)
                         finished.update(_receive(done, tasks, wait_s=0))
                     else:
                         finished.update(_receive(done, tasks, wait_s=0.1))

@@ -117,8 +117,9 @@ def test_runs_the_real_pipeline(library):
     assert "set3" in format_table(report)
 
 
-def _measured_here(dataset, sample, library, settings, camera):
+def _measured_here(job, library, settings):
     """Stands in for `_measure` in this process only (the workers are spawned): slow, and marks its results."""
+    dataset, sample, _ = job
     time.sleep(0.05)
     return ImageResult(dataset, sample, None, math.nan, error="measured in the calling process")
 
