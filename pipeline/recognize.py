@@ -39,6 +39,8 @@ MIN_QUAD_AREA_PX = 64.0
 MIN_ECC = 0.5
 # refine="auto" aligns densely below this many inliers, where a point-based pose wanders.
 AUTO_ECC_MAX_INLIERS = 30
+# A homography needs four correspondences, whatever settings.min_matches says.
+MIN_HOMOGRAPHY_POINTS = 4
 
 
 @dataclass(eq=False)
@@ -271,13 +273,20 @@ def match_points(query: Features, train: Features, matches: Matches) -> tuple[np
     return train.xy[matches.train_idx].astype(np.float64), query.xy[matches.query_idx].astype(np.float64)
 
 
+def min_fit_matches(settings: Settings) -> int:
+    """The fewest matches a sign is fitted with: `score_sign` refuses one with fewer as "too few
+    matches", and `score_signs` skips (as "not fitted") only signs with at least this many."""
+    return max(MIN_HOMOGRAPHY_POINTS, settings.min_matches)
+
+
 def score_sign(sign: LibrarySign, query: Features, train: Features, matches: Matches, settings: Settings,
                image_size: tuple[int, int], timing: dict[str, float]) -> SignScore:
     """Fit H to the `matches` between `query` and one sign's features by RANSAC and check it."""
     t1 = time.perf_counter()
     score = SignScore(sign.id, matches, *match_points(query, train, matches), None, None)
-    if len(matches) < max(4, settings.min_matches):
-        score.reason = f"too few matches ({len(matches)} < {max(4, settings.min_matches)})"
+    least = min_fit_matches(settings)
+    if len(matches) < least:
+        score.reason = f"too few matches ({len(matches)} < {least})"
         return score
     score.estimate = estimate_homography(score.src, score.dst, settings.ransac_method, settings.ransac_iterations,
                                          settings.ransac_threshold_px, settings.ransac_confidence, settings.seed,
@@ -305,7 +314,7 @@ def score_signs(library: Library, query: Features, lib: dict[str, Features], mat
     scores: dict[str, SignScore] = {}
     leader = None
     for sign, m in sorted(zip(library.signs, matches), key=lambda sm: -len(sm[1])):
-        if leader is not None and max(4, settings.min_matches) <= len(m) <= leader - settings.min_margin:
+        if leader is not None and min_fit_matches(settings) <= len(m) <= leader - settings.min_margin:
             scores[sign.id] = SignScore(sign.id, m, *match_points(query, lib[sign.id], m), None, None,
                                         f"not fitted: {len(m)} matches cannot challenge the leader's "
                                         f"{leader} inliers", skipped=True)
