@@ -709,16 +709,11 @@ def run_pipeline(name: str, image: np.ndarray, library: Library, settings: Setti
     A result computed with an assumed camera always says so in its warnings.
     """
     try:
-        rec = recognize(image, library, settings, camera, cache)
+        return recognize(image, library, settings, camera, cache)
     except Exception as exc:
         log.exception("pipeline failed on %s", name)
         raise PipelineError(f"pipeline failed on {name}: {exc}; check the camera intrinsics and the settings") \
             from exc
-    # recognize() warns only about a camera it assumed itself, not about one the workspace chose.
-    if rec.camera.is_assumed and not any(rec.camera.source in w for w in rec.warnings):
-        rec.warnings.append(f"no camera set and no EXIF focal length: {rec.camera.source}, "
-                            "so the pose is approximate")
-    return rec
 
 
 def _extension(media_type: str) -> str:
