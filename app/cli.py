@@ -13,8 +13,8 @@ from tqdm import tqdm
 
 from pipeline.camera import Camera, CameraError, load_camera
 from pipeline.evaluate import keep_freed_memory
-from pipeline.exif import camera_from_exif
-from pipeline.image import ImageError, decode_image, read_file, read_image
+from pipeline.exif import decode_with_exif
+from pipeline.image import ImageError, read_file, read_image
 from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
 from pipeline.recognize import Recognition, recognize
 from pipeline.settings import PRESETS, Settings, SettingsError, load_settings, preset
@@ -74,11 +74,9 @@ def cmd_recognize(args) -> int:
                      leave=False, file=sys.stderr):
         name = str(path)
         try:
-            data = read_file(path)
-            image = decode_image(data, name)
+            image, exif_camera = decode_with_exif(read_file(path), name)
             # Without a camera file, a JPEG's EXIF focal length beats the assumed field of view.
-            cam = camera or camera_from_exif(data, image.shape[1], image.shape[0])
-            rec = recognize(image, library, settings, cam)
+            rec = recognize(image, library, settings, camera or exif_camera)
         except ImageError as exc:
             failed += 1
             if args.json:

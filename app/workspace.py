@@ -32,7 +32,7 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from pipeline.camera import ASSUMED_HFOV_DEG, Camera, assumed_camera, check_hfov, load_camera
-from pipeline.exif import camera_from_exif
+from pipeline.exif import camera_from_exif, decode_with_exif
 from pipeline.features import library_features
 from pipeline.image import ImageError, decode_image
 from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, make_sign, validate_sign_entry
@@ -295,9 +295,7 @@ class Workspace:
 
     def _decode_stored(self, entry: StoredImage) -> tuple[np.ndarray, Camera | None] | None:
         try:
-            data = self.state.read_image(entry.file)
-            image = decode_image(data, entry.name)
-            return image, camera_from_exif(data, image.shape[1], image.shape[0])
+            return decode_with_exif(self.state.read_image(entry.file), entry.name)
         except (OSError, ImageError) as exc:  # a file damaged on disk: drop it rather than refuse to start
             log.warning("dropping stored image %s (%s): %s", entry.name, entry.file, exc)
             return None

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import Camera
+from .image import decode_image
 
 # The 35 mm-equivalent focal length is defined by the angle of view across the diagonal of a
 # 36 x 24 mm frame, which keeps it independent of the image's aspect and orientation.
@@ -161,3 +162,10 @@ def camera_from_exif(jpeg: bytes, width: int, height: int) -> Camera | None:
     source = "EXIF " + (f"{parts[0]} ({parts[1]})" if len(parts) == 2 else parts[0])
     K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]])
     return Camera(K, np.zeros(5), width, height, source)
+
+
+def decode_with_exif(data: bytes, name: str) -> tuple[np.ndarray, Camera | None]:
+    """Encoded image bytes -> ((H, W, 3) uint8 BGR as `decode_image` gives it, the camera its
+    EXIF gives for that decoded size or None). Raises ImageError naming `name`."""
+    image = decode_image(data, name)
+    return image, camera_from_exif(data, image.shape[1], image.shape[0])
