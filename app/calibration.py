@@ -111,11 +111,11 @@ class CalibrationSession:
         ImageError for a file that is not a usable image, Conflict past the photo limit."""
         self._check_room(len(uploads))
         grays = [read_gray(name, data, self.max_pixels) for name, data in uploads]
+        previews = [fit(gray, PREVIEW_MAX_SIDE) for gray in grays]  # made once: they do not depend on the board
         while True:
             board = self._state.board
-            photos = tuple(CalibrationPhoto(secrets.token_hex(6), name, data, fit(gray, PREVIEW_MAX_SIDE),
-                                            find_board(gray, board, name))
-                           for (name, data), gray in zip(uploads, grays))
+            photos = tuple(CalibrationPhoto(secrets.token_hex(6), name, data, preview, find_board(gray, board, name))
+                           for (name, data), gray, preview in zip(uploads, grays, previews))
             with self._lock:
                 if self._state.board != board:
                     continue  # the board size changed during the search: search for the new one
