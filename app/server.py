@@ -490,7 +490,9 @@ def get_stage(record: RecordDep, stage: Literal[figures.STAGES], workspace: Work
 @api.post("/recognize", response_model=RecognitionOut, tags=["images"], dependencies=[MULTIPART])
 async def recognize_once(file: Annotated[UploadFile, File()], workspace: WorkspaceDep) -> dict:
     """Recognise one image with the current settings, library and camera without keeping it."""
-    name, data = display_name(file.filename or "upload"), await file.read()
+    # The other upload routes are sync and call read_upload directly; here the read goes to a
+    # worker thread so that a large upload spooled to disk does not block the event loop.
+    name, data = await run_in_threadpool(read_upload, file)
     rec = await within_time_limit(workspace, f"recognising {name}", lambda _: workspace.recognize_upload(data, name))
     return rec.to_json(name)
 
