@@ -225,16 +225,18 @@ def summary(workspace: Workspace, record: ImageRecord, outcome: Outcome | None =
     )
 
 
-def camera_kind(source: str) -> str:
+def camera_kind(camera: Camera) -> str:
     """Where intrinsics came from, for people (CameraIntrinsics.kind), from their `source`."""
-    for prefix, kind in (("assumed", "assumed"), ("EXIF", "exif"), ("calibrat", "calibration"), ("json", "typed")):
-        if source.startswith(prefix):
+    if camera.is_assumed:  # the pipeline's own test, so the two cannot disagree
+        return "assumed"
+    for prefix, kind in (("EXIF", "exif"), ("calibrat", "calibration"), ("json", "typed")):
+        if camera.source.startswith(prefix):
             return kind
     return "file"  # file:<path>, upload:<name>, or a camera made by a script
 
 
 def intrinsics(camera: Camera | None) -> CameraIntrinsics | None:
-    return None if camera is None else CameraIntrinsics(**camera.to_json(), kind=camera_kind(camera.source))
+    return None if camera is None else CameraIntrinsics(**camera.to_json(), kind=camera_kind(camera))
 
 
 def camera_out(workspace: Workspace) -> CameraOut:
