@@ -91,9 +91,13 @@ class CalibrationSession:
     def state(self) -> CalibrationState:
         return self._state
 
-    def _commit(self, state: CalibrationState, **changes) -> CalibrationState:
-        """Swap in `state` with `changes`, the next revision and no result (the caller holds the lock)."""
-        self._state = dataclasses.replace(state, revision=self._state.revision + 1, result=None, **changes)
+    def _commit(self, **changes: object) -> CalibrationState:
+        """Replace the state by one with `changes` and the next revision (the caller holds the lock).
+
+        Any change but a fit makes the result stale, so it is dropped unless `changes` gives one.
+        """
+        changes.setdefault("result", None)
+        self._state = dataclasses.replace(self._state, revision=self._state.revision + 1, **changes)
         return self._state
 
     def _check_room(self, adding: int) -> None:
@@ -107,16 +111,16 @@ class CalibrationSession:
         ImageError for a file that is not a usable image, Conflict past the photo limit."""
         self._check_room(len(uploads))
         grays = [read_gray(name, data, self.max_pixels) for name, data in uploads]
+        previews = [fit(gray, PREVIEW_MAX_SIDE) for gray in grays]  # made once: they do not depend on the board
         while True:
             board = self._state.board
-            photos = tuple(CalibrationPhoto(secrets.token_hex(6), name, data, fit(gray, PREVIEW_MAX_SIDE),
-                                            find_board(gray, board, name))
-                           for (name, data), gray in zip(uploads, grays))
+            photos = tuple(CalibrationPhoto(secrets.token_hex(6), name, data, preview, find_board(gray, board, name))
+                           for (name, data), gray, preview in zip(uploads, grays, previews))
             with self._lock:
                 if self._state.board != board:
                     continue  # the board size changed during the search: search for the new one
                 self._check_room(len(photos))
-                return self._commit(self._state, photos=self._state.photos + photos)
+                return self._commit(photos=self._state.photos + photos)
 
     def set_board(self, board: tuple[int, int], square_m: float) -> CalibrationState:
         """Use a board of `board` (cols, rows) inner corners and `square_m` metre squares; every photo
@@ -128,19 +132,19 @@ class CalibrationSession:
             if board != state.board:
                 photos = tuple(dataclasses.replace(
                     p, view=find_board(read_gray(p.name, p.data, self.max_pixels), board, p.name)) for p in photos)
-            return self._commit(state, board=board, square_m=square_m, photos=photos)
+            return self._commit(board=board, square_m=square_m, photos=photos)
 
     def remove(self, photo_id: str) -> CalibrationState:
         """Forget one photo; KeyError when there is none with `photo_id`."""
         with self._lock:
             state = self._state
             state.photo(photo_id)
-            return self._commit(state, photos=tuple(p for p in state.photos if p.id != photo_id))
+            return self._commit(photos=tuple(p for p in state.photos if p.id != photo_id))
 
     def clear(self) -> CalibrationState:
         """Forget every photo (the board stays)."""
         with self._lock:
-            return self._commit(self._state, photos=())
+            return self._commit(photos=())
 
     def run(self, without_outliers: bool = False) -> CalibrationState:
         """Fit the intrinsics to the photos where the board was found, then, with `without_outliers`,
@@ -153,8 +157,7 @@ class CalibrationSession:
             result = calibrate([p.view for p in state.photos], state.board, state.square_m)
             if without_outliers:
                 result = drop_outliers(result)
-            self._state = dataclasses.replace(state, revision=state.revision + 1, result=result)
-            return self._state
+            return self._commit(result=result)
 
 
 def calibrated_camera(result: Calibration) -> Camera:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 from concurrent.futures.process import BrokenProcessPool
@@ -165,9 +166,6 @@ def cmd_serve(args) -> int:
     from app.state import StateError
     from app.workspace import WorkspaceConfig
 
-    for name in ("max_images", "max_megapixels", "max_upload_mb", "request_timeout"):
-        if not getattr(args, name) > 0:
-            raise CliError(f"--{name.replace('_', '-')} must be positive; got {getattr(args, name)}")
     config = WorkspaceConfig(
         state_dir=Path(args.state_dir), library_dir=Path(args.library) if args.library else None,
         camera_file=Path(args.camera) if args.camera else None,
@@ -209,6 +207,20 @@ def positive_int(text: str) -> int:
         value = 0
     if value < 1:
         raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of at least 1")
+    return value
+
+
+def positive_number(text: str) -> float:
+    """argparse type: a finite number above 0 (a limit: NaN would disable the check it feeds,
+    and infinity cannot be turned into a pixel or byte count)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not above 0")
     return value
 
 
@@ -257,10 +269,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--settings", help="settings JSON to start from (default: the state's settings)")
     p.add_argument("--state-dir", default="signpose_state",
                    help="where settings, library, camera and images survive restarts (default ./signpose_state)")
-    p.add_argument("--max-images", type=int, default=500, help="most images held at once (default 500)")
-    p.add_argument("--max-megapixels", type=float, default=40.0, help="largest image accepted (default 40)")
-    p.add_argument("--max-upload-mb", type=float, default=25.0, help="largest request body in MB (default 25)")
-    p.add_argument("--request-timeout", type=float, default=120.0,
+    p.add_argument("--max-images", type=positive_int, default=500, help="most images held at once (default 500)")
+    p.add_argument("--max-megapixels", type=positive_number, default=40.0, help="largest image accepted (default 40)")
+    p.add_argument("--max-upload-mb", type=positive_number, default=25.0,
+                   help="largest request body in MB (default 25)")
+    p.add_argument("--request-timeout", type=positive_number, default=120.0,
                    help="longest a request waits for pipeline work (recognise, sweep) in seconds (default 120)")
     p.set_defaults(func=cmd_serve)
     return parser

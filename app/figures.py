@@ -46,13 +46,16 @@ def _label(img: np.ndarray, text: str, org: tuple[int, int], color) -> None:
     cv2.putText(img, text, (x + base, y), cv2.FONT_HERSHEY_SIMPLEX, scale, color, thick, cv2.LINE_AA)
 
 
-def fit(img: np.ndarray, max_side: int = MAX_SIDE_PX) -> np.ndarray:
+def _scaled(img: np.ndarray, scale: float) -> np.ndarray:
+    """`img` resized by `scale`, at least 1 px each way: a 4000 x 1 px strip would otherwise shrink to nothing."""
     h, w = img.shape[:2]
-    scale = max_side / max(h, w)
-    if scale >= 1:
-        return img
-    # At least 1 px each way: a 4000 x 1 px strip would otherwise shrink to nothing.
     return cv2.resize(img, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
+
+
+def fit(img: np.ndarray, max_side: int = MAX_SIDE_PX) -> np.ndarray:
+    """`img` shrunk to at most `max_side` px a side; itself when it already fits."""
+    scale = max_side / max(img.shape[:2])
+    return img if scale >= 1 else _scaled(img, scale)
 
 
 def _bgr(img: np.ndarray) -> np.ndarray:
@@ -167,7 +170,7 @@ def _panel(img: np.ndarray) -> tuple[np.ndarray, float]:
     4000 x 1 px region would otherwise become gigabytes) and then padded to that height; and the scale."""
     h, w = img.shape[:2]
     scale = min(MATCH_PANEL_HEIGHT_PX / h, MATCH_PANEL_MAX_WIDTH_PX / w)
-    out = cv2.resize(img, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
+    out = _scaled(img, scale)
     return cv2.copyMakeBorder(out, 0, MATCH_PANEL_HEIGHT_PX - out.shape[0], 0, 0, cv2.BORDER_CONSTANT), scale
 
 

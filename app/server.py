@@ -225,16 +225,18 @@ def summary(workspace: Workspace, record: ImageRecord, outcome: Outcome | None =
     )
 
 
-def camera_kind(source: str) -> str:
+def camera_kind(camera: Camera) -> str:
     """Where intrinsics came from, for people (CameraIntrinsics.kind), from their `source`."""
-    for prefix, kind in (("assumed", "assumed"), ("EXIF", "exif"), ("calibrat", "calibration"), ("json", "typed")):
-        if source.startswith(prefix):
+    if camera.is_assumed:  # the pipeline's own test, so the two cannot disagree
+        return "assumed"
+    for prefix, kind in (("EXIF", "exif"), ("calibrat", "calibration"), ("json", "typed")):
+        if camera.source.startswith(prefix):
             return kind
     return "file"  # file:<path>, upload:<name>, or a camera made by a script
 
 
 def intrinsics(camera: Camera | None) -> CameraIntrinsics | None:
-    return None if camera is None else CameraIntrinsics(**camera.to_json(), kind=camera_kind(camera.source))
+    return None if camera is None else CameraIntrinsics(**camera.to_json(), kind=camera_kind(camera))
 
 
 def camera_out(workspace: Workspace) -> CameraOut:
@@ -490,7 +492,9 @@ def get_stage(record: RecordDep, stage: Literal[figures.STAGES], workspace: Work
 @api.post("/recognize", response_model=RecognitionOut, tags=["images"], dependencies=[MULTIPART])
 async def recognize_once(file: Annotated[UploadFile, File()], workspace: WorkspaceDep) -> dict:
     """Recognise one image with the current settings, library and camera without keeping it."""
-    name, data = display_name(file.filename or "upload"), await file.read()
+    # The other upload routes are sync and call read_upload directly; here the read goes to a
+    # worker thread so that a large upload spooled to disk does not block the event loop.
+    name, data = await run_in_threadpool(read_upload, file)
     rec = await within_time_limit(workspace, f"recognising {name}", lambda _: workspace.recognize_upload(data, name))
     return rec.to_json(name)
 

@@ -50,11 +50,17 @@ def test_a_stuck_pipeline_call_answers_503_and_the_server_goes_on(tmp_path, monk
         assert len(calls) == 2
 
 
-@pytest.mark.parametrize("option, value", [("--max-upload-mb", "0"), ("--max-megapixels", "-1"),
-                                           ("--max-images", "0"), ("--request-timeout", "nan")])
-def test_serve_refuses_limits_that_are_not_positive(tmp_path, capsys, option, value):
-    assert main(["serve", "--port", "0", "--state-dir", str(tmp_path / "state"), option, value]) == 2
-    assert f"{option} must be positive" in capsys.readouterr().err
+@pytest.mark.parametrize("option, value, problem", [
+    ("--max-upload-mb", "0", "is not above 0"), ("--max-megapixels", "-1", "is not above 0"),
+    ("--max-images", "0", "is not a whole number of at least 1"),
+    ("--request-timeout", "nan", "is not a finite number"), ("--request-timeout", "inf", "is not a finite number"),
+])
+def test_serve_refuses_limits_that_are_not_positive(tmp_path, capsys, option, value, problem):
+    # argparse rejects the value while parsing: it exits with code 2 instead of returning it.
+    with pytest.raises(SystemExit) as exited:
+        main(["serve", "--port", "0", "--state-dir", str(tmp_path / "state"), option, value])
+    assert exited.value.code == 2
+    assert f"{option}: {value!r} {problem}" in capsys.readouterr().err
     assert not (tmp_path / "state").exists()
 
 
