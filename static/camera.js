@@ -45,13 +45,17 @@ export function approximateNote(cam) {
 
 // ---- the settings panel's summary and the assumed field of view
 
-/** 35 mm-equivalent focal length (mm) of a horizontal field of view: a full frame is 36 mm wide. */
-const equivalentMm = (hfov) => 18 / Math.tan((hfov * Math.PI) / 360);
+/** Focal length, in the unit of `width`, of a horizontal field of view `hfov` (degrees) across `width`. */
+const focalPx = (width, hfov) => width / 2 / Math.tan((hfov * Math.PI) / 360);
+
+/** The first image whose size is known: the assumed camera is shown in its pixels. */
+const sizedImage = () => state.images.find((i) => i.width);
 
 function renderHfovNote(hfov) {
-  const img = state.images.find((i) => i.width);
-  const px = img ? `, fx = fy ≈ ${fmt(img.width / 2 / Math.tan((hfov * Math.PI) / 360), 0)} px at ${img.width} px wide` : "";
-  $("#hfov-note").textContent = `≈ ${fmt(equivalentMm(hfov), 0)} mm focal length (35 mm equivalent)${px}`;
+  const img = sizedImage();
+  const px = img ? `, fx = fy ≈ ${fmt(focalPx(img.width, hfov), 0)} px at ${img.width} px wide` : "";
+  // 35 mm equivalent: a full frame is 36 mm wide.
+  $("#hfov-note").textContent = `≈ ${fmt(focalPx(36, hfov), 0)} mm focal length (35 mm equivalent)${px}`;
 }
 
 function renderCamera() {
@@ -323,7 +327,7 @@ const TYPED = ["fx", "fy", "cx", "cy", "width", "height"];
 
 function fillTyped() {
   const cam = calib?.result?.camera ?? camera?.camera;
-  const img = state.images.find((i) => i.width);
+  const img = sizedImage();
   // Rounded: a thousandth of a pixel, six significant digits of distortion, are beyond any calibration.
   const put = (values, dist) => {
     for (const k of TYPED) $(`#typed-${k}`).value = values[k] === null ? "" : Number(values[k].toFixed(3));
@@ -331,7 +335,7 @@ function fillTyped() {
   };
   if (cam) put(cam, cam.dist);
   else if (img) {   // the assumed camera of the first image
-    const f = img.width / 2 / Math.tan((camera.assumed_hfov_deg * Math.PI) / 360);
+    const f = focalPx(img.width, camera.assumed_hfov_deg);
     put({ fx: f, fy: f, cx: img.width / 2, cy: img.height / 2, width: img.width, height: img.height }, []);
   }
 }
