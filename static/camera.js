@@ -103,17 +103,21 @@ function bindSidebar() {
     const form = new FormData();
     form.append("file", file.files[0]);
     try {
-      await api("PUT", "/api/camera", form);
+      camera = await api("PUT", "/api/camera", form);
+      renderCamera();
       toast(`camera ${file.files[0].name} loaded`, "info");
     } catch (err) {
       report(err);
     }
     file.value = "";
-    loadCamera();
   };
   $("#camera-reset").onclick = async () => {
-    try { await api("DELETE", "/api/camera"); } catch (err) { report(err); }
-    loadCamera();
+    try {
+      camera = await api("DELETE", "/api/camera");
+      renderCamera();
+    } catch (err) {
+      report(err);
+    }
   };
   const range = $("#hfov"), num = $("#hfov-num");
   const change = (value) => {
