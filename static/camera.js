@@ -389,7 +389,9 @@ export function initCamera() {
   $("#camera-close").onclick = () => dialog.close();
   for (const button of document.querySelectorAll("#camera-tabs button")) button.onclick = () => showTab(button.value);
   on("camera", loadCamera);
-  let imageCount = -1;
+  // The load below counts the images the page knows of (none yet); it cannot wait for the first
+  // images event, which never comes when GET /api/images fails.
+  let imageCount = state.images.length;
   on("images", (images) => {
     // Only a new or removed image changes how many use their EXIF focal length.
     if (images.length !== imageCount) { imageCount = images.length; loadCamera(); }
