@@ -24,11 +24,11 @@ let previewMode = "corners";
 let hfovHeld = false;     // the slider is under the pointer: server answers must not yank it
 
 /** "fx 520.1 fy 515.0 cx 318.0 cy 243.0 px @ 640×480" */
-export const intrinsicsText = (cam) => `fx ${fmt(cam.fx, 1)} fy ${fmt(cam.fy, 1)} cx ${fmt(cam.cx, 1)} `
+const intrinsicsText = (cam) => `fx ${fmt(cam.fx, 1)} fy ${fmt(cam.fy, 1)} cx ${fmt(cam.cx, 1)} `
   + `cy ${fmt(cam.cy, 1)} px${cam.width ? ` @ ${cam.width}×${cam.height}` : ""}`;
 
 /** Where `cam` came from, in a few words ("typed in", "upload:cam.yaml", "calibration: 12 views, …"). */
-export const sourceText = (cam) => (cam.kind === "typed" ? KIND_LABELS.typed : cam.source);
+const sourceText = (cam) => (cam.kind === "typed" ? KIND_LABELS.typed : cam.source);
 
 /** Why a pose computed with `cam` is approximate, or null when its intrinsics were measured. */
 export function approximateNote(cam) {
@@ -63,8 +63,9 @@ function renderCamera() {
   const info = $("#camera-info");
   info.classList.toggle("warn", !cam);
   const total = state.images.length;
+  const about = cam && [intrinsicsText(cam), sourceText(cam)];
   info.textContent = cam
-    ? `${intrinsicsText(cam)} — ${sourceText(cam)}`
+    ? about.join(" — ")
     : `No camera set, so poses are approximate: ${exif
       ? `${exif} of ${total} images use their EXIF focal length, the others` : "every image uses"} `
       + `the field of view assumed below. Calibrate for accurate poses.`;
@@ -74,7 +75,7 @@ function renderCamera() {
     $("#hfov-num").value = hfov;
     renderHfovNote(hfov);
   }
-  $("#dialog-camera").textContent = cam ? `in use: ${intrinsicsText(cam)} · ${sourceText(cam)}`
+  $("#dialog-camera").textContent = cam ? `in use: ${about.join(" · ")}`
     : "in use: none (EXIF or assumed field of view)";
 }
 
@@ -134,9 +135,8 @@ function bindSidebar() {
 
 // ---- the dialog: calibration from chessboard photos
 
-const board = () => calib.board;
 const figureUrl = (id, overlay, side) => {
-  const b = board();
+  const b = calib.board;
   // Figures change with the board searched for and, undistorted, with the result.
   const key = overlay === "undistorted" ? `${b.cols}x${b.rows}.${calib.revision}` : `${b.cols}x${b.rows}`;
   return `/api/calibration/views/${id}/image?overlay=${overlay}&max_side=${side}&v=${key}`;
@@ -199,7 +199,7 @@ function viewCard(view, index) {
 function renderSummary() {
   const found = calib.views.filter((v) => v.found).length;
   const r = calib.result;
-  const b = board();
+  const b = calib.board;
   if (!r) {
     fill($("#calib-summary"), el("p.muted", {}, calib.views.length
       ? `${calib.views.length} photos, the ${b.cols}×${b.rows} board found in ${found}`
@@ -239,7 +239,7 @@ function renderPreview() {
 }
 
 function renderCalibration() {
-  const b = board();
+  const b = calib.board;
   for (const [id, value] of [["#board-cols", b.cols], ["#board-rows", b.rows], ["#board-square", b.square_m * 1000]]) {
     if (document.activeElement !== $(id)) $(id).value = Number(value.toFixed(3));
   }
