@@ -24,11 +24,11 @@ let previewMode = "corners";
 let hfovHeld = false;     // the slider is under the pointer: server answers must not yank it
 
 /** "fx 520.1 fy 515.0 cx 318.0 cy 243.0 px @ 640×480" */
-export const intrinsicsText = (cam) => `fx ${fmt(cam.fx, 1)} fy ${fmt(cam.fy, 1)} cx ${fmt(cam.cx, 1)} `
+const intrinsicsText = (cam) => `fx ${fmt(cam.fx, 1)} fy ${fmt(cam.fy, 1)} cx ${fmt(cam.cx, 1)} `
   + `cy ${fmt(cam.cy, 1)} px${cam.width ? ` @ ${cam.width}×${cam.height}` : ""}`;
 
 /** Where `cam` came from, in a few words ("typed in", "upload:cam.yaml", "calibration: 12 views, …"). */
-export const sourceText = (cam) => (cam.kind === "typed" ? KIND_LABELS.typed : cam.source);
+const sourceText = (cam) => (cam.kind === "typed" ? KIND_LABELS.typed : cam.source);
 
 /** Why a pose computed with `cam` is approximate, or null when its intrinsics were measured. */
 export function approximateNote(cam) {
@@ -45,13 +45,17 @@ export function approximateNote(cam) {
 
 // ---- the settings panel's summary and the assumed field of view
 
-/** 35 mm-equivalent focal length (mm) of a horizontal field of view: a full frame is 36 mm wide. */
-const equivalentMm = (hfov) => 18 / Math.tan((hfov * Math.PI) / 360);
+/** Focal length, in the unit of `width`, of a horizontal field of view `hfov` (degrees) across `width`. */
+const focalPx = (width, hfov) => width / 2 / Math.tan((hfov * Math.PI) / 360);
+
+/** The first image whose size is known: the assumed camera is shown in its pixels. */
+const sizedImage = () => state.images.find((i) => i.width);
 
 function renderHfovNote(hfov) {
-  const img = state.images.find((i) => i.width);
-  const px = img ? `, fx = fy ≈ ${fmt(img.width / 2 / Math.tan((hfov * Math.PI) / 360), 0)} px at ${img.width} px wide` : "";
-  $("#hfov-note").textContent = `≈ ${fmt(equivalentMm(hfov), 0)} mm focal length (35 mm equivalent)${px}`;
+  const img = sizedImage();
+  const px = img ? `, fx = fy ≈ ${fmt(focalPx(img.width, hfov), 0)} px at ${img.width} px wide` : "";
+  // 35 mm equivalent: a full frame is 36 mm wide.
+  $("#hfov-note").textContent = `≈ ${fmt(focalPx(36, hfov), 0)} mm focal length (35 mm equivalent)${px}`;
 }
 
 function renderCamera() {
@@ -59,8 +63,9 @@ function renderCamera() {
   const info = $("#camera-info");
   info.classList.toggle("warn", !cam);
   const total = state.images.length;
+  const about = cam && [intrinsicsText(cam), sourceText(cam)];
   info.textContent = cam
-    ? `${intrinsicsText(cam)} — ${sourceText(cam)}`
+    ? about.join(" — ")
     : `No camera set, so poses are approximate: ${exif
       ? `${exif} of ${total} images use their EXIF focal length, the others` : "every image uses"} `
       + `the field of view assumed below. Calibrate for accurate poses.`;
@@ -70,7 +75,7 @@ function renderCamera() {
     $("#hfov-num").value = hfov;
     renderHfovNote(hfov);
   }
-  $("#dialog-camera").textContent = cam ? `in use: ${intrinsicsText(cam)} · ${sourceText(cam)}`
+  $("#dialog-camera").textContent = cam ? `in use: ${about.join(" · ")}`
     : "in use: none (EXIF or assumed field of view)";
 }
 
@@ -99,17 +104,21 @@ function bindSidebar() {
     const form = new FormData();
     form.append("file", file.files[0]);
     try {
-      await api("PUT", "/api/camera", form);
+      camera = await api("PUT", "/api/camera", form);
+      renderCamera();
       toast(`camera ${file.files[0].name} loaded`, "info");
     } catch (err) {
       report(err);
     }
     file.value = "";
-    loadCamera();
   };
   $("#camera-reset").onclick = async () => {
-    try { await api("DELETE", "/api/camera"); } catch (err) { report(err); }
-    loadCamera();
+    try {
+      camera = await api("DELETE", "/api/camera");
+      renderCamera();
+    } catch (err) {
+      report(err);
+    }
   };
   const range = $("#hfov"), num = $("#hfov-num");
   const change = (value) => {
@@ -126,9 +135,8 @@ function bindSidebar() {
 
 // ---- the dialog: calibration from chessboard photos
 
-const board = () => calib.board;
 const figureUrl = (id, overlay, side) => {
-  const b = board();
+  const b = calib.board;
   // Figures change with the board searched for and, undistorted, with the result.
   const key = overlay === "undistorted" ? `${b.cols}x${b.rows}.${calib.revision}` : `${b.cols}x${b.rows}`;
   return `/api/calibration/views/${id}/image?overlay=${overlay}&max_side=${side}&v=${key}`;
@@ -191,7 +199,7 @@ function viewCard(view, index) {
 function renderSummary() {
   const found = calib.views.filter((v) => v.found).length;
   const r = calib.result;
-  const b = board();
+  const b = calib.board;
   if (!r) {
     fill($("#calib-summary"), el("p.muted", {}, calib.views.length
       ? `${calib.views.length} photos, the ${b.cols}×${b.rows} board found in ${found}`
@@ -231,7 +239,7 @@ function renderPreview() {
 }
 
 function renderCalibration() {
-  const b = board();
+  const b = calib.board;
   for (const [id, value] of [["#board-cols", b.cols], ["#board-rows", b.rows], ["#board-square", b.square_m * 1000]]) {
     if (document.activeElement !== $(id)) $(id).value = Number(value.toFixed(3));
   }
@@ -323,7 +331,7 @@ const TYPED = ["fx", "fy", "cx", "cy", "width", "height"];
 
 function fillTyped() {
   const cam = calib?.result?.camera ?? camera?.camera;
-  const img = state.images.find((i) => i.width);
+  const img = sizedImage();
   // Rounded: a thousandth of a pixel, six significant digits of distortion, are beyond any calibration.
   const put = (values, dist) => {
     for (const k of TYPED) $(`#typed-${k}`).value = values[k] === null ? "" : Number(values[k].toFixed(3));
@@ -331,7 +339,7 @@ function fillTyped() {
   };
   if (cam) put(cam, cam.dist);
   else if (img) {   // the assumed camera of the first image
-    const f = img.width / 2 / Math.tan((camera.assumed_hfov_deg * Math.PI) / 360);
+    const f = focalPx(img.width, camera.assumed_hfov_deg);
     put({ fx: f, fy: f, cx: img.width / 2, cy: img.height / 2, width: img.width, height: img.height }, []);
   }
 }
@@ -381,7 +389,9 @@ export function initCamera() {
   $("#camera-close").onclick = () => dialog.close();
   for (const button of document.querySelectorAll("#camera-tabs button")) button.onclick = () => showTab(button.value);
   on("camera", loadCamera);
-  let imageCount = -1;
+  // The load below counts the images the page knows of (none yet); it cannot wait for the first
+  // images event, which never comes when GET /api/images fails.
+  let imageCount = state.images.length;
   on("images", (images) => {
     // Only a new or removed image changes how many use their EXIF focal length.
     if (images.length !== imageCount) { imageCount = images.length; loadCamera(); }
