@@ -44,6 +44,22 @@ def sign_photo(library: Library, sign_id: str, seed: int = 0) -> bytes:
     return cv2.imencode(".jpg", cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR), [cv2.IMWRITE_JPEG_QUALITY, 92])[1].tobytes()
 
 
+def render_plaque(sign, corners: np.ndarray, wall, gain: float = 1.0, big: int = 4) -> np.ndarray:
+    """(480, 640) float32 image of `sign`'s image times `gain` with its corners at `corners`
+    (4 x 2, image px) over `wall` (a gray level, or a (480, 640) image): rendered `big` times
+    larger and shrunk, so its edges are anti-aliased."""
+    # library pixel i covers [i, i + 1] (its edges at 0 and w); big pixel j is image x = (j + 0.5) / big - 0.5
+    H = cv2.getPerspectiveTransform(sign.corners_px.astype(np.float32),
+                                    ((corners + 0.5) * big - 0.5).astype(np.float32))
+    H = H @ np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]])
+    size = (SIZE[0] * big, SIZE[1] * big)
+    plaque = cv2.warpPerspective(sign.image.astype(np.float32) * gain, H, size, flags=cv2.INTER_LINEAR)
+    cover = cv2.warpPerspective(np.ones_like(sign.image, np.float32), H, size, flags=cv2.INTER_LINEAR)
+    if np.ndim(wall):
+        wall = cv2.resize(wall, size, interpolation=cv2.INTER_NEAREST)
+    return cv2.resize(plaque + wall * (1 - cover), SIZE, interpolation=cv2.INTER_AREA)
+
+
 def empty_photo(seed: int = 0) -> bytes:
     """JPEG of a wall without a sign."""
     return cv2.imencode(".jpg", wall(seed))[1].tobytes()
