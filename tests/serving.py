@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -62,6 +63,12 @@ def start_serve(state_dir: Path, *options: str, env: dict | None = None) -> tupl
         proc.kill()
         raise AssertionError(f"signpose serve printed no address: {line}{proc.communicate()[1]}")
     return proc, line.split(" open ", 1)[1].split()[0]
+
+
+def stop_serve(proc: subprocess.Popen, timeout: float = TIMEOUT_S) -> tuple[str, str]:
+    """Stop a `start_serve` process as Ctrl-C would; its remaining (stdout, stderr)."""
+    proc.send_signal(signal.SIGINT)
+    return proc.communicate(timeout=timeout)
 
 
 def upload(client, *images: tuple[str, bytes, str | None]) -> httpx.Response:
