@@ -16,12 +16,14 @@ from pathlib import Path
 
 import httpx
 import uvicorn
+import viser
 
 from app.server import bind
 from pipeline.library import SAMPLE_LIBRARY
 
 REPO = Path(__file__).resolve().parent.parent
 TIMEOUT_S = 30
+VISER_PROTOCOL = f"viser-v{viser.__version__}"  # the websocket subprotocol viser's client asks for
 
 
 @contextmanager

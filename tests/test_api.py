@@ -11,7 +11,6 @@ from pathlib import Path
 
 import httpx
 import pytest
-import viser
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
@@ -21,13 +20,13 @@ from pipeline.library import SAMPLE_LIBRARY, load_library
 from pipeline.synth import synthetic_camera
 from pipeline.camera import ros_camera_yaml
 from scene_images import empty_photo, png_bomb, sign_photo, tiny_photo, with_focal_exif
-from serving import REPO, TIMEOUT_S, assert_error, http_exchange, running, start_serve, stop_serve, upload, wait_done
+from serving import (REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve, stop_serve,
+                     upload, wait_done)
 
 LIBRARY = load_library(SAMPLE_LIBRARY)
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 MAX_UPLOAD = 2_000_000
 MAX_IMAGES = 20
-VISER_PROTOCOL = f"viser-v{viser.__version__}"
 
 
 def config(state_dir: Path, **options) -> WorkspaceConfig:

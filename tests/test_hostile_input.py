@@ -19,6 +19,7 @@ import pytest
 from PIL import Image
 
 import app.workspace as workspace_module
+from app.figures import STAGES
 from app.server import create_app
 from app.workspace import WorkspaceConfig
 from pipeline.library import SAMPLE_LIBRARY, load_library
@@ -26,7 +27,6 @@ from scene_images import png_bomb, sign_photo
 from serving import TIMEOUT_S, assert_error, http_exchange, running, upload, wait_idle
 
 LIBRARY = load_library(SAMPLE_LIBRARY)
-STAGES = ("input", "gray", "mask", "blob", "crop", "matches", "inliers")
 STORED_NAME = re.compile(r"^[0-9a-f]{12}\.\w+$")
 
 

@@ -5,17 +5,15 @@ from __future__ import annotations
 
 import httpx
 import pytest
-import viser
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
 from app.security import PAGE_CSP, TOKEN_COOKIE, VISER_CSP, access_token, is_loopback
 from app.server import create_app
 from app.workspace import Workspace, WorkspaceConfig
-from serving import TIMEOUT_S, assert_error, http_exchange, running, start_serve, stop_serve
+from serving import TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve, stop_serve
 
 TOKEN = "team-token-for-tests"
-VISER_PROTOCOL = f"viser-v{viser.__version__}"
 
 
 @pytest.fixture(scope="module")
