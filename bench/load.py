@@ -20,7 +20,6 @@ import argparse
 import asyncio
 import itertools
 import json
-import signal
 import sys
 import tempfile
 import time
@@ -33,7 +32,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
-from serving import start_serve  # noqa: E402  (the tests' way of starting the real command)
+from serving import start_serve, stop_serve  # noqa: E402  (the tests' way of starting and stopping the real command)
 
 from app.security import is_loopback  # noqa: E402
 
@@ -202,8 +201,7 @@ def main(argv: list[str] | None = None) -> int:
             try:
                 report = asyncio.run(run(url.rstrip("/"), args.clients, args.seconds, headers))
             finally:
-                proc.send_signal(signal.SIGINT)
-                proc.communicate(timeout=30)
+                stop_serve(proc, timeout=30)
     if args.json:
         print(json.dumps(report))
     else:

@@ -112,6 +112,14 @@ def set_setting(page, name: str, value) -> None:
         control.dispatch_event("change")
 
 
+def set_settings(page, api, changes: dict) -> None:
+    """Change each of `changes` through its form control, in order, then wait for the server and
+    the page to hold all of them (`wait_setting`)."""
+    for name, value in changes.items():
+        set_setting(page, name, value)
+    wait_setting(page, api, changes)
+
+
 def wait_server_idle(api, timeout: float = 120) -> int:
     """Until every image has a result for the current settings; returns that settings version.
 

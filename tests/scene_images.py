@@ -24,18 +24,40 @@ def wall(seed: int) -> np.ndarray:
     return (rng.random((SIZE[1], SIZE[0])) * 50 + 60).astype(np.uint8)
 
 
+def sign_on_wall(sign, corners: np.ndarray, wall_seed: int, gain: float = 1.0) -> np.ndarray:
+    """(h, w) uint8 `wall(wall_seed)` with `sign`'s image, times `gain`, warped onto `corners`
+    (4 x 2 image points of its top-left, top-right, bottom-right, bottom-left)."""
+    w, h = sign.size_px
+    H = cv2.getPerspectiveTransform(np.float32([[0, 0], [w, 0], [w, h], [0, h]]), np.float32(corners))
+    image = sign.image if gain == 1.0 else (sign.image * gain).astype(np.uint8)
+    warped = cv2.warpPerspective(image, H, SIZE)
+    inside = cv2.warpPerspective(np.full_like(sign.image, 255), H, SIZE) > 0
+    return np.where(inside, warped, wall(wall_seed))
+
+
 def sign_photo(library: Library, sign_id: str, seed: int = 0) -> bytes:
     """JPEG of `sign_id` seen slightly obliquely in the middle of a wall."""
-    sign = library[sign_id]
-    w, h = sign.size_px
     rng = np.random.default_rng(seed)
     jitter = rng.uniform(-15, 15, (4, 2))
     dst = np.float32([[170, 160], [470, 175], [460, 300], [180, 290]] + jitter)
-    H = cv2.getPerspectiveTransform(np.float32([[0, 0], [w, 0], [w, h], [0, h]]), dst)
-    warped = cv2.warpPerspective(sign.image, H, SIZE)
-    inside = cv2.warpPerspective(np.full_like(sign.image, 255), H, SIZE) > 0
-    gray = np.where(inside, warped, wall(seed))
+    gray = sign_on_wall(library[sign_id], dst, seed)
     return cv2.imencode(".jpg", cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR), [cv2.IMWRITE_JPEG_QUALITY, 92])[1].tobytes()
+
+
+def render_plaque(sign, corners: np.ndarray, wall, gain: float = 1.0, big: int = 4) -> np.ndarray:
+    """(480, 640) float32 image of `sign`'s image times `gain` with its corners at `corners`
+    (4 x 2, image px) over `wall` (a gray level, or a (480, 640) image): rendered `big` times
+    larger and shrunk, so its edges are anti-aliased."""
+    # library pixel i covers [i, i + 1] (its edges at 0 and w); big pixel j is image x = (j + 0.5) / big - 0.5
+    H = cv2.getPerspectiveTransform(sign.corners_px.astype(np.float32),
+                                    ((corners + 0.5) * big - 0.5).astype(np.float32))
+    H = H @ np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]])
+    size = (SIZE[0] * big, SIZE[1] * big)
+    plaque = cv2.warpPerspective(sign.image.astype(np.float32) * gain, H, size, flags=cv2.INTER_LINEAR)
+    cover = cv2.warpPerspective(np.ones_like(sign.image, np.float32), H, size, flags=cv2.INTER_LINEAR)
+    if np.ndim(wall):
+        wall = cv2.resize(wall, size, interpolation=cv2.INTER_NEAREST)
+    return cv2.resize(plaque + wall * (1 - cover), SIZE, interpolation=cv2.INTER_AREA)
 
 
 def empty_photo(seed: int = 0) -> bytes:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -15,12 +16,14 @@ from pathlib import Path
 
 import httpx
 import uvicorn
+import viser
 
 from app.server import bind
 from pipeline.library import SAMPLE_LIBRARY
 
 REPO = Path(__file__).resolve().parent.parent
 TIMEOUT_S = 30
+VISER_PROTOCOL = f"viser-v{viser.__version__}"  # the websocket subprotocol viser's client asks for
 
 
 @contextmanager
@@ -62,6 +65,12 @@ def start_serve(state_dir: Path, *options: str, env: dict | None = None) -> tupl
         proc.kill()
         raise AssertionError(f"signpose serve printed no address: {line}{proc.communicate()[1]}")
     return proc, line.split(" open ", 1)[1].split()[0]
+
+
+def stop_serve(proc: subprocess.Popen, timeout: float = TIMEOUT_S) -> tuple[str, str]:
+    """Stop a `start_serve` process as Ctrl-C would; its remaining (stdout, stderr)."""
+    proc.send_signal(signal.SIGINT)
+    return proc.communicate(timeout=timeout)
 
 
 def upload(client, *images: tuple[str, bytes, str | None]) -> httpx.Response:

@@ -5,14 +5,12 @@ from __future__ import annotations
 import json
 import math
 import re
-import signal
 import subprocess
 import sys
 from pathlib import Path
 
 import httpx
 import pytest
-import viser
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
@@ -22,13 +20,13 @@ from pipeline.library import SAMPLE_LIBRARY, load_library
 from pipeline.synth import synthetic_camera
 from pipeline.camera import ros_camera_yaml
 from scene_images import empty_photo, png_bomb, sign_photo, tiny_photo, with_focal_exif
-from serving import REPO, TIMEOUT_S, assert_error, http_exchange, running, start_serve, upload, wait_done
+from serving import (REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve, stop_serve,
+                     upload, wait_done)
 
 LIBRARY = load_library(SAMPLE_LIBRARY)
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 MAX_UPLOAD = 2_000_000
 MAX_IMAGES = 20
-VISER_PROTOCOL = f"viser-v{viser.__version__}"
 
 
 def config(state_dir: Path, **options) -> WorkspaceConfig:
@@ -415,6 +413,5 @@ def test_serve_command_prints_its_url_stops_on_ctrl_c_and_refuses_a_taken_port(t
         refused = subprocess.run(taken, cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
         assert refused.returncode == 2 and "cannot listen" in refused.stderr and "--port" in refused.stderr
     finally:
-        proc.send_signal(signal.SIGINT)
-        _, stderr = proc.communicate(timeout=TIMEOUT_S)
+        _, stderr = stop_serve(proc)
     assert proc.returncode == 0 and "Traceback" not in stderr

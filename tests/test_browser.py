@@ -133,21 +133,13 @@ def test_threshold_control_changes_the_result(page, api):
 
     # No pixel is that white, and without the full-frame fallback and the plaque candidates and
     # search at lower gray levels there is nothing left to search.
-    harness.set_setting(page, "full_frame_fallback", False)
-    harness.set_setting(page, "plaque_search", False)
-    harness.set_setting(page, "plaque_candidates", 0)
-    harness.set_setting(page, "threshold", 0.99)
-    harness.wait_setting(page, api, {"threshold": 0.99, "full_frame_fallback": False, "plaque_search": False,
-                                     "plaque_candidates": 0})
+    harness.set_settings(page, api, {"full_frame_fallback": False, "plaque_search": False, "plaque_candidates": 0,
+                                     "threshold": 0.99})
     assert card.locator(".card-label").inner_text() == "no sign"
     assert card.get_attribute("data-status") == "wrong"
     page.wait_for_function("() => document.querySelector('#detail-summary').textContent.startsWith('no sign')")
 
-    harness.set_setting(page, "threshold", 0.6)
-    harness.set_setting(page, "full_frame_fallback", True)
-    harness.set_setting(page, "plaque_search", True)
-    harness.set_setting(page, "plaque_candidates", 2)
-    harness.wait_setting(page, api, {"threshold": 0.6, "full_frame_fallback": True, "plaque_search": True,
+    harness.set_settings(page, api, {"threshold": 0.6, "full_frame_fallback": True, "plaque_search": True,
                                      "plaque_candidates": 2})
     assert card.locator(".card-label").inner_text() == name
     assert card.get_attribute("data-status") == "correct"

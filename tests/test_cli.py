@@ -128,7 +128,7 @@ def test_synth_then_evaluate_reports_a_table_with_a_progress_bar(tmp_path):
     (("synth", "--n", 0, "{tmp}/out"), "--n: '0' is not a whole number of at least 1"),
     (("synth", "--n", 2, "{tmp}/file"), "File exists"),
     (("evaluate", ROOT / "sample_images" / "datasets" / "set3", "--workers", "two"), "--workers: 'two'"),
-    (("evaluate", "{tmp}/file"), "file"),
+    (("evaluate", "{tmp}/file"), "file is not a folder"),
 ])
 def test_bad_synth_and_evaluate_arguments_are_one_clear_line(tmp_path, args, message):
     (tmp_path / "file").write_text("not a dataset")

@@ -16,7 +16,7 @@ from app.state import TMP_SUFFIX, StateDir
 from pipeline.image import decode_image
 from pipeline.library import SAMPLE_LIBRARY, load_library
 from scene_images import tiny_photo
-from serving import TIMEOUT_S, start_serve
+from serving import TIMEOUT_S, start_serve, stop_serve
 
 KILLS = 3
 SIGN_PNG = (SAMPLE_LIBRARY / load_library(SAMPLE_LIBRARY).signs[0].image_file).read_bytes()
@@ -109,5 +109,4 @@ def test_sigkill_during_saves_loses_no_acknowledged_change(tmp_path):
             assert c.get("/api/camera").json()["camera"]["fx"] in (ack.camera_fx, ack.camera_in_flight)
         assert not list(state_dir.rglob(f"*{TMP_SUFFIX}"))
     finally:
-        proc.send_signal(signal.SIGINT)
-        proc.communicate(timeout=TIMEOUT_S)
+        stop_serve(proc)

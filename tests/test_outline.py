@@ -11,6 +11,7 @@ from pipeline.pose import estimate_pose, homography_from_pose
 from pipeline.recognize import grid_correspondences, recognize
 from pipeline.settings import preset
 from pipeline.synth import render_scene, synthetic_camera
+from scene_images import render_plaque
 
 TRUE_CORNERS = np.array([[212.3, 141.7], [431.9, 158.2], [425.6, 251.4], [205.8, 236.9]])
 
@@ -23,15 +24,7 @@ def sign():
 def plaque_image(sign, wall: float, plaque_gain: float = 1.0, seed: int = 0, corners=TRUE_CORNERS) -> np.ndarray:
     """A 640 x 480 image of `sign` at `corners` on a flat wall of gray level `wall`: rendered
     four times larger and shrunk (anti-aliased edges), blurred and noised like a camera."""
-    big = 4
-    # library pixel i covers [i, i + 1] (its edges at 0 and w); big pixel j is image x = (j + 0.5) / big - 0.5
-    H = cv2.getPerspectiveTransform(sign.corners_px.astype(np.float32),
-                                    ((corners + 0.5) * big - 0.5).astype(np.float32))
-    H = H @ np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]])
-    size = (640 * big, 480 * big)
-    plaque = cv2.warpPerspective(sign.image.astype(np.float32) * plaque_gain, H, size, flags=cv2.INTER_LINEAR)
-    cover = cv2.warpPerspective(np.ones_like(sign.image, np.float32), H, size, flags=cv2.INTER_LINEAR)
-    image = cv2.resize(plaque + wall * (1 - cover), (640, 480), interpolation=cv2.INTER_AREA)
+    image = render_plaque(sign, corners, wall, plaque_gain)
     image = cv2.GaussianBlur(image, (0, 0), 0.8) + np.random.default_rng(seed).normal(0, 3, image.shape)
     return np.clip(image, 0, 255).astype(np.uint8)
 

@@ -9,6 +9,7 @@ from pipeline.plaque_search import ranked_quads, required_correlation, search_pl
 from pipeline.recognize import recognize
 from pipeline.segment import segment
 from pipeline.settings import preset
+from scene_images import render_plaque
 
 CORNERS = np.array([[230.0, 250.0], [380.0, 243.0], [383.0, 305.0], [228.0, 309.0]])
 
@@ -25,15 +26,7 @@ def scene(sign=None, plaque_level: float = 150.0, blur: float = 1.5, exit_plaque
     img = np.full((480, 640), 70, np.float32)
     img[20:60, 250:400] = 255
     if sign is not None:
-        big = 4  # rendered 4x larger and shrunk: anti-aliased edges; library pixel i covers [i, i + 1]
-        H = cv2.getPerspectiveTransform(sign.corners_px.astype(np.float32),
-                                        ((CORNERS + 0.5) * big - 0.5).astype(np.float32))
-        H = H @ np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]])
-        size = (640 * big, 480 * big)
-        plaque = cv2.warpPerspective(sign.image.astype(np.float32) * (plaque_level / 255), H, size)
-        cover = cv2.warpPerspective(np.ones_like(sign.image, np.float32), H, size)
-        wall = cv2.resize(img, size, interpolation=cv2.INTER_NEAREST)
-        img = cv2.resize(plaque + wall * (1 - cover), (640, 480), interpolation=cv2.INTER_AREA)
+        img = render_plaque(sign, CORNERS, img, plaque_level / 255)
     if exit_plaque is not None:
         x0, y0 = exit_plaque
         text = np.full((50, 125), plaque_level, np.uint8)

@@ -3,6 +3,8 @@
 import json
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 
 from pipeline.camera import load_camera
@@ -11,6 +13,7 @@ from pipeline.image import read_image
 from pipeline.library import load_library
 from pipeline.recognize import decide, recognize, score_sign
 from pipeline.settings import preset
+from scene_images import sign_on_wall
 
 SCENES = Path(__file__).resolve().parents[1] / "sample_images" / "scenes"
 TRUTH = json.loads((SCENES / "truth.json").read_text())["images"]
@@ -76,18 +79,8 @@ def _lit_scene(library, sign_id: str):
     """A sign at gray level ~170 on a wall, below a lamp at 255 and a white door at 235: after
     min-max normalisation the sign falls below the 0.75 threshold, and the lamp and door are
     the largest white blobs."""
-    import cv2
-    import numpy as np
-
-    from tests.scene_images import SIZE, wall
-
-    sign = library[sign_id]
-    w, h = sign.size_px
     dst = np.float32([[330, 250], [600, 262], [592, 370], [338, 360]])
-    H = cv2.getPerspectiveTransform(np.float32([[0, 0], [w, 0], [w, h], [0, h]]), dst)
-    warped = cv2.warpPerspective((sign.image * (170 / 255)).astype(np.uint8), H, SIZE)
-    inside = cv2.warpPerspective(np.full_like(sign.image, 255), H, SIZE) > 0
-    gray = np.where(inside, warped, wall(1))
+    gray = sign_on_wall(library[sign_id], dst, 1, gain=170 / 255)
     gray[20:90, 60:420] = 255  # lamp
     gray[150:470, 40:200] = 235  # door
     return cv2.GaussianBlur(gray, (0, 0), 0.8)

@@ -3,21 +3,17 @@ loopback-only answers without one, cross-site writes, no CORS, and the security 
 
 from __future__ import annotations
 
-import signal
-
 import httpx
 import pytest
-import viser
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
 from app.security import PAGE_CSP, TOKEN_COOKIE, VISER_CSP, access_token, is_loopback
 from app.server import create_app
 from app.workspace import Workspace, WorkspaceConfig
-from serving import TIMEOUT_S, assert_error, http_exchange, running, start_serve
+from serving import TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve, stop_serve
 
 TOKEN = "team-token-for-tests"
-VISER_PROTOCOL = f"viser-v{viser.__version__}"
 
 
 @pytest.fixture(scope="module")
@@ -166,5 +162,4 @@ def test_serve_takes_its_token_from_the_option_or_the_environment(tmp_path):
                          headers={"Authorization": "Bearer not-this-one"}).status_code == 401
     finally:
         for proc in (from_option, from_env):
-            proc.send_signal(signal.SIGINT)
-            proc.communicate(timeout=TIMEOUT_S)
+            stop_serve(proc)
