@@ -32,9 +32,9 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from pipeline.camera import ASSUMED_HFOV_DEG, Camera, assumed_camera, check_hfov, load_camera
-from pipeline.exif import camera_from_exif, decode_with_exif
+from pipeline.exif import decode_with_exif
 from pipeline.features import library_features
-from pipeline.image import ImageError, decode_image
+from pipeline.image import ImageError
 from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, make_sign, validate_sign_entry
 from pipeline.recognize import Recognition, StageCache, recognize
 from pipeline.settings import PRESETS, Settings, SettingsError, load_settings
@@ -221,8 +221,8 @@ def decode_upload(data: bytes, name: str, max_pixels: int) -> tuple[np.ndarray, 
     Raises ImageError.
     """
     media_type = check_image_header(data, name, max_pixels)
-    image = decode_image(data, name)
-    return image, media_type, camera_from_exif(data, image.shape[1], image.shape[0])
+    image, camera = decode_with_exif(data, name)
+    return image, media_type, camera
 
 
 def sample_scenes(folder: Path = SAMPLE_SCENES) -> list[tuple[Path, str | None]]:
