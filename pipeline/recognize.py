@@ -529,26 +529,20 @@ def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.nd
     why = None
     # A landmark searched without segmentation need not be a plaque with four straight edges.
     use_outline = settings.refine_outline and settings.segment_mode != "none"
-
-    def outlined(start: np.ndarray) -> tuple | None:
-        """The result refined from the plaque's edges looked for around `start`, or None (then
-        `why` holds the reason of this, the latest, look)."""
-        nonlocal why
-        if not use_outline:
-            return None
-        outline, why = refine_outline(gray, sign, start, settings.seed)
-        return None if outline is None else (outline.H, *grid_correspondences(outline.H, sign), None, outline)
-
-    if (found := outlined(H)) is not None:
-        return found
+    if use_outline:
+        outline, why = refine_outline(gray, sign, H, settings.seed)
+        if outline is not None:
+            return outline.H, *grid_correspondences(outline.H, sign), None, outline
     ecc = None
     if wants_dense_refinement(settings.refine, attempt):
         refined = refine_ecc(gray, sign, H)
         if refined is not None and refined[1] >= MIN_ECC:
             H, ecc = refined
             src, dst = grid_correspondences(H, sign)
-            if (found := outlined(H)) is not None:
-                return found
+            if use_outline:
+                outline, why = refine_outline(gray, sign, H, settings.seed)
+                if outline is not None:
+                    return outline.H, *grid_correspondences(outline.H, sign), None, outline
         else:
             warnings.append("dense refinement did not converge; H and pose come from the matches alone")
     if why is not None:
