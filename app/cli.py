@@ -22,6 +22,7 @@ from pipeline.settings import PRESETS, Settings, SettingsError, load_settings, p
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130  # the shell's 128 + SIGINT
+EXIT_BROKEN_PIPE = 141  # the shell's 128 + SIGPIPE
 
 
 class CliError(Exception):
@@ -289,6 +290,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"signpose {args.command}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # The reader went away (`signpose recognize ... | head`): stop quietly, as Unix tools do.
+        # Python would flush stdout again at exit and fail on the closed pipe, so point it at devnull.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
 
 
 if __name__ == "__main__":

@@ -151,3 +151,14 @@ def test_ctrl_c_stops_evaluate_and_its_workers_with_one_line(tmp_path):
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 130
     assert "signpose evaluate: interrupted" in err and "Traceback" not in err
+
+
+def test_a_reader_that_stops_early_ends_the_output_quietly():
+    # `signpose recognize ... --json | head -1`: the pipe closes while images are still coming.
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "recognize", *sorted(SCENES.glob("*.jpg")), "--json"],
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert json.loads(proc.stdout.readline())["image"].endswith(".jpg")
+    proc.stdout.close()
+    err = proc.stderr.read()
+    assert proc.wait(timeout=120) == 141
+    assert "Traceback" not in err and "BrokenPipe" not in err
