@@ -23,7 +23,7 @@ from .library import Library, LibrarySign
 from .match import Matches, match_library
 from .outline import Outline, outline_fit, refine_outline
 from .plaque import PlaqueMatch, match_plaque, refine_ecc
-from .plaque_search import MIN_NCC, SAME_PLAQUE_IOU, QuadCandidate, ranked_quads, search_plaques
+from .plaque_search import MIN_NCC, SAME_PLAQUE_IOU, QuadCandidate, confirm_plaque, ranked_quads, search_plaques
 from .pose import Pose, PoseError, estimate_pose
 from .segment import Box, Segmentation, box_iou, expand_box, segment
 from .settings import Settings
@@ -565,13 +565,16 @@ def wants_dense_refinement(refine: str, attempt: Attempt | None) -> bool:
 
 def read_plaques(gray: np.ndarray, segmentation: Segmentation, library: Library,
                  settings: Settings) -> PlaqueMatch | None:
-    """The first candidate blob that reads as a library sign's plaque, else the first that is a quad."""
+    """The first candidate blob that reads as a library sign's plaque, confirmed by dense
+    alignment (`confirm_plaque`), else the first that is a quad."""
     first = None
     for blob in segmentation.blobs:
         match = match_plaque(gray, segmentation.labels, blob, library, settings.min_plaque_ncc,
                              settings.plaque_margin)
         if match is not None and match.sign is not None:
-            return match
+            match = confirm_plaque(gray, match, library, settings.min_plaque_ecc)
+            if match.sign is not None:
+                return match
         first = first or match
     return first
 

@@ -119,8 +119,8 @@ class Settings:
                                 "When the plaque fallback finds nothing, look for quadrilateral plaques at lower gray "
                                 "levels too and accept one only after dense (ECC) alignment with a sign")
     min_plaque_ecc: float = _num(0.85, 0.0, 1.0, "Plaque",
-                                 "Plaque search: least correlation after dense alignment to accept a sign (plaques "
-                                 "under 60 x 60 px need more)", step=0.01)
+                                 "Plaque fallback and search: least correlation after dense alignment to accept a "
+                                 "sign (plaques under 60 x 60 px need more)", step=0.01)
     plaque_ecc_margin: float = _num(0.1, 0.0, 1.0, "Plaque",
                                     "Plaque search: the sign's aligned correlation must beat the next sign's by this "
                                     "much", step=0.01)

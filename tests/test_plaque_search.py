@@ -1,9 +1,12 @@
 """Plaque search: a dim, blurred sign that neither features nor the plaque fallback find."""
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
 
+from pipeline.image import read_image
 from pipeline.library import Library, load_library
 from pipeline.plaque_search import ranked_quads, required_correlation, search_plaques
 from pipeline.recognize import recognize
@@ -11,6 +14,7 @@ from pipeline.segment import segment
 from pipeline.settings import preset
 from scene_images import render_plaque
 
+SAMPLES = Path(__file__).resolve().parent.parent / "sample_images"
 CORNERS = np.array([[230.0, 250.0], [380.0, 243.0], [383.0, 305.0], [228.0, 309.0]])
 
 
@@ -82,3 +86,18 @@ def test_small_plaques_must_align_better():
     assert required_correlation(square(60), 0.85) == pytest.approx(0.85)
     assert required_correlation(square(30), 0.85) == pytest.approx(1 - 0.15 / 4)
     assert required_correlation(square(28), 0.85) > 0.87  # other text this small reached 0.87
+
+
+
+def test_fallback_with_one_sign_loaded_reads_only_that_sign(library):
+    """One sign loaded leaves the fallback's correlation margin no runner-up to beat: Security
+    Compound's plaques correlate 0.70 with Chief of Security, and were read as it until dense
+    alignment had to confirm the sign."""
+    chief = Library(library.root, [library["chief_of_security"]])
+    for name in ("scene_002.jpg", "scene_007.jpg", "scene_010.jpg"):  # Security Compound
+        found = recognize(read_image(SAMPLES / "scenes" / name), chief, preset("default"))
+        assert found.label is None, name
+        assert "chief_of_security not confirmed by dense alignment" in found.plaque.reason
+    ministry = Library(library.root, [library["ministry_of_torture"]])
+    found = recognize(read_image(SAMPLES / "datasets" / "set2" / "scene_007.jpg"), ministry, preset("default"))
+    assert found.label == "ministry_of_torture" and found.by_plaque
