@@ -56,7 +56,7 @@ def detector_key(settings: Settings) -> tuple:
 
 def feature_key(settings: Settings) -> tuple:
     """The settings that change what `detect` returns for a given image region."""
-    return *detector_key(settings), settings.min_crop_size, settings.max_crop_size
+    return *detector_key(settings), settings.min_crop_size, settings.max_crop_size, settings.max_search_size
 
 
 def region_scale(long_side: int, settings: Settings, full_frame: bool = False) -> float:
@@ -65,13 +65,17 @@ def region_scale(long_side: int, settings: Settings, full_frame: bool = False) -
     Below `settings.min_crop_size` it is upscaled (at most `MAX_UPSCALE` times), so a sign 60 px
     wide still yields enough keypoints. A crop above `settings.max_crop_size` (when not 0) is
     downscaled: SIFT's cost grows with the area, and a blob that large is a sign seen large
-    enough to match from fewer pixels. The full frame is not: a small sign anywhere in it
-    needs every pixel.
+    enough to match from fewer pixels. The full frame is not, since a small sign anywhere in it
+    needs every pixel, unless its longer side is above `settings.max_search_size` (when not 0),
+    which bounds any region: SIFT doubles its input first and holds about 11 float copies of
+    that, so a 12 MP photo would take 2.8 GB.
     """
     if 0 < long_side < settings.min_crop_size:
         return min(settings.min_crop_size / long_side, MAX_UPSCALE)
     if 0 < settings.max_crop_size < long_side and not full_frame:
         return settings.max_crop_size / long_side
+    if 0 < settings.max_search_size < long_side:
+        return settings.max_search_size / long_side
     return 1.0
 
 
@@ -99,7 +103,7 @@ def detect(gray: np.ndarray, settings: Settings, region: Box | None = None) -> F
 
 def sign_features(sign: LibrarySign, settings: Settings) -> Features:
     """Features of a library sign image, in library pixels (never resized)."""
-    return detect(sign.image, settings.replace(min_crop_size=0, max_crop_size=0))
+    return detect(sign.image, settings.replace(min_crop_size=0, max_crop_size=0, max_search_size=0))
 
 
 def library_features(library: Library, settings: Settings) -> dict[str, Features]:

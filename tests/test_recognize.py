@@ -105,3 +105,16 @@ def test_a_pose_from_the_outline_reports_the_edges_residual_not_the_grids(librar
                     load_camera(SCENES / "camera.yaml"))
     assert rec.outline is not None
     assert 0.02 < rec.pose.reprojection_rmse_px < 0.5
+
+
+def test_a_frame_larger_than_max_search_size_is_searched_downscaled(library):
+    """A 12 MP photo searched whole at full size took 2.8 GB in SIFT; above max_search_size
+    the frame is downscaled for detection and the answer still comes in full-image pixels."""
+    name, f = "scene_004.jpg", 4000 / 640
+    photo = cv2.resize(read_image(SCENES / name), (4000, 3000), interpolation=cv2.INTER_CUBIC)
+    settings = preset("default").replace(segment_mode="none")
+    rec = recognize(photo, library, settings)
+    assert rec.attempt.source == "full frame" and rec.attempt.features.scale == pytest.approx(2048 / 4000)
+    assert rec.label == TRUTH[name]["label"]
+    truth = (np.array(TRUTH[name]["corners"]) + 0.5) * f - 0.5  # pixel centres aligned as cv2.resize does
+    assert np.abs(rec.corners - truth).max() < 2 * f
