@@ -27,6 +27,9 @@ ID_PATTERN = re.compile(r"^[a-z0-9][a-z0-9_-]{0,63}$")
 # Aspect ratios of image and physical size may differ by this much before it is an error:
 # a sign printed with a slightly different aspect would give a skewed pose.
 ASPECT_TOLERANCE = 0.02
+# Standard deviation of gray levels below which a sign image is blank: no features, and a
+# plaque correlation of zero with anything. The sample signs have 61-68.
+MIN_GRAY_SPREAD = 4.0
 
 
 class LibraryError(ValueError):
@@ -128,6 +131,10 @@ def make_sign(entry: dict, image: np.ndarray, where: str) -> LibrarySign:
     h, w = image.shape[:2]
     if min(w, h) < 32:
         raise LibraryError(f"{where}: image is {w}x{h} px; a sign image needs at least 32 px on each side")
+    spread = float(image.std())
+    if spread < MIN_GRAY_SPREAD:
+        raise LibraryError(f"{where}: image is blank (gray level spread {spread:.1f}); a sign image needs its "
+                           "text or marks to be recognised by")
     width_m = float(entry["width_m"])
     height_m = float(entry["height_m"]) if entry.get("height_m") is not None else width_m * h / w
     aspect_px, aspect_m = w / h, width_m / height_m

@@ -8,6 +8,7 @@ import threading
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -229,6 +230,10 @@ def test_library_limits(make_workspace):
         ws.add_sign(NO_SIGN, png, width_m=0.6, height_m=0.24)
     with pytest.raises(LibraryError, match="aspect"):
         ws.add_sign("squashed", png, width_m=0.6, height_m=0.6)
+    black = cv2.imencode(".png", np.zeros((240, 600), np.uint8))[1].tobytes()
+    with pytest.raises(LibraryError, match="blank"):
+        ws.add_sign("black", black, width_m=0.6, height_m=0.24)
+    assert "black" not in ws.library.ids
     for sign_id in LIBRARY.ids[:-1]:
         ws.remove_sign(sign_id)
     with pytest.raises(Conflict, match="last sign"):
