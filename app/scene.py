@@ -30,7 +30,7 @@ import numpy as np
 import viser
 import viser.transforms as tf
 
-from app.workspace import Event, ImageRecord, Workspace, is_correct
+from app.workspace import Event, ImageRecord, Outcome, Workspace, is_correct, status_of
 from pipeline.library import Library, LibrarySign
 from pipeline.recognize import Recognition
 from pipeline.settings import Settings, SettingsError, settings_schema
@@ -49,6 +49,9 @@ AMBIGUOUS_RGB = (230, 30, 30)
 LABEL_RGB = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (148, 103, 189),
              (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207))
 NO_WORLD = "(no sign recognised)"
+# `status_of`'s statuses as the page's top bar words them ("correct" shows as correct/labelled).
+STATUS_WORDS = {"wrong": "wrong", "recognized": "recognised, unlabelled", "none": "no sign, unlabelled",
+                "pending": "pending", "error": "errors"}
 OUTLINE_RGB = (60, 60, 60)
 # Cameras usually stand in front of the sign (z < 0): start to its left and above, looking past it.
 INITIAL_VIEW_POSITION_M = (-1.8, -1.0, -2.2)
@@ -377,8 +380,10 @@ class SceneHandle:
         with self._lock:
             library = self.workspace.library
             records = self.workspace.images()
-            shown = [r for r in records if _has_pose(r) and r.recognition.label in library.ids]
-            counts = Counter(r.recognition.label for r in shown)
+            # Each result read once: a re-run replaces a record's outcome while this runs.
+            results = {r.id: r.recognition for r in records}
+            shown = [r for r in records if _has_pose(results[r.id]) and results[r.id].label in library.ids]
+            counts = Counter(results[r.id].label for r in shown)
             if self._stale_signs:
                 # Library edits can change a sign's image or size under the same id.
                 self._stale_signs = False
@@ -388,7 +393,7 @@ class SceneHandle:
 
             current = {r.id for r in records}
             self._thumbnails = {k: v for k, v in self._thumbnails.items() if k in current}
-            sign_of = {r.id: r.recognition.label for r in shown}
+            sign_of = {r.id: results[r.id].label for r in shown}
             self._remove_cameras({k for k, nodes in self.cameras.items() if sign_of.get(k) != nodes.sign})
             self._remove_signs(set(self.signs) - set(counts))
             for sign_id in counts:
@@ -396,10 +401,12 @@ class SceneHandle:
                     self.signs[sign_id] = self._add_sign(library[sign_id])
             for record in shown:
                 nodes = self.cameras.get(record.id)
-                if nodes is None or nodes.recognition is not record.recognition or stale_geometry:
-                    self._draw_camera(record, library)
+                if nodes is None or nodes.recognition is not results[record.id] or stale_geometry:
+                    self._draw_camera(record, results[record.id], library)
             self._choose_world(counts)
-            self.status.content = status_markdown(records, self._progress)
+            generation = self.workspace.snapshot.generation
+            self.status.content = status_markdown([status_of(r.expected, r.outcome, generation) for r in records],
+                                                  [r.outcome for r in records], self._progress)
 
     def _remove_cameras(self, image_ids: set[str]) -> None:
         for image_id in image_ids:
@@ -431,8 +438,7 @@ class SceneHandle:
             thickness=2.0, thickness_units="screen")
         return SignNodes(frame, plane, outline)
 
-    def _draw_camera(self, record: ImageRecord, library: Library) -> None:
-        rec: Recognition = record.recognition
+    def _draw_camera(self, record: ImageRecord, rec: Recognition, library: Library) -> None:
         sign = library[rec.label]
         width_px, height_px = rec.image_size
         fov, aspect = frustum_shape(width_px, height_px, rec.camera.K)
@@ -444,13 +450,13 @@ class SceneHandle:
             # Same photo and shape: move the frustum instead of re-sending its image.
             frustum, label = old.frustum, old.label
             frustum.position, frustum.wxyz, frustum.color, frustum.scale = position, wxyz, color, scale
-            label.text = _camera_text(record)
+            label.text = _camera_text(record, rec)
             old.matches.remove()
         else:
             if old is not None:
                 old.remove()
             frustum = self._add_frustum(record, rec.label, fov, aspect, scale, color, position, wxyz)
-            label = self.server.scene.add_label(f"{frustum.name}/label", _camera_text(record))
+            label = self.server.scene.add_label(f"{frustum.name}/label", _camera_text(record, rec))
         sign_px, image_px = matched_points(rec, sign)
         on_sign = sign.to_metric(sign_px)
         on_photo = image_plane_points(image_px, width_px, height_px, fov, aspect, scale)
@@ -485,13 +491,11 @@ def matched_points(rec: Recognition, sign: LibrarySign) -> tuple[np.ndarray, np.
     return sign.corners_px, rec.corners
 
 
-def _has_pose(record: ImageRecord) -> bool:
-    rec = record.recognition
+def _has_pose(rec: Recognition | None) -> bool:
     return rec is not None and rec.recognized and rec.pose is not None
 
 
-def _camera_text(record: ImageRecord) -> str:
-    rec: Recognition = record.recognition
+def _camera_text(record: ImageRecord, rec: Recognition) -> str:
     notes = []
     if rec.pose.ambiguous:
         notes.append("ambiguous pose")
@@ -500,19 +504,18 @@ def _camera_text(record: ImageRecord) -> str:
     return " · ".join([record.name, *notes])
 
 
-def status_markdown(records: list[ImageRecord], progress: dict[str, Any]) -> str:
-    """One status line: image counts, correctness, median time per image and re-run progress."""
-    done = [r.recognition for r in records if r.recognition is not None]
-    recognised = sum(rec.recognized for rec in done)
-    labelled = [r for r in records if r.expected is not None and r.recognition is not None]
-    correct = sum(is_correct(r.expected, r.recognition) for r in labelled)
-    parts = [f"**{len(records)}** images", f"**{recognised}** recognised",
-             f"**{correct}**/{len(labelled)} correct", f"**{len(done) - recognised}** no sign"]
-    errors = sum(r.error is not None for r in records)
-    if errors:
-        parts.append(f"**{errors}** errors")
-    if done:
-        parts.append(f"{statistics.median(rec.timing_ms['total'] for rec in done):.0f} ms/image (median)")
+def status_markdown(statuses: list[str], outcomes: list[Outcome], progress: dict[str, Any]) -> str:
+    """One status line in the words of the page's top bar: image counts by `status_of`, median
+    time per image and re-run progress."""
+    counts = Counter(statuses)
+    labelled = counts["correct"] + counts["wrong"]
+    parts = [f"**{len(statuses)}** images"]
+    if labelled:
+        parts.append(f"**{counts['correct']}**/{labelled} correct")
+    parts += [f"**{counts[s]}** {word}" for s, word in STATUS_WORDS.items() if counts[s]]
+    times = [o.recognition.timing_ms["total"] for o in outcomes if o.recognition is not None]
+    if times:
+        parts.append(f"{statistics.median(times):.0f} ms/image (median)")
     if progress.get("running"):
         parts.append(f"re-running {progress.get('done', 0)}/{progress.get('total', 0)}")
     return " · ".join(parts)

@@ -117,9 +117,9 @@ def test_nodes_match_the_recognitions(scene):
         sine = np.linalg.norm(np.cross(to_photo, to_centre), axis=1) / (
             np.linalg.norm(to_photo, axis=1) * np.linalg.norm(to_centre, axis=1))
         assert np.median(sine) < 0.01
-    n, positives = len(TRUTH), len(POSITIVES)
-    assert f"**{n}** images · **{positives}** recognised · **{n}**/{n} correct · **{n - positives}** no sign" \
-        in handle.status.content
+    n = len(TRUTH)
+    assert handle.status.content.startswith(f"**{n}** images · **{n}**/{n} correct · ")
+    assert "wrong" not in handle.status.content
 
 
 def test_sliders_rerun_and_frustums_follow(scene):
@@ -132,7 +132,10 @@ def test_sliders_rerun_and_frustums_follow(scene):
     assert workspace.settings_version == version + 2
     settle(handle, workspace)
     assert not handle.cameras and not handle.signs
-    assert handle.world.options == (NO_WORLD,) and "**0** recognised" in handle.status.content
+    n, positives = len(TRUTH), len(POSITIVES)
+    assert handle.world.options == (NO_WORLD,)
+    # the words of the page's top bar: every expected sign is now missed
+    assert f"**{n - positives}**/{n} correct · **{positives}** wrong" in handle.status.content
     min_inliers.value = 12
     settle(handle, workspace)
     assert handle.cameras
