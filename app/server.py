@@ -5,7 +5,8 @@ endpoint). Routes are thin: they validate, call the workspace or the pipeline of
 loop (plain `def` routes run in a thread pool) and shape the answer. Domain errors become 4xx
 with the pipeline's own message: SettingsError, CameraError, LibraryError, ImageError,
 CalibrationError and PipelineError 422, ImageTooLarge and oversized bodies 413, Conflict 409,
-unknown ids 404, pipeline work past the request time limit 503. app/security.py guards access
+unknown ids 404, pipeline work past the request time limit 503; requests that fail validation 422,
+as one `where: what` line that never echoes the input. app/security.py guards access
 and sets security headers. The camera calibration session (app/calibration.py) sits beside the
 Workspace and reaches the routes through its own dependency.
 """
@@ -283,6 +284,21 @@ def _error_handler(code: int):
     async def handler(request: Request, exc: Exception) -> JSONResponse:
         return JSONResponse({"detail": str(exc)}, status_code=code)
     return handler
+
+
+def _problem(error: dict) -> str:
+    """One pydantic or FastAPI validation error as `where: what`, without the input."""
+    if error["type"] == "json_invalid":  # FastAPI's is located at ("body", character); pydantic's error says where
+        at = f" at character {error['loc'][1]}" if len(error["loc"]) == 2 else ""
+        return f"the body is not valid JSON: {error['ctx']['error']}{at}"
+    return f"{'.'.join(map(str, error['loc']))}: {error['msg']}"
+
+
+async def _validation_error_handler(request: Request, exc: RequestValidationError) -> JSONResponse:
+    """422 `{"detail": "<every problem, one line>"}` like every other error. FastAPI's default
+    answers a list that echoes the input, and cannot encode it when it holds NaN or Infinity (a 500)."""
+    return JSONResponse({"detail": "; ".join(map(_problem, exc.errors()))},
+                        status_code=status.HTTP_422_UNPROCESSABLE_CONTENT)
 
 
 api = APIRouter(prefix="/api")
@@ -585,8 +601,8 @@ async def put_camera(request: Request, workspace: WorkspaceDep) -> CameraOut:
     elif content_type.startswith("application/json"):
         try:
             body = CameraModel.model_validate_json(await request.body())
-        except ValidationError as exc:  # without the input: bytes that are not UTF-8 cannot go back as JSON
-            raise RequestValidationError(exc.errors(include_url=False, include_input=False)) from None
+        except ValidationError as exc:  # located in the body, as FastAPI locates the errors of the bodies it parses
+            raise RequestValidationError([{**e, "loc": ("body", *e["loc"])} for e in exc.errors()]) from None
         camera = camera_from_json(body.model_dump(), source="json")
     else:
         raise HTTPException(status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
@@ -761,6 +777,7 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
     for error, code in ((SettingsError, 422), (CameraError, 422), (LibraryError, 422), (ImageError, 422),
                         (PipelineError, 422), (CalibrationError, 422), (ImageTooLarge, 413), (Conflict, 409)):
         app.add_exception_handler(error, _error_handler(code))
+    app.add_exception_handler(RequestValidationError, _validation_error_handler)
     app.include_router(api)
     mount_viser(app)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True, check_dir=False), name="static")
