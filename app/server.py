@@ -37,7 +37,7 @@ from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
 from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
-from starlette.datastructures import Headers, UploadFile as FormFile
+from starlette.datastructures import FormData, Headers, UploadFile as FormFile
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from pipeline.calibrate import MIN_VIEWS, Calibration, CalibrationError
@@ -176,6 +176,28 @@ class BodyType:
 MULTIPART = Depends(BodyType("multipart/form-data", "the file(s) as multipart/form-data, as a browser form or "
                                                     "curl -F does"))
 JSON_BODY = Depends(BodyType("application/json", "a JSON body with the header Content-Type: application/json"))
+
+
+def the_file(form: FormData) -> FormFile:
+    """The one upload in the multipart field 'file'; 422 when it is missing or there are several:
+    a form field read as one value is the last of them, and the others would be dropped unseen."""
+    files = form.getlist("file")
+    if len(files) > 1:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"got {len(files)} files in the multipart field 'file'; this takes exactly one, "
+                            "so send one request per file")
+    if not files or not isinstance(files[0], FormFile):
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "send the file in the multipart field 'file'")
+    return files[0]
+
+
+async def one_file(request: Request) -> None:
+    """A dependency of the routes whose `file` parameter takes one upload: `the_file` of the form
+    FastAPI has already parsed (and will close)."""
+    the_file(await request.form())
+
+
+ONE_FILE = Depends(one_file)
 
 
 def result_of(record: ImageRecord) -> Outcome:
@@ -397,7 +419,7 @@ def export_settings(workspace: WorkspaceDep) -> Response:
                     headers={"Content-Disposition": 'attachment; filename="signpose-settings.json"'})
 
 
-@api.post("/settings/import", response_model=SettingsOut, tags=["settings"], dependencies=[MULTIPART])
+@api.post("/settings/import", response_model=SettingsOut, tags=["settings"], dependencies=[MULTIPART, ONE_FILE])
 def import_settings(file: Annotated[UploadFile, File(description="settings JSON, full or partial")],
                     workspace: WorkspaceDep) -> SettingsOut:
     """Apply a settings file (as written by export or `--settings`) over the current settings."""
@@ -423,7 +445,7 @@ def get_sign_image(sign_id: SignIdDep, workspace: WorkspaceDep) -> FileResponse:
 
 
 @api.post("/library", response_model=SignOut, status_code=status.HTTP_201_CREATED, tags=["library"],
-          dependencies=[MULTIPART])
+          dependencies=[MULTIPART, ONE_FILE])
 def add_sign(file: Annotated[UploadFile, File(description="the sign, photographed flat or as artwork")],
              id: Annotated[str, Form(description="1-64 of a-z, 0-9, _ and -")],
              width_m: Annotated[float, Form(description="physical width, metres")],
@@ -505,7 +527,7 @@ def get_stage(record: RecordDep, stage: Literal[figures.STAGES], workspace: Work
                     headers={"X-Settings-Version": str(outcome.settings_version)})
 
 
-@api.post("/recognize", response_model=RecognitionOut, tags=["images"], dependencies=[MULTIPART])
+@api.post("/recognize", response_model=RecognitionOut, tags=["images"], dependencies=[MULTIPART, ONE_FILE])
 async def recognize_once(file: Annotated[UploadFile, File()], workspace: WorkspaceDep) -> dict:
     """Recognise one image with the current settings, library and camera without keeping it."""
     # The other upload routes are sync and call read_upload directly; here the read goes to a
@@ -592,10 +614,7 @@ async def put_camera(request: Request, workspace: WorkspaceDep) -> CameraOut:
     content_type = request.headers.get("content-type", "")
     if content_type.startswith("multipart/form-data"):
         async with request.form() as form:
-            file = form.get("file")
-            if not isinstance(file, FormFile):
-                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                    "send the camera file as the multipart field 'file'")
+            file = the_file(form)
             name, data = display_name(file.filename or "camera"), await file.read()
         camera = await run_in_threadpool(camera_from_upload, name, data)
     elif content_type.startswith("application/json"):

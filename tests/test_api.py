@@ -301,6 +301,31 @@ def test_stateless_recognize(client):
     assert_error(client.post("/api/recognize", files={"file": ("e.jpg", b"", "image/jpeg")}), 422, "empty")
 
 
+CAMERA_YAML = ros_camera_yaml(synthetic_camera((640, 480)), "synthetic").encode()
+
+
+@pytest.mark.parametrize("method, path, files, form", [
+    ("POST", "/api/recognize", [("a.jpg", sign_photo(LIBRARY, "security_compound"), "image/jpeg"),
+                                ("b.jpg", sign_photo(LIBRARY, "chief_of_security"), "image/jpeg")], None),
+    ("POST", "/api/settings/import", [("a.json", b'{"ratio": 0.7}', "application/json"),
+                                      ("b.json", b'{"ratio": 0.6}', "application/json")], None),
+    ("POST", "/api/library", [("a.jpg", sign_photo(LIBRARY, "security_compound"), "image/jpeg"),
+                              ("b.jpg", sign_photo(LIBRARY, "chief_of_security"), "image/jpeg")],
+     {"id": "door_plate", "width_m": "0.4"}),
+    ("PUT", "/api/camera", [("a.yaml", CAMERA_YAML, "application/x-yaml"),
+                            ("b.yaml", CAMERA_YAML, "application/x-yaml")], None),
+])
+def test_single_file_routes_refuse_several_files_or_none(client, method, path, files, form):
+    def state():
+        return [client.get(p).json() for p in ("/api/settings", "/api/library", "/api/camera")]
+
+    before = state()
+    r = client.request(method, path, files=[("file", f) for f in files], data=form)
+    assert_error(r, 422, "got 2 files", "'file'", "one request per file")  # not the last one, silently
+    assert_error(client.request(method, path, files=[("files", files[0])], data=form), 422, "field 'file'")
+    assert state() == before
+
+
 # ---------------------------------------------------------------- tuning
 
 def test_threshold_calibration(client):
@@ -355,8 +380,7 @@ def test_camera_json_file_errors_and_reset(client):
     r = client.put("/api/camera", json={"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640, "height": 480})
     assert r.status_code == 200 and r.json()["camera"]["fx"] == 600 and r.json()["camera"]["source"] == "json"
     assert r.json()["camera"]["kind"] == "typed"
-    yaml_text = ros_camera_yaml(synthetic_camera((640, 480)), "synthetic").encode()
-    r = client.put("/api/camera", files={"file": ("cam.yaml", yaml_text, "application/x-yaml")})
+    r = client.put("/api/camera", files={"file": ("cam.yaml", CAMERA_YAML, "application/x-yaml")})
     assert r.status_code == 200 and r.json()["camera"]["source"] == "upload:cam.yaml"
     assert r.json()["camera"]["kind"] == "file"
     assert client.get("/api/camera").json() == r.json()
