@@ -5,7 +5,8 @@ endpoint). Routes are thin: they validate, call the workspace or the pipeline of
 loop (plain `def` routes run in a thread pool) and shape the answer. Domain errors become 4xx
 with the pipeline's own message: SettingsError, CameraError, LibraryError, ImageError,
 CalibrationError and PipelineError 422, ImageTooLarge and oversized bodies 413, Conflict 409,
-unknown ids 404, pipeline work past the request time limit 503. app/security.py guards access
+unknown ids 404, pipeline work past the request time limit 503; requests that fail validation 422,
+as one `where: what` line that never echoes the input. app/security.py guards access
 and sets security headers. The camera calibration session (app/calibration.py) sits beside the
 Workspace and reaches the routes through its own dependency.
 """
@@ -36,7 +37,7 @@ from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
 from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
-from starlette.datastructures import Headers, UploadFile as FormFile
+from starlette.datastructures import FormData, Headers, UploadFile as FormFile
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from pipeline.calibrate import MIN_VIEWS, Calibration, CalibrationError
@@ -177,6 +178,28 @@ MULTIPART = Depends(BodyType("multipart/form-data", "the file(s) as multipart/fo
 JSON_BODY = Depends(BodyType("application/json", "a JSON body with the header Content-Type: application/json"))
 
 
+def the_file(form: FormData) -> FormFile:
+    """The one upload in the multipart field 'file'; 422 when it is missing or there are several:
+    a form field read as one value is the last of them, and the others would be dropped unseen."""
+    files = form.getlist("file")
+    if len(files) > 1:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"got {len(files)} files in the multipart field 'file'; this takes exactly one, "
+                            "so send one request per file")
+    if not files or not isinstance(files[0], FormFile):
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "send the file in the multipart field 'file'")
+    return files[0]
+
+
+async def one_file(request: Request) -> None:
+    """A dependency of the routes whose `file` parameter takes one upload: `the_file` of the form
+    FastAPI has already parsed (and will close)."""
+    the_file(await request.form())
+
+
+ONE_FILE = Depends(one_file)
+
+
 def result_of(record: ImageRecord) -> Outcome:
     """The image's latest outcome that has a result (possibly from older settings); 409 while there is none.
 
@@ -285,6 +308,21 @@ def _error_handler(code: int):
     return handler
 
 
+def _problem(error: dict) -> str:
+    """One pydantic or FastAPI validation error as `where: what`, without the input."""
+    if error["type"] == "json_invalid":  # FastAPI's is located at ("body", character); pydantic's error says where
+        at = f" at character {error['loc'][1]}" if len(error["loc"]) == 2 else ""
+        return f"the body is not valid JSON: {error['ctx']['error']}{at}"
+    return f"{'.'.join(map(str, error['loc']))}: {error['msg']}"
+
+
+async def _validation_error_handler(request: Request, exc: RequestValidationError) -> JSONResponse:
+    """422 `{"detail": "<every problem, one line>"}` like every other error. FastAPI's default
+    answers a list that echoes the input, and cannot encode it when it holds NaN or Infinity (a 500)."""
+    return JSONResponse({"detail": "; ".join(map(_problem, exc.errors()))},
+                        status_code=status.HTTP_422_UNPROCESSABLE_CONTENT)
+
+
 api = APIRouter(prefix="/api")
 NUMERIC_SETTINGS = [f["name"] for f in settings_schema() if f["type"] in ("int", "float")]
 INTEGER_SETTINGS = {f["name"] for f in settings_schema() if f["type"] == "int"}
@@ -381,7 +419,7 @@ def export_settings(workspace: WorkspaceDep) -> Response:
                     headers={"Content-Disposition": 'attachment; filename="signpose-settings.json"'})
 
 
-@api.post("/settings/import", response_model=SettingsOut, tags=["settings"], dependencies=[MULTIPART])
+@api.post("/settings/import", response_model=SettingsOut, tags=["settings"], dependencies=[MULTIPART, ONE_FILE])
 def import_settings(file: Annotated[UploadFile, File(description="settings JSON, full or partial")],
                     workspace: WorkspaceDep) -> SettingsOut:
     """Apply a settings file (as written by export or `--settings`) over the current settings."""
@@ -407,7 +445,7 @@ def get_sign_image(sign_id: SignIdDep, workspace: WorkspaceDep) -> FileResponse:
 
 
 @api.post("/library", response_model=SignOut, status_code=status.HTTP_201_CREATED, tags=["library"],
-          dependencies=[MULTIPART])
+          dependencies=[MULTIPART, ONE_FILE])
 def add_sign(file: Annotated[UploadFile, File(description="the sign, photographed flat or as artwork")],
              id: Annotated[str, Form(description="1-64 of a-z, 0-9, _ and -")],
              width_m: Annotated[float, Form(description="physical width, metres")],
@@ -489,7 +527,7 @@ def get_stage(record: RecordDep, stage: Literal[figures.STAGES], workspace: Work
                     headers={"X-Settings-Version": str(outcome.settings_version)})
 
 
-@api.post("/recognize", response_model=RecognitionOut, tags=["images"], dependencies=[MULTIPART])
+@api.post("/recognize", response_model=RecognitionOut, tags=["images"], dependencies=[MULTIPART, ONE_FILE])
 async def recognize_once(file: Annotated[UploadFile, File()], workspace: WorkspaceDep) -> dict:
     """Recognise one image with the current settings, library and camera without keeping it."""
     # The other upload routes are sync and call read_upload directly; here the read goes to a
@@ -576,17 +614,14 @@ async def put_camera(request: Request, workspace: WorkspaceDep) -> CameraOut:
     content_type = request.headers.get("content-type", "")
     if content_type.startswith("multipart/form-data"):
         async with request.form() as form:
-            file = form.get("file")
-            if not isinstance(file, FormFile):
-                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                    "send the camera file as the multipart field 'file'")
+            file = the_file(form)
             name, data = display_name(file.filename or "camera"), await file.read()
         camera = await run_in_threadpool(camera_from_upload, name, data)
     elif content_type.startswith("application/json"):
         try:
             body = CameraModel.model_validate_json(await request.body())
-        except ValidationError as exc:  # without the input: bytes that are not UTF-8 cannot go back as JSON
-            raise RequestValidationError(exc.errors(include_url=False, include_input=False)) from None
+        except ValidationError as exc:  # located in the body, as FastAPI locates the errors of the bodies it parses
+            raise RequestValidationError([{**e, "loc": ("body", *e["loc"])} for e in exc.errors()]) from None
         camera = camera_from_json(body.model_dump(), source="json")
     else:
         raise HTTPException(status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
@@ -761,6 +796,7 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
     for error, code in ((SettingsError, 422), (CameraError, 422), (LibraryError, 422), (ImageError, 422),
                         (PipelineError, 422), (CalibrationError, 422), (ImageTooLarge, 413), (Conflict, 409)):
         app.add_exception_handler(error, _error_handler(code))
+    app.add_exception_handler(RequestValidationError, _validation_error_handler)
     app.include_router(api)
     mount_viser(app)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True, check_dir=False), name="static")

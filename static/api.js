@@ -8,14 +8,10 @@ class ApiError extends Error {
   }
 }
 
-/** The person-readable message in an error body: FastAPI sends a string or a list of field errors. */
+/** The person-readable message in an error body: the server's `detail`, always a string. */
 function detailOf(body, status, statusText) {
   const detail = body?.detail;
-  if (typeof detail === "string") return detail;
-  if (Array.isArray(detail)) {
-    return detail.map((d) => `${(d.loc || []).filter((p) => p !== "body").join(".")}: ${d.msg}`).join("; ");
-  }
-  return `${status} ${statusText || "request failed"}`;
+  return typeof detail === "string" ? detail : `${status} ${statusText || "request failed"}`;
 }
 
 async function parse(response) {

@@ -104,6 +104,31 @@ def iter_events(stream):
             yield kind, json.loads(line.split(":", 1)[1])
 
 
+# Raw bodies: NaN and Infinity are what Python's json reads and writes for non-finite floats.
+@pytest.mark.parametrize("method, path, body, where, what", [
+    ("PUT", "/api/calibration/board", '{"cols": NaN, "rows": 6, "square_m": 0.02}', "body.cols", "finite"),
+    ("PATCH", "/api/images/{id}", '{"expected": NaN}', "body.expected", "string"),
+    ("PUT", "/api/settings", "[NaN]", "body", "dictionary"),
+    ("POST", "/api/calibrate/threshold", '{"image_id": "{id}", "rect": [NaN, 0, 10, 10]}', "body.rect.0", "finite"),
+    ("POST", "/api/calibrate/threshold", '{"image_id": "{id}", "rect": [1e308, 0, 1e309, 10]}', "body.rect.2",
+     "finite"),
+    ("PUT", "/api/camera/assumed", '{"hfov_deg": [NaN]}', "body.hfov_deg", "number"),
+    ("POST", "/api/calibration/run", '{"drop_outliers": Infinity}', "body.drop_outliers", "boolean"),
+    ("PUT", "/api/settings", "not json", "the body is not valid JSON", "character 0"),
+    ("PUT", "/api/camera", '{"fx": 1,', "the body is not valid JSON", "line 1 column 9"),
+    ("PUT", "/api/camera", '{"fx": "a", "fy": 600, "cx": 320, "cy": 240}', "body.fx", "number"),
+    ("GET", "/api/sweep?steps=many", None, "query.steps", "integer"),
+])
+def test_validation_errors_are_one_line_that_never_echoes_the_input(client, method, path, body, where, what):
+    image_id = upload(client, ("t.jpg", tiny_photo(), None)).json()["images"][0]["id"]
+    r = client.request(method, path.replace("{id}", image_id), content=body and body.replace("{id}", image_id),
+                       headers={"content-type": "application/json"})
+    client.delete(f"/api/images/{image_id}")
+    assert r.status_code == 422, r.text  # not 500: FastAPI's default answer echoed the NaN and could not encode it
+    detail = r.json()["detail"]
+    assert isinstance(detail, str) and f"{where}: " in detail and what in detail, detail
+
+
 # ---------------------------------------------------------------- settings
 
 def test_settings_read_change_and_refuse_bad_values(client):
@@ -164,6 +189,7 @@ def test_library_list_image_add_and_delete(client):
                  409, "already has")
     for bad, words in (({"id": "../../etc/passwd"}, ("id", "a-z")), ({"id": "Caps"}, ("id",)),
                        ({"width_m": "nan"}, ("width_m",)), ({"width_m": "-1"}, ("width_m",)),
+                       ({"width_m": "abc"}, ("body.width_m: ", "number")),
                        ({"width_m": "400"}, ("metres",)), ({"height_m": "0.1"}, ("aspect",))):
         r = client.post("/api/library", files={"file": ("d.jpg", photo, "image/jpeg")}, data=form | {"id": "x"} | bad)
         assert_error(r, 422, *words)
@@ -275,6 +301,31 @@ def test_stateless_recognize(client):
     assert_error(client.post("/api/recognize", files={"file": ("e.jpg", b"", "image/jpeg")}), 422, "empty")
 
 
+CAMERA_YAML = ros_camera_yaml(synthetic_camera((640, 480)), "synthetic").encode()
+
+
+@pytest.mark.parametrize("method, path, files, form", [
+    ("POST", "/api/recognize", [("a.jpg", sign_photo(LIBRARY, "security_compound"), "image/jpeg"),
+                                ("b.jpg", sign_photo(LIBRARY, "chief_of_security"), "image/jpeg")], None),
+    ("POST", "/api/settings/import", [("a.json", b'{"ratio": 0.7}', "application/json"),
+                                      ("b.json", b'{"ratio": 0.6}', "application/json")], None),
+    ("POST", "/api/library", [("a.jpg", sign_photo(LIBRARY, "security_compound"), "image/jpeg"),
+                              ("b.jpg", sign_photo(LIBRARY, "chief_of_security"), "image/jpeg")],
+     {"id": "door_plate", "width_m": "0.4"}),
+    ("PUT", "/api/camera", [("a.yaml", CAMERA_YAML, "application/x-yaml"),
+                            ("b.yaml", CAMERA_YAML, "application/x-yaml")], None),
+])
+def test_single_file_routes_refuse_several_files_or_none(client, method, path, files, form):
+    def state():
+        return [client.get(p).json() for p in ("/api/settings", "/api/library", "/api/camera")]
+
+    before = state()
+    r = client.request(method, path, files=[("file", f) for f in files], data=form)
+    assert_error(r, 422, "got 2 files", "'file'", "one request per file")  # not the last one, silently
+    assert_error(client.request(method, path, files=[("files", files[0])], data=form), 422, "field 'file'")
+    assert state() == before
+
+
 # ---------------------------------------------------------------- tuning
 
 def test_threshold_calibration(client):
@@ -329,8 +380,7 @@ def test_camera_json_file_errors_and_reset(client):
     r = client.put("/api/camera", json={"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640, "height": 480})
     assert r.status_code == 200 and r.json()["camera"]["fx"] == 600 and r.json()["camera"]["source"] == "json"
     assert r.json()["camera"]["kind"] == "typed"
-    yaml_text = ros_camera_yaml(synthetic_camera((640, 480)), "synthetic").encode()
-    r = client.put("/api/camera", files={"file": ("cam.yaml", yaml_text, "application/x-yaml")})
+    r = client.put("/api/camera", files={"file": ("cam.yaml", CAMERA_YAML, "application/x-yaml")})
     assert r.status_code == 200 and r.json()["camera"]["source"] == "upload:cam.yaml"
     assert r.json()["camera"]["kind"] == "file"
     assert client.get("/api/camera").json() == r.json()

@@ -1,5 +1,6 @@
-"""Property-based fuzzing of the HTTP API: schemathesis generates requests from the app's own
-OpenAPI schema (valid and not), sends them to a real server, and no answer may be a 5xx."""
+"""Fuzzing of the HTTP API against a real server, where no answer may be a 5xx: schemathesis
+generates requests from the app's own OpenAPI schema (valid and not), and every JSON body is
+sent the non-finite numbers that schemathesis never writes."""
 
 from __future__ import annotations
 
@@ -41,3 +42,31 @@ schema = schemathesis.pytest.from_fixture("api_schema").exclude(path="/api/event
 @settings(max_examples=25, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
 def test_no_request_gets_a_server_error(case):
     case.call_and_validate(checks=[not_a_server_error])
+
+
+def non_finite_bodies(api: dict, number: str):
+    """(method, path, raw body) for every JSON operation in the OpenAPI document `api`: `number`
+    as the whole body, in a list, and as (or in a list in) each top-level field."""
+    for path, operations in api["paths"].items():
+        for method, operation in operations.items():
+            content = operation.get("requestBody", {}).get("content", {})
+            if "application/json" not in content:
+                continue
+            schema = content["application/json"]["schema"]
+            if "$ref" in schema:
+                schema = api["components"]["schemas"][schema["$ref"].rsplit("/", 1)[1]]
+            bodies = [number, f"[{number}]"]
+            for field in schema.get("properties", {}):
+                bodies += [f'{{"{field}": {number}}}', f'{{"{field}": [{number}]}}']
+            yield from ((method.upper(), path, body) for body in bodies)
+
+
+# Python's json, and so FastAPI, reads NaN, Infinity and 1e999 (inf) though JSON has no such numbers.
+@pytest.mark.parametrize("number", ["NaN", "Infinity", "-Infinity", "1e999"])
+def test_non_finite_numbers_in_json_bodies_get_a_4xx(base_url, number):
+    with httpx.Client(base_url=base_url, timeout=TIMEOUT_S) as c:
+        image_id = c.get("/api/images").json()["images"][0]["id"]
+        for method, path, body in non_finite_bodies(c.get("/openapi.json").json(), number):
+            r = c.request(method, path.format(image_id=image_id), content=body,
+                          headers={"content-type": "application/json"})
+            assert 400 <= r.status_code < 500 and isinstance(r.json()["detail"], str), (method, path, body, r.text)
