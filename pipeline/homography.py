@@ -26,6 +26,9 @@ _MIN_TRIANGLE_SHAPE = 1e-3
 _TRIPLES = np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]])
 # Refit/re-classify rounds after RANSAC: the inlier set settles in one or two.
 _MAX_REFITS = 3
+# Before them, refits on the matches within these multiples of the threshold (local
+# optimisation, as in LO-RANSAC): pulls in inliers far from the winning sample's four points.
+_WIDER_REFIT_FACTORS = (3.0, 2.0, 1.5)
 # Hypotheses scored per block, so that (block, N) error arrays stay around 8 MB at any N.
 _SCORE_BLOCK_ELEMENTS = 1 << 20
 # Hypotheses per round when stopping adaptively: a clear winner (inlier ratio 0.6 needs ~50 at
@@ -303,10 +306,18 @@ def _best_consensus(src: np.ndarray, dst: np.ndarray, samples: np.ndarray, thres
 def _refine(src: np.ndarray, dst: np.ndarray, inliers: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
     """Refit H by DLT on all inliers and re-classify with it; repeat while the inlier set grows.
 
-    The minimal-sample H interpolates 4 noisy points and extrapolates poorly; the least-squares
-    refit is kept even if a borderline match drops out, and usually admits a few more.
+    The minimal-sample H interpolates 4 noisy points and extrapolates poorly: with its inliers
+    bunched on one side of the sign, a refit at `threshold` can settle without the inliers on the
+    other. So the first refits take the matches within `_WIDER_REFIT_FACTORS` times the
+    threshold, shrinking to it. With 30 matches, 35-50 % outliers and 1 px noise, 10 % of
+    random cases kept under 90 % of the inliers without them, 0.3 % with them (3000 cases each).
     Returns (H, inliers under that H).
     """
+    for factor in _WIDER_REFIT_FACTORS:
+        wider = transfer_errors(dlt_homography(src[inliers], dst[inliers]), src, dst) < factor * threshold
+        if np.count_nonzero(wider) < 4:
+            break
+        inliers = wider
     for _ in range(_MAX_REFITS):
         H = dlt_homography(src[inliers], dst[inliers])
         refit_inliers = transfer_errors(H, src, dst) < threshold

@@ -1,7 +1,7 @@
 import cv2
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from pipeline.homography import (
@@ -208,6 +208,9 @@ def test_dlt_round_trip_property(offsets, n, seed):
 @settings(max_examples=40, deadline=None)
 @given(offsets=corner_offsets, n=st.integers(30, 150), outlier_fraction=st.floats(0.0, 0.5),
        noise_px=st.floats(0.0, 1.0), seed=st.integers(0, 2**16), adaptive=st.booleans())
+# Found by hypothesis: the winning sample's inliers bunched on the left kept 15 of 18 until the
+# refit took wider inliers first (`_WIDER_REFIT_FACTORS`).
+@example(offsets=[0, 0, 0, 0, 0, 0.125, 0, 0], n=30, outlier_fraction=0.40625, noise_px=1.0, seed=30, adaptive=True)
 def test_own_ransac_recovers_h_and_its_inliers_property(offsets, n, outlier_fraction, noise_px, seed, adaptive):
     quad = SIGN_CORNERS + np.reshape(offsets, (4, 2)) * [800, 320]
     H = cv2.getPerspectiveTransform(SIGN_CORNERS.astype(np.float32), quad.astype(np.float32)).astype(np.float64)
