@@ -557,7 +557,8 @@ def calibrate_threshold(body: CalibrateIn, workspace: WorkspaceDep) -> tuning.Th
         if region is None:
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                                 f"no sign or white blob was found in {record.name}; "
-                                "draw a rectangle around the sign and send it as rect")
+                                "drag a box around the sign with some wall around it (API: send it as "
+                                "rect [x0, y0, x1, y1])")
         inside, source = region
     return tuning.suggest_threshold(record.image, workspace.settings.normalization, inside, source)
 
