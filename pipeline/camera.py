@@ -7,7 +7,9 @@ K is the OpenCV 3x3 matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels; `dis
 from __future__ import annotations
 
 import math
+import reprlib
 from dataclasses import dataclass, field
+from numbers import Integral, Real
 from pathlib import Path
 
 import cv2
@@ -106,43 +108,58 @@ def assumed_camera(width: int, height: int, hfov_deg: float = ASSUMED_HFOV_DEG) 
 
 
 def camera_from_json(data: dict, source: str = "json") -> Camera:
-    """Camera from `{fx, fy, cx, cy, dist?, width?, height?}`."""
+    """Camera from `{fx, fy, cx, cy, dist?, width?, height?}` (pixels)."""
     if not isinstance(data, dict):
         raise CameraError("camera JSON must be an object with fx, fy, cx, cy")
     missing = [k for k in ("fx", "fy", "cx", "cy") if k not in data]
     if missing:
         raise CameraError(f"camera JSON is missing {', '.join(missing)}")
-    try:
-        fx, fy, cx, cy = (float(data[k]) for k in ("fx", "fy", "cx", "cy"))
-        dist = np.asarray(data.get("dist") or [], dtype=np.float64)
-    except (TypeError, ValueError):
-        raise CameraError("fx, fy, cx, cy must be numbers and dist a list of numbers") from None
+    fx, fy, cx, cy = (_number(data[k], k) for k in ("fx", "fy", "cx", "cy"))
+    dist = _numbers(data.get("dist") or [], "dist")
     K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
-    return Camera(K, dist, _opt_int(data.get("width")), _opt_int(data.get("height")), source)
+    return Camera(K, dist, _opt_int(data.get("width"), "width"), _opt_int(data.get("height"), "height"), source)
 
 
-def _opt_int(v):
-    if v is None:
+def _number(value: object, name: str) -> float:
+    """`value` as a float; CameraError naming the field `name` unless it is a number.
+
+    Numeric text counts: YAML 1.1 reads an exponent without a dot and sign (`1e3`) as a string.
+    """
+    if isinstance(value, (str, Real)) and not isinstance(value, bool):
+        try:
+            return float(value)
+        except (ValueError, OverflowError):  # text that is no number; an integer past the float range
+            pass
+    raise CameraError(f"{name} must be a number; got {reprlib.repr(value)}")
+
+
+def _numbers(value: object, name: str) -> np.ndarray:
+    """A number or (nested) list of numbers as a float64 array of its shape; CameraError naming `name` otherwise."""
+    items = np.array(value, dtype=object)  # ragged lists stay lists here, and _number rejects them
+    return np.array([_number(v, name) for v in items.flat], dtype=np.float64).reshape(items.shape)
+
+
+def _opt_int(value: object, name: str) -> int | None:
+    """`value` (None: absent) as an int; CameraError naming `name` unless it is a whole number."""
+    if value is None:
         return None
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not float(v).is_integer():
-        raise CameraError(f"image width/height must be whole numbers; got {v!r}")
-    return int(v)
+    whole = isinstance(value, Integral) or (isinstance(value, Real) and float(value).is_integer())
+    if isinstance(value, bool) or not whole:
+        raise CameraError(f"{name} must be a whole number; got {reprlib.repr(value)}")
+    return int(value)
 
 
-def _matrix(node, name: str, rows: int | None, cols: int | None) -> np.ndarray:
-    """A ROS-style {rows, cols, data} node (or a plain nested list) as an array."""
+def _matrix(node: object, name: str, rows: int | None, cols: int | None) -> np.ndarray:
+    """A ROS-style {rows, cols, data} node (or a plain nested list) named `name` as an array."""
     if isinstance(node, dict) and "data" in node:
-        data = np.asarray(node["data"], dtype=np.float64)
-        r, c = node.get("rows", rows), node.get("cols", cols)
+        data = _numbers(node["data"], f"{name}.data")
+        r, c = _opt_int(node.get("rows", rows), f"{name}.rows"), _opt_int(node.get("cols", cols), f"{name}.cols")
         if r is not None and c is not None:
             if data.size != r * c:
                 raise CameraError(f"{name} declares {r}x{c} but has {data.size} values")
             data = data.reshape(r, c)
         return data
-    try:
-        return np.asarray(node, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise CameraError(f"{name} is not a numeric matrix") from None
+    return _numbers(node, name)
 
 
 def camera_from_ros(data: dict, source: str) -> Camera:
@@ -151,22 +168,38 @@ def camera_from_ros(data: dict, source: str) -> Camera:
     if K.size != 9:
         raise CameraError(f"camera_matrix must have 9 values; got {K.size}")
     dist = _matrix(data.get("distortion_coefficients", {"data": []}), "distortion_coefficients", None, None)
-    return Camera(K.reshape(3, 3), dist.ravel(), _opt_int(data.get("image_width")),
-                  _opt_int(data.get("image_height")), source)
+    return Camera(K.reshape(3, 3), dist.ravel(), _opt_int(data.get("image_width"), "image_width"),
+                  _opt_int(data.get("image_height"), "image_height"), source)
+
+
+def _filestorage_matrix(fs: cv2.FileStorage, names: tuple[str, ...]) -> np.ndarray | None:
+    """The first of the nodes `names` that `fs` has, as an array; None when it has none of them."""
+    name = next((n for n in names if not fs.getNode(n).empty()), None)
+    if name is None:
+        return None
+    try:
+        return fs.getNode(name).mat()
+    except cv2.error:  # a scalar, a plain list, a mapping that is no matrix, or non-numeric data
+        raise CameraError(f"{name} is not an OpenCV matrix of numbers") from None
+
+
+def _filestorage_int(fs: cv2.FileStorage, name: str) -> int | None:
+    """The whole number at node `name` of `fs`; None when absent."""
+    node = fs.getNode(name)
+    if node.empty():
+        return None
+    # real() of a string or a list is DBL_MAX, not an error, so only numeric nodes may use it.
+    return _opt_int(node.real() if node.isInt() or node.isReal() else node.string(), name)
 
 
 def _camera_from_filestorage(path: Path) -> Camera:
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     try:
-        K = next((fs.getNode(n).mat() for n in ("camera_matrix", "K", "cameraMatrix") if not fs.getNode(n).empty()),
-                 None)
+        K = _filestorage_matrix(fs, ("camera_matrix", "K", "cameraMatrix"))
         if K is None:
-            raise CameraError(f"{path}: no camera_matrix, K or cameraMatrix node")
-        dist = next((fs.getNode(n).mat() for n in ("distortion_coefficients", "D", "dist_coeffs", "distCoeffs")
-                     if not fs.getNode(n).empty()), None)
-        w, h = fs.getNode("image_width"), fs.getNode("image_height")
-        width = int(w.real()) if not w.empty() else None
-        height = int(h.real()) if not h.empty() else None
+            raise CameraError("no camera_matrix, K or cameraMatrix node")
+        dist = _filestorage_matrix(fs, ("distortion_coefficients", "D", "dist_coeffs", "distCoeffs"))
+        width, height = _filestorage_int(fs, "image_width"), _filestorage_int(fs, "image_height")
     finally:
         fs.release()
     return Camera(K, np.zeros(5) if dist is None else dist.ravel(), width, height, f"file:{path}")
@@ -181,26 +214,30 @@ def load_camera(path: str | Path) -> Camera:
         raise CameraError(f"camera file not found: {path}") from None
     except UnicodeDecodeError:
         raise CameraError(f"camera file {path} is not text") from None
-    source = f"file:{path}"
+    try:
+        return _parse_camera(text, path)
+    except CameraError as exc:
+        raise CameraError(f"{path}: {exc}") from None
+
+
+def _parse_camera(text: str, path: Path) -> Camera:
+    """Camera from the `text` of the camera file `path`; CameraError messages leave the path to the caller."""
     if text.lstrip().startswith("%YAML") or "!!opencv-matrix" in text or '"type_id": "opencv-matrix"' in text:
         try:
             return _camera_from_filestorage(path)
         except cv2.error as exc:
-            raise CameraError(f"{path}: not a readable OpenCV FileStorage file: {exc}") from None
+            raise CameraError(f"not a readable OpenCV FileStorage file: {exc}") from None
     try:
         data = yaml.safe_load(text)  # YAML is a superset of JSON
     except yaml.YAMLError as exc:
-        raise CameraError(f"{path} is neither valid YAML nor JSON: {exc}") from None
+        raise CameraError(f"neither valid YAML nor JSON: {exc}") from None
     if not isinstance(data, dict):
-        raise CameraError(f"{path}: expected a mapping with camera_matrix (ROS) or fx, fy, cx, cy")
-    try:
-        if "camera_matrix" in data:
-            return camera_from_ros(data, source)
-        if "fx" in data:
-            return camera_from_json(data, source)
-    except CameraError as exc:
-        raise CameraError(f"{path}: {exc}") from None
-    raise CameraError(f"{path}: expected camera_matrix (ROS camera_info) or fx, fy, cx, cy keys")
+        raise CameraError("expected a mapping with camera_matrix (ROS) or fx, fy, cx, cy")
+    if "camera_matrix" in data:
+        return camera_from_ros(data, f"file:{path}")
+    if "fx" in data:
+        return camera_from_json(data, f"file:{path}")
+    raise CameraError("expected camera_matrix (ROS camera_info) or fx, fy, cx, cy keys")
 
 
 def ros_camera_yaml(camera: Camera, name: str = "camera") -> str:

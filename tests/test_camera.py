@@ -52,13 +52,58 @@ def test_plain_json_and_opencv_filestorage(tmp_path):
     ('camera_matrix: {rows: 3, cols: 3, data: [1, 0, 0, 1]}', "declares 3x3"),
     ('{"fx": 400, "fy": 400, "cx": 320, "cy": 240, "dist": [1, 2, 3]}', "coefficients"),
     ('just text', "expected a mapping"),
-    ('{"fx": "a", "fy": 400, "cx": 320, "cy": 240}', "numbers"),
+    ('{"fx": "a", "fy": 400, "cx": 320, "cy": 240}', "fx must be a number"),
 ])
 def test_malformed_camera_files_are_clear_errors(tmp_path, text, message):
     p = tmp_path / "bad.yaml"
     p.write_text(text)
     with pytest.raises(CameraError, match=message):
         load_camera(p)
+
+
+OPENCV_MATRIX = """%YAML:1.0
+---
+{fields}camera_matrix: !!opencv-matrix
+   rows: 3
+   cols: 3
+   dt: d
+   data: [ {fx}, 0., 320., 0., 554., 240., 0., 0., 1. ]
+"""
+ROS_MATRIX = "camera_matrix: {{rows: {rows}, cols: 3, data: {data}}}\n"
+K_DATA = "[554, 0, 320, 0, 554, 240, 0, 0, 1]"
+
+
+@pytest.mark.parametrize("text, message", [
+    (ROS_MATRIX.format(rows=3, data="[abc, 0, 320, 0, 554, 240, 0, 0, 1]"), "camera_matrix.data must be a number; got 'abc'"),
+    (ROS_MATRIX.format(rows=3, data="[true, 0, 320, 0, 554, 240, 0, 0, 1]"), "camera_matrix.data must be a number; got True"),
+    (ROS_MATRIX.format(rows=3, data="[[554, 0, 320], [0, 554], 240, 0, 0, 1]"), "camera_matrix.data must be a number"),
+    (ROS_MATRIX.format(rows="three", data=K_DATA), "camera_matrix.rows must be a whole number; got 'three'"),
+    ("camera_matrix: [[554, 0, 320], [0, 554, x], [0, 0, 1]]\n", "camera_matrix must be a number; got 'x'"),
+    (ROS_MATRIX.format(rows=3, data=K_DATA) + "distortion_coefficients: {rows: 1, cols: 5, data: [0, x, 0, 0, 0]}\n",
+     "distortion_coefficients.data must be a number; got 'x'"),
+    (ROS_MATRIX.format(rows=3, data=K_DATA) + "image_width: wide\n", "image_width must be a whole number; got 'wide'"),
+    ('{"fx": 554, "fy": 554, "cx": 320, "cy": null}', "cy must be a number; got None"),
+    ('{"fx": 1%s, "fy": 554, "cx": 320, "cy": 240}' % ("0" * 400), "fx must be a number; got 1000"),
+    ('{"fx": 554, "fy": 554, "cx": 320, "cy": 240, "dist": [0, "x", 0, 0]}', "dist must be a number; got 'x'"),
+    ('{"fx": 554, "fy": 554, "cx": 320, "cy": 240, "height": "tall"}', "height must be a whole number; got 'tall'"),
+    (OPENCV_MATRIX.format(fields="", fx="abc"), "camera_matrix is not an OpenCV matrix of numbers"),
+    (OPENCV_MATRIX.format(fields="image_width: wide\n", fx="554."), "image_width must be a whole number; got 'wide'"),
+    (OPENCV_MATRIX.format(fields="image_height: 480.5\n", fx="554."), "image_height must be a whole number; got 480.5"),
+])
+def test_non_numeric_entries_are_one_line_errors_naming_the_field(tmp_path, text, message):
+    p = tmp_path / "bad.yaml"
+    p.write_text(text)
+    with pytest.raises(CameraError) as info:
+        load_camera(p)
+    assert str(info.value).startswith(f"{p}: {message}")
+    assert "\n" not in str(info.value)
+
+
+def test_numeric_text_is_a_number(tmp_path):
+    """YAML 1.1 reads 5.54e2 (an exponent without a sign) as a string; the camera means a number."""
+    p = tmp_path / "c.yaml"
+    p.write_text(ROS_MATRIX.format(rows=3, data="[5.54e2, 0, 320, 0, 5.54e2, 240, 0, 0, 1]"))
+    assert load_camera(p).K[0, 0] == 554
 
 
 def test_missing_file_and_scaling():
