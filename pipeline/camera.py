@@ -20,6 +20,22 @@ ASSUMED_HFOV_DEG = 60.0
 # Fields of view one may assume: rectilinear lenses from a long telephoto to an ultra-wide.
 ASSUMED_HFOV_RANGE_DEG = (10.0, 140.0)
 
+# Bounds no real camera violates, so that a typo, a unit mix-up or a file for another camera is
+# refused where it is loaded rather than giving nonsense poses (or, far out, at fx = 1e100..1e300 px,
+# a reprojection error of 1e100 px, LAPACK chatter on stdout, and an SVD that does not converge).
+# A field of view under 0.1° is a telescope's: even the longest zoom a UAV carries sees several times
+# wider. It is held against the image's longer side, as a crop to a thin strip is still a camera.
+MIN_FOV_DEG = 0.1
+# Without an image size, focal lengths and the principal point can only be held against a number:
+# 1e6 px is 0.1° across 1745 px, and far beyond any sensor (the widest aerial cameras have under
+# 30 000 px). A file for a longer lens gives its image size; for_image checks again against the image.
+MAX_UNSIZED_PX = 1e6
+# OpenCV holds an image's width and height in a C int: no image is larger.
+MAX_IMAGE_SIDE_PX = 2**31 - 1
+# Real pixels are square to a percent or two and anamorphic lenses squeeze 2x at most: fx/fy beyond
+# 10 is a dropped digit or fx and fy from different cameras.
+MAX_FOCAL_RATIO = 10.0
+
 
 class CameraError(ValueError):
     """A camera file or intrinsics that cannot be used; the message says which and why."""
@@ -39,29 +55,34 @@ class Camera:
     source: str = "given"
 
     def __post_init__(self) -> None:
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if v is not None and (not isinstance(v, (int, np.integer)) or not 0 < v <= MAX_IMAGE_SIDE_PX):
+                raise CameraError(f"image {name} must be a positive whole number under 2**31 px; got {v!r}")
         K = np.asarray(self.K, dtype=np.float64)
         if K.shape != (3, 3):
             raise CameraError(f"camera matrix must be 3x3; got shape {K.shape}")
         if not np.all(np.isfinite(K)):
             raise CameraError("camera matrix has non-finite values")
-        fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-        if fx <= 0 or fy <= 0:
-            raise CameraError(f"focal lengths must be positive; got fx={fx}, fy={fy}")
         if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
             raise CameraError("camera matrix must have the form [[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
+        problem = _focal_length_problem(K[0, 0], K[1, 1], self.width, self.height)
+        if problem:
+            raise CameraError(problem)
+        # Sensor rows and columns are perpendicular to a fraction of a degree; |s| > fx is over 45° off.
+        if abs(K[0, 1]) > K[0, 0]:
+            raise CameraError(f"skew s={K[0, 1]:.6g} exceeds fx={K[0, 0]:.6g}; real cameras have s close to 0")
+        cx, cy = K[0, 2], K[1, 2]
+        w, h = self.width or MAX_UNSIZED_PX, self.height or MAX_UNSIZED_PX
+        if not (0 <= cx <= w and 0 <= cy <= h):
+            raise CameraError(f"principal point ({cx:.6g}, {cy:.6g}) px lies outside the image (0..{w:g} x 0..{h:g} px)")
         dist = np.asarray(self.dist, dtype=np.float64).ravel()
         if dist.size not in (0, 4, 5, 8, 12, 14):
             raise CameraError(f"distortion must have 4, 5, 8, 12 or 14 coefficients; got {dist.size}")
         if not np.all(np.isfinite(dist)):
             raise CameraError("distortion coefficients must be finite")
-        for name in ("width", "height"):
-            v = getattr(self, name)
-            if v is not None and (not isinstance(v, (int, np.integer)) or v <= 0):
-                raise CameraError(f"image {name} must be a positive whole number; got {v!r}")
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "dist", dist if dist.size else np.zeros(5))
-        if cx < 0 or cy < 0 or (self.width and cx > self.width) or (self.height and cy > self.height):
-            raise CameraError(f"principal point ({cx}, {cy}) lies outside the image")
 
     @property
     def has_distortion(self) -> bool:
@@ -74,9 +95,18 @@ class Camera:
     def for_image(self, width: int, height: int) -> tuple[Camera, list[str]]:
         """Intrinsics for an image of `width` x `height` px, scaled when the calibration size differs.
 
-        Returns the camera and warnings (empty when the size matches or is unknown).
+        Returns the camera and warnings for people (empty when the size matches). CameraError when
+        scaling would give intrinsics no real camera has (an image aspect far from the calibration's).
         """
-        if self.width is None or self.height is None or (self.width, self.height) == (width, height):
+        if self.width is None or self.height is None:
+            # Only now can the focal lengths be held against an image size. A warning, not an error:
+            # a file without a size may be meant for any resolution and the result says how it went,
+            # while MAX_FOCAL_PX already keeps the arithmetic sound.
+            problem = _focal_length_problem(self.K[0, 0], self.K[1, 1], width, height)
+            warnings = [f"the camera has no image size and does not fit this {width}x{height} px image: {problem}; "
+                        "the pose is meaningless"] if problem else []
+            return self, warnings
+        if (self.width, self.height) == (width, height):
             return self, []
         sx, sy = width / self.width, height / self.height
         warnings = [f"image is {width}x{height} px but the camera was calibrated at {self.width}x{self.height}; "
@@ -84,12 +114,37 @@ class Camera:
         if abs(sx / sy - 1) > 0.01:
             warnings.append("image aspect differs from the calibration's: the pose is unreliable")
         K = np.diag([sx, sy, 1.0]) @ self.K
-        return Camera(K, self.dist, width, height, self.source), warnings
+        try:
+            return Camera(K, self.dist, width, height, self.source), warnings
+        except CameraError as exc:
+            raise CameraError(f"the camera calibrated at {self.width}x{self.height} px cannot be scaled to this "
+                              f"{width}x{height} px image: {exc}") from None
 
     def to_json(self) -> dict:
         K = self.K
         return {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "dist": self.dist.tolist(),
                 "width": self.width, "height": self.height, "source": self.source}
+
+
+def _focal_length_problem(fx: float, fy: float, width: int | None, height: int | None) -> str | None:
+    """Why focal lengths `fx`, `fy` (px) are no real camera's for an image of `width` x `height` px
+    (None: not known): not positive, longer than MIN_FOV_DEG allows, or far from square; None if they are fine."""
+    if fx <= 0 or fy <= 0:
+        return f"focal lengths must be positive; got fx={fx}, fy={fy}"
+    side = max((s for s in (width, height) if s is not None), default=None)
+    longest = MAX_UNSIZED_PX if side is None else side / (2 * math.tan(math.radians(MIN_FOV_DEG) / 2))
+    for axis, f in (("fx", fx), ("fy", fy)):
+        if f <= longest:
+            continue
+        if side is None:
+            return (f"{axis}={f:.6g} px is longer than {MAX_UNSIZED_PX:g} px, the most for a camera without an image "
+                    "size; check the value, or give the file the image width and height")
+        return (f"{axis}={f:.6g} px makes the image's {side} px a field of view under {MIN_FOV_DEG:g}°, narrower "
+                "than any camera's; check that it is in pixels and for this image size")
+    if not 1 / MAX_FOCAL_RATIO <= fx / fy <= MAX_FOCAL_RATIO:
+        return (f"fx/fy = {fx / fy:.3g} (fx={fx:.6g}, fy={fy:.6g} px), but real pixels are near square; "
+                "check both values")
+    return None
 
 
 def check_hfov(hfov_deg: float) -> float:

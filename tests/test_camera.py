@@ -1,4 +1,6 @@
 import json
+import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -74,8 +76,10 @@ K_DATA = "[554, 0, 320, 0, 554, 240, 0, 0, 1]"
 
 
 @pytest.mark.parametrize("text, message", [
-    (ROS_MATRIX.format(rows=3, data="[abc, 0, 320, 0, 554, 240, 0, 0, 1]"), "camera_matrix.data must be a number; got 'abc'"),
-    (ROS_MATRIX.format(rows=3, data="[true, 0, 320, 0, 554, 240, 0, 0, 1]"), "camera_matrix.data must be a number; got True"),
+    (ROS_MATRIX.format(rows=3, data="[abc, 0, 320, 0, 554, 240, 0, 0, 1]"),
+     "camera_matrix.data must be a number; got 'abc'"),
+    (ROS_MATRIX.format(rows=3, data="[true, 0, 320, 0, 554, 240, 0, 0, 1]"),
+     "camera_matrix.data must be a number; got True"),
     (ROS_MATRIX.format(rows=3, data="[[554, 0, 320], [0, 554], 240, 0, 0, 1]"), "camera_matrix.data must be a number"),
     (ROS_MATRIX.format(rows="three", data=K_DATA), "camera_matrix.rows must be a whole number; got 'three'"),
     ("camera_matrix: [[554, 0, 320], [0, 554, x], [0, 0, 1]]\n", "camera_matrix must be a number; got 'x'"),
@@ -113,3 +117,56 @@ def test_missing_file_and_scaling():
     assert cam.is_assumed and abs(cam.K[0, 0] - 554.256) < 1e-3
     scaled, warnings = cam.for_image(1280, 960)
     assert scaled.K[0, 0] == pytest.approx(2 * cam.K[0, 0]) and warnings
+
+
+def intrinsics(fx: float, fy: float, cx: float = 320, cy: float = 240, s: float = 0) -> np.ndarray:
+    """K in px."""
+    return np.array([[fx, s, cx], [0, fy, cy], [0, 0, 1]])
+
+
+@pytest.mark.parametrize("K, size, message", [
+    (intrinsics(1e300, 1e300), (None, None), r"fx=1e\+300 px is longer than 1e\+06 px"),
+    (intrinsics(1e100, 1e100), (None, None), "give the file the image width and height"),
+    (intrinsics(4e5, 4e5), (640, 480), "fx=400000 px makes the image's 640 px a field of view under 0.1°"),
+    (intrinsics(4e5, 4e5), (None, 480), "fx=400000 px makes the image's 480 px"),
+    (intrinsics(500, 6000), (None, None), "fx/fy = 0.0833"),
+    (intrinsics(5010, 500), (640, 480), "fx/fy = 10"),
+    (intrinsics(500, 500, s=1e300), (640, 480), "skew"),
+    (intrinsics(500, 500, cx=1e300), (None, None), "principal point"),
+    (intrinsics(500, 500, cx=320, cy=-1), (640, 480), "principal point"),
+    (intrinsics(500, 500), (2**31, 480), "under 2"),
+])
+def test_implausible_intrinsics_are_refused(K, size, message):
+    with pytest.raises(CameraError, match=message):
+        Camera(K, np.zeros(5), *size)
+
+
+def test_a_long_lens_with_its_image_size_is_a_camera():
+    """0.2° across 8000 px needs fx = 2.3e6 px: past the cap for files without a size, not with one."""
+    f = 4000 / math.tan(math.radians(0.1))
+    assert Camera(intrinsics(f, f, 4000, 3000), np.zeros(5), 8000, 6000).K[0, 0] == f
+    with pytest.raises(CameraError, match="without an image size"):
+        Camera(intrinsics(f, f, 4000, 3000))
+
+
+def test_a_thin_crop_is_held_against_its_long_side():
+    """A 4000 x 1 px strip is a camera's: vertically it sees a sliver, but 4000 px span 60°."""
+    assert assumed_camera(4000, 1).for_image(4000, 1)[1] == []
+
+
+def test_sample_camera_files_load():
+    paths = sorted(Path(__file__).parents[1].glob("sample_images/**/camera.yaml"))
+    assert paths and all(load_camera(p).width == 640 for p in paths)
+
+
+def test_scaling_cannot_make_an_implausible_camera():
+    cam = Camera(intrinsics(500, 500), np.zeros(5), 640, 480)
+    with pytest.raises(CameraError, match="calibrated at 640x480 px cannot be scaled to this 6400x48 px image: fx/fy"):
+        cam.for_image(6400, 48)
+
+
+def test_a_camera_without_size_too_long_for_the_image_is_a_warning():
+    cam = Camera(intrinsics(4e5, 4e5))
+    assert cam.for_image(64_000, 48_000) == (cam, [])
+    same, warnings = cam.for_image(640, 480)
+    assert same is cam and len(warnings) == 1 and "field of view under 0.1°" in warnings[0]
