@@ -30,6 +30,10 @@ MIN_FOV_DEG = 0.1
 # 1e6 px is 0.1° across 1745 px, and far beyond any sensor (the widest aerial cameras have under
 # 30 000 px). A file for a longer lens gives its image size; for_image checks again against the image.
 MAX_UNSIZED_PX = 1e6
+# A calibrated principal point lies within a few percent of the image centre (lens decentring); a
+# quarter of the width or height off means a file for another resolution (one for twice the size
+# puts it on this image's corner, half the width and height off).
+MAX_CENTRE_OFFSET = 0.25
 # OpenCV holds an image's width and height in a C int: no image is larger.
 MAX_IMAGE_SIDE_PX = 2**31 - 1
 # Real pixels are square to a percent or two and anamorphic lenses squeeze 2x at most: fx/fy beyond
@@ -99,13 +103,7 @@ class Camera:
         scaling would give intrinsics no real camera has (an image aspect far from the calibration's).
         """
         if self.width is None or self.height is None:
-            # Only now can the focal lengths be held against an image size. A warning, not an error:
-            # a file without a size may be meant for any resolution and the result says how it went,
-            # while MAX_FOCAL_PX already keeps the arithmetic sound.
-            problem = _focal_length_problem(self.K[0, 0], self.K[1, 1], width, height)
-            warnings = [f"the camera has no image size and does not fit this {width}x{height} px image: {problem}; "
-                        "the pose is meaningless"] if problem else []
-            return self, warnings
+            return self, self._unsized_warnings(width, height)
         if (self.width, self.height) == (width, height):
             return self, []
         sx, sy = width / self.width, height / self.height
@@ -119,6 +117,25 @@ class Camera:
         except CameraError as exc:
             raise CameraError(f"the camera calibrated at {self.width}x{self.height} px cannot be scaled to this "
                               f"{width}x{height} px image: {exc}") from None
+
+    def _unsized_warnings(self, width: int, height: int) -> list[str]:
+        """Why this camera without an image size may not be meant for a `width` x `height` px image.
+
+        Only now can its numbers be held against an image size. Warnings, not errors: such a file
+        may be meant for any resolution, and MAX_UNSIZED_PX already keeps the arithmetic sound.
+        """
+        warnings = []
+        problem = _focal_length_problem(self.K[0, 0], self.K[1, 1], width, height)
+        if problem:
+            warnings.append(f"the camera has no image size and does not fit this {width}x{height} px image: "
+                            f"{problem}; the pose is meaningless")
+        cx, cy = self.K[0, 2], self.K[1, 2]
+        if abs(cx - width / 2) > MAX_CENTRE_OFFSET * width or abs(cy - height / 2) > MAX_CENTRE_OFFSET * height:
+            warnings.append(f"the camera has no image size and its principal point ({cx:g}, {cy:g}) px is far from "
+                            f"the centre ({width / 2:g}, {height / 2:g}) of this {width}x{height} px image: the file "
+                            "was probably made for another resolution; give it that resolution's width and height "
+                            "so it is scaled to the image, or the pose is wrong")
+        return warnings
 
     def to_json(self) -> dict:
         K = self.K

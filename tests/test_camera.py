@@ -5,7 +5,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.camera import Camera, CameraError, assumed_camera, load_camera, save_camera
+from pipeline.camera import Camera, CameraError, assumed_camera, camera_from_json, load_camera, save_camera
+from pipeline.image import read_image
+from pipeline.library import SAMPLE_LIBRARY, load_library
+from pipeline.recognize import recognize
+from pipeline.settings import preset
 
 ROS = """image_width: 640
 image_height: 480
@@ -167,6 +171,25 @@ def test_scaling_cannot_make_an_implausible_camera():
 
 def test_a_camera_without_size_too_long_for_the_image_is_a_warning():
     cam = Camera(intrinsics(4e5, 4e5))
-    assert cam.for_image(64_000, 48_000) == (cam, [])
     same, warnings = cam.for_image(640, 480)
     assert same is cam and len(warnings) == 1 and "field of view under 0.1°" in warnings[0]
+
+
+CORNER_JSON = {"fx": 1108.5, "fy": 1108.5, "cx": 640, "cy": 480}  # a 1280 x 960 calibration without its size
+
+
+def test_a_camera_without_size_for_another_resolution_is_a_warning():
+    cam = camera_from_json(CORNER_JSON)
+    assert cam.for_image(1280, 960) == (cam, [])
+    assert cam.for_image(1000, 700) == (cam, [])  # 14 % and 19 % off the centre: under a quarter
+    same, warnings = cam.for_image(640, 480)
+    assert same is cam and len(warnings) == 1
+    assert "principal point (640, 480) px is far from the centre (320, 240)" in warnings[0]
+    assert "another resolution" in warnings[0] and "width and height" in warnings[0]
+
+
+def test_the_other_resolution_warning_reaches_the_recognition():
+    scenes = Path(__file__).parents[1] / "sample_images" / "scenes"
+    rec = recognize(read_image(scenes / "scene_002.jpg"), load_library(SAMPLE_LIBRARY), preset("default"),
+                    camera_from_json(CORNER_JSON))
+    assert any("another resolution" in w for w in rec.warnings)
