@@ -7,6 +7,7 @@ K is the OpenCV 3x3 matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels; `dis
 from __future__ import annotations
 
 import math
+import re
 import reprlib
 from dataclasses import dataclass, field
 from numbers import Integral, Real
@@ -265,7 +266,12 @@ def _filestorage_int(fs: cv2.FileStorage, name: str) -> int | None:
 
 
 def _camera_from_filestorage(path: Path) -> Camera:
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except SystemError as exc:  # OpenCV 5's binding wraps the cv2.error of a file it cannot parse
+        if not isinstance(exc.__cause__, cv2.error):
+            raise
+        raise exc.__cause__ from None
     try:
         K = _filestorage_matrix(fs, ("camera_matrix", "K", "cameraMatrix"))
         if K is None:
@@ -298,11 +304,11 @@ def _parse_camera(text: str, path: Path) -> Camera:
         try:
             return _camera_from_filestorage(path)
         except cv2.error as exc:
-            raise CameraError(f"not a readable OpenCV FileStorage file: {exc}") from None
+            raise CameraError(f"not a readable OpenCV FileStorage file ({_opencv_error(exc)})") from None
     try:
         data = yaml.safe_load(text)  # YAML is a superset of JSON
     except yaml.YAMLError as exc:
-        raise CameraError(f"neither valid YAML nor JSON: {exc}") from None
+        raise CameraError(f"neither valid YAML nor JSON ({_yaml_error(exc)})") from None
     if not isinstance(data, dict):
         raise CameraError("expected a mapping with camera_matrix (ROS) or fx, fy, cx, cy")
     if "camera_matrix" in data:
@@ -310,6 +316,30 @@ def _parse_camera(text: str, path: Path) -> Camera:
     if "fx" in data:
         return camera_from_json(data, f"file:{path}")
     raise CameraError("expected camera_matrix (ROS camera_info) or fx, fy, cx, cy keys")
+
+
+def _yaml_error(exc: yaml.YAMLError) -> str:
+    """The YAML parser's multi-line message (problem, quoted source, caret) as one line that keeps
+    the problem and where it is (1-based line and column), and the construct it was in."""
+    mark, problem = getattr(exc, "problem_mark", None), getattr(exc, "problem", None)
+    if mark is None or problem is None:  # a ReaderError (a control character) has a character offset
+        where = f"character {exc.position + 1}: " if isinstance(exc, yaml.reader.ReaderError) else ""
+        return where + str(exc).splitlines()[0]
+    message = f"line {mark.line + 1}, column {mark.column + 1}: {problem}"
+    context, start = getattr(exc, "context", None), getattr(exc, "context_mark", None)
+    if context and start:
+        message += f", {context} that starts at line {start.line + 1}, column {start.column + 1}"
+    return message
+
+
+def _opencv_error(exc: cv2.error) -> str:
+    """OpenCV's message without its source file and function: for a parse error, the line and reason."""
+    if exc.code == cv2.Error.StsParseError:
+        # Its "function" is "<path>(<line>): <reason>", and the path may be a temporary upload's.
+        parse = re.search(r"\((\d+)\): (.*)$", exc.func or "")
+        if parse:
+            return f"line {parse[1]}: {parse[2]}"
+    return (exc.err or str(exc)).strip().splitlines()[-1]
 
 
 def ros_camera_yaml(camera: Camera, name: str = "camera") -> str:

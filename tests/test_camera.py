@@ -193,3 +193,21 @@ def test_the_other_resolution_warning_reaches_the_recognition():
     rec = recognize(read_image(scenes / "scene_002.jpg"), load_library(SAMPLE_LIBRARY), preset("default"),
                     camera_from_json(CORNER_JSON))
     assert any("another resolution" in w for w in rec.warnings)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("image_width: 640\ncamera_matrix:\n  rows: 3\n    cols: 3\n",
+     "neither valid YAML nor JSON (line 4, column 9: mapping values are not allowed here)"),
+    ('{"fx": 554, "fy": 554,\n "cx": [320, "cy": 240}\n',
+     "neither valid YAML nor JSON (line 2, column 23: expected ',' or ']', but got '}', "
+     "while parsing a flow sequence that starts at line 2, column 8)"),
+    ("fx: 554\x01\n", "neither valid YAML nor JSON (character 8: unacceptable character #x0001"),
+    ("%YAML:1.0\n---\ncamera_matrix: [1, 2\nfoo: : bar\n",
+     "not a readable OpenCV FileStorage file (line 4: Incorrect indentation)"),
+])
+def test_unparsable_files_are_one_line_errors_with_the_position(tmp_path, text, message):
+    p = tmp_path / "camera.yaml"
+    p.write_text(text)
+    with pytest.raises(CameraError) as info:
+        load_camera(p)
+    assert str(info.value).startswith(f"{p}: {message}") and "\n" not in str(info.value)
