@@ -51,6 +51,7 @@ class Camera:
     """Pinhole intrinsics for images of `width` x `height` px.
 
     `source` says where the numbers came from ("file:<path>", "json", "assumed 60° hfov", ...).
+    CameraError when the numbers are no real camera's (the bounds above MIN_FOV_DEG .. MAX_FOCAL_RATIO).
     """
 
     K: np.ndarray
