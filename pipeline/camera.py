@@ -7,7 +7,10 @@ K is the OpenCV 3x3 matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels; `dis
 from __future__ import annotations
 
 import math
+import re
+import reprlib
 from dataclasses import dataclass, field
+from numbers import Integral, Real
 from pathlib import Path
 
 import cv2
@@ -17,6 +20,26 @@ import yaml
 ASSUMED_HFOV_DEG = 60.0
 # Fields of view one may assume: rectilinear lenses from a long telephoto to an ultra-wide.
 ASSUMED_HFOV_RANGE_DEG = (10.0, 140.0)
+
+# Bounds no real camera violates, so that a typo, a unit mix-up or a file for another camera is
+# refused where it is loaded rather than giving nonsense poses (or, far out, at fx = 1e100..1e300 px,
+# a reprojection error of 1e100 px, LAPACK chatter on stdout, and an SVD that does not converge).
+# A field of view under 0.1° is a telescope's: even the longest zoom a UAV carries sees several times
+# wider. It is held against the image's longer side, as a crop to a thin strip is still a camera.
+MIN_FOV_DEG = 0.1
+# Without an image size, focal lengths and the principal point can only be held against a number:
+# 1e6 px is 0.1° across 1745 px, and far beyond any sensor (the widest aerial cameras have under
+# 30 000 px). A file for a longer lens gives its image size; for_image checks again against the image.
+MAX_UNSIZED_PX = 1e6
+# A calibrated principal point lies within a few percent of the image centre (lens decentring); a
+# quarter of the width or height off means a file for another resolution (one for twice the size
+# puts it on this image's corner, half the width and height off).
+MAX_CENTRE_OFFSET = 0.25
+# OpenCV holds an image's width and height in a C int: no image is larger.
+MAX_IMAGE_SIDE_PX = 2**31 - 1
+# Real pixels are square to a percent or two and anamorphic lenses squeeze 2x at most: fx/fy beyond
+# 10 is a dropped digit or fx and fy from different cameras.
+MAX_FOCAL_RATIO = 10.0
 
 
 class CameraError(ValueError):
@@ -28,6 +51,7 @@ class Camera:
     """Pinhole intrinsics for images of `width` x `height` px.
 
     `source` says where the numbers came from ("file:<path>", "json", "assumed 60° hfov", ...).
+    CameraError when the numbers are no real camera's (the bounds above MIN_FOV_DEG .. MAX_FOCAL_RATIO).
     """
 
     K: np.ndarray
@@ -37,29 +61,34 @@ class Camera:
     source: str = "given"
 
     def __post_init__(self) -> None:
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if v is not None and (not isinstance(v, (int, np.integer)) or not 0 < v <= MAX_IMAGE_SIDE_PX):
+                raise CameraError(f"image {name} must be a positive whole number under 2**31 px; got {v!r}")
         K = np.asarray(self.K, dtype=np.float64)
         if K.shape != (3, 3):
             raise CameraError(f"camera matrix must be 3x3; got shape {K.shape}")
         if not np.all(np.isfinite(K)):
             raise CameraError("camera matrix has non-finite values")
-        fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-        if fx <= 0 or fy <= 0:
-            raise CameraError(f"focal lengths must be positive; got fx={fx}, fy={fy}")
         if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
             raise CameraError("camera matrix must have the form [[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
+        problem = _focal_length_problem(K[0, 0], K[1, 1], self.width, self.height)
+        if problem:
+            raise CameraError(problem)
+        # Sensor rows and columns are perpendicular to a fraction of a degree; |s| > fx is over 45° off.
+        if abs(K[0, 1]) > K[0, 0]:
+            raise CameraError(f"skew s={K[0, 1]:.6g} exceeds fx={K[0, 0]:.6g}; real cameras have s close to 0")
+        cx, cy = K[0, 2], K[1, 2]
+        w, h = self.width or MAX_UNSIZED_PX, self.height or MAX_UNSIZED_PX
+        if not (0 <= cx <= w and 0 <= cy <= h):
+            raise CameraError(f"principal point ({cx:.6g}, {cy:.6g}) px lies outside the image (0..{w:g} x 0..{h:g} px)")
         dist = np.asarray(self.dist, dtype=np.float64).ravel()
         if dist.size not in (0, 4, 5, 8, 12, 14):
             raise CameraError(f"distortion must have 4, 5, 8, 12 or 14 coefficients; got {dist.size}")
         if not np.all(np.isfinite(dist)):
             raise CameraError("distortion coefficients must be finite")
-        for name in ("width", "height"):
-            v = getattr(self, name)
-            if v is not None and (not isinstance(v, (int, np.integer)) or v <= 0):
-                raise CameraError(f"image {name} must be a positive whole number; got {v!r}")
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "dist", dist if dist.size else np.zeros(5))
-        if cx < 0 or cy < 0 or (self.width and cx > self.width) or (self.height and cy > self.height):
-            raise CameraError(f"principal point ({cx}, {cy}) lies outside the image")
 
     @property
     def has_distortion(self) -> bool:
@@ -72,9 +101,12 @@ class Camera:
     def for_image(self, width: int, height: int) -> tuple[Camera, list[str]]:
         """Intrinsics for an image of `width` x `height` px, scaled when the calibration size differs.
 
-        Returns the camera and warnings (empty when the size matches or is unknown).
+        Returns the camera and warnings for people (empty when the size matches). CameraError when
+        scaling would give intrinsics no real camera has (an image aspect far from the calibration's).
         """
-        if self.width is None or self.height is None or (self.width, self.height) == (width, height):
+        if self.width is None or self.height is None:
+            return self, self._unsized_warnings(width, height)
+        if (self.width, self.height) == (width, height):
             return self, []
         sx, sy = width / self.width, height / self.height
         warnings = [f"image is {width}x{height} px but the camera was calibrated at {self.width}x{self.height}; "
@@ -82,12 +114,56 @@ class Camera:
         if abs(sx / sy - 1) > 0.01:
             warnings.append("image aspect differs from the calibration's: the pose is unreliable")
         K = np.diag([sx, sy, 1.0]) @ self.K
-        return Camera(K, self.dist, width, height, self.source), warnings
+        try:
+            return Camera(K, self.dist, width, height, self.source), warnings
+        except CameraError as exc:
+            raise CameraError(f"the camera calibrated at {self.width}x{self.height} px cannot be scaled to this "
+                              f"{width}x{height} px image: {exc}") from None
+
+    def _unsized_warnings(self, width: int, height: int) -> list[str]:
+        """Why this camera without an image size may not be meant for a `width` x `height` px image.
+
+        Only now can its numbers be held against an image size. Warnings, not errors: such a file
+        may be meant for any resolution, and MAX_UNSIZED_PX already keeps the arithmetic sound.
+        """
+        warnings = []
+        problem = _focal_length_problem(self.K[0, 0], self.K[1, 1], width, height)
+        if problem:
+            warnings.append(f"the camera has no image size and does not fit this {width}x{height} px image: "
+                            f"{problem}; the pose is meaningless")
+        cx, cy = self.K[0, 2], self.K[1, 2]
+        if abs(cx - width / 2) > MAX_CENTRE_OFFSET * width or abs(cy - height / 2) > MAX_CENTRE_OFFSET * height:
+            warnings.append(f"the camera has no image size and its principal point ({cx:g}, {cy:g}) px is far from "
+                            f"the centre ({width / 2:g}, {height / 2:g}) of this {width}x{height} px image: the file "
+                            "was probably made for another resolution; give it that resolution's width and height "
+                            "so it is scaled to the image, or the pose is wrong")
+        return warnings
 
     def to_json(self) -> dict:
         K = self.K
         return {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "dist": self.dist.tolist(),
                 "width": self.width, "height": self.height, "source": self.source}
+
+
+def _focal_length_problem(fx: float, fy: float, width: int | None, height: int | None) -> str | None:
+    """Why focal lengths `fx`, `fy` (px) are no real camera's for an image of `width` x `height` px
+    (None: not known): not positive, longer than MIN_FOV_DEG allows, or far from square; None if they are fine."""
+    if fx <= 0 or fy <= 0:
+        return f"focal lengths must be positive; got fx={fx}, fy={fy}"
+    side = max((s for s in (width, height) if s is not None), default=None)
+    longest = MAX_UNSIZED_PX if side is None else side / (2 * math.tan(math.radians(MIN_FOV_DEG) / 2))
+    for axis, f in (("fx", fx), ("fy", fy)):
+        if f <= longest:
+            continue
+        if side is None:
+            return (f"{axis}={f:.6g} px is longer than {MAX_UNSIZED_PX:g} px, the most for a camera without an image "
+                    "size; check the value, or give the file the image width and height")
+        return (f"{axis}={f:.6g} px makes the image's {side} px a field of view under {MIN_FOV_DEG:g}°, narrower "
+                "than any camera's; check that it is in pixels and for this image size")
+    if not 1 / MAX_FOCAL_RATIO <= fx / fy <= MAX_FOCAL_RATIO:
+        return (f"fx/fy = {fx / fy:.3g} (fx={fx:.6g}, fy={fy:.6g} px), but real pixels are near square; "
+                "check both values")
+    return None
 
 
 def check_hfov(hfov_deg: float) -> float:
@@ -106,43 +182,58 @@ def assumed_camera(width: int, height: int, hfov_deg: float = ASSUMED_HFOV_DEG) 
 
 
 def camera_from_json(data: dict, source: str = "json") -> Camera:
-    """Camera from `{fx, fy, cx, cy, dist?, width?, height?}`."""
+    """Camera from `{fx, fy, cx, cy, dist?, width?, height?}` (pixels)."""
     if not isinstance(data, dict):
         raise CameraError("camera JSON must be an object with fx, fy, cx, cy")
     missing = [k for k in ("fx", "fy", "cx", "cy") if k not in data]
     if missing:
         raise CameraError(f"camera JSON is missing {', '.join(missing)}")
-    try:
-        fx, fy, cx, cy = (float(data[k]) for k in ("fx", "fy", "cx", "cy"))
-        dist = np.asarray(data.get("dist") or [], dtype=np.float64)
-    except (TypeError, ValueError):
-        raise CameraError("fx, fy, cx, cy must be numbers and dist a list of numbers") from None
+    fx, fy, cx, cy = (_number(data[k], k) for k in ("fx", "fy", "cx", "cy"))
+    dist = _numbers(data.get("dist") or [], "dist")
     K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
-    return Camera(K, dist, _opt_int(data.get("width")), _opt_int(data.get("height")), source)
+    return Camera(K, dist, _opt_int(data.get("width"), "width"), _opt_int(data.get("height"), "height"), source)
 
 
-def _opt_int(v):
-    if v is None:
+def _number(value: object, name: str) -> float:
+    """`value` as a float; CameraError naming the field `name` unless it is a number.
+
+    Numeric text counts: YAML 1.1 reads an exponent without a dot and sign (`1e3`) as a string.
+    """
+    if isinstance(value, (str, Real)) and not isinstance(value, bool):
+        try:
+            return float(value)
+        except (ValueError, OverflowError):  # text that is no number; an integer past the float range
+            pass
+    raise CameraError(f"{name} must be a number; got {reprlib.repr(value)}")
+
+
+def _numbers(value: object, name: str) -> np.ndarray:
+    """A number or (nested) list of numbers as a float64 array of its shape; CameraError naming `name` otherwise."""
+    items = np.array(value, dtype=object)  # ragged lists stay lists here, and _number rejects them
+    return np.array([_number(v, name) for v in items.flat], dtype=np.float64).reshape(items.shape)
+
+
+def _opt_int(value: object, name: str) -> int | None:
+    """`value` (None: absent) as an int; CameraError naming `name` unless it is a whole number."""
+    if value is None:
         return None
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not float(v).is_integer():
-        raise CameraError(f"image width/height must be whole numbers; got {v!r}")
-    return int(v)
+    whole = isinstance(value, Integral) or (isinstance(value, Real) and float(value).is_integer())
+    if isinstance(value, bool) or not whole:
+        raise CameraError(f"{name} must be a whole number; got {reprlib.repr(value)}")
+    return int(value)
 
 
-def _matrix(node, name: str, rows: int | None, cols: int | None) -> np.ndarray:
-    """A ROS-style {rows, cols, data} node (or a plain nested list) as an array."""
+def _matrix(node: object, name: str, rows: int | None, cols: int | None) -> np.ndarray:
+    """A ROS-style {rows, cols, data} node (or a plain nested list) named `name` as an array."""
     if isinstance(node, dict) and "data" in node:
-        data = np.asarray(node["data"], dtype=np.float64)
-        r, c = node.get("rows", rows), node.get("cols", cols)
+        data = _numbers(node["data"], f"{name}.data")
+        r, c = _opt_int(node.get("rows", rows), f"{name}.rows"), _opt_int(node.get("cols", cols), f"{name}.cols")
         if r is not None and c is not None:
             if data.size != r * c:
                 raise CameraError(f"{name} declares {r}x{c} but has {data.size} values")
             data = data.reshape(r, c)
         return data
-    try:
-        return np.asarray(node, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise CameraError(f"{name} is not a numeric matrix") from None
+    return _numbers(node, name)
 
 
 def camera_from_ros(data: dict, source: str) -> Camera:
@@ -151,22 +242,43 @@ def camera_from_ros(data: dict, source: str) -> Camera:
     if K.size != 9:
         raise CameraError(f"camera_matrix must have 9 values; got {K.size}")
     dist = _matrix(data.get("distortion_coefficients", {"data": []}), "distortion_coefficients", None, None)
-    return Camera(K.reshape(3, 3), dist.ravel(), _opt_int(data.get("image_width")),
-                  _opt_int(data.get("image_height")), source)
+    return Camera(K.reshape(3, 3), dist.ravel(), _opt_int(data.get("image_width"), "image_width"),
+                  _opt_int(data.get("image_height"), "image_height"), source)
+
+
+def _filestorage_matrix(fs: cv2.FileStorage, names: tuple[str, ...]) -> np.ndarray | None:
+    """The first of the nodes `names` that `fs` has, as an array; None when it has none of them."""
+    name = next((n for n in names if not fs.getNode(n).empty()), None)
+    if name is None:
+        return None
+    try:
+        return fs.getNode(name).mat()
+    except cv2.error:  # a scalar, a plain list, a mapping that is no matrix, or non-numeric data
+        raise CameraError(f"{name} is not an OpenCV matrix of numbers") from None
+
+
+def _filestorage_int(fs: cv2.FileStorage, name: str) -> int | None:
+    """The whole number at node `name` of `fs`; None when absent."""
+    node = fs.getNode(name)
+    if node.empty():
+        return None
+    # real() of a string or a list is DBL_MAX, not an error, so only numeric nodes may use it.
+    return _opt_int(node.real() if node.isInt() or node.isReal() else node.string(), name)
 
 
 def _camera_from_filestorage(path: Path) -> Camera:
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     try:
-        K = next((fs.getNode(n).mat() for n in ("camera_matrix", "K", "cameraMatrix") if not fs.getNode(n).empty()),
-                 None)
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except SystemError as exc:  # OpenCV 5's binding wraps the cv2.error of a file it cannot parse
+        if not isinstance(exc.__cause__, cv2.error):
+            raise
+        raise exc.__cause__ from None
+    try:
+        K = _filestorage_matrix(fs, ("camera_matrix", "K", "cameraMatrix"))
         if K is None:
-            raise CameraError(f"{path}: no camera_matrix, K or cameraMatrix node")
-        dist = next((fs.getNode(n).mat() for n in ("distortion_coefficients", "D", "dist_coeffs", "distCoeffs")
-                     if not fs.getNode(n).empty()), None)
-        w, h = fs.getNode("image_width"), fs.getNode("image_height")
-        width = int(w.real()) if not w.empty() else None
-        height = int(h.real()) if not h.empty() else None
+            raise CameraError("no camera_matrix, K or cameraMatrix node")
+        dist = _filestorage_matrix(fs, ("distortion_coefficients", "D", "dist_coeffs", "distCoeffs"))
+        width, height = _filestorage_int(fs, "image_width"), _filestorage_int(fs, "image_height")
     finally:
         fs.release()
     return Camera(K, np.zeros(5) if dist is None else dist.ravel(), width, height, f"file:{path}")
@@ -181,26 +293,54 @@ def load_camera(path: str | Path) -> Camera:
         raise CameraError(f"camera file not found: {path}") from None
     except UnicodeDecodeError:
         raise CameraError(f"camera file {path} is not text") from None
-    source = f"file:{path}"
+    try:
+        return _parse_camera(text, path)
+    except CameraError as exc:
+        raise CameraError(f"{path}: {exc}") from None
+
+
+def _parse_camera(text: str, path: Path) -> Camera:
+    """Camera from the `text` of the camera file `path`; CameraError messages leave the path to the caller."""
     if text.lstrip().startswith("%YAML") or "!!opencv-matrix" in text or '"type_id": "opencv-matrix"' in text:
         try:
             return _camera_from_filestorage(path)
         except cv2.error as exc:
-            raise CameraError(f"{path}: not a readable OpenCV FileStorage file: {exc}") from None
+            raise CameraError(f"not a readable OpenCV FileStorage file ({_opencv_error(exc)})") from None
     try:
         data = yaml.safe_load(text)  # YAML is a superset of JSON
     except yaml.YAMLError as exc:
-        raise CameraError(f"{path} is neither valid YAML nor JSON: {exc}") from None
+        raise CameraError(f"neither valid YAML nor JSON ({_yaml_error(exc)})") from None
     if not isinstance(data, dict):
-        raise CameraError(f"{path}: expected a mapping with camera_matrix (ROS) or fx, fy, cx, cy")
-    try:
-        if "camera_matrix" in data:
-            return camera_from_ros(data, source)
-        if "fx" in data:
-            return camera_from_json(data, source)
-    except CameraError as exc:
-        raise CameraError(f"{path}: {exc}") from None
-    raise CameraError(f"{path}: expected camera_matrix (ROS camera_info) or fx, fy, cx, cy keys")
+        raise CameraError("expected a mapping with camera_matrix (ROS) or fx, fy, cx, cy")
+    if "camera_matrix" in data:
+        return camera_from_ros(data, f"file:{path}")
+    if "fx" in data:
+        return camera_from_json(data, f"file:{path}")
+    raise CameraError("expected camera_matrix (ROS camera_info) or fx, fy, cx, cy keys")
+
+
+def _yaml_error(exc: yaml.YAMLError) -> str:
+    """The YAML parser's multi-line message (problem, quoted source, caret) as one line that keeps
+    the problem and where it is (1-based line and column), and the construct it was in."""
+    mark, problem = getattr(exc, "problem_mark", None), getattr(exc, "problem", None)
+    if mark is None or problem is None:  # a ReaderError (a control character) has a character offset
+        where = f"character {exc.position + 1}: " if isinstance(exc, yaml.reader.ReaderError) else ""
+        return where + str(exc).splitlines()[0]
+    message = f"line {mark.line + 1}, column {mark.column + 1}: {problem}"
+    context, start = getattr(exc, "context", None), getattr(exc, "context_mark", None)
+    if context and start:
+        message += f", {context} that starts at line {start.line + 1}, column {start.column + 1}"
+    return message
+
+
+def _opencv_error(exc: cv2.error) -> str:
+    """OpenCV's message without its source file and function: for a parse error, the line and reason."""
+    if exc.code == cv2.Error.StsParseError:
+        # Its "function" is "<path>(<line>): <reason>", and the path may be a temporary upload's.
+        parse = re.search(r"\((\d+)\): (.*)$", exc.func or "")
+        if parse:
+            return f"line {parse[1]}: {parse[2]}"
+    return (exc.err or str(exc)).strip().splitlines()[-1]
 
 
 def ros_camera_yaml(camera: Camera, name: str = "camera") -> str:

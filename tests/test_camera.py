@@ -1,9 +1,15 @@
 import json
+import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from pipeline.camera import Camera, CameraError, assumed_camera, load_camera, save_camera
+from pipeline.camera import Camera, CameraError, assumed_camera, camera_from_json, load_camera, save_camera
+from pipeline.image import read_image
+from pipeline.library import SAMPLE_LIBRARY, load_library
+from pipeline.recognize import recognize
+from pipeline.settings import preset
 
 ROS = """image_width: 640
 image_height: 480
@@ -52,13 +58,60 @@ def test_plain_json_and_opencv_filestorage(tmp_path):
     ('camera_matrix: {rows: 3, cols: 3, data: [1, 0, 0, 1]}', "declares 3x3"),
     ('{"fx": 400, "fy": 400, "cx": 320, "cy": 240, "dist": [1, 2, 3]}', "coefficients"),
     ('just text', "expected a mapping"),
-    ('{"fx": "a", "fy": 400, "cx": 320, "cy": 240}', "numbers"),
+    ('{"fx": "a", "fy": 400, "cx": 320, "cy": 240}', "fx must be a number"),
 ])
 def test_malformed_camera_files_are_clear_errors(tmp_path, text, message):
     p = tmp_path / "bad.yaml"
     p.write_text(text)
     with pytest.raises(CameraError, match=message):
         load_camera(p)
+
+
+OPENCV_MATRIX = """%YAML:1.0
+---
+{fields}camera_matrix: !!opencv-matrix
+   rows: 3
+   cols: 3
+   dt: d
+   data: [ {fx}, 0., 320., 0., 554., 240., 0., 0., 1. ]
+"""
+ROS_MATRIX = "camera_matrix: {{rows: {rows}, cols: 3, data: {data}}}\n"
+K_DATA = "[554, 0, 320, 0, 554, 240, 0, 0, 1]"
+
+
+@pytest.mark.parametrize("text, message", [
+    (ROS_MATRIX.format(rows=3, data="[abc, 0, 320, 0, 554, 240, 0, 0, 1]"),
+     "camera_matrix.data must be a number; got 'abc'"),
+    (ROS_MATRIX.format(rows=3, data="[true, 0, 320, 0, 554, 240, 0, 0, 1]"),
+     "camera_matrix.data must be a number; got True"),
+    (ROS_MATRIX.format(rows=3, data="[[554, 0, 320], [0, 554], 240, 0, 0, 1]"), "camera_matrix.data must be a number"),
+    (ROS_MATRIX.format(rows="three", data=K_DATA), "camera_matrix.rows must be a whole number; got 'three'"),
+    ("camera_matrix: [[554, 0, 320], [0, 554, x], [0, 0, 1]]\n", "camera_matrix must be a number; got 'x'"),
+    (ROS_MATRIX.format(rows=3, data=K_DATA) + "distortion_coefficients: {rows: 1, cols: 5, data: [0, x, 0, 0, 0]}\n",
+     "distortion_coefficients.data must be a number; got 'x'"),
+    (ROS_MATRIX.format(rows=3, data=K_DATA) + "image_width: wide\n", "image_width must be a whole number; got 'wide'"),
+    ('{"fx": 554, "fy": 554, "cx": 320, "cy": null}', "cy must be a number; got None"),
+    ('{"fx": 1%s, "fy": 554, "cx": 320, "cy": 240}' % ("0" * 400), "fx must be a number; got 1000"),
+    ('{"fx": 554, "fy": 554, "cx": 320, "cy": 240, "dist": [0, "x", 0, 0]}', "dist must be a number; got 'x'"),
+    ('{"fx": 554, "fy": 554, "cx": 320, "cy": 240, "height": "tall"}', "height must be a whole number; got 'tall'"),
+    (OPENCV_MATRIX.format(fields="", fx="abc"), "camera_matrix is not an OpenCV matrix of numbers"),
+    (OPENCV_MATRIX.format(fields="image_width: wide\n", fx="554."), "image_width must be a whole number; got 'wide'"),
+    (OPENCV_MATRIX.format(fields="image_height: 480.5\n", fx="554."), "image_height must be a whole number; got 480.5"),
+])
+def test_non_numeric_entries_are_one_line_errors_naming_the_field(tmp_path, text, message):
+    p = tmp_path / "bad.yaml"
+    p.write_text(text)
+    with pytest.raises(CameraError) as info:
+        load_camera(p)
+    assert str(info.value).startswith(f"{p}: {message}")
+    assert "\n" not in str(info.value)
+
+
+def test_numeric_text_is_a_number(tmp_path):
+    """YAML 1.1 reads 5.54e2 (an exponent without a sign) as a string; the camera means a number."""
+    p = tmp_path / "c.yaml"
+    p.write_text(ROS_MATRIX.format(rows=3, data="[5.54e2, 0, 320, 0, 5.54e2, 240, 0, 0, 1]"))
+    assert load_camera(p).K[0, 0] == 554
 
 
 def test_missing_file_and_scaling():
@@ -68,3 +121,93 @@ def test_missing_file_and_scaling():
     assert cam.is_assumed and abs(cam.K[0, 0] - 554.256) < 1e-3
     scaled, warnings = cam.for_image(1280, 960)
     assert scaled.K[0, 0] == pytest.approx(2 * cam.K[0, 0]) and warnings
+
+
+def intrinsics(fx: float, fy: float, cx: float = 320, cy: float = 240, s: float = 0) -> np.ndarray:
+    """K in px."""
+    return np.array([[fx, s, cx], [0, fy, cy], [0, 0, 1]])
+
+
+@pytest.mark.parametrize("K, size, message", [
+    (intrinsics(1e300, 1e300), (None, None), r"fx=1e\+300 px is longer than 1e\+06 px"),
+    (intrinsics(1e100, 1e100), (None, None), "give the file the image width and height"),
+    (intrinsics(4e5, 4e5), (640, 480), "fx=400000 px makes the image's 640 px a field of view under 0.1°"),
+    (intrinsics(4e5, 4e5), (None, 480), "fx=400000 px makes the image's 480 px"),
+    (intrinsics(500, 6000), (None, None), "fx/fy = 0.0833"),
+    (intrinsics(5010, 500), (640, 480), "fx/fy = 10"),
+    (intrinsics(500, 500, s=1e300), (640, 480), "skew"),
+    (intrinsics(500, 500, cx=1e300), (None, None), "principal point"),
+    (intrinsics(500, 500, cx=320, cy=-1), (640, 480), "principal point"),
+    (intrinsics(500, 500), (2**31, 480), "under 2"),
+])
+def test_implausible_intrinsics_are_refused(K, size, message):
+    with pytest.raises(CameraError, match=message):
+        Camera(K, np.zeros(5), *size)
+
+
+def test_a_long_lens_with_its_image_size_is_a_camera():
+    """0.2° across 8000 px needs fx = 2.3e6 px: past the cap for files without a size, not with one."""
+    f = 4000 / math.tan(math.radians(0.1))
+    assert Camera(intrinsics(f, f, 4000, 3000), np.zeros(5), 8000, 6000).K[0, 0] == f
+    with pytest.raises(CameraError, match="without an image size"):
+        Camera(intrinsics(f, f, 4000, 3000))
+
+
+def test_a_thin_crop_is_held_against_its_long_side():
+    """A 4000 x 1 px strip is a camera's: vertically it sees a sliver, but 4000 px span 60°."""
+    assert assumed_camera(4000, 1).for_image(4000, 1)[1] == []
+
+
+def test_sample_camera_files_load():
+    paths = sorted(Path(__file__).parents[1].glob("sample_images/**/camera.yaml"))
+    assert paths and all(load_camera(p).width == 640 for p in paths)
+
+
+def test_scaling_cannot_make_an_implausible_camera():
+    cam = Camera(intrinsics(500, 500), np.zeros(5), 640, 480)
+    with pytest.raises(CameraError, match="calibrated at 640x480 px cannot be scaled to this 6400x48 px image: fx/fy"):
+        cam.for_image(6400, 48)
+
+
+def test_a_camera_without_size_too_long_for_the_image_is_a_warning():
+    cam = Camera(intrinsics(4e5, 4e5))
+    same, warnings = cam.for_image(640, 480)
+    assert same is cam and len(warnings) == 1 and "field of view under 0.1°" in warnings[0]
+
+
+CORNER_JSON = {"fx": 1108.5, "fy": 1108.5, "cx": 640, "cy": 480}  # a 1280 x 960 calibration without its size
+
+
+def test_a_camera_without_size_for_another_resolution_is_a_warning():
+    cam = camera_from_json(CORNER_JSON)
+    assert cam.for_image(1280, 960) == (cam, [])
+    assert cam.for_image(1000, 700) == (cam, [])  # 14 % and 19 % off the centre: under a quarter
+    same, warnings = cam.for_image(640, 480)
+    assert same is cam and len(warnings) == 1
+    assert "principal point (640, 480) px is far from the centre (320, 240)" in warnings[0]
+    assert "another resolution" in warnings[0] and "width and height" in warnings[0]
+
+
+def test_the_other_resolution_warning_reaches_the_recognition():
+    scenes = Path(__file__).parents[1] / "sample_images" / "scenes"
+    rec = recognize(read_image(scenes / "scene_002.jpg"), load_library(SAMPLE_LIBRARY), preset("default"),
+                    camera_from_json(CORNER_JSON))
+    assert any("another resolution" in w for w in rec.warnings)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("image_width: 640\ncamera_matrix:\n  rows: 3\n    cols: 3\n",
+     "neither valid YAML nor JSON (line 4, column 9: mapping values are not allowed here)"),
+    ('{"fx": 554, "fy": 554,\n "cx": [320, "cy": 240}\n',
+     "neither valid YAML nor JSON (line 2, column 23: expected ',' or ']', but got '}', "
+     "while parsing a flow sequence that starts at line 2, column 8)"),
+    ("fx: 554\x01\n", "neither valid YAML nor JSON (character 8: unacceptable character #x0001"),
+    ("%YAML:1.0\n---\ncamera_matrix: [1, 2\nfoo: : bar\n",
+     "not a readable OpenCV FileStorage file (line 4: Incorrect indentation)"),
+])
+def test_unparsable_files_are_one_line_errors_with_the_position(tmp_path, text, message):
+    p = tmp_path / "camera.yaml"
+    p.write_text(text)
+    with pytest.raises(CameraError) as info:
+        load_camera(p)
+    assert str(info.value).startswith(f"{p}: {message}") and "\n" not in str(info.value)

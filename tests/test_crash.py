@@ -62,8 +62,8 @@ def add(url: str, ack: Acknowledged, start: int) -> None:
                     ack.signs.add(f"sign-{step}")
                 else:
                     ack.camera_in_flight = 500.0 + step
-                    c.put("/api/camera", json={"fx": ack.camera_in_flight, "fy": 500, "cx": 32, "cy": 24})\
-                        .raise_for_status()
+                    fx = ack.camera_in_flight  # square pixels: fx/fy far from 1 is refused
+                    c.put("/api/camera", json={"fx": fx, "fy": fx, "cx": 32, "cy": 24}).raise_for_status()
                     ack.camera_fx = ack.camera_in_flight
             except httpx.TransportError:
                 return
