@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .camera import Camera
+from .camera import Camera, CameraError
 
 MIN_VIEWS = 3
 # More inner corners per side than any printable board has; the detector's cost grows with them.
@@ -270,7 +270,11 @@ def calibrate(views: list[BoardView], board: tuple[int, int], square_m: float,
     rms, K, dist, rvecs, tvecs, std_intr, _, per_view = cv2.calibrateCameraExtended(
         [obj] * len(fit), [views[i].corners.astype(np.float32) for i in fit], tuple(int(s) for s in size),
         None, None, flags=flags)
-    camera = Camera(K, dist.ravel(), int(size[0]), int(size[1]), "calibrated")
+    try:
+        camera = Camera(K, dist.ravel(), int(size[0]), int(size[1]), "calibrated")
+    except CameraError as exc:  # a degenerate fit, e.g. views that barely tilt the board
+        raise CalibrationError(f"the fit gave no usable camera ({exc}); add views with the board tilted "
+                               "and spread over the frame") from None
 
     n = len(views)
     errors, rv, tv = np.full(n, np.nan), np.full((n, 3), np.nan), np.full((n, 3), np.nan)

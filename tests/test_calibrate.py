@@ -174,6 +174,21 @@ def test_calibrate_errors():
             calibrate(views, BOARD, square)
 
 
+def test_a_fit_no_camera_could_have_is_a_calibration_error(monkeypatch):
+    """OpenCV fits whatever the views allow; intrinsics `Camera` refuses (here fx 20x fy) must
+    reach the user as a calibration problem, which the CLI and the page report, not a crash."""
+    fit = cv2.calibrateCameraExtended
+
+    def squashed(*args, **kwargs):
+        rms, K, *rest = fit(*args, **kwargs)
+        K[0, 0] = 20 * K[1, 1]
+        return (rms, K, *rest)
+
+    monkeypatch.setattr(calib.cv2, "calibrateCameraExtended", squashed)
+    with pytest.raises(CalibrationError, match="no usable camera.*fx/fy"):
+        calibrate(projected_views(6), BOARD, SQUARE_M)
+
+
 def test_chessboard_image_has_the_requested_inner_corners():
     image = chessboard_image((7, 5), square_px=30)
     assert image.shape == (30 * 6 + 60, 30 * 8 + 60)
