@@ -40,6 +40,10 @@ MAX_IMAGE_SIDE_PX = 2**31 - 1
 # Real pixels are square to a percent or two and anamorphic lenses squeeze 2x at most: fx/fy beyond
 # 10 is a dropped digit or fx and fy from different cameras.
 MAX_FOCAL_RATIO = 10.0
+# Lens distortion moves the image corners by tens of percent at most (a strong wide-angle barrel
+# about 40 %): distorted / undistorted radius beyond 5 or under 1/5 there is a typo or a model
+# used far outside the images it was fitted to.
+MAX_DISTORTION_FACTOR = 5.0
 
 
 class CameraError(ValueError):
@@ -87,6 +91,9 @@ class Camera:
             raise CameraError(f"distortion must have 4, 5, 8, 12 or 14 coefficients; got {dist.size}")
         if not np.all(np.isfinite(dist)):
             raise CameraError("distortion coefficients must be finite")
+        problem = _distortion_problem(K, dist, self.width, self.height)
+        if problem:
+            raise CameraError(problem)
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "dist", dist if dist.size else np.zeros(5))
 
@@ -163,6 +170,31 @@ def _focal_length_problem(fx: float, fy: float, width: int | None, height: int |
     if not 1 / MAX_FOCAL_RATIO <= fx / fy <= MAX_FOCAL_RATIO:
         return (f"fx/fy = {fx / fy:.3g} (fx={fx:.6g}, fy={fy:.6g} px), but real pixels are near square; "
                 "check both values")
+    return None
+
+
+def _distortion_problem(K: np.ndarray, dist: np.ndarray, width: int | None, height: int | None) -> str | None:
+    """Why distortion `dist` is no real lens's for camera matrix K (3, 3) and a `width` x `height` px
+    image (None: twice the principal point), or None: along the rays to the image corners, the
+    distorted radius must stay within MAX_DISTORTION_FACTOR of the undistorted one."""
+    if not np.any(dist):
+        return None
+    w, h = width or 2 * K[0, 2], height or 2 * K[1, 2]
+    corners = np.array([[0, 0], [w, 0], [w, h], [0, h]], np.float64)
+    ends = np.column_stack([(corners[:, 0] - K[0, 2]) / K[0, 0], (corners[:, 1] - K[1, 2]) / K[1, 1]])
+    rays = (np.linspace(0.1, 1.0, 10)[:, None, None] * ends).reshape(-1, 2)  # distorted radius ~ these
+    rays = rays[np.hypot(rays[:, 0], rays[:, 1]) > 1e-9]
+    if not len(rays):
+        return None
+    with np.errstate(all="ignore"):
+        moved = cv2.projectPoints(np.column_stack([rays, np.ones(len(rays))]), np.zeros(3), np.zeros(3),
+                                  np.eye(3), dist)[0].reshape(-1, 2)
+        factor = np.hypot(moved[:, 0], moved[:, 1]) / np.hypot(rays[:, 0], rays[:, 1])
+    worst = float(np.nanmax(np.abs(np.log(factor)))) if np.all(np.isfinite(factor)) and np.all(factor > 0) else math.inf
+    if worst > math.log(MAX_DISTORTION_FACTOR):
+        return (f"distortion {', '.join(f'{d:.6g}' for d in dist)} moves image points by more than "
+                f"{MAX_DISTORTION_FACTOR:g}x their distance from the centre, which no real lens does; check the "
+                "coefficients and their order (k1, k2, p1, p2, k3, ...)")
     return None
 
 

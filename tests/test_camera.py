@@ -145,6 +145,19 @@ def test_implausible_intrinsics_are_refused(K, size, message):
         Camera(K, np.zeros(5), *size)
 
 
+@pytest.mark.parametrize("dist", [[1e308, 0, 0, 0], [50, 0, 0, 0, 0], [0, 0, 0, 0, -1e4], [-1e3, 0, 0, 0]])
+@pytest.mark.parametrize("size", [(640, 480), (None, None)])
+def test_distortion_no_lens_has_is_refused(dist, size):
+    """A typed 1e308 used to be applied and turned every image into an SVD error."""
+    with pytest.raises(CameraError, match="moves image points by more than 5x"):
+        Camera(intrinsics(554, 554), np.array(dist, float), *size)
+
+
+@pytest.mark.parametrize("dist", [[-0.3, 0.1, 0, 0, 0], [-0.45, 0.25, 0.001, -0.001, -0.1], [0.1, 0, 0, 0]])
+def test_wide_angle_distortion_is_a_camera(dist):
+    Camera(intrinsics(554, 554), np.array(dist, float), 640, 480)
+
+
 def test_a_long_lens_with_its_image_size_is_a_camera():
     """0.2° across 8000 px needs fx = 2.3e6 px: past the cap for files without a size, not with one."""
     f = 4000 / math.tan(math.radians(0.1))
