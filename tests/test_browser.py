@@ -328,6 +328,28 @@ def test_assumed_field_of_view_and_typed_intrinsics(page, api, no_camera):
         "source": "", "kind": "typed"}
 
 
+def test_stage_figures_follow_a_camera_change(page, api, no_camera):
+    # A camera changes the result (its pose) under the same settings version: the figures are
+    # fetched again, not left as they were drawn from the old result.
+    image_id = uploaded_scene(api)
+    open_detail(page, image_id)
+    shown_intrinsics(page, "assumed")
+    before = harness.stage_images_loaded(page, "#detail .stage img")
+
+    page.click("#camera-open")
+    page.click('#camera-tabs button[value="typed"]')
+    page.click("#typed-fill")
+    page.fill("#typed-fx", "700")
+    page.fill("#typed-fy", "700")
+    page.click("#typed-form button[type=submit]")
+    page.click("#camera-close")
+    shown_intrinsics(page, "typed")
+    page.wait_for_function("old => [...document.querySelectorAll('#detail .stage img')].every((i, n) => i.src !== old[n])",
+                           arg=[s["src"] for s in before], timeout=60_000)
+    after = harness.stage_images_loaded(page, "#detail .stage img")
+    assert all(s["w"] > 0 for s in after), f"stage images that did not load: {[s for s in after if not s['w']]}"
+
+
 def test_api_docs_render_without_internet(browser, base):
     # Only this server answers: a request anywhere else (a CDN) fails as it would at a venue offline.
     context = browser.new_context()
