@@ -54,8 +54,11 @@ const sizedImage = () => state.images.find((i) => i.width);
 function renderHfovNote(hfov) {
   const img = sizedImage();
   const px = img ? `, fx = fy ≈ ${fmt(focalPx(img.width, hfov), 0)} px at ${img.width} px wide` : "";
-  // 35 mm equivalent: a full frame is 36 mm wide.
-  $("#hfov-note").textContent = `≈ ${fmt(focalPx(36, hfov), 0)} mm focal length (35 mm equivalent)${px}`;
+  // 35 mm equivalent as EXIF's FocalLengthIn35mmFilm (pipeline/exif.py): the image's diagonal
+  // scaled to a 36 × 24 mm frame's, so a phone's "26 mm" agrees with its photos' EXIF.
+  const [w, h] = img ? [img.width, img.height] : [36, 24];
+  const mm = (focalPx(w, hfov) * Math.hypot(36, 24)) / Math.hypot(w, h);
+  $("#hfov-note").textContent = `≈ ${fmt(mm, 0)} mm focal length (35 mm equivalent)${px}`;
 }
 
 function renderCamera() {

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import base64
 import json
+import math
 import re
 import time
 from pathlib import Path
@@ -16,6 +17,7 @@ import pytest
 
 import browser_harness as harness
 from chessboards import K_TRUE, render_boards
+from pipeline.exif import LensExif, focal_px
 
 TRUTH = json.loads((harness.SCENES / "truth.json").read_text())["images"]
 # An easy scene with a sign: recognised at the default settings.
@@ -326,6 +328,16 @@ def test_assumed_field_of_view_and_typed_intrinsics(page, api, no_camera):
     assert api.get("/api/camera").json()["camera"] | {"source": ""} == {
         "fx": 600, "fy": 601, "cx": 321, "cy": 239, "dist": [-0.1, 0.02, 0, 0, 0], "width": 640, "height": 480,
         "source": "", "kind": "typed"}
+
+
+def test_assumed_fov_note_uses_the_exif_35mm_convention(page, api, no_camera):
+    # The note's "N mm (35 mm equivalent)", read back as EXIF's FocalLengthIn35mmFilm, gives the
+    # slider's field of view again: a phone's "N mm" spec and its photos' EXIF agree.
+    page.wait_for_function("() => document.querySelector('#hfov-num').value === '60' && "
+                           "document.querySelector('#hfov-note').textContent.includes('at 640 px wide')")
+    mm = float(re.search(r"≈ (\d+) mm focal length \(35 mm equivalent\)", page.inner_text("#hfov-note"))[1])
+    f = focal_px(LensExif(focal_mm=None, focal_35mm=mm, plane_px_per_mm=None, pixel_size=None), 640, 480)
+    assert math.degrees(2 * math.atan(320 / f)) == pytest.approx(60, abs=1)
 
 
 def test_stage_figures_follow_a_camera_change(page, api, no_camera):
