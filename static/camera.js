@@ -296,10 +296,18 @@ function bindCalibration() {
     showTab("calibrate");
     enqueue(files);
   });
-  const putBoard = () => change("PUT", "/api/calibration/board", {
-    cols: Number($("#board-cols").value), rows: Number($("#board-rows").value),
-    square_m: Number($("#board-square").value) / 1000,
-  });
+  const putBoard = () => {
+    const square = $("#board-square").value;
+    // The field is in millimetres; the server's message for this would speak of metres.
+    if (!(Number(square) > 0)) {
+      report(new Error(`square size must be a positive number of millimetres; got ${square || "nothing"}`));
+      loadCalibration();
+      return;
+    }
+    change("PUT", "/api/calibration/board", {
+      cols: Number($("#board-cols").value), rows: Number($("#board-rows").value), square_m: Number(square) / 1000,
+    });
+  };
   for (const id of ["#board-cols", "#board-rows", "#board-square"]) $(id).addEventListener("change", putBoard);
   $("#calib-run").onclick = () => run(false);
   $("#calib-drop").onclick = () => run(true);

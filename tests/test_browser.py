@@ -330,6 +330,24 @@ def test_assumed_field_of_view_and_typed_intrinsics(page, api, no_camera):
         "source": "", "kind": "typed"}
 
 
+def test_board_square_size_is_checked_in_millimetres(page, api, no_camera):
+    board = api.get("/api/calibration").json()["board"]
+    page.click("#camera-open")
+    page.wait_for_function("() => document.querySelector('#board-rows').value !== ''")   # the board is shown
+    page.fill("#board-square", "-5")
+    page.dispatch_event("#board-square", "change")
+    toast = page.locator(".toast.error .toast-msg").last
+    toast.wait_for()
+    assert toast.inner_text() == "square size must be a positive number of millimetres; got -5"
+    assert api.get("/api/calibration").json()["board"] == board
+
+    # Anything else is the server's to say.
+    page.fill("#board-square", str(board["square_m"] * 1000))
+    page.fill("#board-cols", "2")
+    page.dispatch_event("#board-cols", "change")
+    page.locator(".toast.error .toast-msg", has_text="at least 3x3 inner corners").wait_for()
+
+
 def test_assumed_fov_note_uses_the_exif_35mm_convention(page, api, no_camera):
     # The note's "N mm (35 mm equivalent)", read back as EXIF's FocalLengthIn35mmFilm, gives the
     # slider's field of view again: a phone's "N mm" spec and its photos' EXIF agree.
