@@ -5,7 +5,7 @@
 import { api, get } from "./api.js";
 import { barAt, drawViewErrors } from "./charts.js";
 import { on, state } from "./store.js";
-import { $, el, fill, fmt, debounce, download, report, toast } from "./ui.js";
+import { $, el, fill, fmt, debounce, download, plural, report, toast } from "./ui.js";
 import { dropTarget, filesForm, uploadQueue } from "./uploads.js";
 
 /** CameraIntrinsics.kind, for people. */
@@ -205,7 +205,7 @@ function renderSummary() {
   const b = calib.board;
   if (!r) {
     fill($("#calib-summary"), el("p.muted", {}, calib.views.length
-      ? `${calib.views.length} photos, the ${b.cols}×${b.rows} board found in ${found}`
+      ? `${plural(calib.views.length, "photo")}, the ${b.cols}×${b.rows} board found in ${found}`
         + (found < calib.min_views ? ` (at least ${calib.min_views} needed; 15–20 recommended)` : ": run the calibration")
       : "No photos yet."));
     return;
@@ -214,7 +214,7 @@ function renderSummary() {
   const outliers = calib.views.filter((v) => v.outlier).length;
   fill($("#calib-summary"), el("dl.pose", {},
     [el("dt", {}, "RMS"), el("dd", { id: "calib-rms" }, `${fmt(r.rms_px, 3)} px from ${r.used} of ${calib.views.length} photos`
-      + (outliers ? ` · ${outliers} outlier${outliers > 1 ? "s" : ""} (> ${fmt(r.outlier_threshold_px, 2)} px)` : ""))],
+      + (outliers ? ` · ${plural(outliers, "outlier")} (> ${fmt(r.outlier_threshold_px, 2)} px)` : ""))],
     ...["fx", "fy", "cx", "cy"].map((k) => [el("dt", {}, k), el("dd", { dataset: { key: k } }, `${fmt(cam[k], 2)} ± ${fmt(sd[k], 2)} px`)]),
     [el("dt", {}, "distortion"), el("dd", {}, cam.dist.map((d) => fmt(d, 4)).join(" "))],
     [el("dt", {}, "image size"), el("dd", {}, `${cam.width}×${cam.height}`)],
@@ -322,7 +322,7 @@ function bindCalibration() {
   };
   $("#calib-yaml").onclick = () => download("/api/calibration/camera.yaml");
   $("#calib-clear").onclick = () => {
-    if (calib?.views.length && confirm(`Remove all ${calib.views.length} calibration photos?`)) {
+    if (calib?.views.length && confirm(`Remove all ${plural(calib.views.length, "calibration photo")}?`)) {
       change("DELETE", "/api/calibration");
     }
   };

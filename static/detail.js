@@ -7,7 +7,7 @@ import { drawHistogram, drawSweep, valueAt } from "./charts.js";
 import { fillExpected, refreshImages } from "./gallery.js";
 import { setSetting } from "./settings.js";
 import { state, on, select, signName } from "./store.js";
-import { $, el, fill, fmt, report } from "./ui.js";
+import { $, el, fill, fmt, plural, report } from "./ui.js";
 
 let detail = null;          // GET /api/images/{id} of the shown image
 let resultTag = "";         // resultTagOf(detail): in every figure URL
@@ -71,7 +71,7 @@ function renderHead() {
   badge.className = `badge status-${detail.status}`;
   const parts = [
     el("b", {}, detail.label ? signName(detail.label) : "no sign"),
-    `${detail.inliers ?? "–"} inliers`, `margin ${detail.margin ?? "–"}`,
+    plural(detail.inliers, "inlier"), `margin ${detail.margin ?? "–"}`,
     r?.timing_ms?.total !== undefined ? `${fmt(r.timing_ms.total, 0)} ms` : null,
     `${detail.width}×${detail.height}`,
   ].filter(Boolean);

@@ -2,7 +2,7 @@
 
 import { api, get } from "./api.js";
 import { state, emit, on, select, signName } from "./store.js";
-import { $, el, fill, report, throttle } from "./ui.js";
+import { $, el, fill, plural, report, throttle } from "./ui.js";
 import { dropTarget, filesForm, uploadQueue } from "./uploads.js";
 
 const STATUSES = ["correct", "wrong", "recognized", "none", "pending", "error"];
@@ -98,7 +98,7 @@ function renderCounts() {
   for (const img of state.images) counts[img.status] = (counts[img.status] || 0) + 1;
   const labelled = counts.correct + counts.wrong;
   fill($("#counts"),
-    el("span.count", {}, `${state.images.length} images`),
+    el("span.count", {}, plural(state.images.length, "image")),
     labelled ? el("span.count.accuracy", { title: "correct / images with an expected label" },
       `${counts.correct}/${labelled} correct`) : null,
     // "correct" is already in the accuracy figure.
@@ -126,7 +126,7 @@ export function initGallery() {
     cards.get(state.selected)?.card.scrollIntoView({ block: "nearest" });
   });
   $("#clear-images").onclick = async () => {
-    if (!state.images.length || !confirm(`Remove all ${state.images.length} images?`)) return;
+    if (!state.images.length || !confirm(`Remove all ${plural(state.images.length, "image")}?`)) return;
     for (const img of state.images) {
       try { await api("DELETE", `/api/images/${img.id}`); } catch (err) { report(err); }
     }

@@ -358,6 +358,15 @@ def test_assumed_fov_note_uses_the_exif_35mm_convention(page, api, no_camera):
     assert math.degrees(2 * math.atan(320 / f)) == pytest.approx(60, abs=1)
 
 
+def test_calibration_summary_counts_one_photo(page, api, tmp_path, no_camera):
+    photo = tmp_path / "board.png"
+    cv2.imwrite(str(photo), render_boards(1)[0][0])
+    page.click("#camera-open")
+    page.set_input_files("#calib-picker", str(photo))
+    page.locator("#calib-summary", has_text="board found in 1").wait_for(timeout=60_000)
+    assert page.inner_text("#calib-summary").startswith("1 photo, ")
+
+
 def test_stage_figures_follow_a_camera_change(page, api, no_camera):
     # A camera changes the result (its pose) under the same settings version: the figures are
     # fetched again, not left as they were drawn from the old result.
