@@ -109,6 +109,9 @@ function renderScores() {
 
 const kv = (key, value, cls = "") => [el("dt", {}, key), el(`dd${cls}`, {}, value)];
 
+/** Two significant digits: a pose's 1σ spans 0.04 mm to metres. */
+const sig = (value) => String(Number(value.toPrecision(2)));
+
 function renderPose() {
   const pose = detail.result?.pose;
   const box = $("#pose");
@@ -126,8 +129,8 @@ function renderPose() {
       kv("reprojection", `${fmt(pose.reprojection_rmse_px, 2)} px RMSE`),
       kv("ambiguous", pose.ambiguous ? "yes: two planar solutions fit almost equally" : "no",
         pose.ambiguous ? ".bad" : ""),
-      sd.length === 6 ? kv("1σ rot · t", `${sd.slice(0, 3).map((s) => fmt((s * 180) / Math.PI, 2)).join(" ")} ° · `
-        + `${sd.slice(3).map((s) => fmt(s * 100, 1)).join(" ")} cm`) : null,
+      sd.length === 6 ? kv("1σ rot · t", `${sd.slice(0, 3).map((s) => sig((s * 180) / Math.PI)).join(" ")} ° · `
+        + `${sd.slice(3).map((s) => sig(s * 1000)).join(" ")} mm`) : null,
     ), el("p.hint", {}, "metres in the sign frame: origin at the sign centre, x right, y down, z into the wall"));
   }
   renderIntrinsics(detail.camera);

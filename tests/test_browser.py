@@ -220,6 +220,15 @@ def test_threshold_calibration_and_sweep(page, api):
     assert "labelled" in page.inner_text("#sweep-info")
 
 
+def test_pose_sigma_in_millimetres(page, api):
+    image_id = uploaded_scene(api)
+    open_detail(page, image_id)
+    sigma = page.locator("#pose dt", has_text="1σ").locator("xpath=following-sibling::dd[1]").inner_text()
+    shown = [float(v) for v in re.fullmatch(r"\S+ \S+ \S+ ° · (\S+) (\S+) (\S+) mm", sigma).groups()]
+    cov = api.get(f"/api/images/{image_id}").json()["result"]["pose"]["covariance"]
+    assert shown == [pytest.approx(1000 * math.sqrt(cov[i][i]), rel=0.05) for i in range(3, 6)]
+
+
 def test_viser_scene_connects_and_shares_the_settings(page, api):
     scene = page.frame_locator("#scene")
     scene.locator("canvas").first.wait_for(timeout=30_000)
