@@ -354,13 +354,14 @@ function renderSweep() {
     return;
   }
   if (!sweep) { fill(info); return; }
-  drawSweep(canvas, sweep, state.settings[sweep.param]);
+  const digits = state.schema.find((e) => e.name === sweep.param).type === "int" ? 0 : 2;
+  drawSweep(canvas, sweep, state.settings[sweep.param], digits);
   fill(info,
     el("span", {}, el("i.swatch.correct"), `correct of ${sweep.labelled} labelled`),
     el("span", {}, el("i.swatch.margin"), "smallest margin"),
     sweep.band
-      ? el("span", {}, `${sweep.param} works over `, el("b", {}, `${fmt(sweep.band[0])}–${fmt(sweep.band[1])}`),
-        ", centre ", el("b.suggested", {}, fmt(sweep.centre)))
+      ? el("span", {}, `${sweep.param} works over `, el("b", {}, sweep.band.map((v) => fmt(v, digits)).join("–")),
+        ", centre ", el("b.suggested", {}, fmt(sweep.centre, digits)))
       : el("span.warn", {}, `no ${sweep.param} value gets every labelled image right`),
     sweep.centre !== null ? el("button.primary", {
       type: "button", title: `Set ${sweep.param} to the centre of the working band`,

@@ -220,6 +220,17 @@ def test_threshold_calibration_and_sweep(page, api):
     assert "labelled" in page.inner_text("#sweep-info")
 
 
+def test_sweep_of_an_integer_setting_shows_whole_numbers(page, api):
+    open_detail(page, uploaded_scene(api))
+    page.select_option("#sweep-param", "min_matches")
+    page.fill("#sweep-lo", "4")
+    page.fill("#sweep-hi", "12")
+    page.fill("#sweep-steps", "3")
+    page.click("#run-sweep")
+    page.locator("#sweep-info", has_text="works over").wait_for(timeout=120_000)
+    assert "min_matches works over 4–12, centre 8" in page.inner_text("#sweep-info")
+
+
 def test_pose_sigma_in_millimetres(page, api):
     image_id = uploaded_scene(api)
     open_detail(page, image_id)
