@@ -113,6 +113,14 @@ def test_upload_recognise_and_inspect(page, api, tmp_path):
     print(f"screenshot: {tmp_path / 'signpose.png'}")
 
 
+def test_image_link_in_an_open_tab_switches_the_detail(page, api):
+    first, second = [i["id"] for i in api.get("/api/images").json()["images"][:2]]
+    open_detail(page, first)
+    page.evaluate("id => { location.hash = `image=${id}`; }", second)   # a #image= link followed in this tab
+    page.wait_for_function("id => document.querySelector('#detail').dataset.id === id", arg=second)
+    assert page.get_attribute(".card.selected", "data-id") == second
+
+
 def test_drop_many_files_with_progress(page, api):
     names = [f"drop-{i}-{SCENE}" for i in range(2)]
     data = base64.b64encode((harness.SCENES / SCENE).read_bytes()).decode()
