@@ -113,6 +113,15 @@ def test_upload_recognise_and_inspect(page, api, tmp_path):
     print(f"screenshot: {tmp_path / 'signpose.png'}")
 
 
+def test_detail_close_button_stays_top_right(page, api):
+    open_detail(page, uploaded_scene(api))   # a long summary: sign name, inliers, margin, time, size
+    head, prev, close, summary = (page.locator(s).bounding_box()
+                                  for s in (".detail-head", "#prev", "#detail-close", "#detail-summary"))
+    assert abs(close["y"] - prev["y"]) < 2, "the close button wrapped below the header's first line"
+    assert close["x"] + close["width"] == pytest.approx(head["x"] + head["width"], abs=2)
+    assert summary["x"] + summary["width"] <= close["x"]
+
+
 def test_image_link_in_an_open_tab_switches_the_detail(page, api):
     first, second = [i["id"] for i in api.get("/api/images").json()["images"][:2]]
     open_detail(page, first)
