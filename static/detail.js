@@ -4,7 +4,7 @@
 import { api, failureOf, get } from "./api.js";
 import { approximateNote, KIND_LABELS } from "./camera.js";
 import { drawHistogram, drawSweep, valueAt } from "./charts.js";
-import { fillExpected, refreshImages } from "./gallery.js";
+import { fillExpected, refreshImages, STATUS } from "./gallery.js";
 import { setSetting } from "./settings.js";
 import { state, on, select, signName } from "./store.js";
 import { $, el, fill, fmt, plural, report } from "./ui.js";
@@ -67,7 +67,8 @@ function renderHead() {
   $("#detail-name").textContent = detail.name;
   $("#detail-name").title = `${detail.name} · ${detail.width}×${detail.height} px`;
   const badge = $("#detail-badge");
-  badge.textContent = detail.status;
+  badge.textContent = STATUS[detail.status].text;
+  badge.title = STATUS[detail.status].title;
   badge.className = `badge status-${detail.status}`;
   const parts = [
     el("b", {}, detail.label ? signName(detail.label) : "no sign"),

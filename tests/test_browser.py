@@ -130,6 +130,25 @@ def test_image_link_in_an_open_tab_switches_the_detail(page, api):
     assert page.get_attribute(".card.selected", "data-id") == second
 
 
+def test_status_words_say_unlabelled(page, api):
+    # "no sign" is also an expected label: the status of an unlabelled image without one says so.
+    for name, label in (("unlabelled-sign.jpg", LABEL), ("unlabelled-none.jpg", None)):
+        scene = next(n for n, t in sorted(TRUTH.items()) if t["label"] == label and t["category"] != "hard")
+        api.post("/api/images", files={"files": (name, (harness.SCENES / scene).read_bytes(), "image/jpeg")})
+    harness.wait_server_idle(api)
+    harness.wait_cards(page, ["unlabelled-sign.jpg", "unlabelled-none.jpg"])
+    for name, text in (("unlabelled-sign.jpg", "recognised (unlabelled)"), ("unlabelled-none.jpg", "no sign (unlabelled)")):
+        assert harness.card(page, name).locator(".badge").text_content() == text
+
+    statuses = [i["status"] for i in api.get("/api/images").json()["images"]]
+    labelled = statuses.count("correct") + statuses.count("wrong")
+    expected = [f"{len(statuses)} images", f"{statuses.count('correct')}/{labelled} correct"] + [
+        f"{statuses.count(s)} {text}" for s, text in (("wrong", "wrong"), ("recognized", "recognised (unlabelled)"),
+                                                     ("none", "no sign (unlabelled)")) if s in statuses]
+    page.wait_for_function("t => [...document.querySelectorAll('#counts .count')].map(c => c.textContent)"
+                           ".join(' · ') === t", arg=" · ".join(expected))
+
+
 def test_drop_many_files_with_progress(page, api):
     names = [f"drop-{i}-{SCENE}" for i in range(2)]
     data = base64.b64encode((harness.SCENES / SCENE).read_bytes()).decode()
