@@ -55,6 +55,9 @@ function listen() {
   source.addEventListener("camera", handle(() => emit("camera")));
 }
 
+/** The image a `#image=<id>` link names, or null. */
+const linkedImage = () => new URLSearchParams(location.hash.slice(1)).get("image") || null;
+
 async function main() {
   window.addEventListener("unhandledrejection", (e) => report(e.reason));
   const [health] = await Promise.all([get("/api/health"), loadLibrary()]);
@@ -63,7 +66,7 @@ async function main() {
   initCamera();
   initGallery();
   initDetail();
-  const wanted = new URLSearchParams(location.hash.slice(1)).get("image");
+  const wanted = linkedImage();
   let autoOpen = true;
   on("images", (images) => {
     // Open an image as soon as there is one, so the stages are visible without a click.
@@ -71,6 +74,8 @@ async function main() {
     autoOpen = false;
     if (!state.selected) select((images.find((i) => i.id === wanted) ?? images[0]).id);
   });
+  // A link followed in this tab, or the hash edited, changes only the hash: show what it names.
+  window.addEventListener("hashchange", () => select(linkedImage()));
   refreshImages();
   listen();
 }

@@ -5,7 +5,7 @@
 import { api, get } from "./api.js";
 import { barAt, drawViewErrors } from "./charts.js";
 import { on, state } from "./store.js";
-import { $, el, fill, fmt, debounce, download, report, toast } from "./ui.js";
+import { $, el, fill, fmt, debounce, download, plural, report, toast } from "./ui.js";
 import { dropTarget, filesForm, uploadQueue } from "./uploads.js";
 
 /** CameraIntrinsics.kind, for people. */
@@ -54,8 +54,11 @@ const sizedImage = () => state.images.find((i) => i.width);
 function renderHfovNote(hfov) {
   const img = sizedImage();
   const px = img ? `, fx = fy ≈ ${fmt(focalPx(img.width, hfov), 0)} px at ${img.width} px wide` : "";
-  // 35 mm equivalent: a full frame is 36 mm wide.
-  $("#hfov-note").textContent = `≈ ${fmt(focalPx(36, hfov), 0)} mm focal length (35 mm equivalent)${px}`;
+  // 35 mm equivalent as EXIF's FocalLengthIn35mmFilm (pipeline/exif.py): the image's diagonal
+  // scaled to a 36 × 24 mm frame's, so a phone's "26 mm" agrees with its photos' EXIF.
+  const [w, h] = img ? [img.width, img.height] : [36, 24];
+  const mm = (focalPx(w, hfov) * Math.hypot(36, 24)) / Math.hypot(w, h);
+  $("#hfov-note").textContent = `≈ ${fmt(mm, 0)} mm focal length (35 mm equivalent)${px}`;
 }
 
 function renderCamera() {
@@ -202,7 +205,7 @@ function renderSummary() {
   const b = calib.board;
   if (!r) {
     fill($("#calib-summary"), el("p.muted", {}, calib.views.length
-      ? `${calib.views.length} photos, the ${b.cols}×${b.rows} board found in ${found}`
+      ? `${plural(calib.views.length, "photo")}, the ${b.cols}×${b.rows} board found in ${found}`
         + (found < calib.min_views ? ` (at least ${calib.min_views} needed; 15–20 recommended)` : ": run the calibration")
       : "No photos yet."));
     return;
@@ -211,7 +214,7 @@ function renderSummary() {
   const outliers = calib.views.filter((v) => v.outlier).length;
   fill($("#calib-summary"), el("dl.pose", {},
     [el("dt", {}, "RMS"), el("dd", { id: "calib-rms" }, `${fmt(r.rms_px, 3)} px from ${r.used} of ${calib.views.length} photos`
-      + (outliers ? ` · ${outliers} outlier${outliers > 1 ? "s" : ""} (> ${fmt(r.outlier_threshold_px, 2)} px)` : ""))],
+      + (outliers ? ` · ${plural(outliers, "outlier")} (> ${fmt(r.outlier_threshold_px, 2)} px)` : ""))],
     ...["fx", "fy", "cx", "cy"].map((k) => [el("dt", {}, k), el("dd", { dataset: { key: k } }, `${fmt(cam[k], 2)} ± ${fmt(sd[k], 2)} px`)]),
     [el("dt", {}, "distortion"), el("dd", {}, cam.dist.map((d) => fmt(d, 4)).join(" "))],
     [el("dt", {}, "image size"), el("dd", {}, `${cam.width}×${cam.height}`)],
@@ -293,10 +296,18 @@ function bindCalibration() {
     showTab("calibrate");
     enqueue(files);
   });
-  const putBoard = () => change("PUT", "/api/calibration/board", {
-    cols: Number($("#board-cols").value), rows: Number($("#board-rows").value),
-    square_m: Number($("#board-square").value) / 1000,
-  });
+  const putBoard = () => {
+    const square = $("#board-square").value;
+    // The field is in millimetres; the server's message for this would speak of metres.
+    if (!(Number(square) > 0)) {
+      report(new Error(`square size must be a positive number of millimetres; got ${square || "nothing"}`));
+      loadCalibration();
+      return;
+    }
+    change("PUT", "/api/calibration/board", {
+      cols: Number($("#board-cols").value), rows: Number($("#board-rows").value), square_m: Number(square) / 1000,
+    });
+  };
   for (const id of ["#board-cols", "#board-rows", "#board-square"]) $(id).addEventListener("change", putBoard);
   $("#calib-run").onclick = () => run(false);
   $("#calib-drop").onclick = () => run(true);
@@ -311,7 +322,7 @@ function bindCalibration() {
   };
   $("#calib-yaml").onclick = () => download("/api/calibration/camera.yaml");
   $("#calib-clear").onclick = () => {
-    if (calib?.views.length && confirm(`Remove all ${calib.views.length} calibration photos?`)) {
+    if (calib?.views.length && confirm(`Remove all ${plural(calib.views.length, "calibration photo")}?`)) {
       change("DELETE", "/api/calibration");
     }
   };

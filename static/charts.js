@@ -102,10 +102,9 @@ function series(p, xs, ys, max, color) {
   xs.forEach((v, i) => ctx.fillRect(x(v) - 2, y(ys[i] / max) - 2, 4, 4));
 }
 
-const num = (v) => (Number.isInteger(v) ? String(v) : v.toFixed(2));
-
-/** Correct count (left axis) and smallest margin (right axis) against the swept setting's value. */
-export function drawSweep(canvas, sweep, current) {
+/** Correct count (left axis) and smallest margin (right axis) against the swept setting's value,
+ *  labelled with `digits` decimals (0 for an integer setting). */
+export function drawSweep(canvas, sweep, current, digits) {
   const xs = sweep.values;
   const p = plot(canvas, xs[0], xs[xs.length - 1]);
   const { ctx, x, y, w } = p;
@@ -127,9 +126,9 @@ export function drawSweep(canvas, sweep, current) {
   ctx.fillStyle = COLORS.margin;
   ctx.fillText(String(maxMargin), PAD.left + w + 4, y(1));
   ctx.fillText("0", PAD.left + w + 4, y(0));
-  marker(p, sweep.centre, COLORS.suggested, `centre ${num(sweep.centre ?? 0)}`, [5, 3], 1);
+  marker(p, sweep.centre, COLORS.suggested, `centre ${(sweep.centre ?? 0).toFixed(digits)}`, [5, 3], 1);
   if (current >= xs[0] && current <= xs[xs.length - 1]) {
-    marker(p, current, COLORS.threshold, `now ${num(current)}`);
+    marker(p, current, COLORS.threshold, `now ${current.toFixed(digits)}`);
   }
 }
 

@@ -4,22 +4,30 @@
 import { api, failureOf, get } from "./api.js";
 import { approximateNote, KIND_LABELS } from "./camera.js";
 import { drawHistogram, drawSweep, valueAt } from "./charts.js";
-import { fillExpected, refreshImages } from "./gallery.js";
+import { fillExpected, refreshImages, STATUS } from "./gallery.js";
 import { setSetting } from "./settings.js";
 import { state, on, select, signName } from "./store.js";
-import { $, el, fill, fmt, report } from "./ui.js";
+import { $, el, fill, fmt, plural, report } from "./ui.js";
 
 let detail = null;          // GET /api/images/{id} of the shown image
+let resultTag = "";         // resultTagOf(detail): in every figure URL
 let shownKey = "";          // keyOf(shown image): reload only when the result can differ
 let loadToken = 0;          // drops responses that arrive after a newer request
 let calib = null;           // POST /api/calibrate/threshold answer for the shown image
 let sweep = null;           // GET /api/sweep answer plus the settings it ran under
 let sweeping = false;
 const boxes = new Map();    // image id -> calibration box [x0, y0, x1, y1] in image px
-let libraryVersion = 0;     // library edits change the match figures without a new settings version
 
-const stageUrl = (stage, query = "") =>
-  `/api/images/${detail.id}/stages/${stage}?v=${detail.settings_version}.${libraryVersion}${query}`;
+/** A fingerprint (FNV-1a) of an image's result. The figures are drawn from it, and a camera or library
+ *  change re-runs the image under the same settings version, so their URLs must change with it. */
+function resultTagOf(img) {
+  const text = JSON.stringify([img.settings_version, img.error, img.result]);   // the result has its timings
+  let hash = 0x811c9dc5;
+  for (let i = 0; i < text.length; i++) hash = Math.imul(hash ^ text.charCodeAt(i), 0x01000193);
+  return (hash >>> 0).toString(36);
+}
+
+const stageUrl = (stage, query = "") => `/api/images/${detail.id}/stages/${stage}?v=${resultTag}${query}`;
 
 /** A figure whose <img> shows the server's reason (e.g. "no blob") when the stage cannot be drawn. */
 function stageFigure(title, link = true) {
@@ -59,11 +67,12 @@ function renderHead() {
   $("#detail-name").textContent = detail.name;
   $("#detail-name").title = `${detail.name} · ${detail.width}×${detail.height} px`;
   const badge = $("#detail-badge");
-  badge.textContent = detail.status;
+  badge.textContent = STATUS[detail.status].text;
+  badge.title = STATUS[detail.status].title;
   badge.className = `badge status-${detail.status}`;
   const parts = [
     el("b", {}, detail.label ? signName(detail.label) : "no sign"),
-    `${detail.inliers ?? "–"} inliers`, `margin ${detail.margin ?? "–"}`,
+    plural(detail.inliers, "inlier"), `margin ${detail.margin ?? "–"}`,
     r?.timing_ms?.total !== undefined ? `${fmt(r.timing_ms.total, 0)} ms` : null,
     `${detail.width}×${detail.height}`,
   ].filter(Boolean);
@@ -101,6 +110,9 @@ function renderScores() {
 
 const kv = (key, value, cls = "") => [el("dt", {}, key), el(`dd${cls}`, {}, value)];
 
+/** Two significant digits: a pose's 1σ spans 0.04 mm to metres. */
+const sig = (value) => String(Number(value.toPrecision(2)));
+
 function renderPose() {
   const pose = detail.result?.pose;
   const box = $("#pose");
@@ -118,8 +130,8 @@ function renderPose() {
       kv("reprojection", `${fmt(pose.reprojection_rmse_px, 2)} px RMSE`),
       kv("ambiguous", pose.ambiguous ? "yes: two planar solutions fit almost equally" : "no",
         pose.ambiguous ? ".bad" : ""),
-      sd.length === 6 ? kv("1σ rot · t", `${sd.slice(0, 3).map((s) => fmt((s * 180) / Math.PI, 2)).join(" ")} ° · `
-        + `${sd.slice(3).map((s) => fmt(s * 100, 1)).join(" ")} cm`) : null,
+      sd.length === 6 ? kv("1σ rot · t", `${sd.slice(0, 3).map((s) => sig((s * 180) / Math.PI)).join(" ")} ° · `
+        + `${sd.slice(3).map((s) => sig(s * 1000)).join(" ")} mm`) : null,
     ), el("p.hint", {}, "metres in the sign frame: origin at the sign centre, x right, y down, z into the wall"));
   }
   renderIntrinsics(detail.camera);
@@ -187,6 +199,7 @@ async function load(id) {
     const body = await get(`/api/images/${encodeURIComponent(id)}`);
     if (token !== loadToken) return;
     detail = body;
+    resultTag = resultTagOf(body);
     shownKey = keyOf(body);
     render();
     calibrate();   // the detected sign's region moves with the result
@@ -342,13 +355,14 @@ function renderSweep() {
     return;
   }
   if (!sweep) { fill(info); return; }
-  drawSweep(canvas, sweep, state.settings[sweep.param]);
+  const digits = state.schema.find((e) => e.name === sweep.param).type === "int" ? 0 : 2;
+  drawSweep(canvas, sweep, state.settings[sweep.param], digits);
   fill(info,
     el("span", {}, el("i.swatch.correct"), `correct of ${sweep.labelled} labelled`),
     el("span", {}, el("i.swatch.margin"), "smallest margin"),
     sweep.band
-      ? el("span", {}, `${sweep.param} works over `, el("b", {}, `${fmt(sweep.band[0])}–${fmt(sweep.band[1])}`),
-        ", centre ", el("b.suggested", {}, fmt(sweep.centre)))
+      ? el("span", {}, `${sweep.param} works over `, el("b", {}, sweep.band.map((v) => fmt(v, digits)).join("–")),
+        ", centre ", el("b.suggested", {}, fmt(sweep.centre, digits)))
       : el("span.warn", {}, `no ${sweep.param} value gets every labelled image right`),
     sweep.centre !== null ? el("button.primary", {
       type: "button", title: `Set ${sweep.param} to the centre of the working band`,
@@ -408,7 +422,6 @@ export function initDetail() {
   on("select", (id) => (id ? load(id) : close()));
   buildMatchRows();
   on("library", () => {
-    libraryVersion += 1;
     buildMatchRows();
     if (detail) load(detail.id);
   });

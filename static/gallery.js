@@ -2,10 +2,20 @@
 
 import { api, get } from "./api.js";
 import { state, emit, on, select, signName } from "./store.js";
-import { $, el, fill, report, throttle } from "./ui.js";
+import { $, el, fill, plural, report, throttle } from "./ui.js";
 import { dropTarget, filesForm, uploadQueue } from "./uploads.js";
 
-const STATUSES = ["correct", "wrong", "recognized", "none", "pending", "error"];
+/** ImageSummary.status as the page words it, and what it means. "no sign" alone would read as the
+ *  expected label of that name, so the statuses of unlabelled images say they are unlabelled. */
+export const STATUS = {
+  correct: { text: "correct", title: "labelled: the result is the expected sign, or no sign where none was expected" },
+  wrong: { text: "wrong", title: "labelled: the result is not the expected label" },
+  recognized: { text: "recognised (unlabelled)", title: "no expected label: a sign was recognised" },
+  none: { text: "no sign (unlabelled)", title: "no expected label: no sign was found" },
+  pending: { text: "pending", title: "no result yet for the current settings, camera and library" },
+  error: { text: "error", title: "the pipeline failed on the image (its card says why)" },
+};
+const STATUSES = Object.keys(STATUS);
 
 function bindUpload() {
   const enqueue = uploadQueue({
@@ -26,7 +36,7 @@ function bindUpload() {
 
 /** Options for an expected-label select: unlabelled, "none" (no sign in the photo) or a library sign. */
 export function fillExpected(select, value = select.value) {
-  fill(select, el("option", { value: "" }, "unknown"), el("option", { value: "none" }, "no sign"),
+  fill(select, el("option", { value: "" }, "unlabelled"), el("option", { value: "none" }, "no sign"),
     ...state.library.map((s) => el("option", { value: s.id }, s.name)));
   select.value = value === "none" || state.library.some((s) => s.id === value) ? value : "";
 }
@@ -64,7 +74,8 @@ function updateCard({ card, parts }, img) {
   card.classList.toggle("selected", img.id === state.selected);
   card.dataset.status = img.status;
   card.dataset.version = img.settings_version;
-  parts.badge.textContent = img.status;
+  parts.badge.textContent = STATUS[img.status].text;
+  parts.badge.title = STATUS[img.status].title;
   parts.name.textContent = img.name;
   parts.name.title = img.name;
   const label = img.label ? signName(img.label) : img.status === "error" ? "error" : "no sign";
@@ -98,12 +109,13 @@ function renderCounts() {
   for (const img of state.images) counts[img.status] = (counts[img.status] || 0) + 1;
   const labelled = counts.correct + counts.wrong;
   fill($("#counts"),
-    el("span.count", {}, `${state.images.length} images`),
-    labelled ? el("span.count.accuracy", { title: "correct / images with an expected label" },
-      `${counts.correct}/${labelled} correct`) : null,
+    el("span.count", {}, plural(state.images.length, "image")),
+    labelled ? el("span.count.accuracy", {
+      title: "correct / labelled images with a result for the current state (pending and failed ones left out)",
+    }, `${counts.correct}/${labelled} correct`) : null,
     // "correct" is already in the accuracy figure.
     ...STATUSES.filter((s) => counts[s] && !(s === "correct" && labelled)).map((s) =>
-      el(`span.count.status-${s}`, { title: s }, el("i.dot"), `${counts[s]} ${s}`)));
+      el(`span.count.status-${s}`, { title: STATUS[s].title }, el("i.dot"), `${counts[s]} ${STATUS[s].text}`)));
 }
 
 export const refreshImages = throttle(async () => {
@@ -126,7 +138,7 @@ export function initGallery() {
     cards.get(state.selected)?.card.scrollIntoView({ block: "nearest" });
   });
   $("#clear-images").onclick = async () => {
-    if (!state.images.length || !confirm(`Remove all ${state.images.length} images?`)) return;
+    if (!state.images.length || !confirm(`Remove all ${plural(state.images.length, "image")}?`)) return;
     for (const img of state.images) {
       try { await api("DELETE", `/api/images/${img.id}`); } catch (err) { report(err); }
     }

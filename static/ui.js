@@ -63,6 +63,9 @@ export function throttle(fn, ms) {
 export const fmt = (value, digits = 2) =>
   value === null || value === undefined || Number.isNaN(value) ? "–" : Number(value).toFixed(digits);
 
+/** "1 photo", "2 photos". */
+export const plural = (n, noun) => `${n} ${noun}${n === 1 ? "" : "s"}`;
+
 export function download(url) {
   el("a", { href: url, download: "" }).click();
 }

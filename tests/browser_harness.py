@@ -81,7 +81,7 @@ def open_page(browser, base: str):
 
 
 def upload(page, files: list[Path], expected: str = "") -> None:
-    """Add images through the file picker, labelled `expected` ("" = unknown), and wait for their cards."""
+    """Add images through the file picker, labelled `expected` ("" = unlabelled), and wait for their cards."""
     page.select_option("#expected", expected)
     page.set_input_files("#file-picker", [str(f) for f in files])
     wait_cards(page, [f.name for f in files])

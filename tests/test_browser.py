@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import base64
 import json
+import math
 import re
 import time
 from pathlib import Path
@@ -16,6 +17,7 @@ import pytest
 
 import browser_harness as harness
 from chessboards import K_TRUE, render_boards
+from pipeline.exif import LensExif, focal_px
 
 TRUTH = json.loads((harness.SCENES / "truth.json").read_text())["images"]
 # An easy scene with a sign: recognised at the default settings.
@@ -109,6 +111,42 @@ def test_upload_recognise_and_inspect(page, api, tmp_path):
     assert page.locator("#intrinsics dl").count() == 1
     page.screenshot(path=str(tmp_path / "signpose.png"))
     print(f"screenshot: {tmp_path / 'signpose.png'}")
+
+
+def test_detail_close_button_stays_top_right(page, api):
+    open_detail(page, uploaded_scene(api))   # a long summary: sign name, inliers, margin, time, size
+    head, prev, close, summary = (page.locator(s).bounding_box()
+                                  for s in (".detail-head", "#prev", "#detail-close", "#detail-summary"))
+    assert abs(close["y"] - prev["y"]) < 2, "the close button wrapped below the header's first line"
+    assert close["x"] + close["width"] == pytest.approx(head["x"] + head["width"], abs=2)
+    assert summary["x"] + summary["width"] <= close["x"]
+
+
+def test_image_link_in_an_open_tab_switches_the_detail(page, api):
+    first, second = [i["id"] for i in api.get("/api/images").json()["images"][:2]]
+    open_detail(page, first)
+    page.evaluate("id => { location.hash = `image=${id}`; }", second)   # a #image= link followed in this tab
+    page.wait_for_function("id => document.querySelector('#detail').dataset.id === id", arg=second)
+    assert page.get_attribute(".card.selected", "data-id") == second
+
+
+def test_status_words_say_unlabelled(page, api):
+    # "no sign" is also an expected label: the status of an unlabelled image without one says so.
+    for name, label in (("unlabelled-sign.jpg", LABEL), ("unlabelled-none.jpg", None)):
+        scene = next(n for n, t in sorted(TRUTH.items()) if t["label"] == label and t["category"] != "hard")
+        api.post("/api/images", files={"files": (name, (harness.SCENES / scene).read_bytes(), "image/jpeg")})
+    harness.wait_server_idle(api)
+    harness.wait_cards(page, ["unlabelled-sign.jpg", "unlabelled-none.jpg"])
+    for name, text in (("unlabelled-sign.jpg", "recognised (unlabelled)"), ("unlabelled-none.jpg", "no sign (unlabelled)")):
+        assert harness.card(page, name).locator(".badge").text_content() == text
+
+    statuses = [i["status"] for i in api.get("/api/images").json()["images"]]
+    labelled = statuses.count("correct") + statuses.count("wrong")
+    expected = [f"{len(statuses)} images", f"{statuses.count('correct')}/{labelled} correct"] + [
+        f"{statuses.count(s)} {text}" for s, text in (("wrong", "wrong"), ("recognized", "recognised (unlabelled)"),
+                                                     ("none", "no sign (unlabelled)")) if s in statuses]
+    page.wait_for_function("t => [...document.querySelectorAll('#counts .count')].map(c => c.textContent)"
+                           ".join(' · ') === t", arg=" · ".join(expected))
 
 
 def test_drop_many_files_with_progress(page, api):
@@ -216,6 +254,26 @@ def test_threshold_calibration_and_sweep(page, api):
     page.click("#run-sweep")
     page.wait_for_selector("#sweep:not([hidden])", timeout=120_000)
     assert "labelled" in page.inner_text("#sweep-info")
+
+
+def test_sweep_of_an_integer_setting_shows_whole_numbers(page, api):
+    open_detail(page, uploaded_scene(api))
+    page.select_option("#sweep-param", "min_matches")
+    page.fill("#sweep-lo", "4")
+    page.fill("#sweep-hi", "12")
+    page.fill("#sweep-steps", "3")
+    page.click("#run-sweep")
+    page.locator("#sweep-info", has_text="works over").wait_for(timeout=120_000)
+    assert "min_matches works over 4–12, centre 8" in page.inner_text("#sweep-info")
+
+
+def test_pose_sigma_in_millimetres(page, api):
+    image_id = uploaded_scene(api)
+    open_detail(page, image_id)
+    sigma = page.locator("#pose dt", has_text="1σ").locator("xpath=following-sibling::dd[1]").inner_text()
+    shown = [float(v) for v in re.fullmatch(r"\S+ \S+ \S+ ° · (\S+) (\S+) (\S+) mm", sigma).groups()]
+    cov = api.get(f"/api/images/{image_id}").json()["result"]["pose"]["covariance"]
+    assert shown == [pytest.approx(1000 * math.sqrt(cov[i][i]), rel=0.05) for i in range(3, 6)]
 
 
 def test_viser_scene_connects_and_shares_the_settings(page, api):
@@ -326,6 +384,65 @@ def test_assumed_field_of_view_and_typed_intrinsics(page, api, no_camera):
     assert api.get("/api/camera").json()["camera"] | {"source": ""} == {
         "fx": 600, "fy": 601, "cx": 321, "cy": 239, "dist": [-0.1, 0.02, 0, 0, 0], "width": 640, "height": 480,
         "source": "", "kind": "typed"}
+
+
+def test_board_square_size_is_checked_in_millimetres(page, api, no_camera):
+    board = api.get("/api/calibration").json()["board"]
+    page.click("#camera-open")
+    page.wait_for_function("() => document.querySelector('#board-rows').value !== ''")   # the board is shown
+    page.fill("#board-square", "-5")
+    page.dispatch_event("#board-square", "change")
+    toast = page.locator(".toast.error .toast-msg").last
+    toast.wait_for()
+    assert toast.inner_text() == "square size must be a positive number of millimetres; got -5"
+    assert api.get("/api/calibration").json()["board"] == board
+
+    # Anything else is the server's to say.
+    page.fill("#board-square", str(board["square_m"] * 1000))
+    page.fill("#board-cols", "2")
+    page.dispatch_event("#board-cols", "change")
+    page.locator(".toast.error .toast-msg", has_text="at least 3x3 inner corners").wait_for()
+
+
+def test_assumed_fov_note_uses_the_exif_35mm_convention(page, api, no_camera):
+    # The note's "N mm (35 mm equivalent)", read back as EXIF's FocalLengthIn35mmFilm, gives the
+    # slider's field of view again: a phone's "N mm" spec and its photos' EXIF agree.
+    page.wait_for_function("() => document.querySelector('#hfov-num').value === '60' && "
+                           "document.querySelector('#hfov-note').textContent.includes('at 640 px wide')")
+    mm = float(re.search(r"≈ (\d+) mm focal length \(35 mm equivalent\)", page.inner_text("#hfov-note"))[1])
+    f = focal_px(LensExif(focal_mm=None, focal_35mm=mm, plane_px_per_mm=None, pixel_size=None), 640, 480)
+    assert math.degrees(2 * math.atan(320 / f)) == pytest.approx(60, abs=1)
+
+
+def test_calibration_summary_counts_one_photo(page, api, tmp_path, no_camera):
+    photo = tmp_path / "board.png"
+    cv2.imwrite(str(photo), render_boards(1)[0][0])
+    page.click("#camera-open")
+    page.set_input_files("#calib-picker", str(photo))
+    page.locator("#calib-summary", has_text="board found in 1").wait_for(timeout=60_000)
+    assert page.inner_text("#calib-summary").startswith("1 photo, ")
+
+
+def test_stage_figures_follow_a_camera_change(page, api, no_camera):
+    # A camera changes the result (its pose) under the same settings version: the figures are
+    # fetched again, not left as they were drawn from the old result.
+    image_id = uploaded_scene(api)
+    open_detail(page, image_id)
+    shown_intrinsics(page, "assumed")
+    before = harness.stage_images_loaded(page, "#detail .stage img")
+
+    page.click("#camera-open")
+    page.click('#camera-tabs button[value="typed"]')
+    page.click("#typed-fill")
+    page.fill("#typed-fx", "700")
+    page.fill("#typed-fy", "700")
+    page.click("#typed-form button[type=submit]")
+    page.click("#camera-close")
+    shown_intrinsics(page, "typed")
+    page.wait_for_function("old => [...document.querySelectorAll('#detail .stage img')].every((i, n) => i.src !== old[n])",
+                           arg=[s["src"] for s in before], timeout=60_000)
+    after = harness.stage_images_loaded(page, "#detail .stage img")
+    assert all(s["w"] > 0 for s in after), f"stage images that did not load: {[s for s in after if not s['w']]}"
 
 
 def test_api_docs_render_without_internet(browser, base):
