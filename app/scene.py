@@ -50,8 +50,8 @@ LABEL_RGB = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (148, 103, 189),
              (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207))
 NO_WORLD = "(no sign recognised)"
 # `status_of`'s statuses as the page's top bar words them ("correct" shows as correct/labelled).
-STATUS_WORDS = {"wrong": "wrong", "recognized": "recognised, unlabelled", "none": "no sign, unlabelled",
-                "pending": "pending", "error": "errors"}
+STATUS_WORDS = {"wrong": "wrong", "recognized": "recognised (unlabelled)", "none": "no sign (unlabelled)",
+                "pending": "pending", "error": "error"}
 OUTLINE_RGB = (60, 60, 60)
 # Cameras usually stand in front of the sign (z < 0): start to its left and above, looking past it.
 INITIAL_VIEW_POSITION_M = (-1.8, -1.0, -2.2)

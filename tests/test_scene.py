@@ -12,8 +12,8 @@ import viser
 import viser.transforms as tf
 
 from app.scene import (NO_WORLD, attach, camera_pose_in_sign, frustum_scale, frustum_shape, image_plane_points,
-                       matched_points)
-from app.workspace import SAMPLE_SCENES, Workspace, WorkspaceConfig
+                       matched_points, status_markdown)
+from app.workspace import SAMPLE_SCENES, Outcome, Workspace, WorkspaceConfig
 from pipeline.camera import assumed_camera
 from pipeline.settings import PRESETS, settings_schema
 from scene_images import sign_photo
@@ -120,6 +120,13 @@ def test_nodes_match_the_recognitions(scene):
     n = len(TRUTH)
     assert handle.status.content.startswith(f"**{n}** images · **{n}**/{n} correct · ")
     assert "wrong" not in handle.status.content
+
+
+def test_status_line_uses_the_words_of_the_pages_top_bar():
+    line = status_markdown(["correct", "wrong", "recognized", "none", "none", "error", "pending"], [Outcome()] * 7,
+                           {"running": True, "done": 2, "total": 7})
+    assert line == ("**7** images · **1**/2 correct · **1** wrong · **1** recognised (unlabelled) · "
+                    "**2** no sign (unlabelled) · **1** pending · **1** error · re-running 2/7")
 
 
 def test_sliders_rerun_and_frustums_follow(scene):
