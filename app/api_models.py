@@ -58,6 +58,8 @@ class ImageSummary(BaseModel):
     margin: int
     status: Literal["correct", "wrong", "recognized", "none", "pending", "error"]
     settings_version: int = Field(description="settings version the result was computed under (0: none yet)")
+    result_version: int = Field(description="state generation the result was computed under: changes whenever the "
+                                            "image is re-run (a settings, camera or library change); -1: none yet")
     width: int
     height: int
     error: str | None

@@ -243,7 +243,7 @@ def summary(workspace: Workspace, record: ImageRecord, outcome: Outcome | None =
         label=rec.label if rec else None, recognized=bool(rec and rec.recognized),
         inliers=rec.best.n_inliers if rec and rec.best else 0, margin=rec.margin if rec else 0,
         status=status_of(record.expected, outcome, workspace.snapshot.generation),
-        settings_version=outcome.settings_version,
+        settings_version=outcome.settings_version, result_version=outcome.generation,
         width=record.width, height=record.height, error=outcome.error,
     )
 
@@ -557,8 +557,8 @@ def calibrate_threshold(body: CalibrateIn, workspace: WorkspaceDep) -> tuning.Th
         if region is None:
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                                 f"no sign or white blob was found in {record.name}; "
-                                "drag a box around the sign with some wall around it (API: send it as "
-                                "rect [x0, y0, x1, y1])")
+                                "mark a rectangle around the sign with some wall in it (on the page, drag a "
+                                "box; in the API, send rect [x0, y0, x1, y1])")
         inside, source = region
     return tuning.suggest_threshold(record.image, workspace.settings.normalization, inside, source)
 

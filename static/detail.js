@@ -10,7 +10,7 @@ import { state, on, select, signName } from "./store.js";
 import { $, el, fill, fmt, plural, report } from "./ui.js";
 
 let detail = null;          // GET /api/images/{id} of the shown image
-let resultTag = "";         // resultTagOf(detail): in every figure URL
+let resultVersion = -1;     // the shown result's result_version: in every figure URL
 let shownKey = "";          // keyOf(shown image): reload only when the result can differ
 let loadToken = 0;          // drops responses that arrive after a newer request
 let calib = null;           // POST /api/calibrate/threshold answer for the shown image
@@ -18,16 +18,9 @@ let sweep = null;           // GET /api/sweep answer plus the settings it ran un
 let sweeping = false;
 const boxes = new Map();    // image id -> calibration box [x0, y0, x1, y1] in image px
 
-/** A fingerprint (FNV-1a) of an image's result. The figures are drawn from it, and a camera or library
- *  change re-runs the image under the same settings version, so their URLs must change with it. */
-function resultTagOf(img) {
-  const text = JSON.stringify([img.settings_version, img.error, img.result]);   // the result has its timings
-  let hash = 0x811c9dc5;
-  for (let i = 0; i < text.length; i++) hash = Math.imul(hash ^ text.charCodeAt(i), 0x01000193);
-  return (hash >>> 0).toString(36);
-}
-
-const stageUrl = (stage, query = "") => `/api/images/${detail.id}/stages/${stage}?v=${resultTag}${query}`;
+// The figures are drawn from the result, and a camera or library change re-runs the image under the
+// same settings version: the result version changes on every re-run.
+const stageUrl = (stage, query = "") => `/api/images/${detail.id}/stages/${stage}?v=${resultVersion}${query}`;
 
 /** A figure whose <img> shows the server's reason (e.g. "no blob") when the stage cannot be drawn. */
 function stageFigure(title, link = true) {
@@ -199,7 +192,7 @@ async function load(id) {
     const body = await get(`/api/images/${encodeURIComponent(id)}`);
     if (token !== loadToken) return;
     detail = body;
-    resultTag = resultTagOf(body);
+    resultVersion = body.result_version;
     shownKey = keyOf(body);
     render();
     calibrate();   // the detected sign's region moves with the result
@@ -208,7 +201,7 @@ async function load(id) {
   }
 }
 
-const keyOf = (img) => `${img.id}:${img.settings_version}:${img.status}:${img.label}:${img.inliers}`;
+const keyOf = (img) => `${img.id}:${img.result_version}:${img.status}:${img.label}:${img.inliers}`;
 
 function close() {
   detail = null;
