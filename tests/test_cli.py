@@ -87,6 +87,14 @@ def test_bad_settings_and_camera_files_are_one_clear_line(tmp_path, option, cont
     assert message in result.stderr and "Traceback" not in result.stderr
 
 
+def test_whole_numbers_written_as_floats_in_a_settings_file_work(tmp_path):
+    path = tmp_path / "settings.json"
+    path.write_text('{"candidates": 2.0, "seed": 1.0, "ransac_iterations": 100.0}')
+    result = signpose("recognize", SCENES / "scene_002.jpg", "--settings", path, "--json")
+    assert result.returncode == 0, result.stderr
+    check_schema(json.loads(result.stdout))
+
+
 def test_bad_library_is_a_clear_error(tmp_path):
     (tmp_path / "library.json").write_text('{"signs": [{"id": "../x", "image": "a.png", "width_m": 0.6}]}')
     result = signpose("recognize", sorted(SCENES.glob("*.jpg"))[0], "--library", tmp_path)
