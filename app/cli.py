@@ -51,11 +51,18 @@ def add_common(p: argparse.ArgumentParser, camera: bool = True) -> None:
 
 
 def format_row(name: str, rec: Recognition) -> str:
-    best = rec.best
-    if best is None:
+    """One table row: the label, how it was recognised (feature inliers and margin, or the plaque
+    fallback, which has neither) and the camera position in the sign's frame (metres)."""
+    if not rec.recognized:
         top = max(rec.scores, key=lambda s: s.n_inliers, default=None)
         why = top.reason if top is not None else "no candidate region"
         return f"{name:<28} {'-':<22} {'':>7} {'':>6}  no sign ({why})"
+    how = ""
+    if rec.by_plaque:
+        inliers, margin = "-", "-"
+        how = f"by plaque (correlation {rec.plaque.ncc[rec.label]:.2f})"
+    else:
+        inliers, margin = rec.best.n_inliers, rec.margin
     pose = rec.pose
     where = ""
     if pose is not None:
@@ -63,7 +70,7 @@ def format_row(name: str, rec: Recognition) -> str:
         where = f"cam at ({x:+.2f}, {y:+.2f}, {z:+.2f}) m, rmse {pose.reprojection_rmse_px:.2f} px"
         if pose.ambiguous:
             where += ", ambiguous"
-    return f"{name:<28} {best.sign:<22} {best.n_inliers:>7} {rec.margin:>6}  {where}"
+    return f"{name:<28} {rec.label:<22} {inliers:>7} {margin:>6}  {'; '.join(filter(None, (how, where)))}"
 
 
 def cmd_recognize(args) -> int:

@@ -107,6 +107,17 @@ def test_readable_table(tmp_path):
     assert result.stdout.splitlines()[0].split()[:4] == ["image", "label", "inliers", "margin"]
 
 
+def test_the_table_gives_the_plaque_fallbacks_answer_as_the_json_does():
+    scene = ROOT / "sample_images" / "datasets" / "set2" / "scene_007.jpg"  # features fail, the plaque does not
+    obj = json.loads(signpose("recognize", scene, "--json").stdout)
+    assert obj["recognized"] and obj["pose"] is not None
+    row = signpose("recognize", scene).stdout.splitlines()[1]
+    assert row.split()[:4] == [scene.name, obj["label"], "-", "-"]
+    x, y, z = obj["pose"]["camera_position"]
+    assert "by plaque (correlation" in row and f"cam at ({x:+.2f}, {y:+.2f}, {z:+.2f}) m" in row
+    assert "no sign" not in row
+
+
 def test_exif_focal_length_is_used_without_a_camera_file(tmp_path):
     from PIL import Image
 
