@@ -7,6 +7,7 @@ import json
 import math
 import os
 import sys
+from collections.abc import Callable
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
@@ -45,8 +46,9 @@ def load_inputs(args) -> tuple[Library, Settings, Camera | None]:
 def add_common(p: argparse.ArgumentParser, camera: bool = True) -> None:
     p.add_argument("--library", default=str(SAMPLE_LIBRARY), help="sign library folder (default: the samples)")
     if camera:
-        p.add_argument("--camera", help="camera file: ROS camera_info YAML, OpenCV YAML/JSON, or {fx,fy,cx,cy,dist}")
-    p.add_argument("--settings", help="settings JSON (full or partial), applied over --preset")
+        p.add_argument("--camera", type=file_path,
+                       help="camera file: ROS camera_info YAML, OpenCV YAML/JSON, or {fx,fy,cx,cy,dist}")
+    p.add_argument("--settings", type=file_path, help="settings JSON (full or partial), applied over --preset")
     p.add_argument("--preset", default="default", choices=sorted(PRESETS), help="base settings (default: default)")
 
 
@@ -139,12 +141,13 @@ def cmd_evaluate(args) -> int:
 
 
 def cmd_calibrate(args) -> int:
-    from pipeline.calibrate import CalibrationError, calibrate, drop_outliers, find_board, format_report, parse_board
+    from pipeline.calibrate import (CalibrationError, calibrate, check_square, drop_outliers, find_board, format_report,
+                                    parse_board)
     from pipeline.camera import save_camera
     from pipeline.image import to_gray
 
-    try:
-        board = parse_board(args.board)
+    try:  # before reading a single photo
+        board, square = parse_board(args.board), check_square(args.square)
     except CalibrationError as exc:
         raise CliError(str(exc)) from None
     views, unreadable = [], 0
@@ -155,13 +158,16 @@ def cmd_calibrate(args) -> int:
             unreadable += 1
             print(f"error: {exc}", file=sys.stderr)
     try:
-        calibration = calibrate(views, board, args.square)
+        calibration = calibrate(views, board, square)
         if args.drop_outliers:
             calibration = drop_outliers(calibration)
     except CalibrationError as exc:
         raise CliError(str(exc)) from None
     print(format_report(calibration))
-    save_camera(calibration.camera, args.output)
+    try:
+        save_camera(calibration.camera, args.output)
+    except OSError as exc:  # checked up front, but the folder may be read-only or gone by now
+        raise CliError(f"cannot write {args.output}: {exc.strerror}") from None
     print(f"wrote {args.output} (use it with: signpose recognize --camera {args.output} IMAGE...)")
     if unreadable:
         print(f"{unreadable} of {len(args.images)} image(s) could not be read", file=sys.stderr)
@@ -207,15 +213,24 @@ def cmd_serve(args) -> int:
     return 0
 
 
-def positive_int(text: str) -> int:
-    """argparse type: a whole number of at least 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of at least 1")
-    return value
+def whole_number(least: int, most: int | None = None) -> Callable[[str], int]:
+    """argparse type: a whole number from `least` to `most` (no upper bound when None)."""
+    bounds = f"of at least {least}" if most is None else f"from {least} to {most}"
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or value < least or (most is not None and value > most):
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number {bounds}")
+        return value
+
+    return parse
+
+
+positive_int = whole_number(1)
+port_number = whole_number(0, 65535)  # 0: any free port
 
 
 def positive_number(text: str) -> float:
@@ -232,6 +247,22 @@ def positive_number(text: str) -> float:
     return value
 
 
+def file_path(text: str) -> str:
+    """argparse type: a file to read, refused at once when it is a folder (a missing file is
+    left to its reader, whose message says what the file is for)."""
+    if Path(text).is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} is a folder, not a file")
+    return text
+
+
+def output_path(text: str) -> str:
+    """argparse type: a file to write, checked before any work: not a folder, in a folder that exists."""
+    folder = Path(file_path(text)).parent
+    if not folder.is_dir():
+        raise argparse.ArgumentTypeError(f"folder {str(folder)!r} does not exist")
+    return text
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="signpose", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -245,7 +276,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("synth", help="render synthetic scenes with ground truth")
     p.add_argument("out_dir")
     p.add_argument("--n", type=positive_int, default=20, help="number of scenes (default 20)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=whole_number(0), default=0, help="random seed, 0 or more (default 0)")
     p.add_argument("--library", default=str(SAMPLE_LIBRARY))
     p.set_defaults(func=cmd_synth)
 
@@ -260,7 +291,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("images", nargs="+", help="photos of the board, all the same size and orientation")
     p.add_argument("--board", required=True, help="inner corners COLSxROWS, e.g. 9x6 for a board of 10x7 squares")
     p.add_argument("--square", type=float, required=True, help="side of one printed square in metres, e.g. 0.025")
-    p.add_argument("-o", "--output", default="camera.yaml", help="ROS camera_info YAML to write (default camera.yaml)")
+    p.add_argument("-o", "--output", type=output_path, default="camera.yaml",
+                   help="ROS camera_info YAML to write (default camera.yaml)")
     p.add_argument("--drop-outliers", action="store_true", help="recalibrate without the views whose error stands out")
     p.set_defaults(func=cmd_calibrate)
 
@@ -269,12 +301,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="address to listen on (default 127.0.0.1: this machine only); any other needs a token")
     p.add_argument("--token", help="access token for every request (default: $SIGNPOSE_TOKEN; beyond loopback "
                                    "without either, a random one is made and printed)")
-    p.add_argument("--port", type=int, default=8000, help="port (default 8000)")
+    p.add_argument("--port", type=port_number, default=8000, help="port, 0 to 65535 (default 8000; 0: any free port)")
     p.add_argument("--library", help="sign library folder, copied into the state directory "
                                      "(default: the state's library; on a fresh state the samples)")
-    p.add_argument("--camera", help="camera file (default: the state's camera, else per image its EXIF focal length "
-                                    "or the assumed field of view, 60° unless set in the page)")
-    p.add_argument("--settings", help="settings JSON to start from (default: the state's settings)")
+    p.add_argument("--camera", type=file_path,
+                   help="camera file (default: the state's camera, else per image its EXIF focal length "
+                        "or the assumed field of view, 60° unless set in the page)")
+    p.add_argument("--settings", type=file_path, help="settings JSON to start from (default: the state's settings)")
     p.add_argument("--state-dir", default="signpose_state",
                    help="where settings, library, camera and images survive restarts (default ./signpose_state)")
     p.add_argument("--max-images", type=positive_int, default=500, help="most images held at once (default 500)")

@@ -156,6 +156,32 @@ def test_bad_synth_and_evaluate_arguments_are_one_clear_line(tmp_path, args, mes
     assert message in result.stderr and "Traceback" not in result.stderr
 
 
+@pytest.mark.parametrize("args, message", [
+    (("recognize", "{tmp}/missing.jpg", "--camera", "{tmp}"), "--camera: '{tmp}' is a folder, not a file"),
+    (("recognize", "{tmp}/missing.jpg", "--settings", "{tmp}"), "--settings: '{tmp}' is a folder, not a file"),
+    (("evaluate", "{tmp}/missing", "--settings", "{tmp}"), "--settings: '{tmp}' is a folder, not a file"),
+    (("serve", "--state-dir", "{tmp}/state", "--settings", "{tmp}"), "--settings: '{tmp}' is a folder, not a file"),
+    (("serve", "--state-dir", "{tmp}/state", "--port", 70000), "--port: '70000' is not a whole number from 0 to 65535"),
+    (("serve", "--state-dir", "{tmp}/state", "--port", -1), "--port: '-1' is not a whole number from 0 to 65535"),
+    (("synth", "{tmp}/out", "--seed", -1), "--seed: '-1' is not a whole number of at least 0"),
+    # Refused before reading any photo: the missing one is never mentioned.
+    (("calibrate", "{tmp}/missing.png", "--board", "9x6", "--square", 0.03, "-o", "{tmp}/no/such/c.yaml"),
+     "-o/--output: folder '{tmp}/no/such' does not exist"),
+    (("calibrate", "{tmp}/missing.png", "--board", "9x6", "--square", 0.03, "-o", "{tmp}"),
+     "-o/--output: '{tmp}' is a folder, not a file"),
+    (("calibrate", "{tmp}/missing.png", "--board", "9x6", "--square", 0, "-o", "{tmp}/c.yaml"),
+     "square size must be a positive number"),
+    (("calibrate", "{tmp}/missing.png", "--board", "9x6", "--square", "nan", "-o", "{tmp}/c.yaml"),
+     "square size must be a positive number"),
+])
+def test_bad_paths_ports_and_numbers_are_refused_up_front_in_one_line(tmp_path, args, message):
+    result = signpose(*(str(a).format(tmp=tmp_path) for a in args))
+    assert result.returncode == 2, result.stderr
+    assert message.format(tmp=tmp_path) in result.stderr.splitlines()[-1]
+    assert "Traceback" not in result.stderr and "missing" not in result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no state, scenes or camera file made
+
+
 def test_ctrl_c_stops_evaluate_and_its_workers_with_one_line(tmp_path):
     set3 = ROOT / "sample_images" / "datasets" / "set3"
     # Ctrl-C in a terminal reaches the whole process group: the CLI and its worker processes.
