@@ -111,7 +111,8 @@ def cmd_synth(args) -> int:
 
     try:
         library = load_library(args.library)
-        with tqdm(total=args.n, desc="synth", unit="img", file=sys.stderr) as bar:
+        # Shown once rendering takes a while, so a refused folder gets its error line alone.
+        with tqdm(total=args.n, desc="synth", unit="img", file=sys.stderr, delay=0.5) as bar:
             generate_dataset(Path(args.out_dir), library, n=args.n, seed=args.seed,
                              progress=lambda i, n: bar.update(1))
     except (LibraryError, SynthError, OSError) as exc:

@@ -143,6 +143,18 @@ def test_synth_then_evaluate_reports_a_table_with_a_progress_bar(tmp_path):
     assert row[1] == "4" and int(row[2]) >= 3  # images, correct
 
 
+def test_synth_refuses_a_folder_with_older_scenes_it_would_leave_unlisted(tmp_path):
+    old = [tmp_path / f"scene_{i:03d}.jpg" for i in range(4)]
+    for path in old:
+        path.write_bytes(b"an earlier run's scene")
+    result = signpose("synth", "--n", 2, tmp_path)
+    assert result.returncode == 2
+    assert result.stderr == (f"signpose synth: error: {tmp_path} already holds 2 scene file(s) that truth.json would "
+                             "not list (scene_002.jpg, scene_003.jpg); pick an empty folder or remove them\n")
+    assert all(path.read_bytes() == b"an earlier run's scene" for path in old)
+    assert not (tmp_path / "truth.json").exists()
+
+
 @pytest.mark.parametrize("args, message", [
     (("synth", "--n", 0, "{tmp}/out"), "--n: '0' is not a whole number of at least 1"),
     (("synth", "--n", 2, "{tmp}/file"), "File exists"),
