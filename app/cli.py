@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import os
@@ -13,10 +14,10 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from app.workspace import WorkspaceConfig, check_image_header, decode_upload
 from pipeline.camera import Camera, CameraError, load_camera
 from pipeline.evaluate import keep_freed_memory
-from pipeline.exif import decode_with_exif
-from pipeline.image import ImageError, read_file, read_image
+from pipeline.image import ImageError, read_file
 from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
 from pipeline.recognize import Recognition, recognize
 from pipeline.settings import PRESETS, Settings, SettingsError, load_settings, preset
@@ -52,6 +53,17 @@ def add_common(p: argparse.ArgumentParser, camera: bool = True) -> None:
     p.add_argument("--preset", default="default", choices=sorted(PRESETS), help="base settings (default: default)")
 
 
+def add_max_megapixels(p: argparse.ArgumentParser) -> None:
+    """--max-megapixels, with the server's default: a few hundred bytes of PNG can claim gigabytes of pixels."""
+    p.add_argument("--max-megapixels", type=positive_number, default=WorkspaceConfig.max_pixels / 1e6,
+                   help="largest image accepted, checked from its header before decoding (default %(default)g)")
+
+
+def max_pixels(args) -> int:
+    """The --max-megapixels limit in pixels."""
+    return round(args.max_megapixels * 1e6)
+
+
 def format_row(name: str, rec: Recognition) -> str:
     """One table row: the label, how it was recognised (feature inliers and margin, or the plaque
     fallback, which has neither) and the camera position in the sign's frame (metres)."""
@@ -78,6 +90,7 @@ def format_row(name: str, rec: Recognition) -> str:
 def cmd_recognize(args) -> int:
     library, settings, camera = load_inputs(args)
     keep_freed_memory()  # this process exists to run the pipeline: about 25 % faster per image
+    limit = max_pixels(args)
     failed = 0
     if not args.json:
         print(f"{'image':<28} {'label':<22} {'inliers':>7} {'margin':>6}  pose")
@@ -85,7 +98,7 @@ def cmd_recognize(args) -> int:
                      leave=False, file=sys.stderr):
         name = str(path)
         try:
-            image, exif_camera = decode_with_exif(read_file(path), name)
+            image, _, exif_camera = decode_upload(read_file(path), name, limit)
             # Without a camera file, a JPEG's EXIF focal length beats the assumed field of view.
             rec = recognize(image, library, settings, camera or exif_camera)
         except ImageError as exc:
@@ -133,7 +146,8 @@ def cmd_evaluate(args) -> int:
     try:
         with tqdm(total=total, desc="evaluate", unit="img", file=sys.stderr) as bar:
             report = evaluate(datasets, library, settings, camera, progress=lambda *_: bar.update(1),
-                              workers=args.workers)
+                              workers=args.workers,
+                              check_image=functools.partial(check_image_header, max_pixels=max_pixels(args)))
     except BrokenProcessPool:
         raise CliError("a worker process stopped before it finished (out of memory?); "
                        "fewer workers, e.g. --workers 1, need less") from None
@@ -142,19 +156,19 @@ def cmd_evaluate(args) -> int:
 
 
 def cmd_calibrate(args) -> int:
+    from app.calibration import read_gray
     from pipeline.calibrate import (CalibrationError, calibrate, check_square, drop_outliers, find_board, format_report,
                                     parse_board)
     from pipeline.camera import save_camera
-    from pipeline.image import to_gray
 
     try:  # before reading a single photo
         board, square = parse_board(args.board), check_square(args.square)
     except CalibrationError as exc:
         raise CliError(str(exc)) from None
-    views, unreadable = [], 0
+    views, unreadable, limit = [], 0, max_pixels(args)
     for path in tqdm(args.images, desc="calibrate", unit="img", file=sys.stderr, leave=False):
         try:
-            views.append(find_board(to_gray(read_image(path)), board, Path(path).name))
+            views.append(find_board(read_gray(str(path), read_file(path), limit), board, Path(path).name))
         except ImageError as exc:
             unreadable += 1
             print(f"error: {exc}", file=sys.stderr)
@@ -179,13 +193,12 @@ def cmd_serve(args) -> int:
     from app.security import TOKEN_ENV, access_token
     from app.server import bind, create_app, serve
     from app.state import StateError
-    from app.workspace import WorkspaceConfig
 
     config = WorkspaceConfig(
         state_dir=Path(args.state_dir), library_dir=Path(args.library) if args.library else None,
         camera_file=Path(args.camera) if args.camera else None,
         settings_file=Path(args.settings) if args.settings else None,
-        max_images=args.max_images, max_pixels=round(args.max_megapixels * 1e6),
+        max_images=args.max_images, max_pixels=max_pixels(args),
         max_upload_bytes=round(args.max_upload_mb * 1e6), request_timeout_s=args.request_timeout,
     )
     token = access_token(args.host, args.token or os.environ.get(TOKEN_ENV))
@@ -271,6 +284,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("recognize", help="recognise signs and estimate camera pose in images")
     p.add_argument("images", nargs="+", help="image files")
     add_common(p)
+    add_max_megapixels(p)
     p.add_argument("--json", action="store_true", help="one JSON object per image per line")
     p.set_defaults(func=cmd_recognize)
 
@@ -286,6 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1,
                    help="processes sharing the images, one core each (default: every core, here %(default)s)")
     add_common(p)
+    add_max_megapixels(p)
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("calibrate", help="camera intrinsics from photos of a printed chessboard (docs/calibration.md)")
@@ -295,6 +310,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", type=output_path, default="camera.yaml",
                    help="ROS camera_info YAML to write (default camera.yaml)")
     p.add_argument("--drop-outliers", action="store_true", help="recalibrate without the views whose error stands out")
+    add_max_megapixels(p)
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("serve", help="the browser tool: tune settings, inspect every stage, 3D view (one port)")
@@ -312,7 +328,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--state-dir", default="signpose_state",
                    help="where settings, library, camera and images survive restarts (default ./signpose_state)")
     p.add_argument("--max-images", type=positive_int, default=500, help="most images held at once (default 500)")
-    p.add_argument("--max-megapixels", type=positive_number, default=40.0, help="largest image accepted (default 40)")
+    add_max_megapixels(p)
     p.add_argument("--max-upload-mb", type=positive_number, default=25.0,
                    help="largest request body in MB (default 25)")
     p.add_argument("--request-timeout", type=positive_number, default=120.0,

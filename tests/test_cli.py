@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from scene_images import png_bomb
+
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "sample_images" / "scenes"
 POSE_KEYS = {"R", "t", "camera_position", "quaternion_wxyz", "euler_deg", "reprojection_rmse_px", "ambiguous",
@@ -66,12 +68,38 @@ def test_bad_files_get_an_error_line_and_the_rest_still_run(tmp_path):
     assert result.returncode != 0
     objs = [json.loads(line) for line in result.stdout.splitlines()]
     assert [("error" in o) for o in objs] == [True, False, True, True]
-    assert "not a readable image" in objs[0]["error"] and "empty" in objs[2]["error"]
+    assert "not an image file" in objs[0]["error"] and "empty" in objs[2]["error"]  # as the server says
     check_schema(objs[1])
     # no --camera: the assumed FOV is said, once
     assert "no camera file: assumed 60° horizontal field of view, so the pose is approximate" in objs[1]["warnings"]
     table = signpose("recognize", fake, good)
     assert table.returncode != 0 and "error" in table.stdout and good.name in table.stdout
+
+
+def test_images_over_the_pixel_limit_are_refused_from_their_header(tmp_path):
+    good = SCENES / "scene_002.jpg"  # 640 x 480
+    huge = tmp_path / "huge.png"
+    huge.write_bytes(png_bomb())  # 20000 x 20000 in a few hundred bytes: decoded, gigabytes
+    result = signpose("recognize", huge, good, "--json")
+    assert result.returncode == 1
+    refused, recognised = map(json.loads, result.stdout.splitlines())
+    assert refused["image"] == str(huge) and "more than 40 megapixels" in refused["error"]
+    check_schema(recognised)
+    table = signpose("recognize", good, "--max-megapixels", 0.2)
+    assert table.returncode == 1 and "640x480 px is 0.3 megapixels, more than the limit of 0.2" in table.stdout
+
+
+def test_evaluate_and_calibrate_refuse_images_over_the_pixel_limit(tmp_path):
+    (tmp_path / "none").mkdir()
+    big = tmp_path / "none" / "big.png"
+    big.write_bytes(png_bomb(3000, 2000))
+    result = signpose("evaluate", tmp_path, "--max-megapixels", 5, "--workers", 1)
+    assert result.returncode == 0
+    assert "big.png: 3000x2000 px is 6.0 megapixels, more than the limit of 5" in result.stdout
+    result = signpose("calibrate", big, "--board", "9x6", "--square", 0.03, "-o", tmp_path / "c.yaml",
+                      "--max-megapixels", 5)
+    assert result.returncode == 2
+    assert "big.png: 3000x2000 px is 6.0 megapixels, more than the limit of 5" in result.stderr
 
 
 @pytest.mark.parametrize("option, content, message", [
