@@ -12,6 +12,7 @@ from collections.abc import Callable
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
+import cv2
 from tqdm import tqdm
 
 from app.workspace import WorkspaceConfig, check_image_header, decode_upload
@@ -337,8 +338,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def quiet_opencv() -> None:
+    """Keep OpenCV's own "[ WARN:0@...]" lines (a truncated PNG, ...) off stderr: signpose says what
+    went wrong with an image in one line of its own."""
+    if "OPENCV_LOG_LEVEL" in os.environ:  # someone debugging OpenCV keeps the level they chose
+        return
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    os.environ["OPENCV_LOG_LEVEL"] = "ERROR"  # for evaluate's worker processes, which import cv2 afresh
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    quiet_opencv()
     try:
         return args.func(args)
     except CliError as exc:

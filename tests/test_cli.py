@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import pytest
 
 from scene_images import png_bomb
@@ -100,6 +101,16 @@ def test_evaluate_and_calibrate_refuse_images_over_the_pixel_limit(tmp_path):
                       "--max-megapixels", 5)
     assert result.returncode == 2
     assert "big.png: 3000x2000 px is 6.0 megapixels, more than the limit of 5" in result.stderr
+
+
+def test_a_truncated_image_gets_signposes_line_and_not_opencvs_warning(tmp_path):
+    truncated = tmp_path / "cut.png"
+    truncated.write_bytes(cv2.imencode(".png", cv2.imread(str(SCENES / "scene_002.jpg")))[1].tobytes()[:5000])
+    (tmp_path / "none").mkdir()
+    (tmp_path / "none" / "cut.png").write_bytes(truncated.read_bytes())
+    for args in (("recognize", truncated), ("evaluate", tmp_path, "--workers", 1)):
+        result = signpose(*args)
+        assert "not a readable image" in result.stdout and "WARN" not in result.stderr, result.stderr
 
 
 @pytest.mark.parametrize("option, content, message", [
