@@ -3,19 +3,22 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import os
 import sys
+from collections.abc import Callable
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
+import cv2
 from tqdm import tqdm
 
+from app.workspace import WorkspaceConfig, check_image_header, decode_upload
 from pipeline.camera import Camera, CameraError, load_camera
 from pipeline.evaluate import keep_freed_memory
-from pipeline.exif import decode_with_exif
-from pipeline.image import ImageError, read_file, read_image
+from pipeline.image import ImageError, read_file
 from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
 from pipeline.recognize import Recognition, recognize
 from pipeline.settings import PRESETS, Settings, SettingsError, load_settings, preset
@@ -45,17 +48,36 @@ def load_inputs(args) -> tuple[Library, Settings, Camera | None]:
 def add_common(p: argparse.ArgumentParser, camera: bool = True) -> None:
     p.add_argument("--library", default=str(SAMPLE_LIBRARY), help="sign library folder (default: the samples)")
     if camera:
-        p.add_argument("--camera", help="camera file: ROS camera_info YAML, OpenCV YAML/JSON, or {fx,fy,cx,cy,dist}")
-    p.add_argument("--settings", help="settings JSON (full or partial), applied over --preset")
+        p.add_argument("--camera", type=file_path,
+                       help="camera file: ROS camera_info YAML, OpenCV YAML/JSON, or {fx,fy,cx,cy,dist}")
+    p.add_argument("--settings", type=file_path, help="settings JSON (full or partial), applied over --preset")
     p.add_argument("--preset", default="default", choices=sorted(PRESETS), help="base settings (default: default)")
 
 
+def add_max_megapixels(p: argparse.ArgumentParser) -> None:
+    """--max-megapixels, with the server's default: a few hundred bytes of PNG can claim gigabytes of pixels."""
+    p.add_argument("--max-megapixels", type=positive_number, default=WorkspaceConfig.max_pixels / 1e6,
+                   help="largest image accepted, checked from its header before decoding (default %(default)g)")
+
+
+def max_pixels(args) -> int:
+    """The --max-megapixels limit in pixels."""
+    return round(args.max_megapixels * 1e6)
+
+
 def format_row(name: str, rec: Recognition) -> str:
-    best = rec.best
-    if best is None:
+    """One table row: the label, how it was recognised (feature inliers and margin, or the plaque
+    fallback, which has neither) and the camera position in the sign's frame (metres)."""
+    if not rec.recognized:
         top = max(rec.scores, key=lambda s: s.n_inliers, default=None)
         why = top.reason if top is not None else "no candidate region"
         return f"{name:<28} {'-':<22} {'':>7} {'':>6}  no sign ({why})"
+    how = ""
+    if rec.by_plaque:
+        inliers, margin = "-", "-"
+        how = f"by plaque (correlation {rec.plaque.ncc[rec.label]:.2f})"
+    else:
+        inliers, margin = rec.best.n_inliers, rec.margin
     pose = rec.pose
     where = ""
     if pose is not None:
@@ -63,12 +85,13 @@ def format_row(name: str, rec: Recognition) -> str:
         where = f"cam at ({x:+.2f}, {y:+.2f}, {z:+.2f}) m, rmse {pose.reprojection_rmse_px:.2f} px"
         if pose.ambiguous:
             where += ", ambiguous"
-    return f"{name:<28} {best.sign:<22} {best.n_inliers:>7} {rec.margin:>6}  {where}"
+    return f"{name:<28} {rec.label:<22} {inliers:>7} {margin:>6}  {'; '.join(filter(None, (how, where)))}"
 
 
 def cmd_recognize(args) -> int:
     library, settings, camera = load_inputs(args)
     keep_freed_memory()  # this process exists to run the pipeline: about 25 % faster per image
+    limit = max_pixels(args)
     failed = 0
     if not args.json:
         print(f"{'image':<28} {'label':<22} {'inliers':>7} {'margin':>6}  pose")
@@ -76,7 +99,7 @@ def cmd_recognize(args) -> int:
                      leave=False, file=sys.stderr):
         name = str(path)
         try:
-            image, exif_camera = decode_with_exif(read_file(path), name)
+            image, _, exif_camera = decode_upload(read_file(path), name, limit)
             # Without a camera file, a JPEG's EXIF focal length beats the assumed field of view.
             rec = recognize(image, library, settings, camera or exif_camera)
         except ImageError as exc:
@@ -102,7 +125,8 @@ def cmd_synth(args) -> int:
 
     try:
         library = load_library(args.library)
-        with tqdm(total=args.n, desc="synth", unit="img", file=sys.stderr) as bar:
+        # Shown once rendering takes a while, so a refused folder gets its error line alone.
+        with tqdm(total=args.n, desc="synth", unit="img", file=sys.stderr, delay=0.5) as bar:
             generate_dataset(Path(args.out_dir), library, n=args.n, seed=args.seed,
                              progress=lambda i, n: bar.update(1))
     except (LibraryError, SynthError, OSError) as exc:
@@ -123,7 +147,8 @@ def cmd_evaluate(args) -> int:
     try:
         with tqdm(total=total, desc="evaluate", unit="img", file=sys.stderr) as bar:
             report = evaluate(datasets, library, settings, camera, progress=lambda *_: bar.update(1),
-                              workers=args.workers)
+                              workers=args.workers,
+                              check_image=functools.partial(check_image_header, max_pixels=max_pixels(args)))
     except BrokenProcessPool:
         raise CliError("a worker process stopped before it finished (out of memory?); "
                        "fewer workers, e.g. --workers 1, need less") from None
@@ -132,29 +157,33 @@ def cmd_evaluate(args) -> int:
 
 
 def cmd_calibrate(args) -> int:
-    from pipeline.calibrate import CalibrationError, calibrate, drop_outliers, find_board, format_report, parse_board
+    from app.calibration import read_gray
+    from pipeline.calibrate import (CalibrationError, calibrate, check_square, drop_outliers, find_board, format_report,
+                                    parse_board)
     from pipeline.camera import save_camera
-    from pipeline.image import to_gray
 
-    try:
-        board = parse_board(args.board)
+    try:  # before reading a single photo
+        board, square = parse_board(args.board), check_square(args.square)
     except CalibrationError as exc:
         raise CliError(str(exc)) from None
-    views, unreadable = [], 0
+    views, unreadable, limit = [], 0, max_pixels(args)
     for path in tqdm(args.images, desc="calibrate", unit="img", file=sys.stderr, leave=False):
         try:
-            views.append(find_board(to_gray(read_image(path)), board, Path(path).name))
+            views.append(find_board(read_gray(str(path), read_file(path), limit), board, Path(path).name))
         except ImageError as exc:
             unreadable += 1
             print(f"error: {exc}", file=sys.stderr)
     try:
-        calibration = calibrate(views, board, args.square)
+        calibration = calibrate(views, board, square)
         if args.drop_outliers:
             calibration = drop_outliers(calibration)
     except CalibrationError as exc:
         raise CliError(str(exc)) from None
     print(format_report(calibration))
-    save_camera(calibration.camera, args.output)
+    try:
+        save_camera(calibration.camera, args.output)
+    except OSError as exc:  # checked up front, but the folder may be read-only or gone by now
+        raise CliError(f"cannot write {args.output}: {exc.strerror}") from None
     print(f"wrote {args.output} (use it with: signpose recognize --camera {args.output} IMAGE...)")
     if unreadable:
         print(f"{unreadable} of {len(args.images)} image(s) could not be read", file=sys.stderr)
@@ -165,13 +194,12 @@ def cmd_serve(args) -> int:
     from app.security import TOKEN_ENV, access_token
     from app.server import bind, create_app, serve
     from app.state import StateError
-    from app.workspace import WorkspaceConfig
 
     config = WorkspaceConfig(
         state_dir=Path(args.state_dir), library_dir=Path(args.library) if args.library else None,
         camera_file=Path(args.camera) if args.camera else None,
         settings_file=Path(args.settings) if args.settings else None,
-        max_images=args.max_images, max_pixels=round(args.max_megapixels * 1e6),
+        max_images=args.max_images, max_pixels=max_pixels(args),
         max_upload_bytes=round(args.max_upload_mb * 1e6), request_timeout_s=args.request_timeout,
     )
     token = access_token(args.host, args.token or os.environ.get(TOKEN_ENV))
@@ -200,15 +228,24 @@ def cmd_serve(args) -> int:
     return 0
 
 
-def positive_int(text: str) -> int:
-    """argparse type: a whole number of at least 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of at least 1")
-    return value
+def whole_number(least: int, most: int | None = None) -> Callable[[str], int]:
+    """argparse type: a whole number from `least` to `most` (no upper bound when None)."""
+    bounds = f"of at least {least}" if most is None else f"from {least} to {most}"
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or value < least or (most is not None and value > most):
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number {bounds}")
+        return value
+
+    return parse
+
+
+positive_int = whole_number(1)
+port_number = whole_number(0, 65535)  # 0: any free port
 
 
 def positive_number(text: str) -> float:
@@ -225,6 +262,22 @@ def positive_number(text: str) -> float:
     return value
 
 
+def file_path(text: str) -> str:
+    """argparse type: a file to read, refused at once when it is a folder (a missing file is
+    left to its reader, whose message says what the file is for)."""
+    if Path(text).is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} is a folder, not a file")
+    return text
+
+
+def output_path(text: str) -> str:
+    """argparse type: a file to write, checked before any work: not a folder, in a folder that exists."""
+    folder = Path(file_path(text)).parent
+    if not folder.is_dir():
+        raise argparse.ArgumentTypeError(f"folder {str(folder)!r} does not exist")
+    return text
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="signpose", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -232,13 +285,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("recognize", help="recognise signs and estimate camera pose in images")
     p.add_argument("images", nargs="+", help="image files")
     add_common(p)
+    add_max_megapixels(p)
     p.add_argument("--json", action="store_true", help="one JSON object per image per line")
     p.set_defaults(func=cmd_recognize)
 
     p = sub.add_parser("synth", help="render synthetic scenes with ground truth")
     p.add_argument("out_dir")
     p.add_argument("--n", type=positive_int, default=20, help="number of scenes (default 20)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=whole_number(0), default=0, help="random seed, 0 or more (default 0)")
     p.add_argument("--library", default=str(SAMPLE_LIBRARY))
     p.set_defaults(func=cmd_synth)
 
@@ -247,14 +301,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1,
                    help="processes sharing the images, one core each (default: every core, here %(default)s)")
     add_common(p)
+    add_max_megapixels(p)
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("calibrate", help="camera intrinsics from photos of a printed chessboard (docs/calibration.md)")
     p.add_argument("images", nargs="+", help="photos of the board, all the same size and orientation")
     p.add_argument("--board", required=True, help="inner corners COLSxROWS, e.g. 9x6 for a board of 10x7 squares")
     p.add_argument("--square", type=float, required=True, help="side of one printed square in metres, e.g. 0.025")
-    p.add_argument("-o", "--output", default="camera.yaml", help="ROS camera_info YAML to write (default camera.yaml)")
+    p.add_argument("-o", "--output", type=output_path, default="camera.yaml",
+                   help="ROS camera_info YAML to write (default camera.yaml)")
     p.add_argument("--drop-outliers", action="store_true", help="recalibrate without the views whose error stands out")
+    add_max_megapixels(p)
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("serve", help="the browser tool: tune settings, inspect every stage, 3D view (one port)")
@@ -262,16 +319,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="address to listen on (default 127.0.0.1: this machine only); any other needs a token")
     p.add_argument("--token", help="access token for every request (default: $SIGNPOSE_TOKEN; beyond loopback "
                                    "without either, a random one is made and printed)")
-    p.add_argument("--port", type=int, default=8000, help="port (default 8000)")
+    p.add_argument("--port", type=port_number, default=8000, help="port, 0 to 65535 (default 8000; 0: any free port)")
     p.add_argument("--library", help="sign library folder, copied into the state directory "
                                      "(default: the state's library; on a fresh state the samples)")
-    p.add_argument("--camera", help="camera file (default: the state's camera, else per image its EXIF focal length "
-                                    "or the assumed field of view, 60° unless set in the page)")
-    p.add_argument("--settings", help="settings JSON to start from (default: the state's settings)")
+    p.add_argument("--camera", type=file_path,
+                   help="camera file (default: the state's camera, else per image its EXIF focal length "
+                        "or the assumed field of view, 60° unless set in the page)")
+    p.add_argument("--settings", type=file_path, help="settings JSON to start from (default: the state's settings)")
     p.add_argument("--state-dir", default="signpose_state",
                    help="where settings, library, camera and images survive restarts (default ./signpose_state)")
     p.add_argument("--max-images", type=positive_int, default=500, help="most images held at once (default 500)")
-    p.add_argument("--max-megapixels", type=positive_number, default=40.0, help="largest image accepted (default 40)")
+    add_max_megapixels(p)
     p.add_argument("--max-upload-mb", type=positive_number, default=25.0,
                    help="largest request body in MB (default 25)")
     p.add_argument("--request-timeout", type=positive_number, default=120.0,
@@ -280,8 +338,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def quiet_opencv() -> None:
+    """Keep OpenCV's own "[ WARN:0@...]" lines (a truncated PNG, ...) off stderr: signpose says what
+    went wrong with an image in one line of its own."""
+    if "OPENCV_LOG_LEVEL" in os.environ:  # someone debugging OpenCV keeps the level they chose
+        return
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    os.environ["OPENCV_LOG_LEVEL"] = "ERROR"  # for evaluate's worker processes, which import cv2 afresh
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    quiet_opencv()
     try:
         return args.func(args)
     except CliError as exc:

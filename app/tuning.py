@@ -115,3 +115,17 @@ def working_band(values: list[float], all_correct: list[bool]) -> tuple[float, f
                 best = (start, i)
             start = None
     return None if best is None else (values[best[0]], values[best[1] - 1])
+
+
+def band_centre(values: list[float], band: tuple[float, float] | None, integer: bool) -> float | None:
+    """The middle of the working `band` of swept `values`, None without a band.
+
+    For an integer setting, the swept value in the band nearest the middle (the lower on a tie):
+    the setting takes whole numbers only, and that value was seen to work.
+    """
+    if band is None:
+        return None
+    middle = (band[0] + band[1]) / 2
+    if not integer:
+        return middle
+    return min((v for v in values if band[0] <= v <= band[1]), key=lambda v: abs(v - middle))

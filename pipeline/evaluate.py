@@ -35,7 +35,7 @@ import numpy as np
 
 from .camera import Camera, CameraError, load_camera
 from .features import library_features
-from .image import ImageError, read_image
+from .image import ImageError, decode_image, read_file
 from .jsonfile import read_json
 from .library import Library
 from .pose import rotation_error_deg
@@ -240,13 +240,19 @@ def summarize(results: Sequence[ImageResult]) -> Summary:
 
 
 Job = tuple[str, Sample, Camera | None]  # dataset name, sample, camera (None: the pipeline's assumed one)
+# Called with an image file's bytes and name before they are decoded; raises ImageError to refuse
+# the image, e.g. when its header claims more pixels than memory allows (a decompression bomb).
+ImageCheck = Callable[[bytes, str], object]
 
 
-def _measure(job: Job, library: Library, settings: Settings) -> ImageResult:
+def _measure(job: Job, library: Library, settings: Settings, check_image: ImageCheck | None) -> ImageResult:
     """The pipeline's answer on one job's sample and its errors against the truth."""
     dataset, sample, camera = job
     try:
-        image = read_image(sample.path)
+        data = read_file(sample.path)
+        if check_image is not None:
+            check_image(data, str(sample.path))
+        image = decode_image(data, str(sample.path))
     except ImageError as exc:
         return ImageResult(dataset, sample, None, math.nan, error=str(exc))
     rec = recognize(image, library, settings, camera)
@@ -265,9 +271,9 @@ def _measure(job: Job, library: Library, settings: Settings) -> ImageResult:
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
 _TRIM_BYTES, _MMAP_BYTES = 128 << 20, 32 << 20  # 32 MB: glibc's largest mmap threshold
 
-# What `_start_worker` hands this worker process: library, settings, the jobs, the shared index of
-# the next job to take, and the queue that carries (job index, result) back.
-_worker_state: tuple[Library, Settings, list[Job], Synchronized, multiprocessing.Queue] | None = None
+# What `_start_worker` hands this worker process: library, settings, the image check, the jobs, the
+# shared index of the next job to take, and the queue that carries (job index, result) back.
+_worker_state: tuple[Library, Settings, ImageCheck | None, list[Job], Synchronized, multiprocessing.Queue] | None = None
 
 
 def keep_freed_memory() -> None:
@@ -285,8 +291,8 @@ def keep_freed_memory() -> None:
         mallopt(_M_TRIM_THRESHOLD, _TRIM_BYTES)
 
 
-def _start_worker(library: Library, settings: Settings, jobs: list[Job], next_job: Synchronized,
-                  done: multiprocessing.Queue) -> None:
+def _start_worker(library: Library, settings: Settings, check_image: ImageCheck | None, jobs: list[Job],
+                  next_job: Synchronized, done: multiprocessing.Queue) -> None:
     """Process-pool initializer. One OpenCV thread per worker: the pool already fills the cores,
     and more threads than cores only make them wait for each other. Ctrl-C reaches the whole
     process group: the calling process handles it and stops the workers after their image."""
@@ -294,7 +300,7 @@ def _start_worker(library: Library, settings: Settings, jobs: list[Job], next_jo
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     cv2.setNumThreads(1)
     keep_freed_memory()
-    _worker_state = library, settings, jobs, next_job, done
+    _worker_state = library, settings, check_image, jobs, next_job, done
 
 
 def _take(next_job: Synchronized) -> int:
@@ -307,17 +313,18 @@ def _take(next_job: Synchronized) -> int:
 
 def _work_through_jobs() -> None:
     """A worker's whole task: take jobs until none are left, sending each result back at once."""
-    library, settings, jobs, next_job, done = _worker_state
+    library, settings, check_image, jobs, next_job, done = _worker_state
     try:
         while (index := _take(next_job)) < len(jobs):
-            done.put((index, _measure(jobs[index], library, settings)))
+            done.put((index, _measure(jobs[index], library, settings, check_image)))
     finally:
         # Flushed before the task ends, so every result is readable once the future is done.
         done.close()
         done.join_thread()
 
 
-def _measure_all(jobs: list[Job], library: Library, settings: Settings, workers: int) -> Iterator[ImageResult]:
+def _measure_all(jobs: list[Job], library: Library, settings: Settings, check_image: ImageCheck | None,
+                 workers: int) -> Iterator[ImageResult]:
     """`_measure` of every (dataset name, sample, camera) job, in order, on `workers` processes.
 
     Processes, not threads: OpenCV releases the GIL inside SIFT, but RANSAC, matching and pose
@@ -328,7 +335,7 @@ def _measure_all(jobs: list[Job], library: Library, settings: Settings, workers:
     another to hand it work, and the last images end together.
     """
     if workers <= 1 or len(jobs) <= 1:
-        yield from (_measure(job, library, settings) for job in jobs)
+        yield from (_measure(job, library, settings, check_image) for job in jobs)
         return
     library_features(library, settings)  # computed here once, pickled to every worker with the library
     context = multiprocessing.get_context("spawn")
@@ -340,12 +347,12 @@ def _measure_all(jobs: list[Job], library: Library, settings: Settings, workers:
     helpers = min(workers, len(jobs)) - 1
     try:
         with ProcessPoolExecutor(helpers, context, initializer=_start_worker,
-                                 initargs=(library, settings, jobs, next_job, done)) as pool:
+                                 initargs=(library, settings, check_image, jobs, next_job, done)) as pool:
             tasks = [pool.submit(_work_through_jobs) for _ in range(helpers)]
             try:
                 while next_result < len(jobs):
                     if (index := _take(next_job)) < len(jobs):
-                        finished[index] = _measure(jobs[index], library, settings)
+                        finished[index] = _measure(jobs[index], library, settings, check_image)
                         finished.update(_receive(done, tasks, wait_s=0))
                     else:
                         finished.update(_receive(done, tasks, wait_s=0.1))
@@ -378,20 +385,23 @@ def _receive(done: multiprocessing.Queue, tasks: list[Future], wait_s: float) ->
 
 
 def evaluate(datasets: Sequence[Dataset], library: Library, settings: Settings, camera: Camera | None = None,
-             progress: Callable[[int, int], None] | None = None, workers: int | None = None) -> Report:
+             progress: Callable[[int, int], None] | None = None, workers: int | None = None,
+             check_image: ImageCheck | None = None) -> Report:
     """Run the pipeline on every sample and compare with the truth.
 
     `camera`, when given, is used for every dataset; otherwise each dataset's own camera file,
     and without one the pipeline's assumed camera. `progress(done, total)` follows each image.
     `workers`: processes sharing the images (default `os.cpu_count()`), each on one OpenCV thread,
     which is what the per-image times then measure; 1 runs them in this process.
+    `check_image(data, name)`, when given, sees each file's bytes before decoding and may refuse the
+    image (ImageError, reported as that image's error); it must pickle to reach the worker processes.
     """
     unknown = sorted({s.label for d in datasets for s in d.samples if s.label is not None} - set(library.ids))
     if unknown:
         raise DatasetError(f"label(s) {', '.join(unknown)} are not in the library ({', '.join(library.ids)})")
     jobs = [(d.name, sample, camera or d.camera) for d in datasets for sample in d.samples]
     results: list[ImageResult] = []
-    for result in _measure_all(jobs, library, settings, workers or os.cpu_count() or 1):
+    for result in _measure_all(jobs, library, settings, check_image, workers or os.cpu_count() or 1):
         results.append(result)
         if progress:
             progress(len(results), len(jobs))

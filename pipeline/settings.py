@@ -145,7 +145,9 @@ class Settings:
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
-            _check_field(f, getattr(self, f.name))
+            # Frozen, so set through object: a whole number written as 2.0 (JSON writers, sliders)
+            # is stored as the int 2, which the pipeline slices and counts with.
+            object.__setattr__(self, f.name, _check_field(f, getattr(self, f.name)))
         if self.high_threshold is not None and self.high_threshold <= self.threshold:
             raise SettingsError(
                 f"high_threshold ({self.high_threshold}) must be above threshold ({self.threshold}), or null"
@@ -171,22 +173,28 @@ class Settings:
         return cls(**merged)
 
 
-def _check_field(f: dataclasses.Field, value: Any) -> None:
+def _is_int_field(f: dataclasses.Field) -> bool:
+    """Whether the setting `f` takes whole numbers (bool is an int subclass, but a flag)."""
+    return isinstance(f.default, int) and not isinstance(f.default, bool)
+
+
+def _check_field(f: dataclasses.Field, value: Any) -> Any:
+    """`value` as setting `f` holds it (an int field's integral float as an int); SettingsError if invalid."""
     meta = f.metadata
     name = f.name
     if value is None:
         if meta.get("nullable"):
-            return
+            return value
         raise SettingsError(f"{name} must not be null")
     if "choices" in meta:
         if value not in meta["choices"]:
             raise SettingsError(f"{name} must be one of {', '.join(meta['choices'])}; got {value!r}")
-        return
+        return value
     if isinstance(f.default, bool):
         if not isinstance(value, bool):
             raise SettingsError(f"{name} must be true or false; got {value!r}")
-        return
-    is_int = isinstance(f.default, int) and not isinstance(f.default, bool)
+        return value
+    is_int = _is_int_field(f)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise SettingsError(f"{name} must be a number; got {value!r}")
     # Only floats can be non-finite or fractional; float() of a huge JSON integer would overflow.
@@ -196,6 +204,7 @@ def _check_field(f: dataclasses.Field, value: Any) -> None:
         raise SettingsError(f"{name} must be a whole number; got {value!r}")
     if not meta["min"] <= value <= meta["max"]:
         raise SettingsError(f"{name} must be between {meta['min']} and {meta['max']}; got {value!r}")
+    return int(value) if is_int else value
 
 
 def settings_schema() -> list[dict[str, Any]]:
@@ -207,7 +216,7 @@ def settings_schema() -> list[dict[str, Any]]:
             kind = "choice"
         elif isinstance(f.default, bool):
             kind = "bool"
-        elif f.type in ("int",) or (isinstance(f.default, int) and not isinstance(f.default, bool)):
+        elif f.type in ("int",) or _is_int_field(f):
             kind = "int"
         else:
             kind = "float"

@@ -1028,15 +1028,22 @@ def generate_dataset(out_dir: str | Path, library: Library, n: int, seed: int, c
         raise SynthError(f"n must be at least 1; got {n}")
     camera = camera or synthetic_camera(size)
     out = Path(out_dir)
+    digits = max(3, len(str(n - 1)))
+    names = [f"scene_{i:0{digits}d}.jpg" for i in range(n)]
+    # Scenes of an earlier run that this one would not overwrite would sit beside truth.json unlisted,
+    # and they may be someone's data: refuse rather than delete them.
+    stale = sorted({p.name for p in out.glob("scene_*.jpg")} - set(names))
+    if stale:
+        listed = ", ".join(stale[:3]) + (", ..." if len(stale) > 3 else "")
+        raise SynthError(f"{out} already holds {len(stale)} scene file(s) that truth.json would not list ({listed}); "
+                         "pick an empty folder or remove them")
     out.mkdir(parents=True, exist_ok=True)
     seeds = np.random.SeedSequence(seed)
     plan = _plan(library, n, categories, weights, np.random.default_rng(seeds.spawn(1)[0]))
     images: dict[str, dict] = {}
-    digits = max(3, len(str(n - 1)))
     # One child seed per scene, so a scene can be re-rendered alone from (seed, index).
-    for i, ((category, sign_id), scene_seed) in enumerate(zip(plan, seeds.spawn(n))):
+    for i, ((category, sign_id), scene_seed, name) in enumerate(zip(plan, seeds.spawn(n), names)):
         scene = render_scene(library, sign_id, camera, np.random.default_rng(scene_seed), category)
-        name = f"scene_{i:0{digits}d}.jpg"
         (out / name).write_bytes(scene.jpeg)
         images[name] = scene.truth()
         if progress:

@@ -8,7 +8,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import pytest
+
+from scene_images import png_bomb
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "sample_images" / "scenes"
@@ -66,12 +69,48 @@ def test_bad_files_get_an_error_line_and_the_rest_still_run(tmp_path):
     assert result.returncode != 0
     objs = [json.loads(line) for line in result.stdout.splitlines()]
     assert [("error" in o) for o in objs] == [True, False, True, True]
-    assert "not a readable image" in objs[0]["error"] and "empty" in objs[2]["error"]
+    assert "not an image file" in objs[0]["error"] and "empty" in objs[2]["error"]  # as the server says
     check_schema(objs[1])
     # no --camera: the assumed FOV is said, once
     assert "no camera file: assumed 60° horizontal field of view, so the pose is approximate" in objs[1]["warnings"]
     table = signpose("recognize", fake, good)
     assert table.returncode != 0 and "error" in table.stdout and good.name in table.stdout
+
+
+def test_images_over_the_pixel_limit_are_refused_from_their_header(tmp_path):
+    good = SCENES / "scene_002.jpg"  # 640 x 480
+    huge = tmp_path / "huge.png"
+    huge.write_bytes(png_bomb())  # 20000 x 20000 in a few hundred bytes: decoded, gigabytes
+    result = signpose("recognize", huge, good, "--json")
+    assert result.returncode == 1
+    refused, recognised = map(json.loads, result.stdout.splitlines())
+    assert refused["image"] == str(huge) and "more than 40 megapixels" in refused["error"]
+    check_schema(recognised)
+    table = signpose("recognize", good, "--max-megapixels", 0.2)
+    assert table.returncode == 1 and "640x480 px is 0.3 megapixels, more than the limit of 0.2" in table.stdout
+
+
+def test_evaluate_and_calibrate_refuse_images_over_the_pixel_limit(tmp_path):
+    (tmp_path / "none").mkdir()
+    big = tmp_path / "none" / "big.png"
+    big.write_bytes(png_bomb(3000, 2000))
+    result = signpose("evaluate", tmp_path, "--max-megapixels", 5, "--workers", 1)
+    assert result.returncode == 0
+    assert "big.png: 3000x2000 px is 6.0 megapixels, more than the limit of 5" in result.stdout
+    result = signpose("calibrate", big, "--board", "9x6", "--square", 0.03, "-o", tmp_path / "c.yaml",
+                      "--max-megapixels", 5)
+    assert result.returncode == 2
+    assert "big.png: 3000x2000 px is 6.0 megapixels, more than the limit of 5" in result.stderr
+
+
+def test_a_truncated_image_gets_signposes_line_and_not_opencvs_warning(tmp_path):
+    truncated = tmp_path / "cut.png"
+    truncated.write_bytes(cv2.imencode(".png", cv2.imread(str(SCENES / "scene_002.jpg")))[1].tobytes()[:5000])
+    (tmp_path / "none").mkdir()
+    (tmp_path / "none" / "cut.png").write_bytes(truncated.read_bytes())
+    for args in (("recognize", truncated), ("evaluate", tmp_path, "--workers", 1)):
+        result = signpose(*args)
+        assert "not a readable image" in result.stdout and "WARN" not in result.stderr, result.stderr
 
 
 @pytest.mark.parametrize("option, content, message", [
@@ -87,6 +126,14 @@ def test_bad_settings_and_camera_files_are_one_clear_line(tmp_path, option, cont
     assert message in result.stderr and "Traceback" not in result.stderr
 
 
+def test_whole_numbers_written_as_floats_in_a_settings_file_work(tmp_path):
+    path = tmp_path / "settings.json"
+    path.write_text('{"candidates": 2.0, "seed": 1.0, "ransac_iterations": 100.0}')
+    result = signpose("recognize", SCENES / "scene_002.jpg", "--settings", path, "--json")
+    assert result.returncode == 0, result.stderr
+    check_schema(json.loads(result.stdout))
+
+
 def test_bad_library_is_a_clear_error(tmp_path):
     (tmp_path / "library.json").write_text('{"signs": [{"id": "../x", "image": "a.png", "width_m": 0.6}]}')
     result = signpose("recognize", sorted(SCENES.glob("*.jpg"))[0], "--library", tmp_path)
@@ -97,6 +144,17 @@ def test_readable_table(tmp_path):
     result = signpose("recognize", *sorted(SCENES.glob("*.jpg"))[:3], "--camera", SCENES / "camera.yaml")
     assert result.returncode == 0
     assert result.stdout.splitlines()[0].split()[:4] == ["image", "label", "inliers", "margin"]
+
+
+def test_the_table_gives_the_plaque_fallbacks_answer_as_the_json_does():
+    scene = ROOT / "sample_images" / "datasets" / "set2" / "scene_007.jpg"  # features fail, the plaque does not
+    obj = json.loads(signpose("recognize", scene, "--json").stdout)
+    assert obj["recognized"] and obj["pose"] is not None
+    row = signpose("recognize", scene).stdout.splitlines()[1]
+    assert row.split()[:4] == [scene.name, obj["label"], "-", "-"]
+    x, y, z = obj["pose"]["camera_position"]
+    assert "by plaque (correlation" in row and f"cam at ({x:+.2f}, {y:+.2f}, {z:+.2f}) m" in row
+    assert "no sign" not in row
 
 
 def test_exif_focal_length_is_used_without_a_camera_file(tmp_path):
@@ -124,6 +182,18 @@ def test_synth_then_evaluate_reports_a_table_with_a_progress_bar(tmp_path):
     assert row[1] == "4" and int(row[2]) >= 3  # images, correct
 
 
+def test_synth_refuses_a_folder_with_older_scenes_it_would_leave_unlisted(tmp_path):
+    old = [tmp_path / f"scene_{i:03d}.jpg" for i in range(4)]
+    for path in old:
+        path.write_bytes(b"an earlier run's scene")
+    result = signpose("synth", "--n", 2, tmp_path)
+    assert result.returncode == 2
+    assert result.stderr == (f"signpose synth: error: {tmp_path} already holds 2 scene file(s) that truth.json would "
+                             "not list (scene_002.jpg, scene_003.jpg); pick an empty folder or remove them\n")
+    assert all(path.read_bytes() == b"an earlier run's scene" for path in old)
+    assert not (tmp_path / "truth.json").exists()
+
+
 @pytest.mark.parametrize("args, message", [
     (("synth", "--n", 0, "{tmp}/out"), "--n: '0' is not a whole number of at least 1"),
     (("synth", "--n", 2, "{tmp}/file"), "File exists"),
@@ -135,6 +205,32 @@ def test_bad_synth_and_evaluate_arguments_are_one_clear_line(tmp_path, args, mes
     result = signpose(*(str(a).format(tmp=tmp_path) for a in args))
     assert result.returncode == 2
     assert message in result.stderr and "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize("args, message", [
+    (("recognize", "{tmp}/missing.jpg", "--camera", "{tmp}"), "--camera: '{tmp}' is a folder, not a file"),
+    (("recognize", "{tmp}/missing.jpg", "--settings", "{tmp}"), "--settings: '{tmp}' is a folder, not a file"),
+    (("evaluate", "{tmp}/missing", "--settings", "{tmp}"), "--settings: '{tmp}' is a folder, not a file"),
+    (("serve", "--state-dir", "{tmp}/state", "--settings", "{tmp}"), "--settings: '{tmp}' is a folder, not a file"),
+    (("serve", "--state-dir", "{tmp}/state", "--port", 70000), "--port: '70000' is not a whole number from 0 to 65535"),
+    (("serve", "--state-dir", "{tmp}/state", "--port", -1), "--port: '-1' is not a whole number from 0 to 65535"),
+    (("synth", "{tmp}/out", "--seed", -1), "--seed: '-1' is not a whole number of at least 0"),
+    # Refused before reading any photo: the missing one is never mentioned.
+    (("calibrate", "{tmp}/missing.png", "--board", "9x6", "--square", 0.03, "-o", "{tmp}/no/such/c.yaml"),
+     "-o/--output: folder '{tmp}/no/such' does not exist"),
+    (("calibrate", "{tmp}/missing.png", "--board", "9x6", "--square", 0.03, "-o", "{tmp}"),
+     "-o/--output: '{tmp}' is a folder, not a file"),
+    (("calibrate", "{tmp}/missing.png", "--board", "9x6", "--square", 0, "-o", "{tmp}/c.yaml"),
+     "square size must be a positive number"),
+    (("calibrate", "{tmp}/missing.png", "--board", "9x6", "--square", "nan", "-o", "{tmp}/c.yaml"),
+     "square size must be a positive number"),
+])
+def test_bad_paths_ports_and_numbers_are_refused_up_front_in_one_line(tmp_path, args, message):
+    result = signpose(*(str(a).format(tmp=tmp_path) for a in args))
+    assert result.returncode == 2, result.stderr
+    assert message.format(tmp=tmp_path) in result.stderr.splitlines()[-1]
+    assert "Traceback" not in result.stderr and "missing" not in result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no state, scenes or camera file made
 
 
 def test_ctrl_c_stops_evaluate_and_its_workers_with_one_line(tmp_path):

@@ -1,3 +1,4 @@
+import functools
 import json
 import math
 import time
@@ -10,10 +11,12 @@ import numpy as np
 import pytest
 
 import pipeline.evaluate as evaluate_module
+from app.workspace import check_image_header
 from pipeline.evaluate import (Dataset, DatasetError, ImageResult, Sample, evaluate, format_table, load_dataset,
                                summarize)
 from pipeline.library import load_library
 from pipeline.settings import preset
+from scene_images import png_bomb
 
 SET3 = Path(__file__).resolve().parent.parent / "sample_images" / "datasets" / "set3"
 
@@ -117,7 +120,7 @@ def test_runs_the_real_pipeline(library):
     assert "set3" in format_table(report)
 
 
-def _measured_here(job, library, settings):
+def _measured_here(job, library, settings, check_image):
     """Stands in for `_measure` in this process only (the workers are spawned): slow, and marks its results."""
     dataset, sample, _ = job
     time.sleep(0.05)
@@ -136,6 +139,17 @@ def test_worker_processes_share_the_images_and_keep_their_order(monkeypatch, lib
     assert 0 < len(by_worker) < len(pooled.results)  # both processes took images
     assert [(p.predicted, p.rotation_error_deg) for _, p in by_worker] == \
         [(a.predicted, a.rotation_error_deg) for a, _ in by_worker]
+
+
+def test_the_image_check_reaches_the_worker_processes(monkeypatch, library, tmp_path):
+    big = tmp_path / "big.png"
+    big.write_bytes(png_bomb(3000, 2000))
+    dataset = Dataset("big", tmp_path, [Sample(big, None)] * 40)
+    monkeypatch.setattr(evaluate_module, "_measure", _measured_here)  # the workers run the real one
+    report = evaluate([dataset], library, preset("default"), workers=2,
+                      check_image=functools.partial(check_image_header, max_pixels=5_000_000))
+    by_worker = [r.error for r in report.results if r.error != "measured in the calling process"]
+    assert by_worker and all("6.0 megapixels, more than the limit of 5" in e for e in by_worker)
 
 
 def test_a_worker_error_reaches_the_caller(monkeypatch, library):

@@ -57,3 +57,12 @@ def test_schema_covers_every_field_with_help_and_range():
     assert schema["threshold"]["type"] == "float"
     assert schema["full_frame_fallback"]["type"] == "bool"
     assert all(isinstance(p, Settings) for p in PRESETS.values())
+
+
+@pytest.mark.parametrize("name, value", [("candidates", 2.0), ("seed", 1.0), ("ransac_iterations", 100.0)])
+def test_whole_numbers_written_as_floats_are_held_as_ints(name, value):
+    # JSON writers and sliders send 2.0 for 2; the pipeline slices and counts with these values.
+    for s in (Settings.from_dict({name: value}), Settings().replace(**{name: value})):
+        held = getattr(s, name)
+        assert type(held) is int and held == value
+    assert type(Settings.from_dict({"threshold": 0.5}).threshold) is float

@@ -105,6 +105,18 @@ def test_dataset_files_load_back(library, tmp_path):
             assert np.array(entry["corners"]).shape == (4, 2)
 
 
+def test_refuses_a_folder_with_scenes_it_would_not_overwrite(library, tmp_path):
+    for name in ("scene_000.jpg", "scene_001.jpg", "scene_0002.jpg"):
+        (tmp_path / name).write_bytes(b"an earlier run's scene")
+    with pytest.raises(SynthError, match=r"2 scene file\(s\) that truth.json would not list \(scene_0002.jpg, "
+                                         r"scene_001.jpg\); pick an empty folder or remove them"):
+        generate_dataset(tmp_path, library, n=1, seed=0, size=SMALL)
+    assert not (tmp_path / "truth.json").exists()
+    (tmp_path / "scene_0002.jpg").unlink()
+    images = generate_dataset(tmp_path, library, n=2, seed=0, size=SMALL)  # overwrites the same names
+    assert sorted(images) == sorted(p.name for p in tmp_path.glob("scene_*.jpg"))
+
+
 def test_signs_take_turns(library, tmp_path):
     images = generate_dataset(tmp_path, library, n=3, seed=11, categories=("easy",), size=SMALL)
     assert sorted(e["label"] for e in images.values()) == sorted(library.ids)
