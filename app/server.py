@@ -589,7 +589,7 @@ async def sweep(workspace: WorkspaceDep,
         min_margin.append(min((rec.margin for rec in good if rec.recognized), default=None))
     band = tuning.working_band(values, [c == len(labelled) for c in correct])
     return SweepOut(param=param, values=values, correct=correct, min_margin=min_margin, band=band,
-                    centre=None if band is None else (band[0] + band[1]) / 2, labelled=len(labelled))
+                    centre=tuning.band_centre(values, band, param in INTEGER_SETTINGS), labelled=len(labelled))
 
 
 # ---- camera
