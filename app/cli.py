@@ -102,7 +102,7 @@ def cmd_recognize(args) -> int:
             image, _, exif_camera = decode_upload(read_file(path), name, limit)
             # Without a camera file, a JPEG's EXIF focal length beats the assumed field of view.
             rec = recognize(image, library, settings, camera or exif_camera)
-        except ImageError as exc:
+        except (ImageError, CameraError) as exc:  # CameraError: the camera cannot be scaled to this image
             failed += 1
             if args.json:
                 print(json.dumps({"image": name, "error": str(exc)}), flush=True)
@@ -116,7 +116,7 @@ def cmd_recognize(args) -> int:
             for w in rec.warnings:
                 print(f"{'':<28}   warning: {w}")
     if failed:
-        print(f"{failed} of {len(args.images)} image(s) could not be read", file=sys.stderr)
+        print(f"{failed} of {len(args.images)} image(s) could not be used", file=sys.stderr)
     return 1 if failed else 0
 
 

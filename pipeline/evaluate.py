@@ -253,9 +253,9 @@ def _measure(job: Job, library: Library, settings: Settings, check_image: ImageC
         if check_image is not None:
             check_image(data, str(sample.path))
         image = decode_image(data, str(sample.path))
-    except ImageError as exc:
+        rec = recognize(image, library, settings, camera)
+    except (ImageError, CameraError) as exc:  # CameraError: the camera cannot be scaled to this image
         return ImageResult(dataset, sample, None, math.nan, error=str(exc))
-    rec = recognize(image, library, settings, camera)
     result = ImageResult(dataset, sample, rec.label, rec.timing_ms["total"])
     if not result.correct or sample.label is None:
         return result
