@@ -204,14 +204,14 @@ def check_image_header(data: bytes, name: str, max_pixels: int) -> str:
             with Image.open(io.BytesIO(data)) as im:
                 width, height = im.size
                 media_type = im.get_format_mimetype() or "application/octet-stream"
-    except Image.DecompressionBombError:
-        raise ImageTooLarge(f"{name}: the image has more than {max_pixels / 1e6:g} megapixels; "
-                            "downscale it before uploading") from None
+    except Image.DecompressionBombError:  # past Pillow's own ceiling, which a higher max_pixels cannot lift
+        limit = min(max_pixels, 2 * Image.MAX_IMAGE_PIXELS)
+        raise ImageTooLarge(f"{name}: the image has more than {limit / 1e6:g} megapixels; downscale it") from None
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError):
         raise ImageError(f"{name}: not an image file (use JPEG, PNG, TIFF, WebP or BMP)") from None
     if width * height > max_pixels:
         raise ImageTooLarge(f"{name}: {width}x{height} px is {width * height / 1e6:.1f} megapixels, more than "
-                            f"the limit of {max_pixels / 1e6:g}; downscale it before uploading")
+                            f"the limit of {max_pixels / 1e6:g}; downscale it, or raise --max-megapixels")
     return media_type
 
 
