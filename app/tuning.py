@@ -84,8 +84,11 @@ def suggest_threshold(image: np.ndarray, normalization: str, inside: np.ndarray,
     if background is not None and suggested <= background:
         suggested = (white + background) / 2
         if white <= background:
-            warning = ("the sign is not brighter than its surroundings: no threshold separates it; "
-                       "try normalization 'minmax' or segment_mode 'none'")
+            # A box drawn inside the sign has sign all around it: the commonest cause.
+            fixes = "segment_mode 'none'" if normalization == "minmax" else "normalization 'minmax' or segment_mode 'none'"
+            warning = ("around the box is as bright as inside it: if the box lies inside the sign, draw it around "
+                       "the whole sign, just outside its edge; if it does already, no threshold separates this "
+                       f"sign from its wall: try {fixes}")
     histogram = np.histogram(values, bins=HISTOGRAM_BINS, range=(0.0, 1.0))[0]
     return ThresholdSuggestion(
         white_level=round(white, 4),

@@ -1,8 +1,9 @@
-"""Choosing settings: the sweep's values and the centre of its working band (app/tuning.py)."""
+"""Choosing settings: threshold advice from a box, the sweep's values and the centre of its working band (app/tuning.py)."""
 
+import numpy as np
 import pytest
 
-from app.tuning import band_centre, sweep_values, working_band
+from app.tuning import band_centre, rect_mask, suggest_threshold, sweep_values, working_band
 
 
 @pytest.mark.parametrize("lo, hi, steps, correct, centre", [
@@ -20,3 +21,16 @@ def test_a_float_setting_gets_the_middle_of_its_band_and_no_band_no_centre():
     values = sweep_values(0.5, 0.8, 4, integer=False)
     assert band_centre(values, working_band(values, [False, True, True, False]), integer=False) == pytest.approx(0.65)
     assert band_centre(values, working_band(values, [False] * 4), integer=False) is None
+
+
+def test_a_box_inside_the_sign_is_told_to_take_in_the_wall_and_no_setting_in_use_is_suggested():
+    """A tester dragged the box inside a sign, as 'drag a box on the sign' invites: the ring
+    around it is sign too, and the advice was to switch to the normalisation already in use."""
+    image = np.full((200, 300), 60, np.uint8)
+    image[50:150, 50:250] = 230  # the plaque
+    inside = rect_mask((90, 80, 210, 120), 300, 200)  # well inside it
+    advice = suggest_threshold(image, "minmax", inside, "rectangle")
+    assert "draw it around the whole sign" in advice.warning and "minmax" not in advice.warning
+    assert "normalization 'minmax'" in suggest_threshold(image, "scale", inside, "rectangle").warning
+    around = suggest_threshold(image, "minmax", rect_mask((48, 48, 252, 152), 300, 200), "rectangle")
+    assert around.warning is None and around.background_level < around.suggested_threshold < around.white_level
