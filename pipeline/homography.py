@@ -317,32 +317,35 @@ def _refine(src: np.ndarray, dst: np.ndarray, inliers: np.ndarray, threshold: fl
     fallback. Where no match lies in the widest band, as on most clean images, there is nothing
     to widen and the wide refits are skipped.
     """
-    plain = _refit(src, dst, inliers, threshold)
-    H, inliers = plain
-    if np.count_nonzero(transfer_errors(H, src, dst) < _WIDER_REFIT_FACTORS[0] * threshold) == np.count_nonzero(inliers):
+    H, inliers, errors = _refit(src, dst, inliers, threshold)
+    plain = H, inliers
+    if np.count_nonzero(errors < _WIDER_REFIT_FACTORS[0] * threshold) == np.count_nonzero(inliers):
         return plain
     for factor in _WIDER_REFIT_FACTORS:
-        wider = transfer_errors(H, src, dst) < factor * threshold
+        wider = errors < factor * threshold
         if np.count_nonzero(wider) < 4:
             break
         inliers = wider
         H = dlt_homography(src[inliers], dst[inliers])
-    widened = _refit(src, dst, inliers, threshold)
+        errors = transfer_errors(H, src, dst)
+    widened = _refit(src, dst, inliers, threshold)[:2]
     return widened if np.count_nonzero(widened[1]) > np.count_nonzero(plain[1]) else plain
 
 
-def _refit(src: np.ndarray, dst: np.ndarray, inliers: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+def _refit(src: np.ndarray, dst: np.ndarray, inliers: np.ndarray,
+           threshold: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Refit H by DLT on all `inliers` and re-classify with it; repeat while the inlier set grows.
     The least-squares refit is kept even if a borderline match drops out, and usually admits a few
-    more. Returns (H, inliers under that H)."""
+    more. Returns (H, inliers under that H, (N,) transfer errors under that H)."""
     for _ in range(_MAX_REFITS):
         H = dlt_homography(src[inliers], dst[inliers])
-        refit_inliers = transfer_errors(H, src, dst) < threshold
+        errors = transfer_errors(H, src, dst)
+        refit_inliers = errors < threshold
         grew = refit_inliers.sum() > inliers.sum()
         inliers = refit_inliers
         if not grew:
             break
-    return H, inliers
+    return H, inliers, errors
 
 
 def ransac_homography(src: np.ndarray, dst: np.ndarray, iterations: int = 50, threshold: float = 3.0,
