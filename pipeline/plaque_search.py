@@ -23,7 +23,8 @@ import numpy as np
 
 from .library import Library
 from .plaque import PlaqueMatch, blob_quad, bounding_box, plaque_correlations, refine_ecc, sign_corners, sign_to_quad
-from .segment import Blob, Segmentation, box_iou, component_blob, expand_box, label_components, threshold_lut
+from .segment import (Blob, Segmentation, box_iou, component_blob, expand_box, label_components, normalize_levels,
+                      threshold_mask)
 from .settings import Settings
 
 # Normalised gray levels the image is cut at, besides the segmentation threshold.
@@ -60,13 +61,14 @@ def candidate_quads(gray: np.ndarray, normalization: str, levels: tuple[float, .
     small = gray if shrink == 1 else cv2.resize(gray, (max(1, w // shrink), max(1, h // shrink)),
                                                  interpolation=cv2.INTER_AREA)
     shrunk = np.array([w / small.shape[1], h / small.shape[0]])
+    # the levels of the full image, so each cut means what it means at full resolution
+    normalized = normalize_levels(gray, normalization)
     found: list[tuple[Blob, np.ndarray]] = []
     for level in levels:
         if segmentation is not None and level == threshold:
             labels, blobs, f = segmentation.labels, [b for b in segmentation.blobs if lo <= b.area <= hi], np.ones(2)
         else:
-            # the levels of the full image, so the cut means what it means at full resolution
-            mask = cv2.LUT(small, threshold_lut(gray, normalization, level, None))
+            mask = cv2.LUT(small, threshold_mask(normalized, level, None))
             f = shrunk
             labels, stats = label_components(mask)
             areas = stats[1:, cv2.CC_STAT_AREA] * f.prod()
