@@ -250,9 +250,12 @@ def summary(workspace: Workspace, record: ImageRecord, outcome: Outcome | None =
 
 def camera_kind(camera: Camera) -> str:
     """Where intrinsics came from, for people (CameraIntrinsics.kind), from their `source`."""
-    if camera.is_assumed:  # the pipeline's own test, so the two cannot disagree
+    # the pipeline's own tests, so the two cannot disagree
+    if camera.is_assumed:
         return "assumed"
-    for prefix, kind in (("EXIF", "exif"), ("calibrat", "calibration"), ("json", "typed")):
+    if camera.is_exif:
+        return "exif"
+    for prefix, kind in (("calibrat", "calibration"), ("json", "typed")):
         if camera.source.startswith(prefix):
             return kind
     return "file"  # file:<path>, upload:<name>, or a camera made by a script

@@ -105,6 +105,11 @@ class Camera:
     def is_assumed(self) -> bool:
         return self.source.startswith("assumed")
 
+    @property
+    def is_exif(self) -> bool:
+        """Intrinsics from a photo's EXIF focal length (`pipeline.exif`)."""
+        return self.source.startswith("EXIF")
+
     def for_image(self, width: int, height: int) -> tuple[Camera, list[str]]:
         """Intrinsics for an image of `width` x `height` px, scaled when the calibration size differs.
 

@@ -425,7 +425,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     else:
         camera, scale_warnings = camera.for_image(width, height)
         warnings += scale_warnings
-        if camera.source.startswith("EXIF"):
+        if camera.is_exif:
             warnings.append(f"no camera file: intrinsics from the {camera.source}, without distortion; "
                             "the pose is approximate")
 
