@@ -12,6 +12,7 @@ computed from and never mixes two states.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import logging
@@ -427,14 +428,8 @@ class Workspace:
         """Swap in a new snapshot with `changes`; the caller holds the lock."""
         snap = self._snap
         bump = "settings" in changes
-        self._snap = Snapshot(
-            generation=snap.generation + 1,
-            settings_version=snap.settings_version + bump,
-            settings=changes.get("settings", snap.settings),
-            library=changes.get("library", snap.library),
-            camera=changes["camera"] if "camera" in changes else snap.camera,
-            assumed_hfov_deg=changes.get("assumed_hfov_deg", snap.assumed_hfov_deg),
-        )
+        self._snap = dataclasses.replace(snap, generation=snap.generation + 1,
+                                         settings_version=snap.settings_version + bump, **changes)
         if bump:
             self._history[self._snap.settings_version] = self._snap.settings
             if len(self._history) > SETTINGS_HISTORY:
