@@ -380,10 +380,11 @@ class SceneHandle:
         with self._lock:
             library = self.workspace.library
             records = self.workspace.images()
-            # Each result read once: a re-run replaces a record's outcome while this runs.
-            results = {r.id: r.recognition for r in records}
-            shown = [r for r in records if _has_pose(results[r.id]) and results[r.id].label in library.ids]
-            counts = Counter(results[r.id].label for r in shown)
+            # Each outcome read once: a re-run replaces a record's outcome while this runs.
+            outcomes = [r.outcome for r in records]
+            shown = [(r, o.recognition) for r, o in zip(records, outcomes)
+                     if _has_pose(o.recognition) and o.recognition.label in library.ids]
+            counts = Counter(rec.label for _, rec in shown)
             if self._stale_signs:
                 # Library edits can change a sign's image or size under the same id.
                 self._stale_signs = False
@@ -393,20 +394,20 @@ class SceneHandle:
 
             current = {r.id for r in records}
             self._thumbnails = {k: v for k, v in self._thumbnails.items() if k in current}
-            sign_of = {r.id: results[r.id].label for r in shown}
+            sign_of = {r.id: rec.label for r, rec in shown}
             self._remove_cameras({k for k, nodes in self.cameras.items() if sign_of.get(k) != nodes.sign})
             self._remove_signs(set(self.signs) - set(counts))
             for sign_id in counts:
                 if sign_id not in self.signs:
                     self.signs[sign_id] = self._add_sign(library[sign_id])
-            for record in shown:
+            for record, rec in shown:
                 nodes = self.cameras.get(record.id)
-                if nodes is None or nodes.recognition is not results[record.id] or stale_geometry:
-                    self._draw_camera(record, results[record.id], library)
+                if nodes is None or nodes.recognition is not rec or stale_geometry:
+                    self._draw_camera(record, rec, library)
             self._choose_world(counts)
             generation = self.workspace.snapshot.generation
-            self.status.content = status_markdown([status_of(r.expected, r.outcome, generation) for r in records],
-                                                  [r.outcome for r in records], self._progress)
+            self.status.content = status_markdown(
+                [status_of(r.expected, o, generation) for r, o in zip(records, outcomes)], outcomes, self._progress)
 
     def _remove_cameras(self, image_ids: set[str]) -> None:
         for image_id in image_ids:
