@@ -19,10 +19,10 @@ import numpy as np
 from pipeline.calibrate import (BoardView, Calibration, CalibrationError, calibrate, check_board, check_square, drop_outliers,
                                 find_board)
 from pipeline.camera import Camera
-from pipeline.image import to_gray
+from pipeline.image import decode_image, to_gray
 
 from .figures import fit
-from .workspace import Conflict, decode_upload
+from .workspace import Conflict, check_image_header
 
 # Figures of calibration photos are drawn from a copy this size: enough for a full-width preview.
 PREVIEW_MAX_SIDE = 1280
@@ -71,9 +71,10 @@ class CalibrationState:
 
 
 def read_gray(name: str, data: bytes, max_pixels: int) -> np.ndarray:
-    """An uploaded photo as (H, W) uint8 gray; ImageError / ImageTooLarge as for any upload."""
-    image, _, _ = decode_upload(data, name, max_pixels)
-    return to_gray(image)
+    """An uploaded photo as (H, W) uint8 gray; ImageError / ImageTooLarge as for any upload
+    (checked and decoded as `decode_upload` does, without its EXIF camera: a board fixes the intrinsics)."""
+    check_image_header(data, name, max_pixels)
+    return to_gray(decode_image(data, name))
 
 
 class CalibrationSession:
