@@ -10,7 +10,6 @@ import { state, on, select, signName } from "./store.js";
 import { $, el, fill, fmt, plural, report } from "./ui.js";
 
 let detail = null;          // GET /api/images/{id} of the shown image
-let resultVersion = -1;     // the shown result's result_version: in every figure URL
 let shownKey = "";          // keyOf(shown image): reload only when the result can differ
 let loadToken = 0;          // drops responses that arrive after a newer request
 let calib = null;           // POST /api/calibrate/threshold answer for the shown image
@@ -20,7 +19,7 @@ const boxes = new Map();    // image id -> calibration box [x0, y0, x1, y1] in i
 
 // The figures are drawn from the result, and a camera or library change re-runs the image under the
 // same settings version: the result version changes on every re-run.
-const stageUrl = (stage, query = "") => `/api/images/${detail.id}/stages/${stage}?v=${resultVersion}${query}`;
+const stageUrl = (stage, query = "") => `/api/images/${detail.id}/stages/${stage}?v=${detail.result_version}${query}`;
 
 /** A figure whose <img> shows the server's reason (e.g. "no blob") when the stage cannot be drawn. */
 function stageFigure(title, link = true) {
@@ -192,7 +191,6 @@ async function load(id) {
     const body = await get(`/api/images/${encodeURIComponent(id)}`);
     if (token !== loadToken) return;
     detail = body;
-    resultVersion = body.result_version;
     shownKey = keyOf(body);
     render();
     calibrate();   // the detected sign's region moves with the result
