@@ -293,8 +293,7 @@ def test_viser_scene_connects_and_shares_the_settings(page, api):
     page.wait_for_function("v => Number(document.querySelector('#set-threshold').value) === v", arg=nudged)
     harness.wait_setting(page, api, {"threshold": nudged})
 
-    harness.set_setting(page, "threshold", 0.55)
-    harness.wait_setting(page, api, {"threshold": 0.55})
+    harness.set_settings(page, api, {"threshold": 0.55})
     page.wait_for_function("el => el.getAttribute('aria-valuenow') === '0.55'", arg=thumb.element_handle())
 
 

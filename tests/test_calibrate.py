@@ -121,7 +121,7 @@ def test_to_json_reports_every_view_and_the_outlier_threshold():
     assert sum(v["outlier"] for v in out["views"]) == 1 and 0 < out["views"][0]["tilt_deg"] < 45
     dropped = drop_outliers(cal).to_json()["views"][2]
     assert dropped["excluded"] and not dropped["outlier"] and dropped["error_px"] > 2
-    json.dumps(out)  # plain JSON: no NaN, no numpy arrays
+    json.dumps(out, allow_nan=False)  # plain JSON: no NaN, no numpy arrays
 
 
 def test_warnings_for_a_weak_calibration():
