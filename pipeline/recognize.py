@@ -406,8 +406,9 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
               cache: StageCache | None = None) -> Recognition:
     """Recognise a library sign in an (H, W, 3) BGR or (H, W) gray uint8 image and estimate the camera pose.
 
-    Without `camera`, a 60° horizontal field of view is assumed and a warning says so; a warning
-    also names a `camera` the caller assumed (`Camera.is_assumed`, e.g. the server's field of view).
+    Without `camera`, a 60° horizontal field of view is assumed. When there is a pose, a warning
+    says why it is approximate: the assumed field of view, a `camera` the caller assumed
+    (`Camera.is_assumed`, e.g. the server's field of view) or EXIF intrinsics.
     `cache`: a `StageCache` kept by the caller for this image; re-running with changed settings then
     re-uses every stage the change does not affect (a RANSAC change re-uses features and
     matches, a ratio change re-uses features). The cache must be dropped with the image and
@@ -418,16 +419,20 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     warnings: list[str] = []
     gray = to_gray(image)
     height, width = gray.shape
-    assumed_by_caller = camera is not None and camera.is_assumed
+    # Why a pose from this camera is approximate: said only when there is a pose.
+    approximate = None
     if camera is None:
         camera = assumed_camera(width, height)
-        warnings.append(f"no camera file: {camera.source}, so the pose is approximate")
+        approximate = f"no camera file: {camera.source}, so the pose is approximate"
     else:
+        assumed_by_caller = camera.is_assumed  # e.g. the server's field of view
         camera, scale_warnings = camera.for_image(width, height)
         warnings += scale_warnings
-        if camera.is_exif:
-            warnings.append(f"no camera file: intrinsics from the {camera.source}, without distortion; "
-                            "the pose is approximate")
+        if assumed_by_caller:
+            approximate = f"no camera set and no EXIF focal length: {camera.source}, so the pose is approximate"
+        elif camera.is_exif:
+            approximate = (f"no camera file: intrinsics from the {camera.source}, without distortion; "
+                           "the pose is approximate")
 
     segmentation = None
     if settings.segment_mode == "threshold":
@@ -495,9 +500,9 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         timing["pose"] = (time.perf_counter() - t0) * 1e3
         if pose is not None and pose.ambiguous:
             warnings.append("pose is ambiguous: the two planar solutions fit almost equally well")
-    if assumed_by_caller:
+    if pose is not None and approximate is not None:
         # Last, after what the run found: where the server's clients have always read it.
-        warnings.append(f"no camera set and no EXIF focal length: {camera.source}, so the pose is approximate")
+        warnings.append(approximate)
     timing["total"] = (time.perf_counter() - t_start) * 1e3
     return Recognition((width, height), settings, camera, segmentation, attempts, chosen, plaque, H, ecc, pose,
                        timing, warnings, sign.corners_px if sign is not None else None, outline)

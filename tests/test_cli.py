@@ -60,7 +60,7 @@ def test_json_schema_and_labels_on_sample_scenes():
 
 
 def test_bad_files_get_an_error_line_and_the_rest_still_run(tmp_path):
-    good = sorted(SCENES.glob("*.jpg"))[0]
+    good = SCENES / "scene_002.jpg"  # a sign: the pose, and so the note on it, is there
     fake = tmp_path / "notes.jpg"
     fake.write_text("this is not a jpeg")
     empty = tmp_path / "empty.png"
@@ -73,6 +73,8 @@ def test_bad_files_get_an_error_line_and_the_rest_still_run(tmp_path):
     check_schema(objs[1])
     # no --camera: the assumed FOV is said, once
     assert "no camera file: assumed 60° horizontal field of view, so the pose is approximate" in objs[1]["warnings"]
+    no_sign = json.loads(signpose("recognize", SCENES / "scene_000.jpg", "--json").stdout)
+    assert no_sign["pose"] is None and not any("approximate" in w for w in no_sign["warnings"])
     table = signpose("recognize", fake, good)
     assert table.returncode != 0 and "error" in table.stdout and good.name in table.stdout
 
