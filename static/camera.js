@@ -82,14 +82,18 @@ function renderCamera() {
     : "in use: none (EXIF or assumed field of view)";
 }
 
-async function loadCamera() {
+/** Shows the camera the server answers `request` with, and `done` as a toast; errors as toasts. */
+async function setCamera(request, done) {
   try {
-    camera = await get("/api/camera");
+    camera = await request;
     renderCamera();
+    if (done) toast(done, "info");
   } catch (err) {
     report(err);
   }
 }
+
+const loadCamera = () => setCamera(get("/api/camera"));
 
 const putHfov = debounce(async (hfov) => {
   try {
@@ -106,23 +110,10 @@ function bindSidebar() {
   file.onchange = async () => {
     const form = new FormData();
     form.append("file", file.files[0]);
-    try {
-      camera = await api("PUT", "/api/camera", form);
-      renderCamera();
-      toast(`camera ${file.files[0].name} loaded`, "info");
-    } catch (err) {
-      report(err);
-    }
+    await setCamera(api("PUT", "/api/camera", form), `camera ${file.files[0].name} loaded`);
     file.value = "";
   };
-  $("#camera-reset").onclick = async () => {
-    try {
-      camera = await api("DELETE", "/api/camera");
-      renderCamera();
-    } catch (err) {
-      report(err);
-    }
-  };
+  $("#camera-reset").onclick = () => setCamera(api("DELETE", "/api/camera"));
   const range = $("#hfov"), num = $("#hfov-num");
   const change = (value) => {
     const hfov = Math.min(140, Math.max(10, Number(value)));
@@ -311,15 +302,8 @@ function bindCalibration() {
   for (const id of ["#board-cols", "#board-rows", "#board-square"]) $(id).addEventListener("change", putBoard);
   $("#calib-run").onclick = () => run(false);
   $("#calib-drop").onclick = () => run(true);
-  $("#calib-apply").onclick = async () => {
-    try {
-      camera = await api("POST", "/api/calibration/apply");
-      renderCamera();
-      toast("calibrated camera applied: every image is being re-run with it", "info");
-    } catch (err) {
-      report(err);
-    }
-  };
+  $("#calib-apply").onclick = () => setCamera(api("POST", "/api/calibration/apply"),
+    "calibrated camera applied: every image is being re-run with it");
   $("#calib-yaml").onclick = () => download("/api/calibration/camera.yaml");
   $("#calib-clear").onclick = () => {
     if (calib?.views.length && confirm(`Remove all ${plural(calib.views.length, "calibration photo")}?`)) {
@@ -366,13 +350,8 @@ function bindTyped() {
     }
     const value = (k) => ($(`#typed-${k}`).value === "" ? null : Number($(`#typed-${k}`).value));
     const body = Object.fromEntries(TYPED.map((k) => [k, value(k)]));
-    try {
-      camera = await api("PUT", "/api/camera", { ...body, dist });
-      renderCamera();
-      toast("typed intrinsics applied: every image is being re-run with them", "info");
-    } catch (err) {
-      report(err);
-    }
+    setCamera(api("PUT", "/api/camera", { ...body, dist }),
+      "typed intrinsics applied: every image is being re-run with them");
   });
 }
 

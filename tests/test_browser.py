@@ -385,6 +385,23 @@ def test_assumed_field_of_view_and_typed_intrinsics(page, api, no_camera):
         "source": "", "kind": "typed"}
 
 
+def test_camera_file_upload_refusal_and_reset(page, api, tmp_path, no_camera):
+    image_id = uploaded_scene(api)
+    open_detail(page, image_id)
+    page.set_input_files("#camera-file", str(harness.SCENES / "camera.yaml"))
+    page.locator(".toast.info", has_text="camera camera.yaml loaded").wait_for()
+    assert "camera file" in shown_intrinsics(page, "file")
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("camera_matrix: [1, 2")
+    page.set_input_files("#camera-file", str(broken))
+    page.locator(".toast.error .toast-msg", has_text="broken.yaml").wait_for()
+    assert api.get("/api/camera").json()["camera"]["kind"] == "file"   # the refused file changed nothing
+    assert page.input_value("#camera-file") == ""   # the same file can be chosen again
+    page.click("#camera-reset")
+    assert "approximate" in shown_intrinsics(page, "assumed")
+    assert api.get("/api/camera").json()["camera"] is None
+
+
 def test_board_square_size_is_checked_in_millimetres(page, api, no_camera):
     board = api.get("/api/calibration").json()["board"]
     page.click("#camera-open")
