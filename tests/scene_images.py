@@ -60,6 +60,12 @@ def render_plaque(sign, corners: np.ndarray, wall, gain: float = 1.0, big: int =
     return cv2.resize(plaque + wall * (1 - cover), SIZE, interpolation=cv2.INTER_AREA)
 
 
+def like_a_camera(image: np.ndarray, blur: float, seed: int) -> np.ndarray:
+    """(H, W) float `image` blurred by a Gaussian of `blur` px and noised (σ 3 levels), as uint8."""
+    noisy = cv2.GaussianBlur(image, (0, 0), blur) + np.random.default_rng(seed).normal(0, 3, image.shape)
+    return np.clip(noisy, 0, 255).astype(np.uint8)
+
+
 def empty_photo(seed: int = 0) -> bytes:
     """JPEG of a wall without a sign."""
     return cv2.imencode(".jpg", wall(seed))[1].tobytes()

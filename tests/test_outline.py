@@ -11,7 +11,7 @@ from pipeline.pose import estimate_pose, homography_from_pose
 from pipeline.recognize import grid_correspondences, recognize
 from pipeline.settings import preset
 from pipeline.synth import render_scene, synthetic_camera
-from scene_images import render_plaque
+from scene_images import like_a_camera, render_plaque
 
 TRUE_CORNERS = np.array([[212.3, 141.7], [431.9, 158.2], [425.6, 251.4], [205.8, 236.9]])
 
@@ -24,9 +24,7 @@ def sign():
 def plaque_image(sign, wall: float, plaque_gain: float = 1.0, seed: int = 0, corners=TRUE_CORNERS) -> np.ndarray:
     """A 640 x 480 image of `sign` at `corners` on a flat wall of gray level `wall`: rendered
     four times larger and shrunk (anti-aliased edges), blurred and noised like a camera."""
-    image = render_plaque(sign, corners, wall, plaque_gain)
-    image = cv2.GaussianBlur(image, (0, 0), 0.8) + np.random.default_rng(seed).normal(0, 3, image.shape)
-    return np.clip(image, 0, 255).astype(np.uint8)
+    return like_a_camera(render_plaque(sign, corners, wall, plaque_gain), 0.8, seed)
 
 
 def start_homography(sign, shift_px: float, seed: int = 1, corners=TRUE_CORNERS) -> np.ndarray:

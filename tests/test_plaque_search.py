@@ -12,7 +12,7 @@ from pipeline.plaque_search import ranked_quads, required_correlation, search_pl
 from pipeline.recognize import recognize
 from pipeline.segment import segment
 from pipeline.settings import preset
-from scene_images import render_plaque
+from scene_images import like_a_camera, render_plaque
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_images"
 CORNERS = np.array([[230.0, 250.0], [380.0, 243.0], [383.0, 305.0], [228.0, 309.0]])
@@ -36,8 +36,7 @@ def scene(sign=None, plaque_level: float = 150.0, blur: float = 1.5, exit_plaque
         text = np.full((50, 125), plaque_level, np.uint8)
         cv2.putText(text, "EXIT", (12, 38), cv2.FONT_HERSHEY_SIMPLEX, 1.3, 25, 3)
         img[y0:y0 + 50, x0:x0 + 125] = text
-    img = cv2.GaussianBlur(img, (0, 0), blur) + np.random.default_rng(seed).normal(0, 3, img.shape)
-    return np.clip(img, 0, 255).astype(np.uint8)
+    return like_a_camera(img, blur, seed)
 
 
 @pytest.mark.parametrize("sign_id", ["security_compound", "ministry_of_torture", "chief_of_security"])
