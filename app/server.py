@@ -200,6 +200,19 @@ async def one_file(request: Request) -> None:
 ONE_FILE = Depends(one_file)
 
 
+def single(*fields: str) -> Any:
+    """A dependency of the multipart routes that read each of the text `fields` as one value: 422 when
+    one is sent several times, as `the_file` refuses several files, not to take the last silently."""
+    async def check(request: Request) -> None:
+        form = await request.form()  # FastAPI's parsed form, which it closes
+        for field in fields:
+            if (count := len(form.getlist(field))) > 1:
+                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                    f"got {count} values in the multipart field {field!r}; it takes one, "
+                                    "so send it once")
+    return Depends(check)
+
+
 def result_of(record: ImageRecord) -> Outcome:
     """The image's latest outcome that has a result (possibly from older settings); 409 while there is none.
 
@@ -448,7 +461,7 @@ def get_sign_image(sign_id: SignIdDep, workspace: WorkspaceDep) -> FileResponse:
 
 
 @api.post("/library", response_model=SignOut, status_code=status.HTTP_201_CREATED, tags=["library"],
-          dependencies=[MULTIPART, ONE_FILE])
+          dependencies=[MULTIPART, ONE_FILE, single("id", "width_m", "name", "text", "height_m")])
 def add_sign(file: Annotated[UploadFile, File(description="the sign, photographed flat or as artwork")],
              id: Annotated[str, Form(description="1-64 of a-z, 0-9, _ and -")],
              width_m: Annotated[float, Form(description="physical width, metres")],

@@ -362,6 +362,17 @@ def test_single_file_routes_refuse_several_files_or_none(client, method, path, f
     assert state() == before
 
 
+@pytest.mark.parametrize("field, values", [("id", ["door_plate", "exit"]), ("width_m", ["0.4", "4"]),
+                                           ("name", ["Door", "Exit"]), ("text", ["a", "b"]),
+                                           ("height_m", ["0.3", "0.2"])])
+def test_add_sign_refuses_a_repeated_text_field(client, field, values):
+    form = {"id": "door_plate", "width_m": "0.4"} | {field: values}
+    r = client.post("/api/library", files={"file": ("d.jpg", sign_photo(LIBRARY, "security_compound"), "image/jpeg")},
+                    data=form)
+    assert_error(r, 422, "got 2 values", f"'{field}'", "send it once")  # not the last one, silently
+    assert [s["id"] for s in client.get("/api/library").json()] == LIBRARY.ids
+
+
 # ---------------------------------------------------------------- tuning
 
 def test_threshold_calibration(client):
