@@ -297,9 +297,10 @@ def detail(workspace: Workspace, record: ImageRecord) -> ImageDetail:
                        camera=intrinsics(rec.camera) if rec else None, attempts=attempts)
 
 
-def read_upload(file: UploadFile) -> tuple[str, bytes]:
-    """(display name, bytes) of an uploaded file; the size is already bounded by UploadLimit."""
-    return display_name(file.filename or "upload"), file.file.read()
+def read_upload(file: FormFile, unnamed: str = "upload") -> tuple[str, bytes]:
+    """(display name, bytes) of an uploaded file, named `unnamed` when the client sent no file name;
+    the size is already bounded by UploadLimit."""
+    return display_name(file.filename or unnamed), file.file.read()
 
 
 def camera_from_upload(name: str, data: bytes) -> Camera:
@@ -546,8 +547,8 @@ def get_stage(record: RecordDep, stage: Literal[figures.STAGES], workspace: Work
 @api.post("/recognize", response_model=RecognitionOut, tags=["images"], dependencies=[MULTIPART, ONE_FILE])
 async def recognize_once(file: Annotated[UploadFile, File()], workspace: WorkspaceDep) -> dict:
     """Recognise one image with the current settings, library and camera without keeping it."""
-    # The other upload routes are sync and call read_upload directly; here the read goes to a
-    # worker thread so that a large upload spooled to disk does not block the event loop.
+    # The sync upload routes call read_upload directly; here, as in PUT /api/camera, the read goes
+    # to a worker thread so that a large upload spooled to disk does not block the event loop.
     name, data = await run_in_threadpool(read_upload, file)
     rec = await within_time_limit(workspace, f"recognising {name}", lambda _: workspace.recognize_upload(data, name))
     return rec.to_json(name)
@@ -631,8 +632,7 @@ async def put_camera(request: Request, workspace: WorkspaceDep) -> CameraOut:
     content_type = request.headers.get("content-type", "")
     if content_type.startswith("multipart/form-data"):
         async with request.form() as form:
-            file = the_file(form)
-            name, data = display_name(file.filename or "camera"), await file.read()
+            name, data = await run_in_threadpool(read_upload, the_file(form), "camera")
         camera = await run_in_threadpool(camera_from_upload, name, data)
     elif content_type.startswith("application/json"):
         try:
