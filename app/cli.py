@@ -16,7 +16,7 @@ import cv2
 from tqdm import tqdm
 
 from app.workspace import WorkspaceConfig, check_image_header, decode_upload
-from pipeline.camera import Camera, CameraError, load_camera
+from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, load_camera
 from pipeline.evaluate import keep_freed_memory
 from pipeline.image import ImageError, read_file
 from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
@@ -324,7 +324,7 @@ def build_parser() -> argparse.ArgumentParser:
                                      "(default: the state's library; on a fresh state the samples)")
     p.add_argument("--camera", type=file_path,
                    help="camera file (default: the state's camera, else per image its EXIF focal length "
-                        "or the assumed field of view, 60° unless set in the page)")
+                        f"or the assumed field of view, {ASSUMED_HFOV_DEG:g}° unless set in the page)")
     p.add_argument("--settings", type=file_path, help="settings JSON to start from (default: the state's settings)")
     p.add_argument("--state-dir", default="signpose_state",
                    help="where settings, library, camera and images survive restarts (default ./signpose_state)")

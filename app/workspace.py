@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-from pipeline.camera import ASSUMED_HFOV_DEG, Camera, assumed_camera, check_hfov, load_camera
+from pipeline.camera import Camera, assumed_camera, check_hfov, load_camera
 from pipeline.exif import decode_with_exif
 from pipeline.features import library_features
 from pipeline.image import ImageError
@@ -105,7 +105,7 @@ class Snapshot:
     settings: Settings
     library: Library
     camera: Camera | None
-    assumed_hfov_deg: float = ASSUMED_HFOV_DEG
+    assumed_hfov_deg: float
 
     def camera_for(self, exif_camera: Camera | None, width: int, height: int) -> Camera:
         """The intrinsics a `width` x `height` px image is recognised with: the workspace's camera, else
@@ -273,8 +273,7 @@ class Workspace:
         if config.camera_file is not None:
             camera = load_camera(config.camera_file)
             self.state.save_camera(camera)
-        hfov = self.state.load_assumed_hfov() or ASSUMED_HFOV_DEG
-        self._snap = Snapshot(1, 1, settings, library, camera, hfov)
+        self._snap = Snapshot(1, 1, settings, library, camera, self.state.load_assumed_hfov())
         self._history: dict[int, Settings] = {1: settings}  # settings_version -> settings, oldest first
 
         stored = self.state.load_images()
