@@ -298,7 +298,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("evaluate", help="accuracy and timing on labelled datasets (the paper's Table 1)")
     p.add_argument("datasets", nargs="+", help="dataset folders: truth.json, or one sub-folder per label")
-    p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1,
+    p.add_argument("--workers", type=positive_int, default=WorkspaceConfig.workers,
                    help="processes sharing the images, one core each (default: every core, here %(default)s)")
     add_common(p)
     add_max_megapixels(p)

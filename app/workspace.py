@@ -53,6 +53,7 @@ IMAGE_ID = re.compile(r"^[0-9a-f]{12}$")
 # Settings versions whose settings are kept, so a result's version can be checked against them.
 SETTINGS_HISTORY = 1000
 EVENT_KINDS = ("settings", "results", "library", "camera", "images")
+CORES = os.cpu_count() or 1  # os.cpu_count() is None where it cannot tell
 
 
 class Conflict(ValueError):
@@ -80,7 +81,7 @@ class WorkspaceConfig:
     max_pixels: int = 40_000_000
     max_upload_bytes: int = 25_000_000
     request_timeout_s: float = 120.0  # longest a request waits for pipeline work (recognise, sweep)
-    workers: int = os.cpu_count() or 1
+    workers: int = CORES  # every core; `signpose evaluate --workers` defaults to it too
     debounce_s: float = 0.15
     max_wait_s: float = 1.0
 
@@ -257,7 +258,7 @@ class Workspace:
             # The pool's threads already share the cores; OpenCV's own threads inside each only
             # compete with them (2 cores, 200 images re-run by 2 workers: 2.33 s with one OpenCV
             # thread each, 2.65 s with two).
-            cv2.setNumThreads(max(1, (os.cpu_count() or 1) // config.workers))
+            cv2.setNumThreads(max(1, CORES // config.workers))
         self._dirty = False
         self._first_change = self._last_change = 0.0
         self._batch_running = False

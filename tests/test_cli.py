@@ -11,6 +11,8 @@ from pathlib import Path
 import cv2
 import pytest
 
+from app.cli import build_parser
+from app.workspace import WorkspaceConfig
 from scene_images import png_bomb
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -271,3 +273,9 @@ def test_an_image_the_camera_cannot_be_scaled_to_is_that_images_error(tmp_path):
     objs = [json.loads(line) for line in result.stdout.splitlines()]
     assert "cannot be scaled" in objs[0]["error"] and objs[1]["label"] == "chief_of_security"
     assert "1 of 2 image(s) could not be used" in result.stderr
+
+
+def test_option_defaults_are_read_from_the_workspace_config(monkeypatch):
+    # In this process: a default is written once, in WorkspaceConfig, so changing it there changes the option's.
+    monkeypatch.setattr(WorkspaceConfig, "workers", 3)
+    assert build_parser().parse_args(["evaluate", "data"]).workers == 3
