@@ -277,5 +277,11 @@ def test_an_image_the_camera_cannot_be_scaled_to_is_that_images_error(tmp_path):
 
 def test_option_defaults_are_read_from_the_workspace_config(monkeypatch):
     # In this process: a default is written once, in WorkspaceConfig, so changing it there changes the option's.
-    monkeypatch.setattr(WorkspaceConfig, "workers", 3)
+    changed = {"workers": 3, "state_dir": Path("elsewhere"), "max_images": 7, "max_upload_bytes": 5_000_000,
+               "request_timeout_s": 9.0}
+    for name, value in changed.items():
+        monkeypatch.setattr(WorkspaceConfig, name, value)
     assert build_parser().parse_args(["evaluate", "data"]).workers == 3
+    serve = build_parser().parse_args(["serve"])
+    assert (Path(serve.state_dir), serve.max_images, serve.max_upload_mb, serve.request_timeout) == (
+        Path("elsewhere"), 7, 5.0, 9.0)
