@@ -16,7 +16,7 @@ import cv2
 from tqdm import tqdm
 
 from app.workspace import WorkspaceConfig, check_image_header, decode_upload
-from pipeline.camera import Camera, CameraError, load_camera
+from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, load_camera
 from pipeline.evaluate import keep_freed_memory
 from pipeline.image import ImageError, read_file
 from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
@@ -298,7 +298,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("evaluate", help="accuracy and timing on labelled datasets (the paper's Table 1)")
     p.add_argument("datasets", nargs="+", help="dataset folders: truth.json, or one sub-folder per label")
-    p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1,
+    p.add_argument("--workers", type=positive_int, default=WorkspaceConfig.workers,
                    help="processes sharing the images, one core each (default: every core, here %(default)s)")
     add_common(p)
     add_max_megapixels(p)
@@ -324,16 +324,17 @@ def build_parser() -> argparse.ArgumentParser:
                                      "(default: the state's library; on a fresh state the samples)")
     p.add_argument("--camera", type=file_path,
                    help="camera file (default: the state's camera, else per image its EXIF focal length "
-                        "or the assumed field of view, 60° unless set in the page)")
+                        f"or the assumed field of view, {ASSUMED_HFOV_DEG:g}° unless set in the page)")
     p.add_argument("--settings", type=file_path, help="settings JSON to start from (default: the state's settings)")
-    p.add_argument("--state-dir", default="signpose_state",
-                   help="where settings, library, camera and images survive restarts (default ./signpose_state)")
-    p.add_argument("--max-images", type=positive_int, default=500, help="most images held at once (default 500)")
+    p.add_argument("--state-dir", default=str(WorkspaceConfig.state_dir),
+                   help="where settings, library, camera and images survive restarts (default ./%(default)s)")
+    p.add_argument("--max-images", type=positive_int, default=WorkspaceConfig.max_images,
+                   help="most images held at once (default %(default)s)")
     add_max_megapixels(p)
-    p.add_argument("--max-upload-mb", type=positive_number, default=25.0,
-                   help="largest request body in MB (default 25)")
-    p.add_argument("--request-timeout", type=positive_number, default=120.0,
-                   help="longest a request waits for pipeline work (recognise, sweep) in seconds (default 120)")
+    p.add_argument("--max-upload-mb", type=positive_number, default=WorkspaceConfig.max_upload_bytes / 1e6,
+                   help="largest request body in MB (default %(default)g)")
+    p.add_argument("--request-timeout", type=positive_number, default=WorkspaceConfig.request_timeout_s,
+                   help="longest a request waits for pipeline work (recognise, sweep) in seconds (default %(default)g)")
     p.set_defaults(func=cmd_serve)
     return parser
 

@@ -24,6 +24,7 @@ MATCH_PANEL_MAX_WIDTH_PX = 4 * MATCH_PANEL_HEIGHT_PX
 GREEN, RED, YELLOW, ORANGE, CYAN, WHITE, BLACK = (60, 200, 60), (60, 60, 230), (0, 220, 255), (0, 140, 255), \
     (230, 200, 0), (255, 255, 255), (0, 0, 0)
 DIM = 0.35
+Spot = tuple[tuple[int, int], bool]  # where a label may go: (org, above) as `_band` takes them
 
 
 class FigureError(LookupError):
@@ -37,13 +38,48 @@ def _pen(shape: tuple[int, ...]) -> tuple[int, float]:
     return max(1, round(2 * unit)), 0.6 * unit
 
 
-def _label(img: np.ndarray, text: str, org: tuple[int, int], color) -> None:
-    """`text` on a black band, so it reads on any background; `org` is its bottom-left corner."""
-    thick, scale = _pen(img.shape)
+def _band(shape: tuple[int, ...], text: str, org: tuple[int, int], above: bool = True) -> Box:
+    """The black band `text` is written on in an image of `shape`: `org` (px) is its bottom-left
+    corner, or with `above` False its top-left. Moved inside the image where it would stick out,
+    so no label is cut off at an edge."""
+    thick, scale = _pen(shape)
     (w, h), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)
-    x, y = max(0, org[0]), max(org[1], h + base)
-    cv2.rectangle(img, (x, y - h - base), (x + w + 2 * base, y + base), BLACK, cv2.FILLED)
-    cv2.putText(img, text, (x + base, y), cv2.FONT_HERSHEY_SIMPLEX, scale, color, thick, cv2.LINE_AA)
+    band_w, band_h = w + 2 * base, h + 2 * base
+    x = max(0, min(org[0], shape[1] - band_w))
+    top = max(0, min(org[1] - band_h if above else org[1], shape[0] - band_h))
+    return x, top, x + band_w, top + band_h
+
+
+def _write(img: np.ndarray, text: str, band: Box, color) -> None:
+    """`text` on the black `band` made for it by `_band`, so it reads on any background."""
+    thick, scale = _pen(img.shape)
+    base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)[1]
+    x0, y0, x1, y1 = band
+    cv2.rectangle(img, (x0, y0), (x1, y1), BLACK, cv2.FILLED)
+    cv2.putText(img, text, (x0 + base, y1 - base), cv2.FONT_HERSHEY_SIMPLEX, scale, color, thick, cv2.LINE_AA)
+
+
+def _label(img: np.ndarray, text: str, org: tuple[int, int], color) -> None:
+    """`text` on a black band whose bottom-left corner is `org` (px)."""
+    _write(img, text, _band(img.shape, text, org), color)
+
+
+def _overlap(a: Box, b: Box) -> bool:
+    """Whether bands `a` and `b` share a pixel (their corners inclusive, as `_write` draws them)."""
+    return a[0] <= b[2] and b[0] <= a[2] and a[1] <= b[3] and b[1] <= a[3]
+
+
+def _free_band(shape: tuple[int, ...], text: str, spots: list[Spot], taken: list[Box]) -> Box:
+    """The band for `text` at the first of `spots` ((org, above) as for `_band`) clear of every band
+    in `taken`; when none is, the first spot moved down past the bands in its way, as far as the
+    image allows. It joins `taken`."""
+    bands = [_band(shape, text, org, above) for org, above in spots]
+    band = next((b for b in bands if not any(_overlap(b, t) for t in taken)), bands[0])
+    height = band[3] - band[1]
+    while (hit := next((t for t in taken if _overlap(band, t)), None)) is not None and hit[3] + height < shape[0]:
+        band = (band[0], hit[3] + 1, band[2], hit[3] + 1 + height)
+    taken.append(band)
+    return band
 
 
 def _scaled(img: np.ndarray, scale: float) -> np.ndarray:
@@ -67,7 +103,7 @@ def _box(img: np.ndarray, box: Box, color, text: str | None = None) -> None:
     x0, y0, x1, y1 = box
     cv2.rectangle(img, (x0, y0), (x1 - 1, y1 - 1), color, thick, cv2.LINE_AA)
     if text:
-        _label(img, text, (x0 + 4, y0 - 6), color)
+        _label(img, text, (x0, y0), color)  # a tab on the box's top edge
 
 
 def _quad(img: np.ndarray, corners: np.ndarray, color) -> None:
@@ -89,19 +125,39 @@ def chosen_blob(recognition: Recognition) -> int | None:
     return int(attempt.source.split()[1]) - 1
 
 
-def draw_input(image: np.ndarray, recognition: Recognition) -> np.ndarray:
-    """The photo with every searched region and the detected sign's outline and label."""
-    img = image.copy()
-    for attempt in recognition.attempts:
-        _box(img, attempt.region, YELLOW if attempt is recognition.attempt else ORANGE, attempt.source)
+def answer_text(recognition: Recognition) -> str | None:
+    """The recognised sign and what decided it (feature inliers and margin, or the plaque's
+    correlation); None without a sign."""
     best = recognition.best
-    if best is not None and best.corners is not None:
-        _quad(img, best.corners, GREEN)
-        x, y = np.min(best.corners, axis=0)
-        _label(img, f"{best.sign} ({best.n_inliers} inliers, margin {recognition.margin})",
-               (max(0, int(x)), int(y) - 8), GREEN)
-    else:
-        _label(img, "no sign", (10, 10), RED)
+    if best is not None:
+        return f"{best.sign} ({best.n_inliers} inliers, margin {recognition.margin})"
+    if recognition.by_plaque:
+        return f"{recognition.label} (plaque, correlation {recognition.plaque.ncc[recognition.label]:.2f})"
+    return None
+
+
+def draw_input(image: np.ndarray, recognition: Recognition) -> np.ndarray:
+    """The photo with every searched region and the recognised sign's outline (the result's
+    `corners`), each labelled where no other label is."""
+    img = image.copy()
+    thick, _ = _pen(img.shape)
+    labels = []  # (text, color, spots to try in turn) for `_free_band`
+    for attempt in recognition.attempts:
+        color = YELLOW if attempt is recognition.attempt else ORANGE
+        _box(img, attempt.region, color)
+        x0, y0, _, y1 = attempt.region
+        labels.append((attempt.source, color, [((x0, y0), True), ((x0, y0), False), ((x0, y1), False)]))
+    corners, answer = recognition.corners, answer_text(recognition)
+    if corners is not None and answer is not None:
+        _quad(img, corners, GREEN)
+        (x0, y0), (_, y1) = np.min(corners, axis=0).astype(int), np.max(corners, axis=0).astype(int)
+        # First, so it gets its spot: below the outline, as its region's label is above it.
+        labels.insert(0, (answer, GREEN, [((x0, y1 + 2 * thick), False), ((x0, y0 - 2 * thick), True)]))
+    else:  # bottom-left, else top-right: the full frame's label is top-left
+        labels.insert(0, ("no sign", RED, [((0, img.shape[0]), True), ((img.shape[1], 0), False)]))
+    taken: list[Box] = []
+    for text, color, spots in labels:
+        _write(img, text, _free_band(img.shape, text, spots, taken), color)
     return img
 
 

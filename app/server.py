@@ -200,6 +200,19 @@ async def one_file(request: Request) -> None:
 ONE_FILE = Depends(one_file)
 
 
+def single(*fields: str) -> Any:
+    """A dependency of the multipart routes that read each of the text `fields` as one value: 422 when
+    one is sent several times, as `the_file` refuses several files, not to take the last silently."""
+    async def check(request: Request) -> None:
+        form = await request.form()  # FastAPI's parsed form, which it closes
+        for field in fields:
+            if (count := len(form.getlist(field))) > 1:
+                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                    f"got {count} values in the multipart field {field!r}; it takes one, "
+                                    "so send it once")
+    return Depends(check)
+
+
 def result_of(record: ImageRecord) -> Outcome:
     """The image's latest outcome that has a result (possibly from older settings); 409 while there is none.
 
@@ -284,9 +297,10 @@ def detail(workspace: Workspace, record: ImageRecord) -> ImageDetail:
                        camera=intrinsics(rec.camera) if rec else None, attempts=attempts)
 
 
-def read_upload(file: UploadFile) -> tuple[str, bytes]:
-    """(display name, bytes) of an uploaded file; the size is already bounded by UploadLimit."""
-    return display_name(file.filename or "upload"), file.file.read()
+def read_upload(file: FormFile, unnamed: str = "upload") -> tuple[str, bytes]:
+    """(display name, bytes) of an uploaded file, named `unnamed` when the client sent no file name;
+    the size is already bounded by UploadLimit."""
+    return display_name(file.filename or unnamed), file.file.read()
 
 
 def camera_from_upload(name: str, data: bytes) -> Camera:
@@ -448,7 +462,7 @@ def get_sign_image(sign_id: SignIdDep, workspace: WorkspaceDep) -> FileResponse:
 
 
 @api.post("/library", response_model=SignOut, status_code=status.HTTP_201_CREATED, tags=["library"],
-          dependencies=[MULTIPART, ONE_FILE])
+          dependencies=[MULTIPART, ONE_FILE, single("id", "width_m", "name", "text", "height_m")])
 def add_sign(file: Annotated[UploadFile, File(description="the sign, photographed flat or as artwork")],
              id: Annotated[str, Form(description="1-64 of a-z, 0-9, _ and -")],
              width_m: Annotated[float, Form(description="physical width, metres")],
@@ -533,8 +547,8 @@ def get_stage(record: RecordDep, stage: Literal[figures.STAGES], workspace: Work
 @api.post("/recognize", response_model=RecognitionOut, tags=["images"], dependencies=[MULTIPART, ONE_FILE])
 async def recognize_once(file: Annotated[UploadFile, File()], workspace: WorkspaceDep) -> dict:
     """Recognise one image with the current settings, library and camera without keeping it."""
-    # The other upload routes are sync and call read_upload directly; here the read goes to a
-    # worker thread so that a large upload spooled to disk does not block the event loop.
+    # The sync upload routes call read_upload directly; here, as in PUT /api/camera, the read goes
+    # to a worker thread so that a large upload spooled to disk does not block the event loop.
     name, data = await run_in_threadpool(read_upload, file)
     rec = await within_time_limit(workspace, f"recognising {name}", lambda _: workspace.recognize_upload(data, name))
     return rec.to_json(name)
@@ -618,8 +632,7 @@ async def put_camera(request: Request, workspace: WorkspaceDep) -> CameraOut:
     content_type = request.headers.get("content-type", "")
     if content_type.startswith("multipart/form-data"):
         async with request.form() as form:
-            file = the_file(form)
-            name, data = display_name(file.filename or "camera"), await file.read()
+            name, data = await run_in_threadpool(read_upload, the_file(form), "camera")
         camera = await run_in_threadpool(camera_from_upload, name, data)
     elif content_type.startswith("application/json"):
         try:

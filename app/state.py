@@ -136,10 +136,11 @@ class StateDir:
         else:
             atomic_write_json(self.camera_path, camera.to_json())
 
-    def load_assumed_hfov(self) -> float | None:
-        """The horizontal field of view (degrees) to assume for images without camera or EXIF, if one was set."""
+    def load_assumed_hfov(self) -> float:
+        """The horizontal field of view (degrees) to assume for images without camera or EXIF: the one
+        set, else ASSUMED_HFOV_DEG."""
         if not self.fov_path.exists():
-            return None
+            return ASSUMED_HFOV_DEG
         try:
             hfov = json.loads(self.fov_path.read_text(encoding="utf-8"))["hfov_deg"]
             return check_hfov(hfov)

@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-from pipeline.camera import ASSUMED_HFOV_DEG, Camera, assumed_camera, check_hfov, load_camera
+from pipeline.camera import Camera, assumed_camera, check_hfov, load_camera
 from pipeline.exif import decode_with_exif
 from pipeline.features import library_features
 from pipeline.image import ImageError
@@ -53,6 +53,7 @@ IMAGE_ID = re.compile(r"^[0-9a-f]{12}$")
 # Settings versions whose settings are kept, so a result's version can be checked against them.
 SETTINGS_HISTORY = 1000
 EVENT_KINDS = ("settings", "results", "library", "camera", "images")
+CORES = os.cpu_count() or 1  # os.cpu_count() is None where it cannot tell
 
 
 class Conflict(ValueError):
@@ -80,7 +81,7 @@ class WorkspaceConfig:
     max_pixels: int = 40_000_000
     max_upload_bytes: int = 25_000_000
     request_timeout_s: float = 120.0  # longest a request waits for pipeline work (recognise, sweep)
-    workers: int = os.cpu_count() or 1
+    workers: int = CORES  # every core; `signpose evaluate --workers` defaults to it too
     debounce_s: float = 0.15
     max_wait_s: float = 1.0
 
@@ -105,7 +106,7 @@ class Snapshot:
     settings: Settings
     library: Library
     camera: Camera | None
-    assumed_hfov_deg: float = ASSUMED_HFOV_DEG
+    assumed_hfov_deg: float
 
     def camera_for(self, exif_camera: Camera | None, width: int, height: int) -> Camera:
         """The intrinsics a `width` x `height` px image is recognised with: the workspace's camera, else
@@ -257,7 +258,7 @@ class Workspace:
             # The pool's threads already share the cores; OpenCV's own threads inside each only
             # compete with them (2 cores, 200 images re-run by 2 workers: 2.33 s with one OpenCV
             # thread each, 2.65 s with two).
-            cv2.setNumThreads(max(1, (os.cpu_count() or 1) // config.workers))
+            cv2.setNumThreads(max(1, CORES // config.workers))
         self._dirty = False
         self._first_change = self._last_change = 0.0
         self._batch_running = False
@@ -273,8 +274,7 @@ class Workspace:
         if config.camera_file is not None:
             camera = load_camera(config.camera_file)
             self.state.save_camera(camera)
-        hfov = self.state.load_assumed_hfov() or ASSUMED_HFOV_DEG
-        self._snap = Snapshot(1, 1, settings, library, camera, hfov)
+        self._snap = Snapshot(1, 1, settings, library, camera, self.state.load_assumed_hfov())
         self._history: dict[int, Settings] = {1: settings}  # settings_version -> settings, oldest first
 
         stored = self.state.load_images()

@@ -9,11 +9,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import httpx
+import numpy as np
 import pytest
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
+from app.figures import GREEN, RED
 from app.server import create_app
 from app.workspace import Workspace, WorkspaceConfig
 from pipeline.library import SAMPLE_LIBRARY, load_library
@@ -247,6 +250,39 @@ def test_stage_figures(client):
     client.delete(f"/api/images/{image_id}")
 
 
+def label_bands(figure: np.ndarray) -> list[np.ndarray]:
+    """The black bands the figure's labels are written on (solid black but for the text), as crops."""
+    black = np.all(figure == 0, axis=2).astype(np.uint8)
+    _, _, stats, _ = cv2.connectedComponentsWithStats(black, connectivity=4)
+    return [figure[y:y + h, x:x + w] for x, y, w, h, area in stats[1:] if area > 200 and area > 0.5 * w * h]
+
+
+def has(img: np.ndarray, color: tuple[int, int, int]) -> bool:
+    """Whether `img` has a pixel of exactly `color` (BGR): the core of a line or letter drawn in it."""
+    return bool(np.all(img == color, axis=2).any())
+
+
+@pytest.mark.parametrize("scene, sign, by_plaque", [
+    ("scenes/scene_002.jpg", "security_compound", False),  # its region's label sat under the answer's
+    ("datasets/set2/scene_007.jpg", "ministry_of_torture", True),  # once labelled "no sign"
+])
+def test_input_figure_shows_every_label_and_the_answer(client, scene, sign, by_plaque):
+    r = upload(client, (Path(scene).name, (REPO / "sample_images" / scene).read_bytes(), sign))
+    image_id = r.json()["images"][0]["id"]
+    wait_done(client)
+    detail = client.get(f"/api/images/{image_id}").json()
+    assert detail["status"] == "correct" and (detail["inliers"] == 0) == by_plaque
+    figure = cv2.imdecode(np.frombuffer(client.get(f"/api/images/{image_id}/stages/input").content, np.uint8),
+                          cv2.IMREAD_COLOR)
+    bands = label_bands(figure)
+    assert len(bands) == len(detail["attempts"]) + 1  # one per searched region and the answer's: none overlap
+    assert sum(has(b, GREEN) for b in bands) == 1 and not any(has(b, RED) for b in bands)  # the sign, no "no sign"
+    for a, b in zip(detail["result"]["corners"], np.roll(detail["result"]["corners"], -1, axis=0)):
+        x, y = np.round((np.array(a) + b) / 2).astype(int)  # the middle of each side of the outline
+        assert has(figure[y - 1:y + 2, x - 1:x + 2], GREEN), (x, y)
+    client.delete(f"/api/images/{image_id}")
+
+
 @pytest.mark.parametrize("name, data, expected, code, words", [
     ("empty.jpg", b"", None, 422, ("empty.jpg", "empty")),
     ("notes.jpg", b"meeting at 10, bring the photos", None, 422, ("notes.jpg", "not an image")),
@@ -324,6 +360,17 @@ def test_single_file_routes_refuse_several_files_or_none(client, method, path, f
     assert_error(r, 422, "got 2 files", "'file'", "one request per file")  # not the last one, silently
     assert_error(client.request(method, path, files=[("files", files[0])], data=form), 422, "field 'file'")
     assert state() == before
+
+
+@pytest.mark.parametrize("field, values", [("id", ["door_plate", "exit"]), ("width_m", ["0.4", "4"]),
+                                           ("name", ["Door", "Exit"]), ("text", ["a", "b"]),
+                                           ("height_m", ["0.3", "0.2"])])
+def test_add_sign_refuses_a_repeated_text_field(client, field, values):
+    form = {"id": "door_plate", "width_m": "0.4"} | {field: values}
+    r = client.post("/api/library", files={"file": ("d.jpg", sign_photo(LIBRARY, "security_compound"), "image/jpeg")},
+                    data=form)
+    assert_error(r, 422, "got 2 values", f"'{field}'", "send it once")  # not the last one, silently
+    assert [s["id"] for s in client.get("/api/library").json()] == LIBRARY.ids
 
 
 # ---------------------------------------------------------------- tuning

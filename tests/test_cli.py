@@ -11,6 +11,8 @@ from pathlib import Path
 import cv2
 import pytest
 
+from app.cli import build_parser
+from app.workspace import WorkspaceConfig
 from scene_images import png_bomb
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -273,3 +275,15 @@ def test_an_image_the_camera_cannot_be_scaled_to_is_that_images_error(tmp_path):
     objs = [json.loads(line) for line in result.stdout.splitlines()]
     assert "cannot be scaled" in objs[0]["error"] and objs[1]["label"] == "chief_of_security"
     assert "1 of 2 image(s) could not be used" in result.stderr
+
+
+def test_option_defaults_are_read_from_the_workspace_config(monkeypatch):
+    # In this process: a default is written once, in WorkspaceConfig, so changing it there changes the option's.
+    changed = {"workers": 3, "state_dir": Path("elsewhere"), "max_images": 7, "max_upload_bytes": 5_000_000,
+               "request_timeout_s": 9.0}
+    for name, value in changed.items():
+        monkeypatch.setattr(WorkspaceConfig, name, value)
+    assert build_parser().parse_args(["evaluate", "data"]).workers == 3
+    serve = build_parser().parse_args(["serve"])
+    assert (Path(serve.state_dir), serve.max_images, serve.max_upload_mb, serve.request_timeout) == (
+        Path("elsewhere"), 7, 5.0, 9.0)

@@ -16,7 +16,7 @@ import app.workspace as workspace_module
 import pipeline.recognize
 from app.state import StateDir, atomic_write
 from app.workspace import NO_SIGN, SAMPLE_SCENES, Conflict, ImageTooLarge, Workspace, WorkspaceConfig
-from pipeline.camera import Camera, CameraError
+from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError
 from pipeline.image import ImageError
 from pipeline.library import SAMPLE_LIBRARY, LibraryError, load_library
 from pipeline.settings import SettingsError
@@ -108,6 +108,13 @@ def test_assumed_field_of_view_is_used_and_said_until_a_camera_is_set(make_works
     assert not any("approximate" in w for w in record.recognition.warnings)
     with pytest.raises(CameraError, match="10° to 140°"):
         ws.set_assumed_hfov(179)
+
+
+def test_the_state_gives_the_assumed_field_of_view_set_else_the_default(tmp_path):
+    state = StateDir(tmp_path / "state")
+    assert state.load_assumed_hfov() == ASSUMED_HFOV_DEG  # the default, in one place, not None for callers to fill
+    state.save_assumed_hfov(72.0)
+    assert StateDir(state.root).load_assumed_hfov() == 72.0
 
 
 def test_slider_storm_coalesces_into_few_runs_and_ends_on_the_last_value(make_workspace, counting, monkeypatch):
