@@ -44,6 +44,8 @@ MAX_FOCAL_RATIO = 10.0
 # about 40 %): distorted / undistorted radius beyond 5 or under 1/5 there is a typo or a model
 # used far outside the images it was fitted to.
 MAX_DISTORTION_FACTOR = 5.0
+# ROS camera_info's names for OpenCV's distortion model with 5 and with 8 coefficients.
+ROS_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial")
 
 
 class CameraError(ValueError):
@@ -274,7 +276,14 @@ def _matrix(node: object, name: str, rows: int | None, cols: int | None) -> np.n
 
 
 def camera_from_ros(data: dict, source: str) -> Camera:
-    """Camera from a parsed ROS camera_info YAML."""
+    """Camera from a parsed ROS camera_info YAML: OpenCV's distortion model (ROS's `plumb_bob` or
+    `rational_polynomial`); any other `distortion_model` is refused, since its coefficients mean
+    something else."""
+    model = data.get("distortion_model")
+    if model is not None and model not in ROS_DISTORTION_MODELS:
+        raise CameraError(f"distortion_model {reprlib.repr(model)} is not supported: signpose uses OpenCV's model "
+                          f"({' or '.join(ROS_DISTORTION_MODELS)}: k1 k2 p1 p2 k3 ...); calibrate with "
+                          "`signpose calibrate`, or undistort the photos first and give zero distortion")
     K = _matrix(data["camera_matrix"], "camera_matrix", 3, 3)
     if K.size != 9:
         raise CameraError(f"camera_matrix must have 9 values; got {K.size}")

@@ -28,6 +28,17 @@ def test_ros_yaml(tmp_path):
     assert cam.dist[0] == -0.1 and cam.has_distortion
 
 
+@pytest.mark.parametrize("model", ["equidistant", "fisheye", "kannala_brandt", 7])
+def test_a_distortion_model_other_than_opencvs_is_refused(tmp_path, model):
+    """Fisheye coefficients read as OpenCV's would move the pose without a word."""
+    p = tmp_path / "cam.yaml"
+    p.write_text(ROS.replace("plumb_bob", str(model)))
+    with pytest.raises(CameraError, match=r"distortion_model .* is not supported: signpose uses OpenCV's model"):
+        load_camera(p)
+    p.write_text(ROS.replace("plumb_bob", "rational_polynomial"))
+    assert load_camera(p).has_distortion
+
+
 def test_save_round_trip(tmp_path):
     cam = Camera(np.array([[600.0, 0, 330], [0, 601, 250], [0, 0, 1]]), np.array([0.1, -0.2, 0.001, 0.002, 0.05]),
                  640, 480, "test")
