@@ -27,8 +27,10 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from .camera import Camera
 from .library import LibrarySign
-from .plaque import sign_corners, sign_to_quad
+from .plaque import grid_correspondences, sign_corners, sign_to_quad
+from .pose import distort_pixels, undistort_pixels
 
 # Fraction of each side left out at either end: corners are rounded by blur and shared by two sides.
 END_MARGIN = 0.12
@@ -50,18 +52,30 @@ MIN_STEP = 1.0
 MIN_RELATIVE_STEP = 0.3
 LINE_RANSAC_ITERATIONS = 40
 SMOOTH_SIGMA = 0.7  # Gaussian smoothing of the image before reading profiles (px)
+SMOOTH_MARGIN_PX = 4  # beyond the kernel's radius for SMOOTH_SIGMA (3 px)
 # Length along a side over which profiles share noise (tangent offsets plus smoothing), px.
 CORRELATION_PX = 4.0
 
 
 @dataclass(frozen=True, eq=False)
 class Outline:
-    """A refined plaque outline: `corners` (4, 2) image px TL, TR, BR, BL, the homography
-    (library px -> image px) through them, and per side the edge points used (image px)."""
+    """A refined plaque outline: `corners` (4, 2) image px TL, TR, BR, BL, the homography `H`
+    (library px -> image px) through them, per side the edge points used (image px), and
+    `ideal_H` (library px -> px of an ideal pinhole camera with the same K, `undistort_pixels`).
+
+    Without lens distortion the two homographies are one. With it the sides are curves in the
+    image, `H` is exact only at the corners, and `ideal_H` is the plane-to-pinhole map."""
 
     corners: np.ndarray = field(repr=False)
     H: np.ndarray = field(repr=False)
     points: list[np.ndarray] = field(repr=False)
+    ideal_H: np.ndarray = field(repr=False)
+
+    def grid(self, sign: LibrarySign, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+        """(src (N, 2) library px, dst (N, 2) image px): a grid over the sign and where the camera
+        sees it, lens distortion included; what a pose is fitted to after refinement."""
+        src, ideal = grid_correspondences(self.ideal_H, sign)
+        return src, distort_pixels(ideal, camera)
 
 
 def _line_fits(pts: np.ndarray, side: np.ndarray, use: np.ndarray) -> np.ndarray:
@@ -144,10 +158,25 @@ def _expected(length: np.ndarray) -> np.ndarray:
     return np.clip(length * (1 - 2 * END_MARGIN) / MIN_SPACING_PX, 2, MAX_SAMPLES).astype(int)
 
 
-def _edge_points(gray: np.ndarray, corners: np.ndarray, half: float) -> tuple[np.ndarray, np.ndarray]:
+def _through_lens(base: np.ndarray, tangent: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points (M, 2) on straight sides in ideal pinhole px, with their sides' unit tangents (M, 2)
+    -> where `camera` sees them (image px), the unit tangent of the curve the side becomes there
+    and its outward normal."""
+    seen = distort_pixels(base, camera)
+    along = distort_pixels(base + 0.5 * tangent, camera) - distort_pixels(base - 0.5 * tangent, camera)
+    along /= np.maximum(np.hypot(along[:, 0], along[:, 1]), 1e-12)[:, None]
+    return seen, along, np.column_stack([along[:, 1], -along[:, 0]])
+
+
+def _edge_points(gray: np.ndarray, corners: np.ndarray, half: float,
+                 camera: Camera | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Sub-pixel edge points (K, 2) image px found within `half` px across the sides of the quad
-    `corners` (4, 2), at most one per profile, and the side (K,) 0..3 of each, sorted."""
+    `corners` (4, 2), at most one per profile, and the side (K,) 0..3 of each, sorted. With
+    `camera`, `corners` are ideal pinhole px and the sides are read along the curves its lens
+    distortion makes of them."""
     base, tangent, normal, side = _samples(corners)
+    if camera is not None and camera.has_distortion:
+        base, tangent, normal = _through_lens(base, tangent, camera)
     offsets = np.arange(-half, half + STEP_PX / 2, STEP_PX)
     # (M, T, O) x and y: along the side, beside it, across it
     along = np.asarray(TANGENT_OFFSETS_PX)[:, None]
@@ -158,11 +187,10 @@ def _edge_points(gray: np.ndarray, corners: np.ndarray, half: float) -> tuple[np
     if not inside.any():
         return np.zeros((0, 2)), np.zeros(0, dtype=int)
     x, y, base, normal, side = x[inside], y[inside], base[inside], normal[inside], side[inside]
-    # Smooth only the neighbourhood read (every position is within half + 1 px of the quad's
-    # box), not the whole image.
-    reach = half + max(abs(o) for o in TANGENT_OFFSETS_PX) + 3
-    x0, y0 = np.maximum(np.floor(corners.min(axis=0) - reach).astype(int), 0)
-    x1, y1 = np.minimum(np.ceil(corners.max(axis=0) + reach).astype(int) + 1, [w, h])
+    # Smooth only the neighbourhood read, with a margin the smoothing kernel does not reach
+    # past, not the whole image.
+    x0, y0 = np.maximum(np.floor([x.min(), y.min()]).astype(int) - SMOOTH_MARGIN_PX, 0)
+    x1, y1 = np.minimum(np.ceil([x.max(), y.max()]).astype(int) + 1 + SMOOTH_MARGIN_PX, [w, h])
     patch = cv2.GaussianBlur(gray[y0:y1, x0:x1].astype(np.float32), (0, 0), SMOOTH_SIGMA)
     values = cv2.remap(patch, (x - x0).astype(np.float32).reshape(-1, 1), (y - y0).astype(np.float32).reshape(-1, 1),
                        cv2.INTER_LINEAR).reshape(x.shape)
@@ -207,17 +235,22 @@ def _side_medians(values: np.ndarray, side: np.ndarray) -> np.ndarray:
     return medians
 
 
-def refine_outline(gray: np.ndarray, sign: LibrarySign, H: np.ndarray,
-                   seed: int = 0) -> tuple[Outline | None, str | None]:
+def refine_outline(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, seed: int = 0,
+                   camera: Camera | None = None) -> tuple[Outline | None, str | None]:
     """Refine H (library px -> image px) of `sign` from its plaque's four edges in the (H, W) uint8 image.
 
-    Returns (outline, None), or (None, why) when some side shows no consistent straight edge
-    near where H puts it; the caller then keeps H.
+    Under `camera`'s lens distortion the edges are curves: they are read along the curves the
+    lens makes of straight sides, and the lines are fitted to the edge points as an ideal
+    pinhole camera would see them (`undistort_pixels`), where they are straight. Returns (outline, None), or (None, why) when some side shows no consistent
+    straight edge near where H puts it; the caller then keeps H.
     """
     rng = np.random.default_rng(seed)
     start = sign_corners(sign, H)
-    pts, side = _edge_points(gray, start, SEARCH_PX)
-    lines, inliers = _robust_lines(pts, side, rng)
+    if camera is not None:
+        start = undistort_pixels(start, camera)
+    pts, side = _edge_points(gray, start, SEARCH_PX, camera)
+    ideal = pts if camera is None else undistort_pixels(pts, camera)
+    lines, inliers = _robust_lines(ideal, side, rng)
     found = np.bincount(side[inliers], minlength=4)
     expected = _expected(np.hypot(*(start[[1, 2, 3, 0]] - start).T))
     for i in range(4):
@@ -228,15 +261,17 @@ def refine_outline(gray: np.ndarray, sign: LibrarySign, H: np.ndarray,
     w = a1 * b2 - b1 * a2
     if np.any(np.abs(w) < 1e-12):
         return None, "two adjacent sides are parallel"
-    corners = np.column_stack([(b1 * c2 - c1 * b2) / w, (c1 * a2 - a1 * c2) / w])
-    moved = float(np.max(np.hypot(*(corners - start).T)))
+    ideal_corners = np.column_stack([(b1 * c2 - c1 * b2) / w, (c1 * a2 - a1 * c2) / w])
+    moved = float(np.max(np.hypot(*(ideal_corners - start).T)))
     if moved > 2 * SEARCH_PX:
         return None, f"a corner moved {moved:.1f} px, more than the search allows ({2 * SEARCH_PX} px)"
-    return Outline(corners, sign_to_quad(sign, corners), [pts[inliers & (side == i)] for i in range(4)]), None
+    corners = ideal_corners if camera is None else distort_pixels(ideal_corners, camera)
+    return Outline(corners, sign_to_quad(sign, corners), [pts[inliers & (side == i)] for i in range(4)],
+                   sign_to_quad(sign, ideal_corners)), None
 
 
 def outline_fit(R: np.ndarray, t: np.ndarray, outline: Outline, sign: LibrarySign,
-                camera) -> tuple[float, np.ndarray | None]:
+                camera: Camera) -> tuple[float, np.ndarray | None]:
     """(RMS residual in image px, (6, 6) covariance over [rotation vector (rad), translation (m)])
     of a pose (R, t) fitted to `outline`, from its edge points: each measures only its distance
     across its side.
@@ -255,7 +290,7 @@ def outline_fit(R: np.ndarray, t: np.ndarray, outline: Outline, sign: LibrarySig
     rvec = cv2.Rodrigues(np.asarray(R, dtype=np.float64))[0]
     tvec = np.asarray(t, dtype=np.float64).reshape(3, 1)
     # library point of each edge point: through H⁻¹, then onto the library side it belongs to
-    q = cv2.perspectiveTransform(pts[None].astype(np.float64), np.linalg.inv(outline.H))[0]
+    q = cv2.perspectiveTransform(undistort_pixels(pts, camera)[None], np.linalg.inv(outline.ideal_H))[0]
     a = sign.corners_px
     ab = a[[1, 2, 3, 0]] - a
     along = np.sum((q - a[side]) * ab[side], axis=1) / np.sum(ab * ab, axis=1)[side]

@@ -90,6 +90,18 @@ def sign_corners(sign: LibrarySign, H: np.ndarray) -> np.ndarray:
     return cv2.perspectiveTransform(sign.corners_px[None], H)[0]
 
 
+def grid_correspondences(H: np.ndarray, sign: LibrarySign, n: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """An n x n grid over the sign (library px) and its image through H: (n*n, 2) each.
+
+    After dense alignment every pixel of the sign supports H, so a grid stands in for the matches.
+    """
+    w, h = sign.size_px
+    gu, gv = np.meshgrid(np.linspace(0, w, n), np.linspace(0, h, n))
+    src = np.column_stack([gu.ravel(), gv.ravel()])
+    hom = np.column_stack([src, np.ones(len(src))]) @ H.T
+    return src, hom[:, :2] / hom[:, 2:]
+
+
 def compare_size(sign: LibrarySign) -> tuple[int, int]:
     w, h = sign.size_px
     return COMPARE_WIDTH, max(8, round(COMPARE_WIDTH * h / w))

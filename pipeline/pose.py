@@ -190,6 +190,17 @@ def undistort_pixels(pts: np.ndarray, camera: Camera) -> np.ndarray:
     return out.reshape(-1, 2)
 
 
+def distort_pixels(pts: np.ndarray, camera: Camera) -> np.ndarray:
+    """(N, 2) px of an ideal pinhole camera with the same K -> (N, 2) image px as the camera
+    measures them, with its distortion: the inverse of `undistort_pixels`."""
+    pts = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+    if not camera.has_distortion:
+        return pts
+    rays = np.column_stack([pts, np.ones(len(pts))]) @ np.linalg.inv(camera.K).T
+    zero = np.zeros(3)
+    return cv2.projectPoints(rays, zero, zero, camera.K, camera.dist)[0].reshape(-1, 2)
+
+
 def _project(R: np.ndarray, t: np.ndarray, obj: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """Project (N, 3) sign points with pose (R, t) and distortion: (N, 2) px and the (2N, 6)
     Jacobian of the stacked (u, v) per point with respect to [rotation vector, t]."""

@@ -22,7 +22,7 @@ from .image import to_gray
 from .library import Library, LibrarySign
 from .match import Matches, match_library
 from .outline import Outline, outline_fit, refine_outline
-from .plaque import PlaqueMatch, match_plaque, refine_ecc
+from .plaque import PlaqueMatch, grid_correspondences, match_plaque, refine_ecc
 from .plaque_search import MIN_NCC, SAME_PLAQUE_IOU, QuadCandidate, confirm_plaque, ranked_quads, search_plaques
 from .pose import Pose, PoseError, estimate_pose
 from .segment import Box, Segmentation, box_iou, expand_box, segment
@@ -481,11 +481,12 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         # A RANSAC or decision change usually leaves the winner's H as it was: refine it once.
         refine_key = ("refine", sign.id, H.tobytes(), src.tobytes(), dst.tobytes(), settings.refine,
                       wants_dense_refinement(settings.refine, chosen), settings.refine_outline,
-                      settings.segment_mode, settings.seed)
+                      settings.segment_mode, settings.seed,
+                      (camera.K.tobytes(), camera.dist.tobytes()) if camera.has_distortion else None)
 
         def refine() -> tuple:
             notes: list[str] = []
-            return refine_winner(gray, sign, H, src, dst, settings, chosen, notes), notes
+            return refine_winner(gray, sign, H, src, dst, settings, chosen, camera, notes), notes
 
         (H, src, dst, ecc, outline), notes = cached(cache, refine_key, refine)
         warnings += notes
@@ -521,7 +522,7 @@ def find_plaque(gray: np.ndarray, segmentation: Segmentation, library: Library, 
 
 
 def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.ndarray, dst: np.ndarray,
-                  settings: Settings, attempt: Attempt | None, warnings: list[str]):
+                  settings: Settings, attempt: Attempt | None, camera: Camera, warnings: list[str]):
     """(H, src, dst, ecc, outline): the winner's homography and the correspondences for its pose,
     after refinement, with the ECC correlation or the plaque outline that refined it (else None).
 
@@ -529,15 +530,16 @@ def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.nd
     both the feature inliers, which sit on the text away from the corners, and ECC (measured on
     synthetic scenes: corner error median 0.98 -> 0.25 px, rotation median 1.27 -> 0.09
     degrees). Otherwise ECC refines as `settings.refine` says, and the edges are looked for
-    again from its H, which may be closer than the first.
+    again from its H, which may be closer than the first. The outline's edges are fitted as
+    `camera`'s ideal pinhole image shows them, straight under lens distortion too.
     """
     why = None
     # A landmark searched without segmentation need not be a plaque with four straight edges.
     use_outline = settings.refine_outline and settings.segment_mode != "none"
     if use_outline:
-        outline, why = refine_outline(gray, sign, H, settings.seed)
+        outline, why = refine_outline(gray, sign, H, settings.seed, camera)
         if outline is not None:
-            return outline.H, *grid_correspondences(outline.H, sign), None, outline
+            return outline.H, *outline.grid(sign, camera), None, outline
     ecc = None
     if wants_dense_refinement(settings.refine, attempt):
         refined = refine_ecc(gray, sign, H)
@@ -545,9 +547,9 @@ def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.nd
             H, ecc = refined
             src, dst = grid_correspondences(H, sign)
             if use_outline:
-                outline, why = refine_outline(gray, sign, H, settings.seed)
+                outline, why = refine_outline(gray, sign, H, settings.seed, camera)
                 if outline is not None:
-                    return outline.H, *grid_correspondences(outline.H, sign), None, outline
+                    return outline.H, *outline.grid(sign, camera), None, outline
         else:
             warnings.append("dense refinement did not converge; H and pose come from the matches alone")
     if why is not None:
@@ -582,18 +584,6 @@ def read_plaques(gray: np.ndarray, segmentation: Segmentation, library: Library,
                 return match
         first = first or match
     return first
-
-
-def grid_correspondences(H: np.ndarray, sign: LibrarySign, n: int = 5) -> tuple[np.ndarray, np.ndarray]:
-    """An n x n grid over the sign (library px) and its image through H: (n*n, 2) each.
-
-    After dense alignment every pixel of the sign supports H, so a grid stands in for the matches.
-    """
-    w, h = sign.size_px
-    gu, gv = np.meshgrid(np.linspace(0, w, n), np.linspace(0, h, n))
-    src = np.column_stack([gu.ravel(), gv.ravel()])
-    hom = project(H, src)
-    return src, hom[:, :2] / hom[:, 2:]
 
 
 def winner_homography(attempt: Attempt | None, plaque: PlaqueMatch | None, library: Library):
