@@ -44,6 +44,9 @@ MAX_FOCAL_RATIO = 10.0
 # about 40 %): distorted / undistorted radius beyond 5 or under 1/5 there is a typo or a model
 # used far outside the images it was fitted to.
 MAX_DISTORTION_FACTOR = 5.0
+# Images a camera is scaled to keep its calibration's aspect within 1 % (sizes rounded to whole
+# pixels at either resolution); beyond, the photo was cropped or re-framed.
+MAX_ASPECT_CHANGE = 0.01
 # ROS camera_info's names for OpenCV's distortion model with 5 and with 8 coefficients.
 ROS_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial")
 
@@ -116,17 +119,23 @@ class Camera:
         """Intrinsics for an image of `width` x `height` px, scaled when the calibration size differs.
 
         Returns the camera and warnings for people (empty when the size matches). CameraError when
-        scaling would give intrinsics no real camera has (an image aspect far from the calibration's).
+        the image's aspect differs from the calibration's by more than MAX_ASPECT_CHANGE: a photo
+        turned on its side, cropped or re-framed, whose intrinsics no scaling gives.
         """
         if self.width is None or self.height is None:
             return self, self._unsized_warnings(width, height)
         if (self.width, self.height) == (width, height):
             return self, []
         sx, sy = width / self.width, height / self.height
+        if (width, height) == (self.height, self.width):
+            raise CameraError(f"this {width}x{height} px image is the camera's {self.width}x{self.height} px turned "
+                              "on its side: rotate the photo back, or calibrate the camera held this way")
+        if abs(sx / sy - 1) > MAX_ASPECT_CHANGE:
+            raise CameraError(f"this {width}x{height} px image has another aspect than the {self.width}x{self.height} "
+                              "px the camera was calibrated at: a cropped or re-framed photo, whose intrinsics no "
+                              f"scaling gives; calibrate the camera at {width}x{height}")
         warnings = [f"image is {width}x{height} px but the camera was calibrated at {self.width}x{self.height}; "
                     f"intrinsics scaled by {sx:.3g} x {sy:.3g}"]
-        if abs(sx / sy - 1) > 0.01:
-            warnings.append("image aspect differs from the calibration's: the pose is unreliable")
         K = np.diag([sx, sy, 1.0]) @ self.K
         try:
             return Camera(K, self.dist, width, height, self.source), warnings

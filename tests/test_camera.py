@@ -1,5 +1,6 @@
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -187,10 +188,17 @@ def test_sample_camera_files_load():
     assert paths and all(load_camera(p).width == 640 for p in paths)
 
 
-def test_scaling_cannot_make_an_implausible_camera():
+@pytest.mark.parametrize("size, message", [
+    ((480, 640), "this 480x640 px image is the camera's 640x480 px turned on its side: rotate the photo back"),
+    ((640, 360), "this 640x360 px image has another aspect than the 640x480 px the camera was calibrated at"),
+    ((6400, 48), "calibrate the camera at 6400x48"),
+])
+def test_an_image_of_another_aspect_than_the_calibration_is_an_error(size, message):
+    """Scaling fx and fy apart gives a camera no lens is: a portrait photo was 0.5 m off."""
     cam = Camera(intrinsics(500, 500), np.zeros(5), 640, 480)
-    with pytest.raises(CameraError, match="calibrated at 640x480 px cannot be scaled to this 6400x48 px image: fx/fy"):
-        cam.for_image(6400, 48)
+    with pytest.raises(CameraError, match=re.escape(message)):
+        cam.for_image(*size)
+    assert cam.for_image(1281, 960)[0].K[0, 0] == pytest.approx(1000.78, abs=0.01)  # within 1 %: scaled
 
 
 def test_a_camera_without_size_too_long_for_the_image_is_a_warning():

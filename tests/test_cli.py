@@ -265,15 +265,15 @@ def test_a_reader_that_stops_early_ends_the_output_quietly():
 
 
 def test_an_image_the_camera_cannot_be_scaled_to_is_that_images_error(tmp_path):
-    """The sample camera is for 640x480; scaled to a 6400x48 strip its fx/fy would be 1/10, which no
-    camera has. That image gets an error line, the others are still processed."""
-    strip = tmp_path / "strip.png"
-    cv2.imwrite(str(strip), cv2.resize(cv2.imread(str(SCENES / "scene_004.jpg")), (6400, 48)))
+    """The sample camera is for 640x480 landscape; no scaling gives a portrait photo's intrinsics
+    (scaled anyway, its pose was 0.5 m off). That image gets an error line, the others are still processed."""
+    portrait = tmp_path / "portrait.png"
+    cv2.imwrite(str(portrait), cv2.rotate(cv2.imread(str(SCENES / "scene_004.jpg")), cv2.ROTATE_90_CLOCKWISE))
     good = SCENES / "scene_004.jpg"
-    result = signpose("recognize", strip, good, "--camera", SCENES / "camera.yaml", "--json")
+    result = signpose("recognize", portrait, good, "--camera", SCENES / "camera.yaml", "--json")
     assert result.returncode == 1 and "Traceback" not in result.stderr
     objs = [json.loads(line) for line in result.stdout.splitlines()]
-    assert "cannot be scaled" in objs[0]["error"] and objs[1]["label"] == "chief_of_security"
+    assert "turned on its side" in objs[0]["error"] and objs[1]["label"] == "chief_of_security"
     assert "1 of 2 image(s) could not be used" in result.stderr
 
 
