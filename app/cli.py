@@ -115,8 +115,13 @@ def cmd_recognize(args) -> int:
             print(format_row(Path(name).name, rec), flush=True)
             for w in rec.warnings:
                 print(f"{'':<28}   warning: {w}")
+    return unusable_images(failed, len(args.images))
+
+
+def unusable_images(failed: int, total: int) -> int:
+    """The exit status of a run over `total` images of which `failed` could not be used, said on stderr."""
     if failed:
-        print(f"{failed} of {len(args.images)} image(s) could not be used", file=sys.stderr)
+        print(f"{failed} of {total} image(s) could not be used", file=sys.stderr)
     return 1 if failed else 0
 
 
@@ -136,16 +141,23 @@ def cmd_synth(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from pipeline.evaluate import evaluate, format_table, load_dataset
+    from pipeline.evaluate import check_labels, evaluate, format_table, load_dataset
 
     library, settings, camera = load_inputs(args)
+    roots = [Path(d).resolve() for d in args.datasets]
+    if len(set(roots)) < len(roots):
+        raise CliError("a dataset folder is given twice")
     try:
         datasets = [load_dataset(Path(d)) for d in args.datasets]
-    except (ValueError, OSError) as exc:
+        check_labels(datasets, library)
+    except (ValueError, OSError) as exc:  # DatasetError, and what reading truth.json raises
         raise CliError(str(exc)) from None
-    total = sum(len(d) for d in datasets)
+    names = [d.name for d in datasets]
+    for dataset, given in zip(datasets, args.datasets):
+        if names.count(dataset.name) > 1:  # a/set1 and b/set1: each its own row
+            dataset.name = given
     try:
-        with tqdm(total=total, desc="evaluate", unit="img", file=sys.stderr) as bar:
+        with tqdm(total=sum(len(d) for d in datasets), desc="evaluate", unit="img", file=sys.stderr) as bar:
             report = evaluate(datasets, library, settings, camera, progress=lambda *_: bar.update(1),
                               workers=args.workers,
                               check_image=functools.partial(check_image_header, max_pixels=max_pixels(args)))
@@ -153,7 +165,7 @@ def cmd_evaluate(args) -> int:
         raise CliError("a worker process stopped before it finished (out of memory?); "
                        "fewer workers, e.g. --workers 1, need less") from None
     print(format_table(report))
-    return 0
+    return unusable_images(sum(r.error is not None for r in report.results), len(report.results))
 
 
 def cmd_calibrate(args) -> int:

@@ -384,6 +384,13 @@ def _receive(done: multiprocessing.Queue, tasks: list[Future], wait_s: float) ->
     return received
 
 
+def check_labels(datasets: Sequence[Dataset], library: Library) -> None:
+    """DatasetError naming the labels of `datasets` that are no sign of `library`."""
+    unknown = sorted({s.label for d in datasets for s in d.samples if s.label is not None} - set(library.ids))
+    if unknown:
+        raise DatasetError(f"label(s) {', '.join(unknown)} are not in the library ({', '.join(library.ids)})")
+
+
 def evaluate(datasets: Sequence[Dataset], library: Library, settings: Settings, camera: Camera | None = None,
              progress: Callable[[int, int], None] | None = None, workers: int | None = None,
              check_image: ImageCheck | None = None) -> Report:
@@ -396,9 +403,7 @@ def evaluate(datasets: Sequence[Dataset], library: Library, settings: Settings, 
     `check_image(data, name)`, when given, sees each file's bytes before decoding and may refuse the
     image (ImageError, reported as that image's error); it must pickle to reach the worker processes.
     """
-    unknown = sorted({s.label for d in datasets for s in d.samples if s.label is not None} - set(library.ids))
-    if unknown:
-        raise DatasetError(f"label(s) {', '.join(unknown)} are not in the library ({', '.join(library.ids)})")
+    check_labels(datasets, library)
     jobs = [(d.name, sample, camera or d.camera) for d in datasets for sample in d.samples]
     results: list[ImageResult] = []
     for result in _measure_all(jobs, library, settings, check_image, workers or os.cpu_count() or 1):
@@ -420,15 +425,16 @@ def _pair(value: tuple[float, float] | None, unit: str) -> str:
 
 def format_table(report: Report) -> str:
     """Readable text: per-dataset table, the confusion matrix and the images answered wrongly."""
-    head = (f"{'dataset':<16}{'images':>7}{'correct':>8}{'accuracy':>10}{'avg time':>11}{'false pos':>10}"
-            f"   {'rotation med/p90':>17}{'translation med/p90':>21}{'corners med/p90':>18}")
-    lines = [head, "-" * len(head)]
     rows = list(report.datasets.items())
     if len(rows) > 1:
         rows.append(("all", report.total))
+    name_width = max(16, *(len(name) + 2 for name, _ in rows))
+    head = (f"{'dataset':<{name_width}}{'images':>7}{'correct':>8}{'accuracy':>10}{'avg time':>11}{'false pos':>10}"
+            f"   {'rotation med/p90':>17}{'translation med/p90':>21}{'corners med/p90':>18}")
+    lines = [head, "-" * len(head)]
     for name, s in rows:
         fp = f"{s.false_positives}/{s.negatives}" if s.negatives else "-"
-        lines.append(f"{name:<16}{s.images:>7}{s.correct:>8}{100 * s.accuracy:>9.1f}%{s.mean_time_ms:>8.1f} ms"
+        lines.append(f"{name:<{name_width}}{s.images:>7}{s.correct:>8}{100 * s.accuracy:>9.1f}%{s.mean_time_ms:>8.1f} ms"
                      f"{fp:>10}   {_pair(s.rotation_deg, '°'):>17}{_pair(s.translation_pct, '%'):>21}"
                      f"{_pair(s.corner_px, ' px'):>18}")
     width = max(len(label) for label in report.labels) + 2
@@ -441,5 +447,5 @@ def format_table(report: Report) -> str:
         lines += ["", "wrong answers:"]
         for r in wrong:
             what = r.error or f"truth {r.sample.label or NONE}, answer {r.predicted or NONE}"
-            lines.append(f"  {r.dataset}/{r.sample.path.name}: {what}")
+            lines.append(f"  {r.sample.path}: {what}")
     return "\n".join(lines)

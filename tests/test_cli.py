@@ -3,6 +3,7 @@
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -99,7 +100,7 @@ def test_evaluate_and_calibrate_refuse_images_over_the_pixel_limit(tmp_path):
     big = tmp_path / "none" / "big.png"
     big.write_bytes(png_bomb(3000, 2000))
     result = signpose("evaluate", tmp_path, "--max-megapixels", 5, "--workers", 1)
-    assert result.returncode == 0
+    assert result.returncode == 1 and "1 of 1 image(s) could not be used" in result.stderr  # as recognize says
     assert "big.png: 3000x2000 px is 6.0 megapixels, more than the limit of 5" in result.stdout
     result = signpose("calibrate", big, "--board", "9x6", "--square", 0.03, "-o", tmp_path / "c.yaml",
                       "--max-megapixels", 5)
@@ -203,9 +204,13 @@ def test_synth_refuses_a_folder_with_older_scenes_it_would_leave_unlisted(tmp_pa
     (("synth", "--n", 2, "{tmp}/file"), "File exists"),
     (("evaluate", ROOT / "sample_images" / "datasets" / "set3", "--workers", "two"), "--workers: 'two'"),
     (("evaluate", "{tmp}/file"), "file is not a folder"),
+    (("evaluate", "{tmp}/labelled"), "label(s) bogus are not in the library"),
+    (("evaluate", "{tmp}/labelled", "{tmp}/../{tmp.name}/labelled"), "a dataset folder is given twice"),
 ])
 def test_bad_synth_and_evaluate_arguments_are_one_clear_line(tmp_path, args, message):
     (tmp_path / "file").write_text("not a dataset")
+    (tmp_path / "labelled" / "bogus").mkdir(parents=True)
+    shutil.copy(SCENES / "scene_004.jpg", tmp_path / "labelled" / "bogus")
     result = signpose(*(str(a).format(tmp=tmp_path) for a in args))
     assert result.returncode == 2
     assert message in result.stderr and "Traceback" not in result.stderr
@@ -238,9 +243,9 @@ def test_bad_paths_ports_and_numbers_are_refused_up_front_in_one_line(tmp_path, 
 
 
 def test_ctrl_c_stops_evaluate_and_its_workers_with_one_line(tmp_path):
-    set3 = ROOT / "sample_images" / "datasets" / "set3"
+    copies = [shutil.copytree(ROOT / "sample_images" / "datasets" / "set3", tmp_path / f"set{i}") for i in range(40)]
     # Ctrl-C in a terminal reaches the whole process group: the CLI and its worker processes.
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "evaluate", *[set3] * 40, "--workers", "2"], cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "evaluate", *copies, "--workers", "2"], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     progress = ""
     while not re.search(r"\| *([2-9]\d|1\d\d)/200 ", progress):  # 20 images in: the workers are measuring
@@ -287,3 +292,15 @@ def test_option_defaults_are_read_from_the_workspace_config(monkeypatch):
     serve = build_parser().parse_args(["serve"])
     assert (Path(serve.state_dir), serve.max_images, serve.max_upload_mb, serve.request_timeout) == (
         Path("elsewhere"), 7, 5.0, 9.0)
+
+
+def test_evaluate_tells_datasets_and_images_of_the_same_name_apart(tmp_path):
+    for root, label in (("a", "chief_of_security"), ("b", "none")):
+        (tmp_path / root / "set" / label).mkdir(parents=True)
+        shutil.copy(SCENES / "scene_000.jpg", tmp_path / root / "set" / label / "s.jpg")  # no sign in it
+    a, b = tmp_path / "a" / "set", tmp_path / "b" / "set"
+    result = signpose("evaluate", a, b, "--workers", 1)
+    assert result.returncode == 0, result.stderr
+    assert [line.split()[:3] for line in result.stdout.splitlines()[2:5]] == [
+        [str(a), "1", "0"], [str(b), "1", "1"], ["all", "2", "1"]]
+    assert f"  {a / 'chief_of_security' / 's.jpg'}: truth chief_of_security, answer none" in result.stdout
