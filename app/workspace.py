@@ -36,7 +36,7 @@ from pipeline.camera import Camera, assumed_camera, check_hfov, load_camera
 from pipeline.exif import decode_with_exif
 from pipeline.features import library_features
 from pipeline.image import ImageError
-from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, make_sign, validate_sign_entry
+from pipeline.library import NO_SIGN, SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, make_sign, validate_sign_entry
 from pipeline.recognize import Recognition, StageCache, recognize
 from pipeline.settings import PRESETS, Settings, SettingsError, load_settings
 
@@ -47,7 +47,6 @@ log = logging.getLogger(__name__)
 SAMPLE_SCENES = SAMPLE_LIBRARY.parent / "scenes"
 # An expected label saying "this image shows no library sign" (a negative); not a valid sign id
 # clash in practice, and refused as the id of a new sign.
-NO_SIGN = "none"
 MAX_NAME_CHARS = 200
 IMAGE_ID = re.compile(r"^[0-9a-f]{12}$")
 # Settings versions whose settings are kept, so a result's version can be checked against them.
@@ -497,8 +496,6 @@ class Workspace:
     def add_sign(self, sign_id: str, data: bytes, name: str = "", text: str = "",
                  width_m: float = 0.0, height_m: float | None = None) -> LibrarySign:
         """Add a library sign from an encoded image; LibraryError / ImageError when unusable, Conflict on a taken id."""
-        if sign_id == NO_SIGN:
-            raise LibraryError(f"{NO_SIGN!r} is reserved for images without a sign; choose another id")
         entry = validate_sign_entry({"id": sign_id, "name": name or sign_id, "text": text,
                                      "image": f"{sign_id}-{secrets.token_hex(4)}.png", "width_m": width_m,
                                      "height_m": height_m}, "new sign")

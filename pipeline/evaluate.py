@@ -37,14 +37,13 @@ from .camera import Camera, CameraError, load_camera
 from .features import library_features
 from .image import ImageError, decode_image, read_file
 from .jsonfile import read_json
-from .library import Library
+from .library import NO_SIGN, Library
 from .pose import rotation_error_deg
 from .recognize import recognize
 from .settings import Settings
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}
 NEGATIVE_FOLDERS = {"none", "negative"}
-NONE = "none"  # the confusion matrix's row and column for "no sign"
 
 
 class DatasetError(ValueError):
@@ -410,11 +409,11 @@ def evaluate(datasets: Sequence[Dataset], library: Library, settings: Settings, 
         results.append(result)
         if progress:
             progress(len(results), len(jobs))
-    labels = [*library.ids, NONE]
+    labels = [*library.ids, NO_SIGN]
     confusion = np.zeros((len(labels), len(labels)), int)
     for r in results:
         if r.error is None:
-            confusion[labels.index(r.sample.label or NONE), labels.index(r.predicted or NONE)] += 1
+            confusion[labels.index(r.sample.label or NO_SIGN), labels.index(r.predicted or NO_SIGN)] += 1
     by_dataset = {d.name: summarize([r for r in results if r.dataset == d.name]) for d in datasets}
     return Report(settings, results, by_dataset, summarize(results), labels, confusion)
 
@@ -446,6 +445,6 @@ def format_table(report: Report) -> str:
     if wrong:
         lines += ["", "wrong answers:"]
         for r in wrong:
-            what = r.error or f"truth {r.sample.label or NONE}, answer {r.predicted or NONE}"
+            what = r.error or f"truth {r.sample.label or NO_SIGN}, answer {r.predicted or NO_SIGN}"
             lines.append(f"  {r.sample.path}: {what}")
     return "\n".join(lines)

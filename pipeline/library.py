@@ -24,6 +24,9 @@ from .jsonfile import read_json
 
 SAMPLE_LIBRARY = Path(__file__).resolve().parent.parent / "sample_images" / "library"
 ID_PATTERN = re.compile(r"^[a-z0-9][a-z0-9_-]{0,63}$")
+# The label of an image without a sign (datasets' none/ folder, evaluate's confusion matrix, the
+# server's expected labels): no sign may take it.
+NO_SIGN = "none"
 # Aspect ratios of image and physical size may differ by this much before it is an error:
 # a sign printed with a slightly different aspect would give a skewed pose.
 ASPECT_TOLERANCE = 0.02
@@ -112,6 +115,8 @@ def validate_sign_entry(entry: dict, where: str) -> dict:
         raise LibraryError(
             f"{where}: id {sign_id!r} must be 1-64 characters of a-z, 0-9, _ or -, starting with a letter or digit"
         )
+    if sign_id == NO_SIGN:
+        raise LibraryError(f"{where}: id {NO_SIGN!r} is reserved for images without a sign; choose another id")
     image = entry["image"]
     if not isinstance(image, str) or Path(image).name != image or image.startswith("."):
         raise LibraryError(f"{where}: image {image!r} must be a plain file name inside the library folder")

@@ -139,10 +139,14 @@ def test_whole_numbers_written_as_floats_in_a_settings_file_work(tmp_path):
     check_schema(json.loads(result.stdout))
 
 
-def test_bad_library_is_a_clear_error(tmp_path):
-    (tmp_path / "library.json").write_text('{"signs": [{"id": "../x", "image": "a.png", "width_m": 0.6}]}')
+@pytest.mark.parametrize("sign_id, message", [
+    ("../x", "id '../x' must be 1-64 characters"),
+    ("none", "id 'none' is reserved for images without a sign"),  # else "truth none, answer none" was wrong
+])
+def test_bad_library_is_a_clear_error(tmp_path, sign_id, message):
+    (tmp_path / "library.json").write_text(f'{{"signs": [{{"id": "{sign_id}", "image": "a.png", "width_m": 0.6}}]}}')
     result = signpose("recognize", sorted(SCENES.glob("*.jpg"))[0], "--library", tmp_path)
-    assert result.returncode == 2 and "id '../x'" in result.stderr
+    assert result.returncode == 2 and message in result.stderr
 
 
 def test_readable_table(tmp_path):
