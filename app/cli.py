@@ -134,8 +134,10 @@ def cmd_synth(args) -> int:
         with tqdm(total=args.n, desc="synth", unit="img", file=sys.stderr, delay=0.5) as bar:
             generate_dataset(Path(args.out_dir), library, n=args.n, seed=args.seed,
                              progress=lambda i, n: bar.update(1))
-    except (LibraryError, SynthError, OSError) as exc:
+    except (LibraryError, SynthError) as exc:
         raise CliError(str(exc)) from None
+    except OSError as exc:  # a file in the way of the folder, a folder that cannot be made or written
+        raise CliError(f"cannot write into {exc.filename or args.out_dir}: {exc.strerror or exc}") from None
     print(f"wrote {args.n} scenes, truth.json and camera.yaml to {args.out_dir}")
     return 0
 

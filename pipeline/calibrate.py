@@ -18,6 +18,9 @@ from .camera import Camera, CameraError
 MIN_VIEWS = 3
 # More inner corners per side than any printable board has; the detector's cost grows with them.
 MAX_BOARD_SIDE = 100
+# Largest chessboard square (m): printed boards have squares of a few cm, wall-sized ones 20 cm;
+# beyond 1 m the number was millimetres.
+MAX_SQUARE_M = 1.0
 # findChessboardCornersSB cost grows with the pixel count and it finds boards just as well at
 # this size; the corners are then refined at full resolution.
 MAX_DETECT_SIDE = 1600
@@ -164,10 +167,13 @@ def check_board(board: tuple[int, int]) -> tuple[int, int]:
 
 
 def check_square(square_m: float) -> float:
-    """`square_m` as a float; CalibrationError unless it is a positive, finite number of metres."""
+    """`square_m` as a float; CalibrationError unless it is a positive, finite number of metres
+    up to MAX_SQUARE_M."""
     if not (isinstance(square_m, (int, float)) and math.isfinite(square_m) and square_m > 0):
         raise CalibrationError(f"square size must be a positive number of metres (e.g. 0.025 for 25 mm); "
                                f"got {square_m}")
+    if square_m > MAX_SQUARE_M:
+        raise CalibrationError(f"square size {square_m:g} m is no chessboard's: it is in metres (0.025 for 25 mm)")
     return float(square_m)
 
 

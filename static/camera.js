@@ -14,6 +14,7 @@ export const KIND_LABELS = {
   exif: "EXIF focal length", assumed: "assumed field of view",
 };
 const THUMB_SIDE = 320;
+const MAX_SQUARE_MM = 1000;   // pipeline.calibrate.MAX_SQUARE_M
 const PREVIEW_SIDE = 1280;
 
 let camera = null;        // GET /api/camera
@@ -290,8 +291,9 @@ function bindCalibration() {
   const putBoard = () => {
     const square = $("#board-square").value;
     // The field is in millimetres; the server's message for this would speak of metres.
-    if (!(Number(square) > 0)) {
-      report(new Error(`square size must be a positive number of millimetres; got ${square || "nothing"}`));
+    if (!(Number(square) > 0 && Number(square) <= MAX_SQUARE_MM)) {
+      report(new Error(`square size must be a positive number of millimetres up to ${MAX_SQUARE_MM}; `
+        + `got ${square || "nothing"}`));
       loadCalibration();
       return;
     }

@@ -205,7 +205,7 @@ def test_synth_refuses_a_folder_with_older_scenes_it_would_leave_unlisted(tmp_pa
 
 @pytest.mark.parametrize("args, message", [
     (("synth", "--n", 0, "{tmp}/out"), "--n: '0' is not a whole number of at least 1"),
-    (("synth", "--n", 2, "{tmp}/file"), "File exists"),
+    (("synth", "--n", 2, "{tmp}/file"), "cannot write into {tmp}/file: File exists"),
     (("evaluate", ROOT / "sample_images" / "datasets" / "set3", "--workers", "two"), "--workers: 'two'"),
     (("evaluate", "{tmp}/file"), "file is not a folder"),
     (("evaluate", "{tmp}/labelled"), "label(s) bogus are not in the library"),
@@ -217,7 +217,7 @@ def test_bad_synth_and_evaluate_arguments_are_one_clear_line(tmp_path, args, mes
     shutil.copy(SCENES / "scene_004.jpg", tmp_path / "labelled" / "bogus")
     result = signpose(*(str(a).format(tmp=tmp_path) for a in args))
     assert result.returncode == 2
-    assert message in result.stderr and "Traceback" not in result.stderr
+    assert message.format(tmp=tmp_path) in result.stderr and "Traceback" not in result.stderr
 
 
 @pytest.mark.parametrize("args, message", [
@@ -237,6 +237,8 @@ def test_bad_synth_and_evaluate_arguments_are_one_clear_line(tmp_path, args, mes
      "square size must be a positive number"),
     (("calibrate", "{tmp}/missing.png", "--board", "9x6", "--square", "nan", "-o", "{tmp}/c.yaml"),
      "square size must be a positive number"),
+    (("calibrate", "{tmp}/missing.png", "--board", "9x6", "--square", 30, "-o", "{tmp}/c.yaml"),
+     "square size 30 m is no chessboard's: it is in metres (0.025 for 25 mm)"),
 ])
 def test_bad_paths_ports_and_numbers_are_refused_up_front_in_one_line(tmp_path, args, message):
     result = signpose(*(str(a).format(tmp=tmp_path) for a in args))
