@@ -30,6 +30,13 @@ async function resync() {
   }
 }
 
+/** Load the embedded 3D scene afresh: its viser client gives up on a server that went away, and
+ *  a restarted server is a new viser server anyway. */
+function reloadScene() {
+  const scene = $("#scene");
+  scene.src = scene.getAttribute("src");
+}
+
 function listen() {
   const source = new EventSource("/api/events");
   const live = $("#live");
@@ -40,7 +47,7 @@ function listen() {
   source.onopen = () => {
     live.className = "live on";
     live.title = "live: following server events";
-    if (opened) resync();
+    if (opened) { resync(); reloadScene(); }
     opened = true;
   };
   // EventSource reconnects by itself; say so instead of failing silently.

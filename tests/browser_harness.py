@@ -29,10 +29,10 @@ def free_port() -> int:
 
 
 @contextlib.contextmanager
-def serve(state_dir: Path, log_path: Path, timeout: float = 300):
-    """`signpose serve` on a free loopback port; yields its base URL once /api/health answers
-    (which is after the sample scenes a fresh state starts with have been processed)."""
-    port = free_port()
+def serve(state_dir: Path, log_path: Path, timeout: float = 300, port: int | None = None):
+    """`signpose serve` on `port` (default: a free loopback port); yields its base URL once /api/health
+    answers (which is after the sample scenes a fresh state starts with have been processed)."""
+    port = port or free_port()
     base = f"http://127.0.0.1:{port}"
     with open(log_path, "wb") as log:
         proc = subprocess.Popen(

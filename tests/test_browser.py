@@ -297,6 +297,23 @@ def test_viser_scene_connects_and_shares_the_settings(page, api):
     page.wait_for_function("el => el.getAttribute('aria-valuenow') === '0.55'", arg=thumb.element_handle())
 
 
+def test_viser_scene_reconnects_after_a_server_restart(browser, tmp_path):
+    port = harness.free_port()   # the same address and state, as a person restarting `signpose serve` has
+    with harness.serve(tmp_path / "state", tmp_path / "before.log", port=port) as url:
+        page = harness.open_page(browser, url)
+        scene = page.frame_locator("#scene")
+        scene.get_by_text("Connected", exact=True).wait_for(timeout=30_000)
+        page.wait_for_selector("#live.on")
+    page.wait_for_selector("#live.off")
+    scene.get_by_text("Connected", exact=True).wait_for(state="detached", timeout=30_000)
+    with harness.serve(tmp_path / "state", tmp_path / "after.log", port=port):
+        page.wait_for_selector("#live.on", timeout=30_000)
+        scene.get_by_text("Connected", exact=True).wait_for(timeout=30_000)
+    errors = page.errors
+    page.close()
+    assert not errors, f"uncaught errors in the page: {errors}"
+
+
 # ---------------------------------------------------------------- camera
 
 @pytest.fixture
