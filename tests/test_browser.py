@@ -216,6 +216,41 @@ def test_presets_export_and_import(page, api, tmp_path):
     page.locator(".toast.error", has_text="ratio must be a number").wait_for()
 
 
+def tab_to(page, element_id: str, limit: int = 300) -> None:
+    """Press Tab until `element_id` has the focus, as a keyboard user reaches it."""
+    for _ in range(limit):
+        page.keyboard.press("Tab")
+        if page.evaluate("() => document.activeElement.id") == element_id:
+            return
+    raise AssertionError(f"#{element_id} not reached in {limit} presses of Tab")
+
+
+def assert_file_button_works(page, choosers: list[str], input_id: str, key: str) -> None:
+    """Tab reaches the file input of a `label.button`, its label shows the focus, and `key` opens the
+    chooser (`choosers`: the id of each input whose chooser opened)."""
+    tab_to(page, input_id)
+    ring = page.evaluate("id => getComputedStyle(document.getElementById(id).closest('label')).outlineStyle", input_id)
+    assert ring == "solid", f"no focus ring on the label of #{input_id}"
+    opened = len(choosers)
+    page.keyboard.press(key)
+    deadline = time.monotonic() + 10
+    while choosers[opened:] != [input_id]:
+        assert time.monotonic() < deadline, f"{key} on #{input_id} opened {choosers[opened:]}"
+        page.wait_for_timeout(50)   # lets Playwright deliver the filechooser event
+
+
+def test_file_buttons_work_from_the_keyboard(page):
+    # A listener for the whole test, not expect_file_chooser: that one starts intercepting choosers
+    # only after a round trip the key press can overtake, and the chooser is then lost.
+    choosers = []
+    page.on("filechooser", lambda chooser: choosers.append(chooser.element.get_attribute("id")))
+    for input_id, key in (("import-settings", "Enter"), ("camera-file", "Space"), ("file-picker", "Enter")):
+        assert_file_button_works(page, choosers, input_id, key)
+    page.click("#camera-open")
+    assert_file_button_works(page, choosers, "calib-picker", "Space")
+    page.click("#camera-close")
+
+
 def test_api_errors_are_shown(page, api, tmp_path):
     broken = tmp_path / "broken.jpg"
     broken.write_text("not a picture")
