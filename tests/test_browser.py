@@ -149,6 +149,33 @@ def test_status_words_say_unlabelled(page, api):
                            ".join(' · ') === t", arg=" · ".join(expected))
 
 
+def overflowing(page, root: str) -> list[str]:
+    """Elements under `root` that stick out of the viewport or the panel (or dialog) holding them,
+    where a panel's scrolling or clipping hides them."""
+    return page.evaluate("""root => [...document.querySelectorAll(`${root} *`)].filter((e) => {
+        const r = e.getBoundingClientRect();
+        const box = e.closest('.panel, dialog').getBoundingClientRect();
+        return r.width > 0 && (r.left < box.left - 0.5 || r.right > Math.min(innerWidth, box.right) + 0.5);
+    }).map((e) => `${e.tagName.toLowerCase()}#${e.id}.${e.className}`)""", root)
+
+
+def test_phone_width_stacks_the_panels(page):
+    page.set_viewport_size({"width": 390, "height": 844})
+    page.wait_for_selector("#detail:not([hidden])")   # the first image opens by itself
+    harness.stage_images_loaded(page, "#detail .stage img")
+    assert overflowing(page, "main.layout") == []
+    assert page.evaluate("() => document.documentElement.scrollWidth <= innerWidth")
+    page.locator("#clear-images").scroll_into_view_if_needed()
+    box = page.locator("#clear-images").bounding_box()
+    assert 0 <= box["x"] and box["x"] + box["width"] <= 390
+
+    page.click("#camera-open")
+    for tab in ("calibrate", "typed"):
+        page.click(f'#camera-tabs button[value="{tab}"]')
+        assert overflowing(page, "#camera-dialog") == [], tab
+    page.click("#camera-close")
+
+
 def test_drop_many_files_with_progress(page, api):
     names = [f"drop-{i}-{SCENE}" for i in range(2)]
     data = base64.b64encode((harness.SCENES / SCENE).read_bytes()).decode()
