@@ -122,6 +122,8 @@ class CameraOut(BaseModel):
         description="null: per image, its EXIF focal length if it has one, else assumed_hfov_deg")
     assumed_hfov_deg: float = Field(description="horizontal field of view assumed for images without camera or EXIF")
     exif_images: int = Field(description="images with an EXIF focal length, which they use while camera is null")
+    warnings: list[str] = Field(description="images held that the camera does not fit (they fail), and why; the "
+                                            "camera is kept all the same, as it may be for photos still to come")
 
 
 class AssumedFovIn(BaseModel):

@@ -278,10 +278,30 @@ def intrinsics(camera: Camera | None) -> CameraIntrinsics | None:
     return None if camera is None else CameraIntrinsics(**camera.to_json(), kind=camera_kind(camera))
 
 
+def misfit_warnings(camera: Camera | None, images: list[ImageRecord]) -> list[str]:
+    """Why `camera` cannot be used for some of `images` (they will fail), in the words of the first
+    one's CameraError. The camera is kept all the same: it may be meant for photos still to come."""
+    if camera is None:
+        return []
+    failures: dict[tuple[int, int], str] = {}
+    for size in {(r.width, r.height) for r in images}:
+        try:
+            camera.for_image(*size)
+        except CameraError as exc:
+            failures[size] = str(exc)
+    misfits = [r for r in images if (r.width, r.height) in failures]
+    if not misfits:
+        return []
+    which = "fits none" if len(misfits) == len(images) else f"does not fit {len(misfits)}"
+    return [f"the camera {which} of the {len(images)} images held: {failures[misfits[0].width, misfits[0].height]}"]
+
+
 def camera_out(workspace: Workspace) -> CameraOut:
     snap = workspace.snapshot
+    images = workspace.images()
     return CameraOut(camera=intrinsics(snap.camera), assumed_hfov_deg=snap.assumed_hfov_deg,
-                     exif_images=sum(r.exif_camera is not None for r in workspace.images()))
+                     exif_images=sum(r.exif_camera is not None for r in images),
+                     warnings=misfit_warnings(snap.camera, images))
 
 
 def detail(workspace: Workspace, record: ImageRecord) -> ImageDetail:

@@ -83,12 +83,16 @@ function renderCamera() {
     : "in use: none (EXIF or assumed field of view)";
 }
 
-/** Shows the camera the server answers `request` with, and `done` as a toast; errors as toasts. */
+/** Shows the camera the server answers `request` with, and `done` as a toast with the server's
+ *  warnings (images held the camera does not fit, which it keeps all the same); errors as toasts. */
 async function setCamera(request, done) {
   try {
     camera = await request;
     renderCamera();
-    if (done) toast(done, "info");
+    if (done) {
+      toast(done, "info");
+      for (const warning of camera.warnings) toast(warning, "warn");
+    }
   } catch (err) {
     report(err);
   }

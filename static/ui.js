@@ -25,13 +25,14 @@ export function fill(node, ...children) {
 
 export const $ = (selector, root = document) => root.querySelector(selector);
 
-/** Show a message; errors stay until dismissed so none goes unseen. */
+/** Show a message, `kind` "error", "warn" or "info"; errors and warnings stay until dismissed so
+ *  none goes unseen. */
 export function toast(message, kind = "error") {
-  const box = el(`div.toast.${kind}`, { role: kind === "error" ? "alert" : "status" },
+  const box = el(`div.toast.${kind}`, { role: kind === "info" ? "status" : "alert" },
     el("span.toast-msg", {}, message),
     el("button.icon", { type: "button", title: "Dismiss", onclick: () => box.remove() }, "×"));
   $("#toasts").append(box);
-  if (kind !== "error") setTimeout(() => box.remove(), 4000);
+  if (kind === "info") setTimeout(() => box.remove(), 4000);
   return box;
 }
 

@@ -421,7 +421,7 @@ def test_sweep_needs_labelled_images(tmp_path):
 
 # ---------------------------------------------------------------- camera
 
-NO_CAMERA = {"camera": None, "assumed_hfov_deg": 60.0, "exif_images": 0}
+NO_CAMERA = {"camera": None, "assumed_hfov_deg": 60.0, "exif_images": 0, "warnings": []}
 
 
 def test_camera_json_file_errors_and_reset(client):
@@ -442,6 +442,29 @@ def test_camera_json_file_errors_and_reset(client):
     assert_error(client.put("/api/camera", json={"fx": 600}), 422, "fy")
     assert_error(client.put("/api/camera", content=b"fx=600", headers={"content-type": "text/plain"}), 415, "JSON")
     assert client.delete("/api/camera").json() == NO_CAMERA
+
+
+def test_a_camera_that_fits_no_image_held_is_kept_with_a_warning(tmp_path):
+    misfit = {"fx": 3000, "fy": 3000, "cx": 2000, "cy": 50, "width": 4000, "height": 100}
+    fitting = {"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640, "height": 480}
+    with running(create_app(config(tmp_path / "state"))) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        # Before any photo a camera is for the photos to come: nothing to hold it against.
+        assert c.put("/api/camera", json=misfit).json()["warnings"] == []
+        upload(c, ("a.jpg", sign_photo(LIBRARY, "chief_of_security"), None), ("b.jpg", empty_photo(), None))
+        r = c.put("/api/camera", json=misfit)
+        assert r.status_code == 200 and r.json()["camera"]["width"] == 4000
+        assert r.json()["warnings"] == [
+            "the camera fits none of the 2 images held: this 640x480 px image has another aspect than the 4000x100 "
+            "px the camera was calibrated at: a cropped or re-framed photo, whose intrinsics no scaling gives; "
+            "calibrate the camera at 640x480"]
+        assert {i["status"] for i in wait_done(c)} == {"error"}   # what the warning foretold
+        assert c.get("/api/camera").json() == r.json()
+
+        assert c.put("/api/camera", json=fitting).json()["warnings"] == []
+        upload(c, ("portrait.jpg", cv2.imencode(".jpg", np.full((640, 480), 90, np.uint8))[1].tobytes(), None))
+        assert c.get("/api/camera").json()["warnings"] == [
+            "the camera does not fit 1 of the 3 images held: this 480x640 px image is the camera's 640x480 px turned "
+            "on its side: rotate the photo back, or calibrate the camera held this way"]
 
 
 def test_assumed_field_of_view_for_photos_without_camera_or_exif(client):

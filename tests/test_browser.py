@@ -481,6 +481,20 @@ def test_camera_file_upload_refusal_and_reset(page, api, tmp_path, no_camera):
     assert api.get("/api/camera").json()["camera"] is None
 
 
+# Accepted (it may be for photos still to come), but no image held is 4000x100 px or of that aspect.
+MISFIT_CAMERA = {"fx": 3000, "fy": 3000, "cx": 2000, "cy": 50, "width": 4000, "height": 100}
+
+
+def test_a_camera_that_fits_no_image_says_so(page, api, tmp_path, no_camera):
+    misfit = tmp_path / "misfit.json"
+    misfit.write_text(json.dumps(MISFIT_CAMERA))
+    page.set_input_files("#camera-file", str(misfit))
+    page.locator(".toast.info", has_text="camera misfit.json loaded").wait_for()
+    held = len(api.get("/api/images").json()["images"])
+    page.locator(".toast.warn .toast-msg", has_text=f"the camera fits none of the {held} images held: this 640x480 px "
+                 "image has another aspect than the 4000x100 px").wait_for()
+
+
 def test_board_square_size_is_checked_in_millimetres(page, api, no_camera):
     board = api.get("/api/calibration").json()["board"]
     page.click("#camera-open")
