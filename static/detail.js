@@ -62,9 +62,13 @@ function renderHead() {
   badge.textContent = STATUS[detail.status].text;
   badge.title = STATUS[detail.status].title;
   badge.className = `badge status-${detail.status}`;
-  const parts = [
+  // A failed run has no figures to show: its 0 inliers are no measurement (the reason is in the warnings).
+  const outcome = detail.error ? [el("b", {}, "pipeline failed")] : [
     el("b", {}, detail.label ? signName(detail.label) : "no sign"),
     plural(detail.inliers, "inlier"), `margin ${detail.margin ?? "–"}`,
+  ];
+  const parts = [
+    ...outcome,
     r?.timing_ms?.total !== undefined ? `${fmt(r.timing_ms.total, 0)} ms` : null,
     `${detail.width}×${detail.height}`,
   ].filter(Boolean);
@@ -109,7 +113,8 @@ function renderPose() {
   const pose = detail.result?.pose;
   const box = $("#pose");
   if (!pose) {
-    fill(box, el("p.muted", {}, detail.label ? "no pose could be computed" : "no sign, so no pose"));
+    const why = detail.error ? "no pose: the pipeline failed" : detail.label ? "no pose could be computed" : "no sign, so no pose";
+    fill(box, el("p.muted", {}, why));
   } else {
     const [x, y, z] = pose.camera_position ?? [];
     const e = pose.euler_deg ?? {};
@@ -134,7 +139,7 @@ function renderIntrinsics(cam) {
   const box = $("#intrinsics");
   box.dataset.kind = cam?.kind ?? "";
   if (!cam) {
-    fill(box, el("p.muted", {}, "no result yet"));
+    fill(box, el("p.muted", {}, detail.error ? "none: the pipeline failed" : "no result yet"));
     return;
   }
   const note = approximateNote(cam);

@@ -78,13 +78,13 @@ function updateCard({ card, parts }, img) {
   parts.badge.title = STATUS[img.status].title;
   parts.name.textContent = img.name;
   parts.name.title = img.name;
-  const label = img.label ? signName(img.label) : img.status === "error" ? "error" : "no sign";
-  parts.label.textContent = label;
+  parts.label.textContent = img.error ? "pipeline failed" : img.label ? signName(img.label) : "no sign";
   parts.label.title = img.error || (img.expected ? `expected: ${signName(img.expected)}` : "no expected label");
-  fill(parts.stats,
+  // A failed run measured nothing: its zero inliers and margin would read as a result.
+  fill(parts.stats, img.error ? null : [
     el("span", { title: "RANSAC inliers of the best sign" }, `${img.inliers ?? "–"} inl`),
     el("span", { title: "inlier margin over the runner-up" }, `Δ ${img.margin ?? "–"}`),
-    img.status === "wrong" ? el("span.expected", {}, `≠ ${signName(img.expected)}`) : null);
+    img.status === "wrong" ? el("span.expected", {}, `≠ ${signName(img.expected)}`) : null]);
 }
 
 function renderGallery() {

@@ -495,6 +495,24 @@ def test_a_camera_that_fits_no_image_says_so(page, api, tmp_path, no_camera):
                  "image has another aspect than the 4000x100 px").wait_for()
 
 
+def test_a_failed_image_says_why_without_figures(page, api, no_camera):
+    image_id = uploaded_scene(api)
+    api.put("/api/camera", json=MISFIT_CAMERA).raise_for_status()
+    harness.wait_server_idle(api)
+    error = api.get(f"/api/images/{image_id}").json()["error"]
+    open_detail(page, image_id)
+    page.locator("#detail-badge", has_text="error").wait_for()
+    summary = page.inner_text("#detail-summary")
+    assert summary.startswith("pipeline failed") and "inlier" not in summary and "margin" not in summary
+    assert page.inner_text("#detail-warnings") == error
+    assert page.inner_text("#pose") == "no pose: the pipeline failed"
+    assert page.inner_text("#intrinsics") == "none: the pipeline failed"
+    card = page.locator(f'.card[data-id="{image_id}"]')
+    assert card.locator(".card-label").inner_text() == "pipeline failed"
+    assert card.locator(".card-label").get_attribute("title") == error
+    assert card.locator(".card-stats").inner_text() == ""
+
+
 def test_board_square_size_is_checked_in_millimetres(page, api, no_camera):
     board = api.get("/api/calibration").json()["board"]
     page.click("#camera-open")
