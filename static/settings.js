@@ -51,10 +51,15 @@ function numericControl(entry, id, change) {
     num.value = value;
     if (range) range.value = scale.toPos(value);
   };
-  const read = () => (enabled && !enabled.checked ? null : snap(Number(num.value), entry));
+  // As typed, not clamped to the range nor rounded to the step: the server says what it refuses
+  // and why, and the form then shows the value it kept (push).
+  const read = () => (enabled && !enabled.checked ? null : Number(num.value));
   num.addEventListener("change", () => {
-    if (num.value === "") return;
-    num.value = read();
+    // Left empty (or holding no number): nothing to send, so show the server's value again.
+    if (num.value === "") {
+      write(state.settings[entry.name]);
+      return;
+    }
     if (range) range.value = scale.toPos(read());
     change();
   });
@@ -129,9 +134,11 @@ const push = debounce(async () => {
   try {
     apply(await api("PUT", "/api/settings", changes));
   } catch (err) {
-    report(err);
-    // The server kept its settings: show them again instead of the rejected value.
-    apply(await get("/api/settings").catch(() => null), true);
+    // The server kept its settings: show them again instead of the rejected values, and say so.
+    const kept = await get("/api/settings").catch(() => null);
+    apply(kept, true);
+    report(kept ? new Error(`${err.message}; the server keeps ${names.map((n) => `${n} ${kept.settings[n] ?? "off"}`)
+      .join(", ")}`) : err);
   } finally {
     names.forEach((n) => inflight.delete(n));
   }

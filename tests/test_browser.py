@@ -298,6 +298,22 @@ def test_api_errors_are_shown(page, api, tmp_path):
     assert api.get("/api/settings").json()["settings"]["high_threshold"] is None
 
 
+def test_typed_settings_out_of_range_are_refused_and_said(page, api):
+    default = api.get("/api/settings").json()["settings"]
+    for name, typed, reason in (("threshold", "2", "threshold must be between 0.0 and 1.0; got 2"),
+                                ("candidates", "3.7", "candidates must be a whole number; got 3.7")):
+        harness.set_setting(page, name, typed)
+        page.locator(".toast.error .toast-msg",
+                     has_text=f"{reason}; the server keeps {name} {default[name]}").wait_for()
+        page.wait_for_function("([n, v]) => Number(document.querySelector(`#set-${n}`).value) === v",
+                               arg=[name, default[name]])
+    assert api.get("/api/settings").json()["settings"] == default
+
+    # A field cleared and left holds nothing to send: it shows the server's value again.
+    harness.set_setting(page, "ratio", "")
+    assert float(page.input_value("#set-ratio")) == default["ratio"]
+
+
 def test_threshold_calibration_and_sweep(page, api):
     image_id = uploaded_scene(api)
     open_detail(page, image_id)
