@@ -315,7 +315,8 @@ function fillSweepParams() {
     const entry = state.schema.find((e) => e.name === select.value);
     $("#sweep-lo").value = entry.min;
     $("#sweep-hi").value = entry.max;
-    for (const id of ["#sweep-lo", "#sweep-hi"]) $(id).step = entry.step ?? "any";
+    // The setting's own bounds, or the arrow keys would step within the previous one's.
+    for (const id of ["#sweep-lo", "#sweep-hi"]) Object.assign($(id), { min: entry.min, max: entry.max, step: entry.step ?? "any" });
   };
 }
 

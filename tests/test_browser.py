@@ -345,6 +345,17 @@ def test_sweep_of_an_integer_setting_shows_whole_numbers(page, api):
     assert "min_matches works over 4–12, centre 8" in page.inner_text("#sweep-info")
 
 
+def test_sweep_bounds_follow_the_swept_setting(page, api):
+    open_detail(page, uploaded_scene(api))
+    entry = next(e for e in api.get("/api/settings/schema").json() if e["name"] == "max_features")
+    page.select_option("#sweep-param", "max_features")
+    for field, key, expected in (("#sweep-hi", "ArrowDown", entry["max"] - entry["step"]),
+                                 ("#sweep-lo", "ArrowUp", entry["min"] + entry["step"])):
+        page.focus(field)
+        page.keyboard.press(key)   # steps within the bounds the field holds
+        assert float(page.input_value(field)) == expected
+
+
 def test_pose_sigma_in_millimetres(page, api):
     image_id = uploaded_scene(api)
     open_detail(page, image_id)
