@@ -241,8 +241,9 @@ def refine_outline(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, seed: int
 
     Under `camera`'s lens distortion the edges are curves: they are read along the curves the
     lens makes of straight sides, and the lines are fitted to the edge points as an ideal
-    pinhole camera would see them (`undistort_pixels`), where they are straight. Returns (outline, None), or (None, why) when some side shows no consistent
-    straight edge near where H puts it; the caller then keeps H.
+    pinhole camera would see them (`undistort_pixels`), where they are straight. Returns
+    (outline, None), or (None, why) when some side shows no consistent straight edge near where
+    H puts it; the caller then keeps H.
     """
     rng = np.random.default_rng(seed)
     start = sign_corners(sign, H)

@@ -78,6 +78,11 @@ def order_corners(quad: np.ndarray) -> np.ndarray:
     return np.roll(quad, -start, axis=0)
 
 
+def project(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """(N, 2) points through a 3x3 homography -> (N, 3) homogeneous results (not divided)."""
+    return np.column_stack([pts, np.ones(len(pts))]) @ H.T
+
+
 def sign_to_quad(sign: LibrarySign, corners: np.ndarray) -> np.ndarray:
     """The (3, 3) float64 homography (library px -> image px, H[2, 2] = 1) taking the sign's
     corners onto `corners` (4, 2) image px TL, TR, BR, BL (cv2.getPerspectiveTransform wants float32)."""
@@ -98,7 +103,7 @@ def grid_correspondences(H: np.ndarray, sign: LibrarySign, n: int = 5) -> tuple[
     w, h = sign.size_px
     gu, gv = np.meshgrid(np.linspace(0, w, n), np.linspace(0, h, n))
     src = np.column_stack([gu.ravel(), gv.ravel()])
-    hom = np.column_stack([src, np.ones(len(src))]) @ H.T
+    hom = project(H, src)
     return src, hom[:, :2] / hom[:, 2:]
 
 

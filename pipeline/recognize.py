@@ -22,7 +22,7 @@ from .image import to_gray
 from .library import Library, LibrarySign
 from .match import Matches, match_library
 from .outline import Outline, outline_fit, refine_outline
-from .plaque import PlaqueMatch, grid_correspondences, match_plaque, refine_ecc
+from .plaque import PlaqueMatch, grid_correspondences, match_plaque, project, refine_ecc
 from .plaque_search import MIN_NCC, SAME_PLAQUE_IOU, QuadCandidate, confirm_plaque, ranked_quads, search_plaques
 from .pose import Pose, PoseError, estimate_pose
 from .segment import Box, Segmentation, box_iou, expand_box, segment
@@ -183,11 +183,6 @@ class Recognition:
 
 def _list(a: np.ndarray | None):
     return None if a is None else np.asarray(a, dtype=float).tolist()
-
-
-def project(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """(N, 2) points through a 3x3 homography -> (N, 3) homogeneous results (not divided)."""
-    return np.column_stack([pts, np.ones(len(pts))]) @ H.T
 
 
 def quad_problem(H: np.ndarray, sign: LibrarySign, width: int, height: int) -> tuple[np.ndarray | None, str | None]:
