@@ -45,8 +45,6 @@ from .state import StateDir, StoredImage
 log = logging.getLogger(__name__)
 
 SAMPLE_SCENES = SAMPLE_LIBRARY.parent / "scenes"
-# An expected label saying "this image shows no library sign" (a negative); not a valid sign id
-# clash in practice, and refused as the id of a new sign.
 MAX_NAME_CHARS = 200
 IMAGE_ID = re.compile(r"^[0-9a-f]{12}$")
 # Settings versions whose settings are kept, so a result's version can be checked against them.
@@ -253,6 +251,7 @@ class Workspace:
         self._records: dict[str, ImageRecord] = {}
         self._subscribers: list[Callable[[Event], None]] = []
         self._pool = ThreadPoolExecutor(max_workers=max(1, config.workers), thread_name_prefix="signpose-pipeline")
+        self._opencv_threads = cv2.getNumThreads()  # the process's, given back by close()
         if config.workers > 1:
             # The pool's threads already share the cores; OpenCV's own threads inside each only
             # compete with them (2 cores, 200 images re-run by 2 workers: 2.33 s with one OpenCV
@@ -683,21 +682,20 @@ class Workspace:
         return [[results[i] for results in per_image] for i in range(len(variants))]
 
     def close(self) -> None:
-        """Stop the re-run thread and the pool (waits for the images being processed)."""
+        """Stop the re-run thread and the pool (waits for the images being processed), and give
+        the process back the OpenCV thread count it had."""
         with self._lock:
             self._closed = True
             self._idle.notify_all()
         self._runner.join(timeout=10)
         self._pool.shutdown(wait=True, cancel_futures=True)
+        cv2.setNumThreads(self._opencv_threads)
 
 
 def run_pipeline(name: str, image: np.ndarray, library: Library, settings: Settings, camera: Camera | None,
                  cache: StageCache | None = None) -> Recognition:
     """`recognize`, with any failure inside it (numerical trouble deep in OpenCV or numpy under
-    extreme settings or intrinsics) turned into a PipelineError that names the image.
-
-    A result computed with an assumed camera always says so in its warnings.
-    """
+    extreme settings or intrinsics) turned into a PipelineError that names the image."""
     try:
         return recognize(image, library, settings, camera, cache)
     except Exception as exc:

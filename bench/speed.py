@@ -252,7 +252,7 @@ def server_speedup(dataset: Dataset, repeats: int) -> str:
     changed, so nothing is cached) on 1 pipeline worker on 1 core and on one worker per core
     with the OpenCV threads the Workspace chooses."""
     uploads = [(s.path.name, s.path.read_bytes(), s.label) for s in dataset.samples]
-    best, threads = {}, cv2.getNumThreads()
+    best = {}
     with tempfile.TemporaryDirectory() as tmp:
         for workers, name in ((1, "1 worker on 1 core"), (os.cpu_count() or 1, f"{os.cpu_count()} workers")):
             config = WorkspaceConfig(state_dir=Path(tmp) / name, load_samples=False, workers=workers,
@@ -272,7 +272,6 @@ def server_speedup(dataset: Dataset, repeats: int) -> str:
                 best |= best_times({name: (opencv_threads, rerun_all)}, repeats)
             finally:
                 workspace.close()
-                cv2.setNumThreads(threads)
     one, many = best.values()
     return (f"signpose serve, all {len(uploads)} images re-run after a features change, best of {repeats}: "
             + ", ".join(f"{name} {seconds:.2f} s" for name, seconds in best.items()) + f"; {one / many:.2f}x")

@@ -15,7 +15,7 @@ import pytest
 import app.workspace as workspace_module
 import pipeline.recognize
 from app.state import StateDir, atomic_write
-from app.workspace import NO_SIGN, SAMPLE_SCENES, Conflict, ImageTooLarge, Workspace, WorkspaceConfig
+from app.workspace import CORES, NO_SIGN, SAMPLE_SCENES, Conflict, ImageTooLarge, Workspace, WorkspaceConfig
 from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError
 from pipeline.image import ImageError
 from pipeline.library import SAMPLE_LIBRARY, LibraryError, load_library
@@ -330,3 +330,15 @@ def test_a_fresh_state_starts_with_the_labelled_sample_scenes(make_workspace):
     assert sorted(r.name for r in ws.images()) == sorted(p.name for p in Path(SAMPLE_SCENES).glob("*.jpg"))
     for record in ws.images():
         assert record.expected == (truth[record.name]["label"] or NO_SIGN)
+
+
+def test_pipeline_workers_share_the_cores_and_close_gives_opencv_threads_back(make_workspace):
+    before = cv2.getNumThreads()
+    try:
+        cv2.setNumThreads(7)
+        ws = make_workspace(workers=2)
+        assert cv2.getNumThreads() == max(1, CORES // 2)  # the pool's threads share the cores
+        ws.close()
+        assert cv2.getNumThreads() == 7  # the process has its own back, as evaluate gives it
+    finally:
+        cv2.setNumThreads(before)
