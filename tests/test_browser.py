@@ -520,6 +520,9 @@ def test_a_camera_that_fits_no_image_says_so(page, api, tmp_path, no_camera):
     held = len(api.get("/api/images").json()["images"])
     page.locator(".toast.warn .toast-msg", has_text=f"the camera fits none of the {held} images held: this 640x480 px "
                  "image has another aspect than the 4000x100 px").wait_for()
+    # A toast like the others: the inline warnings' style (.warnings li, span.warn) is not for it.
+    box = "e => { const s = getComputedStyle(e); return [s.borderLeftWidth, s.padding, s.fontSize]; }"
+    assert page.eval_on_selector(".toast.warn", box) == page.eval_on_selector(".toast.info", box)
 
 
 def test_a_failed_image_says_why_without_figures(page, api, no_camera):
