@@ -80,6 +80,13 @@ def open_page(browser, base: str):
     return page
 
 
+def close_page(page) -> None:
+    """Close a page from `open_page`; fails if it collected errors."""
+    errors = page.errors
+    page.close()
+    assert not errors, f"uncaught errors in the page: {errors}"
+
+
 def upload(page, files: list[Path], expected: str = "") -> None:
     """Add images through the file picker, labelled `expected` ("" = unlabelled), and wait for their cards."""
     page.select_option("#expected", expected)

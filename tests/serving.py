@@ -95,6 +95,10 @@ def wait_done(client) -> list[dict]:
     return wait_idle(client)["images"]
 
 
+# A camera for 4000 x 100 px photos: it fits none of the 640 x 480 test images (another aspect).
+MISFIT_CAMERA = {"fx": 3000, "fy": 3000, "cx": 2000, "cy": 50, "width": 4000, "height": 100}
+
+
 def assert_error(r: httpx.Response, code: int, *words: str) -> None:
     assert r.status_code == code, r.text
     detail = r.json()["detail"]

@@ -18,6 +18,7 @@ import pytest
 import browser_harness as harness
 from chessboards import K_TRUE, render_boards
 from pipeline.exif import LensExif, focal_px
+from serving import MISFIT_CAMERA
 
 TRUTH = json.loads((harness.SCENES / "truth.json").read_text())["images"]
 # An easy scene with a sign: recognised at the default settings.
@@ -50,9 +51,7 @@ def browser(base):
 def page(browser, base):
     page = harness.open_page(browser, base)
     yield page
-    errors = page.errors
-    page.close()
-    assert not errors, f"uncaught errors in the page: {errors}"
+    harness.close_page(page)
 
 
 @pytest.fixture
@@ -398,9 +397,7 @@ def test_viser_scene_reconnects_after_a_server_restart(browser, tmp_path):
     with harness.serve(tmp_path / "state", tmp_path / "after.log", port=port):
         page.wait_for_selector("#live.on", timeout=30_000)
         scene.get_by_text("Connected", exact=True).wait_for(timeout=30_000)
-    errors = page.errors
-    page.close()
-    assert not errors, f"uncaught errors in the page: {errors}"
+    harness.close_page(page)
 
 
 # ---------------------------------------------------------------- camera
@@ -509,7 +506,6 @@ def test_camera_file_upload_refusal_and_reset(page, api, tmp_path, no_camera):
 
 
 # Accepted (it may be for photos still to come), but no image held is 4000x100 px or of that aspect.
-MISFIT_CAMERA = {"fx": 3000, "fy": 3000, "cx": 2000, "cy": 50, "width": 4000, "height": 100}
 
 
 def test_a_camera_that_fits_no_image_says_so(page, api, tmp_path, no_camera):
