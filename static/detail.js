@@ -4,7 +4,7 @@
 import { api, failureOf, get } from "./api.js";
 import { approximateNote, KIND_LABELS } from "./camera.js";
 import { drawHistogram, drawSweep, valueAt } from "./charts.js";
-import { fillExpected, refreshImages, STATUS } from "./gallery.js";
+import { fillExpected, refreshImages, showStatus } from "./gallery.js";
 import { setSetting } from "./settings.js";
 import { state, on, select, signName } from "./store.js";
 import { $, el, fill, fmt, plural, report } from "./ui.js";
@@ -59,8 +59,7 @@ function renderHead() {
   $("#detail-name").textContent = detail.name;
   $("#detail-name").title = `${detail.name} · ${detail.width}×${detail.height} px`;
   const badge = $("#detail-badge");
-  badge.textContent = STATUS[detail.status].text;
-  badge.title = STATUS[detail.status].title;
+  showStatus(badge, detail.status);
   badge.className = `badge status-${detail.status}`;
   // A failed run has no figures to show: its 0 inliers are no measurement (the reason is in the warnings).
   const outcome = detail.error ? [el("b", {}, "pipeline failed")] : [

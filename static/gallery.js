@@ -17,6 +17,12 @@ export const STATUS = {
 };
 const STATUSES = Object.keys(STATUS);
 
+/** Word `badge` for ImageSummary.status `status`, with what it means as its tooltip. */
+export function showStatus(badge, status) {
+  badge.textContent = STATUS[status].text;
+  badge.title = STATUS[status].title;
+}
+
 function bindUpload() {
   const enqueue = uploadQueue({
     list: $("#uploads"),
@@ -74,8 +80,7 @@ function updateCard({ card, parts }, img) {
   card.classList.toggle("selected", img.id === state.selected);
   card.dataset.status = img.status;
   card.dataset.version = img.settings_version;
-  parts.badge.textContent = STATUS[img.status].text;
-  parts.badge.title = STATUS[img.status].title;
+  showStatus(parts.badge, img.status);
   parts.name.textContent = img.name;
   parts.name.title = img.name;
   parts.label.textContent = img.error ? "pipeline failed" : img.label ? signName(img.label) : "no sign";
