@@ -40,7 +40,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import FormData, Headers, UploadFile as FormFile
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from pipeline.calibrate import MIN_VIEWS, Calibration, CalibrationError
+from pipeline.calibrate import MAX_SQUARE_M, MIN_VIEWS, Calibration, CalibrationError
 from pipeline.camera import Camera, CameraError, camera_from_json, load_camera, ros_camera_yaml
 from pipeline.image import ImageError
 from pipeline.library import ID_PATTERN, LibraryError
@@ -693,7 +693,8 @@ def calibration_out(calibration: CalibrationSession, state: CalibrationState) ->
              for i, p in enumerate(state.photos)]
     result = None if summary is None else CalibrationResult.model_validate(
         {**summary, "camera": intrinsics(calibrated_camera(state.result))})
-    return CalibrationOut(revision=state.revision, min_views=MIN_VIEWS, max_views=calibration.max_photos, views=views,
+    return CalibrationOut(revision=state.revision, min_views=MIN_VIEWS, max_views=calibration.max_photos,
+                          max_square_m=MAX_SQUARE_M, views=views,
                           board=BoardSpec(cols=state.board[0], rows=state.board[1], square_m=state.square_m),
                           result=result)
 

@@ -14,7 +14,6 @@ export const KIND_LABELS = {
   exif: "EXIF focal length", assumed: "assumed field of view",
 };
 const THUMB_SIDE = 320;
-const MAX_SQUARE_MM = 1000;   // pipeline.calibrate.MAX_SQUARE_M
 const PREVIEW_SIDE = 1280;
 
 let camera = null;        // GET /api/camera
@@ -293,10 +292,10 @@ function bindCalibration() {
     enqueue(files);
   });
   const putBoard = () => {
-    const square = $("#board-square").value;
+    const square = $("#board-square").value, most = calib.max_square_m * 1000;
     // The field is in millimetres; the server's message for this would speak of metres.
-    if (!(Number(square) > 0 && Number(square) <= MAX_SQUARE_MM)) {
-      report(new Error(`square size must be a positive number of millimetres up to ${MAX_SQUARE_MM}; `
+    if (!(Number(square) > 0 && Number(square) <= most)) {
+      report(new Error(`square size must be a positive number of millimetres up to ${most}; `
         + `got ${square || "nothing"}`));
       loadCalibration();
       return;

@@ -173,6 +173,6 @@ def test_bad_input_gets_a_clear_4xx_and_changes_nothing(client, photos):
 
 def test_photo_limit(client, photos):
     session = client.get("/api/calibration").json()
-    assert session["max_views"] >= 20 and session["min_views"] == 3
+    assert session["max_views"] >= 20 and session["min_views"] == 3 and session["max_square_m"] == 1.0
     assert_error(add(client, [photos[0]] * (session["max_views"] + 1)), 409, "limit is", "delete some")
     assert client.get("/api/calibration").json()["views"] == []
