@@ -52,13 +52,18 @@ def test_search_finds_the_sign_the_fallback_misses(library, sign_id):
     assert np.linalg.norm(found.corners - CORNERS, axis=1).mean() < 1.0
 
 
+def search(image: np.ndarray, library: Library, settings, accept=None):
+    """`search_plaques` over the image's `ranked_quads`, accepting with `accept` (default: `settings`)."""
+    quads = ranked_quads(image, segment(image, settings), library, settings)
+    return search_plaques(image, quads, library, accept or settings)
+
+
 def test_plaque_of_other_text_is_not_a_sign(library):
     for where in ((250, 250), (100, 300), (400, 150)):
         image = scene(exit_plaque=where)
         assert recognize(image, library, preset("default")).label is None
         settings = preset("default")
-        assert search_plaques(image, ranked_quads(image, segment(image, settings), library, settings),
-                              library, settings) is None
+        assert search(image, library, settings) is None
 
 
 def test_another_sign_correlating_well_is_refused_after_alignment(library):
@@ -69,11 +74,10 @@ def test_another_sign_correlating_well_is_refused_after_alignment(library):
     for shown, expected in (("chief_of_security", None), ("ministry_of_torture", None),
                             ("security_compound", "security_compound")):
         image = scene(library[shown])
-        found = search_plaques(image, ranked_quads(image, segment(image, settings), only, settings), only, settings)
+        found = search(image, only, settings)
         assert (found[0].sign if found else None) == expected, shown
     image = scene(library["chief_of_security"])
-    quads = ranked_quads(image, segment(image, settings), only, settings)
-    assert search_plaques(image, quads, only, settings.replace(min_plaque_ecc=0.5)) is not None
+    assert search(image, only, settings, accept=settings.replace(min_plaque_ecc=0.5)) is not None
 
 
 def test_small_plaques_must_align_better():
