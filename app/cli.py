@@ -75,7 +75,7 @@ def format_row(name: str, rec: Recognition) -> str:
     how = ""
     if rec.by_plaque:
         inliers, margin = "-", "-"
-        how = f"by plaque (correlation {rec.plaque.ncc[rec.label]:.2f})"
+        how = f"by plaque (correlation {rec.plaque.correlation:.2f})"
     else:
         inliers, margin = rec.best.n_inliers, rec.margin
     pose = rec.pose

@@ -132,7 +132,7 @@ def answer_text(recognition: Recognition) -> str | None:
     if best is not None:
         return f"{best.sign} ({best.n_inliers} inliers, margin {recognition.margin})"
     if recognition.by_plaque:
-        return f"{recognition.label} (plaque, correlation {recognition.plaque.ncc[recognition.label]:.2f})"
+        return f"{recognition.label} (plaque, correlation {recognition.plaque.correlation:.2f})"
     return None
 
 

@@ -17,7 +17,6 @@ import io
 import json
 import logging
 import mimetypes
-import os
 import re
 import secrets
 import threading
@@ -33,12 +32,13 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from pipeline.camera import Camera, assumed_camera, check_hfov, load_camera
+from pipeline.evaluate import CORES
 from pipeline.exif import decode_with_exif
 from pipeline.features import library_features
 from pipeline.image import ImageError
 from pipeline.library import NO_SIGN, SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, make_sign, validate_sign_entry
 from pipeline.recognize import Recognition, StageCache, recognize
-from pipeline.settings import PRESETS, Settings, SettingsError, load_settings
+from pipeline.settings import PRESETS, Settings, load_settings
 
 from .state import StateDir, StoredImage
 
@@ -50,7 +50,6 @@ IMAGE_ID = re.compile(r"^[0-9a-f]{12}$")
 # Settings versions whose settings are kept, so a result's version can be checked against them.
 SETTINGS_HISTORY = 1000
 EVENT_KINDS = ("settings", "results", "library", "camera", "images")
-CORES = os.cpu_count() or 1  # os.cpu_count() is None where it cannot tell
 
 
 class Conflict(ValueError):

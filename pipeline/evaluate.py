@@ -44,6 +44,7 @@ from .settings import Settings
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}
 NEGATIVE_FOLDERS = {"none", "negative"}
+CORES = os.cpu_count() or 1  # os.cpu_count() is None where it cannot tell
 
 
 class DatasetError(ValueError):
@@ -397,7 +398,7 @@ def evaluate(datasets: Sequence[Dataset], library: Library, settings: Settings, 
 
     `camera`, when given, is used for every dataset; otherwise each dataset's own camera file,
     and without one the pipeline's assumed camera. `progress(done, total)` follows each image.
-    `workers`: processes sharing the images (default `os.cpu_count()`), each on one OpenCV thread,
+    `workers`: processes sharing the images (default `CORES`, every core), each on one OpenCV thread,
     which is what the per-image times then measure; 1 runs them in this process.
     `check_image(data, name)`, when given, sees each file's bytes before decoding and may refuse the
     image (ImageError, reported as that image's error); it must pickle to reach the worker processes.
@@ -405,7 +406,7 @@ def evaluate(datasets: Sequence[Dataset], library: Library, settings: Settings, 
     check_labels(datasets, library)
     jobs = [(d.name, sample, camera or d.camera) for d in datasets for sample in d.samples]
     results: list[ImageResult] = []
-    for result in _measure_all(jobs, library, settings, check_image, workers or os.cpu_count() or 1):
+    for result in _measure_all(jobs, library, settings, check_image, workers or CORES):
         results.append(result)
         if progress:
             progress(len(results), len(jobs))

@@ -44,6 +44,11 @@ class PlaqueMatch:
     H: np.ndarray | None = field(repr=False)
     reason: str | None
 
+    @property
+    def correlation(self) -> float | None:
+        """The winning sign's correlation, None without a winner."""
+        return self.ncc[self.sign] if self.sign is not None else None
+
 
 def blob_quad(labels: np.ndarray, blob: Blob) -> np.ndarray | None:
     """The 4 corners (4, 2) of a blob's convex outline, ordered TL, TR, BR, BL, or None if not a quad."""

@@ -465,7 +465,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         quads_ms = timing["segment"] - quads_ms  # counted under segment already
         timing["match"] += (time.perf_counter() - t0) * 1e3 - quads_ms
         if plaque is not None and plaque.sign is not None:
-            warnings.append(f"recognised by the plaque fallback (correlation {plaque.ncc[plaque.sign]:.2f}): "
+            warnings.append(f"recognised by the plaque fallback (correlation {plaque.correlation:.2f}): "
                             "too few feature inliers")
 
     H, ecc, pose, sign, outline = None, None, None, None, None

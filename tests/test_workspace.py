@@ -15,8 +15,9 @@ import pytest
 import app.workspace as workspace_module
 import pipeline.recognize
 from app.state import StateDir, atomic_write
-from app.workspace import CORES, NO_SIGN, SAMPLE_SCENES, Conflict, ImageTooLarge, Workspace, WorkspaceConfig
+from app.workspace import NO_SIGN, SAMPLE_SCENES, Conflict, ImageTooLarge, Workspace, WorkspaceConfig
 from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError
+from pipeline.evaluate import CORES
 from pipeline.image import ImageError
 from pipeline.library import SAMPLE_LIBRARY, LibraryError, load_library
 from pipeline.settings import SettingsError
