@@ -199,9 +199,7 @@ def cmd_calibrate(args) -> int:
     except OSError as exc:  # checked up front, but the folder may be read-only or gone by now
         raise CliError(f"cannot write {args.output}: {exc.strerror}") from None
     print(f"wrote {args.output} (use it with: signpose recognize --camera {args.output} IMAGE...)")
-    if unreadable:
-        print(f"{unreadable} of {len(args.images)} image(s) could not be read", file=sys.stderr)
-    return 1 if unreadable else 0
+    return unusable_images(unreadable, len(args.images))
 
 
 def cmd_serve(args) -> int:
