@@ -93,6 +93,8 @@ class RecognitionOut(BaseModel):
     corners: list[list[float | None]] | None = Field(description="4x2 image px: TL, TR, BR, BL")
     pose: dict[str, Any] | None
     timing_ms: dict[str, float]
+    reused_stages: list[str] = Field(description="stages whose results came from the image's cache (their "
+                                                 "times are a lookup's); empty in the CLI")
     warnings: list[str]
 
 

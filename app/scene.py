@@ -514,9 +514,11 @@ def status_markdown(statuses: list[str], outcomes: list[Outcome], progress: dict
     if labelled:
         parts.append(f"**{counts['correct']}**/{labelled} correct")
     parts += [f"**{counts[s]}** {word}" for s, word in STATUS_WORDS.items() if counts[s]]
-    times = [o.recognition.timing_ms["total"] for o in outcomes if o.recognition is not None]
-    if times:
-        parts.append(f"{statistics.median(times):.0f} ms/image (median)")
+    recognitions = [o.recognition for o in outcomes if o.recognition is not None]
+    if recognitions:
+        reused = any(r.reused_stages for r in recognitions)
+        parts.append(f"{statistics.median(r.timing_ms['total'] for r in recognitions):.0f} ms/image (median"
+                     f"{', stages reused from cache' if reused else ''})")
     if progress.get("running"):
         parts.append(f"re-running {progress.get('done', 0)}/{progress.get('total', 0)}")
     return " · ".join(parts)

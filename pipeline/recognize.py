@@ -112,6 +112,9 @@ class Recognition:
     H: the final homography (library px -> image px) of the recognised sign, after refinement;
     ecc: the correlation of the dense alignment that refined it (None when not refined);
     outline: the plaque outline that refined it instead (None when not refined so).
+    timing_ms: milliseconds per stage of STAGES and in "total"; reused_stages: the stages, in
+    STAGES order, whose results came in whole or part from the caller's `StageCache`, so their
+    times are a lookup's, not what the stage costs.
     """
 
     image_size: tuple[int, int]
@@ -125,6 +128,7 @@ class Recognition:
     ecc: float | None
     pose: Pose | None
     timing_ms: dict[str, float]
+    reused_stages: list[str]
     warnings: list[str]
     sign_corners_px: np.ndarray | None = field(repr=False, default=None)
     outline: Outline | None = field(repr=False, default=None)
@@ -177,6 +181,7 @@ class Recognition:
             "corners": _list(self.corners),
             "pose": self.pose.to_json() if self.pose is not None else None,
             "timing_ms": {k: round(v, 3) for k, v in self.timing_ms.items()},
+            "reused_stages": list(self.reused_stages),
             "warnings": list(self.warnings),
         }
 
@@ -254,13 +259,22 @@ class StageCache:
     def __len__(self) -> int:
         return len(self._entries)
 
+    def __contains__(self, key: tuple) -> bool:
+        return key in self._entries
+
     @property
     def bytes(self) -> int:
         return self._bytes
 
 
-def cached(cache: StageCache | None, key: tuple, compute):
-    return compute() if cache is None else cache.get(key, compute)
+def cached(cache: StageCache | None, key: tuple, compute, stage: str, reused: set[str]):
+    """`compute()`, or its result under `key` in `cache`; adds `stage` (one of STAGES) to `reused`
+    when the result was there, so the stage's time is read as a cache lookup's, not a run's."""
+    if cache is None:
+        return compute()
+    if key in cache:
+        reused.add(stage)
+    return cache.get(key, compute)
 
 
 def match_points(query: Features, train: Features, matches: Matches) -> tuple[np.ndarray, np.ndarray]:
@@ -339,17 +353,19 @@ def decide(scores: list[SignScore], settings: Settings) -> tuple[int | None, int
     return best, margin
 
 
-def search_region(gray: np.ndarray, region: Box, source: str, library: Library,
-                  settings: Settings, timing: dict[str, float], cache: StageCache | None = None) -> Attempt:
-    """Detect features in `region` and score every library sign against them."""
+def search_region(gray: np.ndarray, region: Box, source: str, library: Library, settings: Settings,
+                  timing: dict[str, float], cache: StageCache | None, reused: set[str]) -> Attempt:
+    """Detect features in `region` and score every library sign against them (`cached` says what
+    `cache` and `reused` are for)."""
     t0 = time.perf_counter()
-    query = cached(cache, ("features", *feature_key(settings), region), lambda: detect(gray, settings, region))
+    query = cached(cache, ("features", *feature_key(settings), region), lambda: detect(gray, settings, region),
+                   "features", reused)
     lib = library_features(library, settings)
     t1 = time.perf_counter()
     timing["features"] += (t1 - t0) * 1e3
     trains = [lib[sign.id].descriptors for sign in library.signs]
     matches = cached(cache, ("match", *feature_key(settings), region, settings.ratio),
-                     lambda: match_library(query.descriptors, trains, settings.ratio, query.norm))
+                     lambda: match_library(query.descriptors, trains, settings.ratio, query.norm), "match", reused)
     timing["match"] += (time.perf_counter() - t1) * 1e3
     scores = score_signs(library, query, lib, matches, settings, (gray.shape[1], gray.shape[0]), timing)
     winner, margin = decide(scores, settings)
@@ -411,6 +427,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     """
     t_start = time.perf_counter()
     timing = dict.fromkeys(STAGES, 0.0)
+    reused: set[str] = set()
     warnings: list[str] = []
     gray = to_gray(image)
     height, width = gray.shape
@@ -434,7 +451,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         t0 = time.perf_counter()
         seg_key = ("segment", settings.normalization, settings.threshold, settings.high_threshold,
                    settings.candidates, settings.crop_margin, settings.min_blob_area)
-        segmentation = cached(cache, seg_key, lambda: segment(gray, settings))
+        segmentation = cached(cache, seg_key, lambda: segment(gray, settings), "segment", reused)
         timing["segment"] = (time.perf_counter() - t0) * 1e3
         if not segmentation.blobs:
             warnings.append("no white blob above the threshold")
@@ -442,13 +459,13 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     def quads(shrink: int) -> list[QuadCandidate]:
         t0 = time.perf_counter()
         found = cached(cache, ("quads", *seg_key, shrink),
-                       lambda: ranked_quads(gray, segmentation, library, settings, shrink))
+                       lambda: ranked_quads(gray, segmentation, library, settings, shrink), "segment", reused)
         timing["segment"] += (time.perf_counter() - t0) * 1e3
         return found
 
     attempts: list[Attempt] = []
     for region, source in candidate_regions(segmentation, settings, width, height, quads):
-        attempts.append(search_region(gray, region, source, library, settings, timing, cache))
+        attempts.append(search_region(gray, region, source, library, settings, timing, cache, reused))
         if attempts[-1].winner is not None:
             break
     chosen = next((a for a in attempts if a.winner is not None), None)
@@ -460,7 +477,8 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         t0, quads_ms = time.perf_counter(), timing["segment"]
         plaque_key = ("plaque", *seg_key, settings.plaque_search, settings.min_plaque_ncc, settings.plaque_margin,
                       settings.min_plaque_ecc, settings.plaque_ecc_margin)
-        plaque, notes = cached(cache, plaque_key, lambda: find_plaque(gray, segmentation, library, settings, quads))
+        plaque, notes = cached(cache, plaque_key, lambda: find_plaque(gray, segmentation, library, settings, quads),
+                               "match", reused)
         warnings += notes
         quads_ms = timing["segment"] - quads_ms  # counted under segment already
         timing["match"] += (time.perf_counter() - t0) * 1e3 - quads_ms
@@ -483,7 +501,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
             notes: list[str] = []
             return refine_winner(gray, sign, H, src, dst, settings, chosen, camera, notes), notes
 
-        (H, src, dst, ecc, outline), notes = cached(cache, refine_key, refine)
+        (H, src, dst, ecc, outline), notes = cached(cache, refine_key, refine, "pose", reused)
         warnings += notes
         try:
             pose = estimate_pose(H, src, dst, sign, camera, settings.pose_method, settings.ambiguity_ratio)
@@ -501,7 +519,8 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         warnings.append(approximate)
     timing["total"] = (time.perf_counter() - t_start) * 1e3
     return Recognition((width, height), settings, camera, segmentation, attempts, chosen, plaque, H, ecc, pose,
-                       timing, warnings, sign.corners_px if sign is not None else None, outline)
+                       timing, sorted(reused, key=STAGES.index), warnings,
+                       sign.corners_px if sign is not None else None, outline)
 
 
 def find_plaque(gray: np.ndarray, segmentation: Segmentation, library: Library, settings: Settings,

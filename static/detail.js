@@ -68,7 +68,7 @@ function renderHead() {
   ];
   const parts = [
     ...outcome,
-    r?.timing_ms?.total !== undefined ? `${fmt(r.timing_ms.total, 0)} ms` : null,
+    r?.timing_ms?.total !== undefined ? `${fmt(r.timing_ms.total, 0)} ms${r.reused_stages?.length ? " (cache)" : ""}` : null,
     `${detail.width}×${detail.height}`,
   ].filter(Boolean);
   fill($("#detail-summary"), ...parts.flatMap((p, i) => (i ? [el("span.sep", {}, "·"), p] : [p])));
@@ -99,8 +99,12 @@ function renderScores() {
     el("tbody", {}, (detail.attempts ?? []).map((a) => el("tr", {},
       el("td", {}, a.source), el("td.mono", {}, a.region ? a.region.join(", ") : "–"),
       el("td", {}, a.winner ? signName(a.winner) : "–"), el("td.num", {}, a.margin ?? "–")))));
+  // A re-run takes what the changed setting does not affect from the image's cache: say so, or
+  // its times read as what the stages cost.
+  const reused = new Set(r?.reused_stages ?? []);
   fill($("#timing"), Object.entries(r?.timing_ms ?? {}).map(([stage, ms]) =>
-    el("span", {}, `${stage} `, el("b", {}, `${fmt(ms, 1)}${stage === "total" ? " ms" : ""}`))));
+    el(`span${reused.has(stage) ? ".reused" : ""}`, reused.has(stage) ? { title: "taken from this image's cache" } : {},
+      `${stage} `, el("b", {}, `${fmt(ms, 1)}${stage === "total" ? " ms" : ""}`), reused.has(stage) ? " cached" : "")));
 }
 
 const kv = (key, value, cls = "") => [el("dt", {}, key), el(`dd${cls}`, {}, value)];

@@ -209,6 +209,19 @@ def test_threshold_control_changes_the_result(page, api):
     assert card.get_attribute("data-status") == "correct"
 
 
+def test_rerun_times_taken_from_the_cache_are_marked(page, api):
+    image_id = uploaded_scene(api)
+    open_detail(page, image_id)
+    threshold = api.get("/api/settings").json()["settings"]["ransac_threshold_px"]
+    harness.set_settings(page, api, {"ransac_threshold_px": threshold + 1.0})
+    # a RANSAC change takes the image's features and matches from its cache: their times are lookups
+    page.wait_for_function("() => [...document.querySelectorAll('#timing .reused')].map(s => s.textContent)"
+                           ".join() .includes('features')")
+    reused = page.locator("#timing .reused").all_inner_texts()
+    assert any(t.startswith("match ") and t.endswith("cached") for t in reused)
+    assert "ms (cache)" in page.inner_text("#detail-summary")
+
+
 def test_form_follows_changes_made_elsewhere_without_echo(page, api):
     # What the viser sliders do: change a setting through the API, not through this page.
     version = api.put("/api/settings", json={"ratio": 0.7, "candidates": 5}).json()["version"]

@@ -62,7 +62,7 @@ def test_a_ransac_change_reuses_every_stage_it_does_not_affect(library):
     changed = settings.replace(ransac_threshold_px=settings.ransac_threshold_px - 0.5)
     for name in sorted(TRUTH):
         image, cache = read_image(SCENES / name), StageCache()
-        recognize(image, library, settings, camera, cache)
+        assert recognize(image, library, settings, camera, cache).reused_stages == [], name
         fresh = recognize(image, library, changed, camera)
         with mock.patch.object(recognize_module, "refine_winner", wraps=recognize_module.refine_winner) as refine, \
                 mock.patch.object(recognize_module, "find_plaque", wraps=recognize_module.find_plaque) as plaque:
@@ -70,6 +70,9 @@ def test_a_ransac_change_reuses_every_stage_it_does_not_affect(library):
         assert again.label == fresh.label and again.warnings == fresh.warnings, name
         assert (again.H is None and fresh.H is None) or (again.H == fresh.H).all(), name
         assert plaque.call_count == 0, name
+        # features and matches come from the cache and the page must not show their times as costs
+        assert {"segment", "features", "match"} <= set(again.reused_stages) <= {"segment", "features", "match", "pose"}
+        assert again.to_json(name)["reused_stages"] == again.reused_stages and fresh.reused_stages == []
         if again.H is not None and (again.best is None or (again.best.estimate.inliers
                                                            == fresh.best.estimate.inliers).all()):
             assert refine.call_count == 0, name

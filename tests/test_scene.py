@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import time
 
@@ -127,6 +128,19 @@ def test_status_line_uses_the_words_of_the_pages_top_bar():
                            {"running": True, "done": 2, "total": 7})
     assert line == ("**7** images · **1**/2 correct · **1** wrong · **1** recognised (unlabelled) · "
                     "**2** no sign (unlabelled) · **1** pending · **1** error · re-running 2/7")
+
+
+def test_status_line_says_when_its_times_are_cache_lookups(scene):
+    handle, workspace = scene
+    threshold = handle.panel.controls["ransac_threshold_px"].input
+    threshold.value = threshold.value + 1.0  # features and matches are taken from each image's cache
+    settle(handle, workspace)
+    assert "ms/image (median, stages reused from cache)" in handle.status.content
+    outcomes = [r.outcome for r in workspace.images()]
+    assert all(o.recognition.reused_stages for o in outcomes)
+    run_afresh = [Outcome(dataclasses.replace(o.recognition, reused_stages=[])) for o in outcomes]
+    assert "ms/image (median) · " not in handle.status.content
+    assert "ms/image (median)" in status_markdown(["correct"] * len(outcomes), run_afresh, {})
 
 
 def test_sliders_rerun_and_frustums_follow(scene):
