@@ -326,7 +326,8 @@ def score_signs(library: Library, query: Features, lib: dict[str, Features], mat
         if leader is not None and min_fit_matches(settings) <= len(m) <= leader - settings.min_margin:
             scores[sign.id] = SignScore(sign.id, m, *match_points(query, lib[sign.id], m), None, None,
                                         f"not fitted: {len(m)} matches cannot challenge the leader's "
-                                        f"{leader} inliers", skipped=True)
+                                        f"{leader} inliers (the margin counts them as {len(m)} inliers)",
+                                        skipped=True)
             continue
         score = score_sign(sign, query, lib[sign.id], m, settings, image_size, timing)
         if score.reason is None:

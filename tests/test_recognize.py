@@ -48,6 +48,11 @@ def test_a_clear_winner_skips_fitting_the_hopeless_signs(library):
         if truth["label"] is not None:
             rec = recognize(read_image(SCENES / name), library, settings, load_camera(SCENES / "camera.yaml"))
             skipped += sum(s.skipped for s in rec.scores)
+            runner_up = max(s.inlier_bound for s in rec.scores if s.sign != rec.label)
+            if any(s.skipped and s.inlier_bound == runner_up for s in rec.scores):
+                # the table shows the runner-up with 0 inliers: its reason must say what the margin counted
+                assert any(s.skipped and f"counts them as {runner_up} inliers" in s.reason for s in rec.scores), name
+                assert rec.margin == rec.best.n_inliers - runner_up
     assert skipped > 0
 
 
