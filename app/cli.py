@@ -15,6 +15,7 @@ from pathlib import Path
 import cv2
 from tqdm import tqdm
 
+from app.entry import EXIT_INTERRUPTED
 from app.workspace import WorkspaceConfig, check_image_header, decode_upload
 from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, load_camera
 from pipeline.evaluate import keep_freed_memory
@@ -24,7 +25,6 @@ from pipeline.recognize import Recognition, recognize
 from pipeline.settings import PRESETS, Settings, SettingsError, load_settings, preset
 
 EXIT_USAGE = 2
-EXIT_INTERRUPTED = 130  # the shell's 128 + SIGINT
 EXIT_BROKEN_PIPE = 141  # the shell's 128 + SIGPIPE
 
 

@@ -7,6 +7,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import cv2
@@ -262,6 +263,30 @@ def test_ctrl_c_stops_evaluate_and_its_workers_with_one_line(tmp_path):
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 130
     assert "signpose evaluate: interrupted" in err and "Traceback" not in err
+
+
+def console_script() -> list[str]:
+    """The `signpose` command as pip's console-script wrapper runs it: pyproject.toml's entry point."""
+    target = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]["scripts"]["signpose"]
+    module, function = target.split(":")
+    return [sys.executable, "-c", f"import sys; from {module} import {function}; sys.exit({function}())"]
+
+
+def test_ctrl_c_while_the_command_is_still_starting_is_one_line_and_130():
+    # -X importtime writes a line to stderr as each module finishes importing: once numpy has, the
+    # CLI's imports (OpenCV, FastAPI, the pipeline: 0.2 s more) are under way.
+    command = [sys.executable, "-X", "importtime", *console_script()[1:], "recognize", SCENES / "scene_002.jpg"]
+    proc = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    for line in proc.stderr:
+        if line.split("|")[-1].strip() == "numpy":
+            break
+    else:
+        raise AssertionError("numpy was never imported")
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err
+    assert err.splitlines()[-1] in ("signpose: interrupted", "signpose recognize: interrupted")
 
 
 def test_a_reader_that_stops_early_ends_the_output_quietly():
