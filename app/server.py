@@ -178,15 +178,30 @@ MULTIPART = Depends(BodyType("multipart/form-data", "the file(s) as multipart/fo
 JSON_BODY = Depends(BodyType("application/json", "a JSON body with the header Content-Type: application/json"))
 
 
+def uploads(form: FormData, field: str) -> list[FormFile]:
+    """The files in the multipart `field`; 422 naming the part that is not a file. A part sent
+    without a file name (a text field, or a file whose name was left empty) is text to multipart,
+    and FastAPI would refuse it as "Expected UploadFile, received: <class 'str'>"."""
+    values = form.getlist(field)
+    for i, value in enumerate(values, 1):
+        if not isinstance(value, FormFile):
+            which = f"part {i} of {len(values)} in" if len(values) > 1 else "the part in"
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                f"{which} the multipart field {field!r} is not a file: it has no file name, so it "
+                                f"arrived as text; send each file with its name, as a browser form or "
+                                f"curl -F '{field}=@<path>' does")
+    return values
+
+
 def the_file(form: FormData) -> FormFile:
-    """The one upload in the multipart field 'file'; 422 when it is missing or there are several:
-    a form field read as one value is the last of them, and the others would be dropped unseen."""
-    files = form.getlist("file")
+    """The one upload in the multipart field 'file'; 422 when it is missing, not a file, or there are
+    several: a form field read as one value is the last of them, and the others would be dropped unseen."""
+    files = uploads(form, "file")
     if len(files) > 1:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             f"got {len(files)} files in the multipart field 'file'; this takes exactly one, "
                             "so send one request per file")
-    if not files or not isinstance(files[0], FormFile):
+    if not files:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "send the file in the multipart field 'file'")
     return files[0]
 
@@ -197,7 +212,14 @@ async def one_file(request: Request) -> None:
     the_file(await request.form())
 
 
+async def only_files(request: Request) -> None:
+    """A dependency of the routes whose `files` parameter takes uploads: `uploads` of the form
+    FastAPI has already parsed, before FastAPI's own wording for a part that is not a file."""
+    uploads(await request.form(), "files")
+
+
 ONE_FILE = Depends(one_file)
+FILES = Depends(only_files)
 
 
 def single(*fields: str) -> Any:
@@ -503,7 +525,7 @@ def delete_sign(sign_id: SignIdDep, workspace: WorkspaceDep) -> None:
 # ---- images
 
 @api.post("/images", response_model=UploadOut, status_code=status.HTTP_201_CREATED, tags=["images"],
-          dependencies=[MULTIPART])
+          dependencies=[MULTIPART, FILES])
 def add_images(files: Annotated[list[UploadFile], File(description="one or more images")],
                workspace: WorkspaceDep,
                expected: Annotated[list[str], Form(description='per file, in order: a sign id, "none" or ""')] = [],
@@ -718,7 +740,7 @@ def get_calibration_state(calibration: CalibrationDep) -> CalibrationOut:
 
 
 @api.post("/calibration/images", response_model=CalibrationOut, status_code=status.HTTP_201_CREATED,
-          tags=["calibration"], dependencies=[MULTIPART])
+          tags=["calibration"], dependencies=[MULTIPART, FILES])
 def add_calibration_photos(files: Annotated[list[UploadFile], File(description="photos of the chessboard")],
                            calibration: CalibrationDep) -> CalibrationOut:
     """Add photos and search each for the board (all or nothing). The last result is dropped."""

@@ -361,6 +361,30 @@ def test_single_file_routes_refuse_several_files_or_none(client, method, path, f
     assert state() == before
 
 
+@pytest.mark.parametrize("method, path, field, form", [
+    ("POST", "/api/images", "files", None), ("POST", "/api/calibration/images", "files", None),
+    ("POST", "/api/recognize", "file", None), ("POST", "/api/settings/import", "file", None),
+    ("POST", "/api/library", "file", {"id": "door_plate", "width_m": "0.4"}), ("PUT", "/api/camera", "file", None),
+])
+def test_a_part_without_a_file_name_is_said_to_be_no_file(client, method, path, field, form):
+    def state():
+        return [client.get(p).json() for p in ("/api/images", "/api/calibration", "/api/library", "/api/camera")]
+
+    before = state()
+    photo = sign_photo(LIBRARY, "security_compound")
+    # A file sent with an empty name (httpx, like many clients, then leaves the filename out), and a text field.
+    for part in (("", photo, "image/jpeg"), (None, "photo.jpg")):
+        r = client.request(method, path, files=[(field, part)], data=form)
+        assert_error(r, 422, f"the part in the multipart field '{field}' is not a file", "file name",
+                     f"curl -F '{field}=@")
+        assert "UploadFile" not in r.text and "class" not in r.text
+    if field == "files":  # the second of two: said which
+        r = client.request(method, path, files=[(field, ("a.jpg", photo, "image/jpeg")), (field, (None, "b"))])
+        assert_error(r, 422, f"part 2 of 2 in the multipart field '{field}' is not a file")
+    assert state() == before
+    assert client.get("/api/health").json()["status"] == "ok"
+
+
 @pytest.mark.parametrize("field, values", [("id", ["door_plate", "exit"]), ("width_m", ["0.4", "4"]),
                                            ("name", ["Door", "Exit"]), ("text", ["a", "b"]),
                                            ("height_m", ["0.3", "0.2"])])
