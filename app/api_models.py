@@ -2,12 +2,27 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, BeforeValidator, Field
+from pydantic_core import PydanticCustomError
 
 from pipeline.library import LibrarySign
 from pipeline.settings import Settings
+
+
+def json_number(value: Any) -> Any:
+    """`value` unless it is text or true/false: pydantic's lax mode would read "500" as 500 and true as
+    1, so a client quoting its numbers, or sending a checkbox's state, would go unnoticed."""
+    if isinstance(value, (str, bool)):
+        raise PydanticCustomError("number_type", "Input should be a number, not {what}",
+                                  {"what": 'text: write 500, not "500"' if isinstance(value, str) else "true or false"})
+    return value
+
+
+# Numbers in request bodies: JSON numbers only (a whole number may be written 640.0).
+Number = Annotated[float, BeforeValidator(json_number)]
+WholeNumber = Annotated[int, BeforeValidator(json_number)]
 
 
 class Health(BaseModel):
@@ -101,13 +116,13 @@ class RecognitionOut(BaseModel):
 class CameraModel(BaseModel):
     """Pinhole intrinsics in px; `dist` OpenCV's (k1, k2, p1, p2[, k3, ...])."""
 
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    dist: list[float] = []
-    width: int | None = Field(None, description="image width the intrinsics are for, px")
-    height: int | None = None
+    fx: Number
+    fy: Number
+    cx: Number
+    cy: Number
+    dist: list[Number] = []
+    width: WholeNumber | None = Field(None, description="image width the intrinsics are for, px")
+    height: WholeNumber | None = None
 
 
 class CameraIntrinsics(CameraModel):
@@ -129,15 +144,15 @@ class CameraOut(BaseModel):
 
 
 class AssumedFovIn(BaseModel):
-    hfov_deg: float = Field(description="horizontal field of view, degrees (10 to 140)")
+    hfov_deg: Number = Field(description="horizontal field of view, degrees (10 to 140)")
 
 
 class BoardSpec(BaseModel):
     """A printed chessboard: inner corners (where four squares meet) across and down, and the square side."""
 
-    cols: int = Field(description="inner corners across: squares across minus one (3 to 100)")
-    rows: int = Field(description="inner corners down: squares down minus one (3 to 100)")
-    square_m: float = Field(description="side of one printed square as measured on the print, metres")
+    cols: WholeNumber = Field(description="inner corners across: squares across minus one (3 to 100)")
+    rows: WholeNumber = Field(description="inner corners down: squares down minus one (3 to 100)")
+    square_m: Number = Field(description="side of one printed square as measured on the print, metres")
 
 
 class CalibrationView(BaseModel):

@@ -467,6 +467,27 @@ def test_camera_json_file_errors_and_reset(client):
     assert client.delete("/api/camera").json() == NO_CAMERA
 
 
+@pytest.mark.parametrize("path, body, where, what", [
+    ("/api/camera", {"fx": "500"}, "body.fx", 'not text: write 500, not "500"'),
+    ("/api/camera", {"cy": True}, "body.cy", "not true or false"),
+    ("/api/camera", {"dist": [-0.1, "0.02"]}, "body.dist.1", "not text"),
+    ("/api/camera", {"width": "640", "height": 480}, "body.width", "not text"),
+    ("/api/camera/assumed", {"hfov_deg": "75"}, "body.hfov_deg", "not text"),
+    ("/api/calibration/board", {"cols": "9", "rows": 6, "square_m": 0.025}, "body.cols", "not text"),
+])
+def test_camera_numbers_must_be_json_numbers_not_text(client, path, body, where, what):
+    typed = {"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640, "height": 480}
+    before = [client.get(p).json() for p in ("/api/camera", "/api/calibration")]
+    assert_error(client.put(path, json=(typed if path == "/api/camera" else {}) | body), 422, f"{where}: ", what)
+    assert [client.get(p).json() for p in ("/api/camera", "/api/calibration")] == before
+    # Whole numbers may still be written as floats, and a camera file's numbers are read as before.
+    r = client.put("/api/camera", json=typed | {"width": 640.0, "dist": [-0.1, 0, 0, 0.0]})
+    assert r.status_code == 200 and r.json()["camera"]["width"] == 640
+    r = client.put("/api/camera", files={"file": ("cam.yaml", CAMERA_YAML, "application/x-yaml")})
+    assert r.status_code == 200 and r.json()["camera"]["kind"] == "file"
+    client.delete("/api/camera")
+
+
 def test_a_camera_that_fits_no_image_held_is_kept_with_a_warning(tmp_path):
     fitting = {"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640, "height": 480}
     with running(create_app(config(tmp_path / "state"))) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
