@@ -8,7 +8,7 @@ import json
 import math
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
@@ -95,8 +95,7 @@ def cmd_recognize(args) -> int:
     failed = 0
     if not args.json:
         print(f"{'image':<28} {'label':<22} {'inliers':>7} {'margin':>6}  pose")
-    for path in tqdm(args.images, desc="recognize", unit="img", disable=args.json or len(args.images) < 10 or not sys.stderr.isatty(),
-                     leave=False, file=sys.stderr):
+    for path in progress(args.images, desc="recognize", hidden=args.json or len(args.images) < 10, leave=False):
         name = str(path)
         try:
             image, _, exif_camera = decode_upload(read_file(path), name, limit)
@@ -118,6 +117,13 @@ def cmd_recognize(args) -> int:
     return unusable_images(failed, len(args.images))
 
 
+def progress(iterable: Iterable | None = None, *, hidden: bool = False, **options) -> tqdm:
+    """A progress bar over images on stderr, drawn only when stderr is a terminal (tqdm's
+    disable=None): in a log file or a CI log its redraws are carriage-return clutter. `hidden`:
+    never drawn. What a command prints when it is done (tables, counts) is printed either way."""
+    return tqdm(iterable, file=sys.stderr, unit="img", disable=True if hidden else None, **options)
+
+
 def unusable_images(failed: int, total: int) -> int:
     """The exit status of a run over `total` images of which `failed` could not be used, said on stderr."""
     if failed:
@@ -131,7 +137,7 @@ def cmd_synth(args) -> int:
     try:
         library = load_library(args.library)
         # Shown once rendering takes a while, so a refused folder gets its error line alone.
-        with tqdm(total=args.n, desc="synth", unit="img", file=sys.stderr, delay=0.5) as bar:
+        with progress(total=args.n, desc="synth", delay=0.5) as bar:
             generate_dataset(Path(args.out_dir), library, n=args.n, seed=args.seed,
                              progress=lambda i, n: bar.update(1))
     except (LibraryError, SynthError) as exc:
@@ -159,7 +165,7 @@ def cmd_evaluate(args) -> int:
         if names.count(dataset.name) > 1:  # a/set1 and b/set1: each its own row
             dataset.name = given
     try:
-        with tqdm(total=sum(len(d) for d in datasets), desc="evaluate", unit="img", file=sys.stderr) as bar:
+        with progress(total=sum(len(d) for d in datasets), desc="evaluate") as bar:
             report = evaluate(datasets, library, settings, camera, progress=lambda *_: bar.update(1),
                               workers=args.workers,
                               check_image=functools.partial(check_image_header, max_pixels=max_pixels(args)))
@@ -181,7 +187,7 @@ def cmd_calibrate(args) -> int:
     except CalibrationError as exc:
         raise CliError(str(exc)) from None
     views, unreadable, limit = [], 0, max_pixels(args)
-    for path in tqdm(args.images, desc="calibrate", unit="img", file=sys.stderr, leave=False):
+    for path in progress(args.images, desc="calibrate", leave=False):
         try:
             views.append(find_board(read_gray(str(path), read_file(path), limit), board, Path(path).name))
         except ImageError as exc:

@@ -1,12 +1,16 @@
 """The `signpose` command line, run as a user runs it: a subprocess on real files."""
 
+import fcntl
 import json
 import os
+import pty
 import re
 import shutil
 import signal
+import struct
 import subprocess
 import sys
+import termios
 import tomllib
 from pathlib import Path
 
@@ -181,15 +185,44 @@ def test_exif_focal_length_is_used_without_a_camera_file(tmp_path):
     assert any("EXIF" in w for w in obj["warnings"]) and not any("assumed" in w for w in obj["warnings"])
 
 
-def test_synth_then_evaluate_reports_a_table_with_a_progress_bar(tmp_path):
+def on_a_terminal(*args: object, cwd=ROOT) -> tuple[subprocess.Popen, int]:
+    """`signpose *args` with its stderr on a pseudo-terminal, as in a shell: the process (stdout
+    piped) and the terminal's end to read stderr from (`terminal_output`)."""
+    terminal, stderr = pty.openpty()
+    fcntl.ioctl(stderr, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))  # 24 x 100 (new ones are 0 x 0)
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", *map(str, args)], cwd=cwd, stdout=subprocess.PIPE,
+                            stderr=stderr, text=True, start_new_session=True)
+    os.close(stderr)
+    return proc, terminal
+
+
+def terminal_output(terminal: int) -> str:
+    """What is left to read on an `on_a_terminal` terminal, until the process has closed it."""
+    out = b""
+    try:
+        while chunk := os.read(terminal, 65536):
+            out += chunk
+    except OSError:  # EIO: the other end is closed
+        pass
+    os.close(terminal)
+    return out.decode()
+
+
+def test_synth_then_evaluate_report_with_progress_bars_on_a_terminal_only(tmp_path):
     data = tmp_path / "scenes"
     made = signpose("synth", "--n", 4, "--seed", 3, data)
     assert made.returncode == 0 and len(list(data.glob("*.jpg"))) == 4 and (data / "truth.json").is_file()
+    assert made.stderr == "" and made.stdout.startswith("wrote 4 scenes")
+    # Into a log (here a pipe): no bar and its carriage-return redraws, the table all the same.
     result = signpose("evaluate", data, "--workers", 2)
     assert result.returncode == 0
-    assert "4/4" in result.stderr  # the progress bar reached the end
+    assert result.stderr == ""
     row = next(line.split() for line in result.stdout.splitlines() if line.startswith("scenes "))
     assert row[1] == "4" and int(row[2]) >= 3  # images, correct
+    proc, terminal = on_a_terminal("evaluate", data, "--workers", 2)
+    out, _ = proc.communicate(timeout=300)
+    assert proc.returncode == 0 and "4/4" in terminal_output(terminal)  # the progress bar reached the end
+    assert any(line.startswith("scenes ") for line in out.splitlines())
 
 
 def test_synth_refuses_a_folder_with_older_scenes_it_would_leave_unlisted(tmp_path):
@@ -252,15 +285,15 @@ def test_bad_paths_ports_and_numbers_are_refused_up_front_in_one_line(tmp_path, 
 def test_ctrl_c_stops_evaluate_and_its_workers_with_one_line(tmp_path):
     copies = [shutil.copytree(ROOT / "sample_images" / "datasets" / "set3", tmp_path / f"set{i}") for i in range(40)]
     # Ctrl-C in a terminal reaches the whole process group: the CLI and its worker processes.
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "evaluate", *copies, "--workers", "2"], cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    proc, terminal = on_a_terminal("evaluate", *copies, "--workers", "2")
     progress = ""
     while not re.search(r"\| *([2-9]\d|1\d\d)/200 ", progress):  # 20 images in: the workers are measuring
-        char = proc.stderr.read(1)
+        char = os.read(terminal, 1).decode(errors="replace")
         assert char, f"evaluate ended before its progress bar moved: {progress}"
         progress += char
     os.killpg(proc.pid, signal.SIGINT)
-    _, err = proc.communicate(timeout=30)
+    proc.communicate(timeout=30)
+    err = terminal_output(terminal)
     assert proc.returncode == 130
     assert "signpose evaluate: interrupted" in err and "Traceback" not in err
 
