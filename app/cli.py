@@ -49,7 +49,8 @@ def add_common(p: argparse.ArgumentParser, camera: bool = True) -> None:
     p.add_argument("--library", default=str(SAMPLE_LIBRARY), help="sign library folder (default: the samples)")
     if camera:
         p.add_argument("--camera", type=file_path,
-                       help="camera file: ROS camera_info YAML, OpenCV YAML/JSON, or {fx,fy,cx,cy,dist}")
+                       help="camera file: ROS camera_info YAML (the calibration file, or the message as "
+                            "`ros2 topic echo --once` prints it), OpenCV YAML/JSON, or {fx,fy,cx,cy,dist}")
     p.add_argument("--settings", type=file_path, help="settings JSON (full or partial), applied over --preset")
     p.add_argument("--preset", default="default", choices=sorted(PRESETS), help="base settings (default: default)")
 

@@ -665,7 +665,8 @@ def get_camera(workspace: WorkspaceDep) -> CameraOut:
         "multipart/form-data": {"schema": {
             "type": "object", "required": ["file"],
             "properties": {"file": {"type": "string", "format": "binary",
-                                    "description": "ROS camera_info YAML, OpenCV YAML/JSON or {fx, fy, cx, cy}"}},
+                                    "description": "ROS camera_info YAML (file, or message as ros2 topic echo "
+                                                   "prints it), OpenCV YAML/JSON or {fx, fy, cx, cy}"}},
         }},
     },
 }})

@@ -1,4 +1,4 @@
-"""Camera intrinsics: loading ROS / OpenCV / plain-JSON camera files, and an assumed camera.
+"""Camera intrinsics: loading ROS (file or message) / OpenCV / plain-JSON camera files, and an assumed camera.
 
 K is the OpenCV 3x3 matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels; `dist` is OpenCV's
 (k1, k2, p1, p2[, k3, ...]) distortion vector.
@@ -284,21 +284,39 @@ def _matrix(node: object, name: str, rows: int | None, cols: int | None) -> np.n
     return _numbers(node, name)
 
 
+def is_ros_message(data: dict) -> bool:
+    """Whether parsed YAML is a sensor_msgs/CameraInfo message as `ros2 topic echo` prints it (`k`, `d`,
+    `width`, `height`, flat lists) or ROS 1's `rostopic echo` (`K`, `D`), rather than the file ROS's
+    camera_calibration writes (`camera_matrix: {rows, cols, data}`, `image_width`, ...)."""
+    return "camera_matrix" not in data and ("k" in data or "K" in data)
+
+
 def camera_from_ros(data: dict, source: str) -> Camera:
-    """Camera from a parsed ROS camera_info YAML: OpenCV's distortion model (ROS's `plumb_bob` or
+    """Camera from a parsed ROS camera_info: the calibration file (`camera_matrix`, `distortion_coefficients`,
+    `image_width`, `image_height`) or the message (`is_ros_message`: `k`, 9 numbers row by row, `d`,
+    `width`, `height`; `header`, `r`, `p`, binning and roi are not used, as the file's rectification and
+    projection matrices are not). OpenCV's distortion model only (ROS's `plumb_bob` or
     `rational_polynomial`); any other `distortion_model` is refused, since its coefficients mean
-    something else."""
+    something else. Errors name the key as the file writes it."""
+    if is_ros_message(data):
+        matrix, distortion = ("k", "d") if "k" in data else ("K", "D")
+        width, height = "width", "height"
+    else:
+        matrix, distortion, width, height = "camera_matrix", "distortion_coefficients", "image_width", "image_height"
     model = data.get("distortion_model")
     if model is not None and model not in ROS_DISTORTION_MODELS:
         raise CameraError(f"distortion_model {reprlib.repr(model)} is not supported: signpose uses OpenCV's model "
                           f"({' or '.join(ROS_DISTORTION_MODELS)}: k1 k2 p1 p2 k3 ...); calibrate with "
                           "`signpose calibrate`, or undistort the photos first and give zero distortion")
-    K = _matrix(data["camera_matrix"], "camera_matrix", 3, 3)
+    K = _matrix(data[matrix], matrix, 3, 3)
     if K.size != 9:
-        raise CameraError(f"camera_matrix must have 9 values; got {K.size}")
-    dist = _matrix(data.get("distortion_coefficients", {"data": []}), "distortion_coefficients", None, None)
-    return Camera(K.reshape(3, 3), dist.ravel(), _opt_int(data.get("image_width"), "image_width"),
-                  _opt_int(data.get("image_height"), "image_height"), source)
+        raise CameraError(f"{matrix} must have 9 values (the 3x3 matrix, row by row); got {K.size}")
+    if not K.any():  # CameraInfo's convention for a camera nobody calibrated
+        raise CameraError(f"{matrix} is all zeros: this camera_info is of an uncalibrated camera; calibrate it "
+                          "(`signpose calibrate`, or ROS's camera_calibration) and give that file")
+    dist = _matrix(data.get(distortion, {"data": []}), distortion, None, None)
+    return Camera(K.reshape(3, 3), dist.ravel(), _opt_int(data.get(width), width), _opt_int(data.get(height), height),
+                  source)
 
 
 def _filestorage_matrix(fs: cv2.FileStorage, names: tuple[str, ...]) -> np.ndarray | None:
@@ -340,7 +358,8 @@ def _camera_from_filestorage(path: Path) -> Camera:
 
 
 def load_camera(path: str | Path) -> Camera:
-    """Read a ROS camera_info YAML, an OpenCV FileStorage YAML/JSON, or JSON `{fx, fy, cx, cy, dist}`."""
+    """Read a ROS camera_info YAML (the calibration file, or the message as `ros2 topic echo` prints it),
+    an OpenCV FileStorage YAML/JSON, or JSON `{fx, fy, cx, cy, dist}`."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -362,16 +381,19 @@ def _parse_camera(text: str, path: Path) -> Camera:
         except cv2.error as exc:
             raise CameraError(f"not a readable OpenCV FileStorage file ({_opencv_error(exc)})") from None
     try:
-        data = yaml.safe_load(text)  # YAML is a superset of JSON
+        # YAML is a superset of JSON. `ros2 topic echo` ends each message with "---", which starts
+        # another (empty) document; without --once it prints one after the other: the first is used.
+        data = next((d for d in yaml.safe_load_all(text) if d is not None), None)
     except yaml.YAMLError as exc:
         raise CameraError(f"neither valid YAML nor JSON ({_yaml_error(exc)})") from None
     if not isinstance(data, dict):
-        raise CameraError("expected a mapping with camera_matrix (ROS) or fx, fy, cx, cy")
-    if "camera_matrix" in data:
+        raise CameraError("expected a mapping with camera_matrix or k (ROS camera_info) or fx, fy, cx, cy")
+    if "camera_matrix" in data or is_ros_message(data):
         return camera_from_ros(data, f"file:{path}")
     if "fx" in data:
         return camera_from_json(data, f"file:{path}")
-    raise CameraError("expected camera_matrix (ROS camera_info) or fx, fy, cx, cy keys")
+    raise CameraError("expected camera_matrix (ROS camera_info file), k (ROS 2 camera_info message, as "
+                      "`ros2 topic echo --once` prints it) or fx, fy, cx, cy keys")
 
 
 def _yaml_error(exc: yaml.YAMLError) -> str:

@@ -29,6 +29,120 @@ def test_ros_yaml(tmp_path):
     assert cam.dist[0] == -0.1 and cam.has_distortion
 
 
+# The end of a CameraInfo message as `ros2 topic echo` and ROS 1's `rostopic echo` print it.
+MESSAGE_END = """binning_x: 0
+binning_y: 0
+roi:
+  x_offset: 0
+  y_offset: 0
+  height: 0
+  width: 0
+  do_rectify: false
+---
+"""
+# `ros2 topic echo --once /camera_info > cam.yaml`: the same camera as ROS above, as a message.
+ROS2_MESSAGE = """header:
+  stamp:
+    sec: 1718000000
+    nanosec: 250000000
+  frame_id: camera_optical_frame
+height: 480
+width: 640
+distortion_model: plumb_bob
+d:
+- -0.1
+- 0.01
+- 0.0
+- 0.0
+- 0.0
+k:
+- 500.0
+- 0.0
+- 320.0
+- 0.0
+- 510.0
+- 240.0
+- 0.0
+- 0.0
+- 1.0
+r:
+- 1.0
+- 0.0
+- 0.0
+- 0.0
+- 1.0
+- 0.0
+- 0.0
+- 0.0
+- 1.0
+p:
+- 500.0
+- 0.0
+- 320.0
+- 0.0
+- 0.0
+- 510.0
+- 240.0
+- 0.0
+- 0.0
+- 0.0
+- 1.0
+- 0.0
+""" + MESSAGE_END
+# ROS 1's `rostopic echo -n 1 /camera_info`: the same fields in capitals, flow lists.
+ROS1_MESSAGE = """header:
+  seq: 42
+  stamp:
+    secs: 1718000000
+    nsecs: 250000000
+  frame_id: "camera"
+height: 480
+width: 640
+distortion_model: "plumb_bob"
+D: [-0.1, 0.01, 0.0, 0.0, 0.0]
+K: [500.0, 0.0, 320.0, 0.0, 510.0, 240.0, 0.0, 0.0, 1.0]
+R: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+P: [500.0, 0.0, 320.0, 0.0, 0.0, 510.0, 240.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+""" + MESSAGE_END
+
+
+@pytest.mark.parametrize("text", [ROS2_MESSAGE, ROS1_MESSAGE, ROS2_MESSAGE + ROS2_MESSAGE.replace("500.0", "501.0")],
+                         ids=["ros2", "ros1", "several messages"])
+def test_a_camera_info_message_as_ros_topic_echo_prints_it(tmp_path, text):
+    (tmp_path / "file.yaml").write_text(ROS)
+    (tmp_path / "message.yaml").write_text(text)
+    file, message = load_camera(tmp_path / "file.yaml"), load_camera(tmp_path / "message.yaml")
+    assert np.array_equal(message.K, file.K) and np.array_equal(message.dist, file.dist)  # the first message
+    assert (message.width, message.height) == (640, 480)
+
+
+def k_list(values: list[object]) -> str:
+    return "k:\n" + "".join(f"- {v}\n" for v in values)
+
+
+K_VALUES = [500.0, 0.0, 320.0, 0.0, 510.0, 240.0, 0.0, 0.0, 1.0]
+
+
+@pytest.mark.parametrize("replace, by, message", [
+    (k_list(K_VALUES), k_list(K_VALUES[:4]), "k must have 9 values (the 3x3 matrix, row by row); got 4"),
+    (k_list(K_VALUES), k_list(["abc", *K_VALUES[1:]]), "k must be a number; got 'abc'"),
+    (k_list(K_VALUES), k_list([0.0] * 9), "k is all zeros: this camera_info is of an uncalibrated camera"),
+    ("- 0.01\n", "- x\n", "d must be a number; got 'x'"),
+    ("width: 640\n", "width: wide\n", "width must be a whole number; got 'wide'"),
+    ("height: 480\n", "height: 480.5\n", "height must be a whole number; got 480.5"),
+    ("plumb_bob", "equidistant", "distortion_model 'equidistant' is not supported"),
+    ("k:\n", "kk:\n", "expected camera_matrix (ROS camera_info file), k (ROS 2 camera_info message"),
+], ids=["k size", "k text", "k zeros", "d text", "width text", "height fraction", "fisheye", "no k"])
+def test_a_bad_camera_info_message_is_one_line_naming_the_key(tmp_path, replace, by, message):
+    assert replace in ROS2_MESSAGE
+    p = tmp_path / "cam.yaml"
+    p.write_text(ROS2_MESSAGE.replace(replace, by, 1))
+    with pytest.raises(CameraError) as info:
+        load_camera(p)
+    assert str(info.value).startswith(f"{p}: {message}")
+    assert "\n" not in str(info.value)
+
+
 @pytest.mark.parametrize("model", ["equidistant", "fisheye", "kannala_brandt", 7])
 def test_a_distortion_model_other_than_opencvs_is_refused(tmp_path, model):
     """Fisheye coefficients read as OpenCV's would move the pose without a word."""
