@@ -35,7 +35,7 @@ from pipeline.camera import Camera, assumed_camera, check_hfov, load_camera
 from pipeline.evaluate import CORES
 from pipeline.exif import decode_with_exif
 from pipeline.features import library_features
-from pipeline.image import ImageError
+from pipeline.image import ImageError, unreadable
 from pipeline.library import NO_SIGN, SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, make_sign, validate_sign_entry
 from pipeline.recognize import Recognition, StageCache, recognize
 from pipeline.settings import PRESETS, Settings, load_settings
@@ -205,8 +205,8 @@ def check_image_header(data: bytes, name: str, max_pixels: int) -> str:
     except Image.DecompressionBombError:  # past Pillow's own ceiling, which a higher max_pixels cannot lift
         limit = min(max_pixels, 2 * Image.MAX_IMAGE_PIXELS)
         raise ImageTooLarge(f"{name}: the image has more than {limit / 1e6:g} megapixels; downscale it") from None
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError):
-        raise ImageError(f"{name}: not an image file (use JPEG, PNG, TIFF, WebP or BMP)") from None
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError):  # a header cut short, or no image
+        raise unreadable(data, name) from None
     if width * height > max_pixels:
         raise ImageTooLarge(f"{name}: {width}x{height} px is {width * height / 1e6:.1f} megapixels, more than "
                             f"the limit of {max_pixels / 1e6:g}; downscale it, or raise --max-megapixels")

@@ -2,14 +2,42 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+NOT_AN_IMAGE = "not an image file (use JPEG, PNG, TIFF, WebP or BMP)"
+# How each format signpose reads begins: a file that begins so and cannot be read is that format
+# damaged (cut short by a copy or download, or corrupt), not some other kind of file.
+SIGNATURES = {
+    "JPEG": re.compile(rb"\xff\xd8\xff"),
+    "PNG": re.compile(rb"\x89PNG\r\n\x1a\n"),
+    "GIF": re.compile(rb"GIF8[79]a"),
+    "TIFF": re.compile(rb"II\*\x00|MM\x00\*"),
+    "WebP": re.compile(rb"RIFF.{4}WEBP", re.DOTALL),
+    "BMP": re.compile(rb"BM.{4}\x00{4}", re.DOTALL),  # the size, then 4 reserved zero bytes: not just text "BM..."
+}
+
 
 class ImageError(ValueError):
     """An input that is not a usable image; the message says why."""
+
+
+def image_format(data: bytes) -> str | None:
+    """The format encoded image `data` begins as ("JPEG", "PNG", ... a key of SIGNATURES), or None."""
+    return next((name for name, signature in SIGNATURES.items() if signature.match(data)), None)
+
+
+def unreadable(data: bytes, name: str) -> ImageError:
+    """The error for `data`, the bytes of file `name`, that cannot be read as an image: a damaged or
+    truncated file of its format when it begins as one, else not an image file at all."""
+    kind = image_format(data)
+    if kind is None:
+        return ImageError(f"{name}: {NOT_AN_IMAGE}")
+    return ImageError(f"{name}: damaged or truncated {kind} file (it begins as a {kind} but its image data cannot "
+                      "be read); copy or export it again")
 
 
 def decode_image(data: bytes, name: str = "image") -> np.ndarray:
@@ -25,7 +53,7 @@ def decode_image(data: bytes, name: str = "image") -> np.ndarray:
     except cv2.error as exc:
         raise ImageError(f"{name}: cannot decode image: {exc.err or exc}") from None
     if image is None:
-        raise ImageError(f"{name}: not a readable image (unknown format, truncated or corrupt)")
+        raise unreadable(data, name)
     return image
 
 

@@ -196,7 +196,7 @@ def test_library_list_image_add_and_delete(client):
         r = client.post("/api/library", files={"file": ("d.jpg", photo, "image/jpeg")}, data=form | {"id": "x"} | bad)
         assert_error(r, 422, *words)
     assert_error(client.post("/api/library", files={"file": ("d.jpg", b"GIF89a nope", "image/gif")},
-                             data=form | {"id": "y"}), 422, "not an image")
+                             data=form | {"id": "y"}), 422, "damaged or truncated GIF")
     assert client.get("/api/library/..%2F..%2Fstate/image").status_code == 404
     assert_error(client.get("/api/library/passwd/image"), 404, "no sign", "known")
     assert client.delete("/api/library/door_plate").status_code == 204
@@ -285,7 +285,8 @@ def test_input_figure_shows_every_label_and_the_answer(client, scene, sign, by_p
 @pytest.mark.parametrize("name, data, expected, code, words", [
     ("empty.jpg", b"", None, 422, ("empty.jpg", "empty")),
     ("notes.jpg", b"meeting at 10, bring the photos", None, 422, ("notes.jpg", "not an image")),
-    ("cut.jpg", sign_photo(LIBRARY, "security_compound")[:9000], None, 422, ("cut.jpg", "truncated")),
+    ("cut.jpg", sign_photo(LIBRARY, "security_compound")[:9000], None, 422, ("cut.jpg: damaged or truncated JPEG",)),
+    ("head.jpg", sign_photo(LIBRARY, "security_compound")[:300], None, 422, ("head.jpg: damaged or truncated JPEG",)),
     ("bomb.png", png_bomb(1500, 1000), None, 413, ("bomb.png", "1500x1000", "megapixels")),
     ("huge_bomb.png", png_bomb(), None, 413, ("megapixels",)),
     ("x.jpg", sign_photo(LIBRARY, "security_compound"), "no_such_sign", 422, ("no_such_sign", "security_compound")),

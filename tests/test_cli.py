@@ -120,7 +120,23 @@ def test_a_truncated_image_gets_signposes_line_and_not_opencvs_warning(tmp_path)
     (tmp_path / "none" / "cut.png").write_bytes(truncated.read_bytes())
     for args in (("recognize", truncated), ("evaluate", tmp_path, "--workers", 1)):
         result = signpose(*args)
-        assert "not a readable image" in result.stdout and "WARN" not in result.stderr, result.stderr
+        assert "cut.png: damaged or truncated PNG file" in result.stdout and "WARN" not in result.stderr, result.stderr
+
+
+def test_a_damaged_jpeg_is_told_apart_from_a_file_that_is_no_image(tmp_path):
+    photo = (SCENES / "scene_002.jpg").read_bytes()
+    cases = {"header_cut.jpg": photo[:300],          # cut inside its header: not even its size can be read
+             "data_cut.jpg": photo[:len(photo) // 2],  # a whole header, half the image data
+             "notes.jpg": b"meeting at 10, bring the photos"}
+    for name, data in cases.items():
+        (tmp_path / name).write_bytes(data)
+    result = signpose("recognize", *(tmp_path / name for name in cases), "--json")
+    assert result.returncode == 1
+    errors = {Path(o["image"]).name: o["error"] for o in map(json.loads, result.stdout.splitlines())}
+    for name in ("header_cut.jpg", "data_cut.jpg"):
+        assert errors[name] == (f"{tmp_path / name}: damaged or truncated JPEG file (it begins as a JPEG but its image "
+                                "data cannot be read); copy or export it again")
+    assert errors["notes.jpg"] == f"{tmp_path / 'notes.jpg'}: not an image file (use JPEG, PNG, TIFF, WebP or BMP)"
 
 
 @pytest.mark.parametrize("option, content, message", [
