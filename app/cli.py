@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from app.entry import EXIT_INTERRUPTED
 from app.workspace import WorkspaceConfig, check_image_header, decode_upload
-from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, load_camera
+from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, assumed_camera, load_camera
 from pipeline.evaluate import keep_freed_memory
 from pipeline.image import ImageError, read_file
 from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
@@ -99,9 +99,11 @@ def cmd_recognize(args) -> int:
     for path in progress(args.images, desc="recognize", hidden=args.json or len(args.images) < 10, leave=False):
         name = str(path)
         try:
-            image, _, exif_camera = decode_upload(read_file(path), name, limit)
-            # Without a camera file, a JPEG's EXIF focal length beats the assumed field of view.
-            rec = recognize(image, library, settings, camera or exif_camera)
+            image, _, exif = decode_upload(read_file(path), name, limit)
+            # Without a camera file, a JPEG's EXIF focal length beats the field of view recognize
+            # assumes, which is assumed here instead when it should say the EXIF's was refused.
+            refused = assumed_camera(image.shape[1], image.shape[0], note=exif.ignored) if exif.ignored else None
+            rec = recognize(image, library, settings, camera or exif.camera or refused)
         except (ImageError, CameraError) as exc:  # CameraError: the camera cannot be scaled to this image
             failed += 1
             if args.json:

@@ -322,7 +322,7 @@ def camera_out(workspace: Workspace) -> CameraOut:
     snap = workspace.snapshot
     images = workspace.images()
     return CameraOut(camera=intrinsics(snap.camera), assumed_hfov_deg=snap.assumed_hfov_deg,
-                     exif_images=sum(r.exif_camera is not None for r in images),
+                     exif_images=sum(r.exif.camera is not None for r in images),
                      warnings=misfit_warnings(snap.camera, images))
 
 

@@ -33,7 +33,7 @@ from PIL import Image, UnidentifiedImageError
 
 from pipeline.camera import Camera, assumed_camera, check_hfov, load_camera
 from pipeline.evaluate import CORES
-from pipeline.exif import decode_with_exif
+from pipeline.exif import ExifCamera, decode_with_exif
 from pipeline.features import library_features
 from pipeline.image import ImageError, unreadable
 from pipeline.library import NO_SIGN, SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, make_sign, validate_sign_entry
@@ -104,10 +104,11 @@ class Snapshot:
     camera: Camera | None
     assumed_hfov_deg: float
 
-    def camera_for(self, exif_camera: Camera | None, width: int, height: int) -> Camera:
+    def camera_for(self, exif: ExifCamera, width: int, height: int) -> Camera:
         """The intrinsics a `width` x `height` px image is recognised with: the workspace's camera, else
-        the image's EXIF focal length, else the assumed field of view."""
-        return self.camera or exif_camera or assumed_camera(width, height, self.assumed_hfov_deg)
+        the image's EXIF focal length, else the assumed field of view (saying so when the EXIF
+        records a focal length that was refused)."""
+        return self.camera or exif.camera or assumed_camera(width, height, self.assumed_hfov_deg, exif.ignored)
 
 
 @dataclass(frozen=True)
@@ -123,7 +124,7 @@ class Outcome:
 @dataclass(eq=False)
 class ImageRecord:
     """One loaded image. `image` is (H, W, 3) uint8 BGR; `file` its stored name in the state directory;
-    `exif_camera` the intrinsics its EXIF implies, used while the workspace has no camera."""
+    `exif` the intrinsics its EXIF implies (or why none), used while the workspace has no camera."""
 
     id: str
     name: str
@@ -131,7 +132,7 @@ class ImageRecord:
     image: np.ndarray = field(repr=False)
     file: str
     media_type: str
-    exif_camera: Camera | None = None
+    exif: ExifCamera = ExifCamera()
     cache: StageCache = field(default_factory=StageCache, repr=False)
     outcome: Outcome = field(default_factory=Outcome)
     # Held while the pipeline uses `cache`: StageCache is not thread-safe and a sweep may run
@@ -213,14 +214,14 @@ def check_image_header(data: bytes, name: str, max_pixels: int) -> str:
     return media_type
 
 
-def decode_upload(data: bytes, name: str, max_pixels: int) -> tuple[np.ndarray, str, Camera | None]:
-    """Check and decode an uploaded image: ((H, W, 3) uint8 BGR, media type, camera from its EXIF or None).
+def decode_upload(data: bytes, name: str, max_pixels: int) -> tuple[np.ndarray, str, ExifCamera]:
+    """Check and decode an uploaded image: ((H, W, 3) uint8 BGR, media type, what its EXIF gives for the camera).
 
     Raises ImageError.
     """
     media_type = check_image_header(data, name, max_pixels)
-    image, camera = decode_with_exif(data, name)
-    return image, media_type, camera
+    image, exif = decode_with_exif(data, name)
+    return image, media_type, exif
 
 
 def sample_scenes(folder: Path = SAMPLE_SCENES) -> list[tuple[Path, str | None]]:
@@ -278,9 +279,9 @@ class Workspace:
         self.state.sweep(stored or [], library)
         for entry, decoded in zip(stored or [], self._pool.map(self._decode_stored, stored or [])):
             if decoded is not None:
-                image, exif_camera = decoded
+                image, exif = decoded
                 self._records[entry.id] = ImageRecord(entry.id, entry.name, entry.expected, image, entry.file,
-                                                      entry.media_type, exif_camera)
+                                                      entry.media_type, exif)
         if len(self._records) != len(stored or []):
             self.state.save_images([r.stored() for r in self._records.values()])
 
@@ -291,7 +292,7 @@ class Workspace:
         elif self._records:
             self._request_rerun()
 
-    def _decode_stored(self, entry: StoredImage) -> tuple[np.ndarray, Camera | None] | None:
+    def _decode_stored(self, entry: StoredImage) -> tuple[np.ndarray, ExifCamera] | None:
         try:
             return decode_with_exif(self.state.read_image(entry.file), entry.name)
         except (OSError, ImageError) as exc:  # a file damaged on disk: drop it rather than refuse to start
@@ -376,10 +377,10 @@ class Workspace:
         try:
             # Files first, outside the lock (each write is fsync'd); until the index names them a
             # crash leaves only orphans, which the next start sweeps.
-            for (name, data, expected), (image, media_type, exif_camera) in zip(checked, decoded):
+            for (name, data, expected), (image, media_type, exif) in zip(checked, decoded):
                 image_id = secrets.token_hex(6)
                 records.append(ImageRecord(image_id, name, expected, image, image_id + _extension(media_type),
-                                           media_type, exif_camera))
+                                           media_type, exif))
                 self.state.write_image(records[-1].file, data)
             with self._lock:
                 self._check_capacity(len(records))  # again: another upload may have landed meanwhile
@@ -591,7 +592,7 @@ class Workspace:
                 return
             try:
                 rec = run_pipeline(record.name, record.image, snap.library, snap.settings,
-                                   snap.camera_for(record.exif_camera, record.width, record.height), record.cache)
+                                   snap.camera_for(record.exif, record.width, record.height), record.cache)
                 outcome = Outcome(rec, snap.settings_version, snap.generation)
             except PipelineError as exc:  # a failure on one image must not stop the others
                 outcome = Outcome(None, snap.settings_version, snap.generation, str(exc))
@@ -647,17 +648,17 @@ class Workspace:
         Runs in the caller's thread (a request worker), not behind a re-run in the pipeline pool.
         Raises ImageError when the upload is unusable, PipelineError when the pipeline fails on it.
         """
-        image, _, exif_camera = decode_upload(data, name, self.config.max_pixels)
+        image, _, exif = decode_upload(data, name, self.config.max_pixels)
         snap = self._snap
         return run_pipeline(name, image, snap.library, snap.settings,
-                            snap.camera_for(exif_camera, image.shape[1], image.shape[0]))
+                            snap.camera_for(exif, image.shape[1], image.shape[0]))
 
     def run_with(self, record: ImageRecord, settings: Settings) -> Recognition:
         """Recognise one stored image under `settings`, re-using (and feeding) its stage cache."""
         snap = self._snap
         with record.lock:
             return run_pipeline(record.name, record.image, snap.library, settings,
-                                snap.camera_for(record.exif_camera, record.width, record.height), record.cache)
+                                snap.camera_for(record.exif, record.width, record.height), record.cache)
 
     def sweep(self, param: str, values: list[float], records: list[ImageRecord],
               stop: threading.Event | None = None) -> list[list[Recognition]]:

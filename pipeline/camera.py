@@ -222,11 +222,16 @@ def check_hfov(hfov_deg: float) -> float:
     return float(hfov_deg)
 
 
-def assumed_camera(width: int, height: int, hfov_deg: float = ASSUMED_HFOV_DEG) -> Camera:
-    """A distortion-free camera with square pixels, centred principal point and `hfov_deg` horizontal FOV."""
+def assumed_camera(width: int, height: int, hfov_deg: float = ASSUMED_HFOV_DEG, note: str | None = None) -> Camera:
+    """A distortion-free camera with square pixels, centred principal point and `hfov_deg` horizontal FOV.
+
+    `note`, said in brackets after the field of view in `source` (and so wherever the assumption is
+    reported): why nothing better was had, e.g. the EXIF focal length that was refused.
+    """
     f = (width / 2) / math.tan(math.radians(hfov_deg) / 2)
     K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]])
-    return Camera(K, np.zeros(5), width, height, f"assumed {hfov_deg:g}° horizontal field of view")
+    source = f"assumed {hfov_deg:g}° horizontal field of view" + (f" ({note})" if note else "")
+    return Camera(K, np.zeros(5), width, height, source)
 
 
 def camera_from_json(data: dict, source: str = "json") -> Camera:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import struct
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -40,7 +41,8 @@ _TYPES = {3: ("H", 2), 4: ("I", 4), 5: ("II", 8), 13: ("I", 4)}
 class LensExif:
     """Lens fields of one JPEG's EXIF; None where absent or unusable.
 
-    focal_mm: true focal length, mm. focal_35mm: 35 mm-equivalent focal length, mm.
+    focal_mm: true focal length, mm. focal_35mm: 35 mm-equivalent focal length, mm. Both as
+    recorded, 0 included (cameras write 0, or 65535, when they do not know it).
     plane_px_per_mm: sensor pixels per mm (FocalPlaneXResolution in its unit, converted).
     pixel_size: (width, height) px of the image the camera recorded, before any resizing.
     """
@@ -119,35 +121,70 @@ def read_lens_exif(jpeg: bytes) -> LensExif | None:
     unit_mm = _UNIT_MM.get(int(exif.get(_TAG_PLANE_UNIT, 2)))
     px, py = _positive(exif.get(_TAG_PIXEL_X)), _positive(exif.get(_TAG_PIXEL_Y))
     return LensExif(
-        focal_mm=_positive(exif.get(_TAG_FOCAL_LENGTH)),
-        focal_35mm=_positive(exif.get(_TAG_FOCAL_35MM)),
+        focal_mm=exif.get(_TAG_FOCAL_LENGTH),
+        focal_35mm=exif.get(_TAG_FOCAL_35MM),
         plane_px_per_mm=plane / unit_mm if plane and unit_mm else None,
         pixel_size=(int(px), int(py)) if px and py else None,
     )
 
 
-def focal_px(lens: LensExif, width: int, height: int) -> float | None:
-    """Focal length in px for a `width` x `height` image from `lens`, or None if it cannot be had.
+def _focal_lengths(lens: LensExif, width: int, height: int) -> list[tuple[str, float, float | None]]:
+    """Each focal length `lens` records, the true one first: (what it is, its value in mm, in px for a
+    `width` x `height` image or None when it cannot be converted). The true focal length is times
+    the sensor's pixel density (scaled when the image was resized from `lens.pixel_size`), and
+    cannot be converted without it; the 35 mm equivalent is over the diagonal. Orientation does
+    not matter: both assume square pixels."""
+    found = []
+    if lens.focal_mm is not None:
+        f = None
+        if lens.plane_px_per_mm:
+            scale = max(width, height) / max(lens.pixel_size) if lens.pixel_size else 1.0
+            f = lens.focal_mm * lens.plane_px_per_mm * scale
+        found.append(("focal length", lens.focal_mm, f))
+    if lens.focal_35mm is not None:
+        found.append(("35 mm-equivalent focal length", lens.focal_35mm,
+                      lens.focal_35mm * math.hypot(width, height) / FULL_FRAME_DIAGONAL_MM))
+    return found
 
-    Prefers the true focal length times the sensor's pixel density (scaled when the image was
-    resized from `lens.pixel_size`); falls back to the 35 mm equivalent over the diagonal.
-    Orientation does not matter: both routes assume square pixels.
-    """
-    candidates = []
-    if lens.focal_mm and lens.plane_px_per_mm:
-        scale = max(width, height) / max(lens.pixel_size) if lens.pixel_size else 1.0
-        candidates.append(lens.focal_mm * lens.plane_px_per_mm * scale)
-    if lens.focal_35mm:
-        candidates.append(lens.focal_35mm * math.hypot(width, height) / FULL_FRAME_DIAGONAL_MM)
+
+def _plausible(f: float, width: int) -> bool:
+    """Whether a focal length of `f` px gives a `width` px wide image a field of view in PLAUSIBLE_HFOV_DEG."""
     lo, hi = PLAUSIBLE_HFOV_DEG
-    for f in candidates:
-        if lo <= math.degrees(2 * math.atan(width / (2 * f))) <= hi:
-            return f
-    return None
+    return f > 0 and lo <= math.degrees(2 * math.atan(width / (2 * f))) <= hi
 
 
-def camera_from_exif(jpeg: bytes, width: int, height: int) -> Camera | None:
-    """A distortion-free camera for the decoded `width` x `height` image from its JPEG's EXIF, or None.
+def focal_px(lens: LensExif, width: int, height: int) -> float | None:
+    """Focal length in px for a `width` x `height` image from `lens`, or None if it cannot be had:
+    the first of `_focal_lengths` that converts to a plausible field of view."""
+    return next((f for _, _, f in _focal_lengths(lens, width, height) if f is not None and _plausible(f, width)),
+                None)
+
+
+def ignored_focal(lens: LensExif, width: int, height: int) -> str | None:
+    """For people, the focal lengths `lens` records that were refused for a `width` x `height` image as no
+    real lens's (0, or 65535 mm: a field of view outside PLAUSIBLE_HFOV_DEG); None when `focal_px` has
+    one, or none was refused (none recorded, or a true focal length without the sensor's density)."""
+    if focal_px(lens, width, height) is not None:
+        return None
+    refused = [f"{what} of {mm:g} mm" for what, mm, f in _focal_lengths(lens, width, height)
+               if mm <= 0 or (f is not None and not _plausible(f, width))]
+    if not refused:
+        return None
+    verbs = "is implausible and was" if len(refused) == 1 else "are implausible and were"
+    return f"the photo's EXIF {' and '.join(refused)} {verbs} ignored"
+
+
+class ExifCamera(NamedTuple):
+    """What a photo's EXIF gives for its camera: `camera`, from a plausible focal length, or None;
+    then `ignored` says which focal length the EXIF records that was refused, if it records one."""
+
+    camera: Camera | None = None
+    ignored: str | None = None
+
+
+def exif_camera(jpeg: bytes, width: int, height: int) -> ExifCamera:
+    """A distortion-free camera for the decoded `width` x `height` image from its JPEG's EXIF, or
+    why none (`ExifCamera`).
 
     `width`, `height` are of the image as decoded (after EXIF orientation). `source` names the
     EXIF fields used, e.g. "EXIF focal length 4.2 mm (35 mm equiv 26 mm)".
@@ -155,17 +192,22 @@ def camera_from_exif(jpeg: bytes, width: int, height: int) -> Camera | None:
     lens = read_lens_exif(jpeg)
     f = focal_px(lens, width, height) if lens is not None else None
     if f is None:
-        return None
+        return ExifCamera(None, ignored_focal(lens, width, height) if lens is not None else None)
     parts = [f"focal length {lens.focal_mm:.3g} mm"] if lens.focal_mm else []
     if lens.focal_35mm:
         parts.append(f"35 mm equiv {lens.focal_35mm:.3g} mm")
     source = "EXIF " + (f"{parts[0]} ({parts[1]})" if len(parts) == 2 else parts[0])
     K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]])
-    return Camera(K, np.zeros(5), width, height, source)
+    return ExifCamera(Camera(K, np.zeros(5), width, height, source))
 
 
-def decode_with_exif(data: bytes, name: str) -> tuple[np.ndarray, Camera | None]:
-    """Encoded image bytes -> ((H, W, 3) uint8 BGR as `decode_image` gives it, the camera its
-    EXIF gives for that decoded size or None). Raises ImageError naming `name`."""
+def camera_from_exif(jpeg: bytes, width: int, height: int) -> Camera | None:
+    """The camera of `exif_camera`, or None."""
+    return exif_camera(jpeg, width, height).camera
+
+
+def decode_with_exif(data: bytes, name: str) -> tuple[np.ndarray, ExifCamera]:
+    """Encoded image bytes -> ((H, W, 3) uint8 BGR as `decode_image` gives it, what its EXIF gives for
+    the camera at that decoded size). Raises ImageError naming `name`."""
     image = decode_image(data, name)
-    return image, camera_from_exif(data, image.shape[1], image.shape[0])
+    return image, exif_camera(data, image.shape[1], image.shape[0])

@@ -38,7 +38,7 @@ export function approximateNote(cam) {
       + `assumed central: distance and angles are approximate. ${fix}`;
   }
   if (cam.kind === "assumed") {
-    return `No camera set and no EXIF focal length: ${cam.source}, so distance and angles are approximate. ${fix}`;
+    return `No camera set and no usable EXIF focal length: ${cam.source}, so distance and angles are approximate. ${fix}`;
   }
   return null;
 }

@@ -535,6 +535,24 @@ def test_assumed_field_of_view_for_photos_without_camera_or_exif(client):
         client.delete(f"/api/images/{image_id}")
 
 
+def test_an_implausible_exif_focal_length_is_said_where_the_field_of_view_is_assumed(client):
+    photo = sign_photo(LIBRARY, "security_compound")
+    ids = [i["id"] for i in upload(client, *[(f"f{mm}.jpg", with_focal_exif(photo, mm), None)
+                                             for mm in (0, 65535)]).json()["images"]]
+    wait_done(client)
+    assert client.get("/api/camera").json()["exif_images"] == 0
+    for mm, image_id in zip((0, 65535), ids):
+        detail = client.get(f"/api/images/{image_id}").json()
+        note = f"the photo's EXIF 35 mm-equivalent focal length of {mm} mm is implausible and was ignored"
+        assert detail["camera"]["kind"] == "assumed" and detail["camera"]["source"] == (
+            f"assumed 60° horizontal field of view ({note})")
+        assert any(note in w and "approximate" in w for w in detail["result"]["warnings"])
+    r = client.post("/api/recognize", files={"file": ("f0.jpg", with_focal_exif(photo, 0), "image/jpeg")})
+    assert any("focal length of 0 mm is implausible" in w for w in r.json()["warnings"])
+    for image_id in ids:
+        client.delete(f"/api/images/{image_id}")
+
+
 # ---------------------------------------------------------------- viser
 
 def test_viser_client_is_served_and_its_websocket_relayed(client, base_url):

@@ -201,6 +201,23 @@ def test_exif_focal_length_is_used_without_a_camera_file(tmp_path):
     assert any("EXIF" in w for w in obj["warnings"]) and not any("assumed" in w for w in obj["warnings"])
 
 
+def test_an_implausible_exif_focal_length_is_said_where_the_field_of_view_is_assumed(tmp_path):
+    from PIL import Image
+
+    scene = SCENES / "scene_002.jpg"  # a sign: the pose, and so the note on it, is there
+    for focal_35mm in (0, 65535):  # what cameras write when they do not know it
+        exif = Image.Exif()
+        exif[0x8769] = {0xA405: focal_35mm}  # Exif IFD: FocalLengthIn35mmFilm
+        Image.open(scene).save(tmp_path / f"f{focal_35mm}.jpg", exif=exif, quality=95)
+    result = signpose("recognize", tmp_path / "f0.jpg", tmp_path / "f65535.jpg", "--json")
+    assert result.returncode == 0, result.stderr
+    for focal_35mm, obj in zip((0, 65535), map(json.loads, result.stdout.splitlines())):
+        assumed = [w for w in obj["warnings"] if "assumed 60° horizontal field of view" in w]
+        assert len(assumed) == 1 and obj["pose"] is not None
+        assert (f"(the photo's EXIF 35 mm-equivalent focal length of {focal_35mm} mm is implausible and was ignored)"
+                in assumed[0])
+
+
 def on_a_terminal(*args: object, cwd=ROOT) -> tuple[subprocess.Popen, int]:
     """`signpose *args` with its stderr on a pseudo-terminal, as in a shell: the process (stdout
     piped) and the terminal's end to read stderr from (`terminal_output`)."""

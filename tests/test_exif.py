@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.exif import LensExif, camera_from_exif, focal_px, read_lens_exif
+from pipeline.exif import LensExif, camera_from_exif, exif_camera, focal_px, read_lens_exif
 
 FOCAL, FOCAL_35, PLANE_X, PLANE_UNIT, PIXEL_X, PIXEL_Y = 0x920A, 0xA405, 0xA20E, 0xA210, 0xA002, 0xA003
 SHORT, LONG, RATIONAL = 3, 4, 5
@@ -87,6 +87,26 @@ def test_implausible_values_are_skipped():
     assert camera_from_exif(jpeg_with_exif(tiff_block({FOCAL_35: (SHORT, 1)})), 640, 480) is None
     assert camera_from_exif(jpeg_with_exif(tiff_block({FOCAL: (RATIONAL, (42, 0)), FOCAL_35: (SHORT, 0)})),
                             640, 480) is None
+
+
+@pytest.mark.parametrize("tags, ignored", [
+    ({FOCAL_35: (SHORT, 65535)}, "the photo's EXIF 35 mm-equivalent focal length of 65535 mm is implausible and was "
+                                 "ignored"),
+    ({FOCAL_35: (SHORT, 0)}, "35 mm-equivalent focal length of 0 mm is implausible and was ignored"),
+    ({FOCAL: (RATIONAL, (0, 1)), FOCAL_35: (SHORT, 65535)},
+     "focal length of 0 mm and 35 mm-equivalent focal length of 65535 mm are implausible and were ignored"),
+    ({**DSLR, PLANE_X: (RATIONAL, (1, 1)), FOCAL_35: (SHORT, 0)}, "focal length of 50 mm and 35 mm-equivalent"),
+    ({FOCAL: (RATIONAL, (42, 10))}, None),   # a true focal length without the sensor's size: not implausible
+    ({FOCAL: (RATIONAL, (0, 1)), FOCAL_35: (SHORT, 26)}, None),   # the other one is used
+    ({}, None),
+])
+def test_an_implausible_focal_length_is_said_to_be_ignored(tags, ignored):
+    exif = exif_camera(jpeg_with_exif(tiff_block(tags)), 640, 480)
+    assert (exif.camera is None) == (tags.get(FOCAL_35, (0, 0))[1] != 26)
+    if ignored is None:
+        assert exif.ignored is None
+    else:
+        assert ignored in exif.ignored
 
 
 def test_no_exif():
