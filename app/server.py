@@ -160,13 +160,18 @@ CalibrationDep = Annotated[CalibrationSession, Depends(get_calibration)]
 
 class BodyType:
     """A dependency: 415 unless the request body is `media_type`. Without it FastAPI would only
-    report the fields of a body it did not parse as missing, or the body as not a dictionary."""
+    report the fields of a body it did not parse as missing, or the body as not a dictionary.
+    `optional`: no body at all (`curl -X POST URL`) is fine too, whatever Content-Type is named."""
 
-    def __init__(self, media_type: str, how: str) -> None:
+    def __init__(self, media_type: str, how: str, optional: bool = False) -> None:
         self.media_type = media_type
         self.how = how
+        self.optional = optional
 
     def __call__(self, request: Request) -> None:
+        if self.optional and "transfer-encoding" not in request.headers and \
+                request.headers.get("content-length", "0") == "0":
+            return
         content_type = request.headers.get("content-type", "")
         if content_type.split(";", 1)[0].strip().lower() != self.media_type:
             raise HTTPException(status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
@@ -176,6 +181,8 @@ class BodyType:
 MULTIPART = Depends(BodyType("multipart/form-data", "the file(s) as multipart/form-data, as a browser form or "
                                                     "curl -F does"))
 JSON_BODY = Depends(BodyType("application/json", "a JSON body with the header Content-Type: application/json"))
+OPTIONAL_JSON_BODY = Depends(BodyType("application/json", "no body, or a JSON body with the header "
+                                                          "Content-Type: application/json", optional=True))
 
 
 def uploads(form: FormData, field: str) -> list[FormFile]:
@@ -760,10 +767,11 @@ def set_calibration_board(body: BoardSpec, calibration: CalibrationDep) -> Calib
     return calibration_out(calibration, calibration.set_board((body.cols, body.rows), body.square_m))
 
 
-@api.post("/calibration/run", response_model=CalibrationOut, tags=["calibration"], dependencies=[JSON_BODY])
-def run_calibration(body: CalibrationRunIn, calibration: CalibrationDep) -> CalibrationOut:
-    """Fit the intrinsics to the photos where the board was found (422 says why it cannot)."""
-    return calibration_out(calibration, calibration.run(body.drop_outliers))
+@api.post("/calibration/run", response_model=CalibrationOut, tags=["calibration"], dependencies=[OPTIONAL_JSON_BODY])
+def run_calibration(calibration: CalibrationDep, body: CalibrationRunIn | None = None) -> CalibrationOut:
+    """Fit the intrinsics to the photos where the board was found, on the board set (422 says why it
+    cannot). The body is optional: without one, `drop_outliers` is false."""
+    return calibration_out(calibration, calibration.run((body or CalibrationRunIn()).drop_outliers))
 
 
 @api.get("/calibration/views/{view_id}/image", tags=["calibration"],

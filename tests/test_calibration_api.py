@@ -142,6 +142,21 @@ def test_a_new_board_size_searches_every_photo_again(client, photos):
     assert client.post("/api/calibration/run", json={}).json()["result"]["used"] == 3
 
 
+def test_run_needs_no_body_as_a_curl_user_calls_it(client, photos):
+    add(client, photos[:3])
+    client.put("/api/calibration/board", json=BOARD_SPEC | {"square_m": 0.02})
+    # curl -X POST URL (no body, no Content-Type); curl -d '' URL (an empty form); an empty JSON body
+    for headers in ({}, {"content-type": "application/x-www-form-urlencoded"}, {"content-type": "application/json"}):
+        r = client.post("/api/calibration/run", headers=headers)
+        assert r.status_code == 200, r.text
+        state = r.json()
+        assert state["result"]["used"] == 3 and state["board"]["square_m"] == 0.02  # the board set, no outliers dropped
+        assert not any(v["excluded"] for v in state["views"])
+    r = client.post("/api/calibration/run", content=b"drop_outliers=1",
+                    headers={"content-type": "application/x-www-form-urlencoded"})
+    assert_error(r, 415, "no body, or a JSON body")
+
+
 def test_bad_input_gets_a_clear_4xx_and_changes_nothing(client, photos):
     before = client.get("/api/calibration").json()
     assert_error(add(client, [photos[0], ("notes.png", b"these are not pixels")]), 422, "notes.png",
