@@ -35,7 +35,8 @@ def signpose(*args, cwd=ROOT):
 
 def check_schema(obj):
     assert set(obj) == {"image", "recognized", "label", "scores", "homography", "corners", "pose", "timing_ms",
-                        "warnings"}
+                        "reused_stages", "warnings"}
+    assert obj["reused_stages"] == []  # the CLI keeps no cache between runs
     assert isinstance(obj["recognized"], bool) and obj["recognized"] == (obj["label"] is not None)
     for s in obj["scores"]:
         assert set(s) == {"sign", "matches", "inliers", "reason"}
