@@ -442,7 +442,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         camera, scale_warnings = camera.for_image(width, height)
         warnings += scale_warnings
         if assumed_by_caller:
-            approximate = f"no camera set and no EXIF focal length: {camera.source}, so the pose is approximate"
+            approximate = f"no camera set and no usable EXIF focal length: {camera.source}, so the pose is approximate"
         elif camera.is_exif:
             approximate = (f"no camera file: intrinsics from the {camera.source}, without distortion; "
                            "the pose is approximate")
