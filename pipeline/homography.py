@@ -321,14 +321,16 @@ def _refine(src: np.ndarray, dst: np.ndarray, inliers: np.ndarray, threshold: fl
     plain = H, inliers
     if np.count_nonzero(errors < _WIDER_REFIT_FACTORS[0] * threshold) == np.count_nonzero(inliers):
         return plain
+    wider = None
     for factor in _WIDER_REFIT_FACTORS:
-        wider = errors < factor * threshold
-        if np.count_nonzero(wider) < 4:
+        band = errors < factor * threshold
+        if np.count_nonzero(band) < 4:
             break
-        inliers = wider
-        H = dlt_homography(src[inliers], dst[inliers])
-        errors = transfer_errors(H, src, dst)
-    widened = _refit(src, dst, inliers, threshold)[:2]
+        wider = band
+        errors = transfer_errors(dlt_homography(src[wider], dst[wider]), src, dst)
+    if wider is None:  # not even the widest band holds 4 matches (the plain refit may have kept fewer)
+        return plain
+    widened = _refit(src, dst, wider, threshold)[:2]
     return widened if np.count_nonzero(widened[1]) > np.count_nonzero(plain[1]) else plain
 
 

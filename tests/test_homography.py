@@ -226,3 +226,21 @@ def test_own_ransac_recovers_h_and_its_inliers_property(offsets, n, outlier_frac
     # an outlier only when it lands within 3 px of where H puts its match (odds ~3e-5 each).
     assert np.sum(est.inliers & ~outlier) >= 0.9 * np.sum(~outlier)
     assert np.sum(est.inliers & outlier) <= 1
+
+
+def test_refit_keeping_fewer_than_4_inliers_is_an_answer_not_a_crash():
+    # Matches of a crop on scene_009 at threshold 0.8, RANSAC threshold 16 px: the sample's 12
+    # inliers lie almost on one line, their least-squares refit is degenerate and keeps 2, and the
+    # wider refits were then asked to fit those 2 (ValueError in the CLI, server and sweep).
+    src = np.array([[78.815, 168.248], [167.081, 163.596], [217.986, 180.175], [245.254, 181.432],
+                   [262.132, 163.515], [319.558, 163.941], [319.558, 163.941], [340.132, 170.568],
+                   [377.656, 173.199], [380.056, 118.564], [493.681, 167.707], [600.95, 120.176],
+                   [600.95, 120.176]])
+    dst = np.array([[145.293, 287.543], [164.308, 286.552], [176.002, 290.993], [138.026, 333.503],
+                   [183.314, 286.597], [193.332, 286.615], [193.332, 286.615], [197.026, 289.173],
+                   [202.936, 289.916], [210.045, 289.888], [222.062, 287.448], [235.39, 273.729],
+                   [235.39, 273.729]])
+    est = ransac_homography(src, dst, iterations=500, threshold=16.0, seed=0, confidence=0.999)
+    assert est.inliers.shape == (13,)
+    if est.H is not None:
+        assert np.array_equal(est.inliers, transfer_errors(est.H, src, dst) < 16.0)
