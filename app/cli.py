@@ -21,7 +21,7 @@ from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, assumed_camer
 from pipeline.evaluate import keep_freed_memory
 from pipeline.image import ImageError, read_file
 from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
-from pipeline.recognize import Recognition, recognize
+from pipeline.recognize import PipelineError, Recognition, run_pipeline
 from pipeline.settings import PRESETS, Settings, SettingsError, load_settings, preset
 
 EXIT_USAGE = 2
@@ -103,8 +103,9 @@ def cmd_recognize(args) -> int:
             # Without a camera file, a JPEG's EXIF focal length beats the field of view recognize
             # assumes, which is assumed here instead when it should say the EXIF's was refused.
             refused = assumed_camera(image.shape[1], image.shape[0], note=exif.ignored) if exif.ignored else None
-            rec = recognize(image, library, settings, camera or exif.camera or refused)
-        except (ImageError, CameraError) as exc:  # CameraError: the camera cannot be scaled to this image
+            rec = run_pipeline(name, image, library, settings, camera or exif.camera or refused)
+        # CameraError: the camera cannot be scaled to this image; PipelineError: a failure inside the pipeline
+        except (ImageError, CameraError, PipelineError) as exc:
             failed += 1
             if args.json:
                 print(json.dumps({"image": name, "error": str(exc)}), flush=True)

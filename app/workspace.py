@@ -37,7 +37,7 @@ from pipeline.exif import ExifCamera, decode_with_exif
 from pipeline.features import library_features
 from pipeline.image import ImageError, unreadable
 from pipeline.library import NO_SIGN, SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, make_sign, validate_sign_entry
-from pipeline.recognize import Recognition, StageCache, recognize
+from pipeline.recognize import PipelineError, Recognition, StageCache, run_pipeline
 from pipeline.settings import PRESETS, Settings, load_settings
 
 from .state import StateDir, StoredImage
@@ -58,10 +58,6 @@ class Conflict(ValueError):
 
 class ImageTooLarge(ImageError):
     """An image whose pixel count exceeds the limit (a decompression bomb or a huge scan)."""
-
-
-class PipelineError(ValueError):
-    """The pipeline failed on an image, typically numerically under extreme settings or intrinsics."""
 
 
 @dataclass(frozen=True)
@@ -591,8 +587,8 @@ class Workspace:
             if record.outcome.generation >= snap.generation:
                 return
             try:
-                rec = run_pipeline(record.name, record.image, snap.library, snap.settings,
-                                   snap.camera_for(record.exif, record.width, record.height), record.cache)
+                rec = run_logged(record.name, record.image, snap.library, snap.settings,
+                                 snap.camera_for(record.exif, record.width, record.height), record.cache)
                 outcome = Outcome(rec, snap.settings_version, snap.generation)
             except PipelineError as exc:  # a failure on one image must not stop the others
                 outcome = Outcome(None, snap.settings_version, snap.generation, str(exc))
@@ -650,15 +646,15 @@ class Workspace:
         """
         image, _, exif = decode_upload(data, name, self.config.max_pixels)
         snap = self._snap
-        return run_pipeline(name, image, snap.library, snap.settings,
-                            snap.camera_for(exif, image.shape[1], image.shape[0]))
+        return run_logged(name, image, snap.library, snap.settings,
+                          snap.camera_for(exif, image.shape[1], image.shape[0]))
 
     def run_with(self, record: ImageRecord, settings: Settings) -> Recognition:
         """Recognise one stored image under `settings`, re-using (and feeding) its stage cache."""
         snap = self._snap
         with record.lock:
-            return run_pipeline(record.name, record.image, snap.library, settings,
-                                snap.camera_for(record.exif, record.width, record.height), record.cache)
+            return run_logged(record.name, record.image, snap.library, settings,
+                              snap.camera_for(record.exif, record.width, record.height), record.cache)
 
     def sweep(self, param: str, values: list[float], records: list[ImageRecord],
               stop: threading.Event | None = None) -> list[list[Recognition]]:
@@ -692,16 +688,14 @@ class Workspace:
         cv2.setNumThreads(self._opencv_threads)
 
 
-def run_pipeline(name: str, image: np.ndarray, library: Library, settings: Settings, camera: Camera | None,
-                 cache: StageCache | None = None) -> Recognition:
-    """`recognize`, with any failure inside it (numerical trouble deep in OpenCV or numpy under
-    extreme settings or intrinsics) turned into a PipelineError that names the image."""
+def run_logged(name: str, image: np.ndarray, library: Library, settings: Settings, camera: Camera | None,
+               cache: StageCache | None = None) -> Recognition:
+    """`run_pipeline`, with the traceback of a failure in the server's log."""
     try:
-        return recognize(image, library, settings, camera, cache)
-    except Exception as exc:
+        return run_pipeline(name, image, library, settings, camera, cache)
+    except PipelineError:
         log.exception("pipeline failed on %s", name)
-        raise PipelineError(f"pipeline failed on {name}: {exc}; check the camera intrinsics and the settings") \
-            from exc
+        raise
 
 
 def _extension(media_type: str) -> str:

@@ -39,7 +39,7 @@ from .image import ImageError, decode_image, read_file
 from .jsonfile import read_json
 from .library import NO_SIGN, Library
 from .pose import rotation_error_deg
-from .recognize import recognize
+from .recognize import PipelineError, run_pipeline
 from .settings import Settings
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}
@@ -253,8 +253,9 @@ def _measure(job: Job, library: Library, settings: Settings, check_image: ImageC
         if check_image is not None:
             check_image(data, str(sample.path))
         image = decode_image(data, str(sample.path))
-        rec = recognize(image, library, settings, camera)
-    except (ImageError, CameraError) as exc:  # CameraError: the camera cannot be scaled to this image
+        rec = run_pipeline(str(sample.path), image, library, settings, camera)
+    # CameraError: the camera cannot be scaled to this image; PipelineError: a failure inside the pipeline
+    except (ImageError, CameraError, PipelineError) as exc:
         return ImageResult(dataset, sample, None, math.nan, error=str(exc))
     result = ImageResult(dataset, sample, rec.label, rec.timing_ms["total"])
     if not result.correct or sample.label is None:

@@ -414,6 +414,22 @@ def candidate_regions(segmentation: Segmentation | None, settings: Settings, wid
         yield full, "full frame"
 
 
+class PipelineError(ValueError):
+    """The pipeline failed on an image for a reason of its own (a defect, or numerical trouble under
+    extreme settings or intrinsics), not because the image or camera was unusable."""
+
+
+def run_pipeline(name: str, image: np.ndarray, library: Library, settings: Settings, camera: Camera | None = None,
+                 cache: StageCache | None = None) -> Recognition:
+    """`recognize`, with any failure inside it turned into a PipelineError naming the image, so a
+    batch can report it as that image's error and go on with the others."""
+    try:
+        return recognize(image, library, settings, camera, cache)
+    except Exception as exc:
+        raise PipelineError(f"pipeline failed on {name} ({type(exc).__name__}: {exc}); the other images are "
+                            "unaffected: try other settings, and report it with this image and the settings") from exc
+
+
 def recognize(image: np.ndarray, library: Library, settings: Settings, camera: Camera | None = None,
               cache: StageCache | None = None) -> Recognition:
     """Recognise a library sign in an (H, W, 3) BGR or (H, W) gray uint8 image and estimate the camera pose.

@@ -17,8 +17,9 @@ from pathlib import Path
 import cv2
 import pytest
 
-from app.cli import build_parser
+from app.cli import build_parser, main
 from app.workspace import WorkspaceConfig
+from faults import fail_first_segmentation
 from scene_images import png_bomb
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -86,6 +87,15 @@ def test_bad_files_get_an_error_line_and_the_rest_still_run(tmp_path):
     assert no_sign["pose"] is None and not any("approximate" in w for w in no_sign["warnings"])
     table = signpose("recognize", fake, good)
     assert table.returncode != 0 and "error" in table.stdout and good.name in table.stdout
+
+
+def test_a_failure_inside_the_pipeline_is_that_images_error_line(monkeypatch, capsys):
+    fail_first_segmentation(monkeypatch)  # in this process: main() runs here
+    names = [SCENES / "scene_002.jpg", SCENES / "scene_004.jpg"]
+    assert main(["recognize", *map(str, names), "--json"]) == 1
+    failed, recognised = map(json.loads, capsys.readouterr().out.splitlines())
+    assert failed["image"] == str(names[0]) and "pipeline failed on" in failed["error"]
+    assert "simulated defect" in failed["error"] and recognised["label"] == "chief_of_security"
 
 
 def test_images_over_the_pixel_limit_are_refused_from_their_header(tmp_path):

@@ -11,11 +11,13 @@ import numpy as np
 import pytest
 
 import pipeline.evaluate as evaluate_module
+import pipeline.recognize as recognize_module
 from app.workspace import check_image_header
 from pipeline.evaluate import (Dataset, DatasetError, ImageResult, Sample, evaluate, format_table, load_dataset,
                                summarize)
 from pipeline.library import load_library
 from pipeline.settings import preset
+from faults import fail_first_segmentation
 from scene_images import png_bomb
 
 SET3 = Path(__file__).resolve().parent.parent / "sample_images" / "datasets" / "set3"
@@ -73,7 +75,7 @@ def fake_recognize(answers):
     """A stand-in for pipeline.recognize answering from the truth, or the label in `answers[file]`."""
     truth = {s.path.name: s for s in load_dataset(SET3).samples}
 
-    def recognize(image, library, settings, camera):
+    def recognize(image, library, settings, camera, cache=None):
         sample = next(s for name, s in truth.items() if np.array_equal(image, cv2.imread(str(SET3 / name))))
         label = answers.get(sample.path.name, sample.label)
         pose = None if sample.R is None else SimpleNamespace(R=sample.R, t=sample.t * 1.02)
@@ -87,7 +89,7 @@ def test_counts_errors_and_confusion(monkeypatch, library):
     negative = next(s.path.name for s in dataset.samples if s.label is None)
     positive = next(s for s in dataset.samples if s.label is not None)
     other = next(i for i in library.ids if i != positive.label)
-    monkeypatch.setattr(evaluate_module, "recognize",
+    monkeypatch.setattr(recognize_module, "recognize",
                         fake_recognize({negative: "security_compound", positive.path.name: other}))
     calls = []
     # One worker: the stand-in recognize is patched into this process only.
@@ -158,3 +160,12 @@ def test_a_worker_error_reaches_the_caller(monkeypatch, library):
     monkeypatch.setattr(evaluate_module, "_measure", _measured_here)
     with pytest.raises(TypeError):
         evaluate([dataset], library, preset("default"), workers=2)
+
+
+def test_a_failure_inside_the_pipeline_is_that_images_error(monkeypatch, library):
+    dataset = load_dataset(SET3)
+    fail_first_segmentation(monkeypatch)
+    report = evaluate([dataset], library, preset("default"), workers=1)  # patched in this process only
+    errors = [r for r in report.results if r.error is not None]
+    assert len(errors) == 1 and "pipeline failed on" in errors[0].error and "simulated defect" in errors[0].error
+    assert sum(r.correct for r in report.results) == len(dataset.samples) - 1

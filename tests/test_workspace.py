@@ -59,7 +59,7 @@ def counting(monkeypatch):
 
         monkeypatch.setattr(module, name, counted)
 
-    wrap(workspace_module, "recognize")
+    wrap(pipeline.recognize, "recognize")
     wrap(pipeline.recognize, "detect")
     return counts
 
