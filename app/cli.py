@@ -70,7 +70,7 @@ def format_row(name: str, rec: Recognition) -> str:
     """One table row: the label, how it was recognised (feature inliers and margin, or the plaque
     fallback, which has neither) and the camera position in the sign's frame (metres)."""
     if not rec.recognized:
-        top = max(rec.scores, key=lambda s: s.n_inliers, default=None)
+        top = rec.attempt.leader if rec.attempt is not None else None
         why = top.reason if top is not None else "no candidate region"
         return f"{name:<28} {'-':<22} {'':>7} {'':>6}  no sign ({why})"
     how = ""

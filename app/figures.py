@@ -212,7 +212,7 @@ def pick_score(recognition: Recognition, library: Library, sign_id: str | None) 
             return recognition.best
         if not scores:
             raise FigureError("no region was searched, so there are no matches to show")
-        return max(scores, key=lambda s: (s.n_inliers, s.n_matches))
+        return recognition.attempt.leader
     for score in scores:
         if score.sign == sign_id:
             return score

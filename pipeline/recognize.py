@@ -104,6 +104,13 @@ class Attempt:
     def best_inliers(self) -> int:
         return max((s.n_inliers for s in self.scores), default=0)
 
+    @property
+    def leader(self) -> SignScore | None:
+        """The sign with the most inliers, won or not; None without scores. Of signs tied on
+        inliers, one with a `reason` (the one `decide` turned down for its margin), then the
+        one with more matches."""
+        return max(self.scores, key=lambda s: (s.n_inliers, s.reason is not None, s.n_matches), default=None)
+
 
 @dataclass(eq=False)
 class Recognition:
@@ -500,8 +507,10 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         quads_ms = timing["segment"] - quads_ms  # counted under segment already
         timing["match"] += (time.perf_counter() - t0) * 1e3 - quads_ms
         if plaque is not None and plaque.sign is not None:
+            leader = chosen.leader if chosen is not None else None
+            why = leader.reason if leader is not None else "no region had features to match"
             warnings.append(f"recognised by the plaque fallback (correlation {plaque.correlation:.2f}): "
-                            "too few feature inliers")
+                            f"features did not decide ({why})")
 
     H, ecc, pose, sign, outline = None, None, None, None, None
     winner = winner_homography(chosen, plaque, library)

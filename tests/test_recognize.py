@@ -126,3 +126,12 @@ def test_a_frame_larger_than_max_search_size_is_searched_downscaled(library):
     assert rec.label == TRUTH[name]["label"]
     truth = (np.array(TRUTH[name]["corners"]) + 0.5) * f - 0.5  # pixel centres aligned as cv2.resize does
     assert np.abs(rec.corners - truth).max() < 2 * f
+
+
+def test_the_plaque_fallback_says_why_features_did_not_decide(library):
+    # At this RANSAC threshold scene_009's leading sign had 11 inliers but an absurd quad: the
+    # warning blamed "too few feature inliers".
+    rec = recognize(read_image(SCENES / "scene_009.jpg"), library, preset("default").replace(ransac_threshold_px=14.8))
+    assert rec.by_plaque and rec.attempt.leader.n_inliers >= rec.settings.min_inliers
+    note = next(w for w in rec.warnings if w.startswith("recognised by the plaque fallback"))
+    assert note.endswith(f"features did not decide ({rec.attempt.leader.reason})") and "absurd" in note
