@@ -176,7 +176,7 @@ def cmd_evaluate(args) -> int:
     except BrokenProcessPool:
         raise CliError("a worker process stopped before it finished (out of memory?); "
                        "fewer workers, e.g. --workers 1, need less") from None
-    print(format_table(report))
+    print(json.dumps(report.to_json()) if args.json else format_table(report))
     return unusable_images(sum(r.error is not None for r in report.results), len(report.results))
 
 
@@ -322,6 +322,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("datasets", nargs="+", help="dataset folders: truth.json, or one sub-folder per label")
     p.add_argument("--workers", type=positive_int, default=WorkspaceConfig.workers,
                    help="processes sharing the images, one core each (default: every core, here %(default)s)")
+    p.add_argument("--json", action="store_true",
+                   help="one JSON object instead of the table: summaries, confusion and every image's answer")
     add_common(p)
     add_max_megapixels(p)
     p.set_defaults(func=cmd_evaluate)

@@ -123,6 +123,22 @@ class Summary:
     def accuracy(self) -> float:
         return self.correct / self.images if self.images else math.nan
 
+    def to_json(self) -> dict:
+        """Counts, times in ms and errors as {"median", "p90"}; NaN and unmeasured as null."""
+        def pair(value):
+            return None if value is None else {"median": value[0], "p90": value[1]}
+        return {"images": self.images, "correct": self.correct, "accuracy": _finite(self.accuracy),
+                "negatives": self.negatives, "false_positives": self.false_positives,
+                "time_ms": {"mean": _finite(self.mean_time_ms), "median": _finite(self.median_time_ms),
+                            "p90": _finite(self.p90_time_ms)},
+                "rotation_error_deg": pair(self.rotation_deg), "translation_error_pct": pair(self.translation_pct),
+                "corner_error_px": pair(self.corner_px)}
+
+
+def _finite(value: float) -> float | None:
+    """`value`, or None for NaN (JSON has no NaN)."""
+    return None if math.isnan(value) else value
+
 
 @dataclass(eq=False)
 class Report:
@@ -138,6 +154,22 @@ class Report:
     total: Summary
     labels: list[str]
     confusion: np.ndarray
+
+    def to_json(self) -> dict:
+        """`signpose evaluate --json`: the settings, each dataset's summary and the total, the
+        confusion matrix, and every image's answer and errors against the truth."""
+        return {
+            "settings": self.settings.to_dict(),
+            "datasets": {name: s.to_json() for name, s in self.datasets.items()},
+            "total": self.total.to_json(),
+            "labels": self.labels,
+            "confusion": self.confusion.tolist(),
+            "images": [{"dataset": r.dataset, "image": str(r.sample.path), "truth": r.sample.label or NO_SIGN,
+                        "answer": None if r.error is not None else r.predicted or NO_SIGN, "correct": r.correct,
+                        "time_ms": _finite(r.time_ms), "rotation_error_deg": r.rotation_error_deg,
+                        "translation_error_pct": r.translation_error_pct, "corner_error_px": r.corner_error_px,
+                        "error": r.error} for r in self.results],
+        }
 
 
 def _matrix(value, shape: tuple[int, ...], what: str) -> np.ndarray | None:

@@ -252,6 +252,28 @@ def terminal_output(terminal: int) -> str:
     return out.decode()
 
 
+def test_evaluate_json_has_every_images_answer_against_the_truth(tmp_path):
+    data = tmp_path / "set"
+    shutil.copytree(ROOT / "sample_images" / "datasets" / "set3", data)
+    truth = json.loads((data / "truth.json").read_text())
+    truth["images"]["broken.jpg"] = {"label": None}
+    (data / "truth.json").write_text(json.dumps(truth))
+    (data / "broken.jpg").write_bytes(b"not a jpeg")
+    result = signpose("evaluate", data, "--workers", 1, "--json")
+    assert result.returncode == 1  # as the table: an unusable image
+    report = json.loads(result.stdout)  # one document, no table around it
+    images = {Path(i["image"]).name: i for i in report["images"]}
+    assert len(images) == report["total"]["images"] == 6
+    assert sum(map(sum, report["confusion"])) == 5  # the unreadable image has no answer to count
+    assert images["broken.jpg"]["answer"] is None and "not an image file" in images["broken.jpg"]["error"]
+    for entry in images.values():
+        assert entry["correct"] == (entry["error"] is None and entry["answer"] == entry["truth"])
+        if entry["correct"] and entry["truth"] != "none" and entry["rotation_error_deg"] is not None:
+            assert entry["rotation_error_deg"] < 1.0
+    assert report["total"]["correct"] == sum(e["correct"] for e in images.values())
+    assert report["labels"][-1] == "none" and report["settings"]["ratio"] == 0.75
+
+
 def test_synth_then_evaluate_report_with_progress_bars_on_a_terminal_only(tmp_path):
     data = tmp_path / "scenes"
     made = signpose("synth", "--n", 4, "--seed", 3, data)
