@@ -5,7 +5,7 @@
 import { api, get } from "./api.js";
 import { barAt, drawViewErrors } from "./charts.js";
 import { on, state } from "./store.js";
-import { $, el, fill, fmt, debounce, download, plural, report, toast } from "./ui.js";
+import { $, el, fill, fmt, debounce, download, plural, report, showModal, toast } from "./ui.js";
 import { dropTarget, filesForm, uploadQueue } from "./uploads.js";
 
 /** CameraIntrinsics.kind, for people. */
@@ -378,7 +378,7 @@ export function initCamera() {
   const dialog = $("#camera-dialog");
   $("#camera-open").onclick = () => {
     showTab("calibrate");
-    dialog.showModal();
+    showModal(dialog);
     loadCalibration();
   };
   $("#camera-close").onclick = () => dialog.close();

@@ -36,6 +36,17 @@ export function toast(message, kind = "error") {
   return box;
 }
 
+/** Open `dialog` as a modal one, taking the toasts along until it closes: a modal dialog is drawn
+ *  over the whole page (the top layer) and makes the rest of it inert, so a toast left outside would
+ *  be hidden under it and could not be dismissed. */
+export function showModal(dialog) {
+  if (dialog.open) return;
+  const toasts = $("#toasts"), home = toasts.parentElement;
+  dialog.showModal();
+  dialog.append(toasts);
+  dialog.addEventListener("close", () => home.append(toasts), { once: true });
+}
+
 export function report(err) {
   console.error(err);
   toast(err?.message || String(err), "error");

@@ -570,6 +570,53 @@ def test_board_square_size_is_checked_in_millimetres(page, api, no_camera):
     page.locator(".toast.error .toast-msg", has_text="at least 3x3 inner corners").wait_for()
 
 
+def assert_toast_on_top(page, toast) -> None:
+    """`toast` (a locator) is drawn over everything, an open modal dialog included, and a click on
+    its × dismisses it."""
+    toast.wait_for()
+    close = toast.locator("button")
+    box = close.bounding_box()
+    x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    assert page.evaluate("([x, y]) => document.elementFromPoint(x, y)?.closest('.toast') !== null", [x, y]), \
+        "the toast is hidden under something (a modal dialog?)"
+    page.mouse.click(x, y)
+    toast.wait_for(state="detached")
+
+
+def test_toasts_show_above_the_camera_dialog(page, api, no_camera):
+    page.click("#camera-open")
+    page.wait_for_function("() => document.querySelector('#board-rows').value !== ''")
+    page.fill("#board-square", "0")
+    page.press("#board-square", "Enter")
+    assert_toast_on_top(page, page.locator(".toast.error", has_text="square size must be a positive number"))
+
+    page.click('#camera-tabs button[value="typed"]')
+    page.fill("#typed-fx", "-5")
+    page.click("#typed-form button[type=submit]")
+    assert_toast_on_top(page, page.locator(".toast.error", has_text="fx"))
+
+    # A portrait camera: kept, with a warning that it fits none of the landscape images held.
+    for key, value in {"fx": "500", "fy": "500", "cx": "240", "cy": "320", "width": "480", "height": "640"}.items():
+        page.fill(f"#typed-{key}", value)
+    page.click("#typed-form button[type=submit]")
+    assert_toast_on_top(page, page.locator(".toast.warn", has_text="the camera fits none of the"))
+    page.keyboard.press("Escape")
+    page.wait_for_selector("#camera-dialog", state="hidden")
+    assert_toast_on_top(page, page.locator(".toast.info", has_text="typed intrinsics applied"))   # back on the page
+
+
+def test_toasts_show_above_every_dialog(page):
+    dialogs = page.eval_on_selector_all("dialog", "ds => ds.map((d) => d.id)")
+    assert dialogs
+    for dialog in dialogs:
+        page.click(f'[aria-haspopup="dialog"][aria-controls="{dialog}"]')
+        page.wait_for_selector(f"#{dialog}[open]")
+        page.evaluate("async () => (await import('/ui.js')).toast('a message over the dialog', 'error')")
+        assert_toast_on_top(page, page.locator(".toast.error", has_text="a message over the dialog"))
+        page.keyboard.press("Escape")
+        page.wait_for_selector(f"#{dialog}", state="hidden")
+
+
 def test_assumed_fov_note_uses_the_exif_35mm_convention(page, api, no_camera):
     # The note's "N mm (35 mm equivalent)", read back as EXIF's FocalLengthIn35mmFilm, gives the
     # slider's field of view again: a phone's "N mm" spec and its photos' EXIF agree.
