@@ -52,13 +52,22 @@ export function report(err) {
   toast(err?.message || String(err), "error");
 }
 
-/** Call `fn` once `ms` after the last call. */
+/** Call `fn` once `ms` after the last call (with its arguments); `.flush()` makes that call at
+ *  once, if one is pending. */
 export function debounce(fn, ms) {
-  let timer = null;
-  return (...args) => {
+  let timer = null, latest = [];
+  const debounced = (...args) => {
     clearTimeout(timer);
-    timer = setTimeout(() => fn(...args), ms);
+    latest = args;
+    timer = setTimeout(debounced.flush, ms);
   };
+  debounced.flush = () => {
+    if (timer === null) return;
+    clearTimeout(timer);
+    timer = null;
+    fn(...latest);
+  };
+  return debounced;
 }
 
 /** Run `fn` at most once per `ms`, always including a trailing call so the last state is shown. */
