@@ -188,6 +188,41 @@ def test_drop_many_files_with_progress(page, api):
     harness.wait_cards(page, names)   # sent in parallel, so they may arrive in any order
 
 
+def test_leaving_during_uploads_asks_first_and_progress_counts_stored(page, tmp_path):
+    files = [tmp_path / f"held-{i}-{SCENE}" for i in range(5)]
+    for f in files:
+        f.write_bytes((harness.SCENES / SCENE).read_bytes())
+    held, holding = [], [True]
+
+    def hold(route):
+        if route.request.method == "POST" and holding[0]:
+            held.append(route)   # the upload stays in progress until released below
+        else:
+            route.continue_()
+
+    page.route("**/api/images", hold)
+    page.set_input_files("#file-picker", [str(f) for f in files])
+    while len(held) < 3:   # sent three at a time
+        page.wait_for_timeout(50)
+    batch = page.locator("#uploads .batch .upload-status")
+    assert batch.inner_text() == "0 of 5 images stored · 5 to go"
+
+    asked = []
+    page.on("dialog", lambda dialog: (asked.append(dialog.type), dialog.dismiss()))
+    page.evaluate("() => setTimeout(() => location.reload())")   # the dialog blocks: not within evaluate
+    page.wait_for_timeout(1000)
+    assert asked == ["beforeunload"], "the page was left without asking"
+
+    holding[0] = False
+    for route in held:
+        route.continue_()
+    batch.filter(has_text="5 of 5 images stored").wait_for(timeout=60_000)
+    harness.wait_cards(page, [f.name for f in files])
+    # Nothing left to lose: leaving asks no more.
+    assert not page.evaluate("() => { const e = new Event('beforeunload', { cancelable: true });"
+                             " dispatchEvent(e); return e.defaultPrevented; }")
+
+
 def test_threshold_control_changes_the_result(page, api):
     image_id = uploaded_scene(api)
     card = page.locator(f'.card[data-id="{image_id}"]')
