@@ -551,6 +551,29 @@ def test_assumed_field_of_view_and_typed_intrinsics(page, api, no_camera):
         "source": "", "kind": "typed"}
 
 
+def test_typed_intrinsics_say_where_their_distortion_comes_from(page, api, no_camera):
+    api.put("/api/camera", json={"fx": 600, "fy": 600, "cx": 320, "cy": 240, "dist": [-0.2, 0.05, 0, 0, 0],
+                                 "width": 640, "height": 480}).raise_for_status()
+    page.wait_for_function("() => document.querySelector('#camera-info').textContent.includes('typed in')")
+    page.click("#camera-open")
+    page.click('#camera-tabs button[value="typed"]')
+    assert page.input_value("#typed-dist") == "-0.2 0.05 0 0 0"
+    origin = page.locator("#typed-dist-origin")
+    assert origin.inner_text().startswith("distortion from the camera in use (typed in)")
+
+    # Numbers for another camera: the distortion left in the form is pointed out, and one click clears it.
+    page.fill("#typed-fx", "900")
+    assert "warn" in origin.get_attribute("class").split()
+    assert "distortion kept from the camera in use (typed in): clear it unless it is the same lens" in origin.inner_text()
+    page.click("#typed-dist-clear")
+    assert page.input_value("#typed-dist") == "" and origin.is_hidden()
+    assert page.evaluate("() => document.activeElement.id") == "typed-dist"
+    page.click("#typed-form button[type=submit]")
+    page.locator(".toast.info", has_text="typed intrinsics applied").wait_for()
+    camera = api.get("/api/camera").json()["camera"]
+    assert camera["fx"] == 900 and not any(camera["dist"])
+
+
 def test_camera_file_upload_refusal_and_reset(page, api, tmp_path, no_camera):
     image_id = uploaded_scene(api)
     open_detail(page, image_id)
