@@ -173,6 +173,10 @@ def test_phone_width_stacks_the_panels(page):
         page.click(f'#camera-tabs button[value="{tab}"]')
         assert overflowing(page, "#camera-dialog") == [], tab
     page.click("#camera-close")
+    page.click("#library-open")
+    harness.stage_images_loaded(page, "#library-signs img")
+    assert overflowing(page, "#library-dialog") == []
+    page.click("#library-close")
 
 
 def test_drop_many_files_with_progress(page, api):
@@ -323,6 +327,9 @@ def test_file_buttons_work_from_the_keyboard(page):
     page.click("#camera-open")
     assert_file_button_works(page, choosers, "calib-picker", "Space")
     page.click("#camera-close")
+    page.click("#library-open")
+    assert_file_button_works(page, choosers, "sign-file", "Enter")
+    page.click("#library-close")
 
 
 def test_api_errors_are_shown(page, api, tmp_path):
@@ -461,6 +468,67 @@ def test_viser_scene_reconnects_after_a_server_restart(browser, tmp_path):
         page.wait_for_selector("#live.on", timeout=30_000)
         scene.get_by_text("Connected", exact=True).wait_for(timeout=30_000)
     harness.close_page(page)
+
+
+# ---------------------------------------------------------------- library
+
+@pytest.fixture
+def exit_sign(api, tmp_path):
+    """A sign image not in the library (500 x 200 px), as a file; the sign is gone again after the test."""
+    image = np.full((200, 500), 255, np.uint8)
+    cv2.rectangle(image, (4, 4), (495, 195), 0, 6)
+    cv2.putText(image, "EXIT 7", (60, 130), cv2.FONT_HERSHEY_DUPLEX, 3.2, 0, 8)
+    path = tmp_path / "Exit sign.png"
+    cv2.imwrite(str(path), image)
+    yield path
+    if "exit_sign" in [s["id"] for s in api.get("/api/library").json()]:
+        api.delete("/api/library/exit_sign").raise_for_status()
+    harness.wait_server_idle(api)
+
+
+def test_library_add_a_sign_see_it_scored_and_remove_it(page, api, exit_sign):
+    image_id = uploaded_scene(api)
+    tab_to(page, "library-open")
+    page.keyboard.press("Enter")
+    page.wait_for_selector("#library-dialog[open]")
+    library = api.get("/api/library").json()
+    assert page.locator("#library-signs .sign .sign-name").all_inner_texts() == [s["name"] for s in library]
+    assert "security_compound · 0.6 × 0.24 m" in page.inner_text('.sign[data-id="security_compound"]')
+
+    page.set_input_files("#sign-file", str(exit_sign))
+    assert page.input_value("#sign-id") == "exit_sign"   # from the file name
+    page.fill("#sign-width_m", "0.5")
+    page.wait_for_function("() => document.querySelector('#sign-height_m').placeholder === '0.2 from the image'")
+    page.fill("#sign-height_m", "0.4")   # another aspect than the image's: the server says why it refuses
+    page.click("#sign-add")
+    assert_toast_on_top(page, page.locator(".toast.error", has_text="does not match physical aspect"))
+
+    page.fill("#sign-height_m", "")
+    page.fill("#sign-name", "Exit 7")
+    page.fill("#sign-text", "مخرج ٧")
+    page.click("#sign-add")
+    row = page.locator('.sign[data-id="exit_sign"]')
+    row.wait_for()
+    assert row.locator(".sign-name").inner_text() == "Exit 7"
+    assert "exit_sign · 0.5 × 0.2 m" in row.inner_text() and "مخرج ٧" in row.inner_text()
+    assert harness.stage_images_loaded(page, '.sign[data-id="exit_sign"] img')[0]["w"] == 500
+    assert page.input_value("#sign-id") == "" and page.is_hidden("#sign-preview")   # ready for the next one
+    assert "Exit 7" in page.inner_text("#library-info")
+    assert page.locator('#expected option[value="exit_sign"]').count() == 1
+    page.keyboard.press("Escape")
+
+    # Every image is re-run with it: its score is in the detail view's table.
+    harness.wait_server_idle(api)
+    open_detail(page, image_id)
+    page.locator("#scores td", has_text="Exit 7").wait_for()
+    assert page.inner_text("#scores tr.winner td:first-child") == sign_name(api, LABEL)
+
+    page.click("#library-open")
+    page.once("dialog", lambda dialog: dialog.accept())   # "Remove the sign …?"
+    row.locator("button.remove").click()
+    row.wait_for(state="detached")
+    assert "exit_sign" not in [s["id"] for s in api.get("/api/library").json()]
+    page.keyboard.press("Escape")
 
 
 # ---------------------------------------------------------------- camera
