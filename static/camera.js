@@ -104,7 +104,7 @@ const loadCamera = () => setCamera(get("/api/camera"));
 
 const putHfov = debounce(async (hfov) => {
   try {
-    camera = await api("PUT", "/api/camera/assumed", { hfov_deg: hfov });
+    camera = await api("PUT", "/api/camera/assumed", { hfov_deg: hfov }, { keepalive: true });
   } catch (err) {
     report(err);
     hfovHeld = false;   // show the server's value again
@@ -132,6 +132,8 @@ function bindSidebar() {
   window.addEventListener("pointerup", () => { hfovHeld = false; });
   range.addEventListener("input", () => change(range.value));
   num.addEventListener("change", () => num.value !== "" && change(num.value));
+  // As for the settings form: a change still waiting out the debounce is sent when the page goes.
+  window.addEventListener("pagehide", putHfov.flush);
 }
 
 // ---- the dialog: calibration from chessboard photos

@@ -368,19 +368,30 @@ def test_typed_settings_out_of_range_are_refused_and_said(page, api):
     assert float(page.input_value("#set-ratio")) == default["ratio"]
 
 
-def test_a_typed_setting_survives_leaving_the_page_at_once(page, api, base):
+def wait_kept(read, value, timeout: float = 5) -> None:
+    """Until `read()` gives `value`."""
+    deadline = time.monotonic() + timeout
+    while read() != value:
+        assert time.monotonic() < deadline, "the change was lost with the page"
+        time.sleep(0.05)
+
+
+def test_typed_changes_survive_leaving_the_page_at_once(page, api, base, no_camera):
     # Enter, then the page left (reloaded, closed) before the form's debounce has sent the change.
     # about:blank, not a reload: that unloads the page at once, a reload only once the server answers.
     ratio = round(api.get("/api/settings").json()["settings"]["ratio"] - 0.04, 2)
     page.fill("#set-ratio", str(ratio))
     page.press("#set-ratio", "Enter")
     page.goto("about:blank")
-    deadline = time.monotonic() + 5
-    while api.get("/api/settings").json()["settings"]["ratio"] != ratio:
-        assert time.monotonic() < deadline, "the change was lost with the page"
-        time.sleep(0.05)
+    wait_kept(lambda: api.get("/api/settings").json()["settings"]["ratio"], ratio)
     page.goto(f"{base}/")
     page.wait_for_function("v => Number(document.querySelector('#set-ratio')?.value) === v", arg=ratio)
+
+    # The assumed field of view is sent after a pause too.
+    page.fill("#hfov-num", "72")
+    page.press("#hfov-num", "Enter")
+    page.goto("about:blank")
+    wait_kept(lambda: api.get("/api/camera").json()["assumed_hfov_deg"], 72)
 
 
 def test_threshold_calibration_and_sweep(page, api):
