@@ -22,9 +22,9 @@ async function parse(response) {
   return body;
 }
 
-/** JSON request; `body` is sent as JSON unless it is FormData. */
-export async function api(method, url, body) {
-  const init = { method, headers: {} };
+/** JSON request; `body` is sent as JSON unless it is FormData. `options`: more fetch() options. */
+export async function api(method, url, body, options = {}) {
+  const init = { ...options, method, headers: {} };
   if (body instanceof FormData) init.body = body;
   else if (body !== undefined) {
     init.body = JSON.stringify(body);

@@ -4,6 +4,7 @@ import { get } from "./api.js";
 import { initCamera } from "./camera.js";
 import { initDetail } from "./detail.js";
 import { initGallery, refreshImages } from "./gallery.js";
+import { initLibrary, loadLibrary } from "./library.js";
 import { apply as applySettings, initSettings } from "./settings.js";
 import { emit, on, select, state } from "./store.js";
 import { $, report } from "./ui.js";
@@ -13,11 +14,6 @@ function showProgress({ running, done, total }) {
   pill.classList.toggle("busy", running);
   pill.textContent = running ? `re-running ${done}/${total}` : "up to date";
   $("#run-progress").style.width = running && total ? `${(100 * done) / total}%` : "0";
-}
-
-async function loadLibrary() {
-  state.library = await get("/api/library");
-  emit("library", state.library);
 }
 
 /** Everything the event stream could have told us while it was down. */
@@ -71,6 +67,7 @@ async function main() {
   $("#app-version").textContent = `v${health.version}`;
   await initSettings();
   initCamera();
+  initLibrary();
   initGallery();
   initDetail();
   const wanted = linkedImage();

@@ -5,7 +5,7 @@
 import { api, get } from "./api.js";
 import { barAt, drawViewErrors } from "./charts.js";
 import { on, state } from "./store.js";
-import { $, el, fill, fmt, debounce, download, plural, report, toast } from "./ui.js";
+import { $, el, fill, fmt, debounce, download, plural, report, showModal, toast } from "./ui.js";
 import { dropTarget, filesForm, uploadQueue } from "./uploads.js";
 
 /** CameraIntrinsics.kind, for people. */
@@ -83,7 +83,8 @@ function renderCamera() {
 }
 
 /** Shows the camera the server answers `request` with, and `done` as a toast with the server's
- *  warnings (images held the camera does not fit, which it keeps all the same); errors as toasts. */
+ *  warnings (images held the camera does not fit, which it keeps all the same); errors as toasts.
+ *  Whether the server took the camera. */
 async function setCamera(request, done) {
   try {
     camera = await request;
@@ -92,8 +93,10 @@ async function setCamera(request, done) {
       toast(done, "info");
       for (const warning of camera.warnings) toast(warning, "warn");
     }
+    return true;
   } catch (err) {
     report(err);
+    return false;
   }
 }
 
@@ -101,7 +104,7 @@ const loadCamera = () => setCamera(get("/api/camera"));
 
 const putHfov = debounce(async (hfov) => {
   try {
-    camera = await api("PUT", "/api/camera/assumed", { hfov_deg: hfov });
+    camera = await api("PUT", "/api/camera/assumed", { hfov_deg: hfov }, { keepalive: true });
   } catch (err) {
     report(err);
     hfovHeld = false;   // show the server's value again
@@ -129,6 +132,8 @@ function bindSidebar() {
   window.addEventListener("pointerup", () => { hfovHeld = false; });
   range.addEventListener("input", () => change(range.value));
   num.addEventListener("change", () => num.value !== "" && change(num.value));
+  // As for the settings form: a change still waiting out the debounce is sent when the page goes.
+  window.addEventListener("pagehide", putHfov.flush);
 }
 
 // ---- the dialog: calibration from chessboard photos
@@ -329,8 +334,24 @@ function bindCalibration() {
 
 const TYPED = ["fx", "fy", "cx", "cy", "width", "height"];
 
+// Distortion belongs to the lens it was calibrated with: filled in with the rest of a camera, it
+// says where it came from until it is typed over or cleared, and warns once the other fields are
+// changed (numbers for another camera) while it is still there.
+let distFrom = null;   // where the distortion in the form was filled in from, while it holds that
+
+function showDistOrigin(changed = false) {
+  const origin = $("#typed-dist-origin");
+  origin.hidden = !distFrom;
+  if (!distFrom) return;
+  origin.classList.toggle("warn", changed);
+  $("#typed-dist-note").textContent = changed
+    ? `distortion kept from ${distFrom}: clear it unless it is the same lens`
+    : `distortion from ${distFrom}`;
+}
+
 function fillTyped() {
-  const cam = calib?.result?.camera ?? camera?.camera;
+  const result = calib?.result?.camera;
+  const cam = result ?? camera?.camera;
   const img = sizedImage();
   // Rounded: a thousandth of a pixel, six significant digits of distortion, are beyond any calibration.
   const put = (values, dist) => {
@@ -342,9 +363,23 @@ function fillTyped() {
     const f = focalPx(img.width, camera.assumed_hfov_deg);
     put({ fx: f, fy: f, cx: img.width / 2, cy: img.height / 2, width: img.width, height: img.height }, []);
   }
+  distFrom = cam?.dist.length ? (result ? "the calibration result" : `the camera in use (${sourceText(cam)})`) : null;
+  showDistOrigin();
+}
+
+function bindDistOrigin() {
+  $("#typed-dist").addEventListener("input", () => { distFrom = null; showDistOrigin(); });
+  for (const k of TYPED) $(`#typed-${k}`).addEventListener("input", () => showDistOrigin(true));
+  $("#typed-dist-clear").onclick = () => {
+    $("#typed-dist").value = "";
+    distFrom = null;
+    showDistOrigin();
+    $("#typed-dist").focus();
+  };
 }
 
 function bindTyped() {
+  bindDistOrigin();
   $("#typed-fill").onclick = fillTyped;
   $("#typed-form").addEventListener("submit", async (e) => {
     e.preventDefault();
@@ -355,8 +390,9 @@ function bindTyped() {
     }
     const value = (k) => ($(`#typed-${k}`).value === "" ? null : Number($(`#typed-${k}`).value));
     const body = Object.fromEntries(TYPED.map((k) => [k, value(k)]));
-    setCamera(api("PUT", "/api/camera", { ...body, dist }),
+    const applied = await setCamera(api("PUT", "/api/camera", { ...body, dist }),
       "typed intrinsics applied: every image is being re-run with them");
+    if (applied) { distFrom = null; showDistOrigin(); }   // it is the camera in use now
   });
 }
 
@@ -378,7 +414,7 @@ export function initCamera() {
   const dialog = $("#camera-dialog");
   $("#camera-open").onclick = () => {
     showTab("calibrate");
-    dialog.showModal();
+    showModal(dialog);
     loadCalibration();
   };
   $("#camera-close").onclick = () => dialog.close();

@@ -132,7 +132,8 @@ const push = debounce(async () => {
   const names = Object.keys(changes);
   names.forEach((n) => inflight.add(n));
   try {
-    apply(await api("PUT", "/api/settings", changes));
+    // keepalive: sent in full even when the page is closed or reloaded meanwhile (see initSettings).
+    apply(await api("PUT", "/api/settings", changes, { keepalive: true }));
   } catch (err) {
     // The server kept its settings: show them again instead of the rejected values, and say so.
     const kept = await get("/api/settings").catch(() => null);
@@ -215,4 +216,6 @@ export async function initSettings() {
   buildForm();
   buildToolbar();
   apply(current, true);
+  // An edit still waiting out the debounce when the page is closed or reloaded is sent now, not lost.
+  window.addEventListener("pagehide", push.flush);
 }

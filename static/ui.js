@@ -36,18 +36,38 @@ export function toast(message, kind = "error") {
   return box;
 }
 
+/** Open `dialog` as a modal one, taking the toasts along until it closes: a modal dialog is drawn
+ *  over the whole page (the top layer) and makes the rest of it inert, so a toast left outside would
+ *  be hidden under it and could not be dismissed. */
+export function showModal(dialog) {
+  if (dialog.open) return;
+  const toasts = $("#toasts"), home = toasts.parentElement;
+  dialog.showModal();
+  dialog.append(toasts);
+  dialog.addEventListener("close", () => home.append(toasts), { once: true });
+}
+
 export function report(err) {
   console.error(err);
   toast(err?.message || String(err), "error");
 }
 
-/** Call `fn` once `ms` after the last call. */
+/** Call `fn` once `ms` after the last call (with its arguments); `.flush()` makes that call at
+ *  once, if one is pending. */
 export function debounce(fn, ms) {
-  let timer = null;
-  return (...args) => {
+  let timer = null, latest = [];
+  const debounced = (...args) => {
     clearTimeout(timer);
-    timer = setTimeout(() => fn(...args), ms);
+    latest = args;
+    timer = setTimeout(debounced.flush, ms);
   };
+  debounced.flush = () => {
+    if (timer === null) return;
+    clearTimeout(timer);
+    timer = null;
+    fn(...latest);
+  };
+  return debounced;
 }
 
 /** Run `fn` at most once per `ms`, always including a trailing call so the last state is shown. */

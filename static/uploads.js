@@ -2,10 +2,16 @@
 // Used by the image gallery and the camera calibration.
 
 import { upload } from "./api.js";
-import { el, toast } from "./ui.js";
+import { el, plural, toast } from "./ui.js";
 
 const PARALLEL_UPLOADS = 3;
 const IMAGE_FILE = /\.(jpe?g|png|bmp|tiff?|webp|pgm|ppm)$/i;
+
+let unfinished = 0;   // files queued or being sent, in every queue: leaving the page drops them
+
+window.addEventListener("beforeunload", (e) => {
+  if (unfinished) e.preventDefault();   // the browser asks whether to leave the page all the same
+});
 
 function uploadRow(list, file) {
   const bar = el("div.bar");
@@ -32,6 +38,45 @@ function uploadRow(list, file) {
   };
 }
 
+/** The line over a queue's progress rows counting the files sent since it was last idle: how many
+ *  the server has stored, how many failed and how many are still to go. Shown for two files or
+ *  more; it goes a while after all are stored, and stays while any failed. */
+function batchLine(list) {
+  const text = el("span.upload-status");
+  const line = el("li.upload.batch", { role: "status" }, text,
+    el("button.icon", { type: "button", title: "Dismiss", onclick: () => line.remove() }, "×"));
+  let counts = null;   // {total, stored, failed} of the batch being sent
+  let removal = null;
+  const render = () => {
+    const { total, stored, failed } = counts, left = total - stored - failed;
+    text.textContent = [`${stored} of ${plural(total, "image")} stored`, failed && `${failed} failed`,
+      left && `${left} to go`].filter(Boolean).join(" · ");
+    line.hidden = total < 2;
+  };
+  return {
+    add(n) {
+      if (!counts) {
+        clearTimeout(removal);
+        counts = { total: 0, stored: 0, failed: 0 };
+        line.className = "upload batch";
+        list.prepend(line);
+      }
+      counts.total += n;
+      render();
+    },
+    count(outcome) {
+      counts[outcome] += 1;
+      render();
+    },
+    end() {
+      line.classList.add(counts.failed ? "failed" : "ok");
+      if (line.hidden) line.remove();
+      else if (!counts.failed) removal = setTimeout(() => line.remove(), 6000);
+      counts = null;
+    },
+  };
+}
+
 /** A multipart form with `file` as the field "files" (what the upload routes take) and `fields`. */
 export function filesForm(file, fields = {}) {
   const form = new FormData();
@@ -48,13 +93,16 @@ export function filesForm(file, fields = {}) {
  */
 export function uploadQueue({ list, url, form, done, idle = () => {} }) {
   const queue = [];
+  const batch = batchLine(list);
   let active = 0;
 
   async function send({ body, row }) {
     try {
       row.done(done(await upload(url, body, row.progress)));
+      batch.count("stored");
     } catch (err) {
       row.fail(err.message);
+      batch.count("failed");
     }
   }
 
@@ -63,20 +111,26 @@ export function uploadQueue({ list, url, form, done, idle = () => {} }) {
       active += 1;
       send(queue.shift()).finally(() => {
         active -= 1;
+        unfinished -= 1;
         pump();
-        if (!active && !queue.length) idle();
+        if (!active && !queue.length) {
+          batch.end();
+          idle();
+        }
       });
     }
   }
 
   return function enqueue(files) {
-    for (const file of files) {
-      if (!file.type.startsWith("image/") && !IMAGE_FILE.test(file.name)) {
-        toast(`${file.name}: not an image file, skipped`, "error");
-        continue;
-      }
-      queue.push({ body: form(file), row: uploadRow(list, file) });
-    }
+    const images = [...files].filter((file) => {
+      const image = file.type.startsWith("image/") || IMAGE_FILE.test(file.name);
+      if (!image) toast(`${file.name}: not an image file, skipped`, "error");
+      return image;
+    });
+    if (!images.length) return;
+    batch.add(images.length);
+    unfinished += images.length;
+    for (const file of images) queue.push({ body: form(file), row: uploadRow(list, file) });
     pump();
   };
 }

@@ -173,6 +173,10 @@ def test_phone_width_stacks_the_panels(page):
         page.click(f'#camera-tabs button[value="{tab}"]')
         assert overflowing(page, "#camera-dialog") == [], tab
     page.click("#camera-close")
+    page.click("#library-open")
+    harness.stage_images_loaded(page, "#library-signs img")
+    assert overflowing(page, "#library-dialog") == []
+    page.click("#library-close")
 
 
 def test_drop_many_files_with_progress(page, api):
@@ -186,6 +190,41 @@ def test_drop_many_files_with_progress(page, api):
     }""", [names, data])
     assert page.locator(".upload .progress").count() >= 2   # one progress bar per file
     harness.wait_cards(page, names)   # sent in parallel, so they may arrive in any order
+
+
+def test_leaving_during_uploads_asks_first_and_progress_counts_stored(page, tmp_path):
+    files = [tmp_path / f"held-{i}-{SCENE}" for i in range(5)]
+    for f in files:
+        f.write_bytes((harness.SCENES / SCENE).read_bytes())
+    held, holding = [], [True]
+
+    def hold(route):
+        if route.request.method == "POST" and holding[0]:
+            held.append(route)   # the upload stays in progress until released below
+        else:
+            route.continue_()
+
+    page.route("**/api/images", hold)
+    page.set_input_files("#file-picker", [str(f) for f in files])
+    while len(held) < 3:   # sent three at a time
+        page.wait_for_timeout(50)
+    batch = page.locator("#uploads .batch .upload-status")
+    assert batch.inner_text() == "0 of 5 images stored · 5 to go"
+
+    asked = []
+    page.on("dialog", lambda dialog: (asked.append(dialog.type), dialog.dismiss()))
+    page.evaluate("() => setTimeout(() => location.reload())")   # the dialog blocks: not within evaluate
+    page.wait_for_timeout(1000)
+    assert asked == ["beforeunload"], "the page was left without asking"
+
+    holding[0] = False
+    for route in held:
+        route.continue_()
+    batch.filter(has_text="5 of 5 images stored").wait_for(timeout=60_000)
+    harness.wait_cards(page, [f.name for f in files])
+    # Nothing left to lose: leaving asks no more.
+    assert not page.evaluate("() => { const e = new Event('beforeunload', { cancelable: true });"
+                             " dispatchEvent(e); return e.defaultPrevented; }")
 
 
 def test_threshold_control_changes_the_result(page, api):
@@ -288,6 +327,9 @@ def test_file_buttons_work_from_the_keyboard(page):
     page.click("#camera-open")
     assert_file_button_works(page, choosers, "calib-picker", "Space")
     page.click("#camera-close")
+    page.click("#library-open")
+    assert_file_button_works(page, choosers, "sign-file", "Enter")
+    page.click("#library-close")
 
 
 def test_api_errors_are_shown(page, api, tmp_path):
@@ -324,6 +366,32 @@ def test_typed_settings_out_of_range_are_refused_and_said(page, api):
     # A field cleared and left holds nothing to send: it shows the server's value again.
     harness.set_setting(page, "ratio", "")
     assert float(page.input_value("#set-ratio")) == default["ratio"]
+
+
+def wait_kept(read, value, timeout: float = 5) -> None:
+    """Until `read()` gives `value`."""
+    deadline = time.monotonic() + timeout
+    while read() != value:
+        assert time.monotonic() < deadline, "the change was lost with the page"
+        time.sleep(0.05)
+
+
+def test_typed_changes_survive_leaving_the_page_at_once(page, api, base, no_camera):
+    # Enter, then the page left (reloaded, closed) before the form's debounce has sent the change.
+    # about:blank, not a reload: that unloads the page at once, a reload only once the server answers.
+    ratio = round(api.get("/api/settings").json()["settings"]["ratio"] - 0.04, 2)
+    page.fill("#set-ratio", str(ratio))
+    page.press("#set-ratio", "Enter")
+    page.goto("about:blank")
+    wait_kept(lambda: api.get("/api/settings").json()["settings"]["ratio"], ratio)
+    page.goto(f"{base}/")
+    page.wait_for_function("v => Number(document.querySelector('#set-ratio')?.value) === v", arg=ratio)
+
+    # The assumed field of view is sent after a pause too.
+    page.fill("#hfov-num", "72")
+    page.press("#hfov-num", "Enter")
+    page.goto("about:blank")
+    wait_kept(lambda: api.get("/api/camera").json()["assumed_hfov_deg"], 72)
 
 
 def test_threshold_calibration_and_sweep(page, api):
@@ -411,6 +479,67 @@ def test_viser_scene_reconnects_after_a_server_restart(browser, tmp_path):
         page.wait_for_selector("#live.on", timeout=30_000)
         scene.get_by_text("Connected", exact=True).wait_for(timeout=30_000)
     harness.close_page(page)
+
+
+# ---------------------------------------------------------------- library
+
+@pytest.fixture
+def exit_sign(api, tmp_path):
+    """A sign image not in the library (500 x 200 px), as a file; the sign is gone again after the test."""
+    image = np.full((200, 500), 255, np.uint8)
+    cv2.rectangle(image, (4, 4), (495, 195), 0, 6)
+    cv2.putText(image, "EXIT 7", (60, 130), cv2.FONT_HERSHEY_DUPLEX, 3.2, 0, 8)
+    path = tmp_path / "Exit sign.png"
+    cv2.imwrite(str(path), image)
+    yield path
+    if "exit_sign" in [s["id"] for s in api.get("/api/library").json()]:
+        api.delete("/api/library/exit_sign").raise_for_status()
+    harness.wait_server_idle(api)
+
+
+def test_library_add_a_sign_see_it_scored_and_remove_it(page, api, exit_sign):
+    image_id = uploaded_scene(api)
+    tab_to(page, "library-open")
+    page.keyboard.press("Enter")
+    page.wait_for_selector("#library-dialog[open]")
+    library = api.get("/api/library").json()
+    assert page.locator("#library-signs .sign .sign-name").all_inner_texts() == [s["name"] for s in library]
+    assert "security_compound · 0.6 × 0.24 m" in page.inner_text('.sign[data-id="security_compound"]')
+
+    page.set_input_files("#sign-file", str(exit_sign))
+    assert page.input_value("#sign-id") == "exit_sign"   # from the file name
+    page.fill("#sign-width_m", "0.5")
+    page.wait_for_function("() => document.querySelector('#sign-height_m').placeholder === '0.2 from the image'")
+    page.fill("#sign-height_m", "0.4")   # another aspect than the image's: the server says why it refuses
+    page.click("#sign-add")
+    assert_toast_on_top(page, page.locator(".toast.error", has_text="does not match physical aspect"))
+
+    page.fill("#sign-height_m", "")
+    page.fill("#sign-name", "Exit 7")
+    page.fill("#sign-text", "مخرج ٧")
+    page.click("#sign-add")
+    row = page.locator('.sign[data-id="exit_sign"]')
+    row.wait_for()
+    assert row.locator(".sign-name").inner_text() == "Exit 7"
+    assert "exit_sign · 0.5 × 0.2 m" in row.inner_text() and "مخرج ٧" in row.inner_text()
+    assert harness.stage_images_loaded(page, '.sign[data-id="exit_sign"] img')[0]["w"] == 500
+    assert page.input_value("#sign-id") == "" and page.is_hidden("#sign-preview")   # ready for the next one
+    assert "Exit 7" in page.inner_text("#library-info")
+    assert page.locator('#expected option[value="exit_sign"]').count() == 1
+    page.keyboard.press("Escape")
+
+    # Every image is re-run with it: its score is in the detail view's table.
+    harness.wait_server_idle(api)
+    open_detail(page, image_id)
+    page.locator("#scores td", has_text="Exit 7").wait_for()
+    assert page.inner_text("#scores tr.winner td:first-child") == sign_name(api, LABEL)
+
+    page.click("#library-open")
+    page.once("dialog", lambda dialog: dialog.accept())   # "Remove the sign …?"
+    row.locator("button.remove").click()
+    row.wait_for(state="detached")
+    assert "exit_sign" not in [s["id"] for s in api.get("/api/library").json()]
+    page.keyboard.press("Escape")
 
 
 # ---------------------------------------------------------------- camera
@@ -501,6 +630,29 @@ def test_assumed_field_of_view_and_typed_intrinsics(page, api, no_camera):
         "source": "", "kind": "typed"}
 
 
+def test_typed_intrinsics_say_where_their_distortion_comes_from(page, api, no_camera):
+    api.put("/api/camera", json={"fx": 600, "fy": 600, "cx": 320, "cy": 240, "dist": [-0.2, 0.05, 0, 0, 0],
+                                 "width": 640, "height": 480}).raise_for_status()
+    page.wait_for_function("() => document.querySelector('#camera-info').textContent.includes('typed in')")
+    page.click("#camera-open")
+    page.click('#camera-tabs button[value="typed"]')
+    assert page.input_value("#typed-dist") == "-0.2 0.05 0 0 0"
+    origin = page.locator("#typed-dist-origin")
+    assert origin.inner_text().startswith("distortion from the camera in use (typed in)")
+
+    # Numbers for another camera: the distortion left in the form is pointed out, and one click clears it.
+    page.fill("#typed-fx", "900")
+    assert "warn" in origin.get_attribute("class").split()
+    assert "distortion kept from the camera in use (typed in): clear it unless it is the same lens" in origin.inner_text()
+    page.click("#typed-dist-clear")
+    assert page.input_value("#typed-dist") == "" and origin.is_hidden()
+    assert page.evaluate("() => document.activeElement.id") == "typed-dist"
+    page.click("#typed-form button[type=submit]")
+    page.locator(".toast.info", has_text="typed intrinsics applied").wait_for()
+    camera = api.get("/api/camera").json()["camera"]
+    assert camera["fx"] == 900 and not any(camera["dist"])
+
+
 def test_camera_file_upload_refusal_and_reset(page, api, tmp_path, no_camera):
     image_id = uploaded_scene(api)
     open_detail(page, image_id)
@@ -568,6 +720,53 @@ def test_board_square_size_is_checked_in_millimetres(page, api, no_camera):
     page.fill("#board-cols", "2")
     page.dispatch_event("#board-cols", "change")
     page.locator(".toast.error .toast-msg", has_text="at least 3x3 inner corners").wait_for()
+
+
+def assert_toast_on_top(page, toast) -> None:
+    """`toast` (a locator) is drawn over everything, an open modal dialog included, and a click on
+    its × dismisses it."""
+    toast.wait_for()
+    close = toast.locator("button")
+    box = close.bounding_box()
+    x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    assert page.evaluate("([x, y]) => document.elementFromPoint(x, y)?.closest('.toast') !== null", [x, y]), \
+        "the toast is hidden under something (a modal dialog?)"
+    page.mouse.click(x, y)
+    toast.wait_for(state="detached")
+
+
+def test_toasts_show_above_the_camera_dialog(page, api, no_camera):
+    page.click("#camera-open")
+    page.wait_for_function("() => document.querySelector('#board-rows').value !== ''")
+    page.fill("#board-square", "0")
+    page.press("#board-square", "Enter")
+    assert_toast_on_top(page, page.locator(".toast.error", has_text="square size must be a positive number"))
+
+    page.click('#camera-tabs button[value="typed"]')
+    page.fill("#typed-fx", "-5")
+    page.click("#typed-form button[type=submit]")
+    assert_toast_on_top(page, page.locator(".toast.error", has_text="fx"))
+
+    # A portrait camera: kept, with a warning that it fits none of the landscape images held.
+    for key, value in {"fx": "500", "fy": "500", "cx": "240", "cy": "320", "width": "480", "height": "640"}.items():
+        page.fill(f"#typed-{key}", value)
+    page.click("#typed-form button[type=submit]")
+    assert_toast_on_top(page, page.locator(".toast.warn", has_text="the camera fits none of the"))
+    page.keyboard.press("Escape")
+    page.wait_for_selector("#camera-dialog", state="hidden")
+    assert_toast_on_top(page, page.locator(".toast.info", has_text="typed intrinsics applied"))   # back on the page
+
+
+def test_toasts_show_above_every_dialog(page):
+    dialogs = page.eval_on_selector_all("dialog", "ds => ds.map((d) => d.id)")
+    assert dialogs
+    for dialog in dialogs:
+        page.click(f'[aria-haspopup="dialog"][aria-controls="{dialog}"]')
+        page.wait_for_selector(f"#{dialog}[open]")
+        page.evaluate("async () => (await import('/ui.js')).toast('a message over the dialog', 'error')")
+        assert_toast_on_top(page, page.locator(".toast.error", has_text="a message over the dialog"))
+        page.keyboard.press("Escape")
+        page.wait_for_selector(f"#{dialog}", state="hidden")
 
 
 def test_assumed_fov_note_uses_the_exif_35mm_convention(page, api, no_camera):

@@ -1,0 +1,137 @@
+// The sign library (/api/library): its summary in the settings panel, and the Library dialog,
+// which lists the signs (image, name, text, physical size), adds one from an image and removes one.
+
+import { api, get } from "./api.js";
+import { emit, on, state } from "./store.js";
+import { $, el, fill, plural, report, showModal, toast } from "./ui.js";
+import { dropTarget } from "./uploads.js";
+
+const SIGN_FIELDS = ["id", "name", "text", "width_m", "height_m"];   // POST /api/library's, besides `file`
+
+let picked = null;   // {url, width, height} of the image chosen for a new sign
+
+export async function loadLibrary() {
+  state.library = await get("/api/library");
+  emit("library", state.library);
+}
+
+/** Metres as typed in library.json: 0.6, 0.245. */
+const metres = (value) => String(Number(value.toFixed(3)));
+
+// The stored file's name changes when a sign is added again under its id: a new URL, not a cached image.
+const imageUrl = (sign) => `/api/library/${encodeURIComponent(sign.id)}/image?v=${encodeURIComponent(sign.image)}`;
+
+// ---- the list
+
+async function removeSign(sign) {
+  if (!confirm(`Remove the sign "${sign.name}" from the library? Every image is re-run without it.`)) return;
+  try {
+    await api("DELETE", `/api/library/${encodeURIComponent(sign.id)}`);
+    toast(`sign ${sign.name} removed: every image is being re-run without it`, "info");
+    await loadLibrary();
+  } catch (err) {
+    report(err);
+  }
+}
+
+function signItem(sign, last) {
+  return el("li.sign", { dataset: { id: sign.id } },
+    el("img.sign-thumb", { src: imageUrl(sign), alt: sign.name, loading: "lazy" }),
+    el("div", {},
+      el("div.sign-name", {}, sign.name),
+      sign.text && el("div.sign-text", { dir: "auto" }, sign.text),
+      el("div.sign-meta", {}, el("span.mono", {}, sign.id), ` · ${metres(sign.width_m)} × ${metres(sign.height_m)} m`)),
+    el("button.icon.remove", {
+      type: "button", disabled: last, "aria-label": `remove ${sign.name}`,
+      title: last ? "The library's last sign cannot be removed: add another first" : `Remove ${sign.name} from the library`,
+      onclick: () => removeSign(sign),
+    }, "×"));
+}
+
+function renderLibrary() {
+  const signs = state.library;
+  fill($("#library-signs"), ...signs.map((sign) => signItem(sign, signs.length === 1)));
+  $("#library-count").textContent = plural(signs.length, "sign");
+  const info = $("#library-info");
+  info.textContent = `${plural(signs.length, "sign")}: ${signs.map((s) => s.name).join(", ")}`;
+  info.title = signs.map((s) => `${s.name} (${s.id}), ${metres(s.width_m)} × ${metres(s.height_m)} m`).join("\n");
+}
+
+// ---- adding one
+
+/** A sign id from a file name: "Exit sign (2).png" -> "exit_sign_2". */
+const idFrom = (fileName) => fileName.replace(/\.[^.]*$/, "").toLowerCase().replace(/[^a-z0-9_-]+/g, "_")
+  .replace(/^[_-]+|_+$/g, "").slice(0, 64);
+
+/** The height the server will take from the width and the image's aspect, as the height's placeholder. */
+function showHeightHint() {
+  const width = Number($("#sign-width_m").value);
+  $("#sign-height_m").placeholder = picked?.width && width > 0
+    ? `${metres((width * picked.height) / picked.width)} from the image` : "from the image";
+}
+
+function showPicked() {
+  const file = $("#sign-file").files[0];
+  if (picked) URL.revokeObjectURL(picked.url);
+  picked = file ? { url: URL.createObjectURL(file) } : null;
+  $("#sign-file-name").textContent = file ? file.name : "none chosen, or drop one here";
+  $("#sign-file-name").title = file?.name ?? "";
+  const preview = $("#sign-preview");
+  preview.hidden = !file;
+  if (!file) { preview.removeAttribute("src"); showHeightHint(); return; }
+  const shown = picked;
+  preview.onload = () => {
+    if (picked !== shown) return;
+    Object.assign(picked, { width: preview.naturalWidth, height: preview.naturalHeight });
+    showHeightHint();
+  };
+  preview.src = picked.url;
+  if (!$("#sign-id").value) $("#sign-id").value = idFrom(file.name);
+}
+
+function signForm() {
+  const form = new FormData();
+  form.append("file", $("#sign-file").files[0]);
+  for (const key of SIGN_FIELDS) form.append(key, $(`#sign-${key}`).value.trim());
+  return form;
+}
+
+async function addSign(event) {
+  event.preventDefault();
+  const button = $("#sign-add");
+  button.disabled = true;
+  try {
+    const sign = await api("POST", "/api/library", signForm());
+    toast(`sign ${sign.name} added: every image is being re-run with it`, "info");
+    $("#sign-form").reset();
+    showPicked();
+    await loadLibrary();
+  } catch (err) {
+    report(err);   // the server's reason: a bad id, a size, an image that does not fit its size, …
+  } finally {
+    button.disabled = false;
+  }
+}
+
+function bindForm() {
+  $("#sign-form").addEventListener("submit", addSign);
+  $("#sign-file").addEventListener("change", showPicked);
+  $("#sign-width_m").addEventListener("input", showHeightHint);
+  // An image dropped on the dialog is the new sign's (not an image to recognise, as on the page).
+  dropTarget($("#library-dialog"), (files) => {
+    if (!files.length) return;
+    const one = new DataTransfer();
+    one.items.add(files[0]);
+    $("#sign-file").files = one.files;
+    showPicked();
+  });
+}
+
+export function initLibrary() {
+  const dialog = $("#library-dialog");
+  $("#library-open").onclick = () => showModal(dialog);
+  $("#library-close").onclick = () => dialog.close();
+  bindForm();
+  on("library", renderLibrary);
+  renderLibrary();
+}
