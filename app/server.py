@@ -586,7 +586,8 @@ def get_stage(record: RecordDep, stage: Literal[figures.STAGES], workspace: Work
     """A figure of one pipeline stage for the image's latest result (header X-Settings-Version)."""
     outcome = result_of(record)
     try:
-        img = figures.stage_figure(stage, record.image, outcome.recognition, workspace.library, sign)
+        image = workspace.photo(record) if stage in figures.PHOTO_STAGES else record.gray
+        img = figures.stage_figure(stage, image, outcome.recognition, workspace.library, sign)
     except figures.FigureError as exc:
         raise HTTPException(status.HTTP_404_NOT_FOUND, str(exc)) from None
     return Response(figures.png(img), media_type="image/png",
@@ -626,7 +627,7 @@ def calibrate_threshold(body: CalibrateIn, workspace: WorkspaceDep) -> tuning.Th
                                 "mark a rectangle around the sign with some wall in it (on the page, drag a "
                                 "box; in the API, send rect [x0, y0, x1, y1])")
         inside, source = region
-    return tuning.suggest_threshold(record.image, workspace.settings.normalization, inside, source)
+    return tuning.suggest_threshold(record.gray, workspace.settings.normalization, inside, source)
 
 
 @api.get("/sweep", response_model=SweepOut, tags=["tuning"])

@@ -22,6 +22,7 @@ import secrets
 import threading
 import time
 import warnings
+from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,7 +36,7 @@ from pipeline.camera import Camera, assumed_camera, check_hfov, load_camera
 from pipeline.evaluate import CORES
 from pipeline.exif import ExifCamera, decode_with_exif
 from pipeline.features import library_features
-from pipeline.image import ImageError, unreadable
+from pipeline.image import ImageError, to_gray, unreadable
 from pipeline.library import NO_SIGN, SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, make_sign, validate_sign_entry
 from pipeline.recognize import Recognition, StageCache, recognize
 from pipeline.settings import PRESETS, Settings, load_settings
@@ -49,6 +50,8 @@ MAX_NAME_CHARS = 200
 IMAGE_ID = re.compile(r"^[0-9a-f]{12}$")
 # Settings versions whose settings are kept, so a result's version can be checked against them.
 SETTINGS_HISTORY = 1000
+# Colour photos kept decoded for figures (`Workspace.photo`): a detail view draws five from one.
+PHOTOS_KEPT = 2
 EVENT_KINDS = ("settings", "results", "library", "camera", "images")
 
 
@@ -123,13 +126,15 @@ class Outcome:
 
 @dataclass(eq=False)
 class ImageRecord:
-    """One loaded image. `image` is (H, W, 3) uint8 BGR; `file` its stored name in the state directory;
-    `exif` the intrinsics its EXIF implies (or why none), used while the workspace has no camera."""
+    """One loaded image. `gray` is (H, W) uint8, what the pipeline reads (the colour photo, three
+    times its size, is decoded again from the stored file for the figures that show it:
+    `Workspace.photo`); `file` its stored name in the state directory; `exif` the intrinsics its
+    EXIF implies (or why none), used while the workspace has no camera."""
 
     id: str
     name: str
     expected: str | None
-    image: np.ndarray = field(repr=False)
+    gray: np.ndarray = field(repr=False)
     file: str
     media_type: str
     exif: ExifCamera = ExifCamera()
@@ -153,11 +158,11 @@ class ImageRecord:
 
     @property
     def width(self) -> int:
-        return int(self.image.shape[1])
+        return int(self.gray.shape[1])
 
     @property
     def height(self) -> int:
-        return int(self.image.shape[0])
+        return int(self.gray.shape[0])
 
     def stored(self) -> StoredImage:
         return StoredImage(self.id, self.name, self.expected, self.file, self.media_type)
@@ -249,6 +254,8 @@ class Workspace:
         self._disk_lock = threading.Lock()  # orders writes of settings.json and camera.json
         self._idle = threading.Condition(self._lock)
         self._records: dict[str, ImageRecord] = {}
+        self._photos: OrderedDict[str, np.ndarray] = OrderedDict()  # image id -> colour photo, see photo()
+        self._photo_lock = threading.Lock()
         self._subscribers: list[Callable[[Event], None]] = []
         self._pool = ThreadPoolExecutor(max_workers=max(1, config.workers), thread_name_prefix="signpose-pipeline")
         self._opencv_threads = cv2.getNumThreads()  # the process's, given back by close()
@@ -279,8 +286,8 @@ class Workspace:
         self.state.sweep(stored or [], library)
         for entry, decoded in zip(stored or [], self._pool.map(self._decode_stored, stored or [])):
             if decoded is not None:
-                image, exif = decoded
-                self._records[entry.id] = ImageRecord(entry.id, entry.name, entry.expected, image, entry.file,
+                gray, exif = decoded
+                self._records[entry.id] = ImageRecord(entry.id, entry.name, entry.expected, gray, entry.file,
                                                       entry.media_type, exif)
         if len(self._records) != len(stored or []):
             self.state.save_images([r.stored() for r in self._records.values()])
@@ -293,8 +300,10 @@ class Workspace:
             self._request_rerun()
 
     def _decode_stored(self, entry: StoredImage) -> tuple[np.ndarray, ExifCamera] | None:
+        """(gray, EXIF camera) of a stored image, None when its file is unusable."""
         try:
-            return decode_with_exif(self.state.read_image(entry.file), entry.name)
+            image, exif = decode_with_exif(self.state.read_image(entry.file), entry.name)
+            return to_gray(image), exif
         except (OSError, ImageError) as exc:  # a file damaged on disk: drop it rather than refuse to start
             log.warning("dropping stored image %s (%s): %s", entry.name, entry.file, exc)
             return None
@@ -372,14 +381,14 @@ class Workspace:
             self._check_capacity(len(uploads))  # before decoding anything
         checked = [(display_name(name), data, self.check_expected(expected)) for name, data, expected in uploads]
         # Decoded here, in the caller's thread: the pipeline pool may be busy with a long re-run.
-        decoded = [decode_upload(data, name, self.config.max_pixels) for name, data, _ in checked]
+        decoded = [self._decode_upload(data, name) for name, data, _ in checked]
         records = []
         try:
             # Files first, outside the lock (each write is fsync'd); until the index names them a
             # crash leaves only orphans, which the next start sweeps.
-            for (name, data, expected), (image, media_type, exif) in zip(checked, decoded):
+            for (name, data, expected), (gray, media_type, exif) in zip(checked, decoded):
                 image_id = secrets.token_hex(6)
-                records.append(ImageRecord(image_id, name, expected, image, image_id + _extension(media_type),
+                records.append(ImageRecord(image_id, name, expected, gray, image_id + _extension(media_type),
                                            media_type, exif))
                 self.state.write_image(records[-1].file, data)
             with self._lock:
@@ -394,6 +403,32 @@ class Workspace:
             raise
         self._emit("images", {"ids": [r.id for r in self.images()]})
         return records
+
+    def _decode_upload(self, data: bytes, name: str) -> tuple[np.ndarray, str, ExifCamera]:
+        """`decode_upload`, with the image as the gray the pipeline reads (its colour copy dropped at once)."""
+        image, media_type, exif = decode_upload(data, name, self.config.max_pixels)
+        return to_gray(image), media_type, exif
+
+    def photo(self, record: ImageRecord) -> np.ndarray:
+        """(H, W, 3) uint8 BGR: the image in colour, as uploaded, for the figures drawn on it.
+
+        Decoded again from the stored file (the last PHOTOS_KEPT kept, as a detail view asks for
+        several figures of one image at once); the gray it holds, when the file is gone (the
+        image was deleted meanwhile) or no longer readable.
+        """
+        with self._photo_lock:  # one decode of an image however many figures ask for it at once
+            if (photo := self._photos.get(record.id)) is not None:
+                self._photos.move_to_end(record.id)
+                return photo
+            try:
+                photo = decode_with_exif(self.state.read_image(record.file), record.name)[0]
+            except (OSError, ImageError) as exc:
+                log.warning("%s: drawn in gray, its stored file is unusable: %s", record.name, exc)
+                return cv2.cvtColor(record.gray, cv2.COLOR_GRAY2BGR)
+            self._photos[record.id] = photo
+            while len(self._photos) > PHOTOS_KEPT:
+                self._photos.popitem(last=False)
+            return photo
 
     def _check_capacity(self, adding: int) -> None:
         held = len(self._records)
@@ -415,6 +450,8 @@ class Workspace:
             record = self._records.pop(image_id)
             self.state.save_images([r.stored() for r in self._records.values()])
             self.state.remove_image(record.file)
+        with self._photo_lock:
+            self._photos.pop(image_id, None)
         self._emit("images", {"ids": [r.id for r in self.images()]})
 
     def image_path(self, record: ImageRecord) -> Path:
@@ -591,7 +628,7 @@ class Workspace:
             if record.outcome.generation >= snap.generation:
                 return
             try:
-                rec = run_pipeline(record.name, record.image, snap.library, snap.settings,
+                rec = run_pipeline(record.name, record.gray, snap.library, snap.settings,
                                    snap.camera_for(record.exif, record.width, record.height), record.cache)
                 outcome = Outcome(rec, snap.settings_version, snap.generation)
             except PipelineError as exc:  # a failure on one image must not stop the others
@@ -657,7 +694,7 @@ class Workspace:
         """Recognise one stored image under `settings`, re-using (and feeding) its stage cache."""
         snap = self._snap
         with record.lock:
-            return run_pipeline(record.name, record.image, snap.library, settings,
+            return run_pipeline(record.name, record.gray, snap.library, settings,
                                 snap.camera_for(record.exif, record.width, record.height), record.cache)
 
     def sweep(self, param: str, values: list[float], records: list[ImageRecord],

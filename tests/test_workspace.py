@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 import threading
 import time
+import tracemalloc
 from pathlib import Path
 
 import cv2
@@ -18,10 +20,10 @@ from app.state import StateDir, atomic_write
 from app.workspace import NO_SIGN, SAMPLE_SCENES, Conflict, ImageTooLarge, Workspace, WorkspaceConfig
 from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError
 from pipeline.evaluate import CORES
-from pipeline.image import ImageError
+from pipeline.image import ImageError, decode_image
 from pipeline.library import SAMPLE_LIBRARY, LibraryError, load_library
 from pipeline.settings import SettingsError
-from scene_images import empty_photo, png_bomb, sign_photo, with_focal_exif
+from scene_images import big_photo, empty_photo, png_bomb, sign_photo, with_focal_exif
 
 LIBRARY = load_library(SAMPLE_LIBRARY)
 IDLE_TIMEOUT_S = 30
@@ -80,6 +82,30 @@ def test_images_are_processed_and_tagged(make_workspace):
         assert record.settings_version == ws.settings_version == 1
     assert records[0].recognition.label == "security_compound"
     assert ws.progress() == {"version": 1, "running": False, "done": 3, "total": 3}
+
+
+def test_an_image_held_costs_two_bytes_a_pixel_and_is_still_drawn_in_colour(make_workspace):
+    """A tester's server grew by 110 MB per 12 MP photo held: the photo in colour (3 bytes a pixel),
+    its gray (1), and its result's mask (1) and int32 labels of every white component (4). The
+    pipeline reads only the gray, and the result needs only the candidate blobs' labels."""
+    ws = make_workspace()
+    ws.add_image("warm-up.jpg", sign_photo(LIBRARY, "security_compound"), None)  # lazy imports, library features
+    assert ws.wait_idle(IDLE_TIMEOUT_S)
+    width, height = 2400, 1800
+    data = big_photo(width, height)
+    gc.collect()
+    tracemalloc.start()
+    try:
+        before = tracemalloc.get_traced_memory()[0]
+        record = ws.add_image("big.jpg", data, "security_compound")
+        assert ws.wait_idle(IDLE_TIMEOUT_S)
+        gc.collect()
+        held = tracemalloc.get_traced_memory()[0] - before
+    finally:
+        tracemalloc.stop()
+    assert record.recognition.label == "security_compound"
+    assert held < 2.2 * width * height, f"{held / (width * height):.2f} bytes a pixel"
+    assert np.array_equal(ws.photo(record), decode_image(data))  # what the figures are drawn on
 
 
 def test_photos_use_their_exif_focal_length_until_a_camera_is_set(make_workspace):
