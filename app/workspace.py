@@ -664,6 +664,9 @@ class Workspace:
             try:
                 self._run_batch(snap, stale)
             finally:
+                # Not kept while the loop waits for the next change: images deleted meanwhile would
+                # stay in memory until then.
+                del stale
                 with self._lock:
                     self._batch_running = False
                     self._idle.notify_all()

@@ -8,6 +8,7 @@ import os
 import threading
 import time
 import tracemalloc
+import weakref
 from pathlib import Path
 
 import cv2
@@ -106,6 +107,23 @@ def test_an_image_held_costs_two_bytes_a_pixel_and_is_still_drawn_in_colour(make
     assert record.recognition.label == "security_compound"
     assert held < 2.2 * width * height, f"{held / (width * height):.2f} bytes a pixel"
     assert np.array_equal(ws.photo(record), decode_image(data))  # what the figures are drawn on
+
+
+def test_images_deleted_after_a_rerun_are_freed(make_workspace):
+    """A tester deleted 30 photos and the server's memory stayed: after a re-run (any settings,
+    camera or library change), the re-run thread kept the list of the images it had re-run while
+    it waited for the next change, so deleting them freed nothing."""
+    ws = make_workspace()
+    records = add_signs(ws)
+    ws.update_settings({"ransac_threshold_px": 6.5})
+    assert ws.wait_idle(IDLE_TIMEOUT_S)
+    assert all(r.recognition.settings.ransac_threshold_px == 6.5 for r in records)  # re-run
+    alive = [weakref.ref(r) for r in records] + [weakref.ref(r.gray) for r in records]
+    for image_id in [r.id for r in records]:
+        ws.remove_image(image_id)
+    del records
+    gc.collect()
+    assert sum(ref() is not None for ref in alive) == 0, "records or images deleted are still held"
 
 
 def test_photos_use_their_exif_focal_length_until_a_camera_is_set(make_workspace):
