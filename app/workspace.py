@@ -14,9 +14,11 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import itertools
 import json
 import logging
 import mimetypes
+import os
 import re
 import secrets
 import threading
@@ -26,7 +28,7 @@ from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import cv2
 import numpy as np
@@ -56,6 +58,39 @@ PHOTOS_KEPT = 2
 # then the requests that deleted images have let go of them), once for a burst.
 TRIM_DELAY_S = 1.0
 EVENT_KINDS = ("settings", "results", "library", "camera", "images")
+# An image held keeps its gray (1 byte a pixel) and its result's segmentation labels (1), and
+# its stage cache may keep CACHE_BYTES_PER_PIXEL more as the cache counts them (a segmentation
+# counts 2: its labels and the gray it shares with the image) plus CACHE_MIN_BYTES for features
+# and matches. The memory limit charges every image all of it: `held_bytes`.
+CACHE_BYTES_PER_PIXEL = 3
+CACHE_MIN_BYTES = 1_000_000
+HELD_BYTES_PER_PIXEL = 2 + CACHE_BYTES_PER_PIXEL
+
+
+def held_bytes(pixels: int) -> int:
+    """The most memory an image of `pixels` px takes while the workspace holds it."""
+    return HELD_BYTES_PER_PIXEL * pixels + CACHE_MIN_BYTES
+
+
+def memory_size() -> int | None:
+    """Bytes of memory this process may use: the machine's, or its container's (cgroup) limit when
+    lower; None when neither can be read."""
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):  # no sysconf (Windows) or no such name
+        total = None
+    for limit_file in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            limit = int(Path(limit_file).read_text().strip())
+        except (OSError, ValueError):  # no such file, or "max": no limit
+            continue
+        total = limit if total is None else min(total, limit)
+    return total
+
+
+# The images held may take half the memory; the rest is for the pipeline's working memory (a
+# 12 MP photo takes a few hundred MB while it is processed), the page's figures and the system.
+DEFAULT_MAX_MEMORY_BYTES = (memory_size() or 8_000_000_000) // 2
 
 
 class Conflict(ValueError):
@@ -82,6 +117,7 @@ class WorkspaceConfig:
     max_images: int = 500
     max_pixels: int = 40_000_000
     max_upload_bytes: int = 25_000_000
+    max_memory_bytes: int = DEFAULT_MAX_MEMORY_BYTES  # what the images held may take, as `held_bytes` counts
     request_timeout_s: float = 120.0  # longest a request waits for pipeline work (recognise, sweep)
     workers: int = CORES  # every core; `signpose evaluate --workers` defaults to it too
     debounce_s: float = 0.15
@@ -141,11 +177,18 @@ class ImageRecord:
     file: str
     media_type: str
     exif: ExifCamera = ExifCamera()
-    cache: StageCache = field(default_factory=StageCache, repr=False)
+    cache: StageCache = field(init=False, repr=False)
     outcome: Outcome = field(default_factory=Outcome)
     # Held while the pipeline uses `cache`: StageCache is not thread-safe and a sweep may run
     # alongside a re-run.
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def __post_init__(self) -> None:
+        self.cache = self.new_cache()
+
+    def new_cache(self) -> StageCache:
+        """An empty stage cache that keeps at most what `held_bytes` allows for this image."""
+        return StageCache(max_bytes=CACHE_BYTES_PER_PIXEL * self.gray.size + CACHE_MIN_BYTES)
 
     @property
     def recognition(self) -> Recognition | None:
@@ -197,8 +240,14 @@ def display_name(name: str) -> str:
     return base[:MAX_NAME_CHARS] or "image"
 
 
-def check_image_header(data: bytes, name: str, max_pixels: int) -> str:
-    """The media type of encoded image `data`, after checking its header says at most `max_pixels` px.
+class ImageHeader(NamedTuple):
+    media_type: str
+    width: int  # px, as stored (before any EXIF rotation)
+    height: int
+
+
+def check_image_header(data: bytes, name: str, max_pixels: int) -> ImageHeader:
+    """The media type and size of encoded image `data`, after checking its header says at most `max_pixels` px.
 
     Reads only the header (no pixel data is decoded), so a small file claiming a huge image
     is refused before it can take gigabytes of memory.
@@ -219,7 +268,7 @@ def check_image_header(data: bytes, name: str, max_pixels: int) -> str:
     if width * height > max_pixels:
         raise ImageTooLarge(f"{name}: {width}x{height} px is {width * height / 1e6:.1f} megapixels, more than "
                             f"the limit of {max_pixels / 1e6:g}; downscale it, or raise --max-megapixels")
-    return media_type
+    return ImageHeader(media_type, width, height)
 
 
 def decode_upload(data: bytes, name: str, max_pixels: int) -> tuple[np.ndarray, str, ExifCamera]:
@@ -227,9 +276,16 @@ def decode_upload(data: bytes, name: str, max_pixels: int) -> tuple[np.ndarray, 
 
     Raises ImageError.
     """
-    media_type = check_image_header(data, name, max_pixels)
+    media_type = check_image_header(data, name, max_pixels).media_type
     image, exif = decode_with_exif(data, name)
     return image, media_type, exif
+
+
+def decode_gray(data: bytes, name: str) -> tuple[np.ndarray, ExifCamera]:
+    """Decode an image whose header is checked: ((H, W) uint8 gray as the pipeline makes it, what its
+    EXIF gives for the camera). The colour copy is dropped at once: the workspace keeps the gray."""
+    image, exif = decode_with_exif(data, name)
+    return to_gray(image), exif
 
 
 def sample_scenes(folder: Path = SAMPLE_SCENES) -> list[tuple[Path, str | None]]:
@@ -306,8 +362,7 @@ class Workspace:
     def _decode_stored(self, entry: StoredImage) -> tuple[np.ndarray, ExifCamera] | None:
         """(gray, EXIF camera) of a stored image, None when its file is unusable."""
         try:
-            image, exif = decode_with_exif(self.state.read_image(entry.file), entry.name)
-            return to_gray(image), exif
+            return decode_gray(self.state.read_image(entry.file), entry.name)
         except (OSError, ImageError) as exc:  # a file damaged on disk: drop it rather than refuse to start
             log.warning("dropping stored image %s (%s): %s", entry.name, entry.file, exc)
             return None
@@ -378,25 +433,28 @@ class Workspace:
     def add_images(self, uploads: list[tuple[str, bytes, str | None]]) -> list[ImageRecord]:
         """Decode, store and queue (name, encoded bytes, expected label) uploads, all or none.
 
-        Raises ImageError (ImageTooLarge for too many pixels), LibraryError for an unknown
-        expected label, Conflict when the images would exceed `max_images`.
+        Raises ImageError (ImageTooLarge for too many pixels, or an image that alone would take
+        more than `max_memory_bytes`), LibraryError for an unknown expected label, Conflict when the
+        images would exceed `max_images` or `max_memory_bytes`.
         """
-        with self._lock:
-            self._check_capacity(len(uploads))  # before decoding anything
         checked = [(display_name(name), data, self.check_expected(expected)) for name, data, expected in uploads]
+        headers = [check_image_header(data, name, self.config.max_pixels) for name, data, _ in checked]
+        sizes = [(name, header.width * header.height) for (name, _, _), header in zip(checked, headers)]
+        with self._lock:
+            self._check_room(sizes)  # before decoding anything
         # Decoded here, in the caller's thread: the pipeline pool may be busy with a long re-run.
-        decoded = [self._decode_upload(data, name) for name, data, _ in checked]
+        decoded = [decode_gray(data, name) for name, data, _ in checked]
         records = []
         try:
             # Files first, outside the lock (each write is fsync'd); until the index names them a
             # crash leaves only orphans, which the next start sweeps.
-            for (name, data, expected), (gray, media_type, exif) in zip(checked, decoded):
+            for (name, data, expected), (gray, exif), (media_type, _, _) in zip(checked, decoded, headers):
                 image_id = secrets.token_hex(6)
                 records.append(ImageRecord(image_id, name, expected, gray, image_id + _extension(media_type),
                                            media_type, exif))
                 self.state.write_image(records[-1].file, data)
             with self._lock:
-                self._check_capacity(len(records))  # again: another upload may have landed meanwhile
+                self._check_room(sizes)  # again: another upload may have landed meanwhile
                 self.state.save_images([r.stored() for r in [*self._records.values(), *records]])
                 self._records.update((r.id, r) for r in records)
                 for record in records:
@@ -407,11 +465,6 @@ class Workspace:
             raise
         self._emit("images", {"ids": [r.id for r in self.images()]})
         return records
-
-    def _decode_upload(self, data: bytes, name: str) -> tuple[np.ndarray, str, ExifCamera]:
-        """`decode_upload`, with the image as the gray the pipeline reads (its colour copy dropped at once)."""
-        image, media_type, exif = decode_upload(data, name, self.config.max_pixels)
-        return to_gray(image), media_type, exif
 
     def photo(self, record: ImageRecord) -> np.ndarray:
         """(H, W, 3) uint8 BGR: the image in colour, as uploaded, for the figures drawn on it.
@@ -434,11 +487,38 @@ class Workspace:
                 self._photos.popitem(last=False)
             return photo
 
-    def _check_capacity(self, adding: int) -> None:
-        held = len(self._records)
-        if held + adding > self.config.max_images:
+    def _check_room(self, uploads: list[tuple[str, int]]) -> None:
+        """Refuse to add `uploads` ((display name, pixels)) beyond `max_images` or `max_memory_bytes`
+        (Conflict), or an image that alone would take more than `max_memory_bytes` (ImageTooLarge);
+        the message says what fits. The caller holds the lock."""
+        held, limit = len(self._records), self.config.max_memory_bytes
+        if held + len(uploads) > self.config.max_images:
             raise Conflict(f"the workspace holds {held} images and its limit is {self.config.max_images}; "
-                           f"delete some before adding {adding} more")
+                           f"delete some before adding {len(uploads)} more")
+        for name, pixels in uploads:
+            if held_bytes(pixels) > limit:
+                raise ImageTooLarge(f"{name}: {pixels / 1e6:.1f} megapixels would take {_memory(held_bytes(pixels))} "
+                                    f"held, more than the server's memory limit of {_memory(limit)}; downscale "
+                                    "it, or restart signpose serve with a higher --max-memory-gb")
+        used = sum(held_bytes(r.gray.size) for r in self._records.values())
+        needed = [held_bytes(pixels) for _, pixels in uploads]
+        if used + sum(needed) <= limit:
+            return
+        left = max(0, limit - used)
+        fit = sum(total <= left for total in itertools.accumulate(needed))
+        largest = (left - CACHE_MIN_BYTES) // HELD_BYTES_PER_PIXEL // 100_000  # tenths of a megapixel, down
+        if fit:
+            room = "only the first of them fits" if fit == 1 else f"the first {fit} of them fit"
+        elif largest > 0:
+            room = f"an image of up to {largest / 10:.1f} megapixels fits"
+        else:
+            room = "no image fits"
+        what = f"{uploads[0][0]} ({uploads[0][1] / 1e6:.1f} megapixels)" if len(uploads) == 1 else \
+            f"these {len(uploads)} images"
+        raise Conflict(f"the {held} images held take {_memory(used)} of the server's memory limit of "
+                       f"{_memory(limit)} (--max-memory-gb); {what} would take {_memory(sum(needed))} more and "
+                       f"{_memory(left)} is left: {room}; delete some images, or restart signpose serve with "
+                       "a higher --max-memory-gb")
 
     def set_expected(self, image_id: str, expected: str | None) -> ImageRecord:
         with self._lock:
@@ -532,7 +612,7 @@ class Workspace:
         self._change(library=library)
         for record in self._records.values():
             # Cached matches are keyed by sign id, which a new sign may reuse: start afresh.
-            record.cache = StageCache()
+            record.cache = record.new_cache()
 
     def add_sign(self, sign_id: str, data: bytes, name: str = "", text: str = "",
                  width_m: float = 0.0, height_m: float | None = None) -> LibrarySign:
@@ -774,6 +854,11 @@ def run_pipeline(name: str, image: np.ndarray, library: Library, settings: Setti
         log.exception("pipeline failed on %s", name)
         raise PipelineError(f"pipeline failed on {name}: {exc}; check the camera intrinsics and the settings") \
             from exc
+
+
+def _memory(size: int) -> str:
+    """`size` bytes for people: "2.5 MB", "61 MB", "11.6 GB"."""
+    return f"{size / 1e9:.3g} GB" if size >= 1e9 else f"{size / 1e6:.3g} MB"
 
 
 def _extension(media_type: str) -> str:

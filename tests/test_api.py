@@ -22,7 +22,7 @@ from app.workspace import Workspace, WorkspaceConfig
 from pipeline.library import SAMPLE_LIBRARY, load_library
 from pipeline.synth import synthetic_camera
 from pipeline.camera import ros_camera_yaml
-from scene_images import empty_photo, png_bomb, sign_photo, tiny_photo, with_focal_exif
+from scene_images import big_photo, empty_photo, png_bomb, sign_photo, tiny_photo, with_focal_exif
 from serving import (MISFIT_CAMERA, REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve,
                      stop_serve, upload, wait_done)
 
@@ -306,6 +306,28 @@ def test_upload_count_and_label_mismatches(client):
     r = client.post("/api/images", files=[("files", ("a.jpg", photo, "image/jpeg"))] * 2, data={"expected": ["none"]})
     assert_error(r, 422, "1 expected labels for 2 files")
     assert_error(client.post("/api/images", files={"expected": (None, "none")}), 422, "files")
+
+
+def test_uploads_past_the_memory_limit_are_refused_saying_what_fits(tmp_path):
+    """A tester's server grew by 110 MB per 12 MP photo with no cap: the default --max-images 500
+    would have needed 55 GB. Each image held now counts 5 bytes a pixel plus 1 MB against a limit."""
+    photo = big_photo(1000, 750)  # 0.75 megapixels: counted 4.75 MB
+    cfg = WorkspaceConfig(state_dir=tmp_path / "state", load_samples=False, workers=2, max_memory_bytes=12_000_000)
+    with running(create_app(cfg)) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        assert upload(c, ("a.jpg", photo, None), ("b.jpg", photo, "security_compound")).status_code == 201
+        held = wait_done(c)
+        assert_error(upload(c, ("c.jpg", photo, None)), 409, "the 2 images held take 9.5 MB of the server's memory "
+                     "limit of 12 MB (--max-memory-gb); c.jpg (0.8 megapixels) would take 4.75 MB more and 2.5 MB is "
+                     "left: an image of up to 0.3 megapixels fits; delete some images")
+        too_big = upload(c, ("huge.jpg", big_photo(2000, 1500), None))  # alone over the limit: 413
+        assert_error(too_big, 413, "huge.jpg: 3.0 megapixels would take 16 MB held", "memory limit of 12 MB")
+        assert wait_done(c) == held  # nothing held is lost or changed
+        assert [c.get(f"/api/images/{i['id']}/file").content for i in held] == [photo, photo]
+        assert c.delete(f"/api/images/{held[0]['id']}").status_code == 204
+        assert_error(upload(c, *[(f"{i}.jpg", photo, None) for i in range(3)]), 409,
+                     "these 3 images would take 14.2 MB more and 7.25 MB is left: only the first of them fits")
+        assert upload(c, ("d.jpg", photo, None)).status_code == 201
+        assert len(wait_done(c)) == 2 and len(list((tmp_path / "state" / "images").glob("*.jpg"))) == 2
 
 
 def test_oversized_bodies_are_refused_before_or_while_they_arrive(base_url, client):

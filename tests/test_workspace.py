@@ -110,6 +110,27 @@ def test_an_image_held_costs_two_bytes_a_pixel_and_is_still_drawn_in_colour(make
     assert np.array_equal(ws.photo(record), decode_image(data))  # what the figures are drawn on
 
 
+def test_an_image_never_takes_more_memory_than_the_limit_counts_for_it(make_workspace):
+    """The memory limit charges each image `held_bytes`: its cache must not outgrow that, as a
+    fixed 64 MB per image did after a threshold sweep (7 segmentations of a 4 MP photo)."""
+    ws = make_workspace()
+    ws.add_image("warm-up.jpg", sign_photo(LIBRARY, "security_compound"), None)
+    assert ws.wait_idle(IDLE_TIMEOUT_S)
+    width, height = 2400, 1800
+    gc.collect()
+    tracemalloc.start()
+    try:
+        before = tracemalloc.get_traced_memory()[0]
+        record = ws.add_image("big.jpg", big_photo(width, height), "security_compound")
+        assert ws.wait_idle(IDLE_TIMEOUT_S)
+        ws.sweep("threshold", [0.45, 0.5, 0.55, 0.6, 0.65, 0.7, 0.8], [record])
+        gc.collect()
+        held = tracemalloc.get_traced_memory()[0] - before
+    finally:
+        tracemalloc.stop()
+    assert held <= workspace_module.held_bytes(width * height), f"{held / (width * height):.2f} bytes a pixel"
+
+
 def test_images_deleted_after_a_rerun_are_freed(make_workspace):
     """A tester deleted 30 photos and the server's memory stayed: after a re-run (any settings,
     camera or library change), the re-run thread kept the list of the images it had re-run while
