@@ -69,8 +69,12 @@ class ImageSummary(BaseModel):
     expected: str | None = Field(description='a sign id, "none" for an image without a sign, or null: unlabelled')
     label: str | None
     recognized: bool
-    inliers: int
-    margin: int
+    inliers: int | None = Field(description="RANSAC inliers of the recognised sign (0 without one); null when the "
+                                            "plaque fallback recognised it, which matches no features")
+    margin: int | None = Field(description="inlier margin over the runner-up; null when the plaque fallback decided")
+    by_plaque: bool = Field(False, description="the plaque fallback, not feature matches, recognised the sign")
+    plaque_correlation: float | None = Field(None, description="with by_plaque: the plaque's correlation with the "
+                                                               "sign (0 to 1), what decided instead of inliers")
     status: Literal["correct", "wrong", "recognized", "none", "pending", "error"]
     settings_version: int = Field(description="settings version the result was computed under (0: none yet)")
     result_version: int = Field(description="state generation the result was computed under: changes whenever the "

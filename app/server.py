@@ -277,13 +277,17 @@ async def within_time_limit(workspace: Workspace, what: str, work: Callable[[thr
 
 
 def summary(workspace: Workspace, record: ImageRecord, outcome: Outcome | None = None) -> ImageSummary:
-    """The image's summary from `outcome` (default: its latest)."""
+    """The image's summary from `outcome` (default: its latest). A sign the plaque fallback found
+    has no feature inliers or margin (null, as the CLI's table shows '-'), but its correlation."""
     outcome = record.outcome if outcome is None else outcome
     rec = outcome.recognition
+    by_plaque = bool(rec and rec.by_plaque)
     return ImageSummary(
         id=record.id, name=record.name, expected=record.expected,
         label=rec.label if rec else None, recognized=bool(rec and rec.recognized),
-        inliers=rec.best.n_inliers if rec and rec.best else 0, margin=rec.margin if rec else 0,
+        inliers=None if by_plaque else rec.best.n_inliers if rec and rec.best else 0,
+        margin=None if by_plaque else rec.margin if rec else 0,
+        by_plaque=by_plaque, plaque_correlation=round(rec.plaque.correlation, 4) if by_plaque else None,
         status=status_of(record.expected, outcome, workspace.snapshot.generation),
         settings_version=outcome.settings_version, result_version=outcome.generation,
         width=record.width, height=record.height, error=outcome.error,

@@ -270,7 +270,12 @@ def test_input_figure_shows_every_label_and_the_answer(client, scene, sign, by_p
     image_id = r.json()["images"][0]["id"]
     wait_done(client)
     detail = client.get(f"/api/images/{image_id}").json()
-    assert detail["status"] == "correct" and (detail["inliers"] == 0) == by_plaque
+    assert detail["status"] == "correct" and detail["by_plaque"] == by_plaque
+    # the plaque fallback matches no features: no inliers or margin, but the correlation that decided
+    assert (detail["inliers"] is None and detail["margin"] is None) == by_plaque
+    assert (detail["plaque_correlation"] is not None) == by_plaque
+    summary = next(i for i in client.get("/api/images").json()["images"] if i["id"] == image_id)
+    assert summary == {k: v for k, v in detail.items() if k in summary}  # the gallery's summary says the same
     figure = cv2.imdecode(np.frombuffer(client.get(f"/api/images/{image_id}/stages/input").content, np.uint8),
                           cv2.IMREAD_COLOR)
     bands = label_bands(figure)
