@@ -243,7 +243,11 @@ class SweepOut(BaseModel):
     param: str
     values: list[float]
     correct: list[int] = Field(description="labelled images recognised correctly, per value")
-    min_margin: list[int | None] = Field(description="smallest inlier margin among correct recognitions, per value")
+    min_margin: list[int | None] = Field(
+        description="smallest inlier margin among the signs recognised correctly by feature matches, per value; "
+                    "null if none (signs the plaque fallback recognised have no inliers and are left out)")
+    by_plaque: list[int] = Field(description="of the labelled images right, those whose sign the plaque fallback "
+                                             "recognised, per value")
     band: tuple[float, float] | None = Field(
         description="the longest run of values where every labelled image is right")
     centre: float | None

@@ -464,6 +464,22 @@ def test_sweep_finds_the_working_band(client):
         client.delete(f"/api/images/{image_id}")
 
 
+def test_the_sweep_leaves_signs_the_plaque_fallback_found_out_of_its_margins(tmp_path):
+    """A min_inliers sweep from 4 to 30 answered min_margin 0 at every value, and the chart's margin
+    axis became 0..1: a sign the plaque fallback recognised, which matches no features, counted as
+    a correct recognition with margin 0."""
+    plaque = (REPO / "sample_images" / "datasets" / "set2" / "scene_007.jpg").read_bytes()
+    with running(create_app(config(tmp_path / "state"))) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        upload(c, ("plaque.jpg", plaque, "ministry_of_torture"),
+               ("compound.jpg", sign_photo(LIBRARY, "security_compound"), "security_compound"))
+        wait_done(c)
+        sweep = c.get("/api/sweep", params={"param": "min_inliers", "lo": 4, "hi": 30, "steps": 14}).json()
+    assert any(sweep["by_plaque"]) and all(n <= c for n, c in zip(sweep["by_plaque"], sweep["correct"]))
+    for correct, by_plaque, margin in zip(sweep["correct"], sweep["by_plaque"], sweep["min_margin"]):
+        # the smallest margin of the signs recognised by features, the default min_margin at least
+        assert margin >= 5 if correct > by_plaque else margin is None
+
+
 def test_sweep_needs_labelled_images(tmp_path):
     with running(create_app(config(tmp_path / "state"))) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
         upload(c, ("unlabelled.jpg", tiny_photo(), None))
