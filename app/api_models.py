@@ -241,14 +241,17 @@ class CalibrateOut(BaseModel):
 
 class SweepOut(BaseModel):
     param: str
-    values: list[float]
+    # int first: an integer setting's values, band and centre stay whole numbers in the JSON (4, not 4.0)
+    values: list[int | float] = Field(description="the values run, in order: distinct whole numbers for an "
+                                                  "integer setting")
     correct: list[int] = Field(description="labelled images recognised correctly, per value")
     min_margin: list[int | None] = Field(
         description="smallest inlier margin among the signs recognised correctly by feature matches, per value; "
                     "null if none (signs the plaque fallback recognised have no inliers and are left out)")
     by_plaque: list[int] = Field(description="of the labelled images right, those whose sign the plaque fallback "
                                              "recognised, per value")
-    band: tuple[float, float] | None = Field(
+    band: tuple[int | float, int | float] | None = Field(
         description="the longest run of values where every labelled image is right")
-    centre: float | None
+    centre: int | float | None = Field(description="the middle of the band; for an integer setting the value swept "
+                                                   "in the band nearest it")
     labelled: int

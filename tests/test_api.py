@@ -452,10 +452,15 @@ def test_sweep_finds_the_working_band(client):
     lo, hi = sweep["band"]
     assert lo <= sweep["centre"] <= hi and sweep["correct"][sweep["values"].index(lo)] == sweep["labelled"]
     assert all(m is None or m >= 0 for m in sweep["min_margin"])
+    assert all(type(v) is float for v in [*sweep["values"], *sweep["band"], sweep["centre"]])
     ints = client.get("/api/sweep", params={"param": "min_inliers", "lo": 4, "hi": 7, "steps": 5}).json()
     assert ints["values"] == [4, 5, 6, 7]
     # a whole number, one that was tried and worked: the settings take no 5.5
     assert ints["band"] == [4, 7] and ints["centre"] == 5
+    # JSON whole numbers, not 4.0, 5.0: the page's chart took them for a continuous range
+    assert all(type(v) is int for v in [*ints["values"], *ints["band"], ints["centre"]])
+    tester = client.get("/api/sweep", params={"param": "min_inliers", "lo": 4, "hi": 30, "steps": 14}).json()
+    assert tester["values"] == list(range(4, 31, 2)) and all(type(v) is int for v in tester["values"])
     assert_error(client.get("/api/sweep", params={"param": "detector"}), 422, "numeric setting", "threshold")
     assert_error(client.get("/api/sweep", params={"lo": 0.9, "hi": 0.3}), 422, "below")
     assert_error(client.get("/api/sweep", params={"lo": 0.5, "hi": 1.5}), 422, "threshold", "between")
