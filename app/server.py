@@ -539,13 +539,17 @@ def delete_sign(sign_id: SignIdDep, workspace: WorkspaceDep) -> None:
           dependencies=[MULTIPART, FILES])
 def add_images(files: Annotated[list[UploadFile], File(description="one or more images")],
                workspace: WorkspaceDep,
-               expected: Annotated[list[str], Form(description='per file, in order: a sign id, "none" or ""')] = [],
+               expected: Annotated[list[str], Form(description='a sign id, "none" (no sign in the photo) or "" '
+                                                               '(unlabelled): one for every file, or one per file '
+                                                               'in their order')] = [],
                ) -> UploadOut:
     """Add images; each is processed in the background (status "pending" until done). All or nothing."""
+    if len(expected) == 1:
+        expected = expected * len(files)  # one label for the lot, as a folder of one sign's photos has
     if expected and len(expected) != len(files):
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                            f"got {len(expected)} expected labels for {len(files)} files; "
-                            "send one per file (\"\" for none) or leave them out")
+                            f"got {len(expected)} expected labels for {len(files)} files; send one for all of "
+                            "them, one per file in their order (\"\" for none), or none")
     uploads = [(*read_upload(f), e) for f, e in zip(files, expected or [None] * len(files))]
     return UploadOut(images=[summary(workspace, r) for r in workspace.add_images(uploads)])
 

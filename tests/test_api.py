@@ -308,8 +308,23 @@ def test_upload_count_and_label_mismatches(client):
     photo = tiny_photo()
     assert_error(upload(client, *[(f"{i}.jpg", photo, None) for i in range(MAX_IMAGES + 1)]), 409,
                  f"limit is {MAX_IMAGES}", "delete some")
-    r = client.post("/api/images", files=[("files", ("a.jpg", photo, "image/jpeg"))] * 2, data={"expected": ["none"]})
-    assert_error(r, 422, "1 expected labels for 2 files")
+    r = client.post("/api/images", files=[("files", ("a.jpg", photo, "image/jpeg"))] * 3,
+                    data={"expected": ["none", ""]})
+    assert_error(r, 422, "2 expected labels for 3 files", "one for all of them, one per file")
+
+
+def test_one_expected_label_is_given_to_every_file(client):
+    """One label for 10 files was a 422 (one per file was needed): a folder of one sign's photos
+    took a label per photo."""
+    photos = [("files", (f"{i}.jpg", sign_photo(LIBRARY, "chief_of_security", seed=i), "image/jpeg"))
+              for i in range(10)]
+    r = client.post("/api/images", files=photos, data={"expected": "chief_of_security"})
+    assert r.status_code == 201, r.text
+    assert [i["expected"] for i in r.json()["images"]] == ["chief_of_security"] * 10
+    ids = {i["id"] for i in r.json()["images"]}
+    assert all(i["status"] == "correct" for i in wait_done(client) if i["id"] in ids)
+    for image_id in ids:
+        client.delete(f"/api/images/{image_id}")
     assert_error(client.post("/api/images", files={"expected": (None, "none")}), 422, "files")
 
 
