@@ -190,9 +190,20 @@ class CalibrationResult(BaseModel):
     warnings: list[str] = Field(description="reasons to distrust the result, each with what to do")
 
 
+class BoardSearchOut(BaseModel):
+    cols: int
+    rows: int
+    done: int = Field(description="photos searched so far")
+    total: int = Field(description="photos to search")
+
+
 class CalibrationOut(BaseModel):
     revision: int = Field(description="+1 on every change; an answer with a lower one is out of date")
     board: BoardSpec
+    search: BoardSearchOut | None = Field(
+        None, description="while a new board size (PUT /api/calibration/board) is searched for in every photo, "
+                          "how far it has come (board, views and result are the ones before it until it is done); "
+                          "null otherwise")
     min_views: int = Field(description="photos with the board found that a calibration needs at least")
     max_views: int = Field(description="photos the calibration holds at most")
     max_square_m: float = Field(description="largest board square, metres: beyond, the size was typed in millimetres")

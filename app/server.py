@@ -48,7 +48,7 @@ from pipeline.settings import PRESETS, Settings, SettingsError, settings_schema
 
 from . import figures, tuning
 from .api_models import (
-    AssumedFovIn, AttemptOut, BoardSpec, CalibrateIn, CalibrateOut, CalibrationOut, CalibrationResult,
+    AssumedFovIn, AttemptOut, BoardSearchOut, BoardSpec, CalibrateIn, CalibrateOut, CalibrationOut, CalibrationResult,
     CalibrationRunIn, CalibrationView, CameraIntrinsics, CameraModel, CameraOut, ExpectedIn, Health, ImageDetail,
     ImagesOut, ImageSummary, RecognitionOut, SettingField, SettingsOut, SignOut, SweepOut, UploadOut,
 )
@@ -734,9 +734,12 @@ def calibration_out(calibration: CalibrationSession, state: CalibrationState) ->
              for i, p in enumerate(state.photos)]
     result = None if summary is None else CalibrationResult.model_validate(
         {**summary, "camera": intrinsics(calibrated_camera(state.result))})
+    search = calibration.search
     return CalibrationOut(revision=state.revision, min_views=MIN_VIEWS, max_views=calibration.max_photos,
                           max_square_m=MAX_SQUARE_M, views=views,
                           board=BoardSpec(cols=state.board[0], rows=state.board[1], square_m=state.square_m),
+                          search=None if search is None else BoardSearchOut(
+                              cols=search.board[0], rows=search.board[1], done=search.done, total=search.total),
                           result=result)
 
 
