@@ -69,8 +69,12 @@ class ImageSummary(BaseModel):
     expected: str | None = Field(description='a sign id, "none" for an image without a sign, or null: unlabelled')
     label: str | None
     recognized: bool
-    inliers: int
-    margin: int
+    inliers: int | None = Field(description="RANSAC inliers of the recognised sign (0 without one); null when the "
+                                            "plaque fallback recognised it, which matches no features")
+    margin: int | None = Field(description="inlier margin over the runner-up; null when the plaque fallback decided")
+    by_plaque: bool = Field(False, description="the plaque fallback, not feature matches, recognised the sign")
+    plaque_correlation: float | None = Field(None, description="with by_plaque: the plaque's correlation with the "
+                                                               "sign (0 to 1), what decided instead of inliers")
     status: Literal["correct", "wrong", "recognized", "none", "pending", "error"]
     settings_version: int = Field(description="settings version the result was computed under (0: none yet)")
     result_version: int = Field(description="state generation the result was computed under: changes whenever the "
@@ -186,9 +190,20 @@ class CalibrationResult(BaseModel):
     warnings: list[str] = Field(description="reasons to distrust the result, each with what to do")
 
 
+class BoardSearchOut(BaseModel):
+    cols: int
+    rows: int
+    done: int = Field(description="photos searched so far")
+    total: int = Field(description="photos to search")
+
+
 class CalibrationOut(BaseModel):
     revision: int = Field(description="+1 on every change; an answer with a lower one is out of date")
     board: BoardSpec
+    search: BoardSearchOut | None = Field(
+        None, description="while a new board size (PUT /api/calibration/board) is searched for in every photo, "
+                          "how far it has come (board, views and result are the ones before it until it is done); "
+                          "null otherwise")
     min_views: int = Field(description="photos with the board found that a calibration needs at least")
     max_views: int = Field(description="photos the calibration holds at most")
     max_square_m: float = Field(description="largest board square, metres: beyond, the size was typed in millimetres")
@@ -237,10 +252,17 @@ class CalibrateOut(BaseModel):
 
 class SweepOut(BaseModel):
     param: str
-    values: list[float]
+    # int first: an integer setting's values, band and centre stay whole numbers in the JSON (4, not 4.0)
+    values: list[int | float] = Field(description="the values run, in order: distinct whole numbers for an "
+                                                  "integer setting")
     correct: list[int] = Field(description="labelled images recognised correctly, per value")
-    min_margin: list[int | None] = Field(description="smallest inlier margin among correct recognitions, per value")
-    band: tuple[float, float] | None = Field(
+    min_margin: list[int | None] = Field(
+        description="smallest inlier margin among the signs recognised correctly by feature matches, per value; "
+                    "null if none (signs the plaque fallback recognised have no inliers and are left out)")
+    by_plaque: list[int] = Field(description="of the labelled images right, those whose sign the plaque fallback "
+                                             "recognised, per value")
+    band: tuple[int | float, int | float] | None = Field(
         description="the longest run of values where every labelled image is right")
-    centre: float | None
+    centre: int | float | None = Field(description="the middle of the band; for an integer setting the value swept "
+                                                   "in the band nearest it")
     labelled: int

@@ -70,6 +70,15 @@ class CalibrationState:
         raise KeyError(photo_id)
 
 
+@dataclass(frozen=True)
+class BoardSearch:
+    """The photos being searched again for a new `board` ((cols, rows) inner corners): `done` of `total`."""
+
+    board: tuple[int, int]
+    done: int
+    total: int
+
+
 def read_gray(name: str, data: bytes, max_pixels: int) -> np.ndarray:
     """An uploaded photo as (H, W) uint8 gray; ImageError / ImageTooLarge as for any upload
     (checked and decoded as `decode_upload` does, without its EXIF camera: a board fixes the intrinsics)."""
@@ -87,10 +96,16 @@ class CalibrationSession:
         self.max_photos = max_photos
         self._lock = threading.Lock()
         self._state = CalibrationState()
+        self._search: BoardSearch | None = None
 
     @property
     def state(self) -> CalibrationState:
         return self._state
+
+    @property
+    def search(self) -> BoardSearch | None:
+        """How far the search for a new board size has come (`set_board`), None when none is under way."""
+        return self._search
 
     def _commit(self, **changes: object) -> CalibrationState:
         """Replace the state by one with `changes` and the next revision (the caller holds the lock).
@@ -131,9 +146,22 @@ class CalibrationSession:
             state = self._state
             photos = state.photos
             if board != state.board:
-                photos = tuple(dataclasses.replace(
-                    p, view=find_board(read_gray(p.name, p.data, self.max_pixels), board, p.name)) for p in photos)
+                photos = self._search_again(photos, board)
             return self._commit(board=board, square_m=square_m, photos=photos)
+
+    def _search_again(self, photos: tuple[CalibrationPhoto, ...],
+                      board: tuple[int, int]) -> tuple[CalibrationPhoto, ...]:
+        """`photos` with the `board` searched for in each, saying how far it has come in `search`
+        (18 phone photos take some 10 s; the state keeps the old board until all are done)."""
+        searched: list[CalibrationPhoto] = []
+        try:
+            for photo in photos:
+                self._search = BoardSearch(board, len(searched), len(photos))
+                searched.append(dataclasses.replace(
+                    photo, view=find_board(read_gray(photo.name, photo.data, self.max_pixels), board, photo.name)))
+            return tuple(searched)
+        finally:
+            self._search = None
 
     def remove(self, photo_id: str) -> CalibrationState:
         """Forget one photo; KeyError when there is none with `photo_id`."""

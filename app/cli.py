@@ -16,7 +16,7 @@ import cv2
 from tqdm import tqdm
 
 from app.entry import EXIT_INTERRUPTED
-from app.workspace import WorkspaceConfig, check_image_header, decode_upload
+from app.workspace import HELD_BYTES_PER_PIXEL, WorkspaceConfig, check_image_header, decode_upload, held_bytes
 from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, assumed_camera, load_camera
 from pipeline.evaluate import keep_freed_memory
 from pipeline.image import ImageError, read_file
@@ -221,7 +221,7 @@ def cmd_serve(args) -> int:
         state_dir=Path(args.state_dir), library_dir=Path(args.library) if args.library else None,
         camera_file=Path(args.camera) if args.camera else None,
         settings_file=Path(args.settings) if args.settings else None,
-        max_images=args.max_images, max_pixels=max_pixels(args),
+        max_images=args.max_images, max_pixels=max_pixels(args), max_memory_bytes=round(args.max_memory_gb * 1e9),
         max_upload_bytes=round(args.max_upload_mb * 1e6), request_timeout_s=args.request_timeout,
     )
     token = access_token(args.host, args.token or os.environ.get(TOKEN_ENV))
@@ -354,6 +354,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="where settings, library, camera and images survive restarts (default ./%(default)s)")
     p.add_argument("--max-images", type=positive_int, default=WorkspaceConfig.max_images,
                    help="most images held at once (default %(default)s)")
+    p.add_argument("--max-memory-gb", type=positive_number, default=round(WorkspaceConfig.max_memory_bytes / 1e9, 1),
+                   help=f"memory the images held may take in GB, each counted {HELD_BYTES_PER_PIXEL} bytes a pixel "
+                        f"plus 1 MB, a 12 MP photo {held_bytes(12_000_000) / 1e6:.0f} MB (default: half this "
+                        "machine's memory, %(default)g)")
     add_max_megapixels(p)
     p.add_argument("--max-upload-mb", type=positive_number, default=WorkspaceConfig.max_upload_bytes / 1e6,
                    help="largest request body in MB (default %(default)g)")

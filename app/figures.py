@@ -14,9 +14,11 @@ from pipeline.camera import Camera
 from pipeline.image import to_gray
 from pipeline.library import Library
 from pipeline.recognize import Attempt, Recognition, SignScore
-from pipeline.segment import Box, Segmentation, segment
+from pipeline.segment import Box, Segmentation, normalize_levels, segment
 
 STAGES = ("input", "gray", "mask", "blob", "crop", "matches", "inliers")
+# The stages drawn on the colour photo; the others need only its gray.
+PHOTO_STAGES = ("input", "blob", "crop", "matches", "inliers")
 MAX_SIDE_PX = 1600
 MATCH_PANEL_HEIGHT_PX = 600
 MATCH_PANEL_MAX_WIDTH_PX = 4 * MATCH_PANEL_HEIGHT_PX
@@ -162,8 +164,11 @@ def draw_input(image: np.ndarray, recognition: Recognition) -> np.ndarray:
 
 
 def draw_gray(image: np.ndarray, recognition: Recognition) -> np.ndarray:
-    """The normalised gray image the threshold applies to."""
-    return np.round(segmentation_of(image, recognition).gray * 255).astype(np.uint8)
+    """The normalised gray image the threshold applies to, as uint8 levels (through a lookup table:
+    a float copy of a 12 MP photo would take 48 MB)."""
+    seg = segmentation_of(image, recognition)
+    levels = normalize_levels(seg.source, seg.normalization)
+    return cv2.LUT(seg.source, np.round(levels * 255).astype(np.uint8))
 
 
 def draw_mask(image: np.ndarray, recognition: Recognition) -> np.ndarray:
@@ -260,7 +265,8 @@ def draw_matches(image: np.ndarray, recognition: Recognition, library: Library, 
 
 def stage_figure(stage: str, image: np.ndarray, recognition: Recognition, library: Library,
                  sign_id: str | None = None) -> np.ndarray:
-    """The figure for `stage` (one of STAGES); FigureError when it cannot be drawn."""
+    """The figure for `stage` (one of STAGES) of `image`, the colour photo for PHOTO_STAGES, else
+    the photo or its gray; FigureError when it cannot be drawn."""
     if stage in ("matches", "inliers"):
         img = draw_matches(image, recognition, library, sign_id, inliers_only=stage == "inliers")
     else:

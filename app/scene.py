@@ -471,7 +471,7 @@ class SceneHandle:
                      color: tuple[int, int, int], position: np.ndarray, wxyz: np.ndarray) -> viser.CameraFrustumHandle:
         thumbnail = self._thumbnails.get(record.id)
         if thumbnail is None:
-            thumbnail = self._thumbnails[record.id] = fit_width(record.image, THUMBNAIL_WIDTH_PX)
+            thumbnail = self._thumbnails[record.id] = fit_width(self.workspace.photo(record), THUMBNAIL_WIDTH_PX)
         frustum = self.server.scene.add_camera_frustum(
             f"/signs/{sign_id}/cameras/{record.id}", fov, aspect, scale=scale, color=color, image=thumbnail,
             thickness=2.0, thickness_units="screen", position=position, wxyz=wxyz)

@@ -48,7 +48,7 @@ from pipeline.settings import PRESETS, Settings, SettingsError, settings_schema
 
 from . import figures, tuning
 from .api_models import (
-    AssumedFovIn, AttemptOut, BoardSpec, CalibrateIn, CalibrateOut, CalibrationOut, CalibrationResult,
+    AssumedFovIn, AttemptOut, BoardSearchOut, BoardSpec, CalibrateIn, CalibrateOut, CalibrationOut, CalibrationResult,
     CalibrationRunIn, CalibrationView, CameraIntrinsics, CameraModel, CameraOut, ExpectedIn, Health, ImageDetail,
     ImagesOut, ImageSummary, RecognitionOut, SettingField, SettingsOut, SignOut, SweepOut, UploadOut,
 )
@@ -277,13 +277,17 @@ async def within_time_limit(workspace: Workspace, what: str, work: Callable[[thr
 
 
 def summary(workspace: Workspace, record: ImageRecord, outcome: Outcome | None = None) -> ImageSummary:
-    """The image's summary from `outcome` (default: its latest)."""
+    """The image's summary from `outcome` (default: its latest). A sign the plaque fallback found
+    has no feature inliers or margin (null, as the CLI's table shows '-'), but its correlation."""
     outcome = record.outcome if outcome is None else outcome
     rec = outcome.recognition
+    by_plaque = bool(rec and rec.by_plaque)
     return ImageSummary(
         id=record.id, name=record.name, expected=record.expected,
         label=rec.label if rec else None, recognized=bool(rec and rec.recognized),
-        inliers=rec.best.n_inliers if rec and rec.best else 0, margin=rec.margin if rec else 0,
+        inliers=None if by_plaque else rec.best.n_inliers if rec and rec.best else 0,
+        margin=None if by_plaque else rec.margin if rec else 0,
+        by_plaque=by_plaque, plaque_correlation=round(rec.plaque.correlation, 4) if by_plaque else None,
         status=status_of(record.expected, outcome, workspace.snapshot.generation),
         settings_version=outcome.settings_version, result_version=outcome.generation,
         width=record.width, height=record.height, error=outcome.error,
@@ -535,13 +539,17 @@ def delete_sign(sign_id: SignIdDep, workspace: WorkspaceDep) -> None:
           dependencies=[MULTIPART, FILES])
 def add_images(files: Annotated[list[UploadFile], File(description="one or more images")],
                workspace: WorkspaceDep,
-               expected: Annotated[list[str], Form(description='per file, in order: a sign id, "none" or ""')] = [],
+               expected: Annotated[list[str], Form(description='a sign id, "none" (no sign in the photo) or "" '
+                                                               '(unlabelled): one for every file, or one per file '
+                                                               'in their order')] = [],
                ) -> UploadOut:
     """Add images; each is processed in the background (status "pending" until done). All or nothing."""
+    if len(expected) == 1:
+        expected = expected * len(files)  # one label for the lot, as a folder of one sign's photos has
     if expected and len(expected) != len(files):
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                            f"got {len(expected)} expected labels for {len(files)} files; "
-                            "send one per file (\"\" for none) or leave them out")
+                            f"got {len(expected)} expected labels for {len(files)} files; send one for all of "
+                            "them, one per file in their order (\"\" for none), or none")
     uploads = [(*read_upload(f), e) for f, e in zip(files, expected or [None] * len(files))]
     return UploadOut(images=[summary(workspace, r) for r in workspace.add_images(uploads)])
 
@@ -586,7 +594,8 @@ def get_stage(record: RecordDep, stage: Literal[figures.STAGES], workspace: Work
     """A figure of one pipeline stage for the image's latest result (header X-Settings-Version)."""
     outcome = result_of(record)
     try:
-        img = figures.stage_figure(stage, record.image, outcome.recognition, workspace.library, sign)
+        image = workspace.photo(record) if stage in figures.PHOTO_STAGES else record.gray
+        img = figures.stage_figure(stage, image, outcome.recognition, workspace.library, sign)
     except figures.FigureError as exc:
         raise HTTPException(status.HTTP_404_NOT_FOUND, str(exc)) from None
     return Response(figures.png(img), media_type="image/png",
@@ -626,7 +635,7 @@ def calibrate_threshold(body: CalibrateIn, workspace: WorkspaceDep) -> tuning.Th
                                 "mark a rectangle around the sign with some wall in it (on the page, drag a "
                                 "box; in the API, send rect [x0, y0, x1, y1])")
         inside, source = region
-    return tuning.suggest_threshold(record.image, workspace.settings.normalization, inside, source)
+    return tuning.suggest_threshold(record.gray, workspace.settings.normalization, inside, source)
 
 
 @api.get("/sweep", response_model=SweepOut, tags=["tuning"])
@@ -648,14 +657,16 @@ async def sweep(workspace: WorkspaceDep,
     values = tuning.sweep_values(lo, hi, steps, param in INTEGER_SETTINGS)
     runs = await within_time_limit(workspace, f"the sweep of {param} over {len(labelled)} images",
                                    lambda stop: workspace.sweep(param, values, labelled, stop))
-    correct, min_margin = [], []
+    correct, min_margin, by_plaque = [], [], []
     for recs in runs:
         good = [rec for record, rec in zip(labelled, recs) if is_correct(record.expected, rec)]
         correct.append(len(good))
-        min_margin.append(min((rec.margin for rec in good if rec.recognized), default=None))
+        # The plaque fallback matches no features: its margin is no inlier margin.
+        min_margin.append(min((rec.margin for rec in good if rec.recognized and not rec.by_plaque), default=None))
+        by_plaque.append(sum(rec.by_plaque for rec in good))
     band = tuning.working_band(values, [c == len(labelled) for c in correct])
-    return SweepOut(param=param, values=values, correct=correct, min_margin=min_margin, band=band,
-                    centre=tuning.band_centre(values, band, param in INTEGER_SETTINGS), labelled=len(labelled))
+    return SweepOut(param=param, values=values, correct=correct, min_margin=min_margin, by_plaque=by_plaque,
+                    band=band, centre=tuning.band_centre(values, band, param in INTEGER_SETTINGS), labelled=len(labelled))
 
 
 # ---- camera
@@ -723,9 +734,12 @@ def calibration_out(calibration: CalibrationSession, state: CalibrationState) ->
              for i, p in enumerate(state.photos)]
     result = None if summary is None else CalibrationResult.model_validate(
         {**summary, "camera": intrinsics(calibrated_camera(state.result))})
+    search = calibration.search
     return CalibrationOut(revision=state.revision, min_views=MIN_VIEWS, max_views=calibration.max_photos,
                           max_square_m=MAX_SQUARE_M, views=views,
                           board=BoardSpec(cols=state.board[0], rows=state.board[1], square_m=state.square_m),
+                          search=None if search is None else BoardSearchOut(
+                              cols=search.board[0], rows=search.board[1], done=search.done, total=search.total),
                           result=result)
 
 

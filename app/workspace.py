@@ -14,28 +14,31 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import itertools
 import json
 import logging
 import mimetypes
+import os
 import re
 import secrets
 import threading
 import time
 import warnings
+from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import cv2
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from pipeline.camera import Camera, assumed_camera, check_hfov, load_camera
-from pipeline.evaluate import CORES
+from pipeline.evaluate import CORES, release_freed_memory
 from pipeline.exif import ExifCamera, decode_with_exif
 from pipeline.features import library_features
-from pipeline.image import ImageError, unreadable
+from pipeline.image import ImageError, to_gray, unreadable
 from pipeline.library import NO_SIGN, SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, make_sign, validate_sign_entry
 from pipeline.recognize import PipelineError, Recognition, StageCache, run_pipeline
 from pipeline.settings import PRESETS, Settings, load_settings
@@ -49,7 +52,45 @@ MAX_NAME_CHARS = 200
 IMAGE_ID = re.compile(r"^[0-9a-f]{12}$")
 # Settings versions whose settings are kept, so a result's version can be checked against them.
 SETTINGS_HISTORY = 1000
+# Colour photos kept decoded for figures (`Workspace.photo`): a detail view draws five from one.
+PHOTOS_KEPT = 2
+# The memory freed by deletions and finished work goes back to the system this long after (by
+# then the requests that deleted images have let go of them), once for a burst.
+TRIM_DELAY_S = 1.0
 EVENT_KINDS = ("settings", "results", "library", "camera", "images")
+# An image held keeps its gray (1 byte a pixel) and its result's segmentation labels (1), and
+# its stage cache may keep CACHE_BYTES_PER_PIXEL more as the cache counts them (a segmentation
+# counts 2: its labels and the gray it shares with the image) plus CACHE_MIN_BYTES for features
+# and matches. The memory limit charges every image all of it: `held_bytes`.
+CACHE_BYTES_PER_PIXEL = 3
+CACHE_MIN_BYTES = 1_000_000
+HELD_BYTES_PER_PIXEL = 2 + CACHE_BYTES_PER_PIXEL
+
+
+def held_bytes(pixels: int) -> int:
+    """The most memory an image of `pixels` px takes while the workspace holds it."""
+    return HELD_BYTES_PER_PIXEL * pixels + CACHE_MIN_BYTES
+
+
+def memory_size() -> int | None:
+    """Bytes of memory this process may use: the machine's, or its container's (cgroup) limit when
+    lower; None when neither can be read."""
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):  # no sysconf (Windows) or no such name
+        total = None
+    for limit_file in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            limit = int(Path(limit_file).read_text().strip())
+        except (OSError, ValueError):  # no such file, or "max": no limit
+            continue
+        total = limit if total is None else min(total, limit)
+    return total
+
+
+# The images held may take half the memory; the rest is for the pipeline's working memory (a
+# 12 MP photo takes a few hundred MB while it is processed), the page's figures and the system.
+DEFAULT_MAX_MEMORY_BYTES = (memory_size() or 8_000_000_000) // 2
 
 
 class Conflict(ValueError):
@@ -72,6 +113,7 @@ class WorkspaceConfig:
     max_images: int = 500
     max_pixels: int = 40_000_000
     max_upload_bytes: int = 25_000_000
+    max_memory_bytes: int = DEFAULT_MAX_MEMORY_BYTES  # what the images held may take, as `held_bytes` counts
     request_timeout_s: float = 120.0  # longest a request waits for pipeline work (recognise, sweep)
     workers: int = CORES  # every core; `signpose evaluate --workers` defaults to it too
     debounce_s: float = 0.15
@@ -119,21 +161,30 @@ class Outcome:
 
 @dataclass(eq=False)
 class ImageRecord:
-    """One loaded image. `image` is (H, W, 3) uint8 BGR; `file` its stored name in the state directory;
-    `exif` the intrinsics its EXIF implies (or why none), used while the workspace has no camera."""
+    """One loaded image. `gray` is (H, W) uint8, what the pipeline reads (the colour photo, three
+    times its size, is decoded again from the stored file for the figures that show it:
+    `Workspace.photo`); `file` its stored name in the state directory; `exif` the intrinsics its
+    EXIF implies (or why none), used while the workspace has no camera."""
 
     id: str
     name: str
     expected: str | None
-    image: np.ndarray = field(repr=False)
+    gray: np.ndarray = field(repr=False)
     file: str
     media_type: str
     exif: ExifCamera = ExifCamera()
-    cache: StageCache = field(default_factory=StageCache, repr=False)
+    cache: StageCache = field(init=False, repr=False)
     outcome: Outcome = field(default_factory=Outcome)
     # Held while the pipeline uses `cache`: StageCache is not thread-safe and a sweep may run
     # alongside a re-run.
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def __post_init__(self) -> None:
+        self.cache = self.new_cache()
+
+    def new_cache(self) -> StageCache:
+        """An empty stage cache that keeps at most what `held_bytes` allows for this image."""
+        return StageCache(max_bytes=CACHE_BYTES_PER_PIXEL * self.gray.size + CACHE_MIN_BYTES)
 
     @property
     def recognition(self) -> Recognition | None:
@@ -149,11 +200,11 @@ class ImageRecord:
 
     @property
     def width(self) -> int:
-        return int(self.image.shape[1])
+        return int(self.gray.shape[1])
 
     @property
     def height(self) -> int:
-        return int(self.image.shape[0])
+        return int(self.gray.shape[0])
 
     def stored(self) -> StoredImage:
         return StoredImage(self.id, self.name, self.expected, self.file, self.media_type)
@@ -185,8 +236,14 @@ def display_name(name: str) -> str:
     return base[:MAX_NAME_CHARS] or "image"
 
 
-def check_image_header(data: bytes, name: str, max_pixels: int) -> str:
-    """The media type of encoded image `data`, after checking its header says at most `max_pixels` px.
+class ImageHeader(NamedTuple):
+    media_type: str
+    width: int  # px, as stored (before any EXIF rotation)
+    height: int
+
+
+def check_image_header(data: bytes, name: str, max_pixels: int) -> ImageHeader:
+    """The media type and size of encoded image `data`, after checking its header says at most `max_pixels` px.
 
     Reads only the header (no pixel data is decoded), so a small file claiming a huge image
     is refused before it can take gigabytes of memory.
@@ -207,7 +264,7 @@ def check_image_header(data: bytes, name: str, max_pixels: int) -> str:
     if width * height > max_pixels:
         raise ImageTooLarge(f"{name}: {width}x{height} px is {width * height / 1e6:.1f} megapixels, more than "
                             f"the limit of {max_pixels / 1e6:g}; downscale it, or raise --max-megapixels")
-    return media_type
+    return ImageHeader(media_type, width, height)
 
 
 def decode_upload(data: bytes, name: str, max_pixels: int) -> tuple[np.ndarray, str, ExifCamera]:
@@ -215,9 +272,16 @@ def decode_upload(data: bytes, name: str, max_pixels: int) -> tuple[np.ndarray, 
 
     Raises ImageError.
     """
-    media_type = check_image_header(data, name, max_pixels)
+    media_type = check_image_header(data, name, max_pixels).media_type
     image, exif = decode_with_exif(data, name)
     return image, media_type, exif
+
+
+def decode_gray(data: bytes, name: str) -> tuple[np.ndarray, ExifCamera]:
+    """Decode an image whose header is checked: ((H, W) uint8 gray as the pipeline makes it, what its
+    EXIF gives for the camera). The colour copy is dropped at once: the workspace keeps the gray."""
+    image, exif = decode_with_exif(data, name)
+    return to_gray(image), exif
 
 
 def sample_scenes(folder: Path = SAMPLE_SCENES) -> list[tuple[Path, str | None]]:
@@ -245,6 +309,8 @@ class Workspace:
         self._disk_lock = threading.Lock()  # orders writes of settings.json and camera.json
         self._idle = threading.Condition(self._lock)
         self._records: dict[str, ImageRecord] = {}
+        self._photos: OrderedDict[str, np.ndarray] = OrderedDict()  # image id -> colour photo, see photo()
+        self._photo_lock = threading.Lock()
         self._subscribers: list[Callable[[Event], None]] = []
         self._pool = ThreadPoolExecutor(max_workers=max(1, config.workers), thread_name_prefix="signpose-pipeline")
         self._opencv_threads = cv2.getNumThreads()  # the process's, given back by close()
@@ -258,6 +324,7 @@ class Workspace:
         self._batch_running = False
         self._in_flight = 0
         self._closed = False
+        self._trim_timer: threading.Timer | None = None
 
         library = self.state.open_library(config.library_dir, SAMPLE_LIBRARY)
         settings = self.state.load_settings() or PRESETS["default"]
@@ -275,8 +342,8 @@ class Workspace:
         self.state.sweep(stored or [], library)
         for entry, decoded in zip(stored or [], self._pool.map(self._decode_stored, stored or [])):
             if decoded is not None:
-                image, exif = decoded
-                self._records[entry.id] = ImageRecord(entry.id, entry.name, entry.expected, image, entry.file,
+                gray, exif = decoded
+                self._records[entry.id] = ImageRecord(entry.id, entry.name, entry.expected, gray, entry.file,
                                                       entry.media_type, exif)
         if len(self._records) != len(stored or []):
             self.state.save_images([r.stored() for r in self._records.values()])
@@ -289,8 +356,9 @@ class Workspace:
             self._request_rerun()
 
     def _decode_stored(self, entry: StoredImage) -> tuple[np.ndarray, ExifCamera] | None:
+        """(gray, EXIF camera) of a stored image, None when its file is unusable."""
         try:
-            return decode_with_exif(self.state.read_image(entry.file), entry.name)
+            return decode_gray(self.state.read_image(entry.file), entry.name)
         except (OSError, ImageError) as exc:  # a file damaged on disk: drop it rather than refuse to start
             log.warning("dropping stored image %s (%s): %s", entry.name, entry.file, exc)
             return None
@@ -361,25 +429,28 @@ class Workspace:
     def add_images(self, uploads: list[tuple[str, bytes, str | None]]) -> list[ImageRecord]:
         """Decode, store and queue (name, encoded bytes, expected label) uploads, all or none.
 
-        Raises ImageError (ImageTooLarge for too many pixels), LibraryError for an unknown
-        expected label, Conflict when the images would exceed `max_images`.
+        Raises ImageError (ImageTooLarge for too many pixels, or an image that alone would take
+        more than `max_memory_bytes`), LibraryError for an unknown expected label, Conflict when the
+        images would exceed `max_images` or `max_memory_bytes`.
         """
-        with self._lock:
-            self._check_capacity(len(uploads))  # before decoding anything
         checked = [(display_name(name), data, self.check_expected(expected)) for name, data, expected in uploads]
+        headers = [check_image_header(data, name, self.config.max_pixels) for name, data, _ in checked]
+        sizes = [(name, header.width * header.height) for (name, _, _), header in zip(checked, headers)]
+        with self._lock:
+            self._check_room(sizes)  # before decoding anything
         # Decoded here, in the caller's thread: the pipeline pool may be busy with a long re-run.
-        decoded = [decode_upload(data, name, self.config.max_pixels) for name, data, _ in checked]
+        decoded = [decode_gray(data, name) for name, data, _ in checked]
         records = []
         try:
             # Files first, outside the lock (each write is fsync'd); until the index names them a
             # crash leaves only orphans, which the next start sweeps.
-            for (name, data, expected), (image, media_type, exif) in zip(checked, decoded):
+            for (name, data, expected), (gray, exif), (media_type, _, _) in zip(checked, decoded, headers):
                 image_id = secrets.token_hex(6)
-                records.append(ImageRecord(image_id, name, expected, image, image_id + _extension(media_type),
+                records.append(ImageRecord(image_id, name, expected, gray, image_id + _extension(media_type),
                                            media_type, exif))
                 self.state.write_image(records[-1].file, data)
             with self._lock:
-                self._check_capacity(len(records))  # again: another upload may have landed meanwhile
+                self._check_room(sizes)  # again: another upload may have landed meanwhile
                 self.state.save_images([r.stored() for r in [*self._records.values(), *records]])
                 self._records.update((r.id, r) for r in records)
                 for record in records:
@@ -391,11 +462,59 @@ class Workspace:
         self._emit("images", {"ids": [r.id for r in self.images()]})
         return records
 
-    def _check_capacity(self, adding: int) -> None:
-        held = len(self._records)
-        if held + adding > self.config.max_images:
+    def photo(self, record: ImageRecord) -> np.ndarray:
+        """(H, W, 3) uint8 BGR: the image in colour, as uploaded, for the figures drawn on it.
+
+        Decoded again from the stored file (the last PHOTOS_KEPT kept, as a detail view asks for
+        several figures of one image at once); the gray it holds, when the file is gone (the
+        image was deleted meanwhile) or no longer readable.
+        """
+        with self._photo_lock:  # one decode of an image however many figures ask for it at once
+            if (photo := self._photos.get(record.id)) is not None:
+                self._photos.move_to_end(record.id)
+                return photo
+            try:
+                photo = decode_with_exif(self.state.read_image(record.file), record.name)[0]
+            except (OSError, ImageError) as exc:
+                log.warning("%s: drawn in gray, its stored file is unusable: %s", record.name, exc)
+                return cv2.cvtColor(record.gray, cv2.COLOR_GRAY2BGR)
+            self._photos[record.id] = photo
+            while len(self._photos) > PHOTOS_KEPT:
+                self._photos.popitem(last=False)
+            return photo
+
+    def _check_room(self, uploads: list[tuple[str, int]]) -> None:
+        """Refuse to add `uploads` ((display name, pixels)) beyond `max_images` or `max_memory_bytes`
+        (Conflict), or an image that alone would take more than `max_memory_bytes` (ImageTooLarge);
+        the message says what fits. The caller holds the lock."""
+        held, limit = len(self._records), self.config.max_memory_bytes
+        if held + len(uploads) > self.config.max_images:
             raise Conflict(f"the workspace holds {held} images and its limit is {self.config.max_images}; "
-                           f"delete some before adding {adding} more")
+                           f"delete some before adding {len(uploads)} more")
+        for name, pixels in uploads:
+            if held_bytes(pixels) > limit:
+                raise ImageTooLarge(f"{name}: {pixels / 1e6:.1f} megapixels would take {_memory(held_bytes(pixels))} "
+                                    f"held, more than the server's memory limit of {_memory(limit)}; downscale "
+                                    "it, or restart signpose serve with a higher --max-memory-gb")
+        used = sum(held_bytes(r.gray.size) for r in self._records.values())
+        needed = [held_bytes(pixels) for _, pixels in uploads]
+        if used + sum(needed) <= limit:
+            return
+        left = max(0, limit - used)
+        fit = sum(total <= left for total in itertools.accumulate(needed))
+        largest = (left - CACHE_MIN_BYTES) // HELD_BYTES_PER_PIXEL // 100_000  # tenths of a megapixel, down
+        if fit:
+            room = "only the first of them fits" if fit == 1 else f"the first {fit} of them fit"
+        elif largest > 0:
+            room = f"an image of up to {largest / 10:.1f} megapixels fits"
+        else:
+            room = "no image fits"
+        what = f"{uploads[0][0]} ({uploads[0][1] / 1e6:.1f} megapixels)" if len(uploads) == 1 else \
+            f"these {len(uploads)} images"
+        raise Conflict(f"the {held} images held take {_memory(used)} of the server's memory limit of "
+                       f"{_memory(limit)} (--max-memory-gb); {what} would take {_memory(sum(needed))} more and "
+                       f"{_memory(left)} is left: {room}; delete some images, or restart signpose serve with "
+                       "a higher --max-memory-gb")
 
     def set_expected(self, image_id: str, expected: str | None) -> ImageRecord:
         with self._lock:
@@ -411,6 +530,9 @@ class Workspace:
             record = self._records.pop(image_id)
             self.state.save_images([r.stored() for r in self._records.values()])
             self.state.remove_image(record.file)
+        with self._photo_lock:
+            self._photos.pop(image_id, None)
+        self._trim_soon()
         self._emit("images", {"ids": [r.id for r in self.images()]})
 
     def image_path(self, record: ImageRecord) -> Path:
@@ -486,7 +608,7 @@ class Workspace:
         self._change(library=library)
         for record in self._records.values():
             # Cached matches are keyed by sign id, which a new sign may reuse: start afresh.
-            record.cache = StageCache()
+            record.cache = record.new_cache()
 
     def add_sign(self, sign_id: str, data: bytes, name: str = "", text: str = "",
                  width_m: float = 0.0, height_m: float | None = None) -> LibrarySign:
@@ -578,6 +700,7 @@ class Workspace:
                 self._in_flight -= 1
                 self._idle.notify_all()
             self._emit("results", self.progress())
+            self._trim_soon()
 
     def _process(self, record: ImageRecord, snap: Snapshot) -> None:
         """Bring one image's result up to `snap`, unless a newer change or a removal made that pointless."""
@@ -587,7 +710,7 @@ class Workspace:
             if record.outcome.generation >= snap.generation:
                 return
             try:
-                rec = run_logged(record.name, record.image, snap.library, snap.settings,
+                rec = run_logged(record.name, record.gray, snap.library, snap.settings,
                                  snap.camera_for(record.exif, record.width, record.height), record.cache)
                 outcome = Outcome(rec, snap.settings_version, snap.generation)
             except PipelineError as exc:  # a failure on one image must not stop the others
@@ -623,10 +746,31 @@ class Workspace:
             try:
                 self._run_batch(snap, stale)
             finally:
+                # Not kept while the loop waits for the next change: images deleted meanwhile would
+                # stay in memory until then.
+                del stale
                 with self._lock:
                     self._batch_running = False
                     self._idle.notify_all()
                 self._emit("results", self.progress())
+                self._trim_soon()
+
+    def _trim_soon(self) -> None:
+        """Hand the memory freed by deletions and finished work back to the system TRIM_DELAY_S from
+        now, unless work is still going on then (its end calls this again). glibc would keep it
+        (`release_freed_memory`): a tester's server stayed at 3.7 GB after deleting all its photos."""
+        with self._lock:
+            if self._trim_timer is None and not self._closed:
+                self._trim_timer = threading.Timer(TRIM_DELAY_S, self._trim)
+                self._trim_timer.daemon = True
+                self._trim_timer.start()
+
+    def _trim(self) -> None:
+        with self._lock:
+            self._trim_timer = None
+            if self.busy or self._closed:
+                return
+        release_freed_memory()
 
     def _run_batch(self, snap: Snapshot, records: list[ImageRecord]) -> None:
         if records:
@@ -646,14 +790,17 @@ class Workspace:
         """
         image, _, exif = decode_upload(data, name, self.config.max_pixels)
         snap = self._snap
-        return run_logged(name, image, snap.library, snap.settings,
-                          snap.camera_for(exif, image.shape[1], image.shape[0]))
+        try:
+            return run_logged(name, image, snap.library, snap.settings,
+                              snap.camera_for(exif, image.shape[1], image.shape[0]))
+        finally:
+            self._trim_soon()
 
     def run_with(self, record: ImageRecord, settings: Settings) -> Recognition:
         """Recognise one stored image under `settings`, re-using (and feeding) its stage cache."""
         snap = self._snap
         with record.lock:
-            return run_logged(record.name, record.image, snap.library, settings,
+            return run_logged(record.name, record.gray, snap.library, settings,
                               snap.camera_for(record.exif, record.width, record.height), record.cache)
 
     def sweep(self, param: str, values: list[float], records: list[ImageRecord],
@@ -674,7 +821,10 @@ class Workspace:
                 out.append(self.run_with(record, settings))
             return out
 
-        per_image = list(self._pool.map(runs, records))
+        try:
+            per_image = list(self._pool.map(runs, records))
+        finally:
+            self._trim_soon()
         return [[results[i] for results in per_image] for i in range(len(variants))]
 
     def close(self) -> None:
@@ -683,6 +833,8 @@ class Workspace:
         with self._lock:
             self._closed = True
             self._idle.notify_all()
+            if self._trim_timer is not None:
+                self._trim_timer.cancel()
         self._runner.join(timeout=10)
         self._pool.shutdown(wait=True, cancel_futures=True)
         cv2.setNumThreads(self._opencv_threads)
@@ -696,6 +848,11 @@ def run_logged(name: str, image: np.ndarray, library: Library, settings: Setting
     except PipelineError:
         log.exception("pipeline failed on %s", name)
         raise
+
+
+def _memory(size: int) -> str:
+    """`size` bytes for people: "2.5 MB", "61 MB", "11.6 GB"."""
+    return f"{size / 1e9:.3g} GB" if size >= 1e9 else f"{size / 1e6:.3g} MB"
 
 
 def _extension(media_type: str) -> str:

@@ -318,10 +318,27 @@ def keep_freed_memory() -> None:
     3 s of it system time; with these thresholds the main thread takes 7.6 s. Process-wide,
     so only for processes that exist to run the pipeline; no-op without glibc.
     """
-    mallopt = getattr(ctypes.CDLL(None), "mallopt", None)
+    mallopt = _glibc("mallopt")
     if mallopt is not None:
         mallopt(_M_MMAP_THRESHOLD, _MMAP_BYTES)
         mallopt(_M_TRIM_THRESHOLD, _TRIM_BYTES)
+
+
+def release_freed_memory() -> None:
+    """Hand the memory glibc holds freed back to the system (malloc_trim); no-op without glibc.
+
+    glibc returns only the top of each heap by itself: image-sized buffers freed between
+    others stay in the process, in the arena of the thread that used them, so a server's memory
+    does not fall when it drops images. For long-running processes, when they have freed much.
+    """
+    trim = _glibc("malloc_trim")
+    if trim is not None:
+        trim(0)
+
+
+def _glibc(name: str):
+    """The C library function `name` of this process, or None (not glibc)."""
+    return getattr(ctypes.CDLL(None), name, None)
 
 
 def _start_worker(library: Library, settings: Settings, check_image: ImageCheck | None, jobs: list[Job],

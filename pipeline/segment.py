@@ -8,7 +8,6 @@ candidates, so a larger white object (a door, a whiteboard) does not hide the si
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import cached_property
 
 import cv2
 import numpy as np
@@ -28,28 +27,41 @@ class Blob:
     bbox: Box
 
 
+# `Segmentation.labels` of a white pixel in no candidate blob (candidates are labelled 1, 2, ...).
+OTHER_WHITE = 255
+
+
 @dataclass(frozen=True, eq=False)
 class Segmentation:
     """Intermediates of segmentation, all (H, W) like the input.
 
     source: the uint8 gray image segmented; normalization: its `normalize_gray` mode;
-    mask: uint8 0/255 white pixels; labels: int32 component ids; blobs: candidate blobs, largest
-    first; crops: one `Box` per blob, with margin, clipped to the image.
+    labels: uint8, 0 below the threshold, k for the pixels of candidate blob k (`blobs[k - 1]`,
+    whose `label` is k) and OTHER_WHITE for the other white pixels; blobs: candidate blobs,
+    largest first; crops: one `Box` per blob, with margin, clipped to the image.
+
+    A server keeps one per image held, so it keeps one byte a pixel besides `source`: the mask
+    and the float gray are derived on use, and the labels of the components that are not
+    candidates, which nothing reads, are not kept (as int32 they were four bytes a pixel).
     """
 
     source: np.ndarray = field(repr=False)
     normalization: str
-    mask: np.ndarray = field(repr=False)
     labels: np.ndarray = field(repr=False)
     blobs: list[Blob]
     crops: list[Box]
 
-    @cached_property
+    @property
+    def mask(self) -> np.ndarray:
+        """(H, W) uint8 0/255: the white pixels, those at or above the threshold."""
+        return cv2.threshold(self.labels, 0, 255, cv2.THRESH_BINARY)[1]
+
+    @property
     def gray(self) -> np.ndarray:
         """(H, W) float32 normalised gray in [0, 1], the image the threshold applies to.
 
-        Computed on first use: thresholding needs only `threshold_lut`, and a float copy of
-        every image would cost time and memory on each run for a figure few look at."""
+        Computed on each use, not kept: thresholding needs only `threshold_lut`, and a float
+        copy is four bytes a pixel (48 MB for a 12 MP photo) for a figure few look at."""
         return normalize_gray(self.source, self.normalization)
 
 
@@ -127,7 +139,10 @@ def segment(gray: np.ndarray, settings: Settings) -> Segmentation:
     for i in order[: settings.candidates]:
         if areas[i] < min_area:
             break
-        blobs.append(component_blob(stats, int(i + 1)))
+        blob = component_blob(stats, int(i + 1))
+        # The mask becomes the kept labels: OTHER_WHITE (its 255) but where a candidate is.
+        x0, y0, x1, y1 = blob.bbox
+        mask[y0:y1, x0:x1][labels[y0:y1, x0:x1] == blob.label] = len(blobs) + 1
+        blobs.append(Blob(len(blobs) + 1, blob.area, blob.bbox))
     crops = [expand_box(b.bbox, settings.crop_margin, w, h) for b in blobs]
-    return Segmentation(source=gray, normalization=settings.normalization, mask=mask, labels=labels,
-                        blobs=blobs, crops=crops)
+    return Segmentation(source=gray, normalization=settings.normalization, labels=mask, blobs=blobs, crops=crops)

@@ -85,11 +85,17 @@ function updateCard({ card, parts }, img) {
   parts.name.title = img.name;
   parts.label.textContent = img.error ? "pipeline failed" : img.label ? signName(img.label) : "no sign";
   parts.label.title = img.error || (img.expected ? `expected: ${signName(img.expected)}` : "no expected label");
-  // A failed run measured nothing: its zero inliers and margin would read as a result.
-  fill(parts.stats, img.error ? null : [
+  // A failed run measured nothing: its zero inliers and margin would read as a result. The plaque
+  // fallback matches no features: its correlation with the sign decided, not inliers.
+  const decided = img.by_plaque ? [
+    el("span", { title: "recognised by the plaque fallback: the plaque's correlation with the sign (no feature "
+      + "inliers)" }, `plaque ${img.plaque_correlation.toFixed(2)}`),
+  ] : [
     el("span", { title: "RANSAC inliers of the best sign" }, `${img.inliers ?? "–"} inl`),
     el("span", { title: "inlier margin over the runner-up" }, `Δ ${img.margin ?? "–"}`),
-    img.status === "wrong" ? el("span.expected", {}, `≠ ${signName(img.expected)}`) : null]);
+  ];
+  fill(parts.stats, img.error ? null : [
+    ...decided, img.status === "wrong" ? el("span.expected", {}, `≠ ${signName(img.expected)}`) : null]);
 }
 
 function renderGallery() {

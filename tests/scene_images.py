@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 from PIL import Image
 
+from app.workspace import SAMPLE_SCENES
 from pipeline.library import Library
 
 SIZE = (640, 480)  # (w, h) px
@@ -92,3 +93,11 @@ def png_bomb(width: int = 20_000, height: int = 20_000) -> bytes:
     ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
     return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + \
         chunk(b"IEND", b"")
+
+
+def big_photo(width: int, height: int, scene: str = "scene_002.jpg") -> bytes:
+    """JPEG of a sample scene (scene_002 shows security_compound) upscaled to `width` x `height` px,
+    standing in for a phone's photo."""
+    image = cv2.imread(str(SAMPLE_SCENES / scene), cv2.IMREAD_COLOR)
+    big = cv2.resize(image, (width, height), interpolation=cv2.INTER_CUBIC)
+    return cv2.imencode(".jpg", big, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes()

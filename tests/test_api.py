@@ -22,7 +22,7 @@ from app.workspace import Workspace, WorkspaceConfig
 from pipeline.library import SAMPLE_LIBRARY, load_library
 from pipeline.synth import synthetic_camera
 from pipeline.camera import ros_camera_yaml
-from scene_images import empty_photo, png_bomb, sign_photo, tiny_photo, with_focal_exif
+from scene_images import big_photo, empty_photo, png_bomb, sign_photo, tiny_photo, with_focal_exif
 from serving import (MISFIT_CAMERA, REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve,
                      stop_serve, upload, wait_done)
 
@@ -270,7 +270,12 @@ def test_input_figure_shows_every_label_and_the_answer(client, scene, sign, by_p
     image_id = r.json()["images"][0]["id"]
     wait_done(client)
     detail = client.get(f"/api/images/{image_id}").json()
-    assert detail["status"] == "correct" and (detail["inliers"] == 0) == by_plaque
+    assert detail["status"] == "correct" and detail["by_plaque"] == by_plaque
+    # the plaque fallback matches no features: no inliers or margin, but the correlation that decided
+    assert (detail["inliers"] is None and detail["margin"] is None) == by_plaque
+    assert (detail["plaque_correlation"] is not None) == by_plaque
+    summary = next(i for i in client.get("/api/images").json()["images"] if i["id"] == image_id)
+    assert summary == {k: v for k, v in detail.items() if k in summary}  # the gallery's summary says the same
     figure = cv2.imdecode(np.frombuffer(client.get(f"/api/images/{image_id}/stages/input").content, np.uint8),
                           cv2.IMREAD_COLOR)
     bands = label_bands(figure)
@@ -303,9 +308,46 @@ def test_upload_count_and_label_mismatches(client):
     photo = tiny_photo()
     assert_error(upload(client, *[(f"{i}.jpg", photo, None) for i in range(MAX_IMAGES + 1)]), 409,
                  f"limit is {MAX_IMAGES}", "delete some")
-    r = client.post("/api/images", files=[("files", ("a.jpg", photo, "image/jpeg"))] * 2, data={"expected": ["none"]})
-    assert_error(r, 422, "1 expected labels for 2 files")
+    r = client.post("/api/images", files=[("files", ("a.jpg", photo, "image/jpeg"))] * 3,
+                    data={"expected": ["none", ""]})
+    assert_error(r, 422, "2 expected labels for 3 files", "one for all of them, one per file")
+
+
+def test_one_expected_label_is_given_to_every_file(client):
+    """One label for 10 files was a 422 (one per file was needed): a folder of one sign's photos
+    took a label per photo."""
+    photos = [("files", (f"{i}.jpg", sign_photo(LIBRARY, "chief_of_security", seed=i), "image/jpeg"))
+              for i in range(10)]
+    r = client.post("/api/images", files=photos, data={"expected": "chief_of_security"})
+    assert r.status_code == 201, r.text
+    assert [i["expected"] for i in r.json()["images"]] == ["chief_of_security"] * 10
+    ids = {i["id"] for i in r.json()["images"]}
+    assert all(i["status"] == "correct" for i in wait_done(client) if i["id"] in ids)
+    for image_id in ids:
+        client.delete(f"/api/images/{image_id}")
     assert_error(client.post("/api/images", files={"expected": (None, "none")}), 422, "files")
+
+
+def test_uploads_past_the_memory_limit_are_refused_saying_what_fits(tmp_path):
+    """A tester's server grew by 110 MB per 12 MP photo with no cap: the default --max-images 500
+    would have needed 55 GB. Each image held now counts 5 bytes a pixel plus 1 MB against a limit."""
+    photo = big_photo(1000, 750)  # 0.75 megapixels: counted 4.75 MB
+    cfg = WorkspaceConfig(state_dir=tmp_path / "state", load_samples=False, workers=2, max_memory_bytes=12_000_000)
+    with running(create_app(cfg)) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        assert upload(c, ("a.jpg", photo, None), ("b.jpg", photo, "security_compound")).status_code == 201
+        held = wait_done(c)
+        assert_error(upload(c, ("c.jpg", photo, None)), 409, "the 2 images held take 9.5 MB of the server's memory "
+                     "limit of 12 MB (--max-memory-gb); c.jpg (0.8 megapixels) would take 4.75 MB more and 2.5 MB is "
+                     "left: an image of up to 0.3 megapixels fits; delete some images")
+        too_big = upload(c, ("huge.jpg", big_photo(2000, 1500), None))  # alone over the limit: 413
+        assert_error(too_big, 413, "huge.jpg: 3.0 megapixels would take 16 MB held", "memory limit of 12 MB")
+        assert wait_done(c) == held  # nothing held is lost or changed
+        assert [c.get(f"/api/images/{i['id']}/file").content for i in held] == [photo, photo]
+        assert c.delete(f"/api/images/{held[0]['id']}").status_code == 204
+        assert_error(upload(c, *[(f"{i}.jpg", photo, None) for i in range(3)]), 409,
+                     "these 3 images would take 14.2 MB more and 7.25 MB is left: only the first of them fits")
+        assert upload(c, ("d.jpg", photo, None)).status_code == 201
+        assert len(wait_done(c)) == 2 and len(list((tmp_path / "state" / "images").glob("*.jpg"))) == 2
 
 
 def test_oversized_bodies_are_refused_before_or_while_they_arrive(base_url, client):
@@ -425,16 +467,37 @@ def test_sweep_finds_the_working_band(client):
     lo, hi = sweep["band"]
     assert lo <= sweep["centre"] <= hi and sweep["correct"][sweep["values"].index(lo)] == sweep["labelled"]
     assert all(m is None or m >= 0 for m in sweep["min_margin"])
+    assert all(type(v) is float for v in [*sweep["values"], *sweep["band"], sweep["centre"]])
     ints = client.get("/api/sweep", params={"param": "min_inliers", "lo": 4, "hi": 7, "steps": 5}).json()
     assert ints["values"] == [4, 5, 6, 7]
     # a whole number, one that was tried and worked: the settings take no 5.5
     assert ints["band"] == [4, 7] and ints["centre"] == 5
+    # JSON whole numbers, not 4.0, 5.0: the page's chart took them for a continuous range
+    assert all(type(v) is int for v in [*ints["values"], *ints["band"], ints["centre"]])
+    tester = client.get("/api/sweep", params={"param": "min_inliers", "lo": 4, "hi": 30, "steps": 14}).json()
+    assert tester["values"] == list(range(4, 31, 2)) and all(type(v) is int for v in tester["values"])
     assert_error(client.get("/api/sweep", params={"param": "detector"}), 422, "numeric setting", "threshold")
     assert_error(client.get("/api/sweep", params={"lo": 0.9, "hi": 0.3}), 422, "below")
     assert_error(client.get("/api/sweep", params={"lo": 0.5, "hi": 1.5}), 422, "threshold", "between")
     assert client.get("/api/sweep", params={"steps": 1}).status_code == 422
     for image_id in ids:
         client.delete(f"/api/images/{image_id}")
+
+
+def test_the_sweep_leaves_signs_the_plaque_fallback_found_out_of_its_margins(tmp_path):
+    """A min_inliers sweep from 4 to 30 answered min_margin 0 at every value, and the chart's margin
+    axis became 0..1: a sign the plaque fallback recognised, which matches no features, counted as
+    a correct recognition with margin 0."""
+    plaque = (REPO / "sample_images" / "datasets" / "set2" / "scene_007.jpg").read_bytes()
+    with running(create_app(config(tmp_path / "state"))) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        upload(c, ("plaque.jpg", plaque, "ministry_of_torture"),
+               ("compound.jpg", sign_photo(LIBRARY, "security_compound"), "security_compound"))
+        wait_done(c)
+        sweep = c.get("/api/sweep", params={"param": "min_inliers", "lo": 4, "hi": 30, "steps": 14}).json()
+    assert any(sweep["by_plaque"]) and all(n <= c for n, c in zip(sweep["by_plaque"], sweep["correct"]))
+    for correct, by_plaque, margin in zip(sweep["correct"], sweep["by_plaque"], sweep["min_margin"]):
+        # the smallest margin of the signs recognised by features, the default min_margin at least
+        assert margin >= 5 if correct > by_plaque else margin is None
 
 
 def test_sweep_needs_labelled_images(tmp_path):

@@ -704,6 +704,23 @@ def test_a_failed_image_says_why_without_figures(page, api, no_camera):
     assert card.locator(".card-stats").inner_text() == ""
 
 
+def test_a_sign_the_plaque_fallback_found_shows_its_correlation_not_zero_inliers(page, api):
+    """Its card read "0 inl Δ 0", as if nothing had matched, where the CLI's table shows '-'."""
+    scene = harness.ROOT / "sample_images" / "datasets" / "set2" / "scene_007.jpg"  # found by the plaque fallback
+    r = api.post("/api/images", files={"files": ("plaque.jpg", scene.read_bytes(), "image/jpeg")},
+                 data={"expected": "ministry_of_torture"})
+    r.raise_for_status()
+    image_id = r.json()["images"][0]["id"]
+    harness.wait_server_idle(api)
+    summary = api.get(f"/api/images/{image_id}").json()
+    assert summary["status"] == "correct" and summary["by_plaque"]
+    stats = page.locator(f'.card[data-id="{image_id}"].status-correct .card-stats')
+    stats.wait_for()
+    assert stats.inner_text() == f"plaque {summary['plaque_correlation']:.2f}"
+    assert "inl" not in stats.inner_text() and "Δ" not in stats.inner_text()
+    api.delete(f"/api/images/{image_id}").raise_for_status()
+
+
 def test_board_square_size_is_checked_in_millimetres(page, api, no_camera):
     board = api.get("/api/calibration").json()["board"]
     page.click("#camera-open")

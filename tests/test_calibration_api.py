@@ -3,6 +3,9 @@ loopback port, with chessboard photos rendered under known intrinsics (tests/che
 
 from __future__ import annotations
 
+import time
+from concurrent.futures import ThreadPoolExecutor
+
 import cv2
 import httpx
 import numpy as np
@@ -140,6 +143,27 @@ def test_a_new_board_size_searches_every_photo_again(client, photos):
     state = client.put("/api/calibration/board", json=BOARD_SPEC | {"square_m": 0.02}).json()
     assert all(v["found"] for v in state["views"]) and state["board"]["square_m"] == 0.02
     assert client.post("/api/calibration/run", json={}).json()["result"]["used"] == 3
+
+
+def test_the_search_for_a_new_board_size_says_how_far_it_has_come(client, base_url, photos):
+    """A new board size searches every photo again, some 10 s for 18 phone photos, and nothing said
+    how far it had come: GET /api/calibration answers it while the PUT is under way."""
+    assert add(client, photos).status_code == 201
+    with ThreadPoolExecutor(1) as pool, httpx.Client(base_url=base_url, timeout=TIMEOUT_S) as other:
+        change = pool.submit(other.put, "/api/calibration/board", json={**BOARD_SPEC, "cols": 7, "rows": 5})
+        seen = []
+        while not change.done():
+            state = client.get("/api/calibration").json()
+            if state["search"] is not None:
+                assert state["board"]["cols"] == BOARD[0] and len(state["views"]) == N_PHOTOS  # the old, until done
+                seen.append(state["search"])
+            time.sleep(0.01)
+        assert change.result().status_code == 200
+    assert seen and {(s["cols"], s["rows"], s["total"]) for s in seen} == {(7, 5, N_PHOTOS)}
+    done = [s["done"] for s in seen]
+    assert done == sorted(done) and len(set(done)) > 1 and max(done) < N_PHOTOS
+    after = client.get("/api/calibration").json()
+    assert after["search"] is None and after["board"]["cols"] == 7 and not any(v["found"] for v in after["views"])
 
 
 def test_run_needs_no_body_as_a_curl_user_calls_it(client, photos):

@@ -52,7 +52,7 @@ def test_a_stuck_pipeline_call_answers_503_and_the_server_goes_on(tmp_path, monk
 
 @pytest.mark.parametrize("option, value, problem", [
     ("--max-upload-mb", "0", "is not above 0"), ("--max-megapixels", "-1", "is not above 0"),
-    ("--max-images", "0", "is not a whole number of at least 1"),
+    ("--max-images", "0", "is not a whole number of at least 1"), ("--max-memory-gb", "0", "is not above 0"),
     ("--request-timeout", "nan", "is not a finite number"), ("--request-timeout", "inf", "is not a finite number"),
 ])
 def test_serve_refuses_limits_that_are_not_positive(tmp_path, capsys, option, value, problem):

@@ -50,7 +50,8 @@ def scene(workspace):
     """
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     handle = attach(server, workspace)
-    wait_for(lambda: len(handle.cameras) == len(POSITIVES))
+    # The world is chosen after the last camera is drawn: waiting for the cameras alone raced it.
+    wait_for(lambda: len(handle.cameras) == len(POSITIVES) and handle.world.value in handle.signs)
     yield handle, workspace
     handle.close()
     server.stop()
