@@ -14,6 +14,7 @@ import httpx
 import pytest
 
 import app.workspace as workspace_module
+import pipeline.recognize as recognize_module
 from app.cli import main
 from app.server import create_app
 from app.workspace import WorkspaceConfig
@@ -37,7 +38,7 @@ def test_a_stuck_pipeline_call_answers_503_and_the_server_goes_on(tmp_path, monk
             calls.append(args)
             release.wait(TIMEOUT_S)
 
-        monkeypatch.setattr(workspace_module, "recognize", stuck)
+        monkeypatch.setattr(recognize_module, "recognize", stuck)
         started = time.monotonic()
         r = c.post("/api/recognize", files={"file": ("stuck.jpg", photo, "image/jpeg")})
         assert_error(r, 503, "stuck.jpg", f"{LIMIT_S:g} s limit", "--request-timeout")
