@@ -62,10 +62,11 @@ function renderHead() {
   showStatus(badge, detail.status);
   badge.className = `badge status-${detail.status}`;
   // A failed run has no figures to show: its 0 inliers are no measurement (the reason is in the warnings).
-  const outcome = detail.error ? [el("b", {}, "pipeline failed")] : [
-    el("b", {}, detail.label ? signName(detail.label) : "no sign"),
-    plural(detail.inliers, "inlier"), `margin ${detail.margin ?? "–"}`,
-  ];
+  // A plaque fallback answer has no inliers or margin: its correlation decided.
+  const decided = detail.by_plaque ? [`plaque correlation ${detail.plaque_correlation.toFixed(2)}`]
+    : [plural(detail.inliers, "inlier"), `margin ${detail.margin ?? "–"}`];
+  const outcome = detail.error ? [el("b", {}, "pipeline failed")]
+    : [el("b", {}, detail.label ? signName(detail.label) : "no sign"), ...decided];
   const parts = [
     ...outcome,
     r?.timing_ms?.total !== undefined ? `${fmt(r.timing_ms.total, 0)} ms${r.reused_stages?.length ? " (cache)" : ""}` : null,

@@ -718,6 +718,11 @@ def test_a_sign_the_plaque_fallback_found_shows_its_correlation_not_zero_inliers
     stats.wait_for()
     assert stats.inner_text() == f"plaque {summary['plaque_correlation']:.2f}"
     assert "inl" not in stats.inner_text() and "Δ" not in stats.inner_text()
+    open_detail(page, image_id)  # the detail's summary says the same, not "null inliers"
+    page.wait_for_function("() => document.querySelector('#detail-summary').textContent.includes('plaque')")
+    summary_text = page.inner_text("#detail-summary")
+    assert f"plaque correlation {summary['plaque_correlation']:.2f}" in summary_text
+    assert "inlier" not in summary_text and "margin" not in summary_text
     api.delete(f"/api/images/{image_id}").raise_for_status()
 
 
