@@ -12,8 +12,9 @@ const COLORS = {
 };
 
 /** Size the canvas for the device's pixel ratio and return plot-area transforms for x in [x0, x1];
- *  `ticks`: label five values along x (off for charts that label their own categories). */
-function plot(canvas, x0, x1, ticks = true) {
+ *  `digits`: label five values along x with at most that many decimals (0: whole numbers, each
+ *  once); null for charts that label their own categories. */
+function plot(canvas, x0, x1, digits = 2) {
   const ratio = window.devicePixelRatio || 1;
   const width = canvas.clientWidth, height = canvas.clientHeight;
   canvas.width = Math.round(width * ratio);
@@ -30,10 +31,8 @@ function plot(canvas, x0, x1, ticks = true) {
   ctx.fillStyle = INK;
   ctx.textAlign = "center";
   ctx.textBaseline = "top";
-  for (let i = 0; ticks && i <= 4; i++) {
-    const v = x0 + ((x1 - x0) * i) / 4;
-    ctx.fillText(Number(v.toFixed(2)).toString(), x(v), PAD.top + h + 4);
-  }
+  const ticks = digits === null ? [] : [0, 1, 2, 3, 4].map((i) => Number((x0 + ((x1 - x0) * i) / 4).toFixed(digits)));
+  for (const v of new Set(ticks)) ctx.fillText(String(v), x(v), PAD.top + h + 4);
   return { ctx, x, y, w, h };
 }
 
@@ -106,7 +105,7 @@ function series(p, xs, ys, max, color) {
  *  labelled with `digits` decimals (0 for an integer setting). */
 export function drawSweep(canvas, sweep, current, digits) {
   const xs = sweep.values;
-  const p = plot(canvas, xs[0], xs[xs.length - 1]);
+  const p = plot(canvas, xs[0], xs[xs.length - 1], digits);
   const { ctx, x, y, w } = p;
   if (sweep.band) {
     ctx.fillStyle = COLORS.band;
@@ -153,7 +152,7 @@ function level(p, f, color, label, dash = []) {
  *  line is the outlier threshold, the solid one the overall RMS. `selected`: index to outline. */
 export function drawViewErrors(canvas, views, result, selected) {
   const n = Math.max(views.length, 1);
-  const p = plot(canvas, 0, n, false);
+  const p = plot(canvas, 0, n, null);
   const { ctx, x, y } = p;
   const errors = views.map((v) => v.error_px ?? 0);
   const top = Math.max(...errors, result.outlier_threshold_px, result.rms_px) * 1.1;

@@ -423,6 +423,17 @@ def test_sweep_of_an_integer_setting_shows_whole_numbers(page, api):
     page.click("#run-sweep")
     page.locator("#sweep-info", has_text="works over").wait_for(timeout=120_000)
     assert "min_matches works over 4–12, centre 8" in page.inner_text("#sweep-info")
+    # the chart's axis: a quarter of 4..30 is 10.5, which is no value of an integer setting
+    page.evaluate("""() => { window.chartTexts = [];
+        const fillText = CanvasRenderingContext2D.prototype.fillText;
+        CanvasRenderingContext2D.prototype.fillText = function (text, ...rest) {
+            if (this.canvas.id === "sweep") window.chartTexts.push(String(text));
+            return fillText.call(this, text, ...rest); }; }""")
+    page.fill("#sweep-hi", "30")
+    page.click("#run-sweep")
+    page.locator("#sweep-info", has_text="4–30").wait_for(timeout=120_000)
+    numbers = [t for t in page.evaluate("window.chartTexts") if re.fullmatch(r"-?[\d.]+", t)]
+    assert {"4", "30"} <= set(numbers) and not any("." in t for t in numbers), numbers
 
 
 def test_sweep_bounds_follow_the_swept_setting(page, api):
