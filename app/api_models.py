@@ -261,6 +261,8 @@ class SweepOut(BaseModel):
                     "null if none (signs the plaque fallback recognised have no inliers and are left out)")
     by_plaque: list[int] = Field(description="of the labelled images right, those whose sign the plaque fallback "
                                              "recognised, per value")
+    failed: list[int] = Field(description="labelled images the pipeline failed on, per value (counted as not "
+                                          "right; the server's log says why)")
     band: tuple[int | float, int | float] | None = Field(
         description="the longest run of values where every labelled image is right")
     centre: int | float | None = Field(description="the middle of the band; for an integer setting the value swept "

@@ -657,16 +657,17 @@ async def sweep(workspace: WorkspaceDep,
     values = tuning.sweep_values(lo, hi, steps, param in INTEGER_SETTINGS)
     runs = await within_time_limit(workspace, f"the sweep of {param} over {len(labelled)} images",
                                    lambda stop: workspace.sweep(param, values, labelled, stop))
-    correct, min_margin, by_plaque = [], [], []
+    correct, min_margin, by_plaque, failed = [], [], [], []
     for recs in runs:
-        good = [rec for record, rec in zip(labelled, recs) if is_correct(record.expected, rec)]
+        good = [rec for record, rec in zip(labelled, recs) if rec is not None and is_correct(record.expected, rec)]
         correct.append(len(good))
+        failed.append(sum(rec is None for rec in recs))
         # The plaque fallback matches no features: its margin is no inlier margin.
         min_margin.append(min((rec.margin for rec in good if rec.recognized and not rec.by_plaque), default=None))
         by_plaque.append(sum(rec.by_plaque for rec in good))
     band = tuning.working_band(values, [c == len(labelled) for c in correct])
     return SweepOut(param=param, values=values, correct=correct, min_margin=min_margin, by_plaque=by_plaque,
-                    band=band, centre=tuning.band_centre(values, band, param in INTEGER_SETTINGS), labelled=len(labelled))
+                    failed=failed, band=band, centre=tuning.band_centre(values, band, param in INTEGER_SETTINGS), labelled=len(labelled))
 
 
 # ---- camera

@@ -804,21 +804,29 @@ class Workspace:
                               snap.camera_for(record.exif, record.width, record.height), record.cache)
 
     def sweep(self, param: str, values: list[float], records: list[ImageRecord],
-              stop: threading.Event | None = None) -> list[list[Recognition]]:
-        """Re-run `records` with `param` set to each value: results [value index][record index].
+              stop: threading.Event | None = None) -> list[list[Recognition | None]]:
+        """Re-run `records` with `param` set to each value: results [value index][record index],
+        None where the pipeline failed on that image at that value (the log says why): one
+        failure must not hide what the sweep says of every other run.
 
         Values run in order per image (each run reuses what its cache holds), images in parallel.
-        SettingsError when a value is invalid, PipelineError when the pipeline fails. Setting
-        `stop` (the caller gave up waiting) ends it early with TimeoutError, freeing the pool.
+        SettingsError when a value is invalid. Setting `stop` (the caller gave up waiting) ends it
+        early with TimeoutError, freeing the pool.
         """
         variants = [self.settings.replace(**{param: v}) for v in values]
 
-        def runs(record: ImageRecord) -> list[Recognition]:
+        def run(record: ImageRecord, settings: Settings) -> Recognition | None:
+            try:
+                return self.run_with(record, settings)
+            except PipelineError:
+                return None
+
+        def runs(record: ImageRecord) -> list[Recognition | None]:
             out = []
             for settings in variants:
                 if stop is not None and stop.is_set():
                     raise TimeoutError("sweep abandoned")
-                out.append(self.run_with(record, settings))
+                out.append(run(record, settings))
             return out
 
         try:

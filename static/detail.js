@@ -369,6 +369,8 @@ function renderSweep() {
       type: "button", title: `Set ${sweep.param} to the centre of the working band`,
       onclick: () => setSetting(sweep.param, sweep.centre),
     }, "apply centre") : null,
+    sweep.failed.some((n) => n) ? el("span.warn", {},
+      `the pipeline failed on ${plural(Math.max(...sweep.failed), "image")} at some values (counted as wrong)`) : null,
     sweep.key !== sweepKey(state.settings, sweep.param)
       ? el("span.warn", {}, "other settings changed since: run again") : null);
 }

@@ -16,6 +16,7 @@ import pytest
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
+import pipeline.recognize as recognize_module
 from app.figures import GREEN, RED
 from app.server import create_app
 from app.workspace import Workspace, WorkspaceConfig
@@ -498,6 +499,25 @@ def test_the_sweep_leaves_signs_the_plaque_fallback_found_out_of_its_margins(tmp
     for correct, by_plaque, margin in zip(sweep["correct"], sweep["by_plaque"], sweep["min_margin"]):
         # the smallest margin of the signs recognised by features, the default min_margin at least
         assert margin >= 5 if correct > by_plaque else margin is None
+
+
+def test_a_failure_at_one_value_leaves_the_rest_of_the_sweep(tmp_path, monkeypatch):
+    """The pipeline failing on one image at one value answered the whole sweep with 422, and every
+    sweep after it too while the image stayed."""
+    real = recognize_module.segment
+
+    def segment(gray, settings):
+        if settings.threshold == 0.6:
+            raise ValueError("simulated defect")
+        return real(gray, settings)
+    with running(create_app(config(tmp_path / "state"))) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        upload(c, ("compound.jpg", sign_photo(LIBRARY, "security_compound"), "security_compound"))
+        wait_done(c)
+        monkeypatch.setattr(recognize_module, "segment", segment)  # the server runs in this process
+        r = c.get("/api/sweep", params={"param": "threshold", "lo": 0.5, "hi": 0.7, "steps": 3})
+    assert r.status_code == 200, r.text
+    sweep = r.json()
+    assert sweep["failed"] == [0, 1, 0] and sweep["correct"] == [1, 0, 1]
 
 
 def test_sweep_needs_labelled_images(tmp_path):
