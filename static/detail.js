@@ -47,7 +47,8 @@ function stageFigure(title, link = true) {
   };
 }
 
-const input = stageFigure("input · detected sign outlined · drag a box on the sign to calibrate", false);
+const INPUT_TITLE = "input · detected sign outlined · drag a box on the sign to calibrate";
+const input = stageFigure(INPUT_TITLE, false);
 const stages = Object.entries({ gray: "normalised gray", mask: "binary mask", blob: "largest blob", crop: "crop" })
   .map(([stage, title]) => ({ stage, figure: stageFigure(title) }));
 
@@ -79,7 +80,9 @@ function renderHead() {
 }
 
 function renderStages() {
-  input.set(stageUrl("input"));
+  // A failed run has no figures, but the photo itself still says a lot about why.
+  if (detail.error) input.set(`/api/images/${detail.id}/file`, "input · the photo as uploaded (the pipeline failed on it)");
+  else input.set(stageUrl("input"), INPUT_TITLE);
   for (const { stage, figure } of stages) figure.set(stageUrl(stage));
   renderBox();
 }

@@ -709,6 +709,9 @@ def test_a_failed_image_says_why_without_figures(page, api, no_camera):
     assert page.inner_text("#detail-warnings") == error
     assert page.inner_text("#pose") == "no pose: the pipeline failed"
     assert page.inner_text("#intrinsics") == "none: the pipeline failed"
+    # the photo itself is still shown, as uploaded
+    assert harness.stage_images_loaded(page, "#detail .stage img")[0]["w"] == 640
+    assert "the photo as uploaded" in page.inner_text("#detail .stage figcaption >> nth=0")
     card = page.locator(f'.card[data-id="{image_id}"]')
     assert card.locator(".card-label").inner_text() == "pipeline failed"
     assert card.locator(".card-label").get_attribute("title") == error
