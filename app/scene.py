@@ -56,6 +56,9 @@ OUTLINE_RGB = (60, 60, 60)
 # Cameras usually stand in front of the sign (z < 0): start to its left and above, looking past it.
 INITIAL_VIEW_POSITION_M = (-1.8, -1.0, -2.2)
 INITIAL_VIEW_LOOK_AT_M = (0.0, 0.0, -0.8)
+# Once there are cameras, new viewers and Reset View see the shown sign and its cameras from that
+# side, with room to spare for viser's control panel, which covers part of the frame.
+OVERVIEW_MARGIN = 1.4
 
 
 # --------------------------------------------------------------------------- geometry
@@ -65,6 +68,17 @@ def camera_pose_in_sign(R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.nd
     R = np.asarray(R, dtype=np.float64)
     position = -R.T @ np.asarray(t, dtype=np.float64).reshape(3)
     return position, tf.SO3.from_matrix(R.T).wxyz
+
+
+def overview_camera(points: np.ndarray, fov_rad: float) -> tuple[np.ndarray, np.ndarray]:
+    """(position, look_at), each (3,) m in the sign frame, of a view from the side of
+    INITIAL_VIEW_POSITION_M whose cone of full angle `fov_rad` holds all of `points` (N, 3) m,
+    with OVERVIEW_MARGIN to spare."""
+    look_at = (points.min(axis=0) + points.max(axis=0)) / 2
+    radius = max(float(np.linalg.norm(points - look_at, axis=1).max()), 0.1)
+    side = np.subtract(INITIAL_VIEW_POSITION_M, INITIAL_VIEW_LOOK_AT_M)
+    distance = OVERVIEW_MARGIN * radius / np.sin(fov_rad / 2)
+    return look_at + distance * side / np.linalg.norm(side), look_at
 
 
 def frustum_shape(width_px: int, height_px: int, K: np.ndarray) -> tuple[float, float]:
@@ -348,6 +362,21 @@ class SceneHandle:
                 nodes.frame.visible = sign_id == self.world.value
             for nodes in self.cameras.values():
                 nodes.matches.visible = self.show_matches.value
+            self._frame_world()
+
+    def _frame_world(self) -> None:
+        """Point new viewers' and Reset View's camera at the shown sign and its cameras (viewers
+        already looking are left where they are). The caller holds the lock."""
+        sign = self.signs.get(self.world.value)
+        if sign is None:
+            return
+        points = np.vstack([np.asarray(sign.outline.points).reshape(-1, 3),
+                            *[np.asarray(n.frustum.position).reshape(1, 3)
+                              for n in self.cameras.values() if n.sign == self.world.value]])
+        initial = self.server.initial_camera
+        position, look_at = overview_camera(points, initial.fov)
+        if not (np.allclose(initial.position, position) and np.allclose(initial.look_at, look_at)):
+            initial.position, initial.look_at = position, look_at
 
     def _on_frustum_width(self, _event: viser.GuiEvent) -> None:
         self._stale_geometry = True

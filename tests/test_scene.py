@@ -124,6 +124,31 @@ def test_nodes_match_the_recognitions(scene):
     assert "wrong" not in handle.status.content
 
 
+def test_new_viewers_and_reset_view_frame_the_sign_and_its_cameras(scene):
+    """The starting view was fixed, for cameras a metre or two from the sign: a drone's camera
+    further away was out of it."""
+    handle, _ = scene
+    initial = handle.server.initial_camera
+    for world in handle.world.options:
+        handle.world.value = world
+        far = next(n for n in handle.cameras.values() if n.sign == world)
+        far.frustum.position = (3.0, -2.0, -7.0)  # as a camera 8 m off would be drawn
+        handle.redraw()
+        points = _frame_points(handle, world)
+        axis = initial.look_at - initial.position
+        rays = points - initial.position
+        angles = np.degrees(np.arccos(rays @ axis / (np.linalg.norm(rays, axis=1) * np.linalg.norm(axis))))
+        # inside the view with room to spare for viser's panel
+        assert angles.max() < 0.8 * np.degrees(initial.fov) / 2, (world, angles.max())
+
+
+def _frame_points(handle, world: str) -> np.ndarray:
+    """(N, 3) m: the corners of `world`'s sign and the positions of its cameras."""
+    corners = np.asarray(handle.signs[world].outline.points).reshape(-1, 3)
+    cameras = [np.asarray(n.frustum.position) for n in handle.cameras.values() if n.sign == world]
+    return np.vstack([corners, *cameras])
+
+
 def test_status_line_uses_the_words_of_the_pages_top_bar():
     line = status_markdown(["correct", "wrong", "recognized", "none", "none", "error", "pending"], [Outcome()] * 7,
                            {"running": True, "done": 2, "total": 7})
