@@ -40,8 +40,8 @@ class Segmentation:
     whose `label` is k) and OTHER_WHITE for the other white pixels; blobs: candidate blobs,
     largest first; crops: one `Box` per blob, with margin, clipped to the image.
 
-    A server keeps one per image held, so it keeps one byte a pixel besides `source`: the mask
-    and the float gray are derived on use, and the labels of the components that are not
+    A server keeps one per image held, so it keeps one byte a pixel besides `source`: the mask is
+    derived on use (the normalised gray from `normalize_gray` or `normalize_levels`), and the labels of the components that are not
     candidates, which nothing reads, are not kept (as int32 they were four bytes a pixel).
     """
 
@@ -55,14 +55,6 @@ class Segmentation:
     def mask(self) -> np.ndarray:
         """(H, W) uint8 0/255: the white pixels, those at or above the threshold."""
         return cv2.threshold(self.labels, 0, 255, cv2.THRESH_BINARY)[1]
-
-    @property
-    def gray(self) -> np.ndarray:
-        """(H, W) float32 normalised gray in [0, 1], the image the threshold applies to.
-
-        Computed on each use, not kept: thresholding needs only `threshold_lut`, and a float
-        copy is four bytes a pixel (48 MB for a 12 MP photo) for a figure few look at."""
-        return normalize_gray(self.source, self.normalization)
 
 
 def normalize_gray(gray: np.ndarray, mode: str) -> np.ndarray:

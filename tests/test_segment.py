@@ -53,4 +53,3 @@ def test_mask_is_the_threshold_of_the_normalised_gray(normalization, threshold, 
     seg = segment(img, Settings(normalization=normalization, threshold=threshold, high_threshold=high_threshold))
     expected = threshold_mask(normalize_gray(img, normalization), threshold, high_threshold)
     assert np.array_equal(seg.mask, expected)
-    assert np.array_equal(seg.gray, normalize_gray(img, normalization))
