@@ -21,7 +21,7 @@ from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, assumed_camer
 from pipeline.evaluate import keep_freed_memory
 from pipeline.image import ImageError, read_file
 from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
-from pipeline.recognize import PipelineError, Recognition, run_pipeline
+from pipeline.recognize import PipelineError, Recognition, run_pipeline, why_no_feature_winner
 from pipeline.settings import PRESETS, Settings, SettingsError, load_settings, preset
 
 EXIT_USAGE = 2
@@ -70,9 +70,7 @@ def format_row(name: str, rec: Recognition) -> str:
     """One table row: the label, how it was recognised (feature inliers and margin, or the plaque
     fallback, which has neither) and the camera position in the sign's frame (metres)."""
     if not rec.recognized:
-        top = rec.attempt.leader if rec.attempt is not None else None
-        why = top.reason if top is not None else "no candidate region"
-        return f"{name:<28} {'-':<22} {'':>7} {'':>6}  no sign ({why})"
+        return f"{name:<28} {'-':<22} {'':>7} {'':>6}  no sign ({why_no_feature_winner(rec.attempt)})"
     how = ""
     if rec.by_plaque:
         inliers, margin = "-", "-"

@@ -112,6 +112,13 @@ class Attempt:
         return max(self.scores, key=lambda s: (s.n_inliers, s.reason is not None, s.n_matches), default=None)
 
 
+def why_no_feature_winner(attempt: Attempt | None) -> str:
+    """Why features recognised nothing in `attempt`, the region their answer came from: its
+    leader's reason, or that no region was searched."""
+    leader = attempt.leader if attempt is not None else None
+    return leader.reason if leader is not None else "no candidate region"
+
+
 @dataclass(eq=False)
 class Recognition:
     """Everything the pipeline computed for one image; `attempt` is the region the answer came from.
@@ -507,10 +514,8 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         quads_ms = timing["segment"] - quads_ms  # counted under segment already
         timing["match"] += (time.perf_counter() - t0) * 1e3 - quads_ms
         if plaque is not None and plaque.sign is not None:
-            leader = chosen.leader if chosen is not None else None
-            why = leader.reason if leader is not None else "no region had features to match"
             warnings.append(f"recognised by the plaque fallback (correlation {plaque.correlation:.2f}): "
-                            f"features did not decide ({why})")
+                            f"features did not decide ({why_no_feature_winner(chosen)})")
 
     H, ecc, pose, sign, outline = None, None, None, None, None
     winner = winner_homography(chosen, plaque, library)
