@@ -213,33 +213,30 @@ def the_file(form: FormData) -> FormFile:
     return files[0]
 
 
-async def one_file(request: Request) -> None:
-    """A dependency of the routes whose `file` parameter takes one upload: `the_file` of the form
-    FastAPI has already parsed (and will close)."""
-    the_file(await request.form())
+def form_check(check: Callable[[FormData], object]) -> Any:
+    """A dependency of multipart routes that runs `check` (raising HTTPException) on the form FastAPI
+    has already parsed (and will close), before FastAPI reads its fields its own way."""
+    async def dependency(request: Request) -> None:
+        check(await request.form())
+    return Depends(dependency)
 
 
-async def only_files(request: Request) -> None:
-    """A dependency of the routes whose `files` parameter takes uploads: `uploads` of the form
-    FastAPI has already parsed, before FastAPI's own wording for a part that is not a file."""
-    uploads(await request.form(), "files")
+def single_values(form: FormData, fields: tuple[str, ...]) -> None:
+    """422 when one of the text `fields` is sent several times, as `the_file` refuses several files:
+    a route reading it as one value would take the last silently."""
+    for field in fields:
+        if (count := len(form.getlist(field))) > 1:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                f"got {count} values in the multipart field {field!r}; it takes one, so send it once")
 
 
-ONE_FILE = Depends(one_file)
-FILES = Depends(only_files)
+ONE_FILE = form_check(the_file)  # routes whose `file` parameter takes one upload
+FILES = form_check(lambda form: uploads(form, "files"))  # routes whose `files` parameter takes uploads
 
 
 def single(*fields: str) -> Any:
-    """A dependency of the multipart routes that read each of the text `fields` as one value: 422 when
-    one is sent several times, as `the_file` refuses several files, not to take the last silently."""
-    async def check(request: Request) -> None:
-        form = await request.form()  # FastAPI's parsed form, which it closes
-        for field in fields:
-            if (count := len(form.getlist(field))) > 1:
-                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                    f"got {count} values in the multipart field {field!r}; it takes one, "
-                                    "so send it once")
-    return Depends(check)
+    """A dependency of the multipart routes that read each of the text `fields` as one value (`single_values`)."""
+    return form_check(lambda form: single_values(form, fields))
 
 
 def result_of(record: ImageRecord) -> Outcome:
@@ -667,7 +664,8 @@ async def sweep(workspace: WorkspaceDep,
         by_plaque.append(sum(rec.by_plaque for rec in good))
     band = tuning.working_band(values, [c == len(labelled) for c in correct])
     return SweepOut(param=param, values=values, correct=correct, min_margin=min_margin, by_plaque=by_plaque,
-                    failed=failed, band=band, centre=tuning.band_centre(values, band, param in INTEGER_SETTINGS), labelled=len(labelled))
+                    failed=failed, band=band, centre=tuning.band_centre(values, band, param in INTEGER_SETTINGS),
+                    labelled=len(labelled))
 
 
 # ---- camera
