@@ -211,7 +211,8 @@ async function load(id) {
   }
 }
 
-const keyOf = (img) => `${img.id}:${img.result_version}:${img.status}:${img.label}:${img.inliers}`;
+// The label and inliers come with the result version; the status also follows the expected label.
+const keyOf = (img) => `${img.id}:${img.result_version}:${img.status}`;
 
 function close() {
   detail = null;
