@@ -16,13 +16,13 @@ import pytest
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
-import pipeline.recognize as recognize_module
 from app.figures import GREEN, RED
 from app.server import create_app
 from app.workspace import Workspace, WorkspaceConfig
 from pipeline.library import SAMPLE_LIBRARY, load_library
 from pipeline.synth import synthetic_camera
 from pipeline.camera import ros_camera_yaml
+from faults import fail_segmentation
 from scene_images import big_photo, empty_photo, png_bomb, sign_photo, tiny_photo, with_focal_exif
 from serving import (MISFIT_CAMERA, REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve,
                      stop_serve, upload, wait_done)
@@ -504,16 +504,10 @@ def test_the_sweep_leaves_signs_the_plaque_fallback_found_out_of_its_margins(tmp
 def test_a_failure_at_one_value_leaves_the_rest_of_the_sweep(tmp_path, monkeypatch):
     """The pipeline failing on one image at one value answered the whole sweep with 422, and every
     sweep after it too while the image stayed."""
-    real = recognize_module.segment
-
-    def segment(gray, settings):
-        if settings.threshold == 0.6:
-            raise ValueError("simulated defect")
-        return real(gray, settings)
     with running(create_app(config(tmp_path / "state"))) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
         upload(c, ("compound.jpg", sign_photo(LIBRARY, "security_compound"), "security_compound"))
         wait_done(c)
-        monkeypatch.setattr(recognize_module, "segment", segment)  # the server runs in this process
+        fail_segmentation(monkeypatch, lambda _, settings: settings.threshold == 0.6)  # the server runs in this process
         r = c.get("/api/sweep", params={"param": "threshold", "lo": 0.5, "hi": 0.7, "steps": 3})
     assert r.status_code == 200, r.text
     sweep = r.json()
