@@ -29,7 +29,7 @@ import numpy as np
 
 from .camera import Camera
 from .library import LibrarySign
-from .plaque import grid_correspondences, sign_corners, sign_to_quad
+from .plaque import seen_grid, sign_corners, sign_to_quad
 from .pose import distort_pixels, undistort_pixels
 
 # Fraction of each side left out at either end: corners are rounded by blur and shared by two sides.
@@ -72,10 +72,8 @@ class Outline:
     ideal_H: np.ndarray = field(repr=False)
 
     def grid(self, sign: LibrarySign, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-        """(src (N, 2) library px, dst (N, 2) image px): a grid over the sign and where the camera
-        sees it, lens distortion included; what a pose is fitted to after refinement."""
-        src, ideal = grid_correspondences(self.ideal_H, sign)
-        return src, distort_pixels(ideal, camera)
+        """(src (N, 2) library px, dst (N, 2) image px): `seen_grid` of `ideal_H`."""
+        return seen_grid(self.ideal_H, sign, camera)
 
 
 def _line_fits(pts: np.ndarray, side: np.ndarray, use: np.ndarray) -> np.ndarray:

@@ -17,7 +17,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from .camera import Camera
 from .library import Library, LibrarySign
+from .pose import distort_pixels, ideal_patch, undistort_pixels
 from .segment import Blob, expand_box
 
 # Width in px at which a rectified plaque is compared with the library; small enough that a
@@ -112,6 +114,14 @@ def grid_correspondences(H: np.ndarray, sign: LibrarySign, n: int = 5) -> tuple[
     return src, hom[:, :2] / hom[:, 2:]
 
 
+def seen_grid(ideal_H: np.ndarray, sign: LibrarySign, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """(src (N, 2) library px, dst (N, 2) image px): the `grid_correspondences` of `ideal_H`
+    (library px -> px of an ideal pinhole camera with `camera`'s K) where `camera` sees them,
+    lens distortion included; what a pose is fitted to after refinement."""
+    src, ideal = grid_correspondences(ideal_H, sign)
+    return src, distort_pixels(ideal, camera)
+
+
 def compare_size(sign: LibrarySign) -> tuple[int, int]:
     w, h = sign.size_px
     return COMPARE_WIDTH, max(8, round(COMPARE_WIDTH * h / w))
@@ -147,15 +157,23 @@ def standardized(patch: np.ndarray) -> np.ndarray:
     return centred / norm if norm > 0 else centred
 
 
-def refine_ecc(gray: np.ndarray, sign: LibrarySign, H: np.ndarray) -> tuple[np.ndarray, float] | None:
+def refine_ecc(gray: np.ndarray, sign: LibrarySign, H: np.ndarray,
+               camera: Camera | None = None) -> tuple[np.ndarray, float] | None:
     """Align the library sign to the image densely (ECC), starting from H (library px -> image px).
 
     The sign is shrunk to about its size in the image first, so ECC compares like with like, and
     cut to its interior: ECC smooths the template with a replicated border, so the plaque's own
     edge would look softer there than against the wall in the image and bias the scale.
-    Returns (refined H, correlation coefficient), or None if ECC diverged.
+    Under `camera`'s lens distortion no homography maps the sign onto the image, so the sign's
+    neighbourhood is aligned as an ideal pinhole camera with the same K sees it (`ideal_patch`).
+    Returns (refined H library px -> px of that ideal camera, which are image px without
+    distortion; correlation coefficient), or None if ECC diverged.
     """
     corners = sign_corners(sign, H)
+    distorted = camera is not None and camera.has_distortion
+    if distorted:
+        corners = undistort_pixels(corners, camera)
+        H = sign_to_quad(sign, corners)
     w, h = sign.size_px
     s = min(1.0, float(np.sqrt(abs(cv2.contourArea(corners.astype(np.float32))) / (w * h))))
     small = cv2.resize(sign.image, (max(16, round(w * s)), max(16, round(h * s))), interpolation=cv2.INTER_AREA)
@@ -166,11 +184,12 @@ def refine_ecc(gray: np.ndarray, sign: LibrarySign, H: np.ndarray) -> tuple[np.n
     to_library = np.array([[1 / sx, 0, (ix + 0.5) / sx - 0.5], [0, 1 / sy, (iy + 0.5) / sy - 0.5], [0, 0, 1]])
     # ECC smooths and differentiates its whole input image before iterating: give it only the
     # neighbourhood of the sign, with room for the alignment to move.
-    x0, y0, x1, y1 = expand_box(bounding_box(corners), ECC_CROP_MARGIN, gray.shape[1], gray.shape[0])
+    x0, y0, x1, y1 = box = expand_box(bounding_box(corners), ECC_CROP_MARGIN, gray.shape[1], gray.shape[0])
+    neighbourhood = ideal_patch(gray, box, camera) if distorted else gray[y0:y1, x0:x1]
     to_crop = np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1]], dtype=np.float64)
     warp = (to_crop @ H @ to_library).astype(np.float32)
     try:
-        cc, warp = cv2.findTransformECC(template, gray[y0:y1, x0:x1], warp / warp[2, 2], cv2.MOTION_HOMOGRAPHY,
+        cc, warp = cv2.findTransformECC(template, neighbourhood, warp / warp[2, 2], cv2.MOTION_HOMOGRAPHY,
                                         ECC_CRITERIA, None, 3)
     except cv2.error:
         return None

@@ -201,6 +201,18 @@ def distort_pixels(pts: np.ndarray, camera: Camera) -> np.ndarray:
     return cv2.projectPoints(rays, zero, zero, camera.K, camera.dist)[0].reshape(-1, 2)
 
 
+def ideal_patch(gray: np.ndarray, box: tuple[int, int, int, int], camera: Camera) -> np.ndarray:
+    """The (y1 - y0, x1 - x0) uint8 patch over `box` (x0, y0, x1, y1) of the image an ideal
+    pinhole camera with `camera`'s K would take: each px sampled from (H, W) uint8 `gray` where
+    the lens puts it (`distort_pixels`), bilinearly; replicated beyond the frame."""
+    x0, y0, x1, y1 = box
+    u, v = np.meshgrid(np.arange(x0, x1, dtype=np.float64), np.arange(y0, y1, dtype=np.float64))
+    seen = distort_pixels(np.column_stack([u.ravel(), v.ravel()]), camera).astype(np.float32)
+    shape = (y1 - y0, x1 - x0)
+    return cv2.remap(gray, seen[:, 0].reshape(shape), seen[:, 1].reshape(shape), cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)
+
+
 def _project(R: np.ndarray, t: np.ndarray, obj: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """Project (N, 3) sign points with pose (R, t) and distortion: (N, 2) px and the (2N, 6)
     Jacobian of the stacked (u, v) per point with respect to [rotation vector, t]."""

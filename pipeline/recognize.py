@@ -22,9 +22,10 @@ from .image import to_gray
 from .library import Library, LibrarySign
 from .match import Matches, match_library
 from .outline import Outline, outline_fit, refine_outline
-from .plaque import PlaqueMatch, grid_correspondences, match_plaque, project, refine_ecc
+from .plaque import (PlaqueMatch, grid_correspondences, match_plaque, project, refine_ecc, seen_grid, sign_corners,
+                     sign_to_quad)
 from .plaque_search import MIN_NCC, SAME_PLAQUE_IOU, QuadCandidate, confirm_plaque, ranked_quads, search_plaques
-from .pose import Pose, PoseError, estimate_pose
+from .pose import Pose, PoseError, distort_pixels, estimate_pose
 from .segment import Box, Segmentation, box_iou, expand_box, segment
 from .settings import Settings
 
@@ -587,10 +588,12 @@ def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.nd
             return outline.H, *outline.grid(sign, camera), None, outline
     ecc = None
     if wants_dense_refinement(settings.refine, attempt):
-        refined = refine_ecc(gray, sign, H)
+        refined = refine_ecc(gray, sign, H, camera)
         if refined is not None and refined[1] >= MIN_ECC:
-            H, ecc = refined
-            src, dst = grid_correspondences(H, sign)
+            ideal_H, ecc = refined
+            src, dst = seen_grid(ideal_H, sign, camera)
+            # Under distortion no H is exact: keep the one through the corners, as the outline does.
+            H = sign_to_quad(sign, distort_pixels(sign_corners(sign, ideal_H), camera)) if camera.has_distortion else ideal_H
             if use_outline:
                 outline, why = refine_outline(gray, sign, H, settings.seed, camera)
                 if outline is not None:
