@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import secrets
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,6 +20,7 @@ import numpy as np
 from pipeline.calibrate import (BoardView, Calibration, CalibrationError, calibrate, check_board, check_square, drop_outliers,
                                 find_board)
 from pipeline.camera import Camera
+from pipeline.evaluate import CORES
 from pipeline.image import decode_image, to_gray
 
 from .figures import fit
@@ -128,10 +130,13 @@ class CalibrationSession:
         self._check_room(len(uploads))
         grays = [read_gray(name, data, self.max_pixels) for name, data in uploads]
         previews = [fit(gray, PREVIEW_MAX_SIDE) for gray in grays]  # made once: they do not depend on the board
+        names = [name for name, _ in uploads]
         while True:
             board = self._state.board
-            photos = tuple(CalibrationPhoto(secrets.token_hex(6), name, data, preview, find_board(gray, board, name))
-                           for (name, data), gray, preview in zip(uploads, grays, previews))
+            with ThreadPoolExecutor(CORES) as pool:  # OpenCV releases the GIL: a photo per core
+                views = list(pool.map(lambda gray, name: find_board(gray, board, name), grays, names))
+            photos = tuple(CalibrationPhoto(secrets.token_hex(6), name, data, preview, view)
+                           for (name, data), preview, view in zip(uploads, previews, views))
             with self._lock:
                 if self._state.board != board:
                     continue  # the board size changed during the search: search for the new one
@@ -152,13 +157,19 @@ class CalibrationSession:
     def _search_again(self, photos: tuple[CalibrationPhoto, ...],
                       board: tuple[int, int]) -> tuple[CalibrationPhoto, ...]:
         """`photos` with the `board` searched for in each, saying how far it has come in `search`
-        (18 phone photos take some 10 s; the state keeps the old board until all are done)."""
+        (18 phone photos take some 10 s on one core; the state keeps the old board until all are
+        done). Photos are searched a core each."""
+        def search(photo: CalibrationPhoto) -> CalibrationPhoto:
+            gray = read_gray(photo.name, photo.data, self.max_pixels)
+            return dataclasses.replace(photo, view=find_board(gray, board, photo.name))
+
         searched: list[CalibrationPhoto] = []
         try:
-            for photo in photos:
-                self._search = BoardSearch(board, len(searched), len(photos))
-                searched.append(dataclasses.replace(
-                    photo, view=find_board(read_gray(photo.name, photo.data, self.max_pixels), board, photo.name)))
+            self._search = BoardSearch(board, 0, len(photos))
+            with ThreadPoolExecutor(CORES) as pool:
+                for photo in pool.map(search, photos):
+                    searched.append(photo)
+                    self._search = BoardSearch(board, len(searched), len(photos))
             return tuple(searched)
         finally:
             self._search = None

@@ -9,6 +9,7 @@ import math
 import os
 import sys
 from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
@@ -18,7 +19,7 @@ from tqdm import tqdm
 from app.entry import EXIT_INTERRUPTED
 from app.workspace import HELD_BYTES_PER_PIXEL, WorkspaceConfig, check_image_header, decode_upload, held_bytes
 from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, assumed_camera, load_camera
-from pipeline.evaluate import keep_freed_memory
+from pipeline.evaluate import CORES, keep_freed_memory
 from pipeline.image import ImageError, read_file
 from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
 from pipeline.recognize import PipelineError, Recognition, run_pipeline, why_no_feature_winner
@@ -180,21 +181,31 @@ def cmd_evaluate(args) -> int:
 
 def cmd_calibrate(args) -> int:
     from app.calibration import read_gray
-    from pipeline.calibrate import (CalibrationError, calibrate, check_square, drop_outliers, find_board, format_report,
-                                    parse_board)
+    from pipeline.calibrate import (BoardView, CalibrationError, calibrate, check_square, drop_outliers, find_board,
+                                    format_report, parse_board)
     from pipeline.camera import save_camera
 
     try:  # before reading a single photo
         board, square = parse_board(args.board), check_square(args.square)
     except CalibrationError as exc:
         raise CliError(str(exc)) from None
-    views, unreadable, limit = [], 0, max_pixels(args)
-    for path in progress(args.images, desc="calibrate", leave=False):
+    limit = max_pixels(args)
+
+    def search(path: str) -> BoardView | ImageError:
         try:
-            views.append(find_board(read_gray(str(path), read_file(path), limit), board, Path(path).name))
+            return find_board(read_gray(path, read_file(path), limit), board, Path(path).name)
         except ImageError as exc:
-            unreadable += 1
-            print(f"error: {exc}", file=sys.stderr)
+            return exc
+
+    views, unreadable = [], 0
+    with ThreadPoolExecutor(CORES) as pool:  # OpenCV releases the GIL: a photo per core
+        for found in progress(pool.map(search, map(str, args.images)), total=len(args.images), desc="calibrate",
+                              leave=False):
+            if isinstance(found, ImageError):
+                unreadable += 1
+                print(f"error: {found}", file=sys.stderr)
+            else:
+                views.append(found)
     try:
         calibration = calibrate(views, board, square)
         if args.drop_outliers:

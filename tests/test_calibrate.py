@@ -1,6 +1,7 @@
 """Chessboard calibration: rendered and projected views of a board under known intrinsics."""
 
 import json
+import threading
 
 import cv2
 import numpy as np
@@ -12,6 +13,7 @@ from chessboards import BOARD, DIST_TRUE, K_TRUE, SIZE, SQUARE_M, board_poses, p
 from pipeline.calibrate import (BoardView, CalibrationError, calibrate, chessboard_image, drop_outliers, find_board,
                                 format_report, parse_board)
 from pipeline.camera import Camera, load_camera, save_camera
+from pipeline.evaluate import CORES
 from pipeline.library import LibrarySign
 from pipeline.pose import estimate_pose, rotation_error_deg
 
@@ -211,6 +213,24 @@ def test_cli_calibrate_writes_a_camera_file_recognize_can_read(rendered, tmp_pat
     assert "overall RMS" in text and "board05.png" in text and "not found" in text and f"wrote {out}" in text
     cam = load_camera(out)
     assert abs(cam.K[0, 0] / K_TRUE[0, 0] - 1) < 0.01 and cam.has_distortion
+
+
+@pytest.mark.skipif(CORES < 2, reason="one core: no second search to run beside the first")
+def test_cli_calibrate_searches_photos_side_by_side(rendered, tmp_path, capsys, monkeypatch):
+    """Each search waits for a second one to start, which never came when the photos were
+    searched one after another; the report still lists them in the order given."""
+    together = threading.Barrier(2, timeout=10)
+
+    def find_board_beside_another(gray, board, name=""):
+        together.wait()
+        return find_board(gray, board, name)
+
+    monkeypatch.setattr(calib, "find_board", find_board_beside_another)
+    paths = write_photos(tmp_path, rendered[0][:4])
+    assert main(["calibrate", *paths, "--board", "9x6", "--square", "0.03", "-o", str(tmp_path / "c.yaml")]) == 0
+    report = capsys.readouterr().out
+    listed = [report.index(f"board{i:02d}.png") for i in range(4)]
+    assert listed == sorted(listed)
 
 
 def test_cli_calibrate_drop_outliers(tmp_path, capsys, monkeypatch):
