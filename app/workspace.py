@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-from pipeline.camera import Camera, assumed_camera, check_hfov, load_camera
+from pipeline.camera import Camera, CameraError, assumed_camera, check_hfov, load_camera
 from pipeline.evaluate import CORES, release_freed_memory
 from pipeline.exif import ExifCamera, decode_with_exif
 from pipeline.features import library_features
@@ -713,7 +713,8 @@ class Workspace:
                 rec = run_logged(record.name, record.gray, snap.library, snap.settings,
                                  snap.camera_for(record.exif, record.width, record.height), record.cache)
                 outcome = Outcome(rec, snap.settings_version, snap.generation)
-            except PipelineError as exc:  # a failure on one image must not stop the others
+            # a camera that does not fit this image, or a failure on it, must not stop the others
+            except (CameraError, PipelineError) as exc:
                 outcome = Outcome(None, snap.settings_version, snap.generation, str(exc))
             record.outcome = outcome
 
@@ -786,7 +787,8 @@ class Workspace:
         """Recognise an uploaded image with the current state without keeping it.
 
         Runs in the caller's thread (a request worker), not behind a re-run in the pipeline pool.
-        Raises ImageError when the upload is unusable, PipelineError when the pipeline fails on it.
+        Raises ImageError when the upload is unusable, CameraError when the camera does not fit it,
+        PipelineError when the pipeline fails on it.
         """
         image, _, exif = decode_upload(data, name, self.config.max_pixels)
         snap = self._snap
@@ -806,8 +808,9 @@ class Workspace:
     def sweep(self, param: str, values: list[float], records: list[ImageRecord],
               stop: threading.Event | None = None) -> list[list[Recognition | None]]:
         """Re-run `records` with `param` set to each value: results [value index][record index],
-        None where the pipeline failed on that image at that value (the log says why): one
-        failure must not hide what the sweep says of every other run.
+        None where that image could not be run at that value (the camera does not fit it, or the
+        pipeline failed, which the log details): one failure must not hide what the sweep says
+        of every other run.
 
         Values run in order per image (each run reuses what its cache holds), images in parallel.
         SettingsError when a value is invalid. Setting `stop` (the caller gave up waiting) ends it
@@ -818,7 +821,7 @@ class Workspace:
         def run(record: ImageRecord, settings: Settings) -> Recognition | None:
             try:
                 return self.run_with(record, settings)
-            except PipelineError:
+            except (CameraError, PipelineError):
                 return None
 
         def runs(record: ImageRecord) -> list[Recognition | None]:

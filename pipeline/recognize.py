@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .camera import Camera, assumed_camera
+from .camera import Camera, CameraError, assumed_camera
 from .features import Features, detect, feature_key, library_features
 from .homography import HomographyEstimate, estimate_homography
 from .image import to_gray
@@ -437,9 +437,12 @@ class PipelineError(ValueError):
 def run_pipeline(name: str, image: np.ndarray, library: Library, settings: Settings, camera: Camera | None = None,
                  cache: StageCache | None = None) -> Recognition:
     """`recognize`, with any failure inside it turned into a PipelineError naming the image, so a
-    batch can report it as that image's error and go on with the others."""
+    batch can report it as that image's error and go on with the others. A CameraError (the
+    camera cannot be scaled to this image) is the camera's, not the pipeline's, and passes as it is."""
     try:
         return recognize(image, library, settings, camera, cache)
+    except CameraError:
+        raise
     except Exception as exc:
         raise PipelineError(f"pipeline failed on {name} ({type(exc).__name__}: {exc}); the other images are "
                             "unaffected: try other settings, and report it with this image and the settings") from exc

@@ -578,7 +578,12 @@ def test_a_camera_that_fits_no_image_held_is_kept_with_a_warning(tmp_path):
             "the camera fits none of the 2 images held: this 640x480 px image has another aspect than the 4000x100 "
             "px the camera was calibrated at: a cropped or re-framed photo, whose intrinsics no scaling gives; "
             "calibrate the camera at 640x480"]
-        assert {i["status"] for i in wait_done(c)} == {"error"}   # what the warning foretold
+        # what the warning foretold, in the camera's words: no pipeline failure to report
+        misfit = ("this 640x480 px image has another aspect than the 4000x100 px the camera was calibrated at: a "
+                  "cropped or re-framed photo, whose intrinsics no scaling gives; calibrate the camera at 640x480")
+        assert [(i["status"], i["error"]) for i in wait_done(c)] == 2 * [("error", misfit)]
+        once = c.post("/api/recognize", files={"file": ("a.jpg", empty_photo())})
+        assert once.status_code == 422 and once.json()["detail"] == misfit
         assert c.get("/api/camera").json() == r.json()
 
         assert c.put("/api/camera", json=fitting).json()["warnings"] == []
