@@ -308,18 +308,19 @@ def camera_from_ros(data: dict, source: str) -> Camera:
         width, height = "width", "height"
     else:
         matrix, distortion, width, height = "camera_matrix", "distortion_coefficients", "image_width", "image_height"
-    model = data.get("distortion_model")
-    if model is not None and model not in ROS_DISTORTION_MODELS:
-        raise CameraError(f"distortion_model {reprlib.repr(model)} is not supported: signpose uses OpenCV's model "
-                          f"({' or '.join(ROS_DISTORTION_MODELS)}: k1 k2 p1 p2 k3 ...); calibrate with "
-                          "`signpose calibrate`, or undistort the photos first and give zero distortion")
     K = _matrix(data[matrix], matrix, 3, 3)
     if K.size != 9:
         raise CameraError(f"{matrix} must have 9 values (the 3x3 matrix, row by row); got {K.size}")
-    if not K.any():  # CameraInfo's convention for a camera nobody calibrated
+    if not K.any():  # CameraInfo's convention for a camera nobody calibrated, whatever its model says
         raise CameraError(f"{matrix} is all zeros: this camera_info is of an uncalibrated camera; calibrate it "
                           "(`signpose calibrate`, or ROS's camera_calibration) and give that file")
     dist = _matrix(data.get(distortion, {"data": []}), distortion, None, None)
+    model = data.get("distortion_model")
+    # An empty model (the field never set) with no coefficients is a camera without distortion.
+    if model not in (None, *ROS_DISTORTION_MODELS) and not (model == "" and not dist.any()):
+        raise CameraError(f"distortion_model {reprlib.repr(model)} is not supported: signpose uses OpenCV's model "
+                          f"({' or '.join(ROS_DISTORTION_MODELS)}: k1 k2 p1 p2 k3 ...); calibrate with "
+                          "`signpose calibrate`, or undistort the photos first and give zero distortion")
     return Camera(K.reshape(3, 3), dist.ravel(), _opt_int(data.get(width), width), _opt_int(data.get(height), height),
                   source)
 

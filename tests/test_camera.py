@@ -154,6 +154,21 @@ def test_a_distortion_model_other_than_opencvs_is_refused(tmp_path, model):
     assert load_camera(p).has_distortion
 
 
+def test_an_unset_distortion_model_without_coefficients_is_no_distortion(tmp_path):
+    p = tmp_path / "cam.yaml"
+    d = ROS2_MESSAGE[ROS2_MESSAGE.index("d:\n"):ROS2_MESSAGE.index("k:\n")]
+    unset = ROS2_MESSAGE.replace(d, "d: []\n").replace("plumb_bob", "''")
+    p.write_text(unset)
+    camera = load_camera(p)
+    assert camera.K[0, 0] == 500.0 and not camera.has_distortion
+    p.write_text(unset.replace(k_list(K_VALUES), k_list([0.0] * 9)))  # a default CameraInfo: nobody calibrated it
+    with pytest.raises(CameraError, match="k is all zeros: this camera_info is of an uncalibrated camera"):
+        load_camera(p)
+    p.write_text(ROS2_MESSAGE.replace("plumb_bob", "''"))  # coefficients of no named model: what do they mean?
+    with pytest.raises(CameraError, match="distortion_model '' is not supported"):
+        load_camera(p)
+
+
 def test_save_round_trip(tmp_path):
     cam = Camera(np.array([[600.0, 0, 330], [0, 601, 250], [0, 0, 1]]), np.array([0.1, -0.2, 0.001, 0.002, 0.05]),
                  640, 480, "test")
