@@ -31,24 +31,60 @@ def image_format(data: bytes) -> str | None:
 
 
 def unreadable(data: bytes, name: str) -> ImageError:
-    """The error for `data`, the bytes of file `name`, that cannot be read as an image: a damaged or
-    truncated file of its format when it begins as one, else not an image file at all."""
+    """The error for `data`, the bytes of file `name`, that cannot be read as an 8-bit colour image:
+    samples of a kind that has no 8-bit colour (floating point), a damaged or truncated file of its
+    format when it begins as one, else not an image file at all."""
     kind = image_format(data)
     if kind is None:
         return ImageError(f"{name}: {NOT_AN_IMAGE}")
+    try:
+        decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        decoded = None
+    if decoded is not None:
+        return ImageError(f"{name}: a {kind} of {decoded.dtype} samples, which signpose does not read; "
+                          "export it with 8- or 16-bit integer samples")
     return ImageError(f"{name}: damaged or truncated {kind} file (it begins as a {kind} but its image data cannot "
                       "be read); copy or export it again")
+
+
+def transparent(data: bytes) -> bool:
+    """Whether encoded image `data` says it has transparency: a PNG with an alpha channel or a
+    transparent palette entry (tRNS), or a WebP with alpha."""
+    kind = image_format(data)
+    if kind == "PNG":  # the colour type in IHDR, the first chunk: 4 gray + alpha, 6 RGBA
+        return data[25:26] in (b"\x04", b"\x06") or b"tRNS" in data[:max(0, data.find(b"IDAT"))]
+    if kind == "WebP":
+        if data[12:16] == b"VP8X":  # extended format: flags byte, alpha bit
+            return bool(data[20] & 0x10)
+        if data[12:16] == b"VP8L":  # lossless: 14-bit width - 1, 14-bit height - 1, then alpha_is_used
+            return bool(int.from_bytes(data[21:25], "little") >> 28 & 1)
+    return False
+
+
+def on_white(image: np.ndarray) -> np.ndarray:
+    """(H, W, 4) BGRA, 8- or 16-bit -> (H, W, 3) uint8 BGR over white, as a page shows it (a sign's
+    artwork drawn on a transparent ground is a sign on white)."""
+    if image.dtype == np.uint16:
+        image = (image >> 8).astype(np.uint8)  # as IMREAD_COLOR scales 16 bits
+    alpha = image[..., 3:].astype(np.float32) / 255
+    return np.round(image[..., :3] * alpha + 255 * (1 - alpha)).astype(np.uint8)
 
 
 def decode_image(data: bytes, name: str = "image") -> np.ndarray:
     """Encoded bytes (JPEG, PNG, TIFF, WebP, BMP, GIF first frame, ...) -> (H, W, 3) uint8 BGR.
 
-    EXIF orientation is applied; 16-bit images are scaled to 8 bits, alpha dropped, gray expanded.
+    EXIF orientation is applied; 16-bit images are scaled to 8 bits, transparent pixels (PNG,
+    WebP) shown over white, gray expanded.
     """
     if not data:
         raise ImageError(f"{name}: file is empty")
     buf = np.frombuffer(data, dtype=np.uint8)
     try:
+        if transparent(data):
+            image = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+            if image is not None and image.ndim == 3 and image.shape[2] == 4:
+                return on_white(image)
         image = cv2.imdecode(buf, cv2.IMREAD_COLOR)
     except cv2.error as exc:
         raise ImageError(f"{name}: cannot decode image: {exc.err or exc}") from None

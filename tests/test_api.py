@@ -205,6 +205,19 @@ def test_library_list_image_add_and_delete(client):
     assert [s["id"] for s in client.get("/api/library").json()] == LIBRARY.ids
 
 
+def test_a_sign_drawn_on_a_transparent_ground_is_a_sign_on_white(client):
+    """Artwork exported with a transparent ground was refused as blank: alpha dropped, black on black."""
+    sign = LIBRARY["chief_of_security"]
+    artwork = np.dstack([np.zeros((*sign.image.shape, 3), np.uint8), 255 - sign.image])  # only the ink is opaque
+    form = {"id": "artwork", "width_m": str(sign.width_m), "height_m": str(sign.height_m)}
+    r = client.post("/api/library", data=form,
+                    files={"file": ("a.png", cv2.imencode(".png", artwork)[1].tobytes(), "image/png")})
+    assert r.status_code == 201, r.text
+    stored = cv2.imdecode(np.frombuffer(client.get("/api/library/artwork/image").content, np.uint8), cv2.IMREAD_GRAYSCALE)
+    assert stored.shape == sign.image.shape and np.abs(stored.astype(int) - sign.image).mean() < 1
+    assert client.delete("/api/library/artwork").status_code == 204
+
+
 # ---------------------------------------------------------------- images
 
 def test_upload_list_detail_label_and_delete(client):
