@@ -135,7 +135,7 @@ class Camera:
                               "px the camera was calibrated at: a cropped or re-framed photo, whose intrinsics no "
                               f"scaling gives; calibrate the camera at {width}x{height}")
         warnings = [f"image is {width}x{height} px but the camera was calibrated at {self.width}x{self.height}; "
-                    f"intrinsics scaled by {sx:.3g} x {sy:.3g}"]
+                    f"intrinsics scaled by {sx:.5g} x {sy:.5g}"]
         K = np.diag([sx, sy, 1.0]) @ self.K
         try:
             return Camera(K, self.dist, width, height, self.source), warnings

@@ -261,7 +261,9 @@ def test_missing_file_and_scaling():
     cam = assumed_camera(640, 480)
     assert cam.is_assumed and abs(cam.K[0, 0] - 554.256) < 1e-3
     scaled, warnings = cam.for_image(1280, 960)
-    assert scaled.K[0, 0] == pytest.approx(2 * cam.K[0, 0]) and warnings
+    assert scaled.K[0, 0] == pytest.approx(2 * cam.K[0, 0]) and warnings[0].endswith("intrinsics scaled by 2 x 2")
+    # a scale near 1 is not rounded to 1, which would say nothing was scaled
+    assert cam.for_image(641, 481)[1][0].endswith("intrinsics scaled by 1.0016 x 1.0021")
 
 
 def intrinsics(fx: float, fy: float, cx: float = 320, cy: float = 240, s: float = 0) -> np.ndarray:
