@@ -97,6 +97,11 @@ def sign_to_quad(sign: LibrarySign, corners: np.ndarray) -> np.ndarray:
     return H.astype(np.float64) / H[2, 2]
 
 
+def quad_width(corners: np.ndarray) -> float:
+    """The longest side (px) of the quad `corners` (4, 2) px."""
+    return float(np.max(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)))
+
+
 def sign_corners(sign: LibrarySign, H: np.ndarray) -> np.ndarray:
     """(4, 2) float64 image px of the sign's corners TL, TR, BR, BL through H (library px -> image px)."""
     return cv2.perspectiveTransform(sign.corners_px[None], H)[0]

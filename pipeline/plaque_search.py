@@ -22,7 +22,8 @@ import cv2
 import numpy as np
 
 from .library import Library
-from .plaque import PlaqueMatch, blob_quad, bounding_box, plaque_correlations, refine_ecc, sign_corners, sign_to_quad
+from .plaque import (PlaqueMatch, blob_quad, bounding_box, plaque_correlations, quad_width, refine_ecc, sign_corners,
+                     sign_to_quad)
 from .segment import (Blob, Segmentation, box_iou, component_blob, expand_box, label_components, normalize_levels,
                       threshold_mask)
 from .settings import Settings
@@ -121,8 +122,7 @@ def _aligned(gray: np.ndarray, corners: np.ndarray, roll: int, sign) -> tuple[np
     at full resolution by the caller).
     """
     corners = np.roll(corners, -roll, axis=0).astype(np.float64)
-    width = float(np.max(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)))
-    f = min(1.0, MAX_ALIGN_WIDTH / width)
+    f = min(1.0, MAX_ALIGN_WIDTH / quad_width(corners))
     # image px -> shrunk neighbourhood px (pixel centres aligned as cv2.resize does)
     x0, y0, x1, y1 = expand_box(bounding_box(corners), 0.5, gray.shape[1], gray.shape[0])
     to_small = np.array([[f, 0, (0.5 - x0) * f - 0.5], [0, f, (0.5 - y0) * f - 0.5], [0, 0, 1]])

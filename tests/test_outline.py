@@ -143,6 +143,27 @@ def test_pose_under_lens_distortion_is_as_good_as_without():
     assert np.array_equal(recognize(photo, library, preset("default"), LENS, cache).H, rec.H)
 
 
+@pytest.mark.parametrize("name", ["scene_005.jpg", "scene_008.jpg", "scene_011.jpg"])
+def test_a_sign_hundreds_of_pixels_wide_is_outlined_too(name):
+    """The sample scenes enlarged 4x, as a 12 MP photo shows a sign: features on a 160 px crop
+    put its corners 10-70 px off, beyond the edge search, and these fell back to ECC (0.8
+    degrees) or to the inliers alone (5.8 degrees). The outline is now found in the image
+    shrunk to the sign's usual size."""
+    sample = next(s for s in SCENES.samples if s.path.name == name)
+    photo = cv2.resize(read_image(sample.path), None, fx=4, fy=4, interpolation=cv2.INTER_CUBIC)
+    rec = recognize(photo, load_library(), preset("default"), SCENES.camera)
+    assert rec.label == sample.label and rec.outline is not None, rec.warnings
+    assert rotation_error_deg(rec.pose.R, sample.R) < 0.15
+    # in the photo's pixels: its corners are those of its H, its edge points on its sides
+    corners = rec.outline.corners
+    assert np.allclose(corners, sign_corners(load_library()[rec.label], rec.outline.H), atol=1e-6)
+    for i, points in enumerate(rec.outline.points):
+        a, b = corners[i], corners[(i + 1) % 4]
+        (dx, dy), (px, py) = b - a, (points - a).T
+        across = (dx * py - dy * px) / np.hypot(dx, dy)
+        assert len(points) >= 8 and np.abs(across).max() < 2.0
+
+
 def test_dense_refinement_under_lens_distortion_aligns_as_without():
     """Without the outline, ECC alone refines H. Through the wide-angle lens it aligns the sign in
     the image an ideal pinhole camera would take, so the sign's corners (undistorted) come out
