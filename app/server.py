@@ -397,7 +397,8 @@ INTEGER_SETTINGS = {f["name"] for f in settings_schema() if f["type"] == "int"}
 
 @api.get("/health", response_model=Health, tags=["server"])
 def health(workspace: WorkspaceDep) -> Health:
-    return Health(version=package_version(), images=len(workspace.images()), busy=workspace.busy)
+    return Health(version=package_version(), images=len(workspace.images()), busy=workspace.busy,
+                  memory_held_bytes=workspace.memory_held(), memory_limit_bytes=workspace.config.max_memory_bytes)
 
 
 @api.get("/events", response_class=EventSourceResponse, tags=["server"])

@@ -16,11 +16,29 @@ function showProgress({ running, done, total }) {
   $("#run-progress").style.width = running && total ? `${(100 * done) / total}%` : "0";
 }
 
+/** `bytes` for people, as the server words them in its messages: "61.2 MB", "12.9 GB". */
+const memoryText = (bytes) => (bytes >= 1e9 ? `${Number((bytes / 1e9).toPrecision(3))} GB`
+  : `${Number((bytes / 1e6).toPrecision(3))} MB`);
+
+/** The top bar's memory figure from a GET /api/health answer: how close uploads are to being refused. */
+function showMemory({ memory_held_bytes: held, memory_limit_bytes: limit }) {
+  $("#memory").textContent = `memory ${memoryText(held)} of ${memoryText(limit)}`;
+}
+
+async function loadHealth() {
+  try {
+    showMemory(await get("/api/health"));
+  } catch (err) {
+    report(err);
+  }
+}
+
 /** Everything the event stream could have told us while it was down. */
 async function resync() {
   try {
     applySettings(await get("/api/settings"), true);
     refreshImages();
+    loadHealth();   // a restarted server may have another memory limit
   } catch (err) {
     report(err);
   }
@@ -65,6 +83,7 @@ async function main() {
   window.addEventListener("unhandledrejection", (e) => report(e.reason));
   const [health] = await Promise.all([get("/api/health"), loadLibrary()]);
   $("#app-version").textContent = `v${health.version}`;
+  showMemory(health);
   await initSettings();
   initCamera();
   initLibrary();
@@ -72,6 +91,12 @@ async function main() {
   initDetail();
   const wanted = linkedImage();
   let autoOpen = true;
+  let heldIds = null;   // the ids of the images the memory figure counts
+  on("images", (images) => {
+    // The memory held changes only with the images held.
+    const ids = images.map((i) => i.id).join();
+    if (ids !== heldIds) { heldIds = ids; loadHealth(); }
+  });
   on("images", (images) => {
     // Open an image as soon as there is one, so the stages are visible without a click.
     if (!autoOpen || !images.length) return;

@@ -67,8 +67,9 @@ def add_photos(client, *sign_ids: str) -> list[str]:
 # ---------------------------------------------------------------- server
 
 def test_health_docs_and_every_contract_path_in_openapi(client):
-    assert client.get("/api/health").json() | {"version": "x", "images": 0} == \
-        {"status": "ok", "version": "x", "images": 0, "busy": False}
+    assert client.get("/api/health").json() | {"version": "x", "images": 0, "memory_held_bytes": 0} == \
+        {"status": "ok", "version": "x", "images": 0, "busy": False, "memory_held_bytes": 0,
+         "memory_limit_bytes": WorkspaceConfig.max_memory_bytes}
     docs = client.get("/docs").text
     assets = re.findall(r'(?:src|href)="([^"]+)"', docs)
     assert assets and all(a.startswith("/docs-assets/") for a in assets), assets   # nothing from a CDN
@@ -337,6 +338,10 @@ def test_uploads_past_the_memory_limit_are_refused_saying_what_fits(tmp_path):
     with running(create_app(cfg)) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
         assert upload(c, ("a.jpg", photo, None), ("b.jpg", photo, "security_compound")).status_code == 201
         held = wait_done(c)
+        # What the refusal below counts, for an operator to see before uploading.
+        assert c.get("/api/health").json() | {"version": ""} == {
+            "status": "ok", "version": "", "images": 2, "busy": False, "memory_held_bytes": 9_500_000,
+            "memory_limit_bytes": 12_000_000}
         assert_error(upload(c, ("c.jpg", photo, None)), 409, "the 2 images held take 9.5 MB of the server's memory "
                      "limit of 12 MB (--max-memory-gb); c.jpg (0.8 megapixels) would take 4.75 MB more and 2.5 MB is "
                      "left: an image of up to 0.3 megapixels fits; delete some images")
@@ -345,6 +350,7 @@ def test_uploads_past_the_memory_limit_are_refused_saying_what_fits(tmp_path):
         assert wait_done(c) == held  # nothing held is lost or changed
         assert [c.get(f"/api/images/{i['id']}/file").content for i in held] == [photo, photo]
         assert c.delete(f"/api/images/{held[0]['id']}").status_code == 204
+        assert c.get("/api/health").json()["memory_held_bytes"] == 4_750_000
         assert_error(upload(c, *[(f"{i}.jpg", photo, None) for i in range(3)]), 409,
                      "these 3 images would take 14.2 MB more and 7.25 MB is left: only the first of them fits")
         assert upload(c, ("d.jpg", photo, None)).status_code == 201

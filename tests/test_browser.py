@@ -18,6 +18,7 @@ import pytest
 import browser_harness as harness
 from chessboards import K_TRUE, render_boards
 from pipeline.exif import LensExif, focal_px
+from app.workspace import memory_text
 from serving import MISFIT_CAMERA
 
 TRUTH = json.loads((harness.SCENES / "truth.json").read_text())["images"]
@@ -146,6 +147,22 @@ def test_status_words_say_unlabelled(page, api):
                                                      ("none", "no sign (unlabelled)")) if s in statuses]
     page.wait_for_function("t => [...document.querySelectorAll('#counts .count')].map(c => c.textContent)"
                            ".join(' · ') === t", arg=" · ".join(expected))
+
+
+def test_top_bar_shows_the_memory_held_and_its_limit(page, api):
+    """An operator sees how close uploads are to the --max-memory-gb refusal, and the figure follows uploads."""
+    def shown(health: dict) -> str:
+        return f"memory {memory_text(health['memory_held_bytes'])} of {memory_text(health['memory_limit_bytes'])}"
+
+    before = api.get("/api/health").json()
+    page.wait_for_function("t => document.querySelector('#memory').textContent === t", arg=shown(before))
+    files = {"files": ("memory-probe.jpg", (harness.SCENES / SCENE).read_bytes(), "image/jpeg")}
+    image_id = api.post("/api/images", files=files).json()["images"][0]["id"]
+    after = api.get("/api/health").json()
+    assert after["memory_held_bytes"] > before["memory_held_bytes"]
+    page.wait_for_function("t => document.querySelector('#memory').textContent === t", arg=shown(after))
+    api.delete(f"/api/images/{image_id}").raise_for_status()
+    page.wait_for_function("t => document.querySelector('#memory').textContent === t", arg=shown(before))
 
 
 def overflowing(page, root: str) -> list[str]:
