@@ -775,6 +775,30 @@ def test_board_square_size_is_checked_in_millimetres(page, api, no_camera):
     page.locator(".toast.error .toast-msg", has_text="at least 3x3 inner corners").wait_for()
 
 
+def test_a_new_board_size_shows_how_far_the_search_has_come(page, api, no_camera):
+    """A new corner count searches every photo again (some 10 s for 18 phone photos) and the dialog
+    said nothing meanwhile: it shows how far the search has come, and then what it found."""
+    images, _ = render_boards(10)  # a board that is not there takes ~0.2 s a photo to rule out
+    api.post("/api/calibration/images", files=[("files", (f"search{i}.png", cv2.imencode(".png", im)[1].tobytes(),
+                                                           "image/png")) for i, im in enumerate(images)])
+    board = api.get("/api/calibration").json()["board"]
+    page.click("#camera-open")
+    page.wait_for_function("() => document.querySelectorAll('#calib-views .view-card').length === 10")
+    try:
+        page.fill("#board-cols", "7")
+        page.dispatch_event("#board-cols", "change")
+        progress = page.locator("#calib-search")
+        progress.wait_for()
+        text = progress.inner_text()
+        assert re.fullmatch(rf"searching the 10 photos for the 7×{board['rows']} board: \d of 10", text), text
+        assert page.input_value("#board-cols") == "7"   # not the old board's, which the state holds until done
+        assert page.is_disabled("#calib-run")
+        page.locator("#calib-summary", has_text=f"10 photos, the 7×{board['rows']} board found in 0").wait_for()
+        assert progress.count() == 0
+    finally:
+        api.put("/api/calibration/board", json=board).raise_for_status()
+
+
 def assert_toast_on_top(page, toast) -> None:
     """`toast` (a locator) is drawn over everything, an open modal dialog included, and a click on
     its × dismisses it."""
