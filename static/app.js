@@ -5,6 +5,7 @@ import { initCamera } from "./camera.js";
 import { initDetail } from "./detail.js";
 import { initGallery, refreshImages } from "./gallery.js";
 import { initLibrary, loadLibrary } from "./library.js";
+import { initScene, reloadScene } from "./scene.js";
 import { apply as applySettings, initSettings } from "./settings.js";
 import { emit, on, select, state } from "./store.js";
 import { $, report } from "./ui.js";
@@ -44,13 +45,6 @@ async function resync() {
   }
 }
 
-/** Load the embedded 3D scene afresh: its viser client gives up on a server that went away, and
- *  a restarted server is a new viser server anyway. */
-function reloadScene() {
-  const scene = $("#scene");
-  scene.src = scene.getAttribute("src");
-}
-
 function listen() {
   const source = new EventSource("/api/events");
   const live = $("#live");
@@ -81,6 +75,7 @@ const linkedImage = () => new URLSearchParams(location.hash.slice(1)).get("image
 
 async function main() {
   window.addEventListener("unhandledrejection", (e) => report(e.reason));
+  initScene();   // first: the 3D view loads beside the page's own requests
   const [health] = await Promise.all([get("/api/health"), loadLibrary()]);
   $("#app-version").textContent = `v${health.version}`;
   showMemory(health);

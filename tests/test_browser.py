@@ -473,10 +473,44 @@ def test_pose_sigma_in_millimetres(page, api):
     assert shown == [pytest.approx(1000 * math.sqrt(cov[i][i]), rel=0.05) for i in range(3, 6)]
 
 
+# The share of the 3D view's points where something covers the scene's canvas (its labels and
+# gizmo are in it); viser's notifications aside: headless Chromium's software WebGL earns one.
+COVERED_SHARE = """() => {
+    let covered = 0;
+    for (let i = 0.5; i < 20; i++) for (let j = 0.5; j < 20; j++) {
+        const e = document.elementFromPoint(innerWidth * i / 20, innerHeight * j / 20);
+        if (!(e instanceof HTMLCanvasElement) && !e.closest('.mantine-Notification-root')) covered++;
+    }
+    return covered / 400; }"""
+
+
+def viser_frame(page):
+    """The embedded 3D view's frame, once connected."""
+    page.frame_locator("#scene").get_by_text("Connected", exact=True).wait_for(timeout=30_000)
+    return page.frame(url=re.compile(r"/viser/"))
+
+
+@pytest.mark.parametrize("width, opener", [(1600, "text=Connected"), (1200, '[aria-label="Expand panel"]')])
+def test_viser_controls_start_folded_in_the_page(page, width, opener):
+    """viser's control panel covered a third of the page's 3D view, a narrow column at 1600 px (where
+    viser shows it as a sheet at the bottom) and a strip under the images at 1200 px (a floating
+    window): it starts folded there, and opens when the person asks, staying open."""
+    page.set_viewport_size({"width": width, "height": 1000})
+    page.reload()
+    frame = viser_frame(page)
+    frame.wait_for_function(f"() => ({COVERED_SHARE})() < 0.06", timeout=10_000)
+    page.locator("#scene").scroll_into_view_if_needed()
+    page.frame_locator("#scene").locator(opener).click()
+    frame.wait_for_function(f"() => ({COVERED_SHARE})() > 0.2", timeout=10_000)
+    page.wait_for_timeout(1000)   # five of the page's looks for a panel to fold
+    assert frame.evaluate(COVERED_SHARE) > 0.2, "the controls the person opened were folded again"
+
+
 def test_viser_scene_connects_and_shares_the_settings(page, api):
     scene = page.frame_locator("#scene")
     scene.locator("canvas").first.wait_for(timeout=30_000)
     scene.get_by_text("Connected", exact=True).wait_for(timeout=30_000)
+    scene.get_by_text("Connected", exact=True).click()   # the page folds viser's controls
 
     # The same threshold in viser's Segmentation folder and in the page's form, both ways.
     scene.get_by_text("Segmentation", exact=True).click()
