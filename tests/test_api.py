@@ -459,7 +459,7 @@ def test_threshold_calibration(client):
     assert sum(rect["histogram"]) == 240 * 100
     assert_error(client.post("/api/calibrate/threshold", json={"image_id": sign_id, "rect": [700, 0, 900, 50]}),
                  422, "640x480")
-    assert_error(client.post("/api/calibrate/threshold", json={"image_id": wall_id}), 422, "rectangle")
+    assert_error(client.post("/api/calibrate/threshold", json={"image_id": wall_id}), 422, "send rect [x0, y0, x1, y1]")
     assert_error(client.post("/api/calibrate/threshold", json={"image_id": "0123456789ab"}), 404)
     for image_id in (sign_id, wall_id):
         client.delete(f"/api/images/{image_id}")

@@ -411,6 +411,33 @@ def test_typed_changes_survive_leaving_the_page_at_once(page, api, base, no_came
     wait_kept(lambda: api.get("/api/camera").json()["assumed_hfov_deg"], 72)
 
 
+def test_messages_say_what_to_do_in_the_page_not_which_api_route(page, api):
+    """The page showed the server's words for API users ("in the API, send rect ...", "GET
+    /api/images lists them", "(GET /api/images)") where a person can only act in the page."""
+    blank = cv2.imencode(".png", np.full((480, 640), 128, np.uint8))[1].tobytes()
+    image_id = api.post("/api/images", files={"files": ("blank-wall.png", blank, "image/png")}).json()["images"][0]["id"]
+    harness.wait_server_idle(api)
+    harness.wait_cards(page, ["blank-wall.png"])
+    open_detail(page, image_id)   # nothing found in it: nothing for the histogram to measure
+    page.locator("#calib-result", has_text="No sign or white blob was found to measure: drag a box around the "
+                 "sign, with some wall in it, on the input image.").wait_for()
+
+    api.delete(f"/api/images/{image_id}").raise_for_status()
+    page.wait_for_selector("#detail", state="hidden")
+    page.evaluate("id => { location.hash = `image=${id}`; }", image_id)   # a link to it, followed after
+    page.locator(".toast.warn .toast-msg", has_text="That image is not on the server (removed, or the link is "
+                 "from another server): pick one in the gallery.").wait_for()
+    assert page.is_hidden("#detail")
+
+    page.route("**/api/images", lambda route: route.abort())   # the server gone, as the page sees it
+    api.post("/api/settings/preset/paper").raise_for_status()  # the images change: the page asks for them
+    page.locator(".toast.error .toast-msg", has_text="cannot reach the signpose server: check that signpose serve "
+                 "is still running, then try again").first.wait_for()
+    page.unroute("**/api/images")
+    toasts = page.locator(".toast-msg").all_inner_texts()
+    assert not [t for t in toasts if "/api/" in t or " API" in t], toasts
+
+
 def test_threshold_calibration_and_sweep(page, api):
     image_id = uploaded_scene(api)
     open_detail(page, image_id)
