@@ -23,7 +23,7 @@ from pipeline.library import SAMPLE_LIBRARY, load_library
 from pipeline.synth import synthetic_camera
 from pipeline.camera import ros_camera_yaml
 from faults import fail_segmentation
-from scene_images import big_photo, empty_photo, png_bomb, sign_photo, tiny_photo, with_focal_exif
+from scene_images import big_photo, empty_photo, has, png_bomb, sign_photo, tiny_photo, with_focal_exif
 from serving import (MISFIT_CAMERA, REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve,
                      stop_serve, upload, wait_done)
 
@@ -256,11 +256,6 @@ def label_bands(figure: np.ndarray) -> list[np.ndarray]:
     black = np.all(figure == 0, axis=2).astype(np.uint8)
     _, _, stats, _ = cv2.connectedComponentsWithStats(black, connectivity=4)
     return [figure[y:y + h, x:x + w] for x, y, w, h, area in stats[1:] if area > 200 and area > 0.5 * w * h]
-
-
-def has(img: np.ndarray, color: tuple[int, int, int]) -> bool:
-    """Whether `img` has a pixel of exactly `color` (BGR): the core of a line or letter drawn in it."""
-    return bool(np.all(img == color, axis=2).any())
 
 
 @pytest.mark.parametrize("scene, sign, by_plaque", [
