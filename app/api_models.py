@@ -30,6 +30,10 @@ class Health(BaseModel):
     version: str
     images: int
     busy: bool = Field(description="whether any image is being (re-)processed")
+    memory_held_bytes: int = Field(description="memory the images held take, bytes, as the memory limit counts "
+                                               "it (5 bytes a pixel plus 1 MB an image)")
+    memory_limit_bytes: int = Field(description="the memory limit (--max-memory-gb), bytes: uploads that would "
+                                                "take more are refused")
 
 
 class SettingsOut(BaseModel):

@@ -20,6 +20,10 @@ STAGES = ("input", "gray", "mask", "blob", "crop", "matches", "inliers")
 # The stages drawn on the colour photo; the others need only its gray.
 PHOTO_STAGES = ("input", "blob", "crop", "matches", "inliers")
 MAX_SIDE_PX = 1600
+# Figures of smaller images are drawn on a copy enlarged to this, each pixel a square block: on a
+# 1 x 1 px image the "no sign" label covered the whole photo, which the page then showed as a
+# large black square.
+MIN_SIDE_PX = 320
 MATCH_PANEL_HEIGHT_PX = 600
 MATCH_PANEL_MAX_WIDTH_PX = 4 * MATCH_PANEL_HEIGHT_PX
 # BGR
@@ -96,6 +100,19 @@ def fit(img: np.ndarray, max_side: int = MAX_SIDE_PX) -> np.ndarray:
     return img if scale >= 1 else _scaled(img, scale)
 
 
+def _enlarged(img: np.ndarray) -> tuple[np.ndarray, int]:
+    """`img` enlarged by the whole factor k that brings its longer side to MIN_SIDE_PX or more (each
+    pixel a k x k block, no blur), and k; `img` itself and 1 when it is that large already."""
+    h, w = img.shape[:2]
+    k = -(-MIN_SIDE_PX // max(h, w))
+    return (img, 1) if k <= 1 else (cv2.resize(img, (w * k, h * k), interpolation=cv2.INTER_NEAREST), k)
+
+
+def _at(k: int, points: np.ndarray) -> np.ndarray:
+    """Image px (pixel centres at whole numbers) on a copy enlarged k times by `_enlarged`."""
+    return (np.asarray(points, dtype=np.float64) + 0.5) * k - 0.5
+
+
 def _bgr(img: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img.ndim == 2 else img.copy()
 
@@ -141,16 +158,18 @@ def answer_text(recognition: Recognition) -> str | None:
 def draw_input(image: np.ndarray, recognition: Recognition) -> np.ndarray:
     """The photo with every searched region and the recognised sign's outline (the result's
     `corners`), each labelled where no other label is."""
-    img = image.copy()
+    img, k = _enlarged(image)
+    img = img.copy() if k == 1 else img
     thick, _ = _pen(img.shape)
     labels = []  # (text, color, spots to try in turn) for `_free_band`
     for attempt in recognition.attempts:
         color = YELLOW if attempt is recognition.attempt else ORANGE
-        _box(img, attempt.region, color)
-        x0, y0, _, y1 = attempt.region
+        x0, y0, _, y1 = region = tuple(k * v for v in attempt.region)
+        _box(img, region, color)
         labels.append((attempt.source, color, [((x0, y0), True), ((x0, y0), False), ((x0, y1), False)]))
     corners, answer = recognition.corners, answer_text(recognition)
     if corners is not None and answer is not None:
+        corners = _at(k, corners)
         _quad(img, corners, GREEN)
         (x0, y0), (_, y1) = np.min(corners, axis=0).astype(int), np.max(corners, axis=0).astype(int)
         # First, so it gets its spot: below the outline, as its region's label is above it.
@@ -181,11 +200,13 @@ def draw_blob(image: np.ndarray, recognition: Recognition) -> np.ndarray:
     seg = segmentation_of(image, recognition)
     img = cv2.convertScaleAbs(image, alpha=DIM)  # uint8 throughout: no float copy of a large photo
     chosen = chosen_blob(recognition)
-    for i, (blob, crop) in enumerate(zip(seg.blobs, seg.crops)):
-        color = GREEN if i == chosen else ORANGE
+    colors = [GREEN if i == chosen else ORANGE for i in range(len(seg.blobs))]
+    for blob, color in zip(seg.blobs, colors):
         pixels = seg.labels == blob.label
         img[pixels] = (0.5 * image[pixels] + 0.5 * np.array(color)).astype(np.uint8)
-        _box(img, crop, color, f"blob {i + 1}: {blob.area} px")
+    img, k = _enlarged(img)  # tinted first, at the labels' resolution
+    for i, (blob, crop, color) in enumerate(zip(seg.blobs, seg.crops, colors)):
+        _box(img, tuple(k * v for v in crop), color, f"blob {i + 1}: {blob.area} px")
     if not seg.blobs:
         _label(img, "no blob above the threshold", (10, 10), RED)
     return img
@@ -199,11 +220,12 @@ def _region(recognition: Recognition, width: int, height: int) -> tuple[Attempt 
 def draw_crop(image: np.ndarray, recognition: Recognition) -> np.ndarray:
     """The region the answer came from, with its keypoints."""
     attempt, (x0, y0, x1, y1) = _region(recognition, image.shape[1], image.shape[0])
-    img = image[y0:y1, x0:x1].copy()
+    img, k = _enlarged(image[y0:y1, x0:x1])
+    img = img.copy() if k == 1 else img
     if attempt is not None:
         thick, _ = _pen(img.shape)
-        for (x, y), size in zip(attempt.features.xy, attempt.features.size):
-            cv2.circle(img, (round(x - x0), round(y - y0)), max(2, round(size / 2)), CYAN, max(1, thick // 2),
+        for (x, y), size in zip(_at(k, attempt.features.xy - (x0, y0)), attempt.features.size):
+            cv2.circle(img, (round(x), round(y)), max(2, round(k * size / 2)), CYAN, max(1, thick // 2),
                        cv2.LINE_AA)
         _label(img, f"{attempt.source}: {len(attempt.features)} keypoints", (6, 6), CYAN)
     return img

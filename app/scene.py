@@ -126,6 +126,27 @@ def fit_width(image: np.ndarray, max_width: int) -> np.ndarray:
     return cv2.resize(rgb, (max_width, max(1, round(h * max_width / w))), interpolation=cv2.INTER_AREA)
 
 
+def label_groups(positions: list[np.ndarray], radius_m: float) -> list[list[int]]:
+    """Indices into `positions` ((3,) metres each) grouped so that each stands within `radius_m` of
+    another in its group (single linkage); the groups in order of their first index, each in order."""
+    parent = list(range(len(positions)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i, a in enumerate(positions):
+        for j in range(i):
+            if np.linalg.norm(np.asarray(a) - np.asarray(positions[j])) < radius_m:
+                parent[root(i)] = root(j)
+    groups: dict[int, list[int]] = {}
+    for i in range(len(positions)):
+        groups.setdefault(root(i), []).append(i)
+    return list(groups.values())
+
+
 def label_rgb(library: Library, label: str) -> tuple[int, int, int]:
     """A colour per library sign, stable while the library's order is."""
     return LABEL_RGB[library.ids.index(label) % len(LABEL_RGB)]
@@ -433,10 +454,29 @@ class SceneHandle:
                 nodes = self.cameras.get(record.id)
                 if nodes is None or nodes.recognition is not rec or stale_geometry:
                     self._draw_camera(record, rec, library)
+            self._share_labels(shown)
             self._choose_world(counts)
             generation = self.workspace.snapshot.generation
             self.status.content = status_markdown(
                 [status_of(r.expected, o, generation) for r, o in zip(records, outcomes)], outcomes, self._progress)
+
+    def _share_labels(self, shown: list[tuple[ImageRecord, Recognition]]) -> None:
+        """One label for each group of cameras in a sign's world standing closer than the drawn photo
+        width: their frustums overlap, and a label each, at their centres, printed one name over
+        another (the same photo uploaded twice, a burst). The first camera's lists every name, one a
+        line; the others' are hidden. The caller holds the lock; `shown` are the cameras drawn."""
+        by_sign: dict[str, list[tuple[ImageRecord, Recognition]]] = {}
+        for record, rec in shown:
+            by_sign.setdefault(rec.label, []).append((record, rec))
+        for cameras in by_sign.values():
+            nodes = [self.cameras[record.id] for record, _ in cameras]
+            for group in label_groups([np.asarray(n.frustum.position) for n in nodes], self.frustum_width.value):
+                text = "\n".join(_camera_text(*cameras[i]) for i in group)
+                if nodes[group[0]].label.text != text:
+                    nodes[group[0]].label.text = text
+                for i in group:
+                    if nodes[i].label.visible != (i == group[0]):
+                        nodes[i].label.visible = i == group[0]
 
     def _remove_cameras(self, image_ids: set[str]) -> None:
         for image_id in image_ids:
@@ -480,8 +520,7 @@ class SceneHandle:
             # Same photo and shape: move the frustum instead of re-sending its image.
             frustum, label = old.frustum, old.label
             frustum.position, frustum.wxyz, frustum.color, frustum.scale = position, wxyz, color, scale
-            label.text = _camera_text(record, rec)
-            old.matches.remove()
+            old.matches.remove()  # its label's text is `_share_labels`' to set
         else:
             if old is not None:
                 old.remove()

@@ -397,7 +397,8 @@ INTEGER_SETTINGS = {f["name"] for f in settings_schema() if f["type"] == "int"}
 
 @api.get("/health", response_model=Health, tags=["server"])
 def health(workspace: WorkspaceDep) -> Health:
-    return Health(version=package_version(), images=len(workspace.images()), busy=workspace.busy)
+    return Health(version=package_version(), images=len(workspace.images()), busy=workspace.busy,
+                  memory_held_bytes=workspace.memory_held(), memory_limit_bytes=workspace.config.max_memory_bytes)
 
 
 @api.get("/events", response_class=EventSourceResponse, tags=["server"])
@@ -627,10 +628,10 @@ def calibrate_threshold(body: CalibrateIn, workspace: WorkspaceDep) -> tuning.Th
     else:
         region = tuning.sign_region(result_of(record).recognition, w, h)
         if region is None:
+            # The page words this for its own users (static/detail.js): they drag a box.
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                f"no sign or white blob was found in {record.name}; "
-                                "mark a rectangle around the sign with some wall in it (on the page, drag a "
-                                "box; in the API, send rect [x0, y0, x1, y1])")
+                                f"no sign or white blob was found in {record.name}; send rect [x0, y0, x1, y1] "
+                                "in image pixels around the sign, with some wall in it")
         inside, source = region
     return tuning.suggest_threshold(record.gray, workspace.settings.normalization, inside, source)
 

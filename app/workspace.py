@@ -483,6 +483,11 @@ class Workspace:
                 self._photos.popitem(last=False)
             return photo
 
+    def memory_held(self) -> int:
+        """Bytes the images held take as `held_bytes` counts them: what `max_memory_bytes` limits."""
+        with self._lock:
+            return sum(held_bytes(r.gray.size) for r in self._records.values())
+
     def _check_room(self, uploads: list[tuple[str, int]]) -> None:
         """Refuse to add `uploads` ((display name, pixels)) beyond `max_images` or `max_memory_bytes`
         (Conflict), or an image that alone would take more than `max_memory_bytes` (ImageTooLarge);
@@ -493,10 +498,11 @@ class Workspace:
                            f"delete some before adding {len(uploads)} more")
         for name, pixels in uploads:
             if held_bytes(pixels) > limit:
-                raise ImageTooLarge(f"{name}: {pixels / 1e6:.1f} megapixels would take {_memory(held_bytes(pixels))} "
-                                    f"held, more than the server's memory limit of {_memory(limit)}; downscale "
-                                    "it, or restart signpose serve with a higher --max-memory-gb")
-        used = sum(held_bytes(r.gray.size) for r in self._records.values())
+                raise ImageTooLarge(f"{name}: {pixels / 1e6:.1f} megapixels would take "
+                                    f"{memory_text(held_bytes(pixels))} held, more than the server's memory limit of "
+                                    f"{memory_text(limit)}; downscale it, or restart signpose serve with a higher "
+                                    "--max-memory-gb")
+        used = self.memory_held()
         needed = [held_bytes(pixels) for _, pixels in uploads]
         if used + sum(needed) <= limit:
             return
@@ -511,10 +517,10 @@ class Workspace:
             room = "no image fits"
         what = f"{uploads[0][0]} ({uploads[0][1] / 1e6:.1f} megapixels)" if len(uploads) == 1 else \
             f"these {len(uploads)} images"
-        raise Conflict(f"the {held} images held take {_memory(used)} of the server's memory limit of "
-                       f"{_memory(limit)} (--max-memory-gb); {what} would take {_memory(sum(needed))} more and "
-                       f"{_memory(left)} is left: {room}; delete some images, or restart signpose serve with "
-                       "a higher --max-memory-gb")
+        raise Conflict(f"the {held} images held take {memory_text(used)} of the server's memory limit of "
+                       f"{memory_text(limit)} (--max-memory-gb); {what} would take {memory_text(sum(needed))} "
+                       f"more and {memory_text(left)} is left: {room}; delete some images, or restart signpose "
+                       "serve with a higher --max-memory-gb")
 
     def set_expected(self, image_id: str, expected: str | None) -> ImageRecord:
         with self._lock:
@@ -861,7 +867,7 @@ def run_logged(name: str, image: np.ndarray, library: Library, settings: Setting
         raise
 
 
-def _memory(size: int) -> str:
+def memory_text(size: int) -> str:
     """`size` bytes for people: "2.5 MB", "61 MB", "11.6 GB"."""
     return f"{size / 1e9:.3g} GB" if size >= 1e9 else f"{size / 1e6:.3g} MB"
 

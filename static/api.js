@@ -1,6 +1,8 @@
 // Thin client for the signpose HTTP API (docs/web-contract.md). Every failure becomes an
 // Error whose message is the server's `detail`, so callers can show it as is.
 
+const UNREACHABLE = "cannot reach the signpose server: check that signpose serve is still running, then try again";
+
 class ApiError extends Error {
   constructor(status, message) {
     super(message);
@@ -34,7 +36,8 @@ export async function api(method, url, body, options = {}) {
   try {
     response = await fetch(url, init);
   } catch (err) {
-    throw new ApiError(0, `cannot reach the signpose server (${method} ${url}): ${err.message}`);
+    console.warn(`${method} ${url}:`, err);   // the request, for whoever debugs; the person gets what to do
+    throw new ApiError(0, `${UNREACHABLE} (${err.message})`);
   }
   return parse(response);
 }
@@ -48,7 +51,7 @@ export function upload(url, form, onProgress) {
     xhr.open("POST", url);
     xhr.upload.onprogress = (e) => e.lengthComputable && onProgress(e.loaded / e.total);
     xhr.upload.onload = () => onProgress(1);
-    xhr.onerror = () => reject(new ApiError(0, `upload failed: cannot reach the signpose server`));
+    xhr.onerror = () => reject(new ApiError(0, `upload failed: ${UNREACHABLE}`));
     xhr.onload = () => {
       const response = new Response(xhr.responseText, { status: xhr.status, statusText: xhr.statusText });
       parse(response).then(resolve, reject);

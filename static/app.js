@@ -5,6 +5,7 @@ import { initCamera } from "./camera.js";
 import { initDetail } from "./detail.js";
 import { initGallery, refreshImages } from "./gallery.js";
 import { initLibrary, loadLibrary } from "./library.js";
+import { initScene, reloadScene } from "./scene.js";
 import { apply as applySettings, initSettings } from "./settings.js";
 import { emit, on, select, state } from "./store.js";
 import { $, report } from "./ui.js";
@@ -16,21 +17,32 @@ function showProgress({ running, done, total }) {
   $("#run-progress").style.width = running && total ? `${(100 * done) / total}%` : "0";
 }
 
-/** Everything the event stream could have told us while it was down. */
-async function resync() {
+/** `bytes` for people, as the server words them in its messages: "61.2 MB", "12.9 GB". */
+const memoryText = (bytes) => (bytes >= 1e9 ? `${Number((bytes / 1e9).toPrecision(3))} GB`
+  : `${Number((bytes / 1e6).toPrecision(3))} MB`);
+
+/** The top bar's memory figure from a GET /api/health answer: how close uploads are to being refused. */
+function showMemory({ memory_held_bytes: held, memory_limit_bytes: limit }) {
+  $("#memory").textContent = `memory ${memoryText(held)} of ${memoryText(limit)}`;
+}
+
+async function loadHealth() {
   try {
-    applySettings(await get("/api/settings"), true);
-    refreshImages();
+    showMemory(await get("/api/health"));
   } catch (err) {
     report(err);
   }
 }
 
-/** Load the embedded 3D scene afresh: its viser client gives up on a server that went away, and
- *  a restarted server is a new viser server anyway. */
-function reloadScene() {
-  const scene = $("#scene");
-  scene.src = scene.getAttribute("src");
+/** Everything the event stream could have told us while it was down. */
+async function resync() {
+  try {
+    applySettings(await get("/api/settings"), true);
+    refreshImages();
+    loadHealth();   // a restarted server may have another memory limit
+  } catch (err) {
+    report(err);
+  }
 }
 
 function listen() {
@@ -63,8 +75,10 @@ const linkedImage = () => new URLSearchParams(location.hash.slice(1)).get("image
 
 async function main() {
   window.addEventListener("unhandledrejection", (e) => report(e.reason));
+  initScene();   // first: the 3D view loads beside the page's own requests
   const [health] = await Promise.all([get("/api/health"), loadLibrary()]);
   $("#app-version").textContent = `v${health.version}`;
+  showMemory(health);
   await initSettings();
   initCamera();
   initLibrary();
@@ -72,6 +86,12 @@ async function main() {
   initDetail();
   const wanted = linkedImage();
   let autoOpen = true;
+  let heldIds = null;   // the ids of the images the memory figure counts
+  on("images", (images) => {
+    // The memory held changes only with the images held.
+    const ids = images.map((i) => i.id).join();
+    if (ids !== heldIds) { heldIds = ids; loadHealth(); }
+  });
   on("images", (images) => {
     // Open an image as soon as there is one, so the stages are visible without a click.
     if (!autoOpen || !images.length) return;

@@ -15,6 +15,8 @@ export const KIND_LABELS = {
 };
 const THUMB_SIDE = 320;
 const PREVIEW_SIDE = 1280;
+// How often the dialog asks how far a search for a new board size has come (some 10 s for 18 photos).
+const SEARCH_POLL_MS = 300;
 
 let camera = null;        // GET /api/camera
 let calib = null;         // GET /api/calibration, the newest revision seen
@@ -22,6 +24,7 @@ let selected = null;      // id of the calibration photo in the preview
 let picked = false;       // `selected` was clicked, not chosen for the person
 let previewMode = "corners";
 let hfovHeld = false;     // the slider is under the pointer: server answers must not yank it
+let searchPoll = null;    // timer of the next look at a board search under way
 
 /** "fx 520.1 fy 515.0 cx 318.0 cy 243.0 px @ 640×480" */
 const intrinsicsText = (cam) => `fx ${fmt(cam.fx, 1)} fy ${fmt(cam.fy, 1)} cx ${fmt(cam.cx, 1)} `
@@ -150,6 +153,18 @@ function show(body) {
   if (calib && body.revision < calib.revision) return;
   calib = body;
   renderCalibration();
+  if (calib.search) followSearch();
+}
+
+/** Look at the calibration again in SEARCH_POLL_MS while the dialog is open: the answer to a new
+ *  board size comes only once every photo has been searched, and until then only GET says how far
+ *  it has come. `show` keeps looking while the answers say a search is under way. */
+function followSearch() {
+  clearTimeout(searchPoll);
+  searchPoll = setTimeout(() => {
+    searchPoll = null;
+    if ($("#camera-dialog").open) loadCalibration();
+  }, SEARCH_POLL_MS);
 }
 
 async function loadCalibration() {
@@ -203,6 +218,15 @@ function renderSummary() {
   const found = calib.views.filter((v) => v.found).length;
   const r = calib.result;
   const b = calib.board;
+  const search = calib.search;
+  if (search) {   // the views and result are the old board's until it is done
+    const bar = el("div.bar");
+    bar.style.width = `${(100 * search.done) / search.total}%`;   // CSSOM: the page's CSP refuses style attributes
+    fill($("#calib-summary"), el("p", { id: "calib-search", role: "status" },
+      `searching the ${plural(search.total, "photo")} for the ${search.cols}×${search.rows} board: `
+      + `${search.done} of ${search.total}`), el("div.progress", {}, bar));
+    return;
+  }
   if (!r) {
     fill($("#calib-summary"), el("p.muted", {}, calib.views.length
       ? `${plural(calib.views.length, "photo")}, the ${b.cols}×${b.rows} board found in ${found}`
@@ -243,7 +267,9 @@ function renderPreview() {
 
 function renderCalibration() {
   const b = calib.board;
-  for (const [id, value] of [["#board-cols", b.cols], ["#board-rows", b.rows], ["#board-square", b.square_m * 1000]]) {
+  // During a search the board is still the old one: the fields keep the size being searched for.
+  const { cols, rows } = calib.search ?? b;
+  for (const [id, value] of [["#board-cols", cols], ["#board-rows", rows], ["#board-square", b.square_m * 1000]]) {
     if (document.activeElement !== $(id)) $(id).value = Number(value.toFixed(3));
   }
   const current = calib.views.find((v) => v.id === selected);
@@ -254,9 +280,11 @@ function renderCalibration() {
   fill($("#calib-views"), ...calib.views.map(viewCard));
   $("#calib-empty").hidden = calib.views.length > 0;
   const found = calib.views.filter((v) => v.found).length;
-  $("#calib-run").disabled = found < calib.min_views;
-  $("#calib-drop").disabled = !calib.views.some((v) => v.outlier);
-  $("#calib-apply").disabled = $("#calib-yaml").disabled = !calib.result;
+  // A fit waits for the search and then fits the new board; the old result is dropped once it ends.
+  const searching = Boolean(calib.search);
+  $("#calib-run").disabled = searching || found < calib.min_views;
+  $("#calib-drop").disabled = searching || !calib.views.some((v) => v.outlier);
+  $("#calib-apply").disabled = $("#calib-yaml").disabled = searching || !calib.result;
   renderSummary();
   fill($("#calib-warnings"), ...(calib.result?.warnings ?? []).map((w) => el("li", {}, w)));
   renderChart();
@@ -308,6 +336,7 @@ function bindCalibration() {
     change("PUT", "/api/calibration/board", {
       cols: Number($("#board-cols").value), rows: Number($("#board-rows").value), square_m: Number(square) / 1000,
     });
+    followSearch();   // a new corner count searches every photo again before this answer comes
   };
   for (const id of ["#board-cols", "#board-rows", "#board-square"]) $(id).addEventListener("change", putBoard);
   $("#calib-run").onclick = () => run(false);

@@ -7,7 +7,7 @@ import { drawHistogram, drawSweep, valueAt } from "./charts.js";
 import { fillExpected, refreshImages, showStatus } from "./gallery.js";
 import { setSetting } from "./settings.js";
 import { state, on, select, signName } from "./store.js";
-import { $, el, fill, fmt, plural, report } from "./ui.js";
+import { $, el, fill, fmt, plural, report, toast } from "./ui.js";
 
 let detail = null;          // GET /api/images/{id} of the shown image
 let shownKey = "";          // keyOf(shown image): reload only when the result can differ
@@ -48,6 +48,8 @@ function stageFigure(title, link = true) {
 }
 
 const INPUT_TITLE = "input · detected sign outlined · drag a box on the sign to calibrate";
+const NOTHING_TO_MEASURE = "No sign or white blob was found to measure: drag a box around the sign, with some "
+  + "wall in it, on the input image.";
 const input = stageFigure(INPUT_TITLE, false);
 const stages = Object.entries({ gray: "normalised gray", mask: "binary mask", blob: "largest blob", crop: "crop" })
   .map(([stage, title]) => ({ stage, figure: stageFigure(title) }));
@@ -207,7 +209,12 @@ async function load(id) {
     render();
     calibrate();   // the detected sign's region moves with the result
   } catch (err) {
-    if (token === loadToken) report(err);
+    if (token !== loadToken) return;
+    if (err.status !== 404) { report(err); return; }
+    // A #image= link to an image removed since, or a card clicked as another tab removed it.
+    select(null);
+    toast("That image is not on the server (removed, or the link is from another server): pick one in the gallery.",
+      "warn");
   }
 }
 
@@ -242,8 +249,9 @@ async function calibrate() {
   try {
     calib = await api("POST", "/api/calibrate/threshold", { image_id: id, rect });
   } catch (err) {
-    // Shown beside the histogram, where the person is looking (e.g. "no sign found: draw a box").
-    calib = { error: err.message };
+    // Shown beside the histogram, where the person is looking. Without a box the server refuses
+    // (422) an image with no region to measure, in an API user's words.
+    calib = { error: !rect && err.status === 422 ? NOTHING_TO_MEASURE : err.message };
   }
   if (detail?.id === id) renderCalib();
 }

@@ -101,3 +101,8 @@ def big_photo(width: int, height: int, scene: str = "scene_002.jpg") -> bytes:
     image = cv2.imread(str(SAMPLE_SCENES / scene), cv2.IMREAD_COLOR)
     big = cv2.resize(image, (width, height), interpolation=cv2.INTER_CUBIC)
     return cv2.imencode(".jpg", big, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes()
+
+
+def has(img: np.ndarray, color: tuple[int, int, int]) -> bool:
+    """Whether `img` has a pixel of exactly `color` (BGR): the core of a line or letter drawn in it."""
+    return bool(np.all(img == color, axis=2).any())

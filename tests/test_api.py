@@ -23,7 +23,7 @@ from pipeline.library import SAMPLE_LIBRARY, load_library
 from pipeline.synth import synthetic_camera
 from pipeline.camera import ros_camera_yaml
 from faults import fail_segmentation
-from scene_images import big_photo, empty_photo, png_bomb, sign_photo, tiny_photo, with_focal_exif
+from scene_images import big_photo, empty_photo, has, png_bomb, sign_photo, tiny_photo, with_focal_exif
 from serving import (MISFIT_CAMERA, REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve,
                      stop_serve, upload, wait_done)
 
@@ -67,8 +67,9 @@ def add_photos(client, *sign_ids: str) -> list[str]:
 # ---------------------------------------------------------------- server
 
 def test_health_docs_and_every_contract_path_in_openapi(client):
-    assert client.get("/api/health").json() | {"version": "x", "images": 0} == \
-        {"status": "ok", "version": "x", "images": 0, "busy": False}
+    assert client.get("/api/health").json() | {"version": "x", "images": 0, "memory_held_bytes": 0} == \
+        {"status": "ok", "version": "x", "images": 0, "busy": False, "memory_held_bytes": 0,
+         "memory_limit_bytes": WorkspaceConfig.max_memory_bytes}
     docs = client.get("/docs").text
     assets = re.findall(r'(?:src|href)="([^"]+)"', docs)
     assert assets and all(a.startswith("/docs-assets/") for a in assets), assets   # nothing from a CDN
@@ -270,11 +271,6 @@ def label_bands(figure: np.ndarray) -> list[np.ndarray]:
     return [figure[y:y + h, x:x + w] for x, y, w, h, area in stats[1:] if area > 200 and area > 0.5 * w * h]
 
 
-def has(img: np.ndarray, color: tuple[int, int, int]) -> bool:
-    """Whether `img` has a pixel of exactly `color` (BGR): the core of a line or letter drawn in it."""
-    return bool(np.all(img == color, axis=2).any())
-
-
 @pytest.mark.parametrize("scene, sign, by_plaque", [
     ("scenes/scene_002.jpg", "security_compound", False),  # its region's label sat under the answer's
     ("datasets/set2/scene_007.jpg", "ministry_of_torture", True),  # once labelled "no sign"
@@ -350,6 +346,10 @@ def test_uploads_past_the_memory_limit_are_refused_saying_what_fits(tmp_path):
     with running(create_app(cfg)) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
         assert upload(c, ("a.jpg", photo, None), ("b.jpg", photo, "security_compound")).status_code == 201
         held = wait_done(c)
+        # What the refusal below counts, for an operator to see before uploading.
+        assert c.get("/api/health").json() | {"version": ""} == {
+            "status": "ok", "version": "", "images": 2, "busy": False, "memory_held_bytes": 9_500_000,
+            "memory_limit_bytes": 12_000_000}
         assert_error(upload(c, ("c.jpg", photo, None)), 409, "the 2 images held take 9.5 MB of the server's memory "
                      "limit of 12 MB (--max-memory-gb); c.jpg (0.8 megapixels) would take 4.75 MB more and 2.5 MB is "
                      "left: an image of up to 0.3 megapixels fits; delete some images")
@@ -358,6 +358,7 @@ def test_uploads_past_the_memory_limit_are_refused_saying_what_fits(tmp_path):
         assert wait_done(c) == held  # nothing held is lost or changed
         assert [c.get(f"/api/images/{i['id']}/file").content for i in held] == [photo, photo]
         assert c.delete(f"/api/images/{held[0]['id']}").status_code == 204
+        assert c.get("/api/health").json()["memory_held_bytes"] == 4_750_000
         assert_error(upload(c, *[(f"{i}.jpg", photo, None) for i in range(3)]), 409,
                      "these 3 images would take 14.2 MB more and 7.25 MB is left: only the first of them fits")
         assert upload(c, ("d.jpg", photo, None)).status_code == 201
@@ -466,7 +467,7 @@ def test_threshold_calibration(client):
     assert sum(rect["histogram"]) == 240 * 100
     assert_error(client.post("/api/calibrate/threshold", json={"image_id": sign_id, "rect": [700, 0, 900, 50]}),
                  422, "640x480")
-    assert_error(client.post("/api/calibrate/threshold", json={"image_id": wall_id}), 422, "rectangle")
+    assert_error(client.post("/api/calibrate/threshold", json={"image_id": wall_id}), 422, "send rect [x0, y0, x1, y1]")
     assert_error(client.post("/api/calibrate/threshold", json={"image_id": "0123456789ab"}), 404)
     for image_id in (sign_id, wall_id):
         client.delete(f"/api/images/{image_id}")

@@ -18,6 +18,7 @@ import pytest
 import browser_harness as harness
 from chessboards import K_TRUE, render_boards
 from pipeline.exif import LensExif, focal_px
+from app.workspace import memory_text
 from serving import MISFIT_CAMERA
 
 TRUTH = json.loads((harness.SCENES / "truth.json").read_text())["images"]
@@ -146,6 +147,22 @@ def test_status_words_say_unlabelled(page, api):
                                                      ("none", "no sign (unlabelled)")) if s in statuses]
     page.wait_for_function("t => [...document.querySelectorAll('#counts .count')].map(c => c.textContent)"
                            ".join(' · ') === t", arg=" · ".join(expected))
+
+
+def test_top_bar_shows_the_memory_held_and_its_limit(page, api):
+    """An operator sees how close uploads are to the --max-memory-gb refusal, and the figure follows uploads."""
+    def shown(health: dict) -> str:
+        return f"memory {memory_text(health['memory_held_bytes'])} of {memory_text(health['memory_limit_bytes'])}"
+
+    before = api.get("/api/health").json()
+    page.wait_for_function("t => document.querySelector('#memory').textContent === t", arg=shown(before))
+    files = {"files": ("memory-probe.jpg", (harness.SCENES / SCENE).read_bytes(), "image/jpeg")}
+    image_id = api.post("/api/images", files=files).json()["images"][0]["id"]
+    after = api.get("/api/health").json()
+    assert after["memory_held_bytes"] > before["memory_held_bytes"]
+    page.wait_for_function("t => document.querySelector('#memory').textContent === t", arg=shown(after))
+    api.delete(f"/api/images/{image_id}").raise_for_status()
+    page.wait_for_function("t => document.querySelector('#memory').textContent === t", arg=shown(before))
 
 
 def overflowing(page, root: str) -> list[str]:
@@ -394,6 +411,33 @@ def test_typed_changes_survive_leaving_the_page_at_once(page, api, base, no_came
     wait_kept(lambda: api.get("/api/camera").json()["assumed_hfov_deg"], 72)
 
 
+def test_messages_say_what_to_do_in_the_page_not_which_api_route(page, api):
+    """The page showed the server's words for API users ("in the API, send rect ...", "GET
+    /api/images lists them", "(GET /api/images)") where a person can only act in the page."""
+    blank = cv2.imencode(".png", np.full((480, 640), 128, np.uint8))[1].tobytes()
+    image_id = api.post("/api/images", files={"files": ("blank-wall.png", blank, "image/png")}).json()["images"][0]["id"]
+    harness.wait_server_idle(api)
+    harness.wait_cards(page, ["blank-wall.png"])
+    open_detail(page, image_id)   # nothing found in it: nothing for the histogram to measure
+    page.locator("#calib-result", has_text="No sign or white blob was found to measure: drag a box around the "
+                 "sign, with some wall in it, on the input image.").wait_for()
+
+    api.delete(f"/api/images/{image_id}").raise_for_status()
+    page.wait_for_selector("#detail", state="hidden")
+    page.evaluate("id => { location.hash = `image=${id}`; }", image_id)   # a link to it, followed after
+    page.locator(".toast.warn .toast-msg", has_text="That image is not on the server (removed, or the link is "
+                 "from another server): pick one in the gallery.").wait_for()
+    assert page.is_hidden("#detail")
+
+    page.route("**/api/images", lambda route: route.abort())   # the server gone, as the page sees it
+    api.post("/api/settings/preset/paper").raise_for_status()  # the images change: the page asks for them
+    page.locator(".toast.error .toast-msg", has_text="cannot reach the signpose server: check that signpose serve "
+                 "is still running, then try again").first.wait_for()
+    page.unroute("**/api/images")
+    toasts = page.locator(".toast-msg").all_inner_texts()
+    assert not [t for t in toasts if "/api/" in t or " API" in t], toasts
+
+
 def test_threshold_calibration_and_sweep(page, api):
     image_id = uploaded_scene(api)
     open_detail(page, image_id)
@@ -456,10 +500,44 @@ def test_pose_sigma_in_millimetres(page, api):
     assert shown == [pytest.approx(1000 * math.sqrt(cov[i][i]), rel=0.05) for i in range(3, 6)]
 
 
+# The share of the 3D view's points where something covers the scene's canvas (its labels and
+# gizmo are in it); viser's notifications aside: headless Chromium's software WebGL earns one.
+COVERED_SHARE = """() => {
+    let covered = 0;
+    for (let i = 0.5; i < 20; i++) for (let j = 0.5; j < 20; j++) {
+        const e = document.elementFromPoint(innerWidth * i / 20, innerHeight * j / 20);
+        if (!(e instanceof HTMLCanvasElement) && !e.closest('.mantine-Notification-root')) covered++;
+    }
+    return covered / 400; }"""
+
+
+def viser_frame(page):
+    """The embedded 3D view's frame, once connected."""
+    page.frame_locator("#scene").get_by_text("Connected", exact=True).wait_for(timeout=30_000)
+    return page.frame(url=re.compile(r"/viser/"))
+
+
+@pytest.mark.parametrize("width, opener", [(1600, "text=Connected"), (1200, '[aria-label="Expand panel"]')])
+def test_viser_controls_start_folded_in_the_page(page, width, opener):
+    """viser's control panel covered a third of the page's 3D view, a narrow column at 1600 px (where
+    viser shows it as a sheet at the bottom) and a strip under the images at 1200 px (a floating
+    window): it starts folded there, and opens when the person asks, staying open."""
+    page.set_viewport_size({"width": width, "height": 1000})
+    page.reload()
+    frame = viser_frame(page)
+    frame.wait_for_function(f"() => ({COVERED_SHARE})() < 0.06", timeout=10_000)
+    page.locator("#scene").scroll_into_view_if_needed()
+    page.frame_locator("#scene").locator(opener).click()
+    frame.wait_for_function(f"() => ({COVERED_SHARE})() > 0.2", timeout=10_000)
+    page.wait_for_timeout(1000)   # five of the page's looks for a panel to fold
+    assert frame.evaluate(COVERED_SHARE) > 0.2, "the controls the person opened were folded again"
+
+
 def test_viser_scene_connects_and_shares_the_settings(page, api):
     scene = page.frame_locator("#scene")
     scene.locator("canvas").first.wait_for(timeout=30_000)
     scene.get_by_text("Connected", exact=True).wait_for(timeout=30_000)
+    scene.get_by_text("Connected", exact=True).click()   # the page folds viser's controls
 
     # The same threshold in viser's Segmentation folder and in the page's form, both ways.
     scene.get_by_text("Segmentation", exact=True).click()
@@ -756,6 +834,30 @@ def test_board_square_size_is_checked_in_millimetres(page, api, no_camera):
     page.fill("#board-cols", "2")
     page.dispatch_event("#board-cols", "change")
     page.locator(".toast.error .toast-msg", has_text="at least 3x3 inner corners").wait_for()
+
+
+def test_a_new_board_size_shows_how_far_the_search_has_come(page, api, no_camera):
+    """A new corner count searches every photo again (some 10 s for 18 phone photos) and the dialog
+    said nothing meanwhile: it shows how far the search has come, and then what it found."""
+    images, _ = render_boards(10)  # a board that is not there takes ~0.2 s a photo to rule out
+    api.post("/api/calibration/images", files=[("files", (f"search{i}.png", cv2.imencode(".png", im)[1].tobytes(),
+                                                           "image/png")) for i, im in enumerate(images)])
+    board = api.get("/api/calibration").json()["board"]
+    page.click("#camera-open")
+    page.wait_for_function("() => document.querySelectorAll('#calib-views .view-card').length === 10")
+    try:
+        page.fill("#board-cols", "7")
+        page.dispatch_event("#board-cols", "change")
+        progress = page.locator("#calib-search")
+        progress.wait_for()
+        text = progress.inner_text()
+        assert re.fullmatch(rf"searching the 10 photos for the 7×{board['rows']} board: \d of 10", text), text
+        assert page.input_value("#board-cols") == "7"   # not the old board's, which the state holds until done
+        assert page.is_disabled("#calib-run")
+        page.locator("#calib-summary", has_text=f"10 photos, the 7×{board['rows']} board found in 0").wait_for()
+        assert progress.count() == 0
+    finally:
+        api.put("/api/calibration/board", json=board).raise_for_status()
 
 
 def assert_toast_on_top(page, toast) -> None:

@@ -19,11 +19,11 @@ import pytest
 from PIL import Image
 
 import app.workspace as workspace_module
-from app.figures import STAGES
+from app.figures import DIM, MIN_SIDE_PX, RED, STAGES
 from app.server import create_app
 from app.workspace import WorkspaceConfig
 from pipeline.library import SAMPLE_LIBRARY, load_library
-from scene_images import png_bomb, sign_photo
+from scene_images import has, png_bomb, sign_photo
 from serving import TIMEOUT_S, assert_error, http_exchange, running, upload, wait_idle
 
 LIBRARY = load_library(SAMPLE_LIBRARY)
@@ -166,6 +166,25 @@ def test_odd_but_valid_images_get_a_result_and_every_figure(client, name):
         figure = client.get(f"/api/images/{detail['id']}/stages/{stage}")
         assert figure.status_code == 200 and figure.headers["content-type"] == "image/png", (stage, figure.text)
     assert client.post("/api/recognize", files={"file": (name, data, "image/png")}).status_code == 200
+    assert client.delete(f"/api/images/{detail['id']}").status_code == 204
+
+
+@pytest.mark.parametrize("name", ["one_pixel.jpg", "gray.png"])
+def test_small_images_are_drawn_enlarged_under_their_labels(client, name):
+    """A 1 x 1 px image's input figure was one black pixel, its "no sign" label drawn over the whole
+    photo, and the page stretched it into a large black square: small images are drawn enlarged."""
+    data, (width, height) = ODD_IMAGES[name]
+    detail = processed(client, upload(client, (name, data, None)).json()["images"][0]["id"])
+    pixel = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)[0, 0]  # every pixel alike
+    for stage, background in (("input", pixel), ("crop", pixel), ("blob", np.round(DIM * pixel))):
+        r = client.get(f"/api/images/{detail['id']}/stages/{stage}")
+        figure = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR)
+        h, w = figure.shape[:2]
+        assert max(h, w) >= MIN_SIDE_PX and h % height == 0 and h * width == w * height, (stage, figure.shape)
+        colours, counts = np.unique(figure.reshape(-1, 3), axis=0, return_counts=True)
+        assert np.array_equal(colours[counts.argmax()], background), stage  # mostly the photo, not labels
+    assert has(cv2.imdecode(np.frombuffer(client.get(f"/api/images/{detail['id']}/stages/input").content,
+                                                 np.uint8), cv2.IMREAD_COLOR), RED)  # "no sign", legible
     assert client.delete(f"/api/images/{detail['id']}").status_code == 204
 
 

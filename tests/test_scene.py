@@ -237,6 +237,26 @@ def test_removed_image_loses_its_nodes(scene):
         workspace.add_image(record.name, (SAMPLE_SCENES / record.name).read_bytes(), record.expected)
 
 
+def test_cameras_standing_together_share_one_label(scene):
+    """A photo uploaded twice (or a burst) put two cameras in one spot, and their labels printed
+    one name over the other: cameras closer than the drawn photo width share one label, a name a line."""
+    handle, workspace = scene
+    original = next(r for r in workspace.images() if r.id in handle.cameras)
+    copy = workspace.add_image("copy.jpg", (SAMPLE_SCENES / original.name).read_bytes(), original.expected)
+    try:
+        settle(handle, workspace)
+        pair = [handle.cameras[original.id], handle.cameras[copy.id]]
+        assert [nodes.label.visible for nodes in pair] == [True, False]
+        assert pair[0].label.text == f"{original.name}\ncopy.jpg"
+        others = [nodes for image_id, nodes in handle.cameras.items() if image_id not in (original.id, copy.id)]
+        assert all(nodes.label.visible and "\n" not in nodes.label.text for nodes in others)
+    finally:
+        workspace.remove_image(copy.id)
+    settle(handle, workspace)
+    label = handle.cameras[original.id].label
+    assert label.visible and label.text == original.name
+
+
 def test_upload_button_adds_an_image(scene):
     handle, workspace = scene
     # What viser does when a browser upload completes (the value setter cannot take an UploadedFile).
