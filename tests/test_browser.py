@@ -271,6 +271,37 @@ def test_form_follows_changes_made_elsewhere_without_echo(page, api):
     assert api.get("/api/settings").json()["version"] == version
 
 
+def test_a_fast_drag_never_shows_an_older_value_while_its_last_change_is_on_its_way(page, api):
+    """The answer to a drag's earlier PUT ended the setting's in-flight mark while its later PUT was
+    still on its way, so the next settings event put the older value back in the control
+    (released at 0.61, the box showed 0.58, then 0.61)."""
+    held = []
+
+    def hold(route):
+        if route.request.method == "PUT" and "threshold" in json.loads(route.request.post_data):
+            held.append(route)   # answered below, one at a time
+        else:
+            route.continue_()
+
+    page.route("**/api/settings", hold)
+    drag = """v => { const range = document.querySelector('.field[data-name="threshold"] input.range');
+                     range.value = v; range.dispatchEvent(new Event('input')); }"""
+    for n, value in enumerate((0.58, 0.61), 1):
+        page.evaluate(drag, value)
+        while len(held) < n:   # sent once the form's debounce has passed
+            page.wait_for_timeout(20)
+    with page.expect_response(lambda r: r.request.method == "PUT" and "/api/settings" in r.url):
+        held[0].continue_()   # 0.58 answered; 0.61 still on its way
+    # Another client's change: an event after the answer to 0.58, with the server still on 0.58.
+    api.put("/api/settings", json={"ratio": 0.7}).raise_for_status()
+    page.wait_for_function("() => document.querySelector('#set-ratio').value === '0.7'")
+    assert page.input_value("#set-threshold") == "0.61"
+
+    held[1].continue_()
+    harness.wait_setting(page, api, {"threshold": 0.61, "ratio": 0.7})
+    assert page.input_value("#set-threshold") == "0.61"
+
+
 def test_presets_export_and_import(page, api, tmp_path):
     paper = api.get("/api/presets").json()["paper"]
     page.click('#presets button[value="paper"]')
