@@ -106,7 +106,7 @@ function renderGallery() {
     if (!cards.has(img.id)) cards.set(img.id, makeCard(img));
     const entry = cards.get(img.id);
     updateCard(entry, img);
-    gallery.append(entry.card);   // re-appending keeps upload order without rebuilding
+    gallery.append(entry.card);   // re-appending keeps the server's order without rebuilding
   }
   for (const [id, entry] of cards) {
     if (!seen.has(id)) { entry.card.remove(); cards.delete(id); }

@@ -87,7 +87,9 @@ export function filesForm(file, fields = {}) {
 
 /**
  * A queue that POSTs each image file to `url` as the multipart form `form(file)` (built when the
- * file is queued, so it keeps the choices made then), with a progress row in `list`.
+ * file is queued, so it keeps the choices made then), with a progress row in `list`. Each form
+ * also names the batch (the files queued until the queue is next idle) and the file's position
+ * in it: the server lists them in that order, whichever of the parallel uploads lands first.
  * `done(body)` gets each JSON answer and returns the row's closing message; `idle()` runs when
  * the queue has emptied. Returns `enqueue(files)`.
  */
@@ -95,6 +97,7 @@ export function uploadQueue({ list, url, form, done, idle = () => {} }) {
   const queue = [];
   const batch = batchLine(list);
   let active = 0;
+  let batchName = "", position = 0;
 
   async function send({ body, row }) {
     try {
@@ -128,9 +131,18 @@ export function uploadQueue({ list, url, form, done, idle = () => {} }) {
       return image;
     });
     if (!images.length) return;
+    if (!active && !queue.length) {
+      batchName = Math.random().toString(36).slice(2);
+      position = 0;
+    }
     batch.add(images.length);
     unfinished += images.length;
-    for (const file of images) queue.push({ body: form(file), row: uploadRow(list, file) });
+    for (const file of images) {
+      const body = form(file);
+      body.append("batch", batchName);
+      body.append("position", position++);
+      queue.push({ body, row: uploadRow(list, file) });
+    }
     pump();
   };
 }

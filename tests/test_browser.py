@@ -192,6 +192,39 @@ def test_drop_many_files_with_progress(page, api):
     harness.wait_cards(page, names)   # sent in parallel, so they may arrive in any order
 
 
+def answer_in_reverse(page, route_url: str, picker: str, files: list[Path], listed) -> None:
+    """Choose `files` in `picker` and have the server answer their uploads (all in flight at once)
+    last file first, as a small file behind a big one is; `listed()` is the names the server holds."""
+    held = []
+    page.route(route_url, lambda route: held.append(route) if route.request.method == "POST" else route.continue_())
+    page.set_input_files(picker, [str(f) for f in files])
+    while len(held) < len(files):
+        page.wait_for_timeout(20)
+    for f in reversed(files):
+        next(r for r in held if f.name.encode() in r.request.post_data_buffer).continue_()
+        deadline = time.monotonic() + 60
+        while f.name not in listed():
+            assert time.monotonic() < deadline, f"{f.name} never arrived"
+            time.sleep(0.02)
+    page.unroute(route_url)
+
+
+def test_images_keep_the_order_they_were_chosen_in(page, api, tmp_path):
+    """Sent three at a time, they were listed as they landed: b02, b01, b00, here and after a reload."""
+    files = [tmp_path / f"order-{i}-{SCENE}" for i in range(3)]
+    for f in files:
+        f.write_bytes((harness.SCENES / SCENE).read_bytes())
+    answer_in_reverse(page, "**/api/images", "#file-picker", files,
+                      lambda: [i["name"] for i in api.get("/api/images").json()["images"]])
+    names = [f.name for f in files]
+    assert [n for n in (i["name"] for i in api.get("/api/images").json()["images"]) if n in names] == names
+    for _ in range(2):   # as uploaded, and as a reload shows them
+        harness.wait_cards(page, names)
+        assert [n for n in page.locator(".card .card-name").all_inner_texts() if n in names] == names
+        page.reload()
+        page.wait_for_selector("#settings-form .field")
+
+
 def test_leaving_during_uploads_asks_first_and_progress_counts_stored(page, tmp_path):
     files = [tmp_path / f"held-{i}-{SCENE}" for i in range(5)]
     for f in files:
@@ -645,6 +678,22 @@ def test_calibrate_with_chessboard_photos_and_apply(page, api, tmp_path, no_came
     text = shown_intrinsics(page, "calibration")
     assert "chessboard calibration" in text and f"{fx:.1f}" in text and "approximate" not in text
     assert api.get(f"/api/images/{image_id}").json()["camera"]["fx"] == pytest.approx(fx, abs=0.05)
+
+
+def test_calibration_photos_keep_the_order_they_were_chosen_in(page, api, tmp_path, no_camera):
+    """The dialog numbered them as their uploads landed ("1. board2.png, 2. board1.png, ..."), and so
+    did the error chart and the preview's ‹ › that follow that order."""
+    images, _ = render_boards(3)
+    photos = [tmp_path / f"board{i}.png" for i in range(len(images))]
+    for path, image in zip(photos, images):
+        cv2.imwrite(str(path), image)
+    page.click("#camera-open")
+    answer_in_reverse(page, "**/api/calibration/images", "#calib-picker", photos,
+                      lambda: [v["name"] for v in api.get("/api/calibration").json()["views"]])
+    numbered = [f"{i + 1}. {p.name}" for i, p in enumerate(photos)]
+    page.wait_for_function("n => document.querySelectorAll('#calib-views .card-name').length === n", arg=len(photos))
+    assert page.locator("#calib-views .card-name").all_inner_texts() == numbered
+    assert [v["name"] for v in api.get("/api/calibration").json()["views"]] == [p.name for p in photos]
 
 
 def test_assumed_field_of_view_and_typed_intrinsics(page, api, no_camera):
