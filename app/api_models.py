@@ -94,6 +94,10 @@ class UploadOut(BaseModel):
     images: list[ImageSummary]
 
 
+class ImagesRemoved(BaseModel):
+    removed: int = Field(description="how many images there were; any that land later are kept")
+
+
 class ScoreOut(BaseModel):
     sign: str
     matches: int

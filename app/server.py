@@ -50,7 +50,7 @@ from . import figures, tuning
 from .api_models import (
     AssumedFovIn, AttemptOut, BoardSearchOut, BoardSpec, CalibrateIn, CalibrateOut, CalibrationOut, CalibrationResult,
     CalibrationRunIn, CalibrationView, CameraIntrinsics, CameraModel, CameraOut, ExpectedIn, Health, ImageDetail,
-    ImagesOut, ImageSummary, RecognitionOut, SettingField, SettingsOut, SignOut, SweepOut, UploadOut,
+    ImagesOut, ImagesRemoved, ImageSummary, RecognitionOut, SettingField, SettingsOut, SignOut, SweepOut, UploadOut,
 )
 from .calibration import PREVIEW_MAX_SIDE, CalibrationSession, CalibrationState, calibrated_camera
 from .security import DOCS_ASSETS, AccessGuard, SecurityHeaders
@@ -566,6 +566,12 @@ def list_images(workspace: WorkspaceDep) -> ImagesOut:
     progress = workspace.progress()
     return ImagesOut(version=progress["version"], running=progress["running"],
                      images=[summary(workspace, r) for r in workspace.images()])
+
+
+@api.delete("/images", response_model=ImagesRemoved, tags=["images"])
+def delete_images(workspace: WorkspaceDep) -> ImagesRemoved:
+    """Remove every image at once (the page's "remove all"; a DELETE per image takes a request each)."""
+    return ImagesRemoved(removed=workspace.remove_images())
 
 
 @api.get("/images/{image_id}", response_model=ImageDetail, tags=["images"])

@@ -563,6 +563,20 @@ class Workspace:
         self._trim_soon()
         self._emit("images", {"ids": [r.id for r in self.images()]})
 
+    def remove_images(self) -> int:
+        """Forget every image and delete their stored files, with one write of the index; how many there were."""
+        with self._lock:
+            records = list(self._records.values())
+            self._records = {}
+            self.state.save_images([])
+            for record in records:
+                self.state.remove_image(record.file)
+        with self._photo_lock:
+            self._photos.clear()
+        self._trim_soon()
+        self._emit("images", {"ids": [r.id for r in self.images()]})
+        return len(records)
+
     def image_path(self, record: ImageRecord) -> Path:
         return self.state.image_path(record.file)
 

@@ -681,6 +681,23 @@ def test_viser_client_is_served_and_its_websocket_relayed(client, base_url):
     assert closed.value.rcvd.code == 1002 and "Version mismatch" in closed.value.rcvd.reason
 
 
+def test_remove_every_image_at_once(tmp_path):
+    """The page's "remove all" sent a DELETE per image, one after another: 77 took 17 s."""
+    with running(create_app(config(tmp_path / "state"))) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        upload(c, *[(f"{i}.jpg", sign_photo(LIBRARY, "chief_of_security", seed=i), None) for i in range(3)])
+        images = tmp_path / "state" / "images"
+        assert len([f for f in images.iterdir() if f.suffix == ".jpg"]) == 3
+        r = c.delete("/api/images")
+        assert r.status_code == 200 and r.json() == {"removed": 3}
+        assert c.get("/api/images").json()["images"] == [] and c.get("/api/health").json()["images"] == 0
+        assert [f for f in images.iterdir() if f.suffix == ".jpg"] == []
+        assert c.delete("/api/images").json() == {"removed": 0}
+        kept = upload(c, ("kept.jpg", tiny_photo(), None)).json()["images"][0]["id"]   # the workspace goes on
+        wait_done(c)
+    with running(create_app(config(tmp_path / "state"))) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        assert [i["id"] for i in c.get("/api/images").json()["images"]] == [kept]
+
+
 # ---------------------------------------------------------------- restart and CLI
 
 def test_state_survives_a_restart(tmp_path):

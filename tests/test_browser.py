@@ -225,6 +225,67 @@ def test_images_keep_the_order_they_were_chosen_in(page, api, tmp_path):
         page.wait_for_selector("#settings-form .field")
 
 
+def test_remove_all_during_uploads_stops_them_and_says_what_is_left(browser, tmp_path):
+    """With 40 files still uploading, "remove all" asked about a snapshot, deleted image by image with
+    no progress (77 images: 17 s), and the files still queued kept uploading: 18 images were left.
+    Its own server: it empties the gallery."""
+    files = [tmp_path / f"queued-{i}-{SCENE}" for i in range(12)]
+    for f in files:
+        f.write_bytes((harness.SCENES / SCENE).read_bytes())
+    with harness.serve(tmp_path / "state", tmp_path / "serve.log") as url, \
+            httpx.Client(base_url=url, timeout=30) as api:
+        page = harness.open_page(browser, url)
+        held, posts = [], []
+
+        def hold(route):
+            if route.request.method == "POST":
+                posts.append(route.request)
+                held.append(route)   # in flight until released below
+            else:
+                route.continue_()
+
+        page.route("**/api/images", hold)
+        page.set_input_files("#file-picker", [str(f) for f in files])
+        while len(held) < 3:
+            page.wait_for_timeout(20)
+        shown = len(api.get("/api/images").json()["images"])   # the sample scenes
+        page.wait_for_function("n => document.querySelectorAll('.card').length === n", arg=shown)
+        asked = []
+        page.once("dialog", lambda dialog: (asked.append(dialog.message), dialog.accept()))
+        page.click("#clear-images")
+        while not asked:
+            page.wait_for_timeout(20)
+        assert asked == [f"Remove all {shown} images and the 12 uploads still to go?"]
+        page.locator("#uploads .batch", has_text="9 stopped").wait_for()   # the queued ones, at once
+        for route in held:   # the three in flight land, and go with the rest
+            route.continue_()
+        page.locator(".toast.info", has_text=f"removed {shown + 3} images").wait_for()
+        assert page.is_visible("#gallery-empty") and page.locator(".card").count() == 0
+        assert api.get("/api/images").json()["images"] == []
+        page.wait_for_timeout(500)
+        assert len(posts) == 3, "files still queued were uploaded after all"
+        assert page.locator("#uploads .batch").inner_text().startswith("3 of 12 images stored · 9 stopped")
+
+        # An image someone else adds just after the delete stays, and the page says so.
+        api.post("/api/images", files={"files": ("kept.jpg", (harness.SCENES / SCENE).read_bytes(),
+                                                 "image/jpeg")}).raise_for_status()
+        page.locator(".card").wait_for()
+
+        def add_after_the_delete(route):
+            response = route.fetch()
+            api.post("/api/images", files={"files": ("late.jpg", (harness.SCENES / SCENE).read_bytes(),
+                                                     "image/jpeg")}).raise_for_status()
+            route.fulfill(response=response)
+
+        page.route("**/api/images", lambda route: add_after_the_delete(route) if route.request.method == "DELETE"
+                   else route.continue_())
+        page.once("dialog", lambda dialog: dialog.accept())
+        page.click("#clear-images")
+        page.locator(".toast", has_text="removed 1 image; 1 added since is still there").wait_for()
+        harness.wait_cards(page, ["late.jpg"])
+        harness.close_page(page)
+
+
 def test_leaving_during_uploads_asks_first_and_progress_counts_stored(page, tmp_path):
     files = [tmp_path / f"held-{i}-{SCENE}" for i in range(5)]
     for f in files:
