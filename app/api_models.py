@@ -98,6 +98,10 @@ class UploadOut(BaseModel):
     images: list[ImageSummary]
 
 
+class ImagesRemoved(BaseModel):
+    removed: int = Field(description="how many images there were; any that land later are kept")
+
+
 class ScoreOut(BaseModel):
     sign: str
     matches: int
@@ -211,7 +215,7 @@ class CalibrationOut(BaseModel):
     min_views: int = Field(description="photos with the board found that a calibration needs at least")
     max_views: int = Field(description="photos the calibration holds at most")
     max_square_m: float = Field(description="largest board square, metres: beyond, the size was typed in millimetres")
-    views: list[CalibrationView] = Field(description="in upload order")
+    views: list[CalibrationView] = Field(description="in the order chosen (`batch`, `position`)")
     result: CalibrationResult | None = Field(description="null until run, and again after every change")
 
 

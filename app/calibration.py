@@ -24,7 +24,7 @@ from pipeline.evaluate import CORES
 from pipeline.image import decode_image, to_gray
 
 from .figures import fit
-from .workspace import Conflict, check_image_header
+from .workspace import Conflict, Slot, check_image_header, slot_for
 
 # Figures of calibration photos are drawn from a copy this size: enough for a full-width preview.
 PREVIEW_MAX_SIDE = 1280
@@ -40,6 +40,7 @@ class CalibrationPhoto:
     data: its encoded bytes, decoded again at full resolution to search for a new board size.
     preview: (h, w) uint8 gray copy, at most PREVIEW_MAX_SIDE px a side, for figures.
     view: the board found in it, corners in full-resolution px.
+    slot: where it is listed.
     """
 
     id: str
@@ -47,6 +48,7 @@ class CalibrationPhoto:
     data: bytes = field(repr=False)
     preview: np.ndarray = field(repr=False)
     view: BoardView
+    slot: Slot
 
 
 @dataclass(frozen=True)
@@ -124,8 +126,9 @@ class CalibrationSession:
             raise Conflict(f"the calibration holds {held} photos and its limit is {self.max_photos}; "
                            f"delete some before adding {adding} more (15-20 good ones are enough)")
 
-    def add(self, uploads: list[tuple[str, bytes]]) -> CalibrationState:
-        """Add photos (display name, encoded bytes) and search each for the board. All or nothing:
+    def add(self, uploads: list[tuple[str, bytes]], batch: str = "", position: int = 0) -> CalibrationState:
+        """Add photos (display name, encoded bytes) and search each for the board; they are listed at
+        `position` on in `batch` (`Slot`), or after every photo held without one. All or nothing:
         ImageError for a file that is not a usable image, Conflict past the photo limit."""
         self._check_room(len(uploads))
         grays = [read_gray(name, data, self.max_pixels) for name, data in uploads]
@@ -135,13 +138,15 @@ class CalibrationSession:
             board = self._state.board
             with ThreadPoolExecutor(CORES) as pool:  # OpenCV releases the GIL: a photo per core
                 views = list(pool.map(lambda gray, name: find_board(gray, board, name), grays, names))
-            photos = tuple(CalibrationPhoto(secrets.token_hex(6), name, data, preview, view)
-                           for (name, data), preview, view in zip(uploads, previews, views))
             with self._lock:
                 if self._state.board != board:
                     continue  # the board size changed during the search: search for the new one
-                self._check_room(len(photos))
-                return self._commit(photos=self._state.photos + photos)
+                self._check_room(len(uploads))
+                first = slot_for([p.slot for p in self._state.photos], batch, position)
+                photos = [CalibrationPhoto(secrets.token_hex(6), name, data, preview, view,
+                                           dataclasses.replace(first, position=position + i))
+                          for i, ((name, data), preview, view) in enumerate(zip(uploads, previews, views))]
+                return self._commit(photos=tuple(sorted([*self._state.photos, *photos], key=lambda p: p.slot)))
 
     def set_board(self, board: tuple[int, int], square_m: float) -> CalibrationState:
         """Use a board of `board` (cols, rows) inner corners and `square_m` metre squares; every photo

@@ -50,7 +50,7 @@ from . import figures, tuning
 from .api_models import (
     AssumedFovIn, AttemptOut, BoardSearchOut, BoardSpec, CalibrateIn, CalibrateOut, CalibrationOut, CalibrationResult,
     CalibrationRunIn, CalibrationView, CameraIntrinsics, CameraModel, CameraOut, ExpectedIn, Health, ImageDetail,
-    ImagesOut, ImageSummary, RecognitionOut, SettingField, SettingsOut, SignOut, SweepOut, UploadOut,
+    ImagesOut, ImagesRemoved, ImageSummary, RecognitionOut, SettingField, SettingsOut, SignOut, SweepOut, UploadOut,
 )
 from .calibration import PREVIEW_MAX_SIDE, CalibrationSession, CalibrationState, calibrated_camera
 from .security import DOCS_ASSETS, AccessGuard, SecurityHeaders
@@ -237,6 +237,14 @@ FILES = form_check(lambda form: uploads(form, "files"))  # routes whose `files` 
 def single(*fields: str) -> Any:
     """A dependency of the multipart routes that read each of the text `fields` as one value (`single_values`)."""
     return form_check(lambda form: single_values(form, fields))
+
+
+# The multipart fields of the routes that take a batch of uploads a request each (workspace.Slot).
+Batch = Annotated[str, Form(max_length=64, description="a name the client gives a batch of files it sends a "
+                                                       "request each, several at once: they are listed by "
+                                                       "`position`, whatever order they land in")]
+Position = Annotated[int, Form(ge=0, description="the place in `batch` of this request's first file")]
+IN_ORDER = single("batch", "position")
 
 
 def result_of(record: ImageRecord) -> Outcome:
@@ -534,14 +542,16 @@ def delete_sign(sign_id: SignIdDep, workspace: WorkspaceDep) -> None:
 # ---- images
 
 @api.post("/images", response_model=UploadOut, status_code=status.HTTP_201_CREATED, tags=["images"],
-          dependencies=[MULTIPART, FILES])
+          dependencies=[MULTIPART, FILES, IN_ORDER])
 def add_images(files: Annotated[list[UploadFile], File(description="one or more images")],
                workspace: WorkspaceDep,
                expected: Annotated[list[str], Form(description='a sign id, "none" (no sign in the photo) or "" '
                                                                '(unlabelled): one for every file, or one per file '
                                                                'in their order')] = [],
+               batch: Batch = "", position: Position = 0,
                ) -> UploadOut:
-    """Add images; each is processed in the background (status "pending" until done). All or nothing."""
+    """Add images; each is processed in the background (status "pending" until done). All or nothing.
+    Listed after those held, or with `batch`, by `position` among its files."""
     if len(expected) == 1:
         expected = expected * len(files)  # one label for the lot, as a folder of one sign's photos has
     if expected and len(expected) != len(files):
@@ -549,7 +559,7 @@ def add_images(files: Annotated[list[UploadFile], File(description="one or more 
                             f"got {len(expected)} expected labels for {len(files)} files; send one for all of "
                             "them, one per file in their order (\"\" for none), or none")
     uploads = [(*read_upload(f), e) for f, e in zip(files, expected or [None] * len(files))]
-    return UploadOut(images=[summary(workspace, r) for r in workspace.add_images(uploads)])
+    return UploadOut(images=[summary(workspace, r) for r in workspace.add_images(uploads, batch, position)])
 
 
 @api.get("/images", response_model=ImagesOut, tags=["images"])
@@ -557,6 +567,12 @@ def list_images(workspace: WorkspaceDep) -> ImagesOut:
     progress = workspace.progress()
     return ImagesOut(version=progress["version"], running=progress["running"],
                      images=[summary(workspace, r) for r in workspace.images()])
+
+
+@api.delete("/images", response_model=ImagesRemoved, tags=["images"])
+def delete_images(workspace: WorkspaceDep) -> ImagesRemoved:
+    """Remove every image at once (the page's "remove all"; a DELETE per image takes a request each)."""
+    return ImagesRemoved(removed=workspace.remove_images())
 
 
 @api.get("/images/{image_id}", response_model=ImageDetail, tags=["images"])
@@ -762,11 +778,12 @@ def get_calibration_state(calibration: CalibrationDep) -> CalibrationOut:
 
 
 @api.post("/calibration/images", response_model=CalibrationOut, status_code=status.HTTP_201_CREATED,
-          tags=["calibration"], dependencies=[MULTIPART, FILES])
+          tags=["calibration"], dependencies=[MULTIPART, FILES, IN_ORDER])
 def add_calibration_photos(files: Annotated[list[UploadFile], File(description="photos of the chessboard")],
-                           calibration: CalibrationDep) -> CalibrationOut:
-    """Add photos and search each for the board (all or nothing). The last result is dropped."""
-    return calibration_out(calibration, calibration.add([read_upload(f) for f in files]))
+                           calibration: CalibrationDep, batch: Batch = "", position: Position = 0) -> CalibrationOut:
+    """Add photos and search each for the board (all or nothing). The last result is dropped.
+    Listed after those held, or with `batch`, by `position` among its files."""
+    return calibration_out(calibration, calibration.add([read_upload(f) for f in files], batch, position))
 
 
 @api.delete("/calibration", response_model=CalibrationOut, tags=["calibration"])

@@ -8,7 +8,7 @@ Layout (every file name is chosen by the server, never by a client)::
     library/library.json    a complete sign library (`signpose recognize --library <state>/library`
                             works), plus "copied_from": the library folder it started as a copy of
     library/<image files>
-    images/index.json       [{"id", "name", "expected", "file", "media_type"}] in upload order
+    images/index.json       [{"id", "name", "expected", "file", "media_type"}] in the order listed (the order chosen)
     images/<id>.<ext>       the original uploaded bytes
 
 Every write is atomic (temporary file in the same folder, fsync, rename, fsync the folder), so a
@@ -226,7 +226,7 @@ class StateDir:
     # ---- images
 
     def load_images(self) -> list[StoredImage] | None:
-        """The stored images in upload order, or None for a state that never held any."""
+        """The stored images in the order listed, or None for a state that never held any."""
         if not self.index_path.exists():
             return None
         try:

@@ -149,6 +149,27 @@ class Snapshot:
         return self.camera or exif.camera or assumed_camera(width, height, self.assumed_hfov_deg, exif.ignored)
 
 
+@dataclass(frozen=True, order=True)
+class Slot:
+    """Where an upload is listed: lists of uploads keep the order their files were chosen in.
+
+    A client sends a batch of files a request each, several at once, so they land in any order; it
+    names the batch and each file's `position` in it. A batch's files are listed together, by
+    position, where its first file to land went; `group` numbers the batches in that order."""
+
+    group: int
+    position: int = 0
+    batch: str = field(default="", compare=False)
+
+
+def slot_for(held: list[Slot], batch: str, position: int) -> Slot:
+    """The slot of an upload at `position` in `batch` ("": a batch of its own), among those `held`."""
+    group = next((s.group for s in held if batch and s.batch == batch), None)
+    if group is None:
+        group = max((s.group for s in held), default=-1) + 1
+    return Slot(group, position, batch)
+
+
 @dataclass(frozen=True)
 class Outcome:
     """One image's latest result and the snapshot it came from (replaced as a whole, never torn)."""
@@ -164,7 +185,7 @@ class ImageRecord:
     """One loaded image. `gray` is (H, W) uint8, what the pipeline reads (the colour photo, three
     times its size, is decoded again from the stored file for the figures that show it:
     `Workspace.photo`); `file` its stored name in the state directory; `exif` the intrinsics its
-    EXIF implies (or why none), used while the workspace has no camera."""
+    EXIF implies (or why none), used while the workspace has no camera; `slot` where it is listed."""
 
     id: str
     name: str
@@ -173,6 +194,7 @@ class ImageRecord:
     file: str
     media_type: str
     exif: ExifCamera = ExifCamera()
+    slot: Slot = Slot(0)
     cache: StageCache = field(init=False, repr=False)
     outcome: Outcome = field(default_factory=Outcome)
     # Held while the pipeline uses `cache`: StageCache is not thread-safe and a sweep may run
@@ -344,7 +366,7 @@ class Workspace:
             if decoded is not None:
                 gray, exif = decoded
                 self._records[entry.id] = ImageRecord(entry.id, entry.name, entry.expected, gray, entry.file,
-                                                      entry.media_type, exif)
+                                                      entry.media_type, exif, Slot(len(self._records)))
         if len(self._records) != len(stored or []):
             self.state.save_images([r.stored() for r in self._records.values()])
 
@@ -404,7 +426,7 @@ class Workspace:
     # ---- images
 
     def images(self) -> list[ImageRecord]:
-        """All images, in upload order."""
+        """All images, in the order they were chosen (`Slot`)."""
         with self._lock:
             return list(self._records.values())
 
@@ -426,8 +448,10 @@ class Workspace:
         """Decode, store and queue one image for processing (see `add_images`)."""
         return self.add_images([(name, data, expected)])[0]
 
-    def add_images(self, uploads: list[tuple[str, bytes, str | None]]) -> list[ImageRecord]:
-        """Decode, store and queue (name, encoded bytes, expected label) uploads, all or none.
+    def add_images(self, uploads: list[tuple[str, bytes, str | None]], batch: str = "",
+                   position: int = 0) -> list[ImageRecord]:
+        """Decode, store and queue (name, encoded bytes, expected label) uploads, all or none; they are
+        listed at `position` on in `batch` (`Slot`), or after every image held without one.
 
         Raises ImageError (ImageTooLarge for too many pixels, or an image that alone would take
         more than `max_memory_bytes`), LibraryError for an unknown expected label, Conflict when the
@@ -451,8 +475,12 @@ class Workspace:
                 self.state.write_image(records[-1].file, data)
             with self._lock:
                 self._check_room(sizes)  # again: another upload may have landed meanwhile
-                self.state.save_images([r.stored() for r in [*self._records.values(), *records]])
-                self._records.update((r.id, r) for r in records)
+                first = slot_for([r.slot for r in self._records.values()], batch, position)
+                for i, record in enumerate(records):
+                    record.slot = dataclasses.replace(first, position=position + i)
+                listed = sorted([*self._records.values(), *records], key=lambda r: r.slot)
+                self.state.save_images([r.stored() for r in listed])
+                self._records = {r.id: r for r in listed}
                 for record in records:
                     self._submit(record)
         except BaseException:
@@ -540,6 +568,20 @@ class Workspace:
             self._photos.pop(image_id, None)
         self._trim_soon()
         self._emit("images", {"ids": [r.id for r in self.images()]})
+
+    def remove_images(self) -> int:
+        """Forget every image and delete their stored files, with one write of the index; how many there were."""
+        with self._lock:
+            records = list(self._records.values())
+            self._records = {}
+            self.state.save_images([])
+            for record in records:
+                self.state.remove_image(record.file)
+        with self._photo_lock:
+            self._photos.clear()
+        self._trim_soon()
+        self._emit("images", {"ids": [r.id for r in self.images()]})
+        return len(records)
 
     def image_path(self, record: ImageRecord) -> Path:
         return self.state.image_path(record.file)

@@ -2,7 +2,7 @@
 
 import { api, get } from "./api.js";
 import { state, emit, on, select, signName } from "./store.js";
-import { $, el, fill, plural, report, throttle } from "./ui.js";
+import { $, el, fill, plural, report, throttle, toast } from "./ui.js";
 import { dropTarget, filesForm, uploadQueue } from "./uploads.js";
 
 /** ImageSummary.status as the page words it, and what it means. "no sign" alone would read as the
@@ -23,8 +23,10 @@ export function showStatus(badge, status) {
   badge.title = STATUS[status].title;
 }
 
+let enqueue = null;   // the gallery's upload queue
+
 function bindUpload() {
-  const enqueue = uploadQueue({
+  enqueue = uploadQueue({
     list: $("#uploads"),
     url: "/api/images",
     form: (file) => filesForm(file, { expected: $("#expected").value }),
@@ -106,7 +108,7 @@ function renderGallery() {
     if (!cards.has(img.id)) cards.set(img.id, makeCard(img));
     const entry = cards.get(img.id);
     updateCard(entry, img);
-    gallery.append(entry.card);   // re-appending keeps upload order without rebuilding
+    gallery.append(entry.card);   // re-appending keeps the server's order without rebuilding
   }
   for (const [id, entry] of cards) {
     if (!seen.has(id)) { entry.card.remove(); cards.delete(id); }
@@ -129,15 +131,40 @@ function renderCounts() {
       el(`span.count.status-${s}`, { title: STATUS[s].title }, el("i.dot"), `${counts[s]} ${STATUS[s].text}`)));
 }
 
-export const refreshImages = throttle(async () => {
+async function loadImages() {
+  const body = await get("/api/images");
+  state.images = body.images;
+  emit("images", state.images);
+}
+
+export const refreshImages = throttle(() => loadImages().catch(report), 250);
+
+/** Remove every image, stopping the uploads still to go first: files still queued kept uploading
+ *  after a remove-all and were left in the gallery. */
+async function removeAll() {
+  const button = $("#clear-images");
+  const images = state.images.length, uploads = enqueue.left();
+  const what = [images && `all ${plural(images, "image")}`, uploads && `the ${plural(uploads, "upload")} still to go`]
+    .filter(Boolean).join(" and ");
+  if (!what || !confirm(`Remove ${what}?`)) return;
+  const label = button.textContent;
+  button.disabled = true;
+  button.textContent = "removing…";
   try {
-    const body = await get("/api/images");
-    state.images = body.images;
-    emit("images", state.images);
+    await enqueue.stop();   // the ones being sent land first, so the delete takes them too
+    const { removed } = await api("DELETE", "/api/images");
+    await loadImages();
+    const left = state.images.length;   // uploaded from elsewhere after the delete
+    const kept = left ? `; ${left} added since ${left === 1 ? "is" : "are"} still there` : "";
+    toast(`removed ${plural(removed, "image")}${kept}`, left ? "warn" : "info");
   } catch (err) {
     report(err);
+    refreshImages();
+  } finally {
+    button.disabled = false;
+    button.textContent = label;
   }
-}, 250);
+}
 
 export function initGallery() {
   bindUpload();
@@ -148,11 +175,5 @@ export function initGallery() {
     for (const [id, { card }] of cards) card.classList.toggle("selected", id === state.selected);
     cards.get(state.selected)?.card.scrollIntoView({ block: "nearest" });
   });
-  $("#clear-images").onclick = async () => {
-    if (!state.images.length || !confirm(`Remove all ${plural(state.images.length, "image")}?`)) return;
-    for (const img of state.images) {
-      try { await api("DELETE", `/api/images/${img.id}`); } catch (err) { report(err); }
-    }
-    refreshImages();
-  };
+  $("#clear-images").onclick = removeAll;
 }

@@ -8,7 +8,9 @@ import { $, el, fill, debounce, download, report, toast } from "./ui.js";
 
 const controls = new Map();   // name -> {entry, row, read(), write(value)}
 let pending = {};             // edits not yet sent
-const inflight = new Set();   // names sent but not yet answered
+// name -> PUTs sent but not yet answered. A count, not a flag: an earlier PUT answering while a
+// later one is on its way must not let server events put the earlier value back in the control.
+const inflight = new Map();
 let dragging = null;          // the slider under the pointer: server updates must not yank it
 
 const decimals = (step) => (String(step).split(".")[1] || "").length;
@@ -130,7 +132,7 @@ const push = debounce(async () => {
   const changes = pending;
   pending = {};
   const names = Object.keys(changes);
-  names.forEach((n) => inflight.add(n));
+  names.forEach((n) => inflight.set(n, (inflight.get(n) ?? 0) + 1));
   try {
     // keepalive: sent in full even when the page is closed or reloaded meanwhile (see initSettings).
     apply(await api("PUT", "/api/settings", changes, { keepalive: true }));
@@ -141,7 +143,10 @@ const push = debounce(async () => {
     report(kept ? new Error(`${err.message}; the server keeps ${names.map((n) => `${n} ${kept.settings[n] ?? "off"}`)
       .join(", ")}`) : err);
   } finally {
-    names.forEach((n) => inflight.delete(n));
+    for (const n of names) {
+      if (inflight.get(n) > 1) inflight.set(n, inflight.get(n) - 1);
+      else inflight.delete(n);
+    }
   }
 }, 150);
 

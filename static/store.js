@@ -7,7 +7,7 @@ export const state = {
   version: 0,          // settings_version of `settings`
   presets: {},
   library: [],         // [{id, name, text, ...}]
-  images: [],          // [ImageSummary] in upload order
+  images: [],          // [ImageSummary] in the order the files were chosen
   selected: null,      // id of the image in the detail view
 };
 

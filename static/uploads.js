@@ -30,6 +30,10 @@ function uploadRow(list, file) {
       status.textContent = message;
       setTimeout(() => row.remove(), 3000);
     },
+    stop() {
+      status.textContent = "stopped";
+      setTimeout(() => row.remove(), 3000);
+    },
     fail(message) {
       row.classList.add("failed");
       status.textContent = message;
@@ -39,33 +43,33 @@ function uploadRow(list, file) {
 }
 
 /** The line over a queue's progress rows counting the files sent since it was last idle: how many
- *  the server has stored, how many failed and how many are still to go. Shown for two files or
- *  more; it goes a while after all are stored, and stays while any failed. */
+ *  the server has stored, how many failed or were stopped and how many are still to go. Shown for
+ *  two files or more; it goes a while after the last, and stays while any failed. */
 function batchLine(list) {
   const text = el("span.upload-status");
   const line = el("li.upload.batch", { role: "status" }, text,
     el("button.icon", { type: "button", title: "Dismiss", onclick: () => line.remove() }, "×"));
-  let counts = null;   // {total, stored, failed} of the batch being sent
+  let counts = null;   // {total, stored, failed, stopped} of the batch being sent
   let removal = null;
   const render = () => {
-    const { total, stored, failed } = counts, left = total - stored - failed;
+    const { total, stored, failed, stopped } = counts, left = total - stored - failed - stopped;
     text.textContent = [`${stored} of ${plural(total, "image")} stored`, failed && `${failed} failed`,
-      left && `${left} to go`].filter(Boolean).join(" · ");
+      stopped && `${stopped} stopped`, left && `${left} to go`].filter(Boolean).join(" · ");
     line.hidden = total < 2;
   };
   return {
     add(n) {
       if (!counts) {
         clearTimeout(removal);
-        counts = { total: 0, stored: 0, failed: 0 };
+        counts = { total: 0, stored: 0, failed: 0, stopped: 0 };
         line.className = "upload batch";
         list.prepend(line);
       }
       counts.total += n;
       render();
     },
-    count(outcome) {
-      counts[outcome] += 1;
+    count(outcome, n = 1) {
+      counts[outcome] += n;
       render();
     },
     end() {
@@ -87,14 +91,19 @@ export function filesForm(file, fields = {}) {
 
 /**
  * A queue that POSTs each image file to `url` as the multipart form `form(file)` (built when the
- * file is queued, so it keeps the choices made then), with a progress row in `list`.
+ * file is queued, so it keeps the choices made then), with a progress row in `list`. Each form
+ * also names the batch (the files queued until the queue is next idle) and the file's position
+ * in it: the server lists them in that order, whichever of the parallel uploads lands first.
  * `done(body)` gets each JSON answer and returns the row's closing message; `idle()` runs when
- * the queue has emptied. Returns `enqueue(files)`.
+ * the queue has emptied. Returns `enqueue(files)`, with `enqueue.left()` the files queued or being
+ * sent and `enqueue.stop()` (see there).
  */
 export function uploadQueue({ list, url, form, done, idle = () => {} }) {
   const queue = [];
   const batch = batchLine(list);
   let active = 0;
+  let batchName = "", position = 0;
+  const waiting = [];   // resolves of stop()s waiting for the files being sent
 
   async function send({ body, row }) {
     try {
@@ -116,23 +125,47 @@ export function uploadQueue({ list, url, form, done, idle = () => {} }) {
         if (!active && !queue.length) {
           batch.end();
           idle();
+          waiting.splice(0).forEach((resolve) => resolve());
         }
       });
     }
   }
 
-  return function enqueue(files) {
+  function enqueue(files) {
     const images = [...files].filter((file) => {
       const image = file.type.startsWith("image/") || IMAGE_FILE.test(file.name);
       if (!image) toast(`${file.name}: not an image file, skipped`, "error");
       return image;
     });
     if (!images.length) return;
+    if (!active && !queue.length) {
+      batchName = Math.random().toString(36).slice(2);
+      position = 0;
+    }
     batch.add(images.length);
     unfinished += images.length;
-    for (const file of images) queue.push({ body: form(file), row: uploadRow(list, file) });
+    for (const file of images) {
+      const body = form(file);
+      body.append("batch", batchName);
+      body.append("position", position++);
+      queue.push({ body, row: uploadRow(list, file) });
+    }
     pump();
+  }
+
+  enqueue.left = () => queue.length + active;
+
+  /** Drop the files not sent yet. Resolves once those being sent have their answers: the server
+   *  may store them whatever the page does now, so a caller clearing up waits for them. */
+  enqueue.stop = () => {
+    const dropped = queue.splice(0);
+    dropped.forEach(({ row }) => row.stop());
+    unfinished -= dropped.length;
+    if (dropped.length) batch.count("stopped", dropped.length);
+    return active ? new Promise((resolve) => waiting.push(resolve)) : Promise.resolve();
   };
+
+  return enqueue;
 }
 
 /** Make `zone` a drop target for files, shown with the class "dragging" while files are over it. */

@@ -209,6 +209,100 @@ def test_drop_many_files_with_progress(page, api):
     harness.wait_cards(page, names)   # sent in parallel, so they may arrive in any order
 
 
+def answer_in_reverse(page, route_url: str, picker: str, files: list[Path], listed) -> None:
+    """Choose `files` in `picker` and have the server answer their uploads (all in flight at once)
+    last file first, as a small file behind a big one is; `listed()` is the names the server holds."""
+    held = []
+    page.route(route_url, lambda route: held.append(route) if route.request.method == "POST" else route.continue_())
+    page.set_input_files(picker, [str(f) for f in files])
+    while len(held) < len(files):
+        page.wait_for_timeout(20)
+    for f in reversed(files):
+        next(r for r in held if f.name.encode() in r.request.post_data_buffer).continue_()
+        deadline = time.monotonic() + 60
+        while f.name not in listed():
+            assert time.monotonic() < deadline, f"{f.name} never arrived"
+            time.sleep(0.02)
+    page.unroute(route_url)
+
+
+def test_images_keep_the_order_they_were_chosen_in(page, api, tmp_path):
+    """Sent three at a time, they were listed as they landed: b02, b01, b00, here and after a reload."""
+    files = [tmp_path / f"order-{i}-{SCENE}" for i in range(3)]
+    for f in files:
+        f.write_bytes((harness.SCENES / SCENE).read_bytes())
+    answer_in_reverse(page, "**/api/images", "#file-picker", files,
+                      lambda: [i["name"] for i in api.get("/api/images").json()["images"]])
+    names = [f.name for f in files]
+    assert [n for n in (i["name"] for i in api.get("/api/images").json()["images"]) if n in names] == names
+    for _ in range(2):   # as uploaded, and as a reload shows them
+        harness.wait_cards(page, names)
+        assert [n for n in page.locator(".card .card-name").all_inner_texts() if n in names] == names
+        page.reload()
+        page.wait_for_selector("#settings-form .field")
+
+
+def test_remove_all_during_uploads_stops_them_and_says_what_is_left(browser, tmp_path):
+    """With 40 files still uploading, "remove all" asked about a snapshot, deleted image by image with
+    no progress (77 images: 17 s), and the files still queued kept uploading: 18 images were left.
+    Its own server: it empties the gallery."""
+    files = [tmp_path / f"queued-{i}-{SCENE}" for i in range(12)]
+    for f in files:
+        f.write_bytes((harness.SCENES / SCENE).read_bytes())
+    with harness.serve(tmp_path / "state", tmp_path / "serve.log") as url, \
+            httpx.Client(base_url=url, timeout=30) as api:
+        page = harness.open_page(browser, url)
+        held, posts = [], []
+
+        def hold(route):
+            if route.request.method == "POST":
+                posts.append(route.request)
+                held.append(route)   # in flight until released below
+            else:
+                route.continue_()
+
+        page.route("**/api/images", hold)
+        page.set_input_files("#file-picker", [str(f) for f in files])
+        while len(held) < 3:
+            page.wait_for_timeout(20)
+        shown = len(api.get("/api/images").json()["images"])   # the sample scenes
+        page.wait_for_function("n => document.querySelectorAll('.card').length === n", arg=shown)
+        asked = []
+        page.once("dialog", lambda dialog: (asked.append(dialog.message), dialog.accept()))
+        page.click("#clear-images")
+        while not asked:
+            page.wait_for_timeout(20)
+        assert asked == [f"Remove all {shown} images and the 12 uploads still to go?"]
+        page.locator("#uploads .batch", has_text="9 stopped").wait_for()   # the queued ones, at once
+        for route in held:   # the three in flight land, and go with the rest
+            route.continue_()
+        page.locator(".toast.info", has_text=f"removed {shown + 3} images").wait_for()
+        assert page.is_visible("#gallery-empty") and page.locator(".card").count() == 0
+        assert api.get("/api/images").json()["images"] == []
+        page.wait_for_timeout(500)
+        assert len(posts) == 3, "files still queued were uploaded after all"
+        assert page.locator("#uploads .batch").inner_text().startswith("3 of 12 images stored · 9 stopped")
+
+        # An image someone else adds just after the delete stays, and the page says so.
+        api.post("/api/images", files={"files": ("kept.jpg", (harness.SCENES / SCENE).read_bytes(),
+                                                 "image/jpeg")}).raise_for_status()
+        page.locator(".card").wait_for()
+
+        def add_after_the_delete(route):
+            response = route.fetch()
+            api.post("/api/images", files={"files": ("late.jpg", (harness.SCENES / SCENE).read_bytes(),
+                                                     "image/jpeg")}).raise_for_status()
+            route.fulfill(response=response)
+
+        page.route("**/api/images", lambda route: add_after_the_delete(route) if route.request.method == "DELETE"
+                   else route.continue_())
+        page.once("dialog", lambda dialog: dialog.accept())
+        page.click("#clear-images")
+        page.locator(".toast", has_text="removed 1 image; 1 added since is still there").wait_for()
+        harness.wait_cards(page, ["late.jpg"])
+        harness.close_page(page)
+
+
 def test_leaving_during_uploads_asks_first_and_progress_counts_stored(page, tmp_path):
     files = [tmp_path / f"held-{i}-{SCENE}" for i in range(5)]
     for f in files:
@@ -286,6 +380,37 @@ def test_form_follows_changes_made_elsewhere_without_echo(page, api):
     assert page.locator('.field[data-name="ratio"]').get_attribute("class").split().count("changed") == 1
     time.sleep(1)   # longer than the form's debounce: an echo would have been sent by now
     assert api.get("/api/settings").json()["version"] == version
+
+
+def test_a_fast_drag_never_shows_an_older_value_while_its_last_change_is_on_its_way(page, api):
+    """The answer to a drag's earlier PUT ended the setting's in-flight mark while its later PUT was
+    still on its way, so the next settings event put the older value back in the control
+    (released at 0.61, the box showed 0.58, then 0.61)."""
+    held = []
+
+    def hold(route):
+        if route.request.method == "PUT" and "threshold" in json.loads(route.request.post_data):
+            held.append(route)   # answered below, one at a time
+        else:
+            route.continue_()
+
+    page.route("**/api/settings", hold)
+    drag = """v => { const range = document.querySelector('.field[data-name="threshold"] input.range');
+                     range.value = v; range.dispatchEvent(new Event('input')); }"""
+    for n, value in enumerate((0.58, 0.61), 1):
+        page.evaluate(drag, value)
+        while len(held) < n:   # sent once the form's debounce has passed
+            page.wait_for_timeout(20)
+    with page.expect_response(lambda r: r.request.method == "PUT" and "/api/settings" in r.url):
+        held[0].continue_()   # 0.58 answered; 0.61 still on its way
+    # Another client's change: an event after the answer to 0.58, with the server still on 0.58.
+    api.put("/api/settings", json={"ratio": 0.7}).raise_for_status()
+    page.wait_for_function("() => document.querySelector('#set-ratio').value === '0.7'")
+    assert page.input_value("#set-threshold") == "0.61"
+
+    held[1].continue_()
+    harness.wait_setting(page, api, {"threshold": 0.61, "ratio": 0.7})
+    assert page.input_value("#set-threshold") == "0.61"
 
 
 def test_presets_export_and_import(page, api, tmp_path):
@@ -692,6 +817,22 @@ def test_calibrate_with_chessboard_photos_and_apply(page, api, tmp_path, no_came
     text = shown_intrinsics(page, "calibration")
     assert "chessboard calibration" in text and f"{fx:.1f}" in text and "approximate" not in text
     assert api.get(f"/api/images/{image_id}").json()["camera"]["fx"] == pytest.approx(fx, abs=0.05)
+
+
+def test_calibration_photos_keep_the_order_they_were_chosen_in(page, api, tmp_path, no_camera):
+    """The dialog numbered them as their uploads landed ("1. board2.png, 2. board1.png, ..."), and so
+    did the error chart and the preview's ‹ › that follow that order."""
+    images, _ = render_boards(3)
+    photos = [tmp_path / f"board{i}.png" for i in range(len(images))]
+    for path, image in zip(photos, images):
+        cv2.imwrite(str(path), image)
+    page.click("#camera-open")
+    answer_in_reverse(page, "**/api/calibration/images", "#calib-picker", photos,
+                      lambda: [v["name"] for v in api.get("/api/calibration").json()["views"]])
+    numbered = [f"{i + 1}. {p.name}" for i, p in enumerate(photos)]
+    page.wait_for_function("n => document.querySelectorAll('#calib-views .card-name').length === n", arg=len(photos))
+    assert page.locator("#calib-views .card-name").all_inner_texts() == numbered
+    assert [v["name"] for v in api.get("/api/calibration").json()["views"]] == [p.name for p in photos]
 
 
 def test_assumed_field_of_view_and_typed_intrinsics(page, api, no_camera):

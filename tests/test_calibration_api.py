@@ -238,3 +238,18 @@ def test_photo_limit(client, photos):
     assert session["max_views"] >= 20 and session["min_views"] == 3 and session["max_square_m"] == 1.0
     assert_error(add(client, [photos[0]] * (session["max_views"] + 1)), 409, "limit is", "delete some")
     assert client.get("/api/calibration").json()["views"] == []
+
+
+def test_photos_sent_a_request_each_are_listed_in_the_order_chosen(client, photos):
+    """Sent three at a time, they were numbered as they landed; the fit's views follow that order."""
+    for position in (2, 0, 1):
+        name, data = photos[position]
+        r = client.post("/api/calibration/images", files={"files": (name, data, "image/png")},
+                        data={"batch": "b", "position": position})
+        assert r.status_code == 201, r.text
+    r = client.post("/api/calibration/images", files=[("files", (n, d, "image/png")) for n, d in photos[3:6]],
+                    data={"batch": "b", "position": 3})
+    assert r.status_code == 201, r.text
+    assert [v["name"] for v in r.json()["views"]] == [n for n, _ in photos[:6]]
+    assert_error(client.post("/api/calibration/images", files={"files": photos[6]}, data={"position": "-1"}),
+                 422, "position")
