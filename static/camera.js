@@ -126,7 +126,7 @@ function bindSidebar() {
   $("#camera-reset").onclick = () => setCamera(api("DELETE", "/api/camera"));
   const range = $("#hfov"), num = $("#hfov-num");
   const change = (value) => {
-    const hfov = Math.min(140, Math.max(10, Number(value)));
+    const hfov = Number(value);
     range.value = num.value = hfov;
     renderHfovNote(hfov);
     putHfov(hfov);
@@ -134,7 +134,17 @@ function bindSidebar() {
   range.addEventListener("pointerdown", () => { hfovHeld = true; });
   window.addEventListener("pointerup", () => { hfovHeld = false; });
   range.addEventListener("input", () => change(range.value));
-  num.addEventListener("change", () => num.value !== "" && change(num.value));
+  num.addEventListener("change", () => {
+    const [lo, hi] = [Number(num.min), Number(num.max)];
+    // Said, not clamped: 200 quietly becoming 140 is a value nobody chose.
+    if (num.value === "" || Number(num.value) < lo || Number(num.value) > hi) {
+      toast(`the assumed field of view must be between ${lo} and ${hi}°; got ${num.value || "no number"}; `
+        + `it stays ${range.value}°`, "error");
+      num.value = range.value;
+      return;
+    }
+    change(num.value);
+  });
   // As for the settings form: a change still waiting out the debounce is sent when the page goes.
   window.addEventListener("pagehide", putHfov.flush);
 }
@@ -308,10 +318,11 @@ function bindCalibration() {
     list: $("#calib-uploads"),
     url: "/api/calibration/images",
     form: (file) => filesForm(file),
-    done: (body) => {
+    done: (body, file) => {
       show(body);
-      // The photo just added is the last one in the state its request answers with.
-      return body.views.at(-1)?.found ? "✓ board found" : "✓ added, but the board was not found";
+      // Photos are listed in the order chosen, not as they land: find this one by its name.
+      return body.views.findLast((v) => v.name === file.name)?.found
+        ? "✓ board found" : "✓ added, but the board was not found";
     },
     // Once a batch is in, fit at once when it can be: the chart is what people add photos for.
     idle: () => {

@@ -821,14 +821,25 @@ def test_calibrate_with_chessboard_photos_and_apply(page, api, tmp_path, no_came
 
 def test_calibration_photos_keep_the_order_they_were_chosen_in(page, api, tmp_path, no_camera):
     """The dialog numbered them as their uploads landed ("1. board2.png, 2. board1.png, ..."), and so
-    did the error chart and the preview's ‹ › that follow that order."""
+    did the error chart and the preview's ‹ › that follow that order. Each upload's row says
+    whether the board was found in its photo (it read the last photo listed, another one now)."""
     images, _ = render_boards(3)
-    photos = [tmp_path / f"board{i}.png" for i in range(len(images))]
+    images[1] = np.full_like(images[1], 200)   # no board in it
+    photos = [tmp_path / name for name in ("board0.png", "blank1.png", "board2.png")]
     for path, image in zip(photos, images):
         cv2.imwrite(str(path), image)
     page.click("#camera-open")
+    # what each row said when its upload was answered (rows go a few seconds later)
+    page.evaluate("""() => { window.rowSaid = {};
+        new MutationObserver(() => document.querySelectorAll('#calib-uploads li.upload.ok:not(.batch)').forEach(li => {
+            window.rowSaid[li.querySelector('.upload-name').textContent] = li.querySelector('.upload-status').textContent;
+        })).observe(document.querySelector('#calib-uploads'), {subtree: true, childList: true, characterData: true,
+                                                              attributes: true}); }""")
     answer_in_reverse(page, "**/api/calibration/images", "#calib-picker", photos,
                       lambda: [v["name"] for v in api.get("/api/calibration").json()["views"]])
+    page.wait_for_function("() => Object.keys(window.rowSaid).length === 3")
+    assert page.evaluate("window.rowSaid") == {"board0.png": "✓ board found", "board2.png": "✓ board found",
+                                               "blank1.png": "✓ added, but the board was not found"}
     numbered = [f"{i + 1}. {p.name}" for i, p in enumerate(photos)]
     page.wait_for_function("n => document.querySelectorAll('#calib-views .card-name').length === n", arg=len(photos))
     assert page.locator("#calib-views .card-name").all_inner_texts() == numbered
@@ -843,6 +854,13 @@ def test_assumed_field_of_view_and_typed_intrinsics(page, api, no_camera):
     page.dispatch_event("#hfov-num", "change")
     page.wait_for_function("() => document.querySelector('#intrinsics').textContent.includes('75°')", timeout=60_000)
     assert "approximate" in shown_intrinsics(page, "assumed")
+    assert api.get("/api/camera").json()["assumed_hfov_deg"] == 75
+    for typed in ("200", "5"):   # out of range: said, and nothing changes (it quietly became 140 or 10)
+        page.fill("#hfov-num", typed)
+        page.dispatch_event("#hfov-num", "change")
+        page.locator(".toast.error", has_text=f"between 10 and 140°; got {typed}; it stays 75°").wait_for()
+        assert page.input_value("#hfov-num") == "75" and page.input_value("#hfov") == "75"
+    page.wait_for_timeout(400)   # past the debounce: nothing was sent
     assert api.get("/api/camera").json()["assumed_hfov_deg"] == 75
 
     page.click("#camera-open")
