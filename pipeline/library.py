@@ -17,9 +17,9 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 
+from .image import ImageError, read_image, to_gray
 from .jsonfile import read_json
 
 SAMPLE_LIBRARY = Path(__file__).resolve().parent.parent / "sample_images" / "library"
@@ -170,10 +170,10 @@ def load_library(root: str | Path = SAMPLE_LIBRARY) -> Library:
         validate_sign_entry(entry, where)
         if entry["id"] in {s.id for s in signs}:
             raise LibraryError(f"{where}: duplicate id {entry['id']!r}")
-        image_path = root / entry["image"]
-        image = cv2.imread(str(image_path), cv2.IMREAD_GRAYSCALE)
-        if image is None:
-            raise LibraryError(f"{where}: cannot read image {image_path}")
+        try:  # as any image is read: artwork on a transparent ground is a sign on white
+            image = to_gray(read_image(root / entry["image"]))
+        except ImageError as exc:
+            raise LibraryError(f"{where}: cannot read its image: {exc}") from None
         signs.append(make_sign(entry, image, where))
     return Library(root=root, signs=signs)
 

@@ -181,6 +181,19 @@ def test_bad_library_is_a_clear_error(tmp_path, sign_id, message):
     assert result.returncode == 2 and message in result.stderr
 
 
+def test_a_library_drawn_on_a_transparent_ground_reads_as_signs_on_white(tmp_path):
+    """A library folder's artwork with a transparent ground was read black on black and refused
+    as blank, though the server's library dialog took the same file."""
+    library = tmp_path / "library"
+    shutil.copytree(ROOT / "sample_images" / "library", library)
+    sign = cv2.imread(str(library / "security_compound.png"), cv2.IMREAD_GRAYSCALE)
+    ink = cv2.merge([0 * sign, 0 * sign, 0 * sign, 255 - sign])  # only the ink is opaque
+    cv2.imwrite(str(library / "security_compound.png"), ink)
+    result = signpose("recognize", SCENES / "scene_002.jpg", "--library", library, "--json")
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)["label"] == "security_compound"
+
+
 def test_readable_table(tmp_path):
     result = signpose("recognize", *sorted(SCENES.glob("*.jpg"))[:3], "--camera", SCENES / "camera.yaml")
     assert result.returncode == 0
