@@ -30,7 +30,7 @@ import numpy as np
 from .camera import Camera
 from .homography import normalize_scale
 from .library import LibrarySign
-from .plaque import quad_width, seen_grid, sign_corners, sign_to_quad
+from .plaque import MAX_DIRECT_WIDTH_PX, SHRUNK_WIDTH_PX, quad_width, seen_grid, shrunk_view, sign_corners, sign_to_quad
 from .pose import distort_pixels, undistort_pixels
 
 # Fraction of each side left out at either end: corners are rounded by blur and shared by two sides.
@@ -57,11 +57,9 @@ SMOOTH_MARGIN_PX = 4  # beyond the kernel's radius for SMOOTH_SIGMA (3 px)
 # Length along a side over which profiles share noise (tangent offsets plus smoothing), px.
 CORRELATION_PX = 4.0
 # A start H from features is good to about a pixel of the 128-160 px crops SIFT reads, so on a
-# sign much wider than that (a 12 MP photo) its corners can be further off than SEARCH_PX. A
-# sign wider than MAX_DIRECT_WIDTH_PX is outlined in the image shrunk to make it SHRUNK_WIDTH_PX
-# wide, where the search reaches as far across it as on a 640 x 480 frame.
-MAX_DIRECT_WIDTH_PX = 480.0
-SHRUNK_WIDTH_PX = 400.0
+# sign much wider than that (a 12 MP photo) its corners can be further off than SEARCH_PX: such
+# a sign is outlined in the image shrunk (`pipeline.plaque.shrunk_view`), where the search
+# reaches as far across it as on a 640 x 480 frame.
 
 
 @dataclass(frozen=True, eq=False)
@@ -272,13 +270,7 @@ def _outline_shrunk(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, seed: in
     Read again at full resolution from there, the edges were no more precise on sharp
     synthetic 3200 x 2400 scenes (rotation median 0.057 against 0.058 degrees, shrunk to 320 px)
     and far less on soft ones (the sample scenes enlarged 5x: 0.093 against 0.061, up to 0.31)."""
-    h, w = gray.shape
-    small = cv2.resize(gray, (max(1, round(w * f)), max(1, round(h * f))), interpolation=cv2.INTER_AREA)
-    fx, fy = small.shape[1] / w, small.shape[0] / h
-    # image px -> shrunk px, pixel centres aligned as cv2.resize does; the same lens sees both
-    to_small = np.array([[fx, 0, 0.5 * fx - 0.5], [0, fy, 0.5 * fy - 0.5], [0, 0, 1]])
-    lens = None if camera is None else Camera(to_small @ camera.K, camera.dist, small.shape[1], small.shape[0],
-                                              camera.source)
+    small, to_small, lens = shrunk_view(gray, f, camera)
     outline, why = _outline(small, sign, to_small @ H, seed, lens)
     if outline is None:
         return None, f"{why}, in the image shrunk to {f:.2g}x"

@@ -31,6 +31,12 @@ MIN_QUAD_FILL = 0.9
 ECC_INSET = 0.04  # fraction of the sign cut from each side before dense alignment
 ECC_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 60, 1e-5)
 ECC_CROP_MARGIN = 0.25  # image kept around the sign for ECC, as a fraction of its bounding box
+# A sign wider than MAX_DIRECT_WIDTH_PX (a 12 MP photo) is aligned, and outlined
+# (`pipeline.outline`), in the image shrunk to make it SHRUNK_WIDTH_PX wide: the size these
+# steps are tuned at, and ECC's time and memory grow with the area (4000 x 3000 through a wide
+# lens: 8 s and 4.7 GB an image aligned at full resolution).
+MAX_DIRECT_WIDTH_PX = 480.0
+SHRUNK_WIDTH_PX = 400.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -162,8 +168,36 @@ def standardized(patch: np.ndarray) -> np.ndarray:
     return centred / norm if norm > 0 else centred
 
 
+def shrunk_view(gray: np.ndarray, f: float, camera: Camera | None) -> tuple[np.ndarray, np.ndarray, Camera | None]:
+    """(small, to_small, lens): the (H, W) uint8 image shrunk by `f` < 1 (INTER_AREA), the (3, 3)
+    map image px -> its px (pixel centres aligned as cv2.resize aligns them), and the camera that
+    takes it: `camera`'s lens, its K mapped the same way (None without a camera)."""
+    h, w = gray.shape
+    small = cv2.resize(gray, (max(1, round(w * f)), max(1, round(h * f))), interpolation=cv2.INTER_AREA)
+    fx, fy = small.shape[1] / w, small.shape[0] / h
+    to_small = np.array([[fx, 0, 0.5 * fx - 0.5], [0, fy, 0.5 * fy - 0.5], [0, 0, 1]])
+    lens = None if camera is None else Camera(to_small @ camera.K, camera.dist, small.shape[1], small.shape[0],
+                                              camera.source)
+    return small, to_small, lens
+
+
 def refine_ecc(gray: np.ndarray, sign: LibrarySign, H: np.ndarray,
                camera: Camera | None = None) -> tuple[np.ndarray, float] | None:
+    """`_refine_ecc`, for a sign wider than MAX_DIRECT_WIDTH_PX in the image shrunk to make it
+    SHRUNK_WIDTH_PX wide (`shrunk_view`), its H mapped back to the image's px."""
+    width = quad_width(sign_corners(sign, H))
+    if width <= MAX_DIRECT_WIDTH_PX:
+        return _refine_ecc(gray, sign, H, camera)
+    small, to_small, lens = shrunk_view(gray, SHRUNK_WIDTH_PX / width, camera)
+    refined = _refine_ecc(small, sign, to_small @ H, lens)
+    if refined is None:
+        return None
+    H = np.linalg.solve(to_small, refined[0])
+    return H / H[2, 2], refined[1]
+
+
+def _refine_ecc(gray: np.ndarray, sign: LibrarySign, H: np.ndarray,
+                camera: Camera | None) -> tuple[np.ndarray, float] | None:
     """Align the library sign to the image densely (ECC), starting from H (library px -> image px).
 
     The sign is shrunk to about its size in the image first, so ECC compares like with like, and
