@@ -219,6 +219,11 @@ class CalibrationOut(BaseModel):
     result: CalibrationResult | None = Field(description="null until run, and again after every change")
 
 
+class CalibrationAdded(CalibrationOut):
+    added: list[str] = Field(description="ids of the photos this request added, in its files' order: the "
+                                         "views listed are in the order chosen, and names may repeat")
+
+
 class CalibrationRunIn(BaseModel):
     drop_outliers: bool = Field(False, description="fit once more without the outliers of the first fit")
 

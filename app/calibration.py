@@ -126,10 +126,12 @@ class CalibrationSession:
             raise Conflict(f"the calibration holds {held} photos and its limit is {self.max_photos}; "
                            f"delete some before adding {adding} more (15-20 good ones are enough)")
 
-    def add(self, uploads: list[tuple[str, bytes]], batch: str = "", position: int = 0) -> CalibrationState:
+    def add(self, uploads: list[tuple[str, bytes]], batch: str = "",
+            position: int = 0) -> tuple[CalibrationState, list[str]]:
         """Add photos (display name, encoded bytes) and search each for the board; they are listed at
-        `position` on in `batch` (`Slot`), or after every photo held without one. All or nothing:
-        ImageError for a file that is not a usable image, Conflict past the photo limit."""
+        `position` on in `batch` (`Slot`), or after every photo held without one. Returns the state
+        and the new photos' ids, in `uploads`' order. All or nothing: ImageError for a file that is
+        not a usable image, Conflict past the photo limit."""
         self._check_room(len(uploads))
         grays = [read_gray(name, data, self.max_pixels) for name, data in uploads]
         previews = [fit(gray, PREVIEW_MAX_SIDE) for gray in grays]  # made once: they do not depend on the board
@@ -146,7 +148,8 @@ class CalibrationSession:
                 photos = [CalibrationPhoto(secrets.token_hex(6), name, data, preview, view,
                                            dataclasses.replace(first, position=position + i))
                           for i, ((name, data), preview, view) in enumerate(zip(uploads, previews, views))]
-                return self._commit(photos=tuple(sorted([*self._state.photos, *photos], key=lambda p: p.slot)))
+                state = self._commit(photos=tuple(sorted([*self._state.photos, *photos], key=lambda p: p.slot)))
+                return state, [p.id for p in photos]
 
     def set_board(self, board: tuple[int, int], square_m: float) -> CalibrationState:
         """Use a board of `board` (cols, rows) inner corners and `square_m` metre squares; every photo

@@ -48,7 +48,8 @@ from pipeline.settings import PRESETS, Settings, SettingsError, settings_schema
 
 from . import figures, tuning
 from .api_models import (
-    AssumedFovIn, AttemptOut, BoardSearchOut, BoardSpec, CalibrateIn, CalibrateOut, CalibrationOut, CalibrationResult,
+    AssumedFovIn, AttemptOut, BoardSearchOut, BoardSpec, CalibrateIn, CalibrateOut, CalibrationAdded, CalibrationOut,
+    CalibrationResult,
     CalibrationRunIn, CalibrationView, CameraIntrinsics, CameraModel, CameraOut, ExpectedIn, Health, ImageDetail,
     ImagesOut, ImagesRemoved, ImageSummary, RecognitionOut, SettingField, SettingsOut, SignOut, SweepOut, UploadOut,
 )
@@ -777,13 +778,14 @@ def get_calibration_state(calibration: CalibrationDep) -> CalibrationOut:
     return calibration_out(calibration, calibration.state)
 
 
-@api.post("/calibration/images", response_model=CalibrationOut, status_code=status.HTTP_201_CREATED,
+@api.post("/calibration/images", response_model=CalibrationAdded, status_code=status.HTTP_201_CREATED,
           tags=["calibration"], dependencies=[MULTIPART, FILES, IN_ORDER])
 def add_calibration_photos(files: Annotated[list[UploadFile], File(description="photos of the chessboard")],
-                           calibration: CalibrationDep, batch: Batch = "", position: Position = 0) -> CalibrationOut:
+                           calibration: CalibrationDep, batch: Batch = "", position: Position = 0) -> CalibrationAdded:
     """Add photos and search each for the board (all or nothing). The last result is dropped.
-    Listed after those held, or with `batch`, by `position` among its files."""
-    return calibration_out(calibration, calibration.add([read_upload(f) for f in files], batch, position))
+    Listed after those held, or with `batch`, by `position` among its files; `added` names them."""
+    state, added = calibration.add([read_upload(f) for f in files], batch, position)
+    return CalibrationAdded(**calibration_out(calibration, state).model_dump(), added=added)
 
 
 @api.delete("/calibration", response_model=CalibrationOut, tags=["calibration"])

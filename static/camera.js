@@ -318,10 +318,11 @@ function bindCalibration() {
     list: $("#calib-uploads"),
     url: "/api/calibration/images",
     form: (file) => filesForm(file),
-    done: (body, file) => {
+    done: (body) => {
       show(body);
-      // Photos are listed in the order chosen, not as they land: find this one by its name.
-      return body.views.findLast((v) => v.name === file.name)?.found
+      // Photos are listed in the order chosen, not as they land, and names may repeat: the
+      // answer names the photo it added.
+      return body.views.find((v) => v.id === body.added[0])?.found
         ? "✓ board found" : "✓ added, but the board was not found";
     },
     // Once a batch is in, fit at once when it can be: the chart is what people add photos for.

@@ -94,7 +94,7 @@ export function filesForm(file, fields = {}) {
  * file is queued, so it keeps the choices made then), with a progress row in `list`. Each form
  * also names the batch (the files queued until the queue is next idle) and the file's position
  * in it: the server lists them in that order, whichever of the parallel uploads lands first.
- * `done(body, file)` gets each JSON answer and returns the row's closing message; `idle()` runs when
+ * `done(body)` gets each JSON answer and returns the row's closing message; `idle()` runs when
  * the queue has emptied. Returns `enqueue(files)`, with `enqueue.left()` the files queued or being
  * sent and `enqueue.stop()` (see there).
  */
@@ -105,9 +105,9 @@ export function uploadQueue({ list, url, form, done, idle = () => {} }) {
   let batchName = "", position = 0;
   const waiting = [];   // resolves of stop()s waiting for the files being sent
 
-  async function send({ file, body, row }) {
+  async function send({ body, row }) {
     try {
-      row.done(done(await upload(url, body, row.progress), file));
+      row.done(done(await upload(url, body, row.progress)));
       batch.count("stored");
     } catch (err) {
       row.fail(err.message);
@@ -148,7 +148,7 @@ export function uploadQueue({ list, url, form, done, idle = () => {} }) {
       const body = form(file);
       body.append("batch", batchName);
       body.append("position", position++);
-      queue.push({ file, body, row: uploadRow(list, file) });
+      queue.push({ body, row: uploadRow(list, file) });
     }
     pump();
   }

@@ -251,5 +251,20 @@ def test_photos_sent_a_request_each_are_listed_in_the_order_chosen(client, photo
                     data={"batch": "b", "position": 3})
     assert r.status_code == 201, r.text
     assert [v["name"] for v in r.json()["views"]] == [n for n, _ in photos[:6]]
+    assert r.json()["added"] == [v["id"] for v in r.json()["views"][3:6]]   # which are this request's
+
+
+def test_the_answer_names_the_photo_it_added_whatever_its_name(client, photos):
+    """Views are listed in the order chosen, and two phones both write IMG_0001.jpg: the page read
+    the last view, or the last of that name, as the one just added, and said "board found" of a
+    photo without the board."""
+    board, blank = photos[0][1], blank_png()
+    first = client.post("/api/calibration/images", files={"files": ("IMG_0001.png", blank, "image/png")},
+                        data={"batch": "b", "position": 1}).json()
+    second = client.post("/api/calibration/images", files={"files": ("IMG_0001.png", board, "image/png")},
+                         data={"batch": "b", "position": 0}).json()
+    found = {v["id"]: v["found"] for v in second["views"]}
+    assert [found[first["added"][0]], found[second["added"][0]]] == [False, True]
+    assert [v["name"] for v in second["views"]] == ["IMG_0001.png", "IMG_0001.png"]
     assert_error(client.post("/api/calibration/images", files={"files": photos[6]}, data={"position": "-1"}),
                  422, "position")
