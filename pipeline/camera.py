@@ -127,7 +127,8 @@ class Camera:
         if (self.width, self.height) == (width, height):
             return self, []
         sx, sy = width / self.width, height / self.height
-        if (width, height) == (self.height, self.width):
+        if abs((width / self.height) / (height / self.width) - 1) <= MAX_ASPECT_CHANGE < abs(sx / sy - 1):
+            # the camera's frame turned on its side, maybe also resized: a portrait phone photo
             raise CameraError(f"this {width}x{height} px image is the camera's {self.width}x{self.height} px turned "
                               "on its side: rotate the photo back, or calibrate the camera held this way")
         if abs(sx / sy - 1) > MAX_ASPECT_CHANGE:

@@ -321,6 +321,8 @@ def test_sample_camera_files_load():
 
 @pytest.mark.parametrize("size, message", [
     ((480, 640), "this 480x640 px image is the camera's 640x480 px turned on its side: rotate the photo back"),
+    # a portrait photo resized too: it was "a cropped or re-framed photo"
+    ((1536, 2048), "this 1536x2048 px image is the camera's 640x480 px turned on its side: rotate the photo back"),
     ((640, 360), "this 640x360 px image has another aspect than the 640x480 px the camera was calibrated at"),
     ((6400, 48), "calibrate the camera at 6400x48"),
 ])
