@@ -68,7 +68,7 @@ function renderHead() {
   // A plaque fallback answer has no inliers or margin: its correlation decided.
   const decided = detail.by_plaque ? [`plaque correlation ${detail.plaque_correlation.toFixed(2)}`]
     : [plural(detail.inliers, "inlier"), `margin ${detail.margin ?? "–"}`];
-  const outcome = detail.error ? [el("b", {}, "pipeline failed")]
+  const outcome = detail.error ? [el("b", {}, "could not run")]
     : [el("b", {}, detail.label ? signName(detail.label) : "no sign"), ...decided];
   const parts = [
     ...outcome,
@@ -83,7 +83,7 @@ function renderHead() {
 
 function renderStages() {
   // A failed run has no figures, but the photo itself still says a lot about why.
-  if (detail.error) input.set(`/api/images/${detail.id}/file`, "input · the photo as uploaded (the pipeline failed on it)");
+  if (detail.error) input.set(`/api/images/${detail.id}/file`, "input · the photo as uploaded (it could not be run)");
   else input.set(stageUrl("input"), INPUT_TITLE);
   for (const { stage, figure } of stages) figure.set(stageUrl(stage));
   renderBox();
@@ -122,7 +122,8 @@ function renderPose() {
   const pose = detail.result?.pose;
   const box = $("#pose");
   if (!pose) {
-    const why = detail.error ? "no pose: the pipeline failed" : detail.label ? "no pose could be computed" : "no sign, so no pose";
+    const why = detail.error ? "no pose: the image could not be run" : detail.label ? "no pose could be computed"
+      : "no sign, so no pose";
     fill(box, el("p.muted", {}, why));
   } else {
     const [x, y, z] = pose.camera_position ?? [];
@@ -148,7 +149,7 @@ function renderIntrinsics(cam) {
   const box = $("#intrinsics");
   box.dataset.kind = cam?.kind ?? "";
   if (!cam) {
-    fill(box, el("p.muted", {}, detail.error ? "none: the pipeline failed" : "no result yet"));
+    fill(box, el("p.muted", {}, detail.error ? "none: the image could not be run" : "no result yet"));
     return;
   }
   const note = approximateNote(cam);
@@ -382,7 +383,7 @@ function renderSweep() {
       onclick: () => setSetting(sweep.param, sweep.centre),
     }, "apply centre") : null,
     sweep.failed.some((n) => n) ? el("span.warn", {},
-      `the pipeline failed on ${plural(Math.max(...sweep.failed), "image")} at some values (counted as wrong)`) : null,
+      `${plural(Math.max(...sweep.failed), "image")} could not be run at some values (counted as wrong)`) : null,
     sweep.key !== sweepKey(state.settings, sweep.param)
       ? el("span.warn", {}, "other settings changed since: run again") : null);
 }

@@ -13,7 +13,8 @@ export const STATUS = {
   recognized: { text: "recognised (unlabelled)", title: "no expected label: a sign was recognised" },
   none: { text: "no sign (unlabelled)", title: "no expected label: no sign was found" },
   pending: { text: "pending", title: "no result yet for the current settings, camera and library" },
-  error: { text: "error", title: "the pipeline failed on the image (its card says why)" },
+  error: { text: "error", title: "the image could not be run: the camera does not fit it, or the pipeline failed "
+    + "(its card says why)" },
 };
 const STATUSES = Object.keys(STATUS);
 
@@ -85,7 +86,7 @@ function updateCard({ card, parts }, img) {
   showStatus(parts.badge, img.status);
   parts.name.textContent = img.name;
   parts.name.title = img.name;
-  parts.label.textContent = img.error ? "pipeline failed" : img.label ? signName(img.label) : "no sign";
+  parts.label.textContent = img.error ? "could not run" : img.label ? signName(img.label) : "no sign";
   parts.label.title = img.error || (img.expected ? `expected: ${signName(img.expected)}` : "no expected label");
   // A failed run measured nothing: its zero inliers and margin would read as a result. The plaque
   // fallback matches no features: its correlation with the sign decided, not inliers.

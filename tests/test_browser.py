@@ -940,6 +940,7 @@ def test_a_camera_that_fits_no_image_says_so(page, api, tmp_path, no_camera):
 
 
 def test_a_failed_image_says_why_without_figures(page, api, no_camera):
+    """A camera that does not fit the photo: the page said "pipeline failed", which it had not."""
     image_id = uploaded_scene(api)
     api.put("/api/camera", json=MISFIT_CAMERA).raise_for_status()
     harness.wait_server_idle(api)
@@ -947,15 +948,15 @@ def test_a_failed_image_says_why_without_figures(page, api, no_camera):
     open_detail(page, image_id)
     page.locator("#detail-badge", has_text="error").wait_for()
     summary = page.inner_text("#detail-summary")
-    assert summary.startswith("pipeline failed") and "inlier" not in summary and "margin" not in summary
-    assert page.inner_text("#detail-warnings") == error
-    assert page.inner_text("#pose") == "no pose: the pipeline failed"
-    assert page.inner_text("#intrinsics") == "none: the pipeline failed"
+    assert summary.startswith("could not run") and "inlier" not in summary and "margin" not in summary
+    assert page.inner_text("#detail-warnings") == error and "pipeline" not in page.inner_text("#detail")
+    assert page.inner_text("#pose") == "no pose: the image could not be run"
+    assert page.inner_text("#intrinsics") == "none: the image could not be run"
     # the photo itself is still shown, as uploaded
     assert harness.stage_images_loaded(page, "#detail .stage img")[0]["w"] == 640
     assert "the photo as uploaded" in page.inner_text("#detail .stage figcaption >> nth=0")
     card = page.locator(f'.card[data-id="{image_id}"]')
-    assert card.locator(".card-label").inner_text() == "pipeline failed"
+    assert card.locator(".card-label").inner_text() == "could not run"
     assert card.locator(".card-label").get_attribute("title") == error
     assert card.locator(".card-stats").inner_text() == ""
 
