@@ -189,6 +189,11 @@ def cmd_calibrate(args) -> int:
         board, square = parse_board(args.board), check_square(args.square)
     except CalibrationError as exc:
         raise CliError(str(exc)) from None
+    # A photo counted twice makes the fit look surer than it is (its ± 1σ shrink).
+    resolved = [Path(p).resolve() for p in args.images]
+    twice = sorted({str(p) for p, r in zip(args.images, resolved) if resolved.count(r) > 1})
+    if twice:
+        raise CliError(f"a photo is given more than once: {', '.join(twice)}; give each once")
     limit = max_pixels(args)
 
     def search(path: str) -> BoardView | ImageError:

@@ -233,6 +233,14 @@ def test_cli_calibrate_searches_photos_side_by_side(rendered, tmp_path, capsys, 
     assert listed == sorted(listed)
 
 
+def test_cli_calibrate_refuses_a_photo_given_twice(rendered, tmp_path, capsys):
+    """`board_0*.jpg board_0*.jpg` fitted 20 views of 10 photos and said so, its ± 1σ too small."""
+    paths = write_photos(tmp_path, rendered[0][:3])
+    out = tmp_path / "c.yaml"
+    assert main(["calibrate", *paths, paths[1], "--board", "9x6", "--square", "0.03", "-o", str(out)]) == 2
+    assert f"a photo is given more than once: {paths[1]}" in capsys.readouterr().err and not out.exists()
+
+
 def test_cli_calibrate_drop_outliers(tmp_path, capsys, monkeypatch):
     views = projected_views(10)
     views[3] = BoardView("board03.png", SIZE, views[3].corners + np.random.default_rng(1).normal(0, 3, (54, 2)))
