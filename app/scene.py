@@ -70,14 +70,16 @@ def camera_pose_in_sign(R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.nd
     return position, tf.SO3.from_matrix(R.T).wxyz
 
 
-def overview_camera(points: np.ndarray, fov_rad: float) -> tuple[np.ndarray, np.ndarray]:
+def overview_camera(points: np.ndarray, fov_rad: float, aspect: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """(position, look_at), each (3,) m in the sign frame, of a view from the side of
-    INITIAL_VIEW_POSITION_M whose cone of full angle `fov_rad` holds all of `points` (N, 3) m,
-    with OVERVIEW_MARGIN to spare."""
+    INITIAL_VIEW_POSITION_M that holds all of `points` (N, 3) m, with OVERVIEW_MARGIN to spare,
+    in a canvas of vertical field of view `fov_rad` and width / height `aspect` (narrower than
+    tall, its width is what limits)."""
     look_at = (points.min(axis=0) + points.max(axis=0)) / 2
     radius = max(float(np.linalg.norm(points - look_at, axis=1).max()), 0.1)
     side = np.subtract(INITIAL_VIEW_POSITION_M, INITIAL_VIEW_LOOK_AT_M)
-    distance = OVERVIEW_MARGIN * radius / np.sin(fov_rad / 2)
+    half_angle = min(fov_rad / 2, math.atan(math.tan(fov_rad / 2) * aspect))
+    distance = OVERVIEW_MARGIN * radius / np.sin(half_angle)
     return look_at + distance * side / np.linalg.norm(side), look_at
 
 
@@ -385,19 +387,48 @@ class SceneHandle:
                 nodes.matches.visible = self.show_matches.value
             self._frame_world()
 
-    def _frame_world(self) -> None:
-        """Point new viewers' and Reset View's camera at the shown sign and its cameras (viewers
-        already looking are left where they are). The caller holds the lock."""
+    def _overview(self, fov_rad: float, aspect: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """`overview_camera` of the shown sign and its cameras; None without a sign. The caller
+        holds the lock."""
         sign = self.signs.get(self.world.value)
         if sign is None:
-            return
+            return None
         points = np.vstack([np.asarray(sign.outline.points).reshape(-1, 3),
                             *[np.asarray(n.frustum.position).reshape(1, 3)
                               for n in self.cameras.values() if n.sign == self.world.value]])
+        return overview_camera(points, fov_rad, aspect)
+
+    def _frame_world(self) -> None:
+        """Point new viewers' and Reset View's camera at the shown sign and its cameras (viewers
+        already looking are left where they are). The caller holds the lock."""
         initial = self.server.initial_camera
-        position, look_at = overview_camera(points, initial.fov)
-        if not (np.allclose(initial.position, position) and np.allclose(initial.look_at, look_at)):
-            initial.position, initial.look_at = position, look_at
+        view = self._overview(initial.fov, 1.0)
+        if view is not None and not (np.allclose(initial.position, view[0]) and np.allclose(initial.look_at, view[1])):
+            initial.position, initial.look_at = view
+
+    def frame_for(self, client: viser.ClientHandle) -> None:
+        """Point `client`'s camera at the shown sign and its cameras within its own canvas. The
+        initial camera fits them in the canvas' height, which one narrower than tall (the page's
+        3D column) cuts at the sides; a wider one needs nothing."""
+        camera = client.camera
+        if camera.aspect >= 1.0:
+            return
+        with self._lock:
+            view = self._overview(camera.fov, camera.aspect)
+        if view is not None:
+            with client.atomic():
+                camera.position, camera.look_at = view
+
+    def _on_connect(self, client: viser.ClientHandle) -> None:
+        """Frame a new viewer's canvas once its size is known: its first camera report."""
+        framed = threading.Event()
+
+        def on_camera(_camera: viser.CameraHandle) -> None:
+            if not framed.is_set():
+                framed.set()
+                self.frame_for(client)
+
+        client.camera.on_update(on_camera)
 
     def _on_frustum_width(self, _event: viser.GuiEvent) -> None:
         self._stale_geometry = True
@@ -616,5 +647,6 @@ def attach(server: viser.ViserServer, workspace: Workspace) -> SceneHandle:
     show_matches.on_update(scene._on_view_option)
     frustum_width.on_update(scene._on_frustum_width)
     upload.on_upload(scene._on_upload)
+    server.on_client_connect(scene._on_connect)
     scene._start()
     return scene

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import math
 import dataclasses
 import json
 import time
@@ -140,6 +141,34 @@ def test_new_viewers_and_reset_view_frame_the_sign_and_its_cameras(scene):
         angles = np.degrees(np.arccos(rays @ axis / (np.linalg.norm(rays, axis=1) * np.linalg.norm(axis))))
         # inside the view with room to spare for viser's panel
         assert angles.max() < 0.8 * np.degrees(initial.fov) / 2, (world, angles.max())
+
+
+def test_a_viewer_narrower_than_tall_is_framed_for_its_width(scene):
+    """The page's 3D column is about 390 x 870 px: framed for the height, cameras were cut off at
+    the sides. A viewer's camera is framed again for its own canvas when it first reports it."""
+    handle, _ = scene
+    initial = handle.server.initial_camera
+
+    class Camera:
+        fov, aspect = initial.fov, 0.45
+        position, look_at = initial.position, initial.look_at
+
+    class Client:
+        camera = Camera()
+
+        def atomic(self):
+            return contextlib.nullcontext()
+
+    def widest(camera) -> float:
+        """Degrees off the view axis of the farthest of the points to frame."""
+        axis = np.asarray(camera.look_at) - camera.position
+        rays = _frame_points(handle, handle.world.value) - camera.position
+        return np.degrees(np.arccos(rays @ axis / (np.linalg.norm(rays, axis=1) * np.linalg.norm(axis)))).max()
+
+    across = np.degrees(math.atan(math.tan(initial.fov / 2) * Client.camera.aspect))  # half the canvas' width
+    assert widest(initial) > across   # what the page's column showed
+    handle.frame_for(Client())
+    assert widest(Client.camera) < 0.8 * across
 
 
 def _frame_points(handle, world: str) -> np.ndarray:
