@@ -201,11 +201,6 @@ def exif_camera(jpeg: bytes, width: int, height: int) -> ExifCamera:
     return ExifCamera(Camera(K, np.zeros(5), width, height, source))
 
 
-def camera_from_exif(jpeg: bytes, width: int, height: int) -> Camera | None:
-    """The camera of `exif_camera`, or None."""
-    return exif_camera(jpeg, width, height).camera
-
-
 def decode_with_exif(data: bytes, name: str) -> tuple[np.ndarray, ExifCamera]:
     """Encoded image bytes -> ((H, W, 3) uint8 BGR as `decode_image` gives it, what its EXIF gives for
     the camera at that decoded size). Raises ImageError naming `name`."""

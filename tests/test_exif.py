@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.exif import LensExif, camera_from_exif, exif_camera, focal_px, read_lens_exif
+from pipeline.exif import LensExif, exif_camera, focal_px, read_lens_exif
 
 FOCAL, FOCAL_35, PLANE_X, PLANE_UNIT, PIXEL_X, PIXEL_Y = 0x920A, 0xA405, 0xA20E, 0xA210, 0xA002, 0xA003
 SHORT, LONG, RATIONAL = 3, 4, 5
@@ -48,7 +48,7 @@ DSLR = {FOCAL: (RATIONAL, (50, 1)), FOCAL_35: (SHORT, 75), PLANE_X: (RATIONAL, (
 
 @pytest.mark.parametrize("order", ["<", ">"])
 def test_phone_35mm_equivalent(order):
-    cam = camera_from_exif(jpeg_with_exif(tiff_block(PHONE, order)), 4032, 3024)
+    cam = exif_camera(jpeg_with_exif(tiff_block(PHONE, order)), 4032, 3024).camera
     # 26 mm over the 43.27 mm full-frame diagonal, times the 5040 px image diagonal.
     assert cam.K[0, 0] == pytest.approx(26 * 5040 / math.hypot(36, 24)) == cam.K[1, 1]
     assert (cam.K[0, 2], cam.K[1, 2]) == (2016, 1512) and not cam.has_distortion
@@ -61,15 +61,15 @@ def test_phone_35mm_equivalent(order):
 def test_focal_plane_resolution_is_preferred(order):
     jpeg = jpeg_with_exif(tiff_block(DSLR, order))
     f_full = 50 * 6000 / 23.5
-    assert camera_from_exif(jpeg, 6000, 4000).K[0, 0] == pytest.approx(f_full)
-    assert camera_from_exif(jpeg, 1500, 1000).K[0, 0] == pytest.approx(f_full / 4)  # resized
-    portrait = camera_from_exif(jpeg, 1000, 1500)  # rotated by EXIF orientation when decoded
+    assert exif_camera(jpeg, 6000, 4000).camera.K[0, 0] == pytest.approx(f_full)
+    assert exif_camera(jpeg, 1500, 1000).camera.K[0, 0] == pytest.approx(f_full / 4)  # resized
+    portrait = exif_camera(jpeg, 1000, 1500).camera  # rotated by EXIF orientation when decoded
     assert portrait.K[0, 0] == pytest.approx(f_full / 4) and portrait.K[0, 2] == 500
 
 
 def test_focal_plane_units():
     per_mm = {**DSLR, PLANE_X: (RATIONAL, (6000 * 10, 235)), PLANE_UNIT: (SHORT, 4)}
-    assert camera_from_exif(jpeg_with_exif(tiff_block(per_mm)), 6000, 4000).K[0, 0] == pytest.approx(50 * 6000 / 23.5)
+    assert exif_camera(jpeg_with_exif(tiff_block(per_mm)), 6000, 4000).camera.K[0, 0] == pytest.approx(50 * 6000 / 23.5)
     lens = read_lens_exif(jpeg_with_exif(tiff_block(DSLR)))
     assert lens == LensExif(50.0, 75.0, pytest.approx(6000 / 23.5), (6000, 4000))
 
@@ -77,16 +77,16 @@ def test_focal_plane_units():
 def test_only_true_focal_length_is_not_enough():
     jpeg = jpeg_with_exif(tiff_block({FOCAL: (RATIONAL, (42, 10))}))
     assert read_lens_exif(jpeg).focal_mm == pytest.approx(4.2)
-    assert camera_from_exif(jpeg, 4032, 3024) is None
+    assert exif_camera(jpeg, 4032, 3024).camera is None
 
 
 def test_implausible_values_are_skipped():
     bogus_plane = {**DSLR, PLANE_X: (RATIONAL, (1, 1))}  # 1 px per inch: a 0.1° field of view
-    cam = camera_from_exif(jpeg_with_exif(tiff_block(bogus_plane)), 6000, 4000)
+    cam = exif_camera(jpeg_with_exif(tiff_block(bogus_plane)), 6000, 4000).camera
     assert cam.K[0, 0] == pytest.approx(75 * math.hypot(6000, 4000) / math.hypot(36, 24))
-    assert camera_from_exif(jpeg_with_exif(tiff_block({FOCAL_35: (SHORT, 1)})), 640, 480) is None
-    assert camera_from_exif(jpeg_with_exif(tiff_block({FOCAL: (RATIONAL, (42, 0)), FOCAL_35: (SHORT, 0)})),
-                            640, 480) is None
+    assert exif_camera(jpeg_with_exif(tiff_block({FOCAL_35: (SHORT, 1)})), 640, 480).camera is None
+    assert exif_camera(jpeg_with_exif(tiff_block({FOCAL: (RATIONAL, (42, 0)), FOCAL_35: (SHORT, 0)})),
+                       640, 480).camera is None
 
 
 @pytest.mark.parametrize("tags, ignored", [
@@ -113,7 +113,7 @@ def test_no_exif():
     plain = cv2.imencode(".jpg", np.zeros((8, 8, 3), np.uint8))[1].tobytes()
     png = cv2.imencode(".png", np.zeros((8, 8, 3), np.uint8))[1].tobytes()
     for data in (plain, png, b"", b"\xff\xd8", b"\xff\xd8\xff\xe1\x00\x08Exif\x00\x00"):
-        assert read_lens_exif(data) is None and camera_from_exif(data, 8, 8) is None
+        assert read_lens_exif(data) is None and exif_camera(data, 8, 8).camera is None
 
 
 def test_reads_exif_written_by_pillow():
@@ -126,7 +126,7 @@ def test_reads_exif_written_by_pillow():
     exif_ifd[ExifTags.Base.FocalLengthIn35mmFilm] = 24
     buf = io.BytesIO()
     Image.new("RGB", (400, 300)).save(buf, "JPEG", exif=exif)
-    cam = camera_from_exif(buf.getvalue(), 400, 300)
+    cam = exif_camera(buf.getvalue(), 400, 300).camera
     assert cam.K[0, 0] == pytest.approx(24 * 500 / math.hypot(36, 24))
     assert cam.source == "EXIF focal length 5.7 mm (35 mm equiv 24 mm)"
 
@@ -139,7 +139,7 @@ def test_focal_px_without_pixel_dimensions_assumes_the_recorded_size():
 @settings(max_examples=300, deadline=None)
 @given(st.binary(max_size=200))
 def test_arbitrary_bytes_never_raise(data):
-    camera = camera_from_exif(b"\xff\xd8" + data, 640, 480)  # must not raise, whatever the bytes
+    camera = exif_camera(b"\xff\xd8" + data, 640, 480).camera  # must not raise, whatever the bytes
     assert camera is None or camera.K[0, 0] > 0
 
 
@@ -151,5 +151,5 @@ def test_corrupted_exif_never_raises(data):
     for _ in range(data.draw(st.integers(1, 8))):
         jpeg[data.draw(st.integers(2, exif_end))] = data.draw(st.integers(0, 255))
     cut = data.draw(st.integers(2, len(jpeg)))
-    camera = camera_from_exif(bytes(jpeg[:cut]), 6000, 4000)
+    camera = exif_camera(bytes(jpeg[:cut]), 6000, 4000).camera
     assert camera is None or camera.K[0, 0] > 0
