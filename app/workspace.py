@@ -560,25 +560,25 @@ class Workspace:
 
     def remove_image(self, image_id: str) -> None:
         """Forget an image and delete its stored file; KeyError when there is none."""
-        with self._lock:
-            record = self._records.pop(image_id)
-            self.state.save_images([r.stored() for r in self._records.values()])
-            self.state.remove_image(record.file)
-        with self._photo_lock:
-            self._photos.pop(image_id, None)
-        self._trim_soon()
-        self._emit("images", {"ids": [r.id for r in self.images()]})
+        self._forget([image_id])
 
     def remove_images(self) -> int:
-        """Forget every image and delete their stored files, with one write of the index; how many there were."""
+        """Forget every image and delete their stored files; how many there were."""
+        return self._forget(None)
+
+    def _forget(self, image_ids: list[str] | None) -> int:
+        """Forget the images `image_ids` (None: every one held) and delete their stored files, with
+        one write of the index; how many. KeyError, and nothing forgotten, for an id not held."""
         with self._lock:
-            records = list(self._records.values())
-            self._records = {}
-            self.state.save_images([])
+            records = [self._records[i] for i in (list(self._records) if image_ids is None else image_ids)]
+            for record in records:
+                del self._records[record.id]
+            self.state.save_images([r.stored() for r in self._records.values()])
             for record in records:
                 self.state.remove_image(record.file)
         with self._photo_lock:
-            self._photos.clear()
+            for record in records:
+                self._photos.pop(record.id, None)
         self._trim_soon()
         self._emit("images", {"ids": [r.id for r in self.images()]})
         return len(records)
