@@ -109,7 +109,8 @@ def cmd_recognize(args) -> int:
             if args.json:
                 print(json.dumps({"image": name, "error": str(exc)}), flush=True)
             else:
-                print(f"{name:<28} error: {exc}", flush=True)
+                # The row names the image already; the image errors begin with its path.
+                print(f"{Path(name).name:<28} error: {str(exc).removeprefix(name + ': ')}", flush=True)
             continue
         if args.json:
             print(json.dumps(rec.to_json(name)), flush=True)

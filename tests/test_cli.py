@@ -86,7 +86,10 @@ def test_bad_files_get_an_error_line_and_the_rest_still_run(tmp_path):
     no_sign = json.loads(signpose("recognize", SCENES / "scene_000.jpg", "--json").stdout)
     assert no_sign["pose"] is None and not any("approximate" in w for w in no_sign["warnings"])
     table = signpose("recognize", fake, good)
-    assert table.returncode != 0 and "error" in table.stdout and good.name in table.stdout
+    assert table.returncode != 0 and good.name in table.stdout
+    error_row = next(line for line in table.stdout.splitlines() if "error" in line)
+    assert error_row.split() == ["notes.jpg", "error:", "not", "an", "image", "file", "(use", "JPEG,", "PNG,",
+                                 "TIFF,", "WebP", "or", "BMP)"]  # named once, by its file name as the other rows
 
 
 def test_a_failure_inside_the_pipeline_is_that_images_error_line(monkeypatch, capsys):
