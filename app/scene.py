@@ -44,6 +44,9 @@ SIGN_TEXTURE_MAX_WIDTH_PX = 1024
 # Above this many slider positions a slider cannot hit a chosen value; use a number box.
 MAX_SLIDER_POSITIONS = 10_000
 DEFAULT_FRUSTUM_WIDTH_M = 0.25
+# A viewer's camera as it reports it back differs from what was set by float rounding; a person's
+# smallest drag moves it by centimetres.
+FRAMED_TOLERANCE_M = 1e-3
 AMBIGUOUS_RGB = (230, 30, 30)
 # tab10 without its red, which marks ambiguous poses.
 LABEL_RGB = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (148, 103, 189),
@@ -308,6 +311,9 @@ class SceneHandle:
     signs: dict[str, SignNodes] = field(default_factory=dict)
     cameras: dict[str, CameraNodes] = field(default_factory=dict)
     _thumbnails: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    # (position, look_at) in m, by client id: the view each viewer was last framed to, kept while
+    # its camera stays there (the person has not moved it), so it follows the cameras drawn.
+    _framed: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
     _progress: dict[str, Any] = field(default_factory=dict, repr=False)
     _lock: threading.RLock = field(default_factory=threading.RLock, repr=False)
     _dirty: threading.Event = field(default_factory=threading.Event, repr=False)
@@ -399,25 +405,35 @@ class SceneHandle:
         return overview_camera(points, fov_rad, aspect)
 
     def _frame_world(self) -> None:
-        """Point new viewers' and Reset View's camera at the shown sign and its cameras (viewers
-        already looking are left where they are). The caller holds the lock."""
+        """Point new viewers' and Reset View's camera at the shown sign and its cameras, and the
+        viewers' still where they were framed; a viewer the person has moved is left where it is.
+        The caller holds the lock."""
         initial = self.server.initial_camera
         view = self._overview(initial.fov, 1.0)
         if view is not None and not (np.allclose(initial.position, view[0]) and np.allclose(initial.look_at, view[1])):
             initial.position, initial.look_at = view
+        for client in self.server.get_clients().values():
+            if self._still_framed(client):
+                self.frame_for(client)
+
+    def _still_framed(self, client: viser.ClientHandle) -> bool:
+        """Whether `client`'s camera is where `frame_for` last put it, within the rounding of its reports."""
+        framed = self._framed.get(client.client_id)
+        return framed is not None and all(np.allclose(now, then, atol=FRAMED_TOLERANCE_M)
+                                          for now, then in zip((client.camera.position, client.camera.look_at), framed))
 
     def frame_for(self, client: viser.ClientHandle) -> None:
         """Point `client`'s camera at the shown sign and its cameras within its own canvas. The
-        initial camera fits them in the canvas' height, which one narrower than tall (the page's
-        3D column) cuts at the sides; a wider one needs nothing."""
+        initial camera fits them in a square's height; a canvas narrower than tall (the page's 3D
+        column) is framed for its width, which the square's framing cuts at the sides."""
         camera = client.camera
-        if camera.aspect >= 1.0:
-            return
         with self._lock:
-            view = self._overview(camera.fov, camera.aspect)
-        if view is not None:
-            with client.atomic():
-                camera.position, camera.look_at = view
+            view = self._overview(camera.fov, min(camera.aspect, 1.0))
+            if view is None:
+                return
+            self._framed[client.client_id] = view
+        with client.atomic():
+            camera.position, camera.look_at = view
 
     def _on_connect(self, client: viser.ClientHandle) -> None:
         """Frame a new viewer's canvas once its size is known: its first camera report."""
@@ -429,6 +445,10 @@ class SceneHandle:
                 self.frame_for(client)
 
         client.camera.on_update(on_camera)
+
+    def _on_disconnect(self, client: viser.ClientHandle) -> None:
+        with self._lock:
+            self._framed.pop(client.client_id, None)
 
     def _on_frustum_width(self, _event: viser.GuiEvent) -> None:
         self._stale_geometry = True
@@ -648,5 +668,6 @@ def attach(server: viser.ViserServer, workspace: Workspace) -> SceneHandle:
     frustum_width.on_update(scene._on_frustum_width)
     upload.on_upload(scene._on_upload)
     server.on_client_connect(scene._on_connect)
+    server.on_client_disconnect(scene._on_disconnect)
     scene._start()
     return scene

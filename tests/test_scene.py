@@ -148,27 +148,48 @@ def test_a_viewer_narrower_than_tall_is_framed_for_its_width(scene):
     the sides. A viewer's camera is framed again for its own canvas when it first reports it."""
     handle, _ = scene
     initial = handle.server.initial_camera
+    viewer = Viewer(1, 0.45, initial)
+    assert _widest(handle, initial) > viewer.across_deg   # what the page's column showed
+    handle.frame_for(viewer)
+    assert _widest(handle, viewer.camera) < 0.8 * viewer.across_deg
 
-    class Camera:
-        fov, aspect = initial.fov, 0.45
-        position, look_at = initial.position, initial.look_at
 
-    class Client:
-        camera = Camera()
+def test_viewers_left_as_framed_follow_new_cameras_and_one_moved_by_hand_stays(scene, monkeypatch):
+    """Cameras drawn after a viewer had connected were outside its view until the page was reloaded."""
+    handle, _ = scene
+    initial = handle.server.initial_camera
+    column, moved = Viewer(1, 0.45, initial), Viewer(2, 1.6, initial)
+    monkeypatch.setattr(handle.server, "get_clients", lambda: {1: column, 2: moved})
+    handle.frame_for(column)
+    handle.frame_for(moved)
+    moved.camera.position = np.asarray(moved.camera.position) + (0.0, 0.0, -0.5)  # the person pulled back
+    held = moved.camera.position.copy()
+    far = next(n for n in handle.cameras.values() if n.sign == handle.world.value)
+    far.frustum.position = (3.0, -2.0, -7.0)  # as a camera 8 m off would be drawn
+    handle.redraw()
+    assert _widest(handle, column.camera) < 0.8 * column.across_deg
+    assert np.array_equal(moved.camera.position, held)
 
-        def atomic(self):
-            return contextlib.nullcontext()
 
-    def widest(camera) -> float:
-        """Degrees off the view axis of the farthest of the points to frame."""
-        axis = np.asarray(camera.look_at) - camera.position
-        rays = _frame_points(handle, handle.world.value) - camera.position
-        return np.degrees(np.arccos(rays @ axis / (np.linalg.norm(rays, axis=1) * np.linalg.norm(axis)))).max()
+class Viewer:
+    """A viser client as `SceneHandle` sees it: an id and a camera of a canvas' aspect (width / height)."""
 
-    across = np.degrees(math.atan(math.tan(initial.fov / 2) * Client.camera.aspect))  # half the canvas' width
-    assert widest(initial) > across   # what the page's column showed
-    handle.frame_for(Client())
-    assert widest(Client.camera) < 0.8 * across
+    def __init__(self, client_id: int, aspect: float, start: viser.InitialCameraConfig):
+        self.client_id = client_id
+        self.camera = type("Camera", (), dict(fov=start.fov, aspect=aspect, position=np.asarray(start.position),
+                                              look_at=np.asarray(start.look_at)))()
+        # half the canvas' width, in degrees
+        self.across_deg = np.degrees(math.atan(math.tan(start.fov / 2) * min(aspect, 1.0)))
+
+    def atomic(self):
+        return contextlib.nullcontext()
+
+
+def _widest(handle, camera) -> float:
+    """Degrees off `camera`'s view axis of the farthest of the points to frame in the shown world."""
+    axis = np.asarray(camera.look_at) - camera.position
+    rays = _frame_points(handle, handle.world.value) - camera.position
+    return np.degrees(np.arccos(rays @ axis / (np.linalg.norm(rays, axis=1) * np.linalg.norm(axis)))).max()
 
 
 def _frame_points(handle, world: str) -> np.ndarray:
