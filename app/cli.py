@@ -362,8 +362,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--library", help="sign library folder, copied into the state directory "
                                      "(default: the state's library; on a fresh state the samples)")
     p.add_argument("--camera", type=file_path,
-                   help="camera file (default: the state's camera, else per image its EXIF focal length "
-                        f"or the assumed field of view, {ASSUMED_HFOV_DEG:g}° unless set in the page)")
+                   help="camera file; it becomes the state's camera, and one the state held that differs (e.g. "
+                        "calibrated in the page) is kept as camera.replaced-<UTC time>.json in the state directory "
+                        "(default: the state's camera, else per image its EXIF focal length or the assumed field "
+                        f"of view, {ASSUMED_HFOV_DEG:g}° unless set in the page)")
     p.add_argument("--settings", type=file_path, help="settings JSON to start from (default: the state's settings)")
     p.add_argument("--state-dir", default=str(WorkspaceConfig.state_dir),
                    help="where settings, library, camera and images survive restarts (default ./%(default)s)")

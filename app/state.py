@@ -4,6 +4,8 @@ Layout (every file name is chosen by the server, never by a client)::
 
     settings.json           the current settings; a plain settings file (`--settings` reads it)
     camera.json             {fx, fy, cx, cy, dist, width, height, source}; absent: EXIF or assumed per image
+    camera.replaced-<UTC time>.json
+                            a camera `--camera` replaced, as it was in camera.json (`--camera` reads it)
     assumed_fov.json        {"hfov_deg": float}: the field of view assumed without camera or EXIF; absent: 60°
     library/library.json    a complete sign library (`signpose recognize --library <state>/library`
                             works), plus "copied_from": the library folder it started as a copy of
@@ -24,6 +26,7 @@ import json
 import os
 import shutil
 import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -75,6 +78,20 @@ def remove_file(path: Path) -> None:
     with contextlib.suppress(FileNotFoundError):
         path.unlink()
         _fsync_dir(path.parent)
+
+
+def unused_path(folder: Path, stem: str, suffix: str) -> Path:
+    """`folder/<stem><suffix>`, or `<stem>-2<suffix>`, `-3`, ... when taken: a backup never overwrites another."""
+    path, n = folder / f"{stem}{suffix}", 1
+    while path.exists():
+        n += 1
+        path = folder / f"{stem}-{n}{suffix}"
+    return path
+
+
+def same_intrinsics(a: Camera, b: Camera) -> bool:
+    """Whether `a` and `b` are the same camera, wherever each was read from (`source` aside)."""
+    return {**a.to_json(), "source": None} == {**b.to_json(), "source": None}
 
 
 @dataclass(frozen=True)
@@ -135,6 +152,19 @@ class StateDir:
             remove_file(self.camera_path)
         else:
             atomic_write_json(self.camera_path, camera.to_json())
+
+    def replace_camera(self, camera: Camera) -> Path | None:
+        """Save `camera` as the state's camera. A different camera held before is not lost: it is
+        moved to a new `camera.replaced-<UTC time>.json`, which is returned (None: nothing was moved)."""
+        stored = self.load_camera()
+        backup = None
+        if stored is not None and not same_intrinsics(stored, camera):
+            stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+            backup = unused_path(self.root, f"camera.replaced-{stamp}", ".json")
+            os.replace(self.camera_path, backup)
+            _fsync_dir(self.root)
+        self.save_camera(camera)
+        return backup
 
     def load_assumed_hfov(self) -> float:
         """The horizontal field of view (degrees) to assume for images without camera or EXIF: the one

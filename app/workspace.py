@@ -353,10 +353,14 @@ class Workspace:
         if config.settings_file is not None:
             settings = load_settings(config.settings_file)
             self.state.save_settings(settings)
-        camera = self.state.load_camera()
-        if config.camera_file is not None:
+        if config.camera_file is None:
+            camera = self.state.load_camera()
+        else:
             camera = load_camera(config.camera_file)
-            self.state.save_camera(camera)
+            kept = self.state.replace_camera(camera)
+            if kept is not None:  # e.g. a calibration applied in the page since the last start
+                log.warning("--camera %s replaced the state's camera, which is kept in %s: to use that one again, "
+                            "start with --camera %s", config.camera_file, kept, kept)
         self._snap = Snapshot(1, 1, settings, library, camera, self.state.load_assumed_hfov())
         self._history: dict[int, Settings] = {1: settings}  # settings_version -> settings, oldest first
 

@@ -748,3 +748,36 @@ def test_serve_command_prints_its_url_stops_on_ctrl_c_and_refuses_a_taken_port(t
     finally:
         _, stderr = stop_serve(proc)
     assert proc.returncode == 0 and "Traceback" not in stderr
+
+
+def serve_camera(state_dir: Path, camera_file: Path, put: dict | None = None) -> tuple[dict, str]:
+    """Start `signpose serve --camera camera_file`, PUT `put` to /api/camera if given, stop it; the
+    camera it started with and its stderr."""
+    proc, url = start_serve(state_dir, "--camera", str(camera_file))
+    try:
+        camera = httpx.get(url + "api/camera", timeout=TIMEOUT_S).json()["camera"]
+        if put is not None:
+            httpx.put(url + "api/camera", json=put, timeout=TIMEOUT_S).raise_for_status()
+    finally:
+        _, stderr = stop_serve(proc)
+    return camera, stderr
+
+
+def test_serve_camera_keeps_the_different_camera_the_state_held_and_says_where(tmp_path):
+    """`serve --camera FILE` used to overwrite, silently, a camera applied in the page since the last start."""
+    state, camera_file = tmp_path / "state", tmp_path / "camera.yaml"
+    camera_file.write_bytes(CAMERA_YAML)
+    calibrated = {"fx": 900, "fy": 900, "cx": 640, "cy": 480, "width": 1280, "height": 960}
+    first, stderr = serve_camera(state, camera_file, put=calibrated)
+    assert "replaced" not in stderr  # a fresh state held no camera
+    again, stderr = serve_camera(state, camera_file)
+    assert again == first  # --camera still wins...
+    (kept,) = state.glob("camera.replaced-*.json")  # ...but the calibration is kept
+    assert json.loads(kept.read_text())["fx"] == 900
+    (line,) = [line for line in stderr.splitlines() if "replaced" in line]
+    assert line == (f"--camera {camera_file} replaced the state's camera, which is kept in {kept}: to use that one "
+                    f"again, start with --camera {kept}")
+    _, stderr = serve_camera(state, camera_file)  # the same camera again: nothing to keep or say
+    assert "replaced" not in stderr and list(state.glob("camera.replaced-*.json")) == [kept]
+    restored, _ = serve_camera(state, kept)  # as the line says
+    assert (restored["fx"], restored["width"]) == (900, 1280) and len(list(state.glob("camera.replaced-*"))) == 2
