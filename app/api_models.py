@@ -133,8 +133,9 @@ class CameraModel(BaseModel):
     cx: Number
     cy: Number
     dist: list[Number] = []
-    width: WholeNumber | None = Field(None, description="image width the intrinsics are for, px")
-    height: WholeNumber | None = None
+    width: WholeNumber | None = Field(None, description="image width the intrinsics are for, px; with height, "
+                                                        "or neither (then they are never scaled to an image)")
+    height: WholeNumber | None = Field(None, description="image height the intrinsics are for, px; with width")
 
 
 class CameraIntrinsics(CameraModel):

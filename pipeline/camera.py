@@ -57,7 +57,7 @@ class CameraError(ValueError):
 
 @dataclass(frozen=True, eq=False)
 class Camera:
-    """Pinhole intrinsics for images of `width` x `height` px.
+    """Pinhole intrinsics for images of `width` x `height` px (both None: of a size not known, so never scaled).
 
     `source` says where the numbers came from ("file:<path>", "json", "assumed 60° hfov", ...).
     CameraError when the numbers are no real camera's (the bounds above MIN_FOV_DEG .. MAX_FOCAL_RATIO).
@@ -74,6 +74,10 @@ class Camera:
             v = getattr(self, name)
             if v is not None and (not isinstance(v, (int, np.integer)) or not 0 < v <= MAX_IMAGE_SIDE_PX):
                 raise CameraError(f"image {name} must be a positive whole number under 2**31 px; got {v!r}")
+        if (self.width is None) != (self.height is None):
+            given, missing = ("width", "height") if self.height is None else ("height", "width")
+            raise CameraError(f"the image {given} is given without the image {missing}: give both, the size in px the "
+                              "intrinsics are for (scaling them to other image sizes needs both), or neither")
         K = np.asarray(self.K, dtype=np.float64)
         if K.shape != (3, 3):
             raise CameraError(f"camera matrix must be 3x3; got shape {K.shape}")

@@ -616,6 +616,15 @@ def test_camera_numbers_must_be_json_numbers_not_text(client, path, body, where,
     client.delete("/api/camera")
 
 
+@pytest.mark.parametrize("size, given", [({"width": 640}, "width"), ({"height": 480}, "height")])
+def test_camera_json_with_the_image_width_or_height_alone_is_refused(client, size, given):
+    """It was stored with the other null, and so never scaled to an image."""
+    before = client.get("/api/camera").json()
+    r = client.put("/api/camera", json={"fx": 500, "fy": 500, "cx": 320, "cy": 240} | size)
+    assert_error(r, 422, f"the image {given} is given without", "give both", "or neither")
+    assert client.get("/api/camera").json() == before
+
+
 def test_a_camera_that_fits_no_image_held_is_kept_with_a_warning(tmp_path):
     fitting = {"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640, "height": 480}
     with running(create_app(config(tmp_path / "state"))) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:

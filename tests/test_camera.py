@@ -248,6 +248,22 @@ def test_non_numeric_entries_are_one_line_errors_naming_the_field(tmp_path, text
     assert "\n" not in str(info.value)
 
 
+@pytest.mark.parametrize("text, given, missing", [
+    ('{"fx": 554, "fy": 554, "cx": 320, "cy": 240, "width": 640}', "width", "height"),
+    (ROS_MATRIX.format(rows=3, data=K_DATA) + "image_height: 480\n", "height", "width"),
+    (ROS2_MESSAGE.replace("height: 480\n", ""), "width", "height"),
+    (OPENCV_MATRIX.format(fields="image_width: 640\n", fx="554."), "width", "height"),
+], ids=["json", "ros-file", "ros-message", "opencv"])
+def test_a_camera_file_with_the_image_width_or_height_alone_is_refused(tmp_path, text, given, missing):
+    """Intrinsics are scaled to another image size by both; with one alone they were used unscaled."""
+    p = tmp_path / "half.yaml"
+    p.write_text(text)
+    with pytest.raises(CameraError) as info:
+        load_camera(p)
+    assert str(info.value) == (f"{p}: the image {given} is given without the image {missing}: give both, the size in "
+                               "px the intrinsics are for (scaling them to other image sizes needs both), or neither")
+
+
 def test_numeric_text_is_a_number(tmp_path):
     """YAML 1.1 reads 5.54e2 (an exponent without a sign) as a string; the camera means a number."""
     p = tmp_path / "c.yaml"
@@ -275,7 +291,7 @@ def intrinsics(fx: float, fy: float, cx: float = 320, cy: float = 240, s: float 
     (intrinsics(1e300, 1e300), (None, None), r"fx=1e\+300 px is longer than 1e\+06 px"),
     (intrinsics(1e100, 1e100), (None, None), "give the file the image width and height"),
     (intrinsics(4e5, 4e5), (640, 480), "fx=400000 px makes the image's 640 px a field of view under 0.1°"),
-    (intrinsics(4e5, 4e5), (None, 480), "fx=400000 px makes the image's 480 px"),
+    (intrinsics(500, 500), (None, 480), "the image height is given without the image width: give both"),
     (intrinsics(500, 6000), (None, None), "fx/fy = 0.0833"),
     (intrinsics(5010, 500), (640, 480), "fx/fy = 10"),
     (intrinsics(500, 500, s=1e300), (640, 480), "skew"),
