@@ -244,8 +244,21 @@ def single(*fields: str) -> Any:
 Batch = Annotated[str, Form(max_length=64, description="a name the client gives a batch of files it sends a "
                                                        "request each, several at once: they are listed by "
                                                        "`position`, whatever order they land in")]
-Position = Annotated[int, Form(ge=0, description="the place in `batch` of this request's first file")]
-IN_ORDER = single("batch", "position")
+Position = Annotated[int, Form(ge=0, description="the place in `batch` of this request's first file; "
+                                                "only with `batch`")]
+
+
+def in_order(form: FormData) -> None:
+    """422 unless `batch` and `position` are sent once each (`single_values`) and `position` with a `batch`:
+    alone it would be ignored, and the files listed in the order they land rather than the one meant."""
+    single_values(form, ("batch", "position"))
+    if "position" in form and not form.get("batch"):
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            "'position' is the place of this request's files within a 'batch' and needs one: send "
+                            "'batch' too, the same name in every request of the batch, or leave 'position' out")
+
+
+IN_ORDER = form_check(in_order)
 
 
 def result_of(record: ImageRecord) -> Outcome:

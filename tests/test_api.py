@@ -372,6 +372,21 @@ def test_a_batch_sent_a_file_a_request_is_listed_in_its_order_whatever_lands_fir
         assert names(c) == [*listed, "b3.jpg"]
 
 
+@pytest.mark.parametrize("path, listing, listed", [("/api/images", "/api/images", "images"),
+                                                   ("/api/calibration/images", "/api/calibration", "views")])
+@pytest.mark.parametrize("order", [{"position": "2"}, {"batch": "", "position": "0"}])
+def test_a_position_without_a_batch_is_refused(client, path, listing, listed, order):
+    """It was ignored: the file was listed where it landed, not at the place the client meant."""
+    def ids():
+        return [i["id"] for i in client.get(listing).json()[listed]]
+
+    before = ids()
+    r = client.post(path, files={"files": ("x.jpg", tiny_photo(), "image/jpeg")}, data=order)
+    assert_error(r, 422, "'position' is the place of this request's files within a 'batch' and needs one",
+                 "send 'batch' too")
+    assert ids() == before
+
+
 def test_uploads_past_the_memory_limit_are_refused_saying_what_fits(tmp_path):
     """A tester's server grew by 110 MB per 12 MP photo with no cap: the default --max-images 500
     would have needed 55 GB. Each image held now counts 5 bytes a pixel plus 1 MB against a limit."""

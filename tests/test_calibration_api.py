@@ -266,5 +266,5 @@ def test_the_answer_names_the_photo_it_added_whatever_its_name(client, photos):
     found = {v["id"]: v["found"] for v in second["views"]}
     assert [found[first["added"][0]], found[second["added"][0]]] == [False, True]
     assert [v["name"] for v in second["views"]] == ["IMG_0001.png", "IMG_0001.png"]
-    assert_error(client.post("/api/calibration/images", files={"files": photos[6]}, data={"position": "-1"}),
+    assert_error(client.post("/api/calibration/images", files={"files": photos[6]}, data={"batch": "b", "position": "-1"}),
                  422, "position")
