@@ -134,7 +134,8 @@ def test_a_truncated_image_gets_signposes_line_and_not_opencvs_warning(tmp_path)
     (tmp_path / "none" / "cut.png").write_bytes(truncated.read_bytes())
     for args in (("recognize", truncated), ("evaluate", tmp_path, "--workers", 1)):
         result = signpose(*args)
-        assert "cut.png: damaged or truncated PNG file" in result.stdout and "WARN" not in result.stderr, result.stderr
+        out = result.stdout
+        assert "cut.png" in out and "damaged or truncated PNG file" in out and "WARN" not in result.stderr, result.stderr
 
 
 def test_a_damaged_jpeg_is_told_apart_from_a_file_that_is_no_image(tmp_path):
