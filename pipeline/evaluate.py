@@ -12,8 +12,10 @@ next to them is used when no camera is given.
 
 Errors are measured where the truth has a pose and the sign was identified correctly:
 rotation as the geodesic angle between true and estimated R (degrees), translation as
-|t_est - t_true| / |t_true| (percent of the camera-sign distance), corners as the mean
-distance of the four corners (image px).
+|t_est - t_true| / |t_true| (percent of the camera-sign distance), the camera's position in
+the sign frame as |C_est - C_true| with C = -Rᵀt (metres: what localisation uses, where a tilt
+error swings the camera around the sign while t stays put), corners as the mean distance of the
+four corners (image px).
 """
 
 from __future__ import annotations
@@ -92,6 +94,7 @@ class ImageResult:
     time_ms: float
     rotation_error_deg: float | None = None
     translation_error_pct: float | None = None
+    position_error_m: float | None = None
     corner_error_px: float | None = None
     error: str | None = None  # the image could not be read
 
@@ -117,6 +120,7 @@ class Summary:
     p90_time_ms: float
     rotation_deg: tuple[float, float] | None  # median, p90
     translation_pct: tuple[float, float] | None  # median, p90
+    position_m: tuple[float, float] | None  # median, p90
     corner_px: tuple[float, float] | None  # median, p90
 
     @property
@@ -132,7 +136,7 @@ class Summary:
                 "time_ms": {"mean": _finite(self.mean_time_ms), "median": _finite(self.median_time_ms),
                             "p90": _finite(self.p90_time_ms)},
                 "rotation_error_deg": pair(self.rotation_deg), "translation_error_pct": pair(self.translation_pct),
-                "corner_error_px": pair(self.corner_px)}
+                "position_error_m": pair(self.position_m), "corner_error_px": pair(self.corner_px)}
 
 
 def _finite(value: float) -> float | None:
@@ -167,7 +171,8 @@ class Report:
             "images": [{"dataset": r.dataset, "image": str(r.sample.path), "truth": r.sample.label or NO_SIGN,
                         "answer": None if r.error is not None else r.predicted or NO_SIGN, "correct": r.correct,
                         "time_ms": _finite(r.time_ms), "rotation_error_deg": r.rotation_error_deg,
-                        "translation_error_pct": r.translation_error_pct, "corner_error_px": r.corner_error_px,
+                        "translation_error_pct": r.translation_error_pct, "position_error_m": r.position_error_m,
+                        "corner_error_px": r.corner_error_px,
                         "error": r.error} for r in self.results],
         }
 
@@ -267,6 +272,7 @@ def summarize(results: Sequence[ImageResult]) -> Summary:
         p90_time_ms=float(np.percentile(times, 90)),
         rotation_deg=_percentiles(errors("rotation_error_deg")),
         translation_pct=_percentiles(errors("translation_error_pct")),
+        position_m=_percentiles(errors("position_error_m")),
         corner_px=_percentiles(errors("corner_error_px")),
     )
 
@@ -295,6 +301,7 @@ def _measure(job: Job, library: Library, settings: Settings, check_image: ImageC
     if rec.pose is not None and sample.R is not None and sample.t is not None:
         result.rotation_error_deg = rotation_error_deg(sample.R, rec.pose.R)
         result.translation_error_pct = float(100 * np.linalg.norm(rec.pose.t - sample.t) / np.linalg.norm(sample.t))
+        result.position_error_m = float(np.linalg.norm(rec.pose.R.T @ rec.pose.t - sample.R.T @ sample.t))
     if rec.corners is not None and sample.corners is not None:
         result.corner_error_px = float(np.linalg.norm(rec.corners - sample.corners, axis=1).mean())
     return result
@@ -469,8 +476,9 @@ def evaluate(datasets: Sequence[Dataset], library: Library, settings: Settings, 
     return Report(settings, results, by_dataset, summarize(results), labels, confusion)
 
 
-def _pair(value: tuple[float, float] | None, unit: str) -> str:
-    return "-" if value is None else f"{value[0]:.2f} / {value[1]:.2f}{unit}"
+def _pair(value: tuple[float, float] | None, unit: str, scale: float = 1.0) -> str:
+    """(median, p90) times `scale`, in `unit`."""
+    return "-" if value is None else f"{scale * value[0]:.2f} / {scale * value[1]:.2f}{unit}"
 
 
 def format_table(report: Report) -> str:
@@ -480,12 +488,13 @@ def format_table(report: Report) -> str:
         rows.append(("all", report.total))
     name_width = max(16, *(len(name) + 2 for name, _ in rows))
     head = (f"{'dataset':<{name_width}}{'images':>7}{'correct':>8}{'accuracy':>10}{'avg time':>11}{'false pos':>10}"
-            f"   {'rotation med/p90':>17}{'translation med/p90':>21}{'corners med/p90':>18}")
+            f"   {'rotation med/p90':>17}{'translation med/p90':>21}{'position med/p90':>19}{'corners med/p90':>18}")
     lines = [head, "-" * len(head)]
     for name, s in rows:
         fp = f"{s.false_positives}/{s.negatives}" if s.negatives else "-"
         lines.append(f"{name:<{name_width}}{s.images:>7}{s.correct:>8}{100 * s.accuracy:>9.1f}%{s.mean_time_ms:>8.1f} ms"
                      f"{fp:>10}   {_pair(s.rotation_deg, '°'):>17}{_pair(s.translation_pct, '%'):>21}"
+                     f"{_pair(s.position_m, ' cm', 100):>19}"
                      f"{_pair(s.corner_px, ' px'):>18}")
     width = max(len(label) for label in report.labels) + 2
     lines += ["", "confusion (rows: truth, columns: answer)",

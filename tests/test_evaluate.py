@@ -84,6 +84,28 @@ def fake_recognize(answers):
     return recognize
 
 
+def test_a_tilt_error_is_a_position_error_however_small_the_translation_error(monkeypatch, library):
+    """A pose tilted 10° about the camera's y axis with t exact is 0 % off in translation, yet its
+    camera stands 2·sin 5° times t across that axis from where it is: localisation reads the
+    position, which evaluate did not report."""
+    tilt = cv2.Rodrigues(np.array([0.0, np.radians(10), 0.0]))[0]
+    truth = {s.path.name: s for s in load_dataset(SET3).samples}
+
+    def tilted(image, library, settings, camera, cache=None):
+        sample = next(s for name, s in truth.items() if np.array_equal(image, cv2.imread(str(SET3 / name))))
+        pose = None if sample.R is None else SimpleNamespace(R=tilt @ sample.R, t=sample.t)
+        return SimpleNamespace(label=sample.label, pose=pose, corners=sample.corners, timing_ms={"total": 10.0})
+
+    monkeypatch.setattr(recognize_module, "recognize", tilted)
+    report = evaluate([load_dataset(SET3)], library, preset("default"), workers=1)
+    posed = [r for r in report.results if r.sample.R is not None]
+    assert posed and all(r.translation_error_pct == 0 for r in posed)
+    assert [r.position_error_m for r in posed] == pytest.approx(
+        [2 * np.linalg.norm(r.sample.t[[0, 2]]) * np.sin(np.radians(5)) for r in posed])
+    assert report.to_json()["total"]["position_error_m"]["median"] > 0.1
+    assert "position med/p90" in format_table(report)
+
+
 def test_counts_errors_and_confusion(monkeypatch, library):
     dataset = load_dataset(SET3)
     negative = next(s.path.name for s in dataset.samples if s.label is None)
@@ -100,6 +122,8 @@ def test_counts_errors_and_confusion(monkeypatch, library):
     assert s.mean_time_ms == 10.0
     assert s.rotation_deg == pytest.approx((0.0, 0.0), abs=1e-6)
     assert s.translation_pct[0] == pytest.approx(2.0)
+    assert [r.position_error_m for r in report.results if r.correct and r.sample.R is not None] == pytest.approx(
+        [0.02 * np.linalg.norm(r.sample.t) for r in report.results if r.correct and r.sample.R is not None])
     assert s.corner_px[0] == pytest.approx(5.0)
     labels = report.labels
     assert labels[-1] == "none" and report.confusion.sum() == 5
