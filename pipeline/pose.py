@@ -31,6 +31,17 @@ _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-
 _MIN_SPREAD_RATIO = 1e-6
 # JᵀJ with a condition number past this has no usable inverse: the pose is unconstrained along some axis.
 _MAX_COVARIANCE_CONDITION = 1e12
+# 1σ in px, in x and in y, of each sign corner from errors a fit's residuals cannot show because a
+# whole side or region shares them (an edge's bias under blur, a homography's bias from features
+# on the text), by how the corners were measured: the plaque's edges, feature inliers, dense
+# alignment (ECC) or the plaque's blob. Residuals alone gave 1σ of 0.3° to far signs 6-16° off.
+# Calibrated on the 640x480 and 1280x960 benchmark scenes and 50 renders 2-12 m away: the
+# smallest round values with at least 95 % of rotation errors within twice the reported σ.
+CORNER_SIGMA_PX = {"outline": 0.1, "features": 1.0, "dense": 2.0}
+# IPPE's other solution, refined, is told apart from the pose when it moves the corners by more than this many corner σ.
+AMBIGUITY_CORNER_SIGMAS = 3.0
+# Refined solutions closer than this (degrees) are one minimum: merged ones differed by under 0.01°, distinct ones by 5° or more.
+AMBIGUITY_MIN_DEG = 1.0
 
 
 class PoseError(ValueError):
@@ -47,10 +58,11 @@ class Pose:
     points are the feature inliers, or for a pose from the plaque's outline its edge points
     (distance across their side); after ECC alone they are a grid through the aligned
     homography, which the pose fits almost exactly.
-    `solution_errors`: (best, second) RMSE px of IPPE's two planar solutions, whichever method
-    produced the pose (None only for poses built elsewhere). `ambiguous`: the second solution
-    explains the points nearly as well as the best (see `estimate_pose`).
-    `covariance`: (6, 6) over [rotation vector (rad, 3), translation (m, 3)], or None.
+    `solution_errors`: (best, second) RMSE px of IPPE's two planar solutions, each refined by
+    Levenberg-Marquardt, whichever method produced the pose (None only for poses built elsewhere). `ambiguous`: the other solution is a
+    different pose the measurements cannot rule out (see `estimate_pose`).
+    `covariance`: (6, 6) over [rotation vector (rad, 3), translation (m, 3)], the fit's own plus
+    what `CORNER_SIGMA_PX` adds (`corner_covariance`), or None.
     """
 
     R: np.ndarray
@@ -226,15 +238,44 @@ def _rmse(residuals: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum(residuals**2, axis=1))))
 
 
+def _reprojection_rmse(R: np.ndarray, t: np.ndarray, obj: np.ndarray, measured_px: np.ndarray, camera: Camera) -> float:
+    """`_rmse` of (N, 3) sign points projected with (R, t) against their (N, 2) measured px."""
+    return _rmse(_project(R, t, obj, camera)[0] - measured_px)
+
+
 def _covariance(residuals: np.ndarray, jacobian: np.ndarray) -> np.ndarray | None:
     """(6, 6) covariance σ²(JᵀJ)⁻¹ with σ² = SSE / (2N - 6), from (N, 2) residuals px and the
     (2N, 6) Jacobian; None when there are no degrees of freedom left or JᵀJ is singular."""
     dof = residuals.size - 6
-    JtJ = jacobian.T @ jacobian
-    if dof <= 0 or np.linalg.cond(JtJ) > _MAX_COVARIANCE_CONDITION:
+    if dof <= 0:
         return None
-    sigma_sq = float(np.sum(residuals**2)) / dof
+    return _scaled_inverse(jacobian.T @ jacobian, float(np.sum(residuals**2)) / dof)
+
+
+def _scaled_inverse(JtJ: np.ndarray, sigma_sq: float) -> np.ndarray | None:
+    """σ²(JᵀJ)⁻¹, or None when JᵀJ (6, 6) is singular."""
+    if np.linalg.cond(JtJ) > _MAX_COVARIANCE_CONDITION:
+        return None
     return sigma_sq * np.linalg.inv(JtJ)
+
+
+def corner_covariance(R: np.ndarray, t: np.ndarray, sign: LibrarySign, camera: Camera,
+                      sigma_px: float) -> np.ndarray | None:
+    """(6, 6) covariance over [rotation vector (rad), translation (m)] of a pose (R, t) whose sign
+    corners are each off by `sigma_px` in x and in y independently: σ²(JᵀJ)⁻¹ with J the (8, 6)
+    Jacobian of the four projected corners. None when JᵀJ is singular."""
+    _, jacobian = _project(R, t, sign.to_metric(sign.corners_px), camera)
+    return _scaled_inverse(jacobian.T @ jacobian, sigma_px**2)
+
+
+def with_corner_floor(covariance: np.ndarray | None, R: np.ndarray, t: np.ndarray, sign: LibrarySign,
+                      camera: Camera, sigma_px: float) -> np.ndarray | None:
+    """A fit's `covariance` (6, 6) plus `corner_covariance`: the errors its residuals show and those
+    they cannot, which are independent. None stays None (nothing measured)."""
+    if covariance is None or sigma_px == 0:
+        return covariance
+    floor = corner_covariance(R, t, sign, camera, sigma_px)
+    return covariance if floor is None else covariance + floor
 
 
 def _in_front(R: np.ndarray, t: np.ndarray, obj: np.ndarray) -> bool:
@@ -246,6 +287,24 @@ def _comparable(best: float, second: float, ratio: float) -> bool:
     """best / second > ratio, with equal errors (both zero included) counting as comparable."""
     return best == second or best > ratio * second
 
+
+def _ambiguous(best: tuple[np.ndarray, np.ndarray], other: tuple[np.ndarray, np.ndarray], obj: np.ndarray,
+               solution_errors: tuple[float, float], ratio: float, sign: LibrarySign, camera: Camera,
+               corner_sigma_px: float) -> bool:
+    """Whether `other`, IPPE's second planar solution refined, is a second pose the measurements
+    cannot rule out: it puts the (N, 3) sign points `obj` in front of the camera too; it is another
+    minimum, at least AMBIGUITY_MIN_DEG from `best` (near frontal views both solutions refine to
+    one); and it explains the points nearly as well (`_comparable` solution errors) or moves the
+    sign's corners by less than AMBIGUITY_CORNER_SIGMAS × `corner_sigma_px` (RMS), so that errors a
+    side shares could be the whole difference (small far signs, whose points' residuals tell the
+    two apart by hundredths of a pixel)."""
+    if not (_in_front(*best, obj) and _in_front(*other, obj)):
+        return False
+    if rotation_error_deg(best[0], other[0]) < AMBIGUITY_MIN_DEG:
+        return False
+    corners = sign.to_metric(sign.corners_px)
+    moved = _rmse(_project(*best, corners, camera)[0] - _project(*other, corners, camera)[0])
+    return _comparable(*solution_errors, ratio) or moved < AMBIGUITY_CORNER_SIGMAS * corner_sigma_px
 
 def _check_spread(obj: np.ndarray) -> None:
     """Raise PoseError unless the (N, 3) z = 0 sign points span the plane (not all on one line)."""
@@ -348,20 +407,23 @@ def _correspondences(H: np.ndarray, src_px: np.ndarray, dst_px: np.ndarray,
 
 
 def estimate_pose(H: np.ndarray, src_px: np.ndarray, dst_px: np.ndarray, sign: LibrarySign, camera: Camera,
-                  method: str = "ippe_lm", ambiguity_ratio: float = 0.8) -> Pose:
+                  method: str = "ippe_lm", ambiguity_ratio: float = 0.8,
+                  corner_sigma_px: float = 0.0) -> Pose:
     """Camera pose relative to `sign` from its homography and inlier matches.
 
     H (3, 3): library px -> image px. src_px (N, 2): library px of the inliers; dst_px (N, 2):
     their measured (distorted) image px. With fewer than 4 inliers the sign's corners mapped
     through H stand in for them, and the covariance is None.
 
-    method: "paper" decomposes H (`pose_from_homography`); "ippe" takes the better of IPPE's two
-    planar solutions; "ippe_lm" refines that by Levenberg-Marquardt. IPPE's two solutions are
-    computed for every method: the pose is `ambiguous` when both put the sign in front of the
-    camera and best / second RMSE > `ambiguity_ratio` (or the two are equal), i.e. the flipped
-    pose explains the points nearly as well (typical for small, near-frontal signs).
-    The covariance linearises the reprojection at the returned pose (see `_covariance`); for
-    "paper", whose pose does not minimise reprojection error, it is an approximation.
+    method: "paper" decomposes H (`pose_from_homography`); "ippe" takes the one of IPPE's two
+    planar solutions that refines the better; "ippe_lm" takes it refined by Levenberg-Marquardt.
+    Both solutions are refined for every method: the pose is `ambiguous` when the other refined
+    one is a different pose the points cannot rule out (`_ambiguous`: best / second RMSE >
+    `ambiguity_ratio`, or corners within the noise; typical for small, near-frontal signs).
+    The covariance linearises the reprojection at the returned pose (see `_covariance`) and adds
+    errors of `corner_sigma_px` at the corners, which the residuals cannot show (`with_corner_floor`;
+    0: the fit's own alone; `recognize` passes CORNER_SIGMA_PX by how the points were measured);
+    for "paper", whose pose does not minimise reprojection error, it is an approximation.
 
     Raises PoseError when the points or H admit no pose.
     """
@@ -372,24 +434,28 @@ def estimate_pose(H: np.ndarray, src_px: np.ndarray, dst_px: np.ndarray, sign: L
     ideal_px = undistort_pixels(dst_px, camera)
 
     _check_spread(obj)
+    # Each solution refined to its own minimum: near frontal views IPPE's two lie a few degrees
+    # either side of the one minimum both refine to, fitting equally badly (0.8 px on an exact grid).
     solutions = _ippe_solutions(obj, ideal_px, camera.K)
-    errors = [_rmse(_project(R_s, t_s, obj, camera)[0] - dst_px) for R_s, t_s in solutions]
+    refined = [_refine_lm(R_s, t_s, obj, dst_px, camera) for R_s, t_s in solutions]
+    errors = [_reprojection_rmse(R_s, t_s, obj, dst_px, camera) for R_s, t_s in refined]
     order = np.argsort(errors)
-    best = solutions[order[0]]
+    best, other = refined[order[0]], refined[order[1]]
     solution_errors = (errors[order[0]], errors[order[1]])
-    ambiguous = _comparable(*solution_errors, ambiguity_ratio) and all(_in_front(*s, obj) for s in solutions)
 
     if method == "paper":
         R, t = _paper_pose(H, src_px, ideal_px, sign, camera)
     elif method == "ippe":
-        R, t = best
+        R, t = min(solutions, key=lambda s: _reprojection_rmse(*s, obj, dst_px, camera))
     else:
-        R, t = _refine_lm(*best, obj, dst_px, camera)
+        R, t = best
 
     projected, jacobian = _project(R, t, obj, camera)
     residuals = projected - dst_px
     return Pose(
-        R=R, t=t, method=method, reprojection_rmse_px=_rmse(residuals), ambiguous=bool(ambiguous),
+        R=R, t=t, method=method, reprojection_rmse_px=_rmse(residuals),
+        ambiguous=_ambiguous(best, other, obj, solution_errors, ambiguity_ratio, sign, camera, corner_sigma_px),
         solution_errors=solution_errors,
-        covariance=_covariance(residuals, jacobian) if measured else None,
+        covariance=with_corner_floor(_covariance(residuals, jacobian) if measured else None, R, t, sign, camera,
+                                     corner_sigma_px),
     )

@@ -25,7 +25,7 @@ from .outline import Outline, outline_fit, refine_outline
 from .plaque import (PlaqueMatch, grid_correspondences, match_plaque, project, refine_ecc, seen_grid, sign_corners,
                      sign_to_quad)
 from .plaque_search import MIN_NCC, SAME_PLAQUE_IOU, QuadCandidate, confirm_plaque, ranked_quads, search_plaques
-from .pose import Pose, PoseError, distort_pixels, estimate_pose
+from .pose import CORNER_SIGMA_PX, Pose, PoseError, distort_pixels, estimate_pose, with_corner_floor
 from .segment import Box, Segmentation, box_iou, expand_box, segment
 from .settings import Settings
 
@@ -538,12 +538,16 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
 
         (H, src, dst, ecc, outline), notes = cached(cache, refine_key, refine, "pose", reused)
         warnings += notes
+        measured_by = ("outline" if outline is not None else
+                       "features" if ecc is None and chosen is not None and chosen.winner is not None else "dense")
+        corner_sigma = CORNER_SIGMA_PX[measured_by]
         try:
-            pose = estimate_pose(H, src, dst, sign, camera, settings.pose_method, settings.ambiguity_ratio)
+            pose = estimate_pose(H, src, dst, sign, camera, settings.pose_method, settings.ambiguity_ratio, corner_sigma)
             if outline is not None:
                 # the grid fitted is exact by construction: the fit and the noise show in the edge points
                 rmse, covariance = outline_fit(pose.R, pose.t, outline, sign, camera)
-                pose = dataclasses.replace(pose, reprojection_rmse_px=rmse, covariance=covariance)
+                pose = dataclasses.replace(pose, reprojection_rmse_px=rmse, covariance=with_corner_floor(
+                    covariance, pose.R, pose.t, sign, camera, corner_sigma))
         except PoseError as exc:
             warnings.append(f"no pose: {exc}")
         timing["pose"] = (time.perf_counter() - t0) * 1e3

@@ -25,6 +25,14 @@ def wall(seed: int) -> np.ndarray:
     return (rng.random((SIZE[1], SIZE[0])) * 50 + 60).astype(np.uint8)
 
 
+def shaded_wall(seed: int) -> np.ndarray:
+    """(h, w) float32 wall lit unevenly: its gray drifts by about 25 levels over 50 px, so each side
+    of a plaque meets another contrast and blur shifts its edge by another fraction of a pixel."""
+    rng = np.random.default_rng(seed)
+    drift = cv2.GaussianBlur(rng.normal(0, 200, (SIZE[1], SIZE[0])).astype(np.float32), (0, 0), 15)
+    return np.clip(110 + drift, 40, 180)
+
+
 def sign_on_wall(sign, corners: np.ndarray, wall_seed: int, gain: float = 1.0) -> np.ndarray:
     """(h, w) uint8 `wall(wall_seed)` with `sign`'s image, times `gain`, warped onto `corners`
     (4 x 2 image points of its top-left, top-right, bottom-right, bottom-left)."""
