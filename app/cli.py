@@ -366,7 +366,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "calibrated in the page) is kept as camera.replaced-<UTC time>.json in the state directory "
                         "(default: the state's camera, else per image its EXIF focal length or the assumed field "
                         f"of view, {ASSUMED_HFOV_DEG:g}° unless set in the page)")
-    p.add_argument("--settings", type=file_path, help="settings JSON to start from (default: the state's settings)")
+    p.add_argument("--settings", type=file_path,
+                   help="settings JSON to start from (full or partial, over the defaults); they become the state's "
+                        "settings, and settings the state held that differ (e.g. tuned in the page) are kept as "
+                        "settings.replaced-<UTC time>.json in the state directory (default: the state's settings)")
     p.add_argument("--state-dir", default=str(WorkspaceConfig.state_dir),
                    help="where settings, library, camera and images survive restarts (default ./%(default)s)")
     p.add_argument("--max-images", type=positive_int, default=WorkspaceConfig.max_images,

@@ -3,6 +3,8 @@
 Layout (every file name is chosen by the server, never by a client)::
 
     settings.json           the current settings; a plain settings file (`--settings` reads it)
+    settings.replaced-<UTC time>.json
+                            settings `--settings` replaced, as they were in settings.json (`--settings` reads it)
     camera.json             {fx, fy, cx, cy, dist, width, height, source}; absent: EXIF or assumed per image
     camera.replaced-<UTC time>.json
                             a camera `--camera` replaced, as it was in camera.json (`--camera` reads it)
@@ -23,19 +25,21 @@ from __future__ import annotations
 
 import contextlib
 import json
+import operator
 import os
 import shutil
 import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, TypeVar
 
 from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, camera_from_json, check_hfov
 from pipeline.library import Library, LibraryError, load_library
 from pipeline.settings import Settings, SettingsError, load_settings
 
 TMP_SUFFIX = ".tmp"
+T = TypeVar("T")
 
 
 class StateError(ValueError):
@@ -138,6 +142,12 @@ class StateDir:
     def save_settings(self, settings: Settings) -> None:
         atomic_write_json(self.settings_path, settings.to_dict())
 
+    def replace_settings(self, settings: Settings) -> Path | None:
+        """Save `settings` as the state's. Different settings held before (e.g. tuned in the page) are
+        not lost: they are moved to a new `settings.replaced-<UTC time>.json`, which is returned (None:
+        nothing was moved)."""
+        return self._replace(self.settings_path, self.load_settings(), settings, operator.eq, self.save_settings)
+
     def load_camera(self) -> Camera | None:
         if not self.camera_path.exists():
             return None
@@ -156,14 +166,20 @@ class StateDir:
     def replace_camera(self, camera: Camera) -> Path | None:
         """Save `camera` as the state's camera. A different camera held before is not lost: it is
         moved to a new `camera.replaced-<UTC time>.json`, which is returned (None: nothing was moved)."""
-        stored = self.load_camera()
+        return self._replace(self.camera_path, self.load_camera(), camera, same_intrinsics, self.save_camera)
+
+    def _replace(self, path: Path, held: T | None, new: T, same: Callable[[T, T], bool],
+                 save: Callable[[T], None]) -> Path | None:
+        """`save(new)` over `path`, which held `held` (None: nothing). When `held` differs from `new` (not
+        `same`), its file is first moved, as it is, to a new `<stem>.replaced-<UTC time><suffix>` beside it
+        (which the option that gave `new` reads back); that path is returned, None when nothing was moved."""
         backup = None
-        if stored is not None and not same_intrinsics(stored, camera):
+        if held is not None and not same(held, new):
             stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
-            backup = unused_path(self.root, f"camera.replaced-{stamp}", ".json")
-            os.replace(self.camera_path, backup)
-            _fsync_dir(self.root)
-        self.save_camera(camera)
+            backup = unused_path(path.parent, f"{path.stem}.replaced-{stamp}", path.suffix)
+            os.replace(path, backup)
+            _fsync_dir(path.parent)
+        save(new)
         return backup
 
     def load_assumed_hfov(self) -> float:

@@ -317,6 +317,14 @@ def sample_scenes(folder: Path = SAMPLE_SCENES) -> list[tuple[Path, str | None]]
             for path in sorted(folder.glob("*.jpg"))]
 
 
+def say_kept(option: str, file: Path, held: str, them: str, kept: Path | None) -> None:
+    """The one log line saying that `option file` replaced what the state held (`held`: "camera, which
+    is"), where that is `kept` and how to use `them` again; nothing when `kept` is None (nothing moved)."""
+    if kept is not None:
+        log.warning(f"%s %s replaced the state's {held} kept in %s: to use {them} again, start with %s %s",
+                    option, file, kept, option, kept)
+
+
 class Workspace:
     """Server state shared by the HTTP API and the viser scene (the interface is in docs/web-contract.md).
 
@@ -349,18 +357,17 @@ class Workspace:
         self._trim_timer: threading.Timer | None = None
 
         library = self.state.open_library(config.library_dir, SAMPLE_LIBRARY)
-        settings = self.state.load_settings() or PRESETS["default"]
-        if config.settings_file is not None:
+        if config.settings_file is None:
+            settings = self.state.load_settings() or PRESETS["default"]
+        else:  # e.g. settings tuned in the page since the last start are kept, not lost
             settings = load_settings(config.settings_file)
-            self.state.save_settings(settings)
+            say_kept("--settings", config.settings_file, "settings, which are", "them",
+                     self.state.replace_settings(settings))
         if config.camera_file is None:
             camera = self.state.load_camera()
-        else:
+        else:  # e.g. a calibration applied in the page since the last start is kept, not lost
             camera = load_camera(config.camera_file)
-            kept = self.state.replace_camera(camera)
-            if kept is not None:  # e.g. a calibration applied in the page since the last start
-                log.warning("--camera %s replaced the state's camera, which is kept in %s: to use that one again, "
-                            "start with --camera %s", config.camera_file, kept, kept)
+            say_kept("--camera", config.camera_file, "camera, which is", "that one", self.state.replace_camera(camera))
         self._snap = Snapshot(1, 1, settings, library, camera, self.state.load_assumed_hfov())
         self._history: dict[int, Settings] = {1: settings}  # settings_version -> settings, oldest first
 

@@ -774,34 +774,42 @@ def test_serve_command_prints_its_url_stops_on_ctrl_c_and_refuses_a_taken_port(t
     assert proc.returncode == 0 and "Traceback" not in stderr
 
 
-def serve_camera(state_dir: Path, camera_file: Path, put: dict | None = None) -> tuple[dict, str]:
-    """Start `signpose serve --camera camera_file`, PUT `put` to /api/camera if given, stop it; the
-    camera it started with and its stderr."""
-    proc, url = start_serve(state_dir, "--camera", str(camera_file))
+def serve_with(state_dir: Path, what: str, file: Path, put: dict | None = None) -> tuple[dict, str]:
+    """Start `signpose serve --<what> file` (`what`: camera or settings), PUT `put` to /api/<what> if
+    given, stop it; the <what> it started with and its stderr."""
+    proc, url = start_serve(state_dir, f"--{what}", str(file))
     try:
-        camera = httpx.get(url + "api/camera", timeout=TIMEOUT_S).json()["camera"]
+        started = httpx.get(url + f"api/{what}", timeout=TIMEOUT_S).json()[what]
         if put is not None:
-            httpx.put(url + "api/camera", json=put, timeout=TIMEOUT_S).raise_for_status()
+            httpx.put(url + f"api/{what}", json=put, timeout=TIMEOUT_S).raise_for_status()
     finally:
         _, stderr = stop_serve(proc)
-    return camera, stderr
+    return started, stderr
 
 
-def test_serve_camera_keeps_the_different_camera_the_state_held_and_says_where(tmp_path):
-    """`serve --camera FILE` used to overwrite, silently, a camera applied in the page since the last start."""
-    state, camera_file = tmp_path / "state", tmp_path / "camera.yaml"
-    camera_file.write_bytes(CAMERA_YAML)
-    calibrated = {"fx": 900, "fy": 900, "cx": 640, "cy": 480, "width": 1280, "height": 960}
-    first, stderr = serve_camera(state, camera_file, put=calibrated)
-    assert "replaced" not in stderr  # a fresh state held no camera
-    again, stderr = serve_camera(state, camera_file)
-    assert again == first  # --camera still wins...
-    (kept,) = state.glob("camera.replaced-*.json")  # ...but the calibration is kept
-    assert json.loads(kept.read_text())["fx"] == 900
+@pytest.mark.parametrize("what, file_name, data, put, kept_as", [
+    ("camera", "camera.yaml", CAMERA_YAML, {"fx": 900, "fy": 900, "cx": 640, "cy": 480, "width": 1280, "height": 960},
+     "camera, which is kept in {kept}: to use that one"),  # e.g. a calibration applied in the page
+    ("settings", "settings.json", b'{"ratio": 0.7}', {"threshold": 0.6, "min_inliers": 12},
+     "settings, which are kept in {kept}: to use them"),  # e.g. sliders moved or a preset chosen in the page
+])
+def test_serve_camera_or_settings_keeps_what_the_state_held_that_differs_and_says_where(tmp_path, what, file_name,
+                                                                                        data, put, kept_as):
+    """`serve --camera FILE` and `serve --settings FILE` used to overwrite, silently, a camera or settings set
+    in the page since the last start."""
+    state, file = tmp_path / "state", tmp_path / file_name
+    file.write_bytes(data)
+    first, stderr = serve_with(state, what, file, put=put)
+    assert "replaced" not in stderr  # a fresh state held none
+    again, stderr = serve_with(state, what, file)
+    assert again == first  # the file still wins...
+    (kept,) = state.glob(f"{what}.replaced-*.json")  # ...but what was set in the page is kept
+    assert put.items() <= json.loads(kept.read_text()).items()
     (line,) = [line for line in stderr.splitlines() if "replaced" in line]
-    assert line == (f"--camera {camera_file} replaced the state's camera, which is kept in {kept}: to use that one "
-                    f"again, start with --camera {kept}")
-    _, stderr = serve_camera(state, camera_file)  # the same camera again: nothing to keep or say
-    assert "replaced" not in stderr and list(state.glob("camera.replaced-*.json")) == [kept]
-    restored, _ = serve_camera(state, kept)  # as the line says
-    assert (restored["fx"], restored["width"]) == (900, 1280) and len(list(state.glob("camera.replaced-*"))) == 2
+    assert line == (f"--{what} {file} replaced the state's {kept_as.format(kept=kept)} again, start with "
+                    f"--{what} {kept}")
+    # The same values again, though the state's file is not written as `file` is: nothing to keep or say.
+    _, stderr = serve_with(state, what, file)
+    assert "replaced" not in stderr and list(state.glob(f"{what}.replaced-*.json")) == [kept]
+    restored, _ = serve_with(state, what, kept)  # as the line says
+    assert put.items() <= restored.items() and len(list(state.glob(f"{what}.replaced-*"))) == 2
