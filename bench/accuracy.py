@@ -35,8 +35,8 @@ def _fraction(results: list[ImageResult], hit: Callable[[ImageResult], bool]) ->
     return f"{100 * n / len(results):5.1f}% ({n}/{len(results)})"
 
 
-def _pair(value: tuple[float, float] | None, digits: int = 2) -> str:
-    return "-" if value is None else f"{value[0]:.{digits}f} / {value[1]:.{digits}f}"
+def _pair(value: tuple[float, float] | None, digits: int = 2, scale: float = 1.0) -> str:
+    return "-" if value is None else f"{scale * value[0]:.{digits}f} / {scale * value[1]:.{digits}f}"
 
 
 def rows(report: Report, both_right: set[str]) -> list[tuple[str, str]]:
@@ -59,6 +59,7 @@ def rows(report: Report, both_right: set[str]) -> list[tuple[str, str]]:
         ("positives: wrong sign", _fraction(positives, lambda r: r.predicted not in (None, r.sample.label))),
         ("rotation error med / p90 (deg)", _pair(summary.rotation_deg)),
         ("translation error med / p90 (% dist)", _pair(summary.translation_pct)),
+        ("camera position error med / p90 (cm)", _pair(summary.position_m, scale=100)),
         ("corner error med / p90 (px)", _pair(summary.corner_px)),
         ("  same, images both got right: rot (deg)", _pair(common.rotation_deg)),
         ("  same, images both got right: corner (px)", _pair(common.corner_px)),
