@@ -552,7 +552,8 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
             warnings.append(f"no pose: {exc}")
         timing["pose"] = (time.perf_counter() - t0) * 1e3
         if pose is not None and pose.ambiguous:
-            warnings.append("pose is ambiguous: the two planar solutions fit almost equally well")
+            warnings.append("pose is ambiguous: a second pose, the planar solution flipped, fits the measurements "
+                            "nearly as well (a small, far or near-frontal sign)")
     if pose is not None and approximate is not None:
         # Last, after what the run found: where the server's clients have always read it.
         warnings.append(approximate)
