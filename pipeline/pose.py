@@ -33,8 +33,8 @@ _MIN_SPREAD_RATIO = 1e-6
 _MAX_COVARIANCE_CONDITION = 1e12
 # 1σ in px, in x and in y, of each sign corner from errors a fit's residuals cannot show because a
 # whole side or region shares them (an edge's bias under blur, a homography's bias from features
-# on the text), by how the corners were measured: the plaque's edges, feature inliers, dense
-# alignment (ECC) or the plaque's blob. Residuals alone gave 1σ of 0.3° to far signs 6-16° off.
+# on the text), by how the corners were measured: the plaque's edges, feature inliers, or dense
+# alignment (ECC; the plaque's blob too, when ECC failed). Residuals alone gave 1σ of 0.3° to far signs 6-16° off.
 # Rotation errors within twice the σ reported with these, on the 640x480 and 1280x960 benchmark
 # scenes, the sample datasets and 50 renders 2-12 m away: edges 98 % of 374 poses (0.05 px: 94 %),
 # features 94 % of 123 (the paper preset), ECC 9 of 10.
@@ -60,8 +60,9 @@ class Pose:
     (distance across their side); after ECC alone they are a grid through the aligned
     homography, which the pose fits almost exactly.
     `solution_errors`: (best, second) RMSE px of IPPE's two planar solutions, each refined by
-    Levenberg-Marquardt, whichever method produced the pose (None only for poses built elsewhere). `ambiguous`: the other solution is a
-    different pose the measurements cannot rule out (see `estimate_pose`).
+    Levenberg-Marquardt, whichever method produced the pose (None only for poses built
+    elsewhere). `ambiguous`: the other solution is a different pose the measurements cannot rule
+    out (see `estimate_pose`).
     `covariance`: (6, 6) over [rotation vector (rad, 3), translation (m, 3)], the fit's own plus
     what `CORNER_SIGMA_PX` adds (`corner_covariance`), or None.
     """
@@ -307,6 +308,7 @@ def _ambiguous(best: tuple[np.ndarray, np.ndarray], other: tuple[np.ndarray, np.
     moved = _rmse(_project(*best, corners, camera)[0] - _project(*other, corners, camera)[0])
     return _comparable(*solution_errors, ratio) or moved < AMBIGUITY_CORNER_SIGMAS * corner_sigma_px
 
+
 def _check_spread(obj: np.ndarray) -> None:
     """Raise PoseError unless the (N, 3) z = 0 sign points span the plane (not all on one line)."""
     spread = np.linalg.svd(obj[:, :2] - obj[:, :2].mean(axis=0), compute_uv=False)
@@ -416,9 +418,9 @@ def estimate_pose(H: np.ndarray, src_px: np.ndarray, dst_px: np.ndarray, sign: L
     their measured (distorted) image px. With fewer than 4 inliers the sign's corners mapped
     through H stand in for them, and the covariance is None.
 
-    method: "paper" decomposes H (`pose_from_homography`); "ippe" takes the one of IPPE's two
-    planar solutions that refines the better; "ippe_lm" takes it refined by Levenberg-Marquardt.
-    Both solutions are refined for every method: the pose is `ambiguous` when the other refined
+    method: "paper" decomposes H (`pose_from_homography`); "ippe" takes the better of IPPE's two
+    planar solutions as they are; "ippe_lm" refines both by Levenberg-Marquardt and takes the
+    better refined one. Both are refined for every method: the pose is `ambiguous` when the other refined
     one is a different pose the points cannot rule out (`_ambiguous`: best / second RMSE >
     `ambiguity_ratio`, or corners within the noise; typical for small, near-frontal signs).
     The covariance linearises the reprojection at the returned pose (see `_covariance`) and adds
