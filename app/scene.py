@@ -32,6 +32,7 @@ import viser.transforms as tf
 
 from app.workspace import Event, ImageRecord, Outcome, Workspace, is_correct, status_of
 from pipeline.library import Library, LibrarySign
+from pipeline.pose import camera_position
 from pipeline.recognize import Recognition
 from pipeline.settings import Settings, SettingsError, settings_schema
 
@@ -68,9 +69,7 @@ OVERVIEW_MARGIN = 1.4
 
 def camera_pose_in_sign(R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Camera position (3,) in metres and orientation (4,) wxyz, both in the sign frame, from X_cam = R·X + t."""
-    R = np.asarray(R, dtype=np.float64)
-    position = -R.T @ np.asarray(t, dtype=np.float64).reshape(3)
-    return position, tf.SO3.from_matrix(R.T).wxyz
+    return camera_position(R, t), tf.SO3.from_matrix(np.asarray(R, dtype=np.float64).T).wxyz
 
 
 def overview_camera(points: np.ndarray, fov_rad: float, aspect: float = 1.0) -> tuple[np.ndarray, np.ndarray]:

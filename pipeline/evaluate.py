@@ -40,7 +40,7 @@ from .features import library_features
 from .image import ImageError, decode_image, read_file
 from .jsonfile import read_json
 from .library import NO_SIGN, Library
-from .pose import rotation_error_deg
+from .pose import camera_position, rotation_error_deg
 from .recognize import PipelineError, run_pipeline
 from .settings import Settings
 
@@ -301,7 +301,8 @@ def _measure(job: Job, library: Library, settings: Settings, check_image: ImageC
     if rec.pose is not None and sample.R is not None and sample.t is not None:
         result.rotation_error_deg = rotation_error_deg(sample.R, rec.pose.R)
         result.translation_error_pct = float(100 * np.linalg.norm(rec.pose.t - sample.t) / np.linalg.norm(sample.t))
-        result.position_error_m = float(np.linalg.norm(rec.pose.R.T @ rec.pose.t - sample.R.T @ sample.t))
+        result.position_error_m = float(np.linalg.norm(camera_position(rec.pose.R, rec.pose.t)
+                                                       - camera_position(sample.R, sample.t)))
     if rec.corners is not None and sample.corners is not None:
         result.corner_error_px = float(np.linalg.norm(rec.corners - sample.corners, axis=1).mean())
     return result

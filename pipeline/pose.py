@@ -77,8 +77,8 @@ class Pose:
 
     @property
     def camera_position(self) -> np.ndarray:
-        """(3,) camera centre in the sign frame, metres: -Rᵀt."""
-        return -self.R.T @ self.t
+        """(3,) camera centre in the sign frame, metres (`camera_position`)."""
+        return camera_position(self.R, self.t)
 
     @property
     def quaternion_wxyz(self) -> np.ndarray:
@@ -111,6 +111,11 @@ def _json_numbers(x):
         value = float(x)
         return value if math.isfinite(value) else None
     return [_json_numbers(v) for v in x]
+
+
+def camera_position(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(3,) m: the centre of the camera of pose (R (3, 3), t (3,) m), X_cam = R·X_sign + t, in the sign frame: -Rᵀt."""
+    return -np.asarray(R, dtype=np.float64).T @ np.asarray(t, dtype=np.float64).reshape(3)
 
 
 def rotation_error_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
