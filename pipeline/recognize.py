@@ -152,7 +152,7 @@ class Recognition:
     def best(self) -> SignScore | None:
         """The winning sign's feature score, when features decided."""
         a = self.attempt
-        return a.scores[a.winner] if a is not None and a.winner is not None else None
+        return None if no_feature_winner(a) else a.scores[a.winner]
 
     @property
     def by_plaque(self) -> bool:
@@ -508,7 +508,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         chosen = max(attempts, key=lambda a: a.best_inliers)
 
     plaque = None
-    if (chosen is None or chosen.winner is None) and settings.plaque_fallback and segmentation is not None:
+    if no_feature_winner(chosen) and settings.plaque_fallback and segmentation is not None:
         t0, quads_ms = time.perf_counter(), timing["segment"]
         plaque_key = ("plaque", *seg_key, settings.plaque_search, settings.min_plaque_ncc, settings.plaque_margin,
                       settings.min_plaque_ecc, settings.plaque_ecc_margin)
@@ -539,7 +539,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         (H, src, dst, ecc, outline), notes = cached(cache, refine_key, refine, "pose", reused)
         warnings += notes
         measured_by = ("outline" if outline is not None else
-                       "features" if ecc is None and chosen is not None and chosen.winner is not None else "dense")
+                       "features" if ecc is None and not no_feature_winner(chosen) else "dense")
         corner_sigma = CORNER_SIGMA_PX[measured_by]
         try:
             pose = estimate_pose(H, src, dst, sign, camera, settings.pose_method, settings.ambiguity_ratio, corner_sigma)
@@ -613,6 +613,12 @@ def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.nd
     return H, src, dst, ecc, None
 
 
+def no_feature_winner(attempt: Attempt | None) -> bool:
+    """Whether features named no sign in `attempt`, the region their answer came from (None: no
+    region searched), so that any sign is the plaque fallback's."""
+    return attempt is None or attempt.winner is None
+
+
 def wants_dense_refinement(refine: str, attempt: Attempt | None) -> bool:
     """Whether to refine the winner's H by ECC under the `refine` setting.
 
@@ -620,8 +626,7 @@ def wants_dense_refinement(refine: str, attempt: Attempt | None) -> bool:
     many inliers IPPE on the points is the better pose; with few, dense alignment is (measured
     on synthetic scenes), hence "auto".
     """
-    from_plaque = attempt is None or attempt.winner is None
-    if refine == "ecc" or from_plaque:
+    if refine == "ecc" or no_feature_winner(attempt):
         return True
     return refine == "auto" and attempt.scores[attempt.winner].n_inliers < AUTO_ECC_MAX_INLIERS
 
@@ -647,7 +652,7 @@ def winner_homography(attempt: Attempt | None, plaque: PlaqueMatch | None, libra
 
     For the plaque fallback, a grid over the sign mapped through the outline's H stands in for matches.
     """
-    if attempt is not None and attempt.winner is not None:
+    if not no_feature_winner(attempt):
         best = attempt.scores[attempt.winner]
         inl = best.estimate.inliers
         return best.H, best.src[inl], best.dst[inl], library[best.sign]
