@@ -428,7 +428,9 @@ class SceneHandle:
         camera = client.camera
         with self._lock:
             view = self._overview(camera.fov, min(camera.aspect, 1.0))
-            if view is None:
+            framed = self._framed.get(client.client_id)
+            # Every redraw comes here for the viewers left where they were framed: send changes only.
+            if view is None or framed is not None and all(np.allclose(a, b) for a, b in zip(view, framed)):
                 return
             self._framed[client.client_id] = view
         with client.atomic():

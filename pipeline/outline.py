@@ -56,10 +56,6 @@ SMOOTH_SIGMA = 0.7  # Gaussian smoothing of the image before reading profiles (p
 SMOOTH_MARGIN_PX = 4  # beyond the kernel's radius for SMOOTH_SIGMA (3 px)
 # Length along a side over which profiles share noise (tangent offsets plus smoothing), px.
 CORRELATION_PX = 4.0
-# A start H from features is good to about a pixel of the 128-160 px crops SIFT reads, so on a
-# sign much wider than that (a 12 MP photo) its corners can be further off than SEARCH_PX: such
-# a sign is outlined in the image shrunk (`pipeline.plaque.shrunk_view`), where the search
-# reaches as far across it as on a 640 x 480 frame.
 
 
 @dataclass(frozen=True, eq=False)
@@ -257,6 +253,9 @@ def refine_outline(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, seed: int
     (outline, None), or (None, why) when some side shows no consistent straight edge near where
     H puts it; the caller then keeps H.
     """
+    # A start H from features is good to about a pixel of the 128-160 px crops SIFT reads, so on a
+    # sign much wider than that (a 12 MP photo) its corners can be further off than SEARCH_PX; shrunk,
+    # the search reaches as far across it as on a 640 x 480 frame.
     width = quad_width(sign_corners(sign, H))
     if width > MAX_DIRECT_WIDTH_PX:
         return _outline_shrunk(gray, sign, H, seed, camera, SHRUNK_WIDTH_PX / width)

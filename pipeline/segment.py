@@ -41,8 +41,9 @@ class Segmentation:
     largest first; crops: one `Box` per blob, with margin, clipped to the image.
 
     A server keeps one per image held, so it keeps one byte a pixel besides `source`: the mask is
-    derived on use (the normalised gray from `normalize_gray` or `normalize_levels`), and the labels of the components that are not
-    candidates, which nothing reads, are not kept (as int32 they were four bytes a pixel).
+    derived on use (the normalised gray from `normalize_gray` or `normalize_levels`), and the
+    labels of the components that are not candidates, which nothing reads, are not kept (as
+    int32 they were four bytes a pixel).
     """
 
     source: np.ndarray = field(repr=False)
