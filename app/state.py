@@ -4,7 +4,8 @@ Layout (every file name is chosen by the server, never by a client)::
 
     settings.json           the current settings; a plain settings file (`--settings` reads it)
     settings.replaced-<UTC time>.json
-                            settings `--settings` replaced, as they were in settings.json (`--settings` reads it)
+                            settings `--settings` replaced, as they were in settings.json (`--settings` reads it,
+                            unless settings.json was damaged: then it is kept as it was, to mend by hand)
     camera.json             {fx, fy, cx, cy, dist, width, height, source}; absent: EXIF or assumed per image
     camera.replaced-<UTC time>.json
                             a camera `--camera` replaced, as it was in camera.json (`--camera` reads it)
@@ -99,6 +100,15 @@ def same_intrinsics(a: Camera, b: Camera) -> bool:
 
 
 @dataclass(frozen=True)
+class Replaced:
+    """A state file that a start option replaced: where it is `kept` now, and whether it was `damaged`
+    (unreadable) rather than a usable one that differed."""
+
+    kept: Path
+    damaged: bool
+
+
+@dataclass(frozen=True)
 class StoredImage:
     """One entry of `images/index.json`; `file` is a server-chosen name inside `images/`."""
 
@@ -142,11 +152,10 @@ class StateDir:
     def save_settings(self, settings: Settings) -> None:
         atomic_write_json(self.settings_path, settings.to_dict())
 
-    def replace_settings(self, settings: Settings) -> Path | None:
+    def replace_settings(self, settings: Settings) -> Replaced | None:
         """Save `settings` as the state's. Different settings held before (e.g. tuned in the page) are
-        not lost: they are moved to a new `settings.replaced-<UTC time>.json`, which is returned (None:
-        nothing was moved)."""
-        return self._replace(self.settings_path, self.load_settings(), settings, operator.eq, self.save_settings)
+        not lost: they are moved to a new `settings.replaced-<UTC time>.json` (None: nothing was moved)."""
+        return self._replace(self.settings_path, self.load_settings, settings, operator.eq, self.save_settings)
 
     def load_camera(self) -> Camera | None:
         if not self.camera_path.exists():
@@ -163,24 +172,30 @@ class StateDir:
         else:
             atomic_write_json(self.camera_path, camera.to_json())
 
-    def replace_camera(self, camera: Camera) -> Path | None:
+    def replace_camera(self, camera: Camera) -> Replaced | None:
         """Save `camera` as the state's camera. A different camera held before is not lost: it is
-        moved to a new `camera.replaced-<UTC time>.json`, which is returned (None: nothing was moved)."""
-        return self._replace(self.camera_path, self.load_camera(), camera, same_intrinsics, self.save_camera)
+        moved to a new `camera.replaced-<UTC time>.json` (None: nothing was moved)."""
+        return self._replace(self.camera_path, self.load_camera, camera, same_intrinsics, self.save_camera)
 
-    def _replace(self, path: Path, held: T | None, new: T, same: Callable[[T, T], bool],
-                 save: Callable[[T], None]) -> Path | None:
-        """`save(new)` over `path`, which held `held` (None: nothing). When `held` differs from `new` (not
-        `same`), its file is first moved, as it is, to a new `<stem>.replaced-<UTC time><suffix>` beside it
-        (which the option that gave `new` reads back); that path is returned, None when nothing was moved."""
-        backup = None
-        if held is not None and not same(held, new):
+    def _replace(self, path: Path, load: Callable[[], T | None], new: T, same: Callable[[T, T], bool],
+                 save: Callable[[T], None]) -> Replaced | None:
+        """`save(new)` over `path`, whose content `load()` reads (None: no file). When that differs from
+        `new` (not `same`), or is damaged (`load` raises StateError), the file is first moved, as it is, to
+        a new `<stem>.replaced-<UTC time><suffix>` beside it, and said where; None when nothing was moved.
+        A damaged file therefore neither stops a start that replaces it nor is lost."""
+        try:
+            held = load()
+            keep, damaged = held is not None and not same(held, new), False
+        except StateError:
+            keep = damaged = True
+        replaced = None
+        if keep:
             stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
-            backup = unused_path(path.parent, f"{path.stem}.replaced-{stamp}", path.suffix)
-            os.replace(path, backup)
+            replaced = Replaced(unused_path(path.parent, f"{path.stem}.replaced-{stamp}", path.suffix), damaged)
+            os.replace(path, replaced.kept)
             _fsync_dir(path.parent)
         save(new)
-        return backup
+        return replaced
 
     def load_assumed_hfov(self) -> float:
         """The horizontal field of view (degrees) to assume for images without camera or EXIF: the one

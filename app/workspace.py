@@ -43,7 +43,7 @@ from pipeline.library import NO_SIGN, SAMPLE_LIBRARY, Library, LibraryError, Lib
 from pipeline.recognize import PipelineError, Recognition, StageCache, run_pipeline
 from pipeline.settings import PRESETS, Settings, load_settings
 
-from .state import StateDir, StoredImage
+from .state import Replaced, StateDir, StoredImage
 
 log = logging.getLogger(__name__)
 
@@ -317,12 +317,19 @@ def sample_scenes(folder: Path = SAMPLE_SCENES) -> list[tuple[Path, str | None]]
             for path in sorted(folder.glob("*.jpg"))]
 
 
-def say_kept(option: str, file: Path, held: str, them: str, kept: Path | None) -> None:
-    """The one log line saying that `option file` replaced what the state held (`held`: "camera, which
-    is"), where that is `kept` and how to use `them` again; nothing when `kept` is None (nothing moved)."""
-    if kept is not None:
+def say_kept(what: str, file: Path, replaced: Replaced | None) -> None:
+    """The one log line saying that `--<what> file` (what: "camera" or "settings") replaced what the state
+    held, where that is kept and how to use it again; nothing when `replaced` is None (nothing moved)."""
+    if replaced is None:
+        return
+    option = f"--{what}"
+    if replaced.damaged:
+        log.warning("%s %s replaced the state's %s, which could not be read; it is kept as it was in %s",
+                    option, file, what, replaced.kept)
+    else:
+        held, them = ("camera, which is", "that one") if what == "camera" else ("settings, which are", "them")
         log.warning(f"%s %s replaced the state's {held} kept in %s: to use {them} again, start with %s %s",
-                    option, file, kept, option, kept)
+                    option, file, replaced.kept, option, replaced.kept)
 
 
 class Workspace:
@@ -361,13 +368,12 @@ class Workspace:
             settings = self.state.load_settings() or PRESETS["default"]
         else:  # e.g. settings tuned in the page since the last start are kept, not lost
             settings = load_settings(config.settings_file)
-            say_kept("--settings", config.settings_file, "settings, which are", "them",
-                     self.state.replace_settings(settings))
+            say_kept("settings", config.settings_file, self.state.replace_settings(settings))
         if config.camera_file is None:
             camera = self.state.load_camera()
         else:  # e.g. a calibration applied in the page since the last start is kept, not lost
             camera = load_camera(config.camera_file)
-            say_kept("--camera", config.camera_file, "camera, which is", "that one", self.state.replace_camera(camera))
+            say_kept("camera", config.camera_file, self.state.replace_camera(camera))
         self._snap = Snapshot(1, 1, settings, library, camera, self.state.load_assumed_hfov())
         self._history: dict[int, Settings] = {1: settings}  # settings_version -> settings, oldest first
 

@@ -813,3 +813,24 @@ def test_serve_camera_or_settings_keeps_what_the_state_held_that_differs_and_say
     assert "replaced" not in stderr and list(state.glob(f"{what}.replaced-*.json")) == [kept]
     restored, _ = serve_with(state, what, kept)  # as the line says
     assert put.items() <= restored.items() and len(list(state.glob(f"{what}.replaced-*"))) == 2
+
+
+@pytest.mark.parametrize("what, file_name, data", [("camera", "camera.yaml", CAMERA_YAML),
+                                                   ("settings", "settings.json", b'{"ratio": 0.7}')],
+                         ids=("camera", "settings"))
+def test_serve_camera_or_settings_replaces_a_damaged_state_file_and_keeps_it(tmp_path, what, file_name, data):
+    """A damaged camera.json or settings.json in the state used to stop `serve` even when --camera or
+    --settings gave the one to use instead."""
+    state, file = tmp_path / "state", tmp_path / file_name
+    file.write_bytes(data)
+    state.mkdir()
+    damaged = b'{"fx": 900, "fy": '  # e.g. cut short by a full disk
+    (state / f"{what}.json").write_bytes(damaged)
+    expected, _ = serve_with(tmp_path / "fresh", what, file)
+    started, stderr = serve_with(state, what, file)
+    assert started == expected
+    (kept,) = state.glob(f"{what}.replaced-*.json")
+    assert kept.read_bytes() == damaged  # as it was, to mend by hand
+    (line,) = [line for line in stderr.splitlines() if "replaced" in line]
+    assert line == (f"--{what} {file} replaced the state's {what}, which could not be read; it is kept as it "
+                         f"was in {kept}")
