@@ -28,6 +28,7 @@ from .plaque_search import MIN_NCC, SAME_PLAQUE_IOU, QuadCandidate, confirm_plaq
 from .pose import CORNER_SIGMA_PX, Pose, PoseError, distort_pixels, estimate_pose, with_corner_floor
 from .segment import Box, Segmentation, box_iou, expand_box, segment
 from .settings import Settings
+from .verify import TextCheck, check_text
 
 STAGES = ("segment", "features", "match", "ransac", "pose")
 # A sign seen from any usable viewpoint projects to a convex quad whose opposite sides differ
@@ -113,6 +114,30 @@ class Attempt:
         return max(self.scores, key=lambda s: (s.n_inliers, s.reason is not None, s.n_matches), default=None)
 
 
+@dataclass(frozen=True, eq=False)
+class Refined:
+    """A winner after `refine_winner`: its homography H (library px -> image px), the
+    correspondences src, dst (N, 2) library and image px its pose is fitted to, the ECC
+    correlation or outline that refined it (else None), its `sign`, the check of its text
+    (None: not checked) and the warnings refinement gave."""
+
+    H: np.ndarray = field(repr=False)
+    src: np.ndarray = field(repr=False)
+    dst: np.ndarray = field(repr=False)
+    ecc: float | None
+    outline: Outline | None = field(repr=False)
+    sign: LibrarySign = field(repr=False)
+    text: TextCheck | None
+    notes: list[str]
+
+    def text_problem(self, min_correlation: float) -> str | None:
+        """Why the winner is turned down for its text (`settings.min_text_correlation`), None if it is not."""
+        if self.text is None or self.text.passes(min_correlation):
+            return None
+        return (f"its text differs from {self.sign.id}'s (weakest strip correlation {self.text.weakest:.2f} < "
+                f"{min_correlation:g}): another sign sharing some of its words?")
+
+
 def why_no_feature_winner(attempt: Attempt | None) -> str:
     """Why features recognised nothing in `attempt`, the region their answer came from: its
     leader's reason, or that no region was searched."""
@@ -126,7 +151,8 @@ class Recognition:
 
     H: the final homography (library px -> image px) of the recognised sign, after refinement;
     ecc: the correlation of the dense alignment that refined it (None when not refined);
-    outline: the plaque outline that refined it instead (None when not refined so).
+    outline: the plaque outline that refined it instead (None when not refined so);
+    text_check: how its text, rectified through H, correlates with the sign's (None: not checked).
     timing_ms: milliseconds per stage of STAGES and in "total"; reused_stages: the stages, in
     STAGES order, whose results came in whole or part from the caller's `StageCache`, so their
     times are a lookup's, not what the stage costs.
@@ -147,6 +173,7 @@ class Recognition:
     warnings: list[str]
     sign_corners_px: np.ndarray | None = field(repr=False, default=None)
     outline: Outline | None = field(repr=False, default=None)
+    text_check: TextCheck | None = None
 
     @property
     def best(self) -> SignScore | None:
@@ -195,6 +222,7 @@ class Recognition:
             "homography": _list(self.H),
             "corners": _list(self.corners),
             "pose": self.pose.to_json() if self.pose is not None else None,
+            "text_check": self.text_check.to_json() if self.text_check is not None else None,
             "timing_ms": {k: round(v, 3) for k, v in self.timing_ms.items()},
             "reused_stages": list(self.reused_stages),
             "warnings": list(self.warnings),
@@ -498,11 +526,38 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         timing["segment"] += (time.perf_counter() - t0) * 1e3
         return found
 
+    def refined_winner(attempt: Attempt | None, plaque: PlaqueMatch | None) -> Refined:
+        """The winner of `attempt` (else of `plaque`) refined, with its text checked."""
+        t0 = time.perf_counter()
+        H, src, dst, sign = winner_homography(attempt, plaque, library)
+        # A RANSAC or decision change usually leaves the winner's H as it was: refine it once.
+        refine_key = ("refine", sign.id, H.tobytes(), src.tobytes(), dst.tobytes(), settings.refine,
+                      wants_dense_refinement(settings.refine, attempt), settings.refine_outline,
+                      settings.segment_mode, settings.seed,
+                      (camera.K.tobytes(), camera.dist.tobytes()) if camera.has_distortion else None)
+
+        def refine() -> tuple:
+            notes: list[str] = []
+            return refine_winner(gray, sign, H, src, dst, settings, attempt, camera, notes), notes
+
+        (H, src, dst, ecc, outline), notes = cached(cache, refine_key, refine, "pose", reused)
+        text = check_text(gray, library, sign.id, H) if settings.min_text_correlation > 0 else None
+        timing["pose"] += (time.perf_counter() - t0) * 1e3
+        return Refined(H, src, dst, ecc, outline, sign, text, notes)
+
     attempts: list[Attempt] = []
+    refined = None
+    # A winner whose text is not its sign's is turned down, and the search goes on: the sign may
+    # be elsewhere in the image.
     for region, source in candidate_regions(segmentation, settings, width, height, quads):
-        attempts.append(search_region(gray, region, source, library, settings, timing, cache, reused))
-        if attempts[-1].winner is not None:
-            break
+        attempt = search_region(gray, region, source, library, settings, timing, cache, reused)
+        attempts.append(attempt)
+        if attempt.winner is not None:
+            refined = refined_winner(attempt, None)
+            why = refined.text_problem(settings.min_text_correlation)
+            if why is None:
+                break
+            attempt.scores[attempt.winner].reason, attempt.winner, refined = why, None, None
     chosen = next((a for a in attempts if a.winner is not None), None)
     if chosen is None and attempts:
         chosen = max(attempts, key=lambda a: a.best_inliers)
@@ -518,26 +573,20 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         quads_ms = timing["segment"] - quads_ms  # counted under segment already
         timing["match"] += (time.perf_counter() - t0) * 1e3 - quads_ms
         if plaque is not None and plaque.sign is not None:
-            warnings.append(f"recognised by the plaque fallback (correlation {plaque.correlation:.2f}): "
-                            f"features did not decide ({why_no_feature_winner(chosen)})")
+            refined = refined_winner(None, plaque)
+            why = refined.text_problem(settings.min_text_correlation)
+            if why is not None:
+                plaque, refined = dataclasses.replace(plaque, sign=None, H=None, reason=why), None
+            else:
+                warnings.append(f"recognised by the plaque fallback (correlation {plaque.correlation:.2f}): "
+                                f"features did not decide ({why_no_feature_winner(chosen)})")
 
-    H, ecc, pose, sign, outline = None, None, None, None, None
-    winner = winner_homography(chosen, plaque, library)
-    if winner is not None:
+    H, ecc, pose, sign, outline, text = None, None, None, None, None, None
+    if refined is not None:
         t0 = time.perf_counter()
-        H, src, dst, sign = winner
-        # A RANSAC or decision change usually leaves the winner's H as it was: refine it once.
-        refine_key = ("refine", sign.id, H.tobytes(), src.tobytes(), dst.tobytes(), settings.refine,
-                      wants_dense_refinement(settings.refine, chosen), settings.refine_outline,
-                      settings.segment_mode, settings.seed,
-                      (camera.K.tobytes(), camera.dist.tobytes()) if camera.has_distortion else None)
-
-        def refine() -> tuple:
-            notes: list[str] = []
-            return refine_winner(gray, sign, H, src, dst, settings, chosen, camera, notes), notes
-
-        (H, src, dst, ecc, outline), notes = cached(cache, refine_key, refine, "pose", reused)
-        warnings += notes
+        H, src, dst, ecc, outline, sign, text = (refined.H, refined.src, refined.dst, refined.ecc, refined.outline,
+                                                 refined.sign, refined.text)
+        warnings += refined.notes
         measured_by = ("outline" if outline is not None else
                        "features" if ecc is None and not no_feature_winner(chosen) else "dense")
         corner_sigma = CORNER_SIGMA_PX[measured_by]
@@ -550,7 +599,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
                     covariance, pose.R, pose.t, sign, camera, corner_sigma))
         except PoseError as exc:
             warnings.append(f"no pose: {exc}")
-        timing["pose"] = (time.perf_counter() - t0) * 1e3
+        timing["pose"] += (time.perf_counter() - t0) * 1e3
         if pose is not None and pose.ambiguous:
             warnings.append("pose is ambiguous: a second pose, the planar solution flipped, fits the measurements "
                             "nearly as well (a small, far or near-frontal sign)")
@@ -560,7 +609,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     timing["total"] = (time.perf_counter() - t_start) * 1e3
     return Recognition((width, height), settings, camera, segmentation, attempts, chosen, plaque, H, ecc, pose,
                        timing, sorted(reused, key=STAGES.index), warnings,
-                       sign.corners_px if sign is not None else None, outline)
+                       sign.corners_px if sign is not None else None, outline, text)
 
 
 def find_plaque(gray: np.ndarray, segmentation: Segmentation, library: Library, settings: Settings,

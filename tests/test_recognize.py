@@ -10,11 +10,12 @@ import pytest
 from pipeline.camera import Camera, load_camera
 from pipeline.features import library_features
 from pipeline.image import read_image
-from pipeline.library import load_library
+from pipeline.library import LibrarySign, load_library
 from pipeline.pose import rotation_error_deg
 from pipeline.recognize import decide, recognize, score_sign
 from pipeline.settings import preset
 from scene_images import like_a_camera, render_plaque, shaded_wall, sign_on_wall
+from tools.render_library import render_sign
 
 SCENES = Path(__file__).resolve().parents[1] / "sample_images" / "scenes"
 TRUTH = json.loads((SCENES / "truth.json").read_text())["images"]
@@ -139,6 +140,50 @@ def test_far_signs_report_their_tilt_error_in_the_covariance_or_as_ambiguous(lib
             sigma = np.degrees(np.sqrt(np.trace(rec.pose.covariance[:3, :3])))
             worst = max(worst, rotation_error_deg(rec.pose.R, R) / sigma)
     assert worst < 3.0 and ambiguous < 6  # some poses are judged by their covariance
+
+
+def plaque_of(text: str, sign_id: str = "decoy") -> LibrarySign:
+    """A plaque of `text` made as the sample library's are (the same font, size and layout)."""
+    return LibrarySign(sign_id, text, text, "", 0.6, 0.24, np.asarray(render_sign(text)))
+
+
+# Other signs in the library's font, each sharing a word or most of its letters with one of its signs.
+DECOYS = ("رئيس الوزراء", "مكتب أمني", "وزارة الصحة", "مجمع تجاري", "وزارة الداخلية")
+PLAQUE_AT = np.array([[200, 170], [440, 180], [436, 276], [204, 268]], float)  # a 240 px plaque, a little oblique
+
+
+def test_a_plaque_of_other_words_sharing_one_with_a_sign_is_not_read_as_that_sign(library):
+    """Features name a sign from the part of it that matched: plaques of other words in the same
+    font were answered as library signs (15-40 inliers on the shared word), with poses."""
+    read_as = {}
+    for k, text in enumerate(DECOYS):
+        image = like_a_camera(render_plaque(plaque_of(text), PLAQUE_AT, shaded_wall(k), 0.92), 0.7, k)
+        unchecked = recognize(image, library, preset("default").replace(min_text_correlation=0))
+        rec = recognize(image, library, preset("default"))
+        read_as[text] = unchecked.label
+        assert rec.label is None and rec.pose is None, (text, rec.label, rec.text_check)
+        if unchecked.label is not None:  # turned down, and said why
+            assert any(s.reason and s.reason.startswith(f"its text differs from {unchecked.label}'s")
+                       for a in rec.attempts for s in a.scores), text
+    assert sum(label is not None for label in read_as.values()) >= 3, read_as  # what the check is for
+    for k, sign in enumerate(library.signs):  # the signs themselves, seen the same way, pass
+        image = like_a_camera(render_plaque(sign, PLAQUE_AT, shaded_wall(k), 0.92), 0.7, k)
+        rec = recognize(image, library, preset("default"))
+        assert rec.label == sign.id and rec.text_check.weakest > 0.9, (sign.id, rec.text_check)
+
+
+def test_the_search_goes_on_past_a_plaque_of_other_words_to_the_sign(library):
+    """A larger plaque of other words is searched first (the largest blob); turned down, the
+    search goes on and finds the sign beside it."""
+    sign = library["chief_of_security"]
+    wall = render_plaque(plaque_of("رئيس الوزراء"), np.array([[30, 60], [350, 70], [346, 198], [34, 190]], float),
+                         shaded_wall(7), 0.92)
+    image = like_a_camera(render_plaque(sign, np.array([[400, 260], [600, 266], [598, 346], [402, 340]], float),
+                                        wall, 0.92), 0.7, 7)
+    rec = recognize(image, library, preset("default"))
+    assert rec.label == sign.id and rec.attempts[0].source == "blob 1" and rec.attempts[0].winner is None
+    assert rec.attempts[0].leader.reason.startswith("its text differs from chief_of_security's")
+    assert rec.corners[:, 0].min() > 390  # the sign's, not the decoy's
 
 
 def test_a_frame_larger_than_max_search_size_is_searched_downscaled(library):
