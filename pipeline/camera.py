@@ -47,8 +47,32 @@ MAX_DISTORTION_FACTOR = 5.0
 # Images a camera is scaled to keep its calibration's aspect within 1 % (sizes rounded to whole
 # pixels at either resolution); beyond, the photo was cropped or re-framed.
 MAX_ASPECT_CHANGE = 0.01
-# ROS camera_info's names for OpenCV's distortion model with 5 and with 8 coefficients.
-ROS_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial")
+
+# The keys a camera file's numbers are read under. Every format (ROS camera_info file and message,
+# OpenCV FileStorage, signpose's JSON) is read with all of them, so that a file means the same
+# whichever reader its syntax sends it to. Each is one of several names for one thing: a file that
+# gives two of them is refused, as which it means cannot be known.
+# The 3x3 camera matrix, row by row: ROS's file, ROS 2's and ROS 1's message, OpenCV's name.
+MATRIX_KEYS = ("camera_matrix", "k", "K", "cameraMatrix")
+# OpenCV's distortion vector (k1 k2 p1 p2 [k3 ...]): ROS's file, ROS 2's and ROS 1's message, the
+# names OpenCV's functions and scripts use, signpose's JSON.
+DISTORTION_KEYS = ("distortion_coefficients", "d", "D", "dist_coeffs", "distCoeffs", "dist")
+# The image size in px the intrinsics are for: ROS's file and OpenCV's calibration sample, then
+# ROS's message and signpose's JSON.
+WIDTH_KEYS, HEIGHT_KEYS = ("image_width", "width"), ("image_height", "height")
+# Keys that look like lens distortion or a lens model but are none of the keys read: refused, as
+# ignoring them makes a distortion-free camera and poses off without a word (`dist_coef`,
+# `distortion`, `k1`, a `fisheye` flag).
+DISTORTION_LIKE = re.compile(r"distort|^dist(?!ance)|fisheye|^[kp]\d$", re.IGNORECASE)
+# OpenCV's distortion model on a pinhole camera (k1 k2 p1 p2 [k3 ...]), by ROS's names for 5 and 8
+# coefficients.
+OPENCV_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial")
+# `distortion_model`s that name no distortion (ROS's field never set): taken without coefficients
+# only, as coefficients under them follow no known model.
+NO_DISTORTION_MODELS = ("",)
+# Keys that name a camera's model, which must be a pinhole camera with OpenCV's distortion
+# (_model_problem): ROS's `distortion_model`, and the 0 or 1 OpenCV's calibration sample writes.
+MODEL_KEYS = ("distortion_model", "fisheye_model")
 
 
 class CameraError(ValueError):
@@ -240,16 +264,11 @@ def assumed_camera(width: int, height: int, hfov_deg: float = ASSUMED_HFOV_DEG, 
 
 
 def camera_from_json(data: dict, source: str = "json") -> Camera:
-    """Camera from `{fx, fy, cx, cy, dist?, width?, height?}` (pixels)."""
+    """Camera from a parsed camera file or request: `{fx, fy, cx, cy, dist?, width?, height?}` (pixels),
+    or any of the keys `load_camera` reads."""
     if not isinstance(data, dict):
         raise CameraError("camera JSON must be an object with fx, fy, cx, cy")
-    missing = [k for k in ("fx", "fy", "cx", "cy") if k not in data]
-    if missing:
-        raise CameraError(f"camera JSON is missing {', '.join(missing)}")
-    fx, fy, cx, cy = (_number(data[k], k) for k in ("fx", "fy", "cx", "cy"))
-    dist = _numbers(data.get("dist") or [], "dist")
-    K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
-    return Camera(K, dist, _opt_int(data.get("width"), "width"), _opt_int(data.get("height"), "height"), source)
+    return _camera_from_fields(data, source, "JSON")
 
 
 def _number(value: object, name: str) -> float:
@@ -294,63 +313,107 @@ def _matrix(node: object, name: str, rows: int | None, cols: int | None) -> np.n
     return _numbers(node, name)
 
 
-def is_ros_message(data: dict) -> bool:
-    """Whether parsed YAML is a sensor_msgs/CameraInfo message as `ros2 topic echo` prints it (`k`, `d`,
-    `width`, `height`, flat lists) or ROS 1's `rostopic echo` (`K`, `D`), rather than the file ROS's
-    camera_calibration writes (`camera_matrix: {rows, cols, data}`, `image_width`, ...)."""
-    return "camera_matrix" not in data and ("k" in data or "K" in data)
+def _one_of(fields: dict, keys: tuple[str, ...], what: str) -> tuple[str, object] | None:
+    """(key, value) of the one of `keys` that `fields` gives (a null value is not given), None when it
+    gives none; CameraError naming `what` when it gives several, as which one it means is unknown."""
+    given = [k for k in keys if fields.get(k) is not None]
+    if len(given) > 1:
+        raise CameraError(f"{what} is given twice, as {' and '.join(given)}: keep the one meant")
+    return (given[0], fields[given[0]]) if given else None
 
 
-def camera_from_ros(data: dict, source: str) -> Camera:
-    """Camera from a parsed ROS camera_info: the calibration file (`camera_matrix`, `distortion_coefficients`,
-    `image_width`, `image_height`) or the message (`is_ros_message`: `k`, 9 numbers row by row, `d`,
-    `width`, `height`; `header`, `r`, `p`, binning and roi are not used, as the file's rectification and
-    projection matrices are not). OpenCV's distortion model only (ROS's `plumb_bob` or
-    `rational_polynomial`); any other `distortion_model` is refused, since its coefficients mean
-    something else. Errors name the key as the file writes it."""
-    if is_ros_message(data):
-        matrix, distortion = ("k", "d") if "k" in data else ("K", "D")
-        width, height = "width", "height"
-    else:
-        matrix, distortion, width, height = "camera_matrix", "distortion_coefficients", "image_width", "image_height"
-    K = _matrix(data[matrix], matrix, 3, 3)
+def _refuse_unknown_distortion(fields: dict) -> None:
+    """CameraError when `fields` has a key that looks like distortion (DISTORTION_LIKE) but is not one read."""
+    known = (*DISTORTION_KEYS, *MODEL_KEYS)
+    unknown = [str(k) for k in fields if k not in known and DISTORTION_LIKE.search(str(k))]
+    if unknown:
+        raise CameraError(f"{', '.join(unknown)}: not a key signpose reads, and without it the lens would be taken "
+                          "as distortion-free; give the coefficients as one list in OpenCV's order (k1, k2, p1, p2"
+                          f"[, k3, ...]) under {', '.join(DISTORTION_KEYS)}, and the model as distortion_model")
+
+
+def _model_problem(fields: dict, dist: np.ndarray) -> str | None:
+    """Why the model `fields` name (MODEL_KEYS) is not a pinhole camera with OpenCV's distortion `dist`;
+    None when it is, or none is named. Other models' coefficients mean something else, so a pose
+    from them is wrong without a word."""
+    for key in MODEL_KEYS:
+        model = fields.get(key)
+        if model is None:
+            continue
+        if key == "fisheye_model":
+            usable = not isinstance(model, str) and model == 0  # 0 or false: not calibrated as a fisheye
+        else:
+            name = model.lower() if isinstance(model, str) else None
+            # A model naming no distortion with no coefficients is a camera without distortion.
+            usable = name in OPENCV_DISTORTION_MODELS or (name in NO_DISTORTION_MODELS and not dist.any())
+        if not usable:
+            return (f"{key} {reprlib.repr(model)} is not supported: signpose uses OpenCV's model "
+                    f"({' or '.join(OPENCV_DISTORTION_MODELS)}: k1 k2 p1 p2 k3 ...) on a pinhole camera; calibrate "
+                    "with `signpose calibrate`, or undistort the photos first and give zero distortion")
+    return None
+
+
+def _camera_matrix(fields: dict, kind: str) -> np.ndarray:
+    """The 3x3 camera matrix `fields` give (MATRIX_KEYS, or fx, fy, cx, cy); CameraError naming the key,
+    or saying that this `kind` of file has none."""
+    found = _one_of(fields, (*MATRIX_KEYS, "fx"), "the camera matrix")
+    if found is None:
+        raise CameraError(f"expected camera_matrix (ROS camera_info file), k (ROS 2 camera_info message, as "
+                          f"`ros2 topic echo --once` prints it), K, cameraMatrix or fx, fy, cx, cy keys; this {kind} "
+                          "has none")
+    key, value = found
+    if key == "fx":
+        missing = [k for k in ("fy", "cx", "cy") if k not in fields]
+        if missing:
+            raise CameraError(f"the camera matrix is missing {', '.join(missing)}: fx, fy, cx and cy give it together")
+        fx, fy, cx, cy = (_number(fields[k], k) for k in ("fx", "fy", "cx", "cy"))
+        return np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
+    K = _matrix(value, key, 3, 3)
     if K.size != 9:
-        raise CameraError(f"{matrix} must have 9 values (the 3x3 matrix, row by row); got {K.size}")
+        raise CameraError(f"{key} must have 9 values (the 3x3 matrix, row by row); got {K.size}")
     if not K.any():  # CameraInfo's convention for a camera nobody calibrated, whatever its model says
-        raise CameraError(f"{matrix} is all zeros: this camera_info is of an uncalibrated camera; calibrate it "
+        raise CameraError(f"{key} is all zeros: this camera_info is of an uncalibrated camera; calibrate it "
                           "(`signpose calibrate`, or ROS's camera_calibration) and give that file")
-    dist = _matrix(data.get(distortion, {"data": []}), distortion, None, None)
-    model = data.get("distortion_model")
-    # An empty model (the field never set) with no coefficients is a camera without distortion.
-    if model not in (None, *ROS_DISTORTION_MODELS) and not (model == "" and not dist.any()):
-        raise CameraError(f"distortion_model {reprlib.repr(model)} is not supported: signpose uses OpenCV's model "
-                          f"({' or '.join(ROS_DISTORTION_MODELS)}: k1 k2 p1 p2 k3 ...); calibrate with "
-                          "`signpose calibrate`, or undistort the photos first and give zero distortion")
-    return Camera(K.reshape(3, 3), dist.ravel(), _opt_int(data.get(width), width), _opt_int(data.get(height), height),
-                  source)
+    return K.reshape(3, 3)
 
 
-def _filestorage_matrix(fs: cv2.FileStorage, names: tuple[str, ...]) -> np.ndarray | None:
-    """The first of the nodes `names` that `fs` has, as an array; None when it has none of them."""
-    name = next((n for n in names if not fs.getNode(n).empty()), None)
-    if name is None:
-        return None
-    try:
-        return fs.getNode(name).mat()
-    except cv2.error:  # a scalar, a plain list, a mapping that is no matrix, or non-numeric data
-        raise CameraError(f"{name} is not an OpenCV matrix of numbers") from None
+def _camera_from_fields(fields: dict, source: str, kind: str) -> Camera:
+    """Camera from the top-level keys and values of a camera file of `kind` ("YAML/JSON file", ...),
+    whichever format it is (see load_camera): the matrix, distortion, model and image size under
+    the keys MATRIX_KEYS .. MODEL_KEYS. CameraError naming the key as the file writes it."""
+    _refuse_unknown_distortion(fields)
+    found = _one_of(fields, DISTORTION_KEYS, "the distortion")
+    dist = np.zeros(0) if found is None else _matrix(found[1], found[0], None, None).ravel()
+    problem = _model_problem(fields, dist)
+    if problem:
+        raise CameraError(problem)
+    K = _camera_matrix(fields, kind)
+    width, height = (_one_of(fields, keys, f"the image {what}")
+                     for keys, what in ((WIDTH_KEYS, "width"), (HEIGHT_KEYS, "height")))
+    return Camera(K, dist, *(None if f is None else _opt_int(f[1], f[0]) for f in (width, height)), source)
 
 
-def _filestorage_int(fs: cv2.FileStorage, name: str) -> int | None:
-    """The whole number at node `name` of `fs`; None when absent."""
-    node = fs.getNode(name)
-    if node.empty():
-        return None
-    # real() of a string or a list is DBL_MAX, not an error, so only numeric nodes may use it.
-    return _opt_int(node.real() if node.isInt() or node.isReal() else node.string(), name)
+def _filestorage_value(node: cv2.FileNode) -> object:
+    """A FileStorage node as Python: a number, text, a list, an array for an OpenCV matrix, else a dict."""
+    if node.isInt():
+        return int(node.real())
+    if node.isReal():
+        return node.real()
+    if node.isString():
+        return node.string()
+    if node.isSeq():
+        return [_filestorage_value(node.at(i)) for i in range(node.size())]
+    if node.isMap():
+        try:
+            return node.mat()
+        except cv2.error:  # a mapping that is no matrix, or a matrix with data that are not numbers: its
+            # fields, which _matrix reads as ROS's {rows, cols, data} and names what is wrong in them
+            return {k: _filestorage_value(node.getNode(k)) for k in node.keys()}
+    return None
 
 
-def _camera_from_filestorage(path: Path) -> Camera:
+def _filestorage_fields(path: Path) -> dict:
+    """The top-level nodes of the OpenCV FileStorage file `path`, as Python (_filestorage_value)."""
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except SystemError as exc:  # OpenCV 5's binding wraps the cv2.error of a file it cannot parse
@@ -358,19 +421,26 @@ def _camera_from_filestorage(path: Path) -> Camera:
             raise
         raise exc.__cause__ from None
     try:
-        K = _filestorage_matrix(fs, ("camera_matrix", "K", "cameraMatrix"))
-        if K is None:
-            raise CameraError("no camera_matrix, K or cameraMatrix node")
-        dist = _filestorage_matrix(fs, ("distortion_coefficients", "D", "dist_coeffs", "distCoeffs"))
-        width, height = _filestorage_int(fs, "image_width"), _filestorage_int(fs, "image_height")
+        root = fs.root()
+        return {k: _filestorage_value(root.getNode(k)) for k in root.keys()}
     finally:
         fs.release()
-    return Camera(K, np.zeros(5) if dist is None else dist.ravel(), width, height, f"file:{path}")
 
 
 def load_camera(path: str | Path) -> Camera:
-    """Read a ROS camera_info YAML (the calibration file, or the message as `ros2 topic echo` prints it),
-    an OpenCV FileStorage YAML/JSON, or JSON `{fx, fy, cx, cy, dist}`."""
+    """Read a camera file: a ROS camera_info YAML (the calibration file, or the message as `ros2 topic
+    echo` prints it), an OpenCV FileStorage YAML/JSON, or JSON `{fx, fy, cx, cy, dist}`.
+
+    Every format is read with the same keys (MATRIX_KEYS, DISTORTION_KEYS, WIDTH_KEYS, HEIGHT_KEYS,
+    MODEL_KEYS), so that e.g. `dist_coeffs` beside a `camera_matrix` list is read, not dropped. Other
+    keys (a calibration's date, error and board; a message's header, `r`, `p`, binning and roi, as
+    the rectification and projection matrices are not used) are ignored, except those that look
+    like distortion or a lens model (DISTORTION_LIKE), which are refused. OpenCV's distortion model
+    only (ROS's `plumb_bob` or `rational_polynomial`; the calibration sample's `fisheye_model: 0`):
+    any other is refused, since its coefficients mean something else. A file that names no model
+    cannot be told from OpenCV's: cv2.fisheye's 4 coefficients without one are read as k1 k2 p1 p2.
+    Errors name the key as the file writes it.
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -388,9 +458,10 @@ def _parse_camera(text: str, path: Path) -> Camera:
     """Camera from the `text` of the camera file `path`; CameraError messages leave the path to the caller."""
     if text.lstrip().startswith("%YAML") or "!!opencv-matrix" in text or '"type_id": "opencv-matrix"' in text:
         try:
-            return _camera_from_filestorage(path)
+            fields = _filestorage_fields(path)
         except cv2.error as exc:
             raise CameraError(f"not a readable OpenCV FileStorage file ({_opencv_error(exc)})") from None
+        return _camera_from_fields(fields, f"file:{path}", "OpenCV FileStorage file")
     try:
         # YAML is a superset of JSON. `ros2 topic echo` ends each message with "---", which starts
         # another (empty) document; without --once it prints one after the other: the first is used.
@@ -399,12 +470,7 @@ def _parse_camera(text: str, path: Path) -> Camera:
         raise CameraError(f"neither valid YAML nor JSON ({_yaml_error(exc)})") from None
     if not isinstance(data, dict):
         raise CameraError("expected a mapping with camera_matrix or k (ROS camera_info) or fx, fy, cx, cy")
-    if "camera_matrix" in data or is_ros_message(data):
-        return camera_from_ros(data, f"file:{path}")
-    if "fx" in data:
-        return camera_from_json(data, f"file:{path}")
-    raise CameraError("expected camera_matrix (ROS camera_info file), k (ROS 2 camera_info message, as "
-                      "`ros2 topic echo --once` prints it) or fx, fy, cx, cy keys")
+    return _camera_from_fields(data, f"file:{path}", "YAML/JSON file")
 
 
 def _yaml_error(exc: yaml.YAMLError) -> str:

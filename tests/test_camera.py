@@ -235,7 +235,7 @@ K_DATA = "[554, 0, 320, 0, 554, 240, 0, 0, 1]"
     ('{"fx": 1%s, "fy": 554, "cx": 320, "cy": 240}' % ("0" * 400), "fx must be a number; got 1000"),
     ('{"fx": 554, "fy": 554, "cx": 320, "cy": 240, "dist": [0, "x", 0, 0]}', "dist must be a number; got 'x'"),
     ('{"fx": 554, "fy": 554, "cx": 320, "cy": 240, "height": "tall"}', "height must be a whole number; got 'tall'"),
-    (OPENCV_MATRIX.format(fields="", fx="abc"), "camera_matrix is not an OpenCV matrix of numbers"),
+    (OPENCV_MATRIX.format(fields="", fx="abc"), "camera_matrix.data must be a number; got 'abc'"),
     (OPENCV_MATRIX.format(fields="image_width: wide\n", fx="554."), "image_width must be a whole number; got 'wide'"),
     (OPENCV_MATRIX.format(fields="image_height: 480.5\n", fx="554."), "image_height must be a whole number; got 480.5"),
 ])
@@ -246,6 +246,102 @@ def test_non_numeric_entries_are_one_line_errors_naming_the_field(tmp_path, text
         load_camera(p)
     assert str(info.value).startswith(f"{p}: {message}")
     assert "\n" not in str(info.value)
+
+
+
+D_VALUES = [-0.1209, 0.0515, 0.0, 0.0001, 0.0]
+# One camera (a 1600 x 1200 px calibration) as each format writes its matrix; {distortion} is
+# where the distortion goes, as that format writes a key and a list.
+MATRIX_FORMATS = {
+    "json matrix": ('{{"camera_matrix": [[1299.5, 0, 805.7], [0, 1294.6, 596], [0, 0, 1]], {distortion}, '
+                    '"image_width": 1600, "image_height": 1200}}', '"{key}": {values}'),
+    "json fx": ('{{"fx": 1299.5, "fy": 1294.6, "cx": 805.7, "cy": 596, {distortion}}}', '"{key}": {values}'),
+    "ros": ("camera_matrix: {{rows: 3, cols: 3, data: [1299.5, 0, 805.7, 0, 1294.6, 596, 0, 0, 1]}}\n"
+            "distortion_model: plumb_bob\n{distortion}\n", "{key}: {values}"),
+    "opencv": ("%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+               "   data: [ 1299.5, 0., 805.7, 0., 1294.6, 596., 0., 0., 1. ]\n{distortion}\n",
+               "{key}: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: {values}"),
+}
+
+
+def camera_text(form: str, key: str, values: list[float] = D_VALUES) -> str:
+    """The camera of MATRIX_FORMATS[`form`] with distortion `values` under `key`."""
+    text, distortion = MATRIX_FORMATS[form]
+    return text.format(distortion=distortion.format(key=key, values=json.dumps(values)))
+
+
+@pytest.mark.parametrize("form", MATRIX_FORMATS)
+@pytest.mark.parametrize("key", ["distortion_coefficients", "dist_coeffs", "distCoeffs", "D", "d", "dist"])
+def test_distortion_is_read_under_each_of_its_names_in_every_format(tmp_path, form, key):
+    """`dist_coeffs` beside a camera_matrix list was dropped: a distortion-free camera, wrong poses, no word."""
+    p = tmp_path / "cam.yaml"
+    p.write_text(camera_text(form, key))
+    assert load_camera(p).dist.tolist() == D_VALUES
+
+
+@pytest.mark.parametrize("form", MATRIX_FORMATS)
+@pytest.mark.parametrize("key", ["distortion", "dist_coef", "distortionCoefficients", "Distortion_Coeffs", "k1"])
+def test_a_key_that_looks_like_distortion_but_is_not_read_is_refused(tmp_path, form, key):
+    p = tmp_path / "cam.yaml"
+    p.write_text(camera_text(form, key))
+    with pytest.raises(CameraError) as info:
+        load_camera(p)
+    assert str(info.value).startswith(f"{p}: {key}: not a key signpose reads, and without it the lens would be "
+                                      "taken as distortion-free; give the coefficients as one list in OpenCV's order")
+    assert "distortion_coefficients, d, D, dist_coeffs, distCoeffs" in str(info.value)
+
+
+def test_keys_that_are_not_distortion_are_ignored(tmp_path):
+    p = tmp_path / "cam.json"
+    p.write_text(camera_text("json matrix", "dist_coeffs")[:-1] + ', "distance_m": 2.5, "avg_reprojection_error": '
+                 '0.2, "model": "pinhole", "notes": {"dist": "n/a"}}')
+    assert load_camera(p).dist.tolist() == D_VALUES
+
+
+@pytest.mark.parametrize("form", MATRIX_FORMATS)
+def test_distortion_given_twice_is_refused(tmp_path, form):
+    """Which of two lists the file means cannot be known."""
+    p = tmp_path / "cam.yaml"
+    text, distortion = MATRIX_FORMATS[form]
+    separator = ", " if form.startswith("json") else "\n"
+    twice = separator.join(distortion.format(key=key, values=values)
+                           for key, values in (("D", [0.0] * 5), ("dist_coeffs", D_VALUES)))
+    p.write_text(text.format(distortion=twice))
+    with pytest.raises(CameraError, match="the distortion is given twice, as D and dist_coeffs: keep the one meant"):
+        load_camera(p)
+
+
+FISHEYE_FS = """%YAML:1.0
+---
+K: !!opencv-matrix
+   rows: 3
+   cols: 3
+   dt: d
+   data: [ 1299.5, 0., 805.7, 0., 1294.6, 596., 0., 0., 1. ]
+D: !!opencv-matrix
+   rows: 4
+   cols: 1
+   dt: d
+   data: [ 0.05, -0.01, 0.002, -0.0005 ]
+"""
+
+
+@pytest.mark.parametrize("model, message", [
+    ("distortion_model: fisheye\n", "distortion_model 'fisheye' is not supported"),
+    ("distortion_model: equidistant\n", "distortion_model 'equidistant' is not supported"),
+    # what OpenCV's calibration sample (camera_calibration.cpp) writes for a fisheye calibration
+    ("fisheye_model: 1\n", "fisheye_model 1 is not supported"),
+])
+def test_an_opencv_filestorage_file_of_another_model_is_refused(tmp_path, model, message):
+    """A fisheye's k1 k2 k3 k4 were read as OpenCV's k1 k2 p1 p2 without a word."""
+    p = tmp_path / "fisheye.yml"
+    p.write_text(FISHEYE_FS + model)
+    with pytest.raises(CameraError) as info:
+        load_camera(p)
+    assert str(info.value).startswith(f"{p}: {message}: signpose uses OpenCV's model (plumb_bob or ")
+    for usable in ("distortion_model: plumb_bob\n", "fisheye_model: 0\n", ""):
+        p.write_text(FISHEYE_FS + usable)
+        assert load_camera(p).dist.tolist() == [0.05, -0.01, 0.002, -0.0005]
 
 
 @pytest.mark.parametrize("text, given, missing", [
