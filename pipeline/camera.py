@@ -6,6 +6,7 @@ K is the OpenCV 3x3 matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels; `dis
 
 from __future__ import annotations
 
+import codecs
 import math
 import re
 import reprlib
@@ -412,10 +413,11 @@ def _filestorage_value(node: cv2.FileNode) -> object:
     return None
 
 
-def _filestorage_fields(path: Path) -> dict:
-    """The top-level nodes of the OpenCV FileStorage file `path`, as Python (_filestorage_value)."""
+def _filestorage_fields(text: str) -> dict:
+    """The top-level nodes of the OpenCV FileStorage `text`, as Python (_filestorage_value)."""
     try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        # From the text, not the file: OpenCV reads a file's byte-order mark as YAML, and fails.
+        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except SystemError as exc:  # OpenCV 5's binding wraps the cv2.error of a file it cannot parse
         if not isinstance(exc.__cause__, cv2.error):
             raise
@@ -443,22 +445,32 @@ def load_camera(path: str | Path) -> Camera:
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = _camera_text(path.read_bytes())
     except FileNotFoundError:
         raise CameraError(f"camera file not found: {path}") from None
-    except UnicodeDecodeError:
-        raise CameraError(f"camera file {path} is not text") from None
+    except ValueError:  # a UnicodeDecodeError, or a NUL character
+        raise CameraError(f"camera file {path} is not text (UTF-8, or UTF-16 with a byte-order mark)") from None
     try:
         return _parse_camera(text, path)
     except CameraError as exc:
         raise CameraError(f"{path}: {exc}") from None
 
 
+def _camera_text(data: bytes) -> str:
+    """The text of a camera file's bytes `data`: UTF-8, without the byte-order mark Windows editors
+    write, or UTF-16 with its mark (what Windows PowerShell 5's `>` writes). UnicodeDecodeError, or
+    ValueError for a NUL character, which no text has and OpenCV would read as the end of the file."""
+    text = data.decode("utf-16" if data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)) else "utf-8-sig")
+    if "\0" in text:
+        raise ValueError("a NUL character")
+    return text
+
+
 def _parse_camera(text: str, path: Path) -> Camera:
     """Camera from the `text` of the camera file `path`; CameraError messages leave the path to the caller."""
     if text.lstrip().startswith("%YAML") or "!!opencv-matrix" in text or '"type_id": "opencv-matrix"' in text:
         try:
-            fields = _filestorage_fields(path)
+            fields = _filestorage_fields(text)
         except cv2.error as exc:
             raise CameraError(f"not a readable OpenCV FileStorage file ({_opencv_error(exc)})") from None
         return _camera_from_fields(fields, f"file:{path}", "OpenCV FileStorage file")
@@ -490,8 +502,9 @@ def _yaml_error(exc: yaml.YAMLError) -> str:
 def _opencv_error(exc: cv2.error) -> str:
     """OpenCV's message without its source file and function: for a parse error, the line and reason."""
     if exc.code == cv2.Error.StsParseError:
-        # Its "function" is "<path>(<line>): <reason>", and the path may be a temporary upload's.
-        parse = re.search(r"\((\d+)\): (.*)$", exc.func or "")
+        # Its "function" is "<path>(<line>): <reason>", where the path is empty, or for some errors
+        # the text read: the last "(<line>): " is the one OpenCV added.
+        parse = re.search(r".*\((\d+)\): (.*)$", exc.func or "", re.DOTALL)
         if parse:
             return f"line {parse[1]}: {parse[2]}"
     return (exc.err or str(exc)).strip().splitlines()[-1]

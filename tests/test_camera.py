@@ -1,3 +1,4 @@
+import codecs
 import json
 import math
 import re
@@ -344,6 +345,44 @@ def test_an_opencv_filestorage_file_of_another_model_is_refused(tmp_path, model,
         assert load_camera(p).dist.tolist() == [0.05, -0.01, 0.002, -0.0005]
 
 
+
+OPENCV_FS = """%YAML:1.0
+---
+calibration_time: "Mon 01 Jan 2024"
+image_width: 1600
+image_height: 1200
+camera_matrix: !!opencv-matrix
+   rows: 3
+   cols: 3
+   dt: d
+   data: [ 1299.5, 0., 805.7, 0., 1294.6, 596., 0., 0., 1. ]
+distortion_coefficients: !!opencv-matrix
+   rows: 5
+   cols: 1
+   dt: d
+   data: [ -0.1209, 0.0515, 0., 0.0001, 0. ]
+"""
+
+
+@pytest.mark.parametrize("text, k1", [(OPENCV_FS, -0.1209), (ROS, -0.1)], ids=["opencv", "ros"])
+@pytest.mark.parametrize("encoding", ["utf-8-sig", "utf-16", "utf-16-be", "utf-8"])
+def test_a_camera_file_with_a_byte_order_mark_is_read(tmp_path, text, k1, encoding):
+    """Windows editors start UTF-8 with a byte-order mark, which OpenCV read as YAML and failed on;
+    Windows PowerShell 5's `ros2 topic echo ... > cam.yaml` writes UTF-16, said to be no text."""
+    p = tmp_path / "cam.yaml"
+    data = text.encode(encoding)
+    p.write_bytes(codecs.BOM_UTF16_BE + data if encoding == "utf-16-be" else data)  # Python writes no mark for it
+    assert load_camera(p).dist[0] == k1
+
+
+def test_a_nul_character_is_not_text(tmp_path):
+    """OpenCV reads text up to a NUL: the distortion after it was dropped."""
+    p = tmp_path / "cam.yml"
+    p.write_text(OPENCV_FS.replace("distortion_coefficients", "\0distortion_coefficients"))
+    with pytest.raises(CameraError, match=re.escape(f"camera file {p} is not text (UTF-8, or UTF-16 with a ")):
+        load_camera(p)
+
+
 @pytest.mark.parametrize("text, given, missing", [
     ('{"fx": 554, "fy": 554, "cx": 320, "cy": 240, "width": 640}', "width", "height"),
     (ROS_MATRIX.format(rows=3, data=K_DATA) + "image_height: 480\n", "height", "width"),
@@ -481,6 +520,8 @@ def test_the_other_resolution_warning_reaches_the_recognition():
     ("fx: 554\x01\n", "neither valid YAML nor JSON (character 8: unacceptable character #x0001"),
     ("%YAML:1.0\n---\ncamera_matrix: [1, 2\nfoo: : bar\n",
      "not a readable OpenCV FileStorage file (line 4: Incorrect indentation)"),
+    # OpenCV puts text read without a final newline where the file name goes, "(9): " and all
+    ('{"type_id": "opencv-matrix", "a": (9): }', "not a readable OpenCV FileStorage file (line 1: Unrecognized value)"),
 ])
 def test_unparsable_files_are_one_line_errors_with_the_position(tmp_path, text, message):
     p = tmp_path / "camera.yaml"
