@@ -413,8 +413,13 @@ def _filestorage_value(node: cv2.FileNode) -> object:
     return None
 
 
-def _filestorage_fields(text: str) -> dict:
-    """The top-level nodes of the OpenCV FileStorage `text`, as Python (_filestorage_value)."""
+def _filestorage_fields(text: str, syntax: str) -> dict:
+    """The top-level nodes of the OpenCV FileStorage `text` in `syntax` (_filestorage_syntax), as
+    Python (_filestorage_value)."""
+    if syntax == "XML" and not text.lstrip().startswith("<?xml"):
+        # OpenCV takes text as XML by its declaration, which hand-made files leave out. It goes on
+        # the first line, so that OpenCV's line numbers stay the file's.
+        text = '<?xml version="1.0"?>' + text
     try:
         # From the text, not the file: OpenCV reads a file's byte-order mark as YAML, and fails.
         fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
@@ -431,7 +436,7 @@ def _filestorage_fields(text: str) -> dict:
 
 def load_camera(path: str | Path) -> Camera:
     """Read a camera file: a ROS camera_info YAML (the calibration file, or the message as `ros2 topic
-    echo` prints it), an OpenCV FileStorage YAML/JSON, or JSON `{fx, fy, cx, cy, dist}`.
+    echo` prints it), an OpenCV FileStorage YAML, XML or JSON, or JSON `{fx, fy, cx, cy, dist}`.
 
     Every format is read with the same keys (MATRIX_KEYS, DISTORTION_KEYS, WIDTH_KEYS, HEIGHT_KEYS,
     MODEL_KEYS), so that e.g. `dist_coeffs` beside a `camera_matrix` list is read, not dropped. Other
@@ -466,14 +471,29 @@ def _camera_text(data: bytes) -> str:
     return text
 
 
+def _filestorage_syntax(text: str) -> str | None:
+    """"XML", "JSON" or "YAML" when `text` is an OpenCV FileStorage file in that syntax, as OpenCV
+    tells them apart (by the first character); None when it is plain YAML or JSON. XML is all
+    FileStorage's: OpenCV's calibration sample writes it by default."""
+    start = text.lstrip()
+    if start.startswith("<"):
+        return "XML"
+    if start.startswith("%YAML") or "!!opencv-matrix" in text:
+        return "YAML"
+    if '"type_id": "opencv-matrix"' in text:
+        return "JSON" if start.startswith("{") else "YAML"
+    return None
+
+
 def _parse_camera(text: str, path: Path) -> Camera:
     """Camera from the `text` of the camera file `path`; CameraError messages leave the path to the caller."""
-    if text.lstrip().startswith("%YAML") or "!!opencv-matrix" in text or '"type_id": "opencv-matrix"' in text:
+    syntax = _filestorage_syntax(text)
+    if syntax:
         try:
-            fields = _filestorage_fields(text)
+            fields = _filestorage_fields(text, syntax)
         except cv2.error as exc:
-            raise CameraError(f"not a readable OpenCV FileStorage file ({_opencv_error(exc)})") from None
-        return _camera_from_fields(fields, f"file:{path}", "OpenCV FileStorage file")
+            raise CameraError(f"not a readable OpenCV FileStorage {syntax} file ({_opencv_error(exc)})") from None
+        return _camera_from_fields(fields, f"file:{path}", f"OpenCV FileStorage {syntax} file")
     try:
         # YAML is a superset of JSON. `ros2 topic echo` ends each message with "---", which starts
         # another (empty) document; without --once it prints one after the other: the first is used.

@@ -383,6 +383,65 @@ def test_a_nul_character_is_not_text(tmp_path):
         load_camera(p)
 
 
+
+# What OpenCV's calibration sample writes by default (its camera_calibration.cpp, out_camera_data.xml).
+OPENCV_XML = """<?xml version="1.0"?>
+<opencv_storage>
+<calibration_time>"Mon 01 Jan 2024"</calibration_time>
+<image_width>1600</image_width>
+<image_height>1200</image_height>
+<fisheye_model>0</fisheye_model>
+<camera_matrix type_id="opencv-matrix">
+  <rows>3</rows>
+  <cols>3</cols>
+  <dt>d</dt>
+  <data>
+    1299.5 0. 805.70000000000005 0. 1294.5999999999999 596. 0. 0. 1.</data></camera_matrix>
+<distortion_coefficients type_id="opencv-matrix">
+  <rows>5</rows>
+  <cols>1</cols>
+  <dt>d</dt>
+  <data>
+    -0.12089999999999999 0.051499999999999997 0. 0.0001 0.</data></distortion_coefficients>
+<avg_reprojection_error>0.083000000000000004</avg_reprojection_error>
+</opencv_storage>
+"""
+
+
+@pytest.mark.parametrize("text", [OPENCV_XML, OPENCV_XML.replace("\n", "\r\n"),
+                                  OPENCV_XML.removeprefix('<?xml version="1.0"?>\n'),
+                                  "\n" + OPENCV_XML.removeprefix('<?xml version="1.0"?>\n')],
+                         ids=["sample", "crlf", "no declaration", "a blank line, no declaration"])
+def test_an_opencv_filestorage_xml_file_is_read(tmp_path, text):
+    """It was refused with "expected a mapping with camera_matrix or k ...", which says nothing of XML."""
+    p = tmp_path / "out_camera_data.xml"
+    p.write_text(text)
+    camera = load_camera(p)
+    assert camera.K[0, 0] == 1299.5 and camera.dist.tolist() == D_VALUES and (camera.width, camera.height) == (1600, 1200)
+
+
+@pytest.mark.parametrize("text, message", [
+    (OPENCV_XML.replace("<fisheye_model>0", "<fisheye_model>1"), "fisheye_model 1 is not supported: signpose uses"),
+    (OPENCV_XML.replace("camera_matrix", "intrinsic_matrix"),
+     "expected camera_matrix (ROS camera_info file), k (ROS 2 camera_info message, as `ros2 topic echo --once` prints "
+     "it), K, cameraMatrix or fx, fy, cx, cy keys; this OpenCV FileStorage XML file has none"),
+    # Agisoft Metashape's calibration XML, say
+    ('<?xml version="1.0" encoding="UTF-8"?>\n<calibration>\n  <projection>frame</projection>\n'
+     '  <width>1600</width>\n</calibration>\n',
+     "not a readable OpenCV FileStorage XML file (line 2: <opencv_storage> tag is missing)"),
+    (OPENCV_XML.replace("</rows>", "</cols>", 1),
+     "not a readable OpenCV FileStorage XML file (line 8: Mismatched closing tag)"),
+    (OPENCV_XML.replace("</rows>", "</cols>", 1).removeprefix('<?xml version="1.0"?>\n'),
+     "not a readable OpenCV FileStorage XML file (line 7: Mismatched closing tag)"),
+], ids=["fisheye", "no matrix", "not opencv", "broken", "broken without declaration"])
+def test_an_unusable_xml_file_is_a_one_line_error_naming_the_format(tmp_path, text, message):
+    p = tmp_path / "cam.xml"
+    p.write_text(text)
+    with pytest.raises(CameraError) as info:
+        load_camera(p)
+    assert str(info.value).startswith(f"{p}: {message}") and "\n" not in str(info.value)
+
+
 @pytest.mark.parametrize("text, given, missing", [
     ('{"fx": 554, "fy": 554, "cx": 320, "cy": 240, "width": 640}', "width", "height"),
     (ROS_MATRIX.format(rows=3, data=K_DATA) + "image_height: 480\n", "height", "width"),
@@ -519,9 +578,9 @@ def test_the_other_resolution_warning_reaches_the_recognition():
      "while parsing a flow sequence that starts at line 2, column 8)"),
     ("fx: 554\x01\n", "neither valid YAML nor JSON (character 8: unacceptable character #x0001"),
     ("%YAML:1.0\n---\ncamera_matrix: [1, 2\nfoo: : bar\n",
-     "not a readable OpenCV FileStorage file (line 4: Incorrect indentation)"),
+     "not a readable OpenCV FileStorage YAML file (line 4: Incorrect indentation)"),
     # OpenCV puts text read without a final newline where the file name goes, "(9): " and all
-    ('{"type_id": "opencv-matrix", "a": (9): }', "not a readable OpenCV FileStorage file (line 1: Unrecognized value)"),
+    ('{"type_id": "opencv-matrix", "a": (9): }', "not a readable OpenCV FileStorage JSON file (line 1: Unrecognized value)"),
 ])
 def test_unparsable_files_are_one_line_errors_with_the_position(tmp_path, text, message):
     p = tmp_path / "camera.yaml"
