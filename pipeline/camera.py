@@ -50,30 +50,34 @@ MAX_DISTORTION_FACTOR = 5.0
 MAX_ASPECT_CHANGE = 0.01
 
 # The keys a camera file's numbers are read under. Every format (ROS camera_info file and message,
-# OpenCV FileStorage, signpose's JSON) is read with all of them, so that a file means the same
-# whichever reader its syntax sends it to. Each is one of several names for one thing: a file that
-# gives two of them is refused, as which it means cannot be known.
+# OpenCV FileStorage, a Kalibr camchain's camera, signpose's JSON) is read with all of them, so that
+# a file means the same whichever reader its syntax sends it to. Each is one of several names for
+# one thing: a file that gives two of them is refused, as which it means cannot be known.
 # The 3x3 camera matrix, row by row: ROS's file, ROS 2's and ROS 1's message, OpenCV's name.
 MATRIX_KEYS = ("camera_matrix", "k", "K", "cameraMatrix")
+# Kalibr gives the camera matrix as `intrinsics: [fu, fv, pu, pv]`, signpose's JSON as fx, fy, cx, cy.
 # OpenCV's distortion vector (k1 k2 p1 p2 [k3 ...]): ROS's file, ROS 2's and ROS 1's message, the
-# names OpenCV's functions and scripts use, signpose's JSON.
-DISTORTION_KEYS = ("distortion_coefficients", "d", "D", "dist_coeffs", "distCoeffs", "dist")
+# names OpenCV's functions and scripts use, Kalibr's, signpose's JSON.
+DISTORTION_KEYS = ("distortion_coefficients", "d", "D", "dist_coeffs", "distCoeffs", "distortion_coeffs", "dist")
 # The image size in px the intrinsics are for: ROS's file and OpenCV's calibration sample, then
-# ROS's message and signpose's JSON.
+# ROS's message and signpose's JSON; Kalibr's is `resolution: [width, height]`.
 WIDTH_KEYS, HEIGHT_KEYS = ("image_width", "width"), ("image_height", "height")
 # Keys that look like lens distortion or a lens model but are none of the keys read: refused, as
 # ignoring them makes a distortion-free camera and poses off without a word (`dist_coef`,
 # `distortion`, `k1`, a `fisheye` flag).
 DISTORTION_LIKE = re.compile(r"distort|^dist(?!ance)|fisheye|^[kp]\d$", re.IGNORECASE)
 # OpenCV's distortion model on a pinhole camera (k1 k2 p1 p2 [k3 ...]), by ROS's names for 5 and 8
-# coefficients.
-OPENCV_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial")
-# `distortion_model`s that name no distortion (ROS's field never set): taken without coefficients
-# only, as coefficients under them follow no known model.
-NO_DISTORTION_MODELS = ("",)
+# coefficients and Kalibr's ("radial-tangential") for 4.
+OPENCV_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "radtan")
+# `distortion_model`s that name no distortion (ROS's field never set, Kalibr's "none"): taken
+# without coefficients only, as coefficients under them follow no known model.
+NO_DISTORTION_MODELS = ("", "none")
 # Keys that name a camera's model, which must be a pinhole camera with OpenCV's distortion
-# (_model_problem): ROS's `distortion_model`, and the 0 or 1 OpenCV's calibration sample writes.
-MODEL_KEYS = ("distortion_model", "fisheye_model")
+# (_model_problem): ROS's and Kalibr's `distortion_model`, Kalibr's `camera_model` (its
+# projection), and the 0 or 1 OpenCV's calibration sample writes as `fisheye_model`.
+MODEL_KEYS = ("distortion_model", "camera_model", "fisheye_model")
+# A camera of a Kalibr camchain: cam0, cam1, ...
+KALIBR_CAMERA = re.compile(r"cam\d+")
 
 
 class CameraError(ValueError):
@@ -341,41 +345,51 @@ def _model_problem(fields: dict, dist: np.ndarray) -> str | None:
         model = fields.get(key)
         if model is None:
             continue
+        name = model.lower() if isinstance(model, str) else None
         if key == "fisheye_model":
-            usable = not isinstance(model, str) and model == 0  # 0 or false: not calibrated as a fisheye
+            usable = name is None and model == 0  # 0 or false: not calibrated as a fisheye
+        elif key == "camera_model":
+            usable = name == "pinhole"  # not Kalibr's omni, ds or eucm
         else:
-            name = model.lower() if isinstance(model, str) else None
             # A model naming no distortion with no coefficients is a camera without distortion.
             usable = name in OPENCV_DISTORTION_MODELS or (name in NO_DISTORTION_MODELS and not dist.any())
         if not usable:
             return (f"{key} {reprlib.repr(model)} is not supported: signpose uses OpenCV's model "
-                    f"({' or '.join(OPENCV_DISTORTION_MODELS)}: k1 k2 p1 p2 k3 ...) on a pinhole camera; calibrate "
-                    "with `signpose calibrate`, or undistort the photos first and give zero distortion")
+                    f"({', '.join(OPENCV_DISTORTION_MODELS[:-1])} or {OPENCV_DISTORTION_MODELS[-1]}: k1 k2 p1 p2 k3 "
+                    "...) on a pinhole camera; calibrate with `signpose calibrate`, or undistort the photos first "
+                    "and give zero distortion")
     return None
 
 
 def _camera_matrix(fields: dict, kind: str) -> np.ndarray:
-    """The 3x3 camera matrix `fields` give (MATRIX_KEYS, or fx, fy, cx, cy); CameraError naming the key,
-    or saying that this `kind` of file has none."""
-    found = _one_of(fields, (*MATRIX_KEYS, "fx"), "the camera matrix")
+    """The 3x3 camera matrix `fields` give (MATRIX_KEYS, Kalibr's intrinsics, or fx, fy, cx, cy);
+    CameraError naming the key, or saying that this `kind` of file has none."""
+    found = _one_of(fields, (*MATRIX_KEYS, "intrinsics", "fx"), "the camera matrix")
     if found is None:
         raise CameraError(f"expected camera_matrix (ROS camera_info file), k (ROS 2 camera_info message, as "
-                          f"`ros2 topic echo --once` prints it), K, cameraMatrix or fx, fy, cx, cy keys; this {kind} "
-                          "has none")
+                          f"`ros2 topic echo --once` prints it), K, cameraMatrix, intrinsics (Kalibr) or fx, fy, cx, "
+                          f"cy keys; this {kind} has none")
     key, value = found
-    if key == "fx":
+    if key in MATRIX_KEYS:
+        K = _matrix(value, key, 3, 3)
+        if K.size != 9:
+            raise CameraError(f"{key} must have 9 values (the 3x3 matrix, row by row); got {K.size}")
+        if not K.any():  # CameraInfo's convention for a camera nobody calibrated, whatever its model says
+            raise CameraError(f"{key} is all zeros: this camera_info is of an uncalibrated camera; calibrate it "
+                              "(`signpose calibrate`, or ROS's camera_calibration) and give that file")
+        return K.reshape(3, 3)
+    if key == "intrinsics":
+        focal = _numbers(value, key).ravel()
+        if focal.size != 4:
+            raise CameraError(f"intrinsics must be Kalibr's pinhole [fu, fv, pu, pv] (fx, fy, cx, cy in px); "
+                              f"got {reprlib.repr(value)}")
+    else:
         missing = [k for k in ("fy", "cx", "cy") if k not in fields]
         if missing:
             raise CameraError(f"the camera matrix is missing {', '.join(missing)}: fx, fy, cx and cy give it together")
-        fx, fy, cx, cy = (_number(fields[k], k) for k in ("fx", "fy", "cx", "cy"))
-        return np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
-    K = _matrix(value, key, 3, 3)
-    if K.size != 9:
-        raise CameraError(f"{key} must have 9 values (the 3x3 matrix, row by row); got {K.size}")
-    if not K.any():  # CameraInfo's convention for a camera nobody calibrated, whatever its model says
-        raise CameraError(f"{key} is all zeros: this camera_info is of an uncalibrated camera; calibrate it "
-                          "(`signpose calibrate`, or ROS's camera_calibration) and give that file")
-    return K.reshape(3, 3)
+        focal = [_number(fields[k], k) for k in ("fx", "fy", "cx", "cy")]
+    fx, fy, cx, cy = focal
+    return np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
 
 
 def _camera_from_fields(fields: dict, source: str, kind: str) -> Camera:
@@ -388,10 +402,39 @@ def _camera_from_fields(fields: dict, source: str, kind: str) -> Camera:
     problem = _model_problem(fields, dist)
     if problem:
         raise CameraError(problem)
-    K = _camera_matrix(fields, kind)
+    return Camera(_camera_matrix(fields, kind), dist, *_image_size(fields), source)
+
+
+def _image_size(fields: dict) -> tuple[int | None, int | None]:
+    """The image width and height in px that `fields` give (WIDTH_KEYS, HEIGHT_KEYS, or Kalibr's
+    resolution [width, height]), None for one not given; CameraError naming the key."""
     width, height = (_one_of(fields, keys, f"the image {what}")
                      for keys, what in ((WIDTH_KEYS, "width"), (HEIGHT_KEYS, "height")))
-    return Camera(K, dist, *(None if f is None else _opt_int(f[1], f[0]) for f in (width, height)), source)
+    resolution = fields.get("resolution")
+    if resolution is None:
+        return tuple(None if f is None else _opt_int(f[1], f[0]) for f in (width, height))
+    if width or height:
+        other = (width or height)[0]
+        raise CameraError(f"the image size is given twice, as resolution and {other}: keep the one meant")
+    values = _numbers(resolution, "resolution").ravel()
+    if values.size != 2:
+        raise CameraError(f"resolution must be [width, height] in px; got {reprlib.repr(resolution)}")
+    return _opt_int(float(values[0]), "resolution width"), _opt_int(float(values[1]), "resolution height")
+
+
+def _kalibr_camera(data: dict) -> tuple[str, dict] | None:
+    """The name and fields of the camera of a Kalibr camchain (`cam0: {camera_model, intrinsics,
+    distortion_model, distortion_coeffs, resolution, ...}`), None when `data` is none.
+
+    A camchain of several cameras (a stereo rig's cam0, cam1) is refused, asking which: the file
+    cannot say which camera took the photos, and taking cam0 would give the other's photos poses
+    off without a word. One camera is taken under any name (a copy of the file keeping cam1 alone).
+    """
+    names = [k for k, v in data.items() if isinstance(k, str) and KALIBR_CAMERA.fullmatch(k) and isinstance(v, dict)]
+    if len(names) > 1:
+        raise CameraError(f"this Kalibr camchain has {len(names)} cameras ({', '.join(names)}) and signpose needs the "
+                          "one that took the photos: give a copy of the file with only that camera's block")
+    return (names[0], data[names[0]]) if names else None
 
 
 def _filestorage_value(node: cv2.FileNode) -> object:
@@ -436,17 +479,18 @@ def _filestorage_fields(text: str, syntax: str) -> dict:
 
 def load_camera(path: str | Path) -> Camera:
     """Read a camera file: a ROS camera_info YAML (the calibration file, or the message as `ros2 topic
-    echo` prints it), an OpenCV FileStorage YAML, XML or JSON, or JSON `{fx, fy, cx, cy, dist}`.
+    echo` prints it), an OpenCV FileStorage YAML, XML or JSON, a Kalibr camchain of one camera
+    (_kalibr_camera), or JSON `{fx, fy, cx, cy, dist}`.
 
     Every format is read with the same keys (MATRIX_KEYS, DISTORTION_KEYS, WIDTH_KEYS, HEIGHT_KEYS,
     MODEL_KEYS), so that e.g. `dist_coeffs` beside a `camera_matrix` list is read, not dropped. Other
     keys (a calibration's date, error and board; a message's header, `r`, `p`, binning and roi, as
     the rectification and projection matrices are not used) are ignored, except those that look
     like distortion or a lens model (DISTORTION_LIKE), which are refused. OpenCV's distortion model
-    only (ROS's `plumb_bob` or `rational_polynomial`; the calibration sample's `fisheye_model: 0`):
-    any other is refused, since its coefficients mean something else. A file that names no model
-    cannot be told from OpenCV's: cv2.fisheye's 4 coefficients without one are read as k1 k2 p1 p2.
-    Errors name the key as the file writes it.
+    only (ROS's `plumb_bob` or `rational_polynomial`, Kalibr's pinhole `radtan`; the calibration
+    sample's `fisheye_model: 0`): any other is refused, since its coefficients mean something else.
+    A file that names no model cannot be told from OpenCV's: cv2.fisheye's 4 coefficients without
+    one are read as k1 k2 p1 p2. Errors name the key as the file writes it.
     """
     path = Path(path)
     try:
@@ -502,7 +546,14 @@ def _parse_camera(text: str, path: Path) -> Camera:
         raise CameraError(f"neither valid YAML nor JSON ({_yaml_error(exc)})") from None
     if not isinstance(data, dict):
         raise CameraError("expected a mapping with camera_matrix or k (ROS camera_info) or fx, fy, cx, cy")
-    return _camera_from_fields(data, f"file:{path}", "YAML/JSON file")
+    kalibr = _kalibr_camera(data)
+    if kalibr is None:
+        return _camera_from_fields(data, f"file:{path}", "YAML/JSON file")
+    name, fields = kalibr
+    try:
+        return _camera_from_fields(fields, f"file:{path}", "Kalibr camera")
+    except CameraError as exc:  # the key is the camera's, as in the file
+        raise CameraError(f"{name}: {exc}") from None
 
 
 def _yaml_error(exc: yaml.YAMLError) -> str:

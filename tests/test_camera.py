@@ -339,7 +339,8 @@ def test_an_opencv_filestorage_file_of_another_model_is_refused(tmp_path, model,
     p.write_text(FISHEYE_FS + model)
     with pytest.raises(CameraError) as info:
         load_camera(p)
-    assert str(info.value).startswith(f"{p}: {message}: signpose uses OpenCV's model (plumb_bob or ")
+    assert str(info.value).startswith(f"{p}: {message}: signpose uses OpenCV's model (plumb_bob, rational_polynomial "
+                                      "or radtan: k1 k2 p1 p2 k3 ...) on a pinhole camera")
     for usable in ("distortion_model: plumb_bob\n", "fisheye_model: 0\n", ""):
         p.write_text(FISHEYE_FS + usable)
         assert load_camera(p).dist.tolist() == [0.05, -0.01, 0.002, -0.0005]
@@ -417,14 +418,15 @@ def test_an_opencv_filestorage_xml_file_is_read(tmp_path, text):
     p = tmp_path / "out_camera_data.xml"
     p.write_text(text)
     camera = load_camera(p)
-    assert camera.K[0, 0] == 1299.5 and camera.dist.tolist() == D_VALUES and (camera.width, camera.height) == (1600, 1200)
+    assert camera.K[0, 0] == 1299.5 and camera.dist.tolist() == D_VALUES
+    assert (camera.width, camera.height) == (1600, 1200)
 
 
 @pytest.mark.parametrize("text, message", [
     (OPENCV_XML.replace("<fisheye_model>0", "<fisheye_model>1"), "fisheye_model 1 is not supported: signpose uses"),
     (OPENCV_XML.replace("camera_matrix", "intrinsic_matrix"),
      "expected camera_matrix (ROS camera_info file), k (ROS 2 camera_info message, as `ros2 topic echo --once` prints "
-     "it), K, cameraMatrix or fx, fy, cx, cy keys; this OpenCV FileStorage XML file has none"),
+     "it), K, cameraMatrix, intrinsics (Kalibr) or fx, fy, cx, cy keys; this OpenCV FileStorage XML file has none"),
     # Agisoft Metashape's calibration XML, say
     ('<?xml version="1.0" encoding="UTF-8"?>\n<calibration>\n  <projection>frame</projection>\n'
      '  <width>1600</width>\n</calibration>\n',
@@ -437,6 +439,55 @@ def test_an_opencv_filestorage_xml_file_is_read(tmp_path, text):
 def test_an_unusable_xml_file_is_a_one_line_error_naming_the_format(tmp_path, text, message):
     p = tmp_path / "cam.xml"
     p.write_text(text)
+    with pytest.raises(CameraError) as info:
+        load_camera(p)
+    assert str(info.value).startswith(f"{p}: {message}") and "\n" not in str(info.value)
+
+
+
+# `kalibr_calibrate_cameras --models pinhole-radtan` for one camera: camchain.yaml
+KALIBR = """cam0:
+  cam_overlaps: []
+  camera_model: pinhole
+  distortion_coeffs: [-0.1209, 0.0515, 0.0, 0.0001]
+  distortion_model: radtan
+  intrinsics: [1299.5, 1294.6, 805.7, 596.0]
+  resolution: [1600, 1200]
+  rostopic: /cam0/image_raw
+"""
+
+
+def test_a_kalibr_camchain_of_one_pinhole_radtan_camera_is_read(tmp_path):
+    """radtan is OpenCV's k1 k2 p1 p2; the file was refused with "expected camera_matrix ..."."""
+    p = tmp_path / "camchain.yaml"
+    p.write_text(KALIBR)
+    camera = load_camera(p)
+    assert camera.K.tolist() == [[1299.5, 0, 805.7], [0, 1294.6, 596.0], [0, 0, 1]]
+    assert camera.dist.tolist() == D_VALUES[:4] and (camera.width, camera.height) == (1600, 1200)
+    p.write_text(KALIBR.replace("cam0", "cam1"))  # one camera of a rig, kept alone
+    assert load_camera(p).dist.tolist() == D_VALUES[:4]
+    p.write_text(KALIBR.replace("radtan", "none").replace("-0.1209, 0.0515, 0.0, 0.0001", ""))
+    assert not load_camera(p).has_distortion
+
+
+@pytest.mark.parametrize("replace, by, message", [
+    ("radtan", "equidistant", "cam0: distortion_model 'equidistant' is not supported: signpose uses OpenCV's model"),
+    ("radtan", "fov", "cam0: distortion_model 'fov' is not supported"),
+    ("radtan", "none", "cam0: distortion_model 'none' is not supported"),  # with coefficients: of which model?
+    # the omnidirectional model's intrinsics are [xi, fu, fv, pu, pv]: refused by its model, not their count
+    ("pinhole", "omni", "cam0: camera_model 'omni' is not supported: signpose uses OpenCV's model"),
+    ("[1299.5, 1294.6, 805.7, 596.0]", "[1299.5, 805.7, 596.0]",
+     "cam0: intrinsics must be Kalibr's pinhole [fu, fv, pu, pv] (fx, fy, cx, cy in px); got [1299.5, 805.7, 596.0]"),
+    ("[1600, 1200]", "[1600]", "cam0: resolution must be [width, height] in px; got [1600]"),
+    ("[1600, 1200]", "[1600, 1200.5]", "cam0: resolution height must be a whole number; got 1200.5"),
+    ("rostopic", "image_width: 1600\n  rostopic",
+     "cam0: the image size is given twice, as resolution and image_width: keep the one meant"),
+    (KALIBR, KALIBR + KALIBR.replace("cam0", "cam1"), "this Kalibr camchain has 2 cameras (cam0, cam1) and signpose "
+     "needs the one that took the photos: give a copy of the file with only that camera's block"),
+], ids=["equidistant", "fov", "none", "omni", "intrinsics", "resolution", "fraction", "size twice", "two cameras"])
+def test_a_kalibr_camchain_signpose_cannot_use_is_refused_naming_the_camera(tmp_path, replace, by, message):
+    p = tmp_path / "camchain.yaml"
+    p.write_text(KALIBR.replace(replace, by))
     with pytest.raises(CameraError) as info:
         load_camera(p)
     assert str(info.value).startswith(f"{p}: {message}") and "\n" not in str(info.value)
@@ -580,7 +631,8 @@ def test_the_other_resolution_warning_reaches_the_recognition():
     ("%YAML:1.0\n---\ncamera_matrix: [1, 2\nfoo: : bar\n",
      "not a readable OpenCV FileStorage YAML file (line 4: Incorrect indentation)"),
     # OpenCV puts text read without a final newline where the file name goes, "(9): " and all
-    ('{"type_id": "opencv-matrix", "a": (9): }', "not a readable OpenCV FileStorage JSON file (line 1: Unrecognized value)"),
+    ('{"type_id": "opencv-matrix", "a": (9): }',
+     "not a readable OpenCV FileStorage JSON file (line 1: Unrecognized value)"),
 ])
 def test_unparsable_files_are_one_line_errors_with_the_position(tmp_path, text, message):
     p = tmp_path / "camera.yaml"
