@@ -1,4 +1,4 @@
-"""Camera intrinsics: loading ROS (file or message) / OpenCV / plain-JSON camera files, and an assumed camera.
+"""Camera intrinsics: loading ROS (file or message) / OpenCV / Kalibr / plain-JSON camera files, and an assumed camera.
 
 K is the OpenCV 3x3 matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels; `dist` is OpenCV's
 (k1, k2, p1, p2[, k3, ...]) distortion vector.
@@ -516,9 +516,9 @@ def _camera_text(data: bytes) -> str:
 
 
 def _filestorage_syntax(text: str) -> str | None:
-    """"XML", "JSON" or "YAML" when `text` is an OpenCV FileStorage file in that syntax, as OpenCV
-    tells them apart (by the first character); None when it is plain YAML or JSON. XML is all
-    FileStorage's: OpenCV's calibration sample writes it by default."""
+    """The syntax of `text` when it is an OpenCV FileStorage file ("XML", "JSON" or "YAML", told
+    apart as OpenCV does, by the first character); None when it is plain YAML or JSON. All XML is
+    taken for FileStorage's: OpenCV's calibration sample writes it by default."""
     start = text.lstrip()
     if start.startswith("<"):
         return "XML"
