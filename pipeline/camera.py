@@ -456,13 +456,22 @@ def _filestorage_value(node: cv2.FileNode) -> object:
     return None
 
 
+def _xml_declaration_first(text: str) -> str:
+    """XML `text` starting with its `<?xml ...?>` declaration, as OpenCV tells XML by it: added when
+    missing (hand-made files leave it out), and put before blank lines that preceded it. Those lines
+    go after it, so that OpenCV's line numbers stay the file's."""
+    body = text.lstrip()
+    end = body.find("?>") + 2 if body.startswith("<?xml") else 0
+    if end == 1:  # a declaration without its end: OpenCV says what is wrong
+        return text
+    return (body[:end] or '<?xml version="1.0"?>') + text[:len(text) - len(body)] + body[end:]
+
+
 def _filestorage_fields(text: str, syntax: str) -> dict:
     """The top-level nodes of the OpenCV FileStorage `text` in `syntax` (_filestorage_syntax), as
     Python (_filestorage_value)."""
-    if syntax == "XML" and not text.lstrip().startswith("<?xml"):
-        # OpenCV takes text as XML by its declaration, which hand-made files leave out. It goes on
-        # the first line, so that OpenCV's line numbers stay the file's.
-        text = '<?xml version="1.0"?>' + text
+    if syntax == "XML":
+        text = _xml_declaration_first(text)
     try:
         # From the text, not the file: OpenCV reads a file's byte-order mark as YAML, and fails.
         fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
@@ -516,9 +525,9 @@ def _camera_text(data: bytes) -> str:
 
 
 def _filestorage_syntax(text: str) -> str | None:
-    """The syntax of `text` when it is an OpenCV FileStorage file ("XML", "JSON" or "YAML", told
-    apart as OpenCV does, by the first character); None when it is plain YAML or JSON. All XML is
-    taken for FileStorage's: OpenCV's calibration sample writes it by default."""
+    """The syntax of `text` when it is an OpenCV FileStorage file, None when it is plain YAML or JSON:
+    "XML" for any XML (OpenCV's calibration sample writes it by default), else "YAML" or "JSON" for
+    text with OpenCV's `%YAML` directive or matrix type."""
     start = text.lstrip()
     if start.startswith("<"):
         return "XML"

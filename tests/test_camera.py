@@ -411,8 +411,9 @@ OPENCV_XML = """<?xml version="1.0"?>
 
 @pytest.mark.parametrize("text", [OPENCV_XML, OPENCV_XML.replace("\n", "\r\n"),
                                   OPENCV_XML.removeprefix('<?xml version="1.0"?>\n'),
-                                  "\n" + OPENCV_XML.removeprefix('<?xml version="1.0"?>\n')],
-                         ids=["sample", "crlf", "no declaration", "a blank line, no declaration"])
+                                  "\n" + OPENCV_XML.removeprefix('<?xml version="1.0"?>\n'), "\n \n" + OPENCV_XML],
+                         ids=["sample", "crlf", "no declaration", "a blank line, no declaration",
+                              "blank lines before the declaration"])
 def test_an_opencv_filestorage_xml_file_is_read(tmp_path, text):
     """It was refused with "expected a mapping with camera_matrix or k ...", which says nothing of XML."""
     p = tmp_path / "out_camera_data.xml"
@@ -435,7 +436,10 @@ def test_an_opencv_filestorage_xml_file_is_read(tmp_path, text):
      "not a readable OpenCV FileStorage XML file (line 8: Mismatched closing tag)"),
     (OPENCV_XML.replace("</rows>", "</cols>", 1).removeprefix('<?xml version="1.0"?>\n'),
      "not a readable OpenCV FileStorage XML file (line 7: Mismatched closing tag)"),
-], ids=["fisheye", "no matrix", "not opencv", "broken", "broken without declaration"])
+    ("\n\n" + OPENCV_XML.replace("</rows>", "</cols>", 1),
+     "not a readable OpenCV FileStorage XML file (line 10: Mismatched closing tag)"),
+], ids=["fisheye", "no matrix", "not opencv", "broken", "broken without declaration",
+        "broken after blank lines"])
 def test_an_unusable_xml_file_is_a_one_line_error_naming_the_format(tmp_path, text, message):
     p = tmp_path / "cam.xml"
     p.write_text(text)
