@@ -51,7 +51,8 @@ def add_common(p: argparse.ArgumentParser, camera: bool = True) -> None:
     if camera:
         p.add_argument("--camera", type=file_path,
                        help="camera file: ROS camera_info YAML (the calibration file, or the message as "
-                            "`ros2 topic echo --once` prints it), OpenCV YAML/JSON, or {fx,fy,cx,cy,dist}")
+                            "`ros2 topic echo --once` prints it), OpenCV FileStorage YAML/XML/JSON, a Kalibr "
+                            "camchain of one camera, or {fx,fy,cx,cy,dist}")
     p.add_argument("--settings", type=file_path, help="settings JSON (full or partial), applied over --preset")
     p.add_argument("--preset", default="default", choices=sorted(PRESETS), help="base settings (default: default)")
 

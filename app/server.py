@@ -376,7 +376,7 @@ def read_upload(file: FormFile, unnamed: str = "upload") -> tuple[str, bytes]:
 
 
 def camera_from_upload(name: str, data: bytes) -> Camera:
-    """Parse an uploaded camera file (ROS / OpenCV YAML or JSON); CameraError names the upload, not a temp path."""
+    """Parse an uploaded camera file (any load_camera reads); CameraError names the upload, not a temp path."""
     suffix = Path(name).suffix.lower()
     with tempfile.TemporaryDirectory(prefix="signpose-camera-") as tmp:
         path = Path(tmp) / ("camera" + (suffix if suffix in CAMERA_SUFFIXES else ".yaml"))
@@ -714,7 +714,8 @@ def get_camera(workspace: WorkspaceDep) -> CameraOut:
             "type": "object", "required": ["file"],
             "properties": {"file": {"type": "string", "format": "binary",
                                     "description": "ROS camera_info YAML (file, or message as ros2 topic echo "
-                                                   "prints it), OpenCV YAML/JSON or {fx, fy, cx, cy}"}},
+                                                   "prints it), OpenCV FileStorage YAML/XML/JSON, a Kalibr "
+                                                   "camchain of one camera, or {fx, fy, cx, cy}"}},
         }},
     },
 }})

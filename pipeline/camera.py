@@ -1,4 +1,4 @@
-"""Camera intrinsics: loading ROS (file or message) / OpenCV / plain-JSON camera files, and an assumed camera.
+"""Camera intrinsics: loading ROS (file or message) / OpenCV / Kalibr / plain-JSON camera files, and an assumed camera.
 
 K is the OpenCV 3x3 matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels; `dist` is OpenCV's
 (k1, k2, p1, p2[, k3, ...]) distortion vector.
@@ -6,6 +6,7 @@ K is the OpenCV 3x3 matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels; `dis
 
 from __future__ import annotations
 
+import codecs
 import math
 import re
 import reprlib
@@ -47,8 +48,36 @@ MAX_DISTORTION_FACTOR = 5.0
 # Images a camera is scaled to keep its calibration's aspect within 1 % (sizes rounded to whole
 # pixels at either resolution); beyond, the photo was cropped or re-framed.
 MAX_ASPECT_CHANGE = 0.01
-# ROS camera_info's names for OpenCV's distortion model with 5 and with 8 coefficients.
-ROS_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial")
+
+# The keys a camera file's numbers are read under. Every format (ROS camera_info file and message,
+# OpenCV FileStorage, a Kalibr camchain's camera, signpose's JSON) is read with all of them, so that
+# a file means the same whichever reader its syntax sends it to. Each is one of several names for
+# one thing: a file that gives two of them is refused, as which it means cannot be known.
+# The 3x3 camera matrix, row by row: ROS's file, ROS 2's and ROS 1's message, OpenCV's name.
+MATRIX_KEYS = ("camera_matrix", "k", "K", "cameraMatrix")
+# Kalibr gives the camera matrix as `intrinsics: [fu, fv, pu, pv]`, signpose's JSON as fx, fy, cx, cy.
+# OpenCV's distortion vector (k1 k2 p1 p2 [k3 ...]): ROS's file, ROS 2's and ROS 1's message, the
+# names OpenCV's functions and scripts use, Kalibr's, signpose's JSON.
+DISTORTION_KEYS = ("distortion_coefficients", "d", "D", "dist_coeffs", "distCoeffs", "distortion_coeffs", "dist")
+# The image size in px the intrinsics are for: ROS's file and OpenCV's calibration sample, then
+# ROS's message and signpose's JSON; Kalibr's is `resolution: [width, height]`.
+WIDTH_KEYS, HEIGHT_KEYS = ("image_width", "width"), ("image_height", "height")
+# Keys that look like lens distortion or a lens model but are none of the keys read: refused, as
+# ignoring them makes a distortion-free camera and poses off without a word (`dist_coef`,
+# `distortion`, `k1`, a `fisheye` flag).
+DISTORTION_LIKE = re.compile(r"distort|^dist(?!ance)|fisheye|^[kp]\d$", re.IGNORECASE)
+# OpenCV's distortion model on a pinhole camera (k1 k2 p1 p2 [k3 ...]), by ROS's names for 5 and 8
+# coefficients and Kalibr's ("radial-tangential") for 4.
+OPENCV_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "radtan")
+# `distortion_model`s that name no distortion (ROS's field never set, Kalibr's "none"): taken
+# without coefficients only, as coefficients under them follow no known model.
+NO_DISTORTION_MODELS = ("", "none")
+# Keys that name a camera's model, which must be a pinhole camera with OpenCV's distortion
+# (_model_problem): ROS's and Kalibr's `distortion_model`, Kalibr's `camera_model` (its
+# projection), and the 0 or 1 OpenCV's calibration sample writes as `fisheye_model`.
+MODEL_KEYS = ("distortion_model", "camera_model", "fisheye_model")
+# A camera of a Kalibr camchain: cam0, cam1, ...
+KALIBR_CAMERA = re.compile(r"cam\d+")
 
 
 class CameraError(ValueError):
@@ -240,16 +269,11 @@ def assumed_camera(width: int, height: int, hfov_deg: float = ASSUMED_HFOV_DEG, 
 
 
 def camera_from_json(data: dict, source: str = "json") -> Camera:
-    """Camera from `{fx, fy, cx, cy, dist?, width?, height?}` (pixels)."""
+    """Camera from a parsed camera file or request: `{fx, fy, cx, cy, dist?, width?, height?}` (pixels),
+    or any of the keys `load_camera` reads."""
     if not isinstance(data, dict):
         raise CameraError("camera JSON must be an object with fx, fy, cx, cy")
-    missing = [k for k in ("fx", "fy", "cx", "cy") if k not in data]
-    if missing:
-        raise CameraError(f"camera JSON is missing {', '.join(missing)}")
-    fx, fy, cx, cy = (_number(data[k], k) for k in ("fx", "fy", "cx", "cy"))
-    dist = _numbers(data.get("dist") or [], "dist")
-    K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
-    return Camera(K, dist, _opt_int(data.get("width"), "width"), _opt_int(data.get("height"), "height"), source)
+    return _camera_from_fields(data, source, "JSON")
 
 
 def _number(value: object, name: str) -> float:
@@ -294,103 +318,235 @@ def _matrix(node: object, name: str, rows: int | None, cols: int | None) -> np.n
     return _numbers(node, name)
 
 
-def is_ros_message(data: dict) -> bool:
-    """Whether parsed YAML is a sensor_msgs/CameraInfo message as `ros2 topic echo` prints it (`k`, `d`,
-    `width`, `height`, flat lists) or ROS 1's `rostopic echo` (`K`, `D`), rather than the file ROS's
-    camera_calibration writes (`camera_matrix: {rows, cols, data}`, `image_width`, ...)."""
-    return "camera_matrix" not in data and ("k" in data or "K" in data)
+def _one_of(fields: dict, keys: tuple[str, ...], what: str) -> tuple[str, object] | None:
+    """(key, value) of the one of `keys` that `fields` gives (a null value is not given), None when it
+    gives none; CameraError naming `what` when it gives several, as which one it means is unknown."""
+    given = [k for k in keys if fields.get(k) is not None]
+    if len(given) > 1:
+        raise CameraError(f"{what} is given twice, as {' and '.join(given)}: keep the one meant")
+    return (given[0], fields[given[0]]) if given else None
 
 
-def camera_from_ros(data: dict, source: str) -> Camera:
-    """Camera from a parsed ROS camera_info: the calibration file (`camera_matrix`, `distortion_coefficients`,
-    `image_width`, `image_height`) or the message (`is_ros_message`: `k`, 9 numbers row by row, `d`,
-    `width`, `height`; `header`, `r`, `p`, binning and roi are not used, as the file's rectification and
-    projection matrices are not). OpenCV's distortion model only (ROS's `plumb_bob` or
-    `rational_polynomial`); any other `distortion_model` is refused, since its coefficients mean
-    something else. Errors name the key as the file writes it."""
-    if is_ros_message(data):
-        matrix, distortion = ("k", "d") if "k" in data else ("K", "D")
-        width, height = "width", "height"
+def _refuse_unknown_distortion(fields: dict) -> None:
+    """CameraError when `fields` has a key that looks like distortion (DISTORTION_LIKE) but is not one read."""
+    known = (*DISTORTION_KEYS, *MODEL_KEYS)
+    unknown = [str(k) for k in fields if k not in known and DISTORTION_LIKE.search(str(k))]
+    if unknown:
+        raise CameraError(f"{', '.join(unknown)}: not a key signpose reads, and without it the lens would be taken "
+                          "as distortion-free; give the coefficients as one list in OpenCV's order (k1, k2, p1, p2"
+                          f"[, k3, ...]) under {', '.join(DISTORTION_KEYS)}, and the model as distortion_model")
+
+
+def _model_problem(fields: dict, dist: np.ndarray) -> str | None:
+    """Why the model `fields` name (MODEL_KEYS) is not a pinhole camera with OpenCV's distortion `dist`;
+    None when it is, or none is named. Other models' coefficients mean something else, so a pose
+    from them is wrong without a word."""
+    for key in MODEL_KEYS:
+        model = fields.get(key)
+        if model is None:
+            continue
+        name = model.lower() if isinstance(model, str) else None
+        if key == "fisheye_model":
+            usable = name is None and model == 0  # 0 or false: not calibrated as a fisheye
+        elif key == "camera_model":
+            usable = name == "pinhole"  # not Kalibr's omni, ds or eucm
+        else:
+            # A model naming no distortion with no coefficients is a camera without distortion.
+            usable = name in OPENCV_DISTORTION_MODELS or (name in NO_DISTORTION_MODELS and not dist.any())
+        if not usable:
+            return (f"{key} {reprlib.repr(model)} is not supported: signpose uses OpenCV's model "
+                    f"({', '.join(OPENCV_DISTORTION_MODELS[:-1])} or {OPENCV_DISTORTION_MODELS[-1]}: k1 k2 p1 p2 k3 "
+                    "...) on a pinhole camera; calibrate with `signpose calibrate`, or undistort the photos first "
+                    "and give zero distortion")
+    return None
+
+
+def _camera_matrix(fields: dict, kind: str) -> np.ndarray:
+    """The 3x3 camera matrix `fields` give (MATRIX_KEYS, Kalibr's intrinsics, or fx, fy, cx, cy);
+    CameraError naming the key, or saying that this `kind` of file has none."""
+    found = _one_of(fields, (*MATRIX_KEYS, "intrinsics", "fx"), "the camera matrix")
+    if found is None:
+        raise CameraError(f"expected camera_matrix (ROS camera_info file), k (ROS 2 camera_info message, as "
+                          f"`ros2 topic echo --once` prints it), K, cameraMatrix, intrinsics (Kalibr) or fx, fy, cx, "
+                          f"cy keys; this {kind} has none")
+    key, value = found
+    if key in MATRIX_KEYS:
+        K = _matrix(value, key, 3, 3)
+        if K.size != 9:
+            raise CameraError(f"{key} must have 9 values (the 3x3 matrix, row by row); got {K.size}")
+        if not K.any():  # CameraInfo's convention for a camera nobody calibrated, whatever its model says
+            raise CameraError(f"{key} is all zeros: this camera_info is of an uncalibrated camera; calibrate it "
+                              "(`signpose calibrate`, or ROS's camera_calibration) and give that file")
+        return K.reshape(3, 3)
+    if key == "intrinsics":
+        focal = _numbers(value, key).ravel()
+        if focal.size != 4:
+            raise CameraError(f"intrinsics must be Kalibr's pinhole [fu, fv, pu, pv] (fx, fy, cx, cy in px); "
+                              f"got {reprlib.repr(value)}")
     else:
-        matrix, distortion, width, height = "camera_matrix", "distortion_coefficients", "image_width", "image_height"
-    K = _matrix(data[matrix], matrix, 3, 3)
-    if K.size != 9:
-        raise CameraError(f"{matrix} must have 9 values (the 3x3 matrix, row by row); got {K.size}")
-    if not K.any():  # CameraInfo's convention for a camera nobody calibrated, whatever its model says
-        raise CameraError(f"{matrix} is all zeros: this camera_info is of an uncalibrated camera; calibrate it "
-                          "(`signpose calibrate`, or ROS's camera_calibration) and give that file")
-    dist = _matrix(data.get(distortion, {"data": []}), distortion, None, None)
-    model = data.get("distortion_model")
-    # An empty model (the field never set) with no coefficients is a camera without distortion.
-    if model not in (None, *ROS_DISTORTION_MODELS) and not (model == "" and not dist.any()):
-        raise CameraError(f"distortion_model {reprlib.repr(model)} is not supported: signpose uses OpenCV's model "
-                          f"({' or '.join(ROS_DISTORTION_MODELS)}: k1 k2 p1 p2 k3 ...); calibrate with "
-                          "`signpose calibrate`, or undistort the photos first and give zero distortion")
-    return Camera(K.reshape(3, 3), dist.ravel(), _opt_int(data.get(width), width), _opt_int(data.get(height), height),
-                  source)
+        missing = [k for k in ("fy", "cx", "cy") if k not in fields]
+        if missing:
+            raise CameraError(f"the camera matrix is missing {', '.join(missing)}: fx, fy, cx and cy give it together")
+        focal = [_number(fields[k], k) for k in ("fx", "fy", "cx", "cy")]
+    fx, fy, cx, cy = focal
+    return np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
 
 
-def _filestorage_matrix(fs: cv2.FileStorage, names: tuple[str, ...]) -> np.ndarray | None:
-    """The first of the nodes `names` that `fs` has, as an array; None when it has none of them."""
-    name = next((n for n in names if not fs.getNode(n).empty()), None)
-    if name is None:
-        return None
+def _camera_from_fields(fields: dict, source: str, kind: str) -> Camera:
+    """Camera from the top-level keys and values of a camera file of `kind` ("YAML/JSON file", ...),
+    whichever format it is (see load_camera): the matrix, distortion, model and image size under
+    the keys MATRIX_KEYS .. MODEL_KEYS. CameraError naming the key as the file writes it."""
+    _refuse_unknown_distortion(fields)
+    found = _one_of(fields, DISTORTION_KEYS, "the distortion")
+    dist = np.zeros(0) if found is None else _matrix(found[1], found[0], None, None).ravel()
+    problem = _model_problem(fields, dist)
+    if problem:
+        raise CameraError(problem)
+    return Camera(_camera_matrix(fields, kind), dist, *_image_size(fields), source)
+
+
+def _image_size(fields: dict) -> tuple[int | None, int | None]:
+    """The image width and height in px that `fields` give (WIDTH_KEYS, HEIGHT_KEYS, or Kalibr's
+    resolution [width, height]), None for one not given; CameraError naming the key."""
+    width, height = (_one_of(fields, keys, f"the image {what}")
+                     for keys, what in ((WIDTH_KEYS, "width"), (HEIGHT_KEYS, "height")))
+    resolution = fields.get("resolution")
+    if resolution is None:
+        return tuple(None if f is None else _opt_int(f[1], f[0]) for f in (width, height))
+    if width or height:
+        other = (width or height)[0]
+        raise CameraError(f"the image size is given twice, as resolution and {other}: keep the one meant")
+    values = _numbers(resolution, "resolution").ravel()
+    if values.size != 2:
+        raise CameraError(f"resolution must be [width, height] in px; got {reprlib.repr(resolution)}")
+    return _opt_int(float(values[0]), "resolution width"), _opt_int(float(values[1]), "resolution height")
+
+
+def _kalibr_camera(data: dict) -> tuple[str, dict] | None:
+    """The name and fields of the camera of a Kalibr camchain (`cam0: {camera_model, intrinsics,
+    distortion_model, distortion_coeffs, resolution, ...}`), None when `data` is none.
+
+    A camchain of several cameras (a stereo rig's cam0, cam1) is refused, asking which: the file
+    cannot say which camera took the photos, and taking cam0 would give the other's photos poses
+    off without a word. One camera is taken under any name (a copy of the file keeping cam1 alone).
+    """
+    names = [k for k, v in data.items() if isinstance(k, str) and KALIBR_CAMERA.fullmatch(k) and isinstance(v, dict)]
+    if len(names) > 1:
+        raise CameraError(f"this Kalibr camchain has {len(names)} cameras ({', '.join(names)}) and signpose needs the "
+                          "one that took the photos: give a copy of the file with only that camera's block")
+    return (names[0], data[names[0]]) if names else None
+
+
+def _filestorage_value(node: cv2.FileNode) -> object:
+    """A FileStorage node as Python: a number, text, a list, an array for an OpenCV matrix, else a dict."""
+    if node.isInt():
+        return int(node.real())
+    if node.isReal():
+        return node.real()
+    if node.isString():
+        return node.string()
+    if node.isSeq():
+        return [_filestorage_value(node.at(i)) for i in range(node.size())]
+    if node.isMap():
+        try:
+            return node.mat()
+        except cv2.error:  # a mapping that is no matrix, or a matrix with data that are not numbers: its
+            # fields, which _matrix reads as ROS's {rows, cols, data} and names what is wrong in them
+            return {k: _filestorage_value(node.getNode(k)) for k in node.keys()}
+    return None
+
+
+def _xml_declaration_first(text: str) -> str:
+    """XML `text` starting with its `<?xml ...?>` declaration, as OpenCV tells XML by it: added when
+    missing (hand-made files leave it out), and put before blank lines that preceded it. Those lines
+    go after it, so that OpenCV's line numbers stay the file's."""
+    body = text.lstrip()
+    end = body.find("?>") + 2 if body.startswith("<?xml") else 0
+    if end == 1:  # a declaration without its end: OpenCV says what is wrong
+        return text
+    return (body[:end] or '<?xml version="1.0"?>') + text[:len(text) - len(body)] + body[end:]
+
+
+def _filestorage_fields(text: str, syntax: str) -> dict:
+    """The top-level nodes of the OpenCV FileStorage `text` in `syntax` (_filestorage_syntax), as
+    Python (_filestorage_value)."""
+    if syntax == "XML":
+        text = _xml_declaration_first(text)
     try:
-        return fs.getNode(name).mat()
-    except cv2.error:  # a scalar, a plain list, a mapping that is no matrix, or non-numeric data
-        raise CameraError(f"{name} is not an OpenCV matrix of numbers") from None
-
-
-def _filestorage_int(fs: cv2.FileStorage, name: str) -> int | None:
-    """The whole number at node `name` of `fs`; None when absent."""
-    node = fs.getNode(name)
-    if node.empty():
-        return None
-    # real() of a string or a list is DBL_MAX, not an error, so only numeric nodes may use it.
-    return _opt_int(node.real() if node.isInt() or node.isReal() else node.string(), name)
-
-
-def _camera_from_filestorage(path: Path) -> Camera:
-    try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        # From the text, not the file: OpenCV reads a file's byte-order mark as YAML, and fails.
+        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except SystemError as exc:  # OpenCV 5's binding wraps the cv2.error of a file it cannot parse
         if not isinstance(exc.__cause__, cv2.error):
             raise
         raise exc.__cause__ from None
     try:
-        K = _filestorage_matrix(fs, ("camera_matrix", "K", "cameraMatrix"))
-        if K is None:
-            raise CameraError("no camera_matrix, K or cameraMatrix node")
-        dist = _filestorage_matrix(fs, ("distortion_coefficients", "D", "dist_coeffs", "distCoeffs"))
-        width, height = _filestorage_int(fs, "image_width"), _filestorage_int(fs, "image_height")
+        root = fs.root()
+        return {k: _filestorage_value(root.getNode(k)) for k in root.keys()}
     finally:
         fs.release()
-    return Camera(K, np.zeros(5) if dist is None else dist.ravel(), width, height, f"file:{path}")
 
 
 def load_camera(path: str | Path) -> Camera:
-    """Read a ROS camera_info YAML (the calibration file, or the message as `ros2 topic echo` prints it),
-    an OpenCV FileStorage YAML/JSON, or JSON `{fx, fy, cx, cy, dist}`."""
+    """Read a camera file: a ROS camera_info YAML (the calibration file, or the message as `ros2 topic
+    echo` prints it), an OpenCV FileStorage YAML, XML or JSON, a Kalibr camchain of one camera
+    (_kalibr_camera), or JSON `{fx, fy, cx, cy, dist}`.
+
+    Every format is read with the same keys (MATRIX_KEYS, DISTORTION_KEYS, WIDTH_KEYS, HEIGHT_KEYS,
+    MODEL_KEYS), so that e.g. `dist_coeffs` beside a `camera_matrix` list is read, not dropped. Other
+    keys (a calibration's date, error and board; a message's header, `r`, `p`, binning and roi, as
+    the rectification and projection matrices are not used) are ignored, except those that look
+    like distortion or a lens model (DISTORTION_LIKE), which are refused. OpenCV's distortion model
+    only (ROS's `plumb_bob` or `rational_polynomial`, Kalibr's pinhole `radtan`; the calibration
+    sample's `fisheye_model: 0`): any other is refused, since its coefficients mean something else.
+    A file that names no model cannot be told from OpenCV's: cv2.fisheye's 4 coefficients without
+    one are read as k1 k2 p1 p2. Errors name the key as the file writes it.
+    """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = _camera_text(path.read_bytes())
     except FileNotFoundError:
         raise CameraError(f"camera file not found: {path}") from None
-    except UnicodeDecodeError:
-        raise CameraError(f"camera file {path} is not text") from None
+    except ValueError:  # a UnicodeDecodeError, or a NUL character
+        raise CameraError(f"camera file {path} is not text (UTF-8, or UTF-16 with a byte-order mark)") from None
     try:
         return _parse_camera(text, path)
     except CameraError as exc:
         raise CameraError(f"{path}: {exc}") from None
 
 
+def _camera_text(data: bytes) -> str:
+    """The text of a camera file's bytes `data`: UTF-8, without the byte-order mark Windows editors
+    write, or UTF-16 with its mark (what Windows PowerShell 5's `>` writes). UnicodeDecodeError, or
+    ValueError for a NUL character, which no text has and OpenCV would read as the end of the file."""
+    text = data.decode("utf-16" if data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)) else "utf-8-sig")
+    if "\0" in text:
+        raise ValueError("a NUL character")
+    return text
+
+
+def _filestorage_syntax(text: str) -> str | None:
+    """The syntax of `text` when it is an OpenCV FileStorage file, None when it is plain YAML or JSON:
+    "XML" for any XML (OpenCV's calibration sample writes it by default), else "YAML" or "JSON" for
+    text with OpenCV's `%YAML` directive or matrix type."""
+    start = text.lstrip()
+    if start.startswith("<"):
+        return "XML"
+    if start.startswith("%YAML") or "!!opencv-matrix" in text:
+        return "YAML"
+    if '"type_id": "opencv-matrix"' in text:
+        return "JSON" if start.startswith("{") else "YAML"
+    return None
+
+
 def _parse_camera(text: str, path: Path) -> Camera:
     """Camera from the `text` of the camera file `path`; CameraError messages leave the path to the caller."""
-    if text.lstrip().startswith("%YAML") or "!!opencv-matrix" in text or '"type_id": "opencv-matrix"' in text:
+    syntax = _filestorage_syntax(text)
+    if syntax:
         try:
-            return _camera_from_filestorage(path)
+            fields = _filestorage_fields(text, syntax)
         except cv2.error as exc:
-            raise CameraError(f"not a readable OpenCV FileStorage file ({_opencv_error(exc)})") from None
+            raise CameraError(f"not a readable OpenCV FileStorage {syntax} file ({_opencv_error(exc)})") from None
+        return _camera_from_fields(fields, f"file:{path}", f"OpenCV FileStorage {syntax} file")
     try:
         # YAML is a superset of JSON. `ros2 topic echo` ends each message with "---", which starts
         # another (empty) document; without --once it prints one after the other: the first is used.
@@ -399,12 +555,14 @@ def _parse_camera(text: str, path: Path) -> Camera:
         raise CameraError(f"neither valid YAML nor JSON ({_yaml_error(exc)})") from None
     if not isinstance(data, dict):
         raise CameraError("expected a mapping with camera_matrix or k (ROS camera_info) or fx, fy, cx, cy")
-    if "camera_matrix" in data or is_ros_message(data):
-        return camera_from_ros(data, f"file:{path}")
-    if "fx" in data:
-        return camera_from_json(data, f"file:{path}")
-    raise CameraError("expected camera_matrix (ROS camera_info file), k (ROS 2 camera_info message, as "
-                      "`ros2 topic echo --once` prints it) or fx, fy, cx, cy keys")
+    kalibr = _kalibr_camera(data)
+    if kalibr is None:
+        return _camera_from_fields(data, f"file:{path}", "YAML/JSON file")
+    name, fields = kalibr
+    try:
+        return _camera_from_fields(fields, f"file:{path}", "Kalibr camera")
+    except CameraError as exc:  # the key is the camera's, as in the file
+        raise CameraError(f"{name}: {exc}") from None
 
 
 def _yaml_error(exc: yaml.YAMLError) -> str:
@@ -424,8 +582,9 @@ def _yaml_error(exc: yaml.YAMLError) -> str:
 def _opencv_error(exc: cv2.error) -> str:
     """OpenCV's message without its source file and function: for a parse error, the line and reason."""
     if exc.code == cv2.Error.StsParseError:
-        # Its "function" is "<path>(<line>): <reason>", and the path may be a temporary upload's.
-        parse = re.search(r"\((\d+)\): (.*)$", exc.func or "")
+        # Its "function" is "<path>(<line>): <reason>", where the path is empty, or for some errors
+        # the text read: the last "(<line>): " is the one OpenCV added.
+        parse = re.search(r".*\((\d+)\): (.*)$", exc.func or "", re.DOTALL)
         if parse:
             return f"line {parse[1]}: {parse[2]}"
     return (exc.err or str(exc)).strip().splitlines()[-1]

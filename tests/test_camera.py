@@ -1,3 +1,4 @@
+import codecs
 import json
 import math
 import re
@@ -235,7 +236,7 @@ K_DATA = "[554, 0, 320, 0, 554, 240, 0, 0, 1]"
     ('{"fx": 1%s, "fy": 554, "cx": 320, "cy": 240}' % ("0" * 400), "fx must be a number; got 1000"),
     ('{"fx": 554, "fy": 554, "cx": 320, "cy": 240, "dist": [0, "x", 0, 0]}', "dist must be a number; got 'x'"),
     ('{"fx": 554, "fy": 554, "cx": 320, "cy": 240, "height": "tall"}', "height must be a whole number; got 'tall'"),
-    (OPENCV_MATRIX.format(fields="", fx="abc"), "camera_matrix is not an OpenCV matrix of numbers"),
+    (OPENCV_MATRIX.format(fields="", fx="abc"), "camera_matrix.data must be a number; got 'abc'"),
     (OPENCV_MATRIX.format(fields="image_width: wide\n", fx="554."), "image_width must be a whole number; got 'wide'"),
     (OPENCV_MATRIX.format(fields="image_height: 480.5\n", fx="554."), "image_height must be a whole number; got 480.5"),
 ])
@@ -246,6 +247,254 @@ def test_non_numeric_entries_are_one_line_errors_naming_the_field(tmp_path, text
         load_camera(p)
     assert str(info.value).startswith(f"{p}: {message}")
     assert "\n" not in str(info.value)
+
+
+
+D_VALUES = [-0.1209, 0.0515, 0.0, 0.0001, 0.0]
+# One camera (a 1600 x 1200 px calibration) as each format writes its matrix; {distortion} is
+# where the distortion goes, as that format writes a key and a list.
+MATRIX_FORMATS = {
+    "json matrix": ('{{"camera_matrix": [[1299.5, 0, 805.7], [0, 1294.6, 596], [0, 0, 1]], {distortion}, '
+                    '"image_width": 1600, "image_height": 1200}}', '"{key}": {values}'),
+    "json fx": ('{{"fx": 1299.5, "fy": 1294.6, "cx": 805.7, "cy": 596, {distortion}}}', '"{key}": {values}'),
+    "ros": ("camera_matrix: {{rows: 3, cols: 3, data: [1299.5, 0, 805.7, 0, 1294.6, 596, 0, 0, 1]}}\n"
+            "distortion_model: plumb_bob\n{distortion}\n", "{key}: {values}"),
+    "opencv": ("%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+               "   data: [ 1299.5, 0., 805.7, 0., 1294.6, 596., 0., 0., 1. ]\n{distortion}\n",
+               "{key}: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: {values}"),
+}
+
+
+def camera_text(form: str, key: str, values: list[float] = D_VALUES) -> str:
+    """The camera of MATRIX_FORMATS[`form`] with distortion `values` under `key`."""
+    text, distortion = MATRIX_FORMATS[form]
+    return text.format(distortion=distortion.format(key=key, values=json.dumps(values)))
+
+
+@pytest.mark.parametrize("form", MATRIX_FORMATS)
+@pytest.mark.parametrize("key", ["distortion_coefficients", "dist_coeffs", "distCoeffs", "D", "d", "dist"])
+def test_distortion_is_read_under_each_of_its_names_in_every_format(tmp_path, form, key):
+    """`dist_coeffs` beside a camera_matrix list was dropped: a distortion-free camera, wrong poses, no word."""
+    p = tmp_path / "cam.yaml"
+    p.write_text(camera_text(form, key))
+    assert load_camera(p).dist.tolist() == D_VALUES
+
+
+@pytest.mark.parametrize("form", MATRIX_FORMATS)
+@pytest.mark.parametrize("key", ["distortion", "dist_coef", "distortionCoefficients", "Distortion_Coeffs", "k1"])
+def test_a_key_that_looks_like_distortion_but_is_not_read_is_refused(tmp_path, form, key):
+    p = tmp_path / "cam.yaml"
+    p.write_text(camera_text(form, key))
+    with pytest.raises(CameraError) as info:
+        load_camera(p)
+    assert str(info.value).startswith(f"{p}: {key}: not a key signpose reads, and without it the lens would be "
+                                      "taken as distortion-free; give the coefficients as one list in OpenCV's order")
+    assert "distortion_coefficients, d, D, dist_coeffs, distCoeffs" in str(info.value)
+
+
+def test_keys_that_are_not_distortion_are_ignored(tmp_path):
+    p = tmp_path / "cam.json"
+    p.write_text(camera_text("json matrix", "dist_coeffs")[:-1] + ', "distance_m": 2.5, "avg_reprojection_error": '
+                 '0.2, "model": "pinhole", "notes": {"dist": "n/a"}}')
+    assert load_camera(p).dist.tolist() == D_VALUES
+
+
+@pytest.mark.parametrize("form", MATRIX_FORMATS)
+def test_distortion_given_twice_is_refused(tmp_path, form):
+    """Which of two lists the file means cannot be known."""
+    p = tmp_path / "cam.yaml"
+    text, distortion = MATRIX_FORMATS[form]
+    separator = ", " if form.startswith("json") else "\n"
+    twice = separator.join(distortion.format(key=key, values=values)
+                           for key, values in (("D", [0.0] * 5), ("dist_coeffs", D_VALUES)))
+    p.write_text(text.format(distortion=twice))
+    with pytest.raises(CameraError, match="the distortion is given twice, as D and dist_coeffs: keep the one meant"):
+        load_camera(p)
+
+
+FISHEYE_FS = """%YAML:1.0
+---
+K: !!opencv-matrix
+   rows: 3
+   cols: 3
+   dt: d
+   data: [ 1299.5, 0., 805.7, 0., 1294.6, 596., 0., 0., 1. ]
+D: !!opencv-matrix
+   rows: 4
+   cols: 1
+   dt: d
+   data: [ 0.05, -0.01, 0.002, -0.0005 ]
+"""
+
+
+@pytest.mark.parametrize("model, message", [
+    ("distortion_model: fisheye\n", "distortion_model 'fisheye' is not supported"),
+    ("distortion_model: equidistant\n", "distortion_model 'equidistant' is not supported"),
+    # what OpenCV's calibration sample (camera_calibration.cpp) writes for a fisheye calibration
+    ("fisheye_model: 1\n", "fisheye_model 1 is not supported"),
+])
+def test_an_opencv_filestorage_file_of_another_model_is_refused(tmp_path, model, message):
+    """A fisheye's k1 k2 k3 k4 were read as OpenCV's k1 k2 p1 p2 without a word."""
+    p = tmp_path / "fisheye.yml"
+    p.write_text(FISHEYE_FS + model)
+    with pytest.raises(CameraError) as info:
+        load_camera(p)
+    assert str(info.value).startswith(f"{p}: {message}: signpose uses OpenCV's model (plumb_bob, rational_polynomial "
+                                      "or radtan: k1 k2 p1 p2 k3 ...) on a pinhole camera")
+    for usable in ("distortion_model: plumb_bob\n", "fisheye_model: 0\n", ""):
+        p.write_text(FISHEYE_FS + usable)
+        assert load_camera(p).dist.tolist() == [0.05, -0.01, 0.002, -0.0005]
+
+
+
+OPENCV_FS = """%YAML:1.0
+---
+calibration_time: "Mon 01 Jan 2024"
+image_width: 1600
+image_height: 1200
+camera_matrix: !!opencv-matrix
+   rows: 3
+   cols: 3
+   dt: d
+   data: [ 1299.5, 0., 805.7, 0., 1294.6, 596., 0., 0., 1. ]
+distortion_coefficients: !!opencv-matrix
+   rows: 5
+   cols: 1
+   dt: d
+   data: [ -0.1209, 0.0515, 0., 0.0001, 0. ]
+"""
+
+
+@pytest.mark.parametrize("text, k1", [(OPENCV_FS, -0.1209), (ROS, -0.1)], ids=["opencv", "ros"])
+@pytest.mark.parametrize("encoding", ["utf-8-sig", "utf-16", "utf-16-be", "utf-8"])
+def test_a_camera_file_with_a_byte_order_mark_is_read(tmp_path, text, k1, encoding):
+    """Windows editors start UTF-8 with a byte-order mark, which OpenCV read as YAML and failed on;
+    Windows PowerShell 5's `ros2 topic echo ... > cam.yaml` writes UTF-16, said to be no text."""
+    p = tmp_path / "cam.yaml"
+    data = text.encode(encoding)
+    p.write_bytes(codecs.BOM_UTF16_BE + data if encoding == "utf-16-be" else data)  # Python writes no mark for it
+    assert load_camera(p).dist[0] == k1
+
+
+def test_a_nul_character_is_not_text(tmp_path):
+    """OpenCV reads text up to a NUL: the distortion after it was dropped."""
+    p = tmp_path / "cam.yml"
+    p.write_text(OPENCV_FS.replace("distortion_coefficients", "\0distortion_coefficients"))
+    with pytest.raises(CameraError, match=re.escape(f"camera file {p} is not text (UTF-8, or UTF-16 with a ")):
+        load_camera(p)
+
+
+
+# What OpenCV's calibration sample writes by default (its camera_calibration.cpp, out_camera_data.xml).
+OPENCV_XML = """<?xml version="1.0"?>
+<opencv_storage>
+<calibration_time>"Mon 01 Jan 2024"</calibration_time>
+<image_width>1600</image_width>
+<image_height>1200</image_height>
+<fisheye_model>0</fisheye_model>
+<camera_matrix type_id="opencv-matrix">
+  <rows>3</rows>
+  <cols>3</cols>
+  <dt>d</dt>
+  <data>
+    1299.5 0. 805.70000000000005 0. 1294.5999999999999 596. 0. 0. 1.</data></camera_matrix>
+<distortion_coefficients type_id="opencv-matrix">
+  <rows>5</rows>
+  <cols>1</cols>
+  <dt>d</dt>
+  <data>
+    -0.12089999999999999 0.051499999999999997 0. 0.0001 0.</data></distortion_coefficients>
+<avg_reprojection_error>0.083000000000000004</avg_reprojection_error>
+</opencv_storage>
+"""
+
+
+@pytest.mark.parametrize("text", [OPENCV_XML, OPENCV_XML.replace("\n", "\r\n"),
+                                  OPENCV_XML.removeprefix('<?xml version="1.0"?>\n'),
+                                  "\n" + OPENCV_XML.removeprefix('<?xml version="1.0"?>\n'), "\n \n" + OPENCV_XML],
+                         ids=["sample", "crlf", "no declaration", "a blank line, no declaration",
+                              "blank lines before the declaration"])
+def test_an_opencv_filestorage_xml_file_is_read(tmp_path, text):
+    """It was refused with "expected a mapping with camera_matrix or k ...", which says nothing of XML."""
+    p = tmp_path / "out_camera_data.xml"
+    p.write_text(text)
+    camera = load_camera(p)
+    assert camera.K[0, 0] == 1299.5 and camera.dist.tolist() == D_VALUES
+    assert (camera.width, camera.height) == (1600, 1200)
+
+
+@pytest.mark.parametrize("text, message", [
+    (OPENCV_XML.replace("<fisheye_model>0", "<fisheye_model>1"), "fisheye_model 1 is not supported: signpose uses"),
+    (OPENCV_XML.replace("camera_matrix", "intrinsic_matrix"),
+     "expected camera_matrix (ROS camera_info file), k (ROS 2 camera_info message, as `ros2 topic echo --once` prints "
+     "it), K, cameraMatrix, intrinsics (Kalibr) or fx, fy, cx, cy keys; this OpenCV FileStorage XML file has none"),
+    # Agisoft Metashape's calibration XML, say
+    ('<?xml version="1.0" encoding="UTF-8"?>\n<calibration>\n  <projection>frame</projection>\n'
+     '  <width>1600</width>\n</calibration>\n',
+     "not a readable OpenCV FileStorage XML file (line 2: <opencv_storage> tag is missing)"),
+    (OPENCV_XML.replace("</rows>", "</cols>", 1),
+     "not a readable OpenCV FileStorage XML file (line 8: Mismatched closing tag)"),
+    (OPENCV_XML.replace("</rows>", "</cols>", 1).removeprefix('<?xml version="1.0"?>\n'),
+     "not a readable OpenCV FileStorage XML file (line 7: Mismatched closing tag)"),
+    ("\n\n" + OPENCV_XML.replace("</rows>", "</cols>", 1),
+     "not a readable OpenCV FileStorage XML file (line 10: Mismatched closing tag)"),
+], ids=["fisheye", "no matrix", "not opencv", "broken", "broken without declaration",
+        "broken after blank lines"])
+def test_an_unusable_xml_file_is_a_one_line_error_naming_the_format(tmp_path, text, message):
+    p = tmp_path / "cam.xml"
+    p.write_text(text)
+    with pytest.raises(CameraError) as info:
+        load_camera(p)
+    assert str(info.value).startswith(f"{p}: {message}") and "\n" not in str(info.value)
+
+
+
+# `kalibr_calibrate_cameras --models pinhole-radtan` for one camera: camchain.yaml
+KALIBR = """cam0:
+  cam_overlaps: []
+  camera_model: pinhole
+  distortion_coeffs: [-0.1209, 0.0515, 0.0, 0.0001]
+  distortion_model: radtan
+  intrinsics: [1299.5, 1294.6, 805.7, 596.0]
+  resolution: [1600, 1200]
+  rostopic: /cam0/image_raw
+"""
+
+
+def test_a_kalibr_camchain_of_one_pinhole_radtan_camera_is_read(tmp_path):
+    """radtan is OpenCV's k1 k2 p1 p2; the file was refused with "expected camera_matrix ..."."""
+    p = tmp_path / "camchain.yaml"
+    p.write_text(KALIBR)
+    camera = load_camera(p)
+    assert camera.K.tolist() == [[1299.5, 0, 805.7], [0, 1294.6, 596.0], [0, 0, 1]]
+    assert camera.dist.tolist() == D_VALUES[:4] and (camera.width, camera.height) == (1600, 1200)
+    p.write_text(KALIBR.replace("cam0", "cam1"))  # one camera of a rig, kept alone
+    assert load_camera(p).dist.tolist() == D_VALUES[:4]
+    p.write_text(KALIBR.replace("radtan", "none").replace("-0.1209, 0.0515, 0.0, 0.0001", ""))
+    assert not load_camera(p).has_distortion
+
+
+@pytest.mark.parametrize("replace, by, message", [
+    ("radtan", "equidistant", "cam0: distortion_model 'equidistant' is not supported: signpose uses OpenCV's model"),
+    ("radtan", "fov", "cam0: distortion_model 'fov' is not supported"),
+    ("radtan", "none", "cam0: distortion_model 'none' is not supported"),  # with coefficients: of which model?
+    # the omnidirectional model's intrinsics are [xi, fu, fv, pu, pv]: refused by its model, not their count
+    ("pinhole", "omni", "cam0: camera_model 'omni' is not supported: signpose uses OpenCV's model"),
+    ("[1299.5, 1294.6, 805.7, 596.0]", "[1299.5, 805.7, 596.0]",
+     "cam0: intrinsics must be Kalibr's pinhole [fu, fv, pu, pv] (fx, fy, cx, cy in px); got [1299.5, 805.7, 596.0]"),
+    ("[1600, 1200]", "[1600]", "cam0: resolution must be [width, height] in px; got [1600]"),
+    ("[1600, 1200]", "[1600, 1200.5]", "cam0: resolution height must be a whole number; got 1200.5"),
+    ("rostopic", "image_width: 1600\n  rostopic",
+     "cam0: the image size is given twice, as resolution and image_width: keep the one meant"),
+    (KALIBR, KALIBR + KALIBR.replace("cam0", "cam1"), "this Kalibr camchain has 2 cameras (cam0, cam1) and signpose "
+     "needs the one that took the photos: give a copy of the file with only that camera's block"),
+], ids=["equidistant", "fov", "none", "omni", "intrinsics", "resolution", "fraction", "size twice", "two cameras"])
+def test_a_kalibr_camchain_signpose_cannot_use_is_refused_naming_the_camera(tmp_path, replace, by, message):
+    p = tmp_path / "camchain.yaml"
+    p.write_text(KALIBR.replace(replace, by))
+    with pytest.raises(CameraError) as info:
+        load_camera(p)
+    assert str(info.value).startswith(f"{p}: {message}") and "\n" not in str(info.value)
 
 
 @pytest.mark.parametrize("text, given, missing", [
@@ -384,7 +633,10 @@ def test_the_other_resolution_warning_reaches_the_recognition():
      "while parsing a flow sequence that starts at line 2, column 8)"),
     ("fx: 554\x01\n", "neither valid YAML nor JSON (character 8: unacceptable character #x0001"),
     ("%YAML:1.0\n---\ncamera_matrix: [1, 2\nfoo: : bar\n",
-     "not a readable OpenCV FileStorage file (line 4: Incorrect indentation)"),
+     "not a readable OpenCV FileStorage YAML file (line 4: Incorrect indentation)"),
+    # OpenCV puts text read without a final newline where the file name goes, "(9): " and all
+    ('{"type_id": "opencv-matrix", "a": (9): }',
+     "not a readable OpenCV FileStorage JSON file (line 1: Unrecognized value)"),
 ])
 def test_unparsable_files_are_one_line_errors_with_the_position(tmp_path, text, message):
     p = tmp_path / "camera.yaml"
