@@ -109,6 +109,12 @@ class ScoreOut(BaseModel):
     reason: str | None
 
 
+class TextCheckOut(BaseModel):
+    strips: list[float | None] = Field(description="correlation in each of 6 strips across the sign, left to "
+                                                   "right on it; null: mostly outside the image")
+    weakest: float | None
+
+
 class RecognitionOut(BaseModel):
     """The CLI's JSON for one image (`signpose recognize --json`)."""
 
@@ -119,6 +125,8 @@ class RecognitionOut(BaseModel):
     homography: list[list[float | None]] | None = Field(description="3x3, library px -> image px")
     corners: list[list[float | None]] | None = Field(description="4x2 image px: TL, TR, BR, BL")
     pose: dict[str, Any] | None
+    text_check: TextCheckOut | None = Field(description="the recognised sign's text against the library's "
+                                                        "(null: not checked, min_text_correlation 0)")
     timing_ms: dict[str, float]
     reused_stages: list[str] = Field(description="stages whose results came from the image's cache (their "
                                                  "times are a lookup's); empty in the CLI")

@@ -35,8 +35,10 @@ def signpose(*args, cwd=ROOT):
 
 
 def check_schema(obj):
-    assert set(obj) == {"image", "recognized", "label", "scores", "homography", "corners", "pose", "timing_ms",
-                        "reused_stages", "warnings"}
+    assert set(obj) == {"image", "recognized", "label", "scores", "homography", "corners", "pose", "text_check",
+                        "timing_ms", "reused_stages", "warnings"}
+    if obj["recognized"]:
+        assert len(obj["text_check"]["strips"]) == 6 and obj["text_check"]["weakest"] >= 0.7
     assert obj["reused_stages"] == []  # the CLI keeps no cache between runs
     assert isinstance(obj["recognized"], bool) and obj["recognized"] == (obj["label"] is not None)
     for s in obj["scores"]:
