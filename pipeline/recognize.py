@@ -310,12 +310,14 @@ class StageCache:
         return self._bytes
 
 
-def cached(cache: StageCache | None, key: tuple, compute, stage: str, reused: set[str]):
+def cached(cache: StageCache | None, key: tuple, compute, stage: str | None, reused: set[str]):
     """`compute()`, or its result under `key` in `cache`; adds `stage` (one of STAGES) to `reused`
-    when the result was there, so the stage's time is read as a cache lookup's, not a run's."""
+    when the result was there, so the stage's time is read as a cache lookup's, not a run's.
+    `stage` None: the result is a part of a stage whose main work runs every time, whose time
+    stays a run's."""
     if cache is None:
         return compute()
-    if key in cache:
+    if key in cache and stage is not None:
         reused.add(stage)
     return cache.get(key, compute)
 
@@ -540,7 +542,8 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
             notes: list[str] = []
             return refine_winner(gray, sign, H, src, dst, settings, attempt, camera, notes), notes
 
-        (H, src, dst, ecc, outline), notes = cached(cache, refine_key, refine, "pose", reused)
+        # The pose itself is estimated every time: "pose" is not reported reused.
+        (H, src, dst, ecc, outline), notes = cached(cache, refine_key, refine, None, reused)
         text = check_text(gray, library, sign.id, H) if settings.min_text_correlation > 0 else None
         timing["pose"] += (time.perf_counter() - t0) * 1e3
         return Refined(H, src, dst, ecc, outline, sign, text, notes)

@@ -77,8 +77,9 @@ def test_a_ransac_change_reuses_every_stage_it_does_not_affect(library):
         assert again.label == fresh.label and again.warnings == fresh.warnings, name
         assert (again.H is None and fresh.H is None) or (again.H == fresh.H).all(), name
         assert plaque.call_count == 0, name
-        # features and matches come from the cache and the page must not show their times as costs
-        assert {"segment", "features", "match"} <= set(again.reused_stages) <= {"segment", "features", "match", "pose"}
+        # features and matches come from the cache and the page must not show their times as costs;
+        # the pose is estimated again (its refinement alone is cached), so its time is a cost
+        assert set(again.reused_stages) == {"segment", "features", "match"}, name
         assert again.to_json(name)["reused_stages"] == again.reused_stages and fresh.reused_stages == []
         if again.H is not None and (again.best is None or (again.best.estimate.inliers
                                                            == fresh.best.estimate.inliers).all()):
