@@ -663,6 +663,31 @@ def test_viser_controls_start_folded_in_the_page(page, width, opener):
     assert frame.evaluate(COVERED_SHARE) > 0.2, "the controls the person opened were folded again"
 
 
+def test_the_3d_view_takes_neither_the_focus_nor_the_scroll_as_it_loads(page):
+    """At 1280 px wide and less the page scrolls, the 3D view under the images. viser focused its
+    panel's expand button as the page folded the panel: the keyboard focus went into the view and
+    the page scrolled to it as it loaded (1280×720: the top bar out of sight at 91 px)."""
+    page.set_viewport_size({"width": 1280, "height": 720})
+    page.reload()
+    viser_frame(page)
+    expand = page.frame_locator("#scene").locator('[aria-label="Expand panel"]')
+    expand.wait_for()
+    page.wait_for_timeout(2500)   # viser opens its panel again as it connects, and the page folds it again
+    assert page.evaluate("() => [scrollY, document.activeElement.tagName]") == [0, "BODY"]
+    assert page.locator(".topbar").bounding_box()["y"] == 0
+
+    # The view is still reached with Tab (from the link just before it), and its button works.
+    page.focus(".scene-panel a")
+    for _ in range(6):   # viser's notification about software WebGL, its tab, then the button
+        page.keyboard.press("Tab")
+        if expand.evaluate("e => e === document.activeElement"):
+            break
+    else:
+        raise AssertionError("Tab never reached the 3D view's expand button")
+    page.keyboard.press("Enter")
+    page.frame_locator("#scene").locator('[aria-label="Minimize panel"]').wait_for()
+
+
 def test_viser_scene_connects_and_shares_the_settings(page, api):
     scene = page.frame_locator("#scene")
     scene.locator("canvas").first.wait_for(timeout=30_000)
