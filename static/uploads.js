@@ -37,7 +37,6 @@ function uploadRow(list, file) {
     fail(message) {
       row.classList.add("failed");
       status.textContent = message;
-      status.title = message;
     },
   };
 }

@@ -19,6 +19,7 @@ import pytest
 import browser_harness as harness
 from chessboards import K_TRUE, render_boards
 from pipeline.exif import LensExif, focal_px
+from pipeline.image import NOT_AN_IMAGE
 from app import tuning
 from app.workspace import memory_text
 from serving import MISFIT_CAMERA
@@ -499,6 +500,22 @@ def test_api_errors_are_shown(page, api, tmp_path):
         const ticked = document.querySelector('.field[data-name=high_threshold] input[type=checkbox]').checked;
         return kept === null ? !ticked : ticked && Number(document.querySelector('#set-high_threshold').value) === kept;
     }""", arg=kept)
+
+
+def test_a_refused_upload_shows_its_whole_reason(page, tmp_path):
+    """The reason was cut to one line with "…" ("huge54mp.jpg: 9000x6000 px is 54.0 …"), what to do
+    about it only in a tooltip."""
+    page.set_viewport_size({"width": 1366, "height": 768})
+    bad = tmp_path / "IMG_20240611_183512_the_plaque_by_the_north_gate.jpg"
+    bad.write_text("not a picture")
+    page.set_input_files("#file-picker", str(bad))
+    status = page.locator(".upload.failed .upload-status")
+    status.wait_for()
+    assert status.inner_text() == f"{bad.name}: {NOT_AN_IMAGE}"
+    assert status.evaluate("e => e.scrollWidth <= e.clientWidth && e.scrollHeight <= e.clientHeight"), \
+        "the reason is cut off"
+    box, dismiss = status.bounding_box(), page.locator(".upload.failed button").bounding_box()
+    assert box["x"] + box["width"] <= dismiss["x"] and box["height"] > 20   # wrapped within its row
 
 
 def test_typed_settings_out_of_range_are_refused_and_said(page, api):
