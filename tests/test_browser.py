@@ -866,6 +866,30 @@ def test_library_add_a_sign_see_it_scored_and_remove_it(page, api, exit_sign):
     page.keyboard.press("Escape")
 
 
+def test_the_new_signs_id_follows_the_image_chosen_unless_typed(page, api, exit_sign):
+    """The id came from the first image's name only: after a wrong image was refused, the right one
+    kept the wrong one's id."""
+    wrong = exit_sign.with_name("IMG_4031.png")
+    wrong.write_bytes(exit_sign.read_bytes())
+    page.click("#library-open")
+    page.set_input_files("#sign-file", str(wrong))
+    assert page.input_value("#sign-id") == "img_4031"
+    page.fill("#sign-width_m", "0.5")
+    page.fill("#sign-height_m", "0.4")
+    page.click("#sign-add")
+    page.locator(".toast.error", has_text="does not match physical aspect").wait_for()
+    page.set_input_files("#sign-file", str(exit_sign))
+    assert page.input_value("#sign-id") == "exit_sign"
+
+    page.fill("#sign-id", "exit_7")   # typed: the person's, whatever image comes next
+    page.set_input_files("#sign-file", str(wrong))
+    assert page.input_value("#sign-id") == "exit_7"
+    page.fill("#sign-id", "")         # cleared: from the image again
+    page.set_input_files("#sign-file", str(exit_sign))
+    assert page.input_value("#sign-id") == "exit_sign"
+    page.keyboard.press("Escape")
+
+
 # ---------------------------------------------------------------- camera
 
 @pytest.fixture
