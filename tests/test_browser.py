@@ -125,6 +125,19 @@ def test_detail_close_button_stays_top_right(page, api):
     assert summary["x"] + summary["width"] <= close["x"]
 
 
+def test_the_detail_header_sticks_right_under_the_upload_bar(page, api):
+    """The upload bar shrank to 25 px once the images panel overflowed, and the detail view's header,
+    stuck 41 px down, left a strip where the scrolled content showed through."""
+    page.set_viewport_size({"width": 1366, "height": 768})
+    open_detail(page, uploaded_scene(api))
+    harness.stage_images_loaded(page, "#detail .stage img")
+    assert page.evaluate("() => { const panel = document.querySelector('.work-panel');"
+                         " panel.scrollTop = panel.scrollHeight; return panel.scrollTop; }") > 0
+    bar, head = (page.locator(s).bounding_box() for s in (".upload-bar", ".detail-head"))
+    assert bar["height"] == pytest.approx(41, abs=0.5)
+    assert head["y"] == pytest.approx(bar["y"] + bar["height"], abs=0.5)
+
+
 def test_image_link_in_an_open_tab_switches_the_detail(page, api):
     first, second = [i["id"] for i in api.get("/api/images").json()["images"][:2]]
     open_detail(page, first)
