@@ -703,6 +703,38 @@ def test_sweep_starts_around_the_value_and_offers_a_centre_only_between_edges_it
     page.unroute("**/api/sweep?*")
 
 
+def test_sweep_axis_labels_do_not_overlap(page, api):
+    """A seed swept over 0..2147483647: its five axis labels ran into each other (1366 px wide)."""
+    page.set_viewport_size({"width": 1366, "height": 768})
+    open_detail(page, uploaded_scene(api))
+    page.route("**/api/sweep?*", lambda route: route.fulfill(
+        json=sweep_answer("seed", 0, 2147483647, 3, [5, 5, 5])))
+    page.evaluate("""() => { window.axisTexts = [];
+        const clearRect = CanvasRenderingContext2D.prototype.clearRect;
+        CanvasRenderingContext2D.prototype.clearRect = function (...args) {   // drawn afresh
+            if (this.canvas.id === "sweep") window.axisTexts = [];
+            return clearRect.apply(this, args); };
+        const fillText = CanvasRenderingContext2D.prototype.fillText;
+        CanvasRenderingContext2D.prototype.fillText = function (text, x, y, ...rest) {
+            if (this.canvas.id === "sweep" && this.textBaseline === "top") {
+                const w = this.measureText(text).width;
+                const left = this.textAlign === "center" ? x - w / 2 : this.textAlign === "right" ? x - w : x;
+                window.axisTexts.push([String(text), left, left + w, y]);
+            }
+            return fillText.call(this, text, x, y, ...rest); }; }""")
+    page.select_option("#sweep-param", "seed")
+    page.click("#run-sweep")
+    page.locator("#sweep-info", has_text="seed works over").wait_for()
+    texts = page.evaluate("window.axisTexts")
+    axis = max(t[3] for t in texts)
+    labels = sorted((t for t in texts if t[3] == axis), key=lambda t: t[1])
+    assert labels[0][0] == "0" and labels[-1][0] == "2147483647"
+    width = page.locator("#sweep").bounding_box()["width"]
+    assert labels[0][1] >= 0 and labels[-1][2] <= width + 0.5, "a label sticks out of the chart"
+    assert all(a[2] < b[1] for a, b in zip(labels, labels[1:])), f"labels overlap: {labels}"
+    page.unroute("**/api/sweep?*")
+
+
 def test_sweep_bounds_follow_the_swept_setting(page, api):
     open_detail(page, uploaded_scene(api))
     entry = next(e for e in api.get("/api/settings/schema").json() if e["name"] == "max_features")
