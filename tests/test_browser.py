@@ -15,6 +15,7 @@ import cv2
 import httpx
 import numpy as np
 import pytest
+from PIL import Image
 
 import browser_harness as harness
 from chessboards import K_TRUE, render_boards
@@ -223,6 +224,28 @@ def test_drop_many_files_with_progress(page, api):
     }""", [names, data])
     assert page.locator(".upload .progress").count() >= 2   # one progress bar per file
     harness.wait_cards(page, names)   # sent in parallel, so they may arrive in any order
+
+
+def test_every_format_the_upload_hint_names_is_read(page, api, tmp_path):
+    """The hint said "JPEG / PNG" where TIFF, WebP, BMP and GIF are read as well."""
+    hint = page.inner_text(".upload-hint")
+    formats = re.fullmatch(r"(.+); many at once, or drop them anywhere", hint)
+    assert formats, hint
+    named = formats[1].replace(" or ", ", ").split(", ")
+    assert named == ["JPEG", "PNG", "TIFF", "WebP", "BMP", "GIF"]
+    photo = Image.open(harness.SCENES / SCENE)
+    files = []
+    for name in named:
+        files.append(tmp_path / f"format-{SCENE}.{name.lower()}")
+        photo.save(files[-1], {"WebP": "WEBP"}.get(name, name.upper()))
+    harness.upload(page, files, expected=LABEL)
+    try:
+        for f in files:
+            assert harness.card(page, f.name).get_attribute("data-status") == "correct", f.name
+    finally:
+        for img in api.get("/api/images").json()["images"]:
+            if img["name"].startswith("format-"):
+                api.delete(f"/api/images/{img['id']}").raise_for_status()
 
 
 def answer_in_reverse(page, route_url: str, picker: str, files: list[Path], listed) -> None:
