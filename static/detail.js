@@ -363,12 +363,16 @@ function fillSweepParams() {
   select.onchange = () => showSweepRange(select.value);
 }
 
-/** Sweep `param` over [lo, hi] (the sweep's fields are set to them first), or over the fields' values. */
-async function runSweep(range = null) {
+/** Sweep as the sweep's fields say, after setting them to `again` ({param, range: [lo, hi]}) if given. */
+async function runSweep(again = null) {
+  if (sweeping) return;
+  if (again) {
+    $("#sweep-param").value = again.param;
+    showSweepRange(again.param);
+    [$("#sweep-lo").value, $("#sweep-hi").value] = again.range;
+  }
   const button = $("#run-sweep");
   const param = $("#sweep-param").value;
-  if (sweeping) return;
-  if (range) [$("#sweep-lo").value, $("#sweep-hi").value] = range;
   const query = new URLSearchParams({
     param, lo: $("#sweep-lo").value, hi: $("#sweep-hi").value, steps: $("#sweep-steps").value,
   });
@@ -404,7 +408,7 @@ function bandVerdict(sweep, entry, digits) {
   const band = el("b", {}, lo === hi ? v(lo) : `${v(lo)}–${v(hi)}`);
   const rerun = (range, why) => el("button.primary", {
     type: "button", title: `Run the sweep again over ${v(range[0])}–${v(range[1])} ${why}`,
-    onclick: () => runSweep(range),
+    onclick: () => runSweep({ param: name, range }),
   }, `sweep ${v(range[0])}–${v(range[1])}`);
   const apply = (label, title) => el("button.primary", {
     type: "button", title, onclick: () => setSetting(name, sweep.centre) }, label);
