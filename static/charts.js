@@ -32,8 +32,33 @@ function plot(canvas, x0, x1, digits = 2) {
   ctx.textAlign = "center";
   ctx.textBaseline = "top";
   const ticks = digits === null ? [] : [0, 1, 2, 3, 4].map((i) => Number((x0 + ((x1 - x0) * i) / 4).toFixed(digits)));
-  for (const v of new Set(ticks)) ctx.fillText(String(v), x(v), PAD.top + h + 4);
+  axisLabels(ctx, [...new Set(ticks)].map((v) => [x(v), String(v)]), width, PAD.top + h + 4);
   return { ctx, x, y, w, h };
+}
+
+/** `labels` ([x, text], left to right) under the x axis at `top`, each centred on its x but kept
+ *  inside the canvas's `width`. One that would touch the label before it is left out, except the
+ *  last (the axis' end), which replaces the one before: the seed's 0 … 2147483647 overlapped. */
+function axisLabels(ctx, labels, width, top) {
+  const GAP = 6;
+  const boxes = labels.map(([x, text]) => {
+    const w = ctx.measureText(text).width;
+    const left = Math.min(Math.max(x - w / 2, 0), width - w);
+    return { text, left, right: left + w };
+  });
+  const kept = [];
+  boxes.forEach((box, i) => {
+    const last = i === boxes.length - 1;
+    while (kept.length && kept[kept.length - 1].right + GAP > box.left) {
+      if (!last || kept.length === 1) return;
+      kept.pop();
+    }
+    kept.push(box);
+  });
+  ctx.save();
+  ctx.textAlign = "left";
+  for (const { text, left } of kept) ctx.fillText(text, left, top);
+  ctx.restore();
 }
 
 function marker(p, value, color, label, dash = [], row = 0) {

@@ -323,21 +323,54 @@ function bindDrag() {
 /** The settings a sweep depends on: all but the swept one, so moving that one keeps it current. */
 const sweepKey = (settings, param) => JSON.stringify({ ...settings, [param]: null });
 
+/** The smallest change of the setting `entry`. */
+const stepOf = (entry) => entry.step || (entry.type === "int" ? 1 : 0.001);
+
+/** [lo, hi] widened to whole steps of the setting `entry`, within its bounds. */
+function onSteps([lo, hi], entry) {
+  const step = stepOf(entry), tidy = (x) => Number(x.toPrecision(10));
+  return [Math.max(entry.min, tidy(Math.floor(tidy(lo / step)) * step)),
+    Math.min(entry.max, tidy(Math.ceil(tidy(hi / step)) * step))];
+}
+
+/** The from and to a sweep of the setting `entry` starts with, around its `current` value: its
+ *  whole range, but from its minimum to four times the value (12 steps at least) where the schema's
+ *  maximum is only a cap far above the default (counts, sizes, gates: min_inliers 4..1000, 10 by
+ *  default). Swept whole in 13 steps, 4, 87, 170, …, only 4 worked there, and that least strict
+ *  gate was offered as the centre. */
+function sweepRange(entry, current) {
+  const step = stepOf(entry);
+  if (entry.max <= 10 * Math.max(Math.abs(entry.default ?? entry.max), step)) return [entry.min, entry.max];
+  return onSteps([entry.min, Math.max(4 * (current ?? entry.default), entry.min + 12 * step)], entry);
+}
+
+/** The sweep's fields for the setting `name`: its range (sweepRange) and its bounds and step, or
+ *  the arrow keys would step within the previous setting's. */
+function showSweepRange(name) {
+  const entry = state.schema.find((e) => e.name === name);
+  const [lo, hi] = sweepRange(entry, state.settings[name]);
+  for (const [id, value] of [["#sweep-lo", lo], ["#sweep-hi", hi]]) {
+    Object.assign($(id), { min: entry.min, max: entry.max, step: entry.step ?? "any", value });
+  }
+}
+
 function fillSweepParams() {
   const select = $("#sweep-param");
   fill(select, state.schema.filter((e) => e.type === "float" || e.type === "int")
     .map((e) => el("option", { value: e.name }, e.name)));
   select.value = "threshold";
-  select.onchange = () => {
-    const entry = state.schema.find((e) => e.name === select.value);
-    $("#sweep-lo").value = entry.min;
-    $("#sweep-hi").value = entry.max;
-    // The setting's own bounds, or the arrow keys would step within the previous one's.
-    for (const id of ["#sweep-lo", "#sweep-hi"]) Object.assign($(id), { min: entry.min, max: entry.max, step: entry.step ?? "any" });
-  };
+  showSweepRange(select.value);
+  select.onchange = () => showSweepRange(select.value);
 }
 
-async function runSweep() {
+/** Sweep as the sweep's fields say, after setting them to `again` ({param, range: [lo, hi]}) if given. */
+async function runSweep(again = null) {
+  if (sweeping) return;
+  if (again) {
+    $("#sweep-param").value = again.param;
+    showSweepRange(again.param);
+    [$("#sweep-lo").value, $("#sweep-hi").value] = again.range;
+  }
   const button = $("#run-sweep");
   const param = $("#sweep-param").value;
   const query = new URLSearchParams({
@@ -358,6 +391,57 @@ async function runSweep() {
   }
 }
 
+/**
+ * What the sweep's working band says of `sweep.param` (schema `entry`), in `digits` decimals, and
+ * the one thing to do next: {parts} to show, and the `centre` offered (or null). Its centre, which
+ * has working values either side, is offered only when both of the band's edges were seen:
+ * - a band reaching an end of the values swept that is not the setting's own limit may go on
+ *   beyond it: its centre is not known, so a sweep reaching further that way is offered;
+ * - a band of one or two values swept has its edges somewhere between them and the failing values
+ *   next to them, its centre at an edge: a sweep between those neighbours is offered, or, when no
+ *   value lies between them, the value that works, as what it is.
+ */
+function bandVerdict(sweep, entry, digits) {
+  const xs = sweep.values, n = xs.length, [lo, hi] = sweep.band;
+  const i0 = xs.indexOf(lo), i1 = xs.indexOf(hi);
+  const name = sweep.param, v = (x) => fmt(x, digits);
+  const band = el("b", {}, lo === hi ? v(lo) : `${v(lo)}–${v(hi)}`);
+  const rerun = (range, why) => el("button.primary", {
+    type: "button", title: `Run the sweep again over ${v(range[0])}–${v(range[1])} ${why}`,
+    onclick: () => runSweep({ param: name, range }),
+  }, `sweep ${v(range[0])}–${v(range[1])}`);
+  const apply = (label, title) => el("button.primary", {
+    type: "button", title, onclick: () => setSetting(name, sweep.centre) }, label);
+
+  const below = i0 === 0 && xs[0] > entry.min, above = i1 === n - 1 && xs[n - 1] < entry.max;
+  if (below || above) {
+    const width = xs[n - 1] - xs[0];
+    const range = onSteps([below ? xs[0] - width : xs[0], above ? xs[n - 1] + width : xs[n - 1]], entry);
+    const ends = [below && `below ${v(xs[0])}`, above && `above ${v(xs[n - 1])}`].filter(Boolean).join(" and ");
+    return { centre: null, parts: [
+      el("span.warn", {}, `${name} works over `, band, ` and perhaps ${ends}, where the sweep stopped: `
+        + "its centre is not known yet"),
+      rerun(range, `to find where ${name} stops working`)] };
+  }
+  if (i1 - i0 < 2) {
+    const range = onSteps([xs[Math.max(i0 - 1, 0)], xs[Math.min(i1 + 1, n - 1)]], entry);
+    const swept = xs.filter((x) => range[0] <= x && x <= range[1]).length;
+    const only = `${name} works only at `;
+    if (Math.round((range[1] - range[0]) / stepOf(entry)) + 1 > swept) {   // values not swept lie between
+      return { centre: null, parts: [
+        el("span.warn", {}, only, band, ` of the values swept: where it stops working lies between `
+          + `${v(range[0])} and ${v(range[1])}`),
+        rerun(range, "to see how far the values that work reach")] };
+    }
+    return { centre: null, parts: [
+      el("span.warn", {}, only, band, ": no value has working values either side"),
+      apply(`apply ${v(sweep.centre)}`, `Set ${name} to ${v(sweep.centre)}: no other value swept works`)] };
+  }
+  return { centre: sweep.centre, parts: [
+    el("span", {}, `${name} works over `, band, ", centre ", el("b.suggested", {}, v(sweep.centre))),
+    apply("apply centre", `Set ${name} to the centre of the working band`)] };
+}
+
 function renderSweep() {
   const info = $("#sweep-info");
   const canvas = $("#sweep");
@@ -369,19 +453,15 @@ function renderSweep() {
     return;
   }
   if (!sweep) { fill(info); return; }
-  const digits = state.schema.find((e) => e.name === sweep.param).type === "int" ? 0 : 2;
-  drawSweep(canvas, sweep, state.settings[sweep.param], digits);
+  const entry = state.schema.find((e) => e.name === sweep.param);
+  const digits = entry.type === "int" ? 0 : 2;
+  const verdict = sweep.band ? bandVerdict(sweep, entry, digits)
+    : { centre: null, parts: [el("span.warn", {}, `no ${sweep.param} value gets every labelled image right`)] };
+  drawSweep(canvas, { ...sweep, centre: verdict.centre }, state.settings[sweep.param], digits);   // marked where offered
   fill(info,
     el("span", {}, el("i.swatch.correct"), `correct of ${sweep.labelled} labelled`),
     el("span", {}, el("i.swatch.margin"), "smallest margin"),
-    sweep.band
-      ? el("span", {}, `${sweep.param} works over `, el("b", {}, sweep.band.map((v) => fmt(v, digits)).join("–")),
-        ", centre ", el("b.suggested", {}, fmt(sweep.centre, digits)))
-      : el("span.warn", {}, `no ${sweep.param} value gets every labelled image right`),
-    sweep.centre !== null ? el("button.primary", {
-      type: "button", title: `Set ${sweep.param} to the centre of the working band`,
-      onclick: () => setSetting(sweep.param, sweep.centre),
-    }, "apply centre") : null,
+    ...verdict.parts,
     sweep.failed.some((n) => n) ? el("span.warn", {},
       `${plural(Math.max(...sweep.failed), "image")} could not be run at some values (counted as wrong)`) : null,
     sweep.key !== sweepKey(state.settings, sweep.param)
@@ -416,7 +496,7 @@ export function initDetail() {
   bindDrag();
   bindChartClicks();
   fillSweepParams();
-  $("#run-sweep").onclick = runSweep;
+  $("#run-sweep").onclick = () => runSweep();
   $("#prev").onclick = () => step(-1);
   $("#next").onclick = () => step(1);
   $("#detail-close").onclick = () => select(null);

@@ -9,6 +9,7 @@ import { dropTarget } from "./uploads.js";
 const SIGN_FIELDS = ["id", "name", "text", "width_m", "height_m"];   // POST /api/library's, besides `file`
 
 let picked = null;   // {url, width, height} of the image chosen for a new sign
+let idTyped = false; // the person typed the new sign's id: an image chosen after keeps it
 
 export async function loadLibrary() {
   state.library = await get("/api/library");
@@ -86,7 +87,8 @@ function showPicked() {
     showHeightHint();
   };
   preview.src = picked.url;
-  if (!$("#sign-id").value) $("#sign-id").value = idFrom(file.name);
+  // From each image chosen: after a wrong one, the right one's name, not the wrong one's.
+  if (!idTyped) $("#sign-id").value = idFrom(file.name);
 }
 
 function signForm() {
@@ -104,6 +106,7 @@ async function addSign(event) {
     const sign = await api("POST", "/api/library", signForm());
     toast(`sign ${sign.name} added: every image is being re-run with it`, "info");
     $("#sign-form").reset();
+    idTyped = false;
     showPicked();
     await loadLibrary();
   } catch (err) {
@@ -116,6 +119,7 @@ async function addSign(event) {
 function bindForm() {
   $("#sign-form").addEventListener("submit", addSign);
   $("#sign-file").addEventListener("change", showPicked);
+  $("#sign-id").addEventListener("input", (e) => { idTyped = e.target.value !== ""; });
   $("#sign-width_m").addEventListener("input", showHeightHint);
   // An image dropped on the dialog is the new sign's (not an image to recognise, as on the page).
   dropTarget($("#library-dialog"), (files) => {

@@ -14,7 +14,7 @@ import { $ } from "./ui.js";
 //   shows open, until the person presses anything in the view.
 const LOOK_MS = 200;         // how often to look for a panel to fold
 const WATCH_MS = 30_000;     // how long after a load or resize: viser builds its layout when it likes
-const BLUR_AFTER_MS = 250;
+const QUIET_MS = 1000;       // how long after a fold viser's own focus calls are dropped
 const HANDLE_TITLE = "3D view controls: click to open or fold";
 
 const foldedSheets = new WeakSet();
@@ -22,6 +22,7 @@ let viewDoc = null;          // the view's document as last seen: a new one is a
 let touched = false;         // the person pressed something in `viewDoc`
 let look = null;             // timer of the next look
 let watchUntil = 0;          // Date.now() when looking stops
+let quietUntil = 0;          // Date.now() until which the view may not take the focus (see follow)
 
 /** The control that folds viser's open panel in `doc`, or null while there is none to fold. */
 function foldControl(doc) {
@@ -50,22 +51,31 @@ function foldControls() {
   if (doc && doc !== viewDoc) follow(doc);
   const control = doc && foldControl(doc);
   if (control) {
+    quietUntil = Date.now() + QUIET_MS;
     control.click();
-    // viser focuses the window's expand button once it has folded (a new element): its focus ring
-    // would stand out on the bar.
-    setTimeout(() => doc.activeElement?.matches('[aria-label="Expand panel"]') && doc.activeElement.blur(),
-      BLUR_AFTER_MS);
   }
   if (Date.now() < watchUntil) look = setTimeout(foldControls, LOOK_MS);
 }
 
 /** Watch a freshly loaded view for the person's presses (its load event may have come before this
- *  page's script ran): once they press anything in it, its panel is theirs to fold or open. */
+ *  page's script ran): once they press anything in it, its panel is theirs to fold or open.
+ *
+ *  viser focuses the window's expand button once it has folded (a new element). After a fold the
+ *  page made, that focus is nobody's wish: it took the keyboard from wherever the person was and
+ *  scrolled the page (which scrolls at 1280 px wide and less) down to the 3D view as it loaded.
+ *  So the view's own focus calls are dropped for a moment after such a fold; Tab and clicks focus
+ *  without them, so the view stays reachable from the keyboard. */
 function follow(doc) {
   viewDoc = doc;
   touched = false;
   // Capturing: viser stops some presses from going further. A script's click() presses nothing.
   for (const kind of ["pointerdown", "keydown"]) doc.addEventListener(kind, () => { touched = true; }, true);
+  const proto = doc.defaultView.HTMLElement.prototype;
+  const focus = proto.focus;
+  proto.focus = function (...args) {
+    if (!touched && Date.now() < quietUntil) return;
+    focus.apply(this, args);
+  };
 }
 
 function watchControls() {

@@ -5,7 +5,8 @@ import { upload } from "./api.js";
 import { el, plural, toast } from "./ui.js";
 
 const PARALLEL_UPLOADS = 3;
-const IMAGE_FILE = /\.(jpe?g|png|bmp|tiff?|webp|pgm|ppm)$/i;
+// For files the browser gives no media type: what the server reads (pipeline/image.py).
+const IMAGE_FILE = /\.(jpe?g|png|bmp|tiff?|webp|gif|pgm|ppm)$/i;
 
 let unfinished = 0;   // files queued or being sent, in every queue: leaving the page drops them
 
@@ -37,7 +38,6 @@ function uploadRow(list, file) {
     fail(message) {
       row.classList.add("failed");
       status.textContent = message;
-      status.title = message;
     },
   };
 }
@@ -134,7 +134,7 @@ export function uploadQueue({ list, url, form, done, idle = () => {} }) {
   function enqueue(files) {
     const images = [...files].filter((file) => {
       const image = file.type.startsWith("image/") || IMAGE_FILE.test(file.name);
-      if (!image) toast(`${file.name}: not an image file, skipped`, "error");
+      if (!image) toast(`${file.name}: not an image file (use JPEG, PNG, TIFF, WebP, BMP or GIF), skipped`, "error");
       return image;
     });
     if (!images.length) return;

@@ -9,15 +9,19 @@ import math
 import re
 import time
 from pathlib import Path
+from urllib.parse import parse_qs, urlparse
 
 import cv2
 import httpx
 import numpy as np
 import pytest
+from PIL import Image
 
 import browser_harness as harness
 from chessboards import K_TRUE, render_boards
 from pipeline.exif import LensExif, focal_px
+from pipeline.image import NOT_AN_IMAGE
+from app import tuning
 from app.workspace import memory_text
 from serving import MISFIT_CAMERA
 
@@ -122,6 +126,19 @@ def test_detail_close_button_stays_top_right(page, api):
     assert summary["x"] + summary["width"] <= close["x"]
 
 
+def test_the_detail_header_sticks_right_under_the_upload_bar(page, api):
+    """The upload bar shrank to 25 px once the images panel overflowed, and the detail view's header,
+    stuck 41 px down, left a strip where the scrolled content showed through."""
+    page.set_viewport_size({"width": 1366, "height": 768})
+    open_detail(page, uploaded_scene(api))
+    harness.stage_images_loaded(page, "#detail .stage img")
+    assert page.evaluate("() => { const panel = document.querySelector('.work-panel');"
+                         " panel.scrollTop = panel.scrollHeight; return panel.scrollTop; }") > 0
+    bar, head = (page.locator(s).bounding_box() for s in (".upload-bar", ".detail-head"))
+    assert bar["height"] == pytest.approx(41, abs=0.5)
+    assert head["y"] == pytest.approx(bar["y"] + bar["height"], abs=0.5)
+
+
 def test_image_link_in_an_open_tab_switches_the_detail(page, api):
     first, second = [i["id"] for i in api.get("/api/images").json()["images"][:2]]
     open_detail(page, first)
@@ -207,6 +224,28 @@ def test_drop_many_files_with_progress(page, api):
     }""", [names, data])
     assert page.locator(".upload .progress").count() >= 2   # one progress bar per file
     harness.wait_cards(page, names)   # sent in parallel, so they may arrive in any order
+
+
+def test_every_format_the_upload_hint_names_is_read(page, api, tmp_path):
+    """The hint said "JPEG / PNG" where TIFF, WebP, BMP and GIF are read as well."""
+    hint = page.inner_text(".upload-hint")
+    formats = re.fullmatch(r"(.+); many at once, or drop them anywhere", hint)
+    assert formats, hint
+    named = formats[1].replace(" or ", ", ").split(", ")
+    assert named == ["JPEG", "PNG", "TIFF", "WebP", "BMP", "GIF"]
+    photo = Image.open(harness.SCENES / SCENE)
+    files = []
+    for name in named:
+        files.append(tmp_path / f"format-{SCENE}.{name.lower()}")
+        photo.save(files[-1], {"WebP": "WEBP"}.get(name, name.upper()))
+    harness.upload(page, files, expected=LABEL)
+    try:
+        for f in files:
+            assert harness.card(page, f.name).get_attribute("data-status") == "correct", f.name
+    finally:
+        for img in api.get("/api/images").json()["images"]:
+            if img["name"].startswith("format-"):
+                api.delete(f"/api/images/{img['id']}").raise_for_status()
 
 
 def answer_in_reverse(page, route_url: str, picker: str, files: list[Path], listed) -> None:
@@ -499,6 +538,22 @@ def test_api_errors_are_shown(page, api, tmp_path):
     }""", arg=kept)
 
 
+def test_a_refused_upload_shows_its_whole_reason(page, tmp_path):
+    """The reason was cut to one line with "…" ("huge54mp.jpg: 9000x6000 px is 54.0 …"), what to do
+    about it only in a tooltip."""
+    page.set_viewport_size({"width": 1366, "height": 768})
+    bad = tmp_path / "IMG_20240611_183512_the_plaque_by_the_north_gate.jpg"
+    bad.write_text("not a picture")
+    page.set_input_files("#file-picker", str(bad))
+    status = page.locator(".upload.failed .upload-status")
+    status.wait_for()
+    assert status.inner_text() == f"{bad.name}: {NOT_AN_IMAGE}"
+    assert status.evaluate("e => e.scrollWidth <= e.clientWidth && e.scrollHeight <= e.clientHeight"), \
+        "the reason is cut off"
+    box, dismiss = status.bounding_box(), page.locator(".upload.failed button").bounding_box()
+    assert box["x"] + box["width"] <= dismiss["x"] and box["height"] > 20   # wrapped within its row
+
+
 def test_typed_settings_out_of_range_are_refused_and_said(page, api):
     default = api.get("/api/settings").json()["settings"]
     for name, typed, reason in (("threshold", "2", "threshold must be between 0.0 and 1.0; got 2"),
@@ -596,7 +651,7 @@ def test_sweep_of_an_integer_setting_shows_whole_numbers(page, api):
     page.fill("#sweep-steps", "3")
     page.click("#run-sweep")
     page.locator("#sweep-info", has_text="works over").wait_for(timeout=120_000)
-    assert "min_matches works over 4–12, centre 8" in page.inner_text("#sweep-info")
+    assert "min_matches works over 4–12" in page.inner_text("#sweep-info")
     # the chart's axis: a quarter of 4..30 is 10.5, which is no value of an integer setting
     page.evaluate("""() => { window.chartTexts = [];
         const fillText = CanvasRenderingContext2D.prototype.fillText;
@@ -608,6 +663,101 @@ def test_sweep_of_an_integer_setting_shows_whole_numbers(page, api):
     page.locator("#sweep-info", has_text="4–30").wait_for(timeout=120_000)
     numbers = [t for t in page.evaluate("window.chartTexts") if re.fullmatch(r"-?[\d.]+", t)]
     assert {"4", "30"} <= set(numbers) and not any("." in t for t in numbers), numbers
+
+
+def sweep_answer(param: str, lo, hi, steps: int, correct: list[int], labelled: int = 5) -> dict:
+    """What GET /api/sweep answers when `correct` of `labelled` images are right at each value."""
+    integer = isinstance(lo, int)
+    values = tuning.sweep_values(lo, hi, steps, integer)
+    band = tuning.working_band(values, [c == labelled for c in correct])
+    return {"param": param, "values": values, "correct": correct, "min_margin": [None] * len(values),
+            "by_plaque": [0] * len(values), "failed": [0] * len(values), "band": band,
+            "centre": tuning.band_centre(values, band, integer), "labelled": labelled}
+
+
+def test_sweep_starts_around_the_value_and_offers_a_centre_only_between_edges_it_saw(page, api):
+    """min_inliers was swept over its schema bounds, 4..1000 in 13 steps (4, 87, 170, …): only 4
+    worked, and "apply centre" offered 4, the least strict gate, as the robust setting."""
+    open_detail(page, uploaded_scene(api))
+    page.select_option("#sweep-param", "min_inliers")   # 10 by default, up to 1000
+    assert [page.input_value("#sweep-lo"), page.input_value("#sweep-hi")] == ["4", "40"]
+    page.select_option("#sweep-param", "threshold")     # 0..1: the whole range
+    assert [page.input_value("#sweep-lo"), page.input_value("#sweep-hi")] == ["0", "1"]
+    page.select_option("#sweep-param", "min_inliers")
+
+    answers, asked = [], []
+
+    def answer(route):
+        asked.append({k: v[0] for k, v in parse_qs(urlparse(route.request.url).query).items()})
+        route.fulfill(json=answers.pop(0))
+
+    page.route("**/api/sweep?*", answer)
+    info = page.locator("#sweep-info")
+    # The tester's sweep: only the first value works. Its edge lies between 4 and 87: a sweep there is offered.
+    answers.append(sweep_answer("min_inliers", 4, 1000, 13, [5] + [4] * 12))
+    page.fill("#sweep-hi", "1000")
+    page.click("#run-sweep")
+    info.filter(has_text="works only at 4 of the values swept: where it stops working lies between 4 and 87"
+                ).wait_for()
+    assert info.locator("button").all_inner_texts() == ["sweep 4–87"]
+    assert "centre" not in info.inner_text()
+
+    # ... and run (of min_inliers, whichever setting is chosen since): every value up to 32 works, so
+    # its centre, 18, has working values either side.
+    answers.append(sweep_answer("min_inliers", 4, 87, 13, [5] * 5 + [4] * 8))
+    page.select_option("#sweep-param", "ratio")
+    info.locator("button").click()
+    info.filter(has_text="min_inliers works over 4–32, centre 18").wait_for()
+    assert asked[-1] == {"param": "min_inliers", "lo": "4", "hi": "87", "steps": "13"}
+    assert [page.input_value(f"#sweep-{f}") for f in ("param", "lo", "hi")] == ["min_inliers", "4", "87"]
+    info.get_by_role("button", name="apply centre").click()
+    harness.wait_setting(page, api, {"min_inliers": 18})
+
+    # A band reaching the end of the sweep, short of the setting's limit, may go on: no centre.
+    answers.append(sweep_answer("min_inliers", 4, 40, 13, [5] * 13))
+    page.fill("#sweep-hi", "40")
+    page.click("#run-sweep")
+    info.filter(has_text="min_inliers works over 4–40 and perhaps above 40, where the sweep stopped").wait_for()
+    assert info.locator("button").all_inner_texts() == ["sweep 4–76"]
+
+    # One value works and none lies between it and its failing neighbours: said as it is.
+    answers.append(sweep_answer("min_inliers", 4, 6, 3, [4, 5, 4]))
+    page.click("#run-sweep")
+    info.filter(has_text="min_inliers works only at 5: no value has working values either side").wait_for()
+    assert info.locator("button").all_inner_texts() == ["apply 5"]
+    page.unroute("**/api/sweep?*")
+
+
+def test_sweep_axis_labels_do_not_overlap(page, api):
+    """A seed swept over 0..2147483647: its five axis labels ran into each other (1366 px wide)."""
+    page.set_viewport_size({"width": 1366, "height": 768})
+    open_detail(page, uploaded_scene(api))
+    page.route("**/api/sweep?*", lambda route: route.fulfill(
+        json=sweep_answer("seed", 0, 2147483647, 3, [5, 5, 5])))
+    page.evaluate("""() => { window.axisTexts = [];
+        const clearRect = CanvasRenderingContext2D.prototype.clearRect;
+        CanvasRenderingContext2D.prototype.clearRect = function (...args) {   // drawn afresh
+            if (this.canvas.id === "sweep") window.axisTexts = [];
+            return clearRect.apply(this, args); };
+        const fillText = CanvasRenderingContext2D.prototype.fillText;
+        CanvasRenderingContext2D.prototype.fillText = function (text, x, y, ...rest) {
+            if (this.canvas.id === "sweep" && this.textBaseline === "top") {
+                const w = this.measureText(text).width;
+                const left = this.textAlign === "center" ? x - w / 2 : this.textAlign === "right" ? x - w : x;
+                window.axisTexts.push([String(text), left, left + w, y]);
+            }
+            return fillText.call(this, text, x, y, ...rest); }; }""")
+    page.select_option("#sweep-param", "seed")
+    page.click("#run-sweep")
+    page.locator("#sweep-info", has_text="seed works over").wait_for()
+    texts = page.evaluate("window.axisTexts")
+    axis = max(t[3] for t in texts)
+    labels = sorted((t for t in texts if t[3] == axis), key=lambda t: t[1])
+    assert labels[0][0] == "0" and labels[-1][0] == "2147483647"
+    width = page.locator("#sweep").bounding_box()["width"]
+    assert labels[0][1] >= 0 and labels[-1][2] <= width + 0.5, "a label sticks out of the chart"
+    assert all(a[2] < b[1] for a, b in zip(labels, labels[1:])), f"labels overlap: {labels}"
+    page.unroute("**/api/sweep?*")
 
 
 def test_sweep_bounds_follow_the_swept_setting(page, api):
@@ -661,6 +811,31 @@ def test_viser_controls_start_folded_in_the_page(page, width, opener):
     frame.wait_for_function(f"() => ({COVERED_SHARE})() > 0.2", timeout=10_000)
     page.wait_for_timeout(1000)   # five of the page's looks for a panel to fold
     assert frame.evaluate(COVERED_SHARE) > 0.2, "the controls the person opened were folded again"
+
+
+def test_the_3d_view_takes_neither_the_focus_nor_the_scroll_as_it_loads(page):
+    """At 1280 px wide and less the page scrolls, the 3D view under the images. viser focused its
+    panel's expand button as the page folded the panel: the keyboard focus went into the view and
+    the page scrolled to it as it loaded (1280×720: the top bar out of sight at 91 px)."""
+    page.set_viewport_size({"width": 1280, "height": 720})
+    page.reload()
+    viser_frame(page)
+    expand = page.frame_locator("#scene").locator('[aria-label="Expand panel"]')
+    expand.wait_for()
+    page.wait_for_timeout(2500)   # viser opens its panel again as it connects, and the page folds it again
+    assert page.evaluate("() => [scrollY, document.activeElement.tagName]") == [0, "BODY"]
+    assert page.locator(".topbar").bounding_box()["y"] == 0
+
+    # The view is still reached with Tab (from the link just before it), and its button works.
+    page.focus(".scene-panel a")
+    for _ in range(6):   # viser's notification about software WebGL, its tab, then the button
+        page.keyboard.press("Tab")
+        if expand.evaluate("e => e === document.activeElement"):
+            break
+    else:
+        raise AssertionError("Tab never reached the 3D view's expand button")
+    page.keyboard.press("Enter")
+    page.frame_locator("#scene").locator('[aria-label="Minimize panel"]').wait_for()
 
 
 def test_viser_scene_connects_and_shares_the_settings(page, api):
@@ -758,6 +933,30 @@ def test_library_add_a_sign_see_it_scored_and_remove_it(page, api, exit_sign):
     row.locator("button.remove").click()
     row.wait_for(state="detached")
     assert "exit_sign" not in [s["id"] for s in api.get("/api/library").json()]
+    page.keyboard.press("Escape")
+
+
+def test_the_new_signs_id_follows_the_image_chosen_unless_typed(page, api, exit_sign):
+    """The id came from the first image's name only: after a wrong image was refused, the right one
+    kept the wrong one's id."""
+    wrong = exit_sign.with_name("IMG_4031.png")
+    wrong.write_bytes(exit_sign.read_bytes())
+    page.click("#library-open")
+    page.set_input_files("#sign-file", str(wrong))
+    assert page.input_value("#sign-id") == "img_4031"
+    page.fill("#sign-width_m", "0.5")
+    page.fill("#sign-height_m", "0.4")
+    page.click("#sign-add")
+    page.locator(".toast.error", has_text="does not match physical aspect").wait_for()
+    page.set_input_files("#sign-file", str(exit_sign))
+    assert page.input_value("#sign-id") == "exit_sign"
+
+    page.fill("#sign-id", "exit_7")   # typed: the person's, whatever image comes next
+    page.set_input_files("#sign-file", str(wrong))
+    assert page.input_value("#sign-id") == "exit_7"
+    page.fill("#sign-id", "")         # cleared: from the image again
+    page.set_input_files("#sign-file", str(exit_sign))
+    assert page.input_value("#sign-id") == "exit_sign"
     page.keyboard.press("Escape")
 
 
