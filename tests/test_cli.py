@@ -148,9 +148,10 @@ def test_a_damaged_jpeg_is_told_apart_from_a_file_that_is_no_image(tmp_path):
     result = signpose("recognize", *(tmp_path / name for name in cases), "--json")
     assert result.returncode == 1
     errors = {Path(o["image"]).name: o["error"] for o in map(json.loads, result.stdout.splitlines())}
-    for name in ("header_cut.jpg", "data_cut.jpg"):
-        assert errors[name] == (f"{tmp_path / name}: damaged or truncated JPEG file (it begins as a JPEG but its image "
-                                "data cannot be read); copy or export it again")
+    assert errors["header_cut.jpg"] == (f"{tmp_path / 'header_cut.jpg'}: damaged or truncated JPEG file (it begins "
+                                        "as a JPEG but its image data cannot be read); copy or export it again")
+    assert errors["data_cut.jpg"] == (f"{tmp_path / 'data_cut.jpg'}: damaged or truncated JPEG file (it ends inside "
+                                      "its image data: cut short); copy or export it again")
     assert errors["notes.jpg"] == f"{tmp_path / 'notes.jpg'}: not an image file (use JPEG, PNG, TIFF, WebP or BMP)"
 
 
