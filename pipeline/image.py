@@ -20,6 +20,13 @@ SIGNATURES = {
     "WebP": re.compile(rb"RIFF.{4}WEBP", re.DOTALL),
     "BMP": re.compile(rb"BM.{4}\x00{4}", re.DOTALL),  # the size, then 4 reserved zero bytes: not just text "BM..."
 }
+# The brands an ISO base media file (HEIF's container) names in its leading ftyp box, for the
+# HEIF images signpose cannot read: HEIC (HEVC-coded, iPhones' default) and AVIF (AV1-coded, which
+# some builds of OpenCV read: it is refused only when it cannot be decoded). "mif1"/"msf1" name
+# HEIF in general and come with AVIF's brands too, so AVIF's are looked for first.
+_AVIF_BRANDS = frozenset([b"avif", b"avis", b"avio"])
+_HEIF_BRANDS = frozenset([b"heic", b"heix", b"heim", b"heis", b"hevc", b"hevx", b"hevm", b"hevs", b"mif1", b"mif2",
+                         b"msf1"])
 
 
 # A JPEG marker: 0xFF and its code (any fill 0xFFs before it are not matched). Inside a scan's
@@ -43,11 +50,30 @@ def image_format(data: bytes) -> str | None:
     return next((name for name, signature in SIGNATURES.items() if signature.match(data)), None)
 
 
+def heif_kind(data: bytes) -> str | None:
+    """"AVIF" or "HEIC" when `data` begins as a HEIF image file (an ftyp box naming one of the
+    brands above), else None. Told by content: phones name HEIC files .heic, but a copy may be .jpg."""
+    size = int.from_bytes(data[:4], "big")
+    if data[4:8] != b"ftyp" or size < 16:
+        return None
+    # the major brand, a 4-byte minor version, then the compatible brands to the end of the box
+    brands = {data[8:12], *(data[i:i + 4] for i in range(16, min(size, len(data), 256), 4))}
+    return "AVIF" if brands & _AVIF_BRANDS else "HEIC" if brands & _HEIF_BRANDS else None
+
+
 def unreadable(data: bytes, name: str) -> ImageError:
     """The error for `data`, the bytes of file `name`, that cannot be read as an 8-bit colour image:
     samples of a kind that has no 8-bit colour (floating point), a damaged or truncated file of its
-    format when it begins as one, else not an image file at all."""
+    format when it begins as one, a HEIF image (HEIC, AVIF) with how to get one signpose reads,
+    else not an image file at all."""
     kind = image_format(data)
+    heif = heif_kind(data) if kind is None else None
+    if heif == "HEIC":
+        return ImageError(f"{name}: HEIC/HEIF images are not supported: export it as JPEG (on an iPhone, to take "
+                          "JPEGs from now on: Settings > Camera > Formats > Most Compatible)")
+    if heif == "AVIF":
+        return ImageError(f"{name}: an AVIF image that cannot be read here (AVIF is not among the formats signpose "
+                          "supports): export it as JPEG or PNG")
     if kind is None:
         return ImageError(f"{name}: {NOT_AN_IMAGE}")
     try:

@@ -23,7 +23,8 @@ from pipeline.library import SAMPLE_LIBRARY, load_library
 from pipeline.synth import synthetic_camera
 from pipeline.camera import ros_camera_yaml
 from faults import fail_segmentation
-from scene_images import big_photo, empty_photo, has, png_bomb, sign_photo, tiny_photo, with_focal_exif
+from scene_images import (HEIC_START, big_photo, empty_photo, has, png_bomb, scrambled_scene, sign_photo, tiny_photo,
+                          with_focal_exif)
 from serving import (MISFIT_CAMERA, REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve,
                      stop_serve, upload, wait_done)
 
@@ -302,6 +303,8 @@ def test_input_figure_shows_every_label_and_the_answer(client, scene, sign, by_p
     ("notes.jpg", b"meeting at 10, bring the photos", None, 422, ("notes.jpg", "not an image")),
     ("cut.jpg", sign_photo(LIBRARY, "security_compound")[:9000], None, 422, ("cut.jpg: damaged or truncated JPEG",)),
     ("head.jpg", sign_photo(LIBRARY, "security_compound")[:300], None, 422, ("head.jpg: damaged or truncated JPEG",)),
+    ("scrambled.jpg", scrambled_scene(), None, 422, ("scrambled.jpg: damaged or truncated JPEG", "data is corrupt")),
+    ("IMG_0001.HEIC", HEIC_START, None, 422, ("IMG_0001.HEIC: HEIC/HEIF images are not supported", "Most Compatible")),
     ("bomb.png", png_bomb(1500, 1000), None, 413, ("bomb.png", "1500x1000", "megapixels")),
     ("huge_bomb.png", png_bomb(), None, 413, ("megapixels",)),
     ("x.jpg", sign_photo(LIBRARY, "security_compound"), "no_such_sign", 422, ("no_such_sign", "security_compound")),

@@ -2,7 +2,6 @@
 
 import io
 import re
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -10,8 +9,7 @@ import pytest
 from PIL import Image
 
 from pipeline.image import ImageError, decode_image
-
-SCENES = Path(__file__).resolve().parent.parent / "sample_images" / "scenes"
+from scene_images import HEIC_START, scrambled_scene
 
 # Black text on a transparent ground, as sign artwork is often drawn: the ground's colour
 # values are black too (what many tools store under alpha 0).
@@ -117,11 +115,6 @@ def damaged(jpeg: bytes, edit) -> bytes:
     return jpeg[:where.start] + edit(jpeg[where]) + jpeg[where.stop:]
 
 
-def scrambled(data: bytes) -> bytes:
-    """Every 37th byte inverted from byte 2000 on: how the tester's scrambled.jpg was made from a sample scene."""
-    return bytes(b ^ 0xFF if i >= 2000 and i % 37 == 0 else b for i, b in enumerate(data))
-
-
 def stray_ff(data: bytes) -> bytes:
     """A data byte turned 0xFF before one that is not 0x00: it reads as a marker."""
     i = next(i for i in range(100, len(data) - 1) if data[i - 1] != 0xFF and data[i + 1] not in (0x00, 0xFF))
@@ -129,7 +122,7 @@ def stray_ff(data: bytes) -> bytes:
 
 
 DAMAGED_JPEGS = {
-    "scrambled.jpg": scrambled((SCENES / "scene_002.jpg").read_bytes()),
+    "scrambled.jpg": scrambled_scene(),
     # a stuffed 0x00 overwritten: the 0xFF before it then reads as a marker
     "unstuffed.jpg": damaged(SOUND_JPEGS["baseline.jpg"], lambda d: d.replace(b"\xff\x00", b"\xff\x37", 1)),
     "stray_ff.jpg": damaged(SOUND_JPEGS["optimized_444.jpg"], stray_ff),
@@ -156,3 +149,27 @@ def test_a_jpeg_cut_inside_its_image_data_says_so():
     with pytest.raises(ImageError, match=r"cut\.jpg: damaged or truncated JPEG file \(it ends inside its image data: "
                                          r"cut short\); copy or export it again"):
         decode_image(data[:len(data) * 2 // 3], "cut.jpg")
+
+
+HEIF_FILES = {  # name: (bytes, what the error begins with)
+    # told by content, whatever the name says
+    "IMG_0001.jpg": (HEIC_START, "IMG_0001.jpg: HEIC/HEIF images are not supported: export it as JPEG (on an iPhone, "
+                                 "to take JPEGs from now on: Settings > Camera > Formats > Most Compatible)"),
+    "photo.heif": (b"\x00\x00\x00\x1cftypmif1\x00\x00\x00\x00mif1heixmiaf" + bytes(100),
+                   "photo.heif: HEIC/HEIF images are not supported"),
+    # an AVIF's brands include HEIF's mif1; some OpenCV builds decode AVIF, but not one without its image
+    "photo.avif": (b"\x00\x00\x00\x20ftypavif\x00\x00\x00\x00avifmif1miafMA1B" + bytes(100),
+                   "photo.avif: an AVIF image that cannot be read here (AVIF is not among the formats signpose "
+                   "supports): export it as JPEG or PNG"),
+    "clip.mp4": (b"\x00\x00\x00\x18ftypisom\x00\x00\x02\x00isomiso2" + bytes(100),
+                 "clip.mp4: not an image file (use JPEG, PNG, TIFF, WebP or BMP)"),
+}
+
+
+@pytest.mark.parametrize("name", HEIF_FILES)
+def test_heif_images_say_what_they_are_and_how_to_get_a_jpeg(name):
+    """An iPhone's HEIC photo was called "not an image file"."""
+    data, message = HEIF_FILES[name]
+    with pytest.raises(ImageError) as info:
+        decode_image(data, name)
+    assert str(info.value).startswith(message)
