@@ -43,6 +43,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from pipeline.calibrate import MAX_SQUARE_M, MIN_VIEWS, Calibration, CalibrationError
 from pipeline.camera import Camera, CameraError, camera_from_json, load_camera, ros_camera_yaml
 from pipeline.image import ImageError
+from pipeline.jsonfile import JsonError, parse_json
 from pipeline.library import ID_PATTERN, LibraryError
 from pipeline.settings import PRESETS, Settings, SettingsError, settings_schema
 
@@ -515,9 +516,9 @@ def import_settings(file: Annotated[UploadFile, File(description="settings JSON,
     """Apply a settings file (as written by export or `--settings`) over the current settings."""
     name, data = read_upload(file)
     try:
-        changes = json.loads(data)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise SettingsError(f"{name} is not valid JSON: {exc}") from None
+        changes = parse_json(data)
+    except JsonError as exc:
+        raise SettingsError(f"{name} is {exc}") from None
     workspace.update_settings(changes)
     return settings_out(workspace)
 

@@ -17,6 +17,8 @@ import cv2
 import numpy as np
 import yaml
 
+from .jsonfile import EMPTY_FILE
+
 ASSUMED_HFOV_DEG = 60.0
 # Fields of view one may assume: rectilinear lenses from a long telephoto to an ultra-wide.
 ASSUMED_HFOV_RANGE_DEG = (10.0, 140.0)
@@ -350,9 +352,11 @@ def _filestorage_int(fs: cv2.FileStorage, name: str) -> int | None:
     return _opt_int(node.real() if node.isInt() or node.isReal() else node.string(), name)
 
 
-def _camera_from_filestorage(path: Path) -> Camera:
+def _camera_from_filestorage(text: str, path: Path) -> Camera:
+    """Camera from `text`, an OpenCV FileStorage YAML or JSON read from `path`. Parsed from the text,
+    not the file: OpenCV's own reading fails on the byte-order mark Windows editors write."""
     try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except SystemError as exc:  # OpenCV 5's binding wraps the cv2.error of a file it cannot parse
         if not isinstance(exc.__cause__, cv2.error):
             raise
@@ -373,7 +377,7 @@ def load_camera(path: str | Path) -> Camera:
     an OpenCV FileStorage YAML/JSON, or JSON `{fx, fy, cx, cy, dist}`."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # with or without the byte-order mark (BOM)
     except FileNotFoundError:
         raise CameraError(f"camera file not found: {path}") from None
     except UnicodeDecodeError:
@@ -386,9 +390,11 @@ def load_camera(path: str | Path) -> Camera:
 
 def _parse_camera(text: str, path: Path) -> Camera:
     """Camera from the `text` of the camera file `path`; CameraError messages leave the path to the caller."""
+    if not text.strip():
+        raise CameraError(EMPTY_FILE)
     if text.lstrip().startswith("%YAML") or "!!opencv-matrix" in text or '"type_id": "opencv-matrix"' in text:
         try:
-            return _camera_from_filestorage(path)
+            return _camera_from_filestorage(text, path)
         except cv2.error as exc:
             raise CameraError(f"not a readable OpenCV FileStorage file ({_opencv_error(exc)})") from None
     try:

@@ -171,6 +171,8 @@ def test_schema_presets_export_and_import(client):
     assert r.status_code == 200 and r.json()["settings"] == presets["paper"]
     assert_error(client.post("/api/settings/import", files={"file": ("s.json", b"{oops", "application/json")}),
                  422, "s.json", "not valid JSON")
+    assert_error(client.post("/api/settings/import", files={"file": ("s.json", b"", "application/json")}),
+                 422, "s.json is an empty file (nothing in it to read)")
     assert_error(client.post("/api/settings/import", files={"file": ("s.json", b'{"ratio": 7}', "application/json")}),
                  422, "ratio")
     client.post("/api/settings/preset/default")
