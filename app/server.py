@@ -40,6 +40,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import FormData, Headers, UploadFile as FormFile
 from starlette.types import ASGIApp, Receive, Scope, Send
 
+from pipeline import shipped_folder
 from pipeline.calibrate import MAX_SQUARE_M, MIN_VIEWS, Calibration, CalibrationError
 from pipeline.camera import Camera, CameraError, camera_from_json, load_camera, ros_camera_yaml
 from pipeline.image import ImageError
@@ -62,7 +63,7 @@ from .workspace import (
     is_correct, status_of,
 )
 
-STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
+STATIC_DIR = shipped_folder(Path(__file__).resolve().parent, "static")
 CAMERA_SUFFIXES = (".yaml", ".yml", ".json", ".xml")
 MAX_SWEEP_STEPS = 101
 BACKLOG = 2048  # uvicorn's default
