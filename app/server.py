@@ -18,6 +18,7 @@ import contextlib
 import dataclasses
 import io
 import json
+import math
 import socket
 import tempfile
 import threading
@@ -90,9 +91,13 @@ class UploadLimit:
         self.max_bytes = max_bytes
 
     def message(self, size: int | None) -> str:
+        """Why a body of `size` bytes (None: not declared) is refused, and what to do: the page sends one
+        file per request, so a single large photo can only pass with the limit raised where it is set."""
         size_text = f"{size / 1e6:.1f} MB, " if size is not None else ""
-        return (f"the upload is {size_text}more than the limit of {self.max_bytes / 1e6:.1f} MB per request; "
-                "send fewer or smaller files per request")
+        enough = f" {math.ceil(size / 1e6)}" if size is not None else ""
+        return (f"the upload is {size_text}more than this server's limit of {self.max_bytes / 1e6:.1f} MB per request: "
+                f"send fewer or smaller files per request, or start the server with a higher limit "
+                f"(signpose serve --max-upload-mb{enough})")
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":

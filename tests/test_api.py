@@ -425,6 +425,8 @@ def test_oversized_bodies_are_refused_before_or_while_they_arrive(base_url, clie
             b"Content-Length: 30000000\r\nConnection: close\r\n\r\n")
     status, body = http_exchange(base_url, head)
     assert status == 413 and "30.0 MB" in body["detail"] and "2.0 MB" in body["detail"]
+    # the page sends one file per request: a single large photo needs the limit raised, where it is set
+    assert "or start the server with a higher limit (signpose serve --max-upload-mb 30)" in body["detail"]
     # Streamed without a length: refused as soon as the bytes received pass the limit.
     head = (b"POST /api/images HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: multipart/form-data; boundary=b\r\n"
             b"Transfer-Encoding: chunked\r\nConnection: close\r\n\r\n")
@@ -433,7 +435,7 @@ def test_oversized_bodies_are_refused_before_or_while_they_arrive(base_url, clie
     chunks = [b"%x\r\n%s\r\n" % (len(part), part)] + [b"%x\r\n%s\r\n" % (len(block), block)] * (
         MAX_UPLOAD // len(block) + 2)
     status, body = http_exchange(base_url, head, chunks)
-    assert status == 413 and "limit of 2.0 MB" in body["detail"]
+    assert status == 413 and "limit of 2.0 MB" in body["detail"] and body["detail"].endswith("--max-upload-mb)")
     assert client.get("/api/health").status_code == 200
 
 
