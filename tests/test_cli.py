@@ -1,5 +1,6 @@
 """The `signpose` command line, run as a user runs it: a subprocess on real files."""
 
+import argparse
 import fcntl
 import json
 import os
@@ -454,3 +455,11 @@ def test_evaluate_tells_datasets_and_images_of_the_same_name_apart(tmp_path):
     assert [line.split()[:3] for line in result.stdout.splitlines()[2:5]] == [
         [str(a), "1", "0"], [str(b), "1", "1"], ["all", "2", "1"]]
     assert f"  {a / 'chief_of_security' / 's.jpg'}: truth chief_of_security, answer none" in result.stdout
+
+
+def test_every_argument_of_every_command_says_what_it_is_in_help():
+    """`signpose synth --help` listed --library with nothing beside it."""
+    commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
+    bare = [f"{name} {action.dest}" for name, command in commands.items() for action in command._actions
+            if not action.help]
+    assert bare == []
