@@ -328,10 +328,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_recognize)
 
     p = sub.add_parser("synth", help="render synthetic scenes with ground truth")
-    p.add_argument("out_dir")
+    p.add_argument("out_dir", help="folder to write the scenes, truth.json and camera.yaml into (made if missing)")
     p.add_argument("--n", type=positive_int, default=20, help="number of scenes (default 20)")
     p.add_argument("--seed", type=whole_number(0), default=0, help="random seed, 0 or more (default 0)")
-    p.add_argument("--library", default=str(SAMPLE_LIBRARY))
+    p.add_argument("--library", default=str(SAMPLE_LIBRARY),
+                   help="sign library folder whose signs the scenes show (default: the samples)")
     p.set_defaults(func=cmd_synth)
 
     p = sub.add_parser("evaluate", help="accuracy and timing on labelled datasets (the paper's Table 1)")

@@ -18,6 +18,7 @@ import contextlib
 import dataclasses
 import io
 import json
+import math
 import socket
 import tempfile
 import threading
@@ -40,9 +41,11 @@ from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import FormData, Headers, UploadFile as FormFile
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from pipeline.calibrate import MAX_SQUARE_M, MIN_VIEWS, Calibration, CalibrationError
+from pipeline import shipped_folder
+from pipeline.calibrate import MAX_SQUARE_M, MIN_VIEWS, Calibration, CalibrationError, board_size_hint
 from pipeline.camera import Camera, CameraError, camera_from_json, load_camera, ros_camera_yaml
 from pipeline.image import ImageError
+from pipeline.jsonfile import JsonError, parse_json
 from pipeline.library import ID_PATTERN, LibraryError
 from pipeline.settings import PRESETS, Settings, SettingsError, settings_schema
 
@@ -61,7 +64,7 @@ from .workspace import (
     is_correct, status_of,
 )
 
-STATIC_DIR = Path(__file__).resolve().parent.parent / "static"
+STATIC_DIR = shipped_folder(Path(__file__).resolve().parent, "static")
 CAMERA_SUFFIXES = (".yaml", ".yml", ".json", ".xml")
 MAX_SWEEP_STEPS = 101
 BACKLOG = 2048  # uvicorn's default
@@ -88,9 +91,13 @@ class UploadLimit:
         self.max_bytes = max_bytes
 
     def message(self, size: int | None) -> str:
+        """Why a body of `size` bytes (None: not declared) is refused, and what to do: the page sends one
+        file per request, so a single large photo can only pass with the limit raised where it is set."""
         size_text = f"{size / 1e6:.1f} MB, " if size is not None else ""
-        return (f"the upload is {size_text}more than the limit of {self.max_bytes / 1e6:.1f} MB per request; "
-                "send fewer or smaller files per request")
+        enough = f" {math.ceil(size / 1e6)}" if size is not None else ""
+        return (f"the upload is {size_text}more than this server's limit of {self.max_bytes / 1e6:.1f} MB per request: "
+                f"send fewer or smaller files per request, or start the server with a higher limit "
+                f"(signpose serve --max-upload-mb{enough})")
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -515,9 +522,9 @@ def import_settings(file: Annotated[UploadFile, File(description="settings JSON,
     """Apply a settings file (as written by export or `--settings`) over the current settings."""
     name, data = read_upload(file)
     try:
-        changes = json.loads(data)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise SettingsError(f"{name} is not valid JSON: {exc}") from None
+        changes = parse_json(data)
+    except JsonError as exc:
+        raise SettingsError(f"{name} is {exc}") from None
     workspace.update_settings(changes)
     return settings_out(workspace)
 
@@ -768,6 +775,7 @@ def calibration_out(calibration: CalibrationSession, state: CalibrationState) ->
     search = calibration.search
     return CalibrationOut(revision=state.revision, min_views=MIN_VIEWS, max_views=calibration.max_photos,
                           max_square_m=MAX_SQUARE_M, views=views,
+                          hint=board_size_hint(state.board, sum(v.found for v in views), len(views)),
                           board=BoardSpec(cols=state.board[0], rows=state.board[1], square_m=state.square_m),
                           search=None if search is None else BoardSearchOut(
                               cols=search.board[0], rows=search.board[1], done=search.done, total=search.total),

@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any, Callable, TypeVar
 
 from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, camera_from_json, check_hfov
+from pipeline.jsonfile import JsonError, parse_json
 from pipeline.library import Library, LibraryError, load_library
 from pipeline.settings import Settings, SettingsError, load_settings
 
@@ -161,9 +162,9 @@ class StateDir:
         if not self.camera_path.exists():
             return None
         try:
-            data = json.loads(self.camera_path.read_text(encoding="utf-8"))
+            data = parse_json(self.camera_path.read_bytes())
             return camera_from_json(data, source=str(data.get("source") or "json"))
-        except (UnicodeDecodeError, json.JSONDecodeError, AttributeError, CameraError) as exc:
+        except (JsonError, AttributeError, CameraError) as exc:
             raise StateError(f"{self.camera_path}: {exc}; fix or delete it to use an assumed camera") from None
 
     def save_camera(self, camera: Camera | None) -> None:
@@ -203,9 +204,9 @@ class StateDir:
         if not self.fov_path.exists():
             return ASSUMED_HFOV_DEG
         try:
-            hfov = json.loads(self.fov_path.read_text(encoding="utf-8"))["hfov_deg"]
+            hfov = parse_json(self.fov_path.read_bytes())["hfov_deg"]
             return check_hfov(hfov)
-        except (UnicodeDecodeError, json.JSONDecodeError, TypeError, KeyError, CameraError) as exc:
+        except (JsonError, TypeError, KeyError, CameraError) as exc:
             raise StateError(f"{self.fov_path}: {exc}; fix or delete it to assume "
                              f"{ASSUMED_HFOV_DEG:g}°") from None
 
@@ -216,8 +217,8 @@ class StateDir:
 
     def library_origin(self) -> Path | None:
         try:
-            meta = json.loads((self.library_dir / "library.json").read_text(encoding="utf-8"))
-        except (OSError, ValueError):
+            meta = parse_json((self.library_dir / "library.json").read_bytes())
+        except (OSError, JsonError):
             return None
         origin = meta.get("copied_from") if isinstance(meta, dict) else None
         return Path(origin) if isinstance(origin, str) else None
@@ -291,9 +292,9 @@ class StateDir:
         if not self.index_path.exists():
             return None
         try:
-            entries = json.loads(self.index_path.read_text(encoding="utf-8"))
+            entries = parse_json(self.index_path.read_bytes())
             return [StoredImage(**e) for e in entries]
-        except (UnicodeDecodeError, json.JSONDecodeError, TypeError) as exc:
+        except (JsonError, TypeError) as exc:
             raise StateError(f"{self.index_path} is damaged ({exc}); delete {self.images_dir} to start "
                              "without images") from None
 

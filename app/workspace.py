@@ -15,7 +15,6 @@ from __future__ import annotations
 import dataclasses
 import io
 import itertools
-import json
 import logging
 import mimetypes
 import os
@@ -39,6 +38,7 @@ from pipeline.evaluate import CORES, release_freed_memory
 from pipeline.exif import ExifCamera, decode_with_exif
 from pipeline.features import library_features
 from pipeline.image import ImageError, to_gray, unreadable
+from pipeline.jsonfile import parse_json
 from pipeline.library import NO_SIGN, SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, make_sign, validate_sign_entry
 from pipeline.recognize import PipelineError, Recognition, StageCache, run_pipeline
 from pipeline.settings import PRESETS, Settings, load_settings
@@ -309,7 +309,7 @@ def decode_gray(data: bytes, name: str) -> tuple[np.ndarray, ExifCamera]:
 def sample_scenes(folder: Path = SAMPLE_SCENES) -> list[tuple[Path, str | None]]:
     """(image path, expected label) of the sample scenes; negatives are expected `NO_SIGN`."""
     try:
-        truth = json.loads((folder / "truth.json").read_text(encoding="utf-8"))["images"]
+        truth = parse_json((folder / "truth.json").read_bytes())["images"]
     except (OSError, ValueError, KeyError, TypeError):
         log.warning("no usable %s; starting without sample scenes", folder / "truth.json")
         return []

@@ -238,6 +238,18 @@ def outlier_threshold(errors_px: np.ndarray) -> float:
     return max(2 * median, median + 3 * mad, OUTLIER_FLOOR_PX)
 
 
+def board_size_hint(board: tuple[int, int], found: int, photos: int) -> str | None:
+    """What to check when the `board` ((cols, rows) inner corners) was found in only `found` of
+    `photos`, too few to calibrate: most often its size was given in squares, and then it is found
+    in none. None when it was found in every photo (more photos are what is missing) or enough."""
+    if found >= MIN_VIEWS or found == photos:
+        return None
+    cols, rows = board
+    return (f"check the board size: it counts inner corners (where four squares meet) across x down, not squares, "
+            f"so {cols}x{rows} is a board of {cols + 1}x{rows + 1} squares; and the whole board, with its white "
+            "border, must be in view")
+
+
 def calibrate(views: list[BoardView], board: tuple[int, int], square_m: float,
               image_size: tuple[int, int] | None = None, exclude: tuple[int, ...] = (),
               fix_k3: bool = True) -> Calibration:
@@ -255,8 +267,7 @@ def calibrate(views: list[BoardView], board: tuple[int, int], square_m: float,
     found = [i for i, v in enumerate(views) if v.found]
     if not found:
         raise CalibrationError(f"the {board[0]}x{board[1]} board was not found in any of the {len(views)} image(s); "
-                               "check the board size counts inner corners (squares minus one per side) "
-                               "and the whole board, with its white border, is in view")
+                               f"{board_size_hint(board, 0, len(views))}")
     size = image_size or views[found[0]].image_size
     wrong = [views[i].name or str(i) for i in found if tuple(views[i].image_size) != tuple(size)]
     if wrong:
@@ -269,8 +280,10 @@ def calibrate(views: list[BoardView], board: tuple[int, int], square_m: float,
                                f"number: {', '.join(wrong)}")
     fit = [i for i in found if i not in exclude]
     if len(fit) < MIN_VIEWS:
+        hint = board_size_hint(board, len(found), len(views))
         raise CalibrationError(f"the board was found in {len(fit)} usable image(s); calibration needs at least "
-                               f"{MIN_VIEWS} (15-20 recommended, tilted and spread over the frame)")
+                               f"{MIN_VIEWS} (15-20 recommended, tilted and spread over the frame)"
+                               + (f"; {hint}" if hint else ""))
     obj = board_points(board, square_m)
     flags = cv2.CALIB_FIX_K3 if fix_k3 else 0
     rms, K, dist, rvecs, tvecs, std_intr, _, per_view = cv2.calibrateCameraExtended(

@@ -18,6 +18,8 @@ import cv2
 import numpy as np
 import yaml
 
+from .jsonfile import EMPTY_FILE
+
 ASSUMED_HFOV_DEG = 60.0
 # Fields of view one may assume: rectilinear lenses from a long telephoto to an ultra-wide.
 ASSUMED_HFOV_RANGE_DEG = (10.0, 140.0)
@@ -540,6 +542,8 @@ def _filestorage_syntax(text: str) -> str | None:
 
 def _parse_camera(text: str, path: Path) -> Camera:
     """Camera from the `text` of the camera file `path`; CameraError messages leave the path to the caller."""
+    if not text.strip():
+        raise CameraError(EMPTY_FILE)
     syntax = _filestorage_syntax(text)
     if syntax:
         try:

@@ -1,4 +1,4 @@
-"""Approximate intrinsics from a JPEG's EXIF lens data, read with the standard library only.
+"""Approximate intrinsics from an image's EXIF lens data (JPEG, PNG, WebP), read with the standard library only.
 
 Better than an assumed field of view when there is no calibration: phones and cameras record
 the focal length and either the sensor's pixel density or the 35 mm-equivalent focal length.
@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .camera import Camera
-from .image import decode_image
+from .image import decode_image, image_format
 
 # The 35 mm-equivalent focal length is defined by the angle of view across the diagonal of a
 # 36 x 24 mm frame, which keeps it independent of the image's aspect and orientation.
@@ -39,7 +39,7 @@ _TYPES = {3: ("H", 2), 4: ("I", 4), 5: ("II", 8), 13: ("I", 4)}
 
 @dataclass(frozen=True)
 class LensExif:
-    """Lens fields of one JPEG's EXIF; None where absent or unusable.
+    """Lens fields of one image's EXIF; None where absent or unusable.
 
     focal_mm: true focal length, mm. focal_35mm: 35 mm-equivalent focal length, mm. Both as
     recorded, 0 included (cameras write 0, or 65535, when they do not know it).
@@ -53,10 +53,45 @@ class LensExif:
     pixel_size: tuple[int, int] | None
 
 
-def exif_tiff(jpeg: bytes) -> bytes | None:
-    """The TIFF block inside a JPEG's APP1 "Exif" segment, or None (not a JPEG, or no EXIF)."""
-    if jpeg[:2] != b"\xff\xd8":
-        return None
+def exif_tiff(data: bytes) -> bytes | None:
+    """The TIFF block of encoded image `data`'s EXIF: a JPEG's APP1 "Exif" segment, a PNG's eXIf
+    chunk or a WebP's EXIF chunk; None for another format, or no EXIF. Some writers begin a PNG's
+    or WebP's with the "Exif\\0\\0" a JPEG's has: it is dropped."""
+    if data[:2] == b"\xff\xd8":
+        return _jpeg_exif(data)
+    reader = {"PNG": _png_exif, "WebP": _webp_exif}.get(image_format(data))
+    tiff = reader(data) if reader else None
+    return tiff.removeprefix(b"Exif\x00\x00") if tiff is not None else None
+
+
+def _png_exif(png: bytes) -> bytes | None:
+    """The data of a PNG's eXIf chunk, or None. Chunks: a 4-byte big-endian length, a 4-byte type,
+    the data, a 4-byte CRC."""
+    pos = 8  # after the signature
+    while pos + 8 <= len(png):
+        length, kind = struct.unpack_from(">I4s", png, pos)
+        if kind == b"eXIf":
+            return png[pos + 8:pos + 8 + length]
+        if kind == b"IEND":
+            return None
+        pos += 12 + length
+    return None
+
+
+def _webp_exif(webp: bytes) -> bytes | None:
+    """The data of a WebP's EXIF chunk, or None. After the 12-byte RIFF header, chunks: a FourCC, a
+    4-byte little-endian size, the data, padded to an even size."""
+    pos = 12
+    while pos + 8 <= len(webp):
+        kind, size = struct.unpack_from("<4sI", webp, pos)
+        if kind == b"EXIF":
+            return webp[pos + 8:pos + 8 + size]
+        pos += 8 + size + (size & 1)
+    return None
+
+
+def _jpeg_exif(jpeg: bytes) -> bytes | None:
+    """The TIFF block inside a JPEG's APP1 "Exif" segment, or None."""
     pos = 2
     while pos + 4 <= len(jpeg):
         if jpeg[pos] != 0xFF:
@@ -104,9 +139,10 @@ def _positive(value: float | None) -> float | None:
     return value if value is not None and value > 0 else None
 
 
-def read_lens_exif(jpeg: bytes) -> LensExif | None:
-    """The lens fields of a JPEG's EXIF, or None when there is no EXIF or it is malformed."""
-    tiff = exif_tiff(jpeg)
+def read_lens_exif(data: bytes) -> LensExif | None:
+    """The lens fields of encoded image `data`'s EXIF (`exif_tiff`), or None when there is no EXIF or
+    it is malformed."""
+    tiff = exif_tiff(data)
     if tiff is None or tiff[:4] not in (b"II*\x00", b"MM\x00*"):
         return None
     order = "<" if tiff[:2] == b"II" else ">"
@@ -182,14 +218,14 @@ class ExifCamera(NamedTuple):
     ignored: str | None = None
 
 
-def exif_camera(jpeg: bytes, width: int, height: int) -> ExifCamera:
-    """A distortion-free camera for the decoded `width` x `height` image from its JPEG's EXIF, or
-    why none (`ExifCamera`).
+def exif_camera(data: bytes, width: int, height: int) -> ExifCamera:
+    """A distortion-free camera for the decoded `width` x `height` image from the EXIF of its encoded
+    `data` (JPEG, PNG, WebP), or why none (`ExifCamera`).
 
     `width`, `height` are of the image as decoded (after EXIF orientation). `source` names the
     EXIF fields used, e.g. "EXIF focal length 4.2 mm (35 mm equiv 26 mm)".
     """
-    lens = read_lens_exif(jpeg)
+    lens = read_lens_exif(data)
     f = focal_px(lens, width, height) if lens is not None else None
     if f is None:
         return ExifCamera(None, ignored_focal(lens, width, height) if lens is not None else None)

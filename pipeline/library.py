@@ -19,10 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
+from . import shipped_folder
 from .image import ImageError, read_image, to_gray
 from .jsonfile import read_json
 
-SAMPLE_LIBRARY = Path(__file__).resolve().parent.parent / "sample_images" / "library"
+SAMPLE_LIBRARY = shipped_folder(Path(__file__).resolve().parent, "sample_images") / "library"
 ID_PATTERN = re.compile(r"^[a-z0-9][a-z0-9_-]{0,63}$")
 # The label of an image without a sign (datasets' none/ folder, evaluate's confusion matrix, the
 # server's expected labels): no sign may take it.

@@ -241,6 +241,7 @@ function renderSummary() {
     fill($("#calib-summary"), el("p.muted", {}, calib.views.length
       ? `${plural(calib.views.length, "photo")}, the ${b.cols}×${b.rows} board found in ${found}`
         + (found < calib.min_views ? ` (at least ${calib.min_views} needed; 15–20 recommended)` : ": run the calibration")
+        + (calib.hint ? `: ${calib.hint}` : "")
       : "No photos yet."));
     return;
   }

@@ -111,6 +111,17 @@ def big_photo(width: int, height: int, scene: str = "scene_002.jpg") -> bytes:
     return cv2.imencode(".jpg", big, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes()
 
 
+def scrambled_scene() -> bytes:
+    """The tester's scrambled.jpg: sample scene_002 with every 37th byte inverted from byte 2000 on.
+    OpenCV decodes it mostly grey, warning only on stderr."""
+    data = (SAMPLE_SCENES / "scene_002.jpg").read_bytes()
+    return bytes(b ^ 0xFF if i >= 2000 and i % 37 == 0 else b for i, b in enumerate(data))
+
+
+# How an iPhone's HEIC photo begins: an ftyp box, major brand "heic", compatible "mif1" and "heic".
+HEIC_START = b"\x00\x00\x00\x18ftypheic\x00\x00\x00\x00mif1heic" + bytes(100)
+
+
 def has(img: np.ndarray, color: tuple[int, int, int]) -> bool:
     """Whether `img` has a pixel of exactly `color` (BGR): the core of a line or letter drawn in it."""
     return bool(np.all(img == color, axis=2).any())

@@ -23,7 +23,8 @@ from pipeline.library import SAMPLE_LIBRARY, load_library
 from pipeline.synth import synthetic_camera
 from pipeline.camera import ros_camera_yaml
 from faults import fail_segmentation
-from scene_images import big_photo, empty_photo, has, png_bomb, sign_photo, tiny_photo, with_focal_exif
+from scene_images import (HEIC_START, big_photo, empty_photo, has, png_bomb, scrambled_scene, sign_photo, tiny_photo,
+                          with_focal_exif)
 from serving import (MISFIT_CAMERA, REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve,
                      stop_serve, upload, wait_done)
 
@@ -170,6 +171,8 @@ def test_schema_presets_export_and_import(client):
     assert r.status_code == 200 and r.json()["settings"] == presets["paper"]
     assert_error(client.post("/api/settings/import", files={"file": ("s.json", b"{oops", "application/json")}),
                  422, "s.json", "not valid JSON")
+    assert_error(client.post("/api/settings/import", files={"file": ("s.json", b"", "application/json")}),
+                 422, "s.json is an empty file (nothing in it to read)")
     assert_error(client.post("/api/settings/import", files={"file": ("s.json", b'{"ratio": 7}', "application/json")}),
                  422, "ratio")
     client.post("/api/settings/preset/default")
@@ -302,6 +305,8 @@ def test_input_figure_shows_every_label_and_the_answer(client, scene, sign, by_p
     ("notes.jpg", b"meeting at 10, bring the photos", None, 422, ("notes.jpg", "not an image")),
     ("cut.jpg", sign_photo(LIBRARY, "security_compound")[:9000], None, 422, ("cut.jpg: damaged or truncated JPEG",)),
     ("head.jpg", sign_photo(LIBRARY, "security_compound")[:300], None, 422, ("head.jpg: damaged or truncated JPEG",)),
+    ("scrambled.jpg", scrambled_scene(), None, 422, ("scrambled.jpg: damaged or truncated JPEG", "data is corrupt")),
+    ("IMG_0001.HEIC", HEIC_START, None, 422, ("IMG_0001.HEIC: HEIC/HEIF images are not supported", "Most Compatible")),
     ("bomb.png", png_bomb(1500, 1000), None, 413, ("bomb.png", "1500x1000", "megapixels")),
     ("huge_bomb.png", png_bomb(), None, 413, ("megapixels",)),
     ("x.jpg", sign_photo(LIBRARY, "security_compound"), "no_such_sign", 422, ("no_such_sign", "security_compound")),
@@ -420,6 +425,8 @@ def test_oversized_bodies_are_refused_before_or_while_they_arrive(base_url, clie
             b"Content-Length: 30000000\r\nConnection: close\r\n\r\n")
     status, body = http_exchange(base_url, head)
     assert status == 413 and "30.0 MB" in body["detail"] and "2.0 MB" in body["detail"]
+    # the page sends one file per request: a single large photo needs the limit raised, where it is set
+    assert "or start the server with a higher limit (signpose serve --max-upload-mb 30)" in body["detail"]
     # Streamed without a length: refused as soon as the bytes received pass the limit.
     head = (b"POST /api/images HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: multipart/form-data; boundary=b\r\n"
             b"Transfer-Encoding: chunked\r\nConnection: close\r\n\r\n")
@@ -428,7 +435,7 @@ def test_oversized_bodies_are_refused_before_or_while_they_arrive(base_url, clie
     chunks = [b"%x\r\n%s\r\n" % (len(part), part)] + [b"%x\r\n%s\r\n" % (len(block), block)] * (
         MAX_UPLOAD // len(block) + 2)
     status, body = http_exchange(base_url, head, chunks)
-    assert status == 413 and "limit of 2.0 MB" in body["detail"]
+    assert status == 413 and "limit of 2.0 MB" in body["detail"] and body["detail"].endswith("--max-upload-mb)")
     assert client.get("/api/health").status_code == 200
 
 

@@ -1220,6 +1220,8 @@ def test_a_new_board_size_shows_how_far_the_search_has_come(page, api, no_camera
         assert page.is_disabled("#calib-run")
         page.locator("#calib-summary", has_text=f"10 photos, the 7×{board['rows']} board found in 0").wait_for()
         assert progress.count() == 0
+        # and what to check: a size counted in squares was left to guess
+        assert "check the board size: it counts inner corners" in page.inner_text("#calib-summary")
     finally:
         api.put("/api/calibration/board", json=board).raise_for_status()
 

@@ -10,8 +10,8 @@ import pytest
 import pipeline.calibrate as calib
 from app.cli import main
 from chessboards import BOARD, DIST_TRUE, K_TRUE, SIZE, SQUARE_M, board_poses, projected_corners, render_boards
-from pipeline.calibrate import (BoardView, CalibrationError, calibrate, chessboard_image, drop_outliers, find_board,
-                                format_report, parse_board)
+from pipeline.calibrate import (BoardView, CalibrationError, board_size_hint, calibrate, chessboard_image, drop_outliers,
+                                find_board, format_report, parse_board)
 from pipeline.camera import Camera, load_camera, save_camera
 from pipeline.evaluate import CORES
 from pipeline.library import LibrarySign
@@ -159,11 +159,23 @@ def test_parse_board_rejects(text):
         parse_board(text)
 
 
+@pytest.mark.parametrize("found, photos, hinted", [(0, 17, True), (2, 17, True), (0, 1, True),
+                                                   (2, 2, False),   # found in every photo: more photos are missing
+                                                   (3, 17, False)])  # enough to calibrate
+def test_a_board_found_in_too_few_photos_says_to_check_its_size(found, photos, hinted):
+    """The page said "the 8×6 board found in 0 (at least 3 needed; 15–20 recommended)" and no more,
+    when the size had been counted in squares."""
+    hint = board_size_hint((8, 6), found, photos)
+    assert (hint == "check the board size: it counts inner corners (where four squares meet) across x down, not "
+                    "squares, so 8x6 is a board of 9x7 squares; and the whole board, with its white border, must "
+                    "be in view") if hinted else hint is None
+
+
 def test_calibrate_errors():
     views = projected_views(4)
     with pytest.raises(CalibrationError, match="not found in any of the 2"):
         calibrate([BoardView("a", SIZE, None), BoardView("b", SIZE, None)], BOARD, SQUARE_M)
-    with pytest.raises(CalibrationError, match="found in 2 usable image.*at least 3"):
+    with pytest.raises(CalibrationError, match="found in 2 usable image.*at least 3.*; check the board size"):
         calibrate(views[:2] + [BoardView("c", SIZE, None)], BOARD, SQUARE_M)
     with pytest.raises(CalibrationError, match="at least 3"):
         calibrate(views, BOARD, SQUARE_M, exclude=(0, 1))

@@ -143,9 +143,12 @@ def test_a_new_board_size_searches_every_photo_again(client, photos):
     add(client, photos[:3])
     state = client.put("/api/calibration/board", json=BOARD_SPEC | {"cols": 7, "rows": 5}).json()
     assert state["board"]["cols"] == 7 and not any(v["found"] for v in state["views"])
+    # the page said "found in 0 (at least 3 needed)" and no more: a size given in squares is the usual cause
+    assert "counts inner corners" in state["hint"] and "7x5 is a board of 8x6 squares" in state["hint"]
     assert_error(client.post("/api/calibration/run", json={}), 422, "7x5 board was not found", "inner corners")
     state = client.put("/api/calibration/board", json=BOARD_SPEC | {"square_m": 0.02}).json()
     assert all(v["found"] for v in state["views"]) and state["board"]["square_m"] == 0.02
+    assert state["hint"] is None
     assert client.post("/api/calibration/run", json={}).json()["result"]["used"] == 3
 
 

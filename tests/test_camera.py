@@ -190,6 +190,10 @@ def test_plain_json_and_opencv_filestorage(tmp_path):
     fs.write("distortion_coefficients", np.zeros((1, 5)))
     fs.release()
     assert load_camera(fs_path).K[0, 0] == 700
+    # as a Windows editor saves them, with a byte-order mark: OpenCV's own reading refused the FileStorage
+    for path in (p, fs_path):
+        path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    assert load_camera(p).K[0, 2] == 320 and load_camera(fs_path).K[0, 0] == 700
 
 
 @pytest.mark.parametrize("text, message", [
@@ -201,6 +205,8 @@ def test_plain_json_and_opencv_filestorage(tmp_path):
     ('{"fx": 400, "fy": 400, "cx": 320, "cy": 240, "dist": [1, 2, 3]}', "coefficients"),
     ('just text', "expected a mapping"),
     ('{"fx": "a", "fy": 400, "cx": 320, "cy": 240}', "fx must be a number"),
+    ("", r"an empty file \(nothing in it to read\)"),
+    ("\n  \n", r"an empty file \(nothing in it to read\)"),
 ])
 def test_malformed_camera_files_are_clear_errors(tmp_path, text, message):
     p = tmp_path / "bad.yaml"

@@ -1,5 +1,6 @@
 """The `signpose` command line, run as a user runs it: a subprocess on real files."""
 
+import argparse
 import fcntl
 import json
 import os
@@ -150,9 +151,10 @@ def test_a_damaged_jpeg_is_told_apart_from_a_file_that_is_no_image(tmp_path):
     result = signpose("recognize", *(tmp_path / name for name in cases), "--json")
     assert result.returncode == 1
     errors = {Path(o["image"]).name: o["error"] for o in map(json.loads, result.stdout.splitlines())}
-    for name in ("header_cut.jpg", "data_cut.jpg"):
-        assert errors[name] == (f"{tmp_path / name}: damaged or truncated JPEG file (it begins as a JPEG but its image "
-                                "data cannot be read); copy or export it again")
+    assert errors["header_cut.jpg"] == (f"{tmp_path / 'header_cut.jpg'}: damaged or truncated JPEG file (it begins "
+                                        "as a JPEG but its image data cannot be read); copy or export it again")
+    assert errors["data_cut.jpg"] == (f"{tmp_path / 'data_cut.jpg'}: damaged or truncated JPEG file (it ends inside "
+                                      "its image data: cut short); copy or export it again")
     assert errors["notes.jpg"] == f"{tmp_path / 'notes.jpg'}: not an image file (use JPEG, PNG, TIFF, WebP or BMP)"
 
 
@@ -455,3 +457,11 @@ def test_evaluate_tells_datasets_and_images_of_the_same_name_apart(tmp_path):
     assert [line.split()[:3] for line in result.stdout.splitlines()[2:5]] == [
         [str(a), "1", "0"], [str(b), "1", "1"], ["all", "2", "1"]]
     assert f"  {a / 'chief_of_security' / 's.jpg'}: truth chief_of_security, answer none" in result.stdout
+
+
+def test_every_argument_of_every_command_says_what_it_is_in_help():
+    """`signpose synth --help` listed --library with nothing beside it."""
+    commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
+    bare = [f"{name} {action.dest}" for name, command in commands.items() for action in command._actions
+            if not action.help]
+    assert bare == []

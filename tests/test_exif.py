@@ -1,8 +1,9 @@
-"""EXIF intrinsics: JPEGs with lens EXIF built byte by byte (and once by Pillow, as a cross-check)."""
+"""EXIF intrinsics: JPEGs and PNGs with lens EXIF built byte by byte (and by Pillow, as a cross-check, a WebP too)."""
 
 import io
 import math
 import struct
+import zlib
 
 import cv2
 import numpy as np
@@ -10,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.exif import LensExif, exif_camera, focal_px, read_lens_exif
+from pipeline.exif import LensExif, decode_with_exif, exif_camera, focal_px, read_lens_exif
 
 FOCAL, FOCAL_35, PLANE_X, PLANE_UNIT, PIXEL_X, PIXEL_Y = 0x920A, 0xA405, 0xA20E, 0xA210, 0xA002, 0xA003
 SHORT, LONG, RATIONAL = 3, 4, 5
@@ -153,3 +154,44 @@ def test_corrupted_exif_never_raises(data):
     cut = data.draw(st.integers(2, len(jpeg)))
     camera = exif_camera(bytes(jpeg[:cut]), 6000, 4000).camera
     assert camera is None or camera.K[0, 0] > 0
+
+
+def png_with_exif(tiff: bytes, width: int = 64, height: int = 48) -> bytes:
+    """A PNG with `tiff` in an eXIf chunk after IHDR, as cameras and editors that write PNG put it."""
+    png = cv2.imencode(".png", np.zeros((height, width, 3), np.uint8))[1].tobytes()
+    chunk = struct.pack(">I", len(tiff)) + b"eXIf" + tiff + struct.pack(">I", zlib.crc32(b"eXIf" + tiff))
+    ihdr_end = 8 + 8 + 13 + 4
+    return png[:ihdr_end] + chunk + png[ihdr_end:]
+
+
+def webp_with_exif(width: int = 400, height: int = 300, focal_35mm: int = 24) -> bytes:
+    """A WebP with an EXIF chunk holding a 35 mm-equivalent focal length, as Pillow writes it."""
+    from PIL import ExifTags, Image
+
+    exif = Image.Exif()
+    exif.get_ifd(ExifTags.IFD.Exif)[ExifTags.Base.FocalLengthIn35mmFilm] = focal_35mm
+    buf = io.BytesIO()
+    Image.new("RGB", (width, height)).save(buf, "WEBP", exif=exif)
+    return buf.getvalue()
+
+
+@pytest.mark.parametrize("name", ["png", "png_with_exif_header", "webp"])
+def test_exif_is_read_from_png_and_webp_too(name):
+    """Only a JPEG's was read: a PNG or WebP photo with its lens in EXIF fell back to the assumed 60°."""
+    if name == "webp":
+        data, size = webp_with_exif(), (400, 300)
+    else:  # some writers begin a PNG's eXIf with the "Exif\0\0" of a JPEG's APP1
+        data = png_with_exif((b"Exif\x00\x00" if name == "png_with_exif_header" else b"") + tiff_block(PHONE))
+        size = (64, 48)
+    image, exif = decode_with_exif(data, name)
+    assert image.shape[:2] == size[::-1]
+    f_35 = 24 if name == "webp" else 26
+    assert exif.camera.K[0, 0] == pytest.approx(f_35 * math.hypot(*size) / math.hypot(36, 24))
+    assert exif.camera.source.startswith("EXIF ") and f"35 mm equiv {f_35} mm" in exif.camera.source
+
+
+def test_a_png_or_webp_without_exif_has_none():
+    png = cv2.imencode(".png", np.zeros((8, 8, 3), np.uint8))[1].tobytes()
+    webp = cv2.imencode(".webp", np.zeros((8, 8, 3), np.uint8))[1].tobytes()
+    for data in (png, webp, png[:20], webp[:14]):
+        assert read_lens_exif(data) is None

@@ -1,6 +1,7 @@
 """Decoding input images: transparency shown over white, and errors that say what is wrong."""
 
 import io
+import re
 
 import cv2
 import numpy as np
@@ -8,6 +9,7 @@ import pytest
 from PIL import Image
 
 from pipeline.image import ImageError, decode_image
+from scene_images import HEIC_START, scrambled_scene
 
 # Black text on a transparent ground, as sign artwork is often drawn: the ground's colour
 # values are black too (what many tools store under alpha 0).
@@ -57,3 +59,117 @@ def test_floating_point_samples_are_named_not_called_damage():
         decode_image(data, "f.tiff")
     assert str(info.value) == ("f.tiff: a TIFF of float32 samples, which signpose does not read; "
                                "export it with 8- or 16-bit integer samples")
+
+
+def photo_jpeg(**options) -> bytes:
+    """A small photo-like JPEG (texture and noise, so its data holds stuffed 0xFF bytes) saved by Pillow."""
+    rng = np.random.default_rng(1)
+    ramp = np.linspace(0, 255, 96)
+    rgb = np.clip(np.dstack([ramp[None, :].repeat(64, 0), ramp[:64, None].repeat(96, 1), np.full((64, 96), 90.0)])
+                  + rng.normal(0, 25, (64, 96, 3)), 0, 255).astype(np.uint8)
+    image = Image.fromarray(rgb)
+    mode = options.pop("mode", None)
+    return encode(image.convert(mode) if mode else image, "JPEG", **options)
+
+
+def with_restarts(jpeg: bytes) -> bytes:
+    """`jpeg` re-encoded by OpenCV with a restart marker every MCU row (as many cameras write them)."""
+    image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+    return cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_RST_INTERVAL, 6])[1].tobytes()
+
+
+def entropy_data(jpeg: bytes) -> slice:
+    """Where the first scan's entropy-coded data lies in `jpeg`."""
+    sos = jpeg.index(b"\xff\xda")
+    start = sos + 2 + int.from_bytes(jpeg[sos + 2:sos + 4], "big")
+    return slice(start, re.compile(rb"\xff[^\x00\xd0-\xd7]").search(jpeg, start).start())
+
+
+SOUND_JPEGS = {
+    "baseline.jpg": photo_jpeg(quality=95),
+    "progressive.jpg": photo_jpeg(quality=90, progressive=True),
+    "optimized_444.jpg": photo_jpeg(quality=95, subsampling=0, optimize=True),
+    "gray.jpg": photo_jpeg(mode="L"),
+    "cmyk.jpg": photo_jpeg(mode="CMYK"),
+    "restarts.jpg": with_restarts(photo_jpeg(quality=95)),
+    # EXIF with a JPEG thumbnail inside (its own markers, end of image included)
+    "exif_thumbnail.jpg": photo_jpeg(exif=b"Exif\x00\x00II*\x00\x08\x00\x00\x00\x00\x00\x00\x00"
+                                     + photo_jpeg(quality=50)),
+    # a phone's second picture (depth map, gain map) after the end of the first
+    "trailing_image.jpg": photo_jpeg() + photo_jpeg(quality=50),
+    # fill 0xFF bytes before a marker, which the standard allows
+    "fill_bytes.jpg": photo_jpeg().replace(b"\xff\xda", b"\xff\xff\xff\xda", 1),
+}
+
+
+@pytest.mark.parametrize("name", SOUND_JPEGS)
+def test_sound_jpegs_of_every_kind_decode(name):
+    data = SOUND_JPEGS[name]
+    assert b"\xff\x00" in data[entropy_data(data).start:]  # what the damage check must tell from damage
+    assert decode_image(data, name).shape == (64, 96, 3)
+
+
+def damaged(jpeg: bytes, edit) -> bytes:
+    """`jpeg` with `edit` applied to the entropy-coded data of its first scan."""
+    where = entropy_data(jpeg)
+    return jpeg[:where.start] + edit(jpeg[where]) + jpeg[where.stop:]
+
+
+def stray_ff(data: bytes) -> bytes:
+    """A data byte turned 0xFF before one that is not 0x00: it reads as a marker."""
+    i = next(i for i in range(100, len(data) - 1) if data[i - 1] != 0xFF and data[i + 1] not in (0x00, 0xFF))
+    return data[:i] + b"\xff" + data[i + 1:]
+
+
+DAMAGED_JPEGS = {
+    "scrambled.jpg": scrambled_scene(),
+    # a stuffed 0x00 overwritten: the 0xFF before it then reads as a marker
+    "unstuffed.jpg": damaged(SOUND_JPEGS["baseline.jpg"], lambda d: d.replace(b"\xff\x00", b"\xff\x37", 1)),
+    "stray_ff.jpg": damaged(SOUND_JPEGS["optimized_444.jpg"], stray_ff),
+    # a sector of zeros over a restart marker: the next one comes out of turn
+    "zeroed.jpg": damaged(SOUND_JPEGS["restarts.jpg"], lambda d: d.replace(b"\xff\xd1", b"\x00\x00", 1)),
+}
+
+
+@pytest.mark.parametrize("name", DAMAGED_JPEGS)
+def test_a_jpeg_with_damaged_image_data_is_refused_not_decoded_grey(name):
+    """OpenCV decodes these (libjpeg fills what it cannot read with grey, or garbles it), warning
+    only on stderr: the tester's scrambled photo gave "no sign" without a word."""
+    data = DAMAGED_JPEGS[name]
+    assert cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) is not None
+    with pytest.raises(ImageError) as info:
+        decode_image(data, name)
+    assert re.fullmatch(rf"{re.escape(name)}: damaged or truncated JPEG file \(its (image )?data is corrupt \(seen at "
+                        r"byte \d+\): decoded, part of the picture would be grey or garbled\); copy or export it again",
+                        str(info.value)), str(info.value)
+
+
+def test_a_jpeg_cut_inside_its_image_data_says_so():
+    data = SOUND_JPEGS["baseline.jpg"]
+    with pytest.raises(ImageError, match=r"cut\.jpg: damaged or truncated JPEG file \(it ends inside its image data: "
+                                         r"cut short\); copy or export it again"):
+        decode_image(data[:len(data) * 2 // 3], "cut.jpg")
+
+
+HEIF_FILES = {  # name: (bytes, what the error begins with)
+    # told by content, whatever the name says
+    "IMG_0001.jpg": (HEIC_START, "IMG_0001.jpg: HEIC/HEIF images are not supported: export it as JPEG (on an iPhone, "
+                                 "to take JPEGs from now on: Settings > Camera > Formats > Most Compatible)"),
+    "photo.heif": (b"\x00\x00\x00\x1cftypmif1\x00\x00\x00\x00mif1heixmiaf" + bytes(100),
+                   "photo.heif: HEIC/HEIF images are not supported"),
+    # an AVIF's brands include HEIF's mif1; some OpenCV builds decode AVIF, but not one without its image
+    "photo.avif": (b"\x00\x00\x00\x20ftypavif\x00\x00\x00\x00avifmif1miafMA1B" + bytes(100),
+                   "photo.avif: an AVIF image that cannot be read here (AVIF is not among the formats signpose "
+                   "supports): export it as JPEG or PNG"),
+    "clip.mp4": (b"\x00\x00\x00\x18ftypisom\x00\x00\x02\x00isomiso2" + bytes(100),
+                 "clip.mp4: not an image file (use JPEG, PNG, TIFF, WebP or BMP)"),
+}
+
+
+@pytest.mark.parametrize("name", HEIF_FILES)
+def test_heif_images_say_what_they_are_and_how_to_get_a_jpeg(name):
+    """An iPhone's HEIC photo was called "not an image file"."""
+    data, message = HEIF_FILES[name]
+    with pytest.raises(ImageError) as info:
+        decode_image(data, name)
+    assert str(info.value).startswith(message)

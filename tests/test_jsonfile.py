@@ -1,10 +1,14 @@
 """Every JSON file a user hands over fails the same way: its loader's error, naming the file."""
 
+import shutil
+
 import pytest
 
 from pipeline.evaluate import DatasetError, load_dataset
-from pipeline.library import LibraryError, load_library
+from pipeline.library import SAMPLE_LIBRARY, LibraryError, load_library
 from pipeline.settings import SettingsError, load_settings
+
+BOM = b"\xef\xbb\xbf"  # UTF-8's byte-order mark, which Windows editors (Notepad, PowerShell) begin files with
 
 LOADERS = [  # (file name, loader given the folder, its error)
     ("settings.json", lambda d: load_settings(d / "settings.json"), SettingsError),
@@ -13,7 +17,10 @@ LOADERS = [  # (file name, loader given the folder, its error)
 ]
 
 
-@pytest.mark.parametrize("content, message", [(b'{"a": ', "is not valid JSON"), (b"\xff\xfe{}", "is not valid JSON")])
+@pytest.mark.parametrize("content, message", [(b'{"a": ', "is not valid JSON"), (b"\xff\xfe{}", "is not valid JSON"),
+                                              # said so, not "Expecting value: line 1 column 1 (char 0)"
+                                              (b"", r"is an empty file \(nothing in it to read\)"),
+                                              (BOM + b" \r\n", r"is an empty file \(nothing in it to read\)")])
 @pytest.mark.parametrize("name, load, error", LOADERS, ids=[n for n, _, _ in LOADERS])
 def test_bad_json_is_the_loaders_error_naming_the_file(tmp_path, name, load, error, content, message):
     (tmp_path / name).write_bytes(content)
@@ -25,3 +32,25 @@ def test_bad_json_is_the_loaders_error_naming_the_file(tmp_path, name, load, err
 def test_missing_settings_file_names_it(tmp_path):
     with pytest.raises(SettingsError, match="settings file .*nope.json not found"):
         load_settings(tmp_path / "nope.json")
+
+
+def with_bom(path):
+    path.write_bytes(BOM + path.read_bytes())
+
+
+@pytest.mark.parametrize("name", ["settings.json", "library.json", "truth.json"])
+def test_a_json_file_saved_with_a_byte_order_mark_is_read(tmp_path, name):
+    """`--settings bom.json` failed with "Unexpected UTF-8 BOM" while the page's import took the same file."""
+    if name == "settings.json":
+        (tmp_path / name).write_text('{"threshold": 0.7}', encoding="utf-8")
+        with_bom(tmp_path / name)
+        assert load_settings(tmp_path / name).threshold == 0.7
+    elif name == "library.json":
+        shutil.copytree(SAMPLE_LIBRARY, tmp_path / "library")
+        with_bom(tmp_path / "library" / name)
+        assert load_library(tmp_path / "library").ids == load_library(SAMPLE_LIBRARY).ids
+    else:
+        sample = SAMPLE_LIBRARY.parent / "scenes"
+        shutil.copytree(sample, tmp_path / "scenes")
+        with_bom(tmp_path / "scenes" / name)
+        assert len(load_dataset(tmp_path / "scenes").samples) == len(load_dataset(sample).samples)

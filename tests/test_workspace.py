@@ -19,7 +19,7 @@ import pytest
 
 import app.workspace as workspace_module
 import pipeline.recognize
-from app.state import StateDir, atomic_write
+from app.state import StateDir, StateError, atomic_write
 from app.workspace import NO_SIGN, SAMPLE_SCENES, Conflict, ImageTooLarge, Workspace, WorkspaceConfig
 from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError
 from pipeline.evaluate import CORES
@@ -226,6 +226,17 @@ def test_the_state_gives_the_assumed_field_of_view_set_else_the_default(tmp_path
     assert state.load_assumed_hfov() == ASSUMED_HFOV_DEG  # the default, in one place, not None for callers to fill
     state.save_assumed_hfov(72.0)
     assert StateDir(state.root).load_assumed_hfov() == 72.0
+
+
+def test_state_files_edited_in_a_windows_editor_are_read_and_an_emptied_one_is_named(tmp_path):
+    """Notepad saves with a byte-order mark (BOM), which json.loads refuses in text."""
+    state = StateDir(tmp_path / "state")
+    state.save_assumed_hfov(72.0)
+    state.fov_path.write_bytes(b"\xef\xbb\xbf" + state.fov_path.read_bytes())
+    assert state.load_assumed_hfov() == 72.0
+    state.fov_path.write_bytes(b"")
+    with pytest.raises(StateError, match=r"an empty file \(nothing in it to read\); fix or delete it"):
+        state.load_assumed_hfov()
 
 
 def test_slider_storm_coalesces_into_few_runs_and_ends_on_the_last_value(make_workspace, counting, monkeypatch):

@@ -1,0 +1,66 @@
+"""An installed copy (pip install ., not -e) has no source checkout to find the page and the samples
+in: they ship inside its packages. A tester's `pip install .` served a 500 page and refused to run
+without --library."""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+# What building the wheel reads: the packages and the folders pyproject.toml packs into them.
+SOURCES = ("pyproject.toml", "README.md", "app", "pipeline", "static", "sample_images/library", "sample_images/scenes")
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory) -> Path:
+    """The folder the packages are installed to, laid out as `pip install .` lays them: by setuptools'
+    build_py, which building the wheel runs (a second or so, where a real install into a venv takes
+    half a minute), over a copy of the checkout so that nothing is written into it."""
+    source, lib = tmp_path_factory.mktemp("source"), tmp_path_factory.mktemp("site-packages")
+    for name in SOURCES:
+        if (REPO / name).is_dir():
+            shutil.copytree(REPO / name, source / name, ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            shutil.copy(REPO / name, source / name)
+    subprocess.run([sys.executable, "-c", "from setuptools import setup; setup()", "-q", "build_py",
+                    "--build-lib", str(lib)], cwd=source, check=True, capture_output=True, timeout=120)
+    return lib
+
+
+def run_installed(lib: Path, args: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    """`python args` importing signpose from `lib` only, run away from the checkout."""
+    env = {**os.environ, "PYTHONPATH": str(lib)}
+    return subprocess.run([sys.executable, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
+
+
+SERVE = """
+from pathlib import Path
+import app
+from fastapi.testclient import TestClient
+from app.server import create_app
+from app.workspace import WorkspaceConfig
+assert Path(app.__file__).is_relative_to({lib!r}), app.__file__  # not the checkout
+# the server answers requests addressed to a loopback host only
+with TestClient(create_app(WorkspaceConfig(state_dir=Path("state"))), base_url="http://127.0.0.1") as client:
+    page, script = client.get("/"), client.get("/app.js")
+    print(page.status_code, "<html" in page.text.lower(), script.status_code, len(client.get("/api/images").json()["images"]))
+"""
+
+
+def test_an_installed_copy_serves_the_page_with_the_sample_library_and_scenes(installed, tmp_path):
+    result = run_installed(installed, ["-c", SERVE.format(lib=str(installed))], tmp_path)
+    assert result.returncode == 0, result.stderr
+    # the page, its script, the 12 sample scenes (viser then says it stopped)
+    assert result.stdout.splitlines()[0].split() == ["200", "True", "200", "12"], result.stdout
+
+
+def test_an_installed_copy_recognizes_with_the_sample_library_by_default(installed, tmp_path):
+    scene = installed / "pipeline" / "sample_images" / "scenes" / "scene_002.jpg"
+    result = run_installed(installed, ["-m", "app.cli", "recognize", str(scene), "--json"], tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)["label"] == "security_compound"
