@@ -9,7 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-NOT_AN_IMAGE = "not an image file (use JPEG, PNG, TIFF, WebP or BMP)"
+NOT_AN_IMAGE = "not an image file (use JPEG, PNG, TIFF, WebP, BMP or GIF)"
 # How each format signpose reads begins: a file that begins so and cannot be read is that format
 # damaged (cut short by a copy or download, or corrupt), not some other kind of file.
 SIGNATURES = {
