@@ -155,7 +155,7 @@ def test_a_damaged_jpeg_is_told_apart_from_a_file_that_is_no_image(tmp_path):
                                         "as a JPEG but its image data cannot be read); copy or export it again")
     assert errors["data_cut.jpg"] == (f"{tmp_path / 'data_cut.jpg'}: damaged or truncated JPEG file (it ends inside "
                                       "its image data: cut short); copy or export it again")
-    assert errors["notes.jpg"] == f"{tmp_path / 'notes.jpg'}: not an image file (use JPEG, PNG, TIFF, WebP or BMP)"
+    assert errors["notes.jpg"] == f"{tmp_path / 'notes.jpg'}: not an image file (use JPEG, PNG, TIFF, WebP, BMP or GIF)"
 
 
 @pytest.mark.parametrize("option, content, message", [

@@ -162,7 +162,7 @@ HEIF_FILES = {  # name: (bytes, what the error begins with)
                    "photo.avif: an AVIF image that cannot be read here (AVIF is not among the formats signpose "
                    "supports): export it as JPEG or PNG"),
     "clip.mp4": (b"\x00\x00\x00\x18ftypisom\x00\x00\x02\x00isomiso2" + bytes(100),
-                 "clip.mp4: not an image file (use JPEG, PNG, TIFF, WebP or BMP)"),
+                 "clip.mp4: not an image file (use JPEG, PNG, TIFF, WebP, BMP or GIF)"),
 }
 
 
