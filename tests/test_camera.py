@@ -447,7 +447,11 @@ def test_an_opencv_filestorage_xml_file_is_read(tmp_path, text):
 ], ids=["fisheye", "no matrix", "not opencv", "broken", "broken without declaration",
         "broken after blank lines"])
 def test_an_unusable_xml_file_is_a_one_line_error_naming_the_format(tmp_path, text, message):
-    p = tmp_path / "cam.xml"
+    assert_one_line_error(tmp_path / "cam.xml", text, message)
+
+
+def assert_one_line_error(p: Path, text: str, message: str) -> None:
+    """Loading `text` written to `p` is a CameraError of one line: the path, then `message`."""
     p.write_text(text)
     with pytest.raises(CameraError) as info:
         load_camera(p)
@@ -645,8 +649,4 @@ def test_the_other_resolution_warning_reaches_the_recognition():
      "not a readable OpenCV FileStorage JSON file (line 1: Unrecognized value)"),
 ])
 def test_unparsable_files_are_one_line_errors_with_the_position(tmp_path, text, message):
-    p = tmp_path / "camera.yaml"
-    p.write_text(text)
-    with pytest.raises(CameraError) as info:
-        load_camera(p)
-    assert str(info.value).startswith(f"{p}: {message}") and "\n" not in str(info.value)
+    assert_one_line_error(tmp_path / "camera.yaml", text, message)
