@@ -135,7 +135,7 @@ class Refined:
         if self.text is None or self.text.passes(min_correlation):
             return None
         return (f"its text differs from {self.sign.id}'s (weakest strip correlation {self.text.weakest:.2f} < "
-                f"{min_correlation:g}): another sign sharing some of its words?")
+                f"{min_correlation:g}): another sign sharing some of its words, or a homography that is off")
 
 
 def why_no_feature_winner(attempt: Attempt | None) -> str:
