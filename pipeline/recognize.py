@@ -544,7 +544,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
 
         # The pose itself is estimated every time: "pose" is not reported reused.
         (H, src, dst, ecc, outline), notes = cached(cache, refine_key, refine, None, reused)
-        text = check_text(gray, library, sign.id, H) if settings.min_text_correlation > 0 else None
+        text = check_text(gray, library, sign.id, H, camera) if settings.min_text_correlation > 0 else None
         timing["pose"] += (time.perf_counter() - t0) * 1e3
         return Refined(H, src, dst, ecc, outline, sign, text, notes)
 

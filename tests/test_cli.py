@@ -92,7 +92,7 @@ def test_bad_files_get_an_error_line_and_the_rest_still_run(tmp_path):
     assert table.returncode != 0 and good.name in table.stdout
     error_row = next(line for line in table.stdout.splitlines() if "error" in line)
     assert error_row.split() == ["notes.jpg", "error:", "not", "an", "image", "file", "(use", "JPEG,", "PNG,",
-                                 "TIFF,", "WebP", "or", "BMP)"]  # named once, by its file name as the other rows
+                                 "TIFF,", "WebP,", "BMP", "or", "GIF)"]  # named once, by its file name as the other rows
 
 
 def test_a_failure_inside_the_pipeline_is_that_images_error_line(monkeypatch, capsys):
