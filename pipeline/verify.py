@@ -26,7 +26,6 @@ from .library import Library, LibrarySign
 from .camera import Camera
 from .plaque import COMPARE_BLUR_SIGMA, bounding_box, quad_width, shrunk_view, sign_corners, sign_to_quad
 from .pose import distort_pixels, undistort_pixels
-from .segment import expand_box
 
 STRIPS = 6
 CHECK_WIDTH = 128  # px of the rectified sign: fine enough for the words' letters, coarse enough to pool noise
@@ -134,7 +133,9 @@ def check_text(gray: np.ndarray, library: Library, sign_id: str, H: np.ndarray,
     at = at.reshape(h, w, 2)
     seen = ((at[..., 0] >= 0) & (at[..., 0] <= gray.shape[1] - 1) & (at[..., 1] >= 0)
             & (at[..., 1] <= gray.shape[0] - 1))
-    x0, y0, x1, y1 = expand_box(bounding_box(at.reshape(-1, 2)), 0.0, gray.shape[1], gray.shape[0])
+    # The corners' box, a little larger: a lens bows the sides outward by a fraction of a pixel.
+    x0, y0, x1, y1 = bounding_box(corners)
+    x0, y0, x1, y1 = max(0, x0 - 2), max(0, y0 - 2), min(gray.shape[1], x1 + 2), min(gray.shape[0], y1 + 2)
     if x1 - x0 < 2 or y1 - y0 < 2:
         return TextCheck((None,) * STRIPS)
     # Only the sign's neighbourhood is read (and shrunk, when large).
