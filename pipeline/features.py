@@ -108,9 +108,4 @@ def sign_features(sign: LibrarySign, settings: Settings) -> Features:
 
 def library_features(library: Library, settings: Settings) -> dict[str, Features]:
     """Features of every library sign, computed once per feature settings and cached on the library."""
-    key = ("features", *detector_key(settings))
-    cached = library.cache.get(key)
-    if cached is None or cached.keys() != set(library.ids):
-        cached = {sign.id: sign_features(sign, settings) for sign in library.signs}
-        library.cache[key] = cached
-    return cached
+    return library.per_sign(("features", *detector_key(settings)), lambda sign: sign_features(sign, settings))

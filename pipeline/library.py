@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
@@ -24,6 +26,7 @@ from .image import ImageError, read_image, to_gray
 from .jsonfile import read_json
 
 SAMPLE_LIBRARY = shipped_folder(Path(__file__).resolve().parent, "sample_images") / "library"
+T = TypeVar("T")
 ID_PATTERN = re.compile(r"^[a-z0-9][a-z0-9_-]{0,63}$")
 # The label of an image without a sign (datasets' none/ folder, evaluate's confusion matrix, the
 # server's expected labels): no sign may take it.
@@ -87,7 +90,7 @@ class LibrarySign:
 
 @dataclass(eq=False)
 class Library:
-    """Signs in a folder. `cache` holds derived data (library features) keyed by the caller."""
+    """Signs in a folder. `cache` holds data derived from the signs (`per_sign`), keyed by the caller."""
 
     root: Path
     signs: list[LibrarySign]
@@ -102,6 +105,14 @@ class Library:
     @property
     def ids(self) -> list[str]:
         return [s.id for s in self.signs]
+
+    def per_sign(self, key: Hashable, compute: Callable[[LibrarySign], T]) -> dict[str, T]:
+        """{sign id: compute(sign)} for every sign, computed once per `key` and kept in `cache`;
+        computed again when the signs have changed since."""
+        cached = self.cache.get(key)
+        if cached is None or cached.keys() != set(self.ids):
+            cached = self.cache[key] = {sign.id: compute(sign) for sign in self.signs}
+        return cached
 
 
 def validate_sign_entry(entry: dict, where: str) -> dict:

@@ -150,14 +150,11 @@ def rectify(gray: np.ndarray, corners: np.ndarray, size: tuple[int, int]) -> np.
 def library_templates(library: Library) -> dict[str, np.ndarray]:
     """Each sign at the comparison resolution, blurred like a rectified plaque and `standardized`;
     cached on the library."""
-    cached = library.cache.get("plaque_templates")
-    if cached is None or cached.keys() != set(library.ids):
-        cached = {}
-        for sign in library.signs:
-            small = cv2.resize(sign.image, compare_size(sign), interpolation=cv2.INTER_AREA)
-            cached[sign.id] = standardized(cv2.GaussianBlur(small.astype(np.float32), (0, 0), COMPARE_BLUR_SIGMA))
-        library.cache["plaque_templates"] = cached
-    return cached
+    def template(sign: LibrarySign) -> np.ndarray:
+        small = cv2.resize(sign.image, compare_size(sign), interpolation=cv2.INTER_AREA)
+        return standardized(cv2.GaussianBlur(small.astype(np.float32), (0, 0), COMPARE_BLUR_SIGMA))
+
+    return library.per_sign("plaque_templates", template)
 
 
 def standardized(patch: np.ndarray) -> np.ndarray:

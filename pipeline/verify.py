@@ -93,11 +93,7 @@ def _template(sign: LibrarySign) -> _Template:
 
 def _templates(library: Library) -> dict[str, _Template]:
     """Every sign's `_Template`, cached on the library."""
-    cached = library.cache.get("text_templates")
-    if cached is None or cached.keys() != set(library.ids):
-        cached = {sign.id: _template(sign) for sign in library.signs}
-        library.cache["text_templates"] = cached
-    return cached
+    return library.per_sign("text_templates", _template)
 
 
 def _strip_sums(values: np.ndarray, columns: np.ndarray) -> np.ndarray:
