@@ -61,10 +61,12 @@ class TextCheck:
 
 
 @dataclass(frozen=True)
-class _Template:
-    """A sign at CHECK_WIDTH, blurred like a rectified plaque; `rows` (y0, y1) and `columns`
-    (STRIPS + 1 x edges) of the strips over its content; `centres` (1, h w, 2): where its pixels'
-    centres are in the sign's library px."""
+class TextTemplate:
+    """A sign as the text check compares it: `image` (h, w) float32 gray levels 0-255, the sign
+    shrunk to w = CHECK_WIDTH px and blurred like a rectified plaque; the strips over its content
+    (its text), from row `rows[0]` to `rows[1]` (template px, end excluded), strip i from column
+    `columns[i]` to `columns[i + 1]` (`columns` (STRIPS + 1,) int template px, left to right on the
+    sign); `centres` (1, h w, 2): where its pixels' centres are in the sign's library px."""
 
     image: np.ndarray
     rows: tuple[int, int]
@@ -72,8 +74,8 @@ class _Template:
     centres: np.ndarray
 
 
-def _template(sign: LibrarySign) -> _Template:
-    """The sign's `_Template`: strips over the bounding box of its content (pixels well away from the
+def _template(sign: LibrarySign) -> TextTemplate:
+    """The sign's `TextTemplate`: strips over the bounding box of its content (pixels well away from the
     level of its border, its background), with a margin of a quarter of its height above and below."""
     w, h = sign.size_px
     size = (CHECK_WIDTH, max(8, round(CHECK_WIDTH * h / w)))
@@ -87,13 +89,23 @@ def _template(sign: LibrarySign) -> _Template:
     margin = max(1, (ys.max() + 1 - ys.min()) // 4)
     rows = (max(0, int(ys.min()) - margin), min(size[1], int(ys.max()) + 1 + margin))
     u, v = np.meshgrid((np.arange(size[0]) + 0.5) * w / size[0], (np.arange(size[1]) + 0.5) * h / size[1])
-    return _Template(image, rows, np.linspace(xs.min(), xs.max() + 1, STRIPS + 1).round().astype(int),
-                     np.dstack([u, v]).reshape(1, -1, 2))
+    return TextTemplate(image, rows, np.linspace(xs.min(), xs.max() + 1, STRIPS + 1).round().astype(int),
+                        np.dstack([u, v]).reshape(1, -1, 2))
 
 
-def _templates(library: Library) -> dict[str, _Template]:
-    """Every sign's `_Template`, cached on the library."""
-    return library.per_sign("text_templates", _template)
+def text_template(library: Library, sign_id: str) -> TextTemplate:
+    """Sign `sign_id`'s `TextTemplate`, made once per library (cached on it, as every sign's)."""
+    return library.per_sign("text_templates", _template)[sign_id]
+
+
+@dataclass(frozen=True)
+class Rectified:
+    """An image read at a `TextTemplate`'s pixels through a homography: `patch` (h, w) float32 gray
+    levels 0-255, blurred as the template is (0 where a pixel's centre falls outside the image);
+    `seen` (h, w) bool, True where it falls inside."""
+
+    patch: np.ndarray
+    seen: np.ndarray
 
 
 def _strip_sums(values: np.ndarray, columns: np.ndarray) -> np.ndarray:
@@ -111,14 +123,12 @@ def _strip_correlations(a: np.ndarray, b: np.ndarray, columns: np.ndarray) -> np
     return np.where(var > 0, cov / np.sqrt(np.maximum(var, 1e-300)), 0.0)
 
 
-def check_text(gray: np.ndarray, library: Library, sign_id: str, H: np.ndarray,
-               camera: Camera | None = None) -> TextCheck:
-    """Compare the (H, W) uint8 image, rectified through H (library px -> image px), with sign
-    `sign_id`'s text strip by strip (see the module docstring). Under `camera`'s lens distortion H
-    is taken as exact at the corners (as refinement leaves it) and the sign is read along the
-    curves the lens makes of it."""
-    template = _templates(library)[sign_id]
-    sign = library[sign_id]
+def rectify_text(gray: np.ndarray, sign: LibrarySign, template: TextTemplate, H: np.ndarray,
+                 camera: Camera | None = None) -> Rectified:
+    """The (H, W) uint8 image read at each pixel of `sign`'s `template` through H (library px ->
+    image px): the patch `check_text` correlates. Under `camera`'s lens distortion H is taken as
+    exact at the corners (as refinement leaves it) and the sign is read along the curves the lens
+    makes of it."""
     h, w = template.image.shape
     corners = sign_corners(sign, H)
     if camera is not None:
@@ -134,8 +144,8 @@ def check_text(gray: np.ndarray, library: Library, sign_id: str, H: np.ndarray,
     bx, by, bw, bh = cv2.boundingRect(at.reshape(-1, 1, 2).astype(np.float32))
     x0, y0 = max(0, bx - 1), max(0, by - 1)
     x1, y1 = min(gray.shape[1], bx + bw + 2), min(gray.shape[0], by + bh + 2)
-    if x1 - x0 < 2 or y1 - y0 < 2:
-        return TextCheck((None,) * STRIPS)
+    if x1 - x0 < 2 or y1 - y0 < 2:  # the box is then wholly outside the image: nothing is seen
+        return Rectified(np.zeros((h, w), np.float32), seen)
     # Only the sign's neighbourhood is read (and shrunk, when large).
     view, at = gray[y0:y1, x0:x1], at - (x0, y0)
     f = 2 * CHECK_WIDTH / quad_width(corners)
@@ -143,9 +153,21 @@ def check_text(gray: np.ndarray, library: Library, sign_id: str, H: np.ndarray,
         view, to_small, _ = shrunk_view(view, f, None)
         at = at * np.diag(to_small)[:2] + to_small[:2, 2]
     patch = cv2.remap(view, at[..., 0].astype(np.float32), at[..., 1].astype(np.float32), cv2.INTER_LINEAR)
-    patch = cv2.GaussianBlur(patch.astype(np.float32), (0, 0), COMPARE_BLUR_SIGMA)
+    return Rectified(cv2.GaussianBlur(patch.astype(np.float32), (0, 0), COMPARE_BLUR_SIGMA), seen)
+
+
+def compare_text(rectified: Rectified, template: TextTemplate) -> TextCheck:
+    """`rectified` against `template`, strip by strip (see the module docstring)."""
     top, bottom = template.rows
     columns = template.columns
-    visible = _strip_sums(seen[top:bottom], columns) / (np.diff(columns) * (bottom - top)) >= MIN_VISIBLE
-    correlations = _strip_correlations(patch[top:bottom], template.image[top:bottom], columns)
+    visible = _strip_sums(rectified.seen[top:bottom], columns) / (np.diff(columns) * (bottom - top)) >= MIN_VISIBLE
+    correlations = _strip_correlations(rectified.patch[top:bottom], template.image[top:bottom], columns)
     return TextCheck(tuple(float(c) if v else None for c, v in zip(correlations, visible)))
+
+
+def check_text(gray: np.ndarray, library: Library, sign_id: str, H: np.ndarray,
+               camera: Camera | None = None) -> TextCheck:
+    """Compare the (H, W) uint8 image, rectified through H (library px -> image px), with sign
+    `sign_id`'s text strip by strip: `compare_text` of `rectify_text` (see both)."""
+    template = text_template(library, sign_id)
+    return compare_text(rectify_text(gray, library[sign_id], template, H, camera), template)
