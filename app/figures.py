@@ -15,8 +15,9 @@ from pipeline.image import to_gray
 from pipeline.library import Library
 from pipeline.recognize import Attempt, Recognition, SignScore
 from pipeline.segment import Box, Segmentation, normalize_levels, segment
+from pipeline.verify import TextCheck, TextTemplate, rectify_text, text_template
 
-STAGES = ("input", "gray", "mask", "blob", "crop", "matches", "inliers")
+STAGES = ("input", "gray", "mask", "blob", "crop", "matches", "inliers", "text")
 # The stages drawn on the colour photo; the others need only its gray.
 PHOTO_STAGES = ("input", "blob", "crop", "matches", "inliers")
 MAX_SIDE_PX = 1600
@@ -30,6 +31,14 @@ MATCH_PANEL_MAX_WIDTH_PX = 4 * MATCH_PANEL_HEIGHT_PX
 GREEN, RED, YELLOW, ORANGE, CYAN, WHITE, BLACK = (60, 200, 60), (60, 60, 230), (0, 220, 255), (0, 140, 255), \
     (230, 200, 0), (255, 255, 255), (0, 0, 0)
 DIM = 0.35
+# UNSEEN: a strip the text check did not see (not a gray: the photo is gray); DARK: the page's
+# figure background (#1f2328).
+UNSEEN, DARK = (210, 170, 140), (40, 35, 31)
+# The text check's figure: figure px per template px (CHECK_WIDTH 128 -> 768 px wide), and its
+# writing, about 20 px tall: some 12 px where the page shows the figure, 460 px wide.
+TEXT_BLOCK_PX = 6
+TEXT_CONTEXT_PX = 4  # template rows shown above and below the strips: the plaque, or what H put there instead
+TEXT_FONT_SCALE, TEXT_THICKNESS = 0.9, 2
 Spot = tuple[tuple[int, int], bool]  # where a label may go: (org, above) as `_band` takes them
 
 
@@ -285,12 +294,100 @@ def draw_matches(image: np.ndarray, recognition: Recognition, library: Library, 
     return img
 
 
+def _text_problem(recognition: Recognition, library: Library) -> str | None:
+    """Why the result has no text check to draw, None when it has one."""
+    if recognition.label is None:
+        return ("no sign was recognised, so no text was checked (a winner the check turned down says so, "
+                "with its weakest strip, in the scores)")
+    if recognition.text_check is None:
+        return (f"the text check is off (min_text_correlation {recognition.settings.min_text_correlation:g}, as in "
+                "the paper preset): set it above 0 to check the recognised sign's text")
+    if recognition.label not in library.ids:
+        return f"sign {recognition.label!r} is no longer in the library; wait for the re-run to finish"
+    return None
+
+
+def _stretched(levels: np.ndarray, rows: tuple[int, int], mask: np.ndarray) -> np.ndarray:
+    """(h, w) float gray `levels` as uint8, their range over the strips' `rows` where `mask` is True
+    stretched to 0-255: the correlation ignores each strip's gain and offset, and a dim photo read
+    as it is would show darker than its sign's template for no difference the check sees."""
+    top, bottom = rows
+    inside = levels[top:bottom][mask[top:bottom]]
+    lo, hi = (float(inside.min()), float(inside.max())) if inside.size else (0.0, 255.0)
+    return np.clip((levels - lo) * (255 / max(hi - lo, 1e-6)), 0, 255).astype(np.uint8)
+
+
+def _strip_colors(check: TextCheck, min_correlation: float) -> list[tuple[int, int, int]]:
+    """Per strip: GREEN when it reaches `min_correlation`, RED when not, UNSEEN when it was not seen."""
+    return [UNSEEN if c is None else GREEN if c >= min_correlation else RED for c in check.strips]
+
+
+def _text_panel(levels: np.ndarray, template: TextTemplate, colors: list[tuple[int, int, int]]) -> np.ndarray:
+    """The strips' rows of (h, w) uint8 `levels` at the template's resolution, and TEXT_CONTEXT_PX
+    rows either side dimmed (the check does not compare them), TEXT_BLOCK_PX px a template px;
+    each strip outlined in its colour."""
+    k, top, bottom = TEXT_BLOCK_PX, int(template.rows[0]), int(template.rows[1])
+    y0, y1 = max(0, top - TEXT_CONTEXT_PX), min(levels.shape[0], bottom + TEXT_CONTEXT_PX)
+    panel = _bgr(cv2.resize(levels[y0:y1], None, fx=k, fy=k, interpolation=cv2.INTER_NEAREST))
+    top, bottom = (top - y0) * k, (bottom - y0) * k
+    panel[:top] = panel[:top] * DIM
+    panel[bottom:] = panel[bottom:] * DIM
+    for x0, x1, color in zip(template.columns[:-1], template.columns[1:], colors):
+        # inside its own columns, so that two neighbours' edges show side by side
+        cv2.rectangle(panel, (int(x0) * k + 1, top + 1), (int(x1) * k - 2, bottom - 2), color, 2)
+    return panel
+
+
+def _text_band(width: int, texts: list[tuple[str, int, int, tuple[int, int, int]]]) -> np.ndarray:
+    """A DARK band `width` px wide with each (text, x0, x1, colour) centred between x0 and x1 px,
+    in TEXT_FONT_SCALE, or smaller where one would not fit its span (a long sign id)."""
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    height = cv2.getTextSize("0", font, TEXT_FONT_SCALE, TEXT_THICKNESS)[0][1]
+    scale = TEXT_FONT_SCALE
+    # In steps: OpenCV 5 sizes its font in whole px, so a scale a little smaller may be no narrower.
+    while scale > 0.3 and any(cv2.getTextSize(text, font, scale, TEXT_THICKNESS)[0][0] > x1 - x0 - 8
+                              for text, x0, x1, _ in texts):
+        scale -= 0.05
+    band = np.full((2 * height, width, 3), DARK, np.uint8)
+    for text, x0, x1, color in texts:
+        w = cv2.getTextSize(text, font, scale, TEXT_THICKNESS)[0][0]
+        cv2.putText(band, text, ((x0 + x1 - w) // 2, (3 * height) // 2), font, scale, color, TEXT_THICKNESS,
+                    cv2.LINE_AA)
+    return band
+
+
+def draw_text(gray: np.ndarray, recognition: Recognition, library: Library) -> np.ndarray:
+    """The recognised sign's text check (pipeline/verify.py): above, the photo read at the library
+    sign's template pixels through the final H (the patch the check correlates); below, the
+    template; each strip outlined on both and its correlation between them, green when it reaches
+    the result's `min_text_correlation`, red when not, UNSEEN and so labelled when it lies mostly
+    outside the photo. FigureError when there is no check to draw."""
+    problem = _text_problem(recognition, library)
+    if problem is not None:
+        raise FigureError(problem)
+    check, sign = recognition.text_check, library[recognition.label]
+    template = text_template(library, sign.id)
+    read = rectify_text(gray, sign, template, recognition.H, recognition.camera)
+    minimum = recognition.settings.min_text_correlation
+    colors = _strip_colors(check, minimum)
+    photo = _text_panel(_stretched(read.patch, template.rows, read.seen), template, colors)
+    library_sign = _text_panel(_stretched(template.image, template.rows, np.ones_like(read.seen)), template, colors)
+    width, edges = photo.shape[1], [int(c) * TEXT_BLOCK_PX for c in template.columns]
+    values = [("unseen" if c is None else f"{c:.3f}", x0, x1, color)
+              for c, x0, x1, color in zip(check.strips, edges[:-1], edges[1:], colors)]
+    head = _text_band(width, [("the photo, read through the homography", 0, width, WHITE)])
+    foot = _text_band(width, [(f"library sign {sign.id}: strips pass at {minimum:g} or more", 0, width, WHITE)])
+    return np.vstack([head, photo, _text_band(width, values), library_sign, foot])
+
+
 def stage_figure(stage: str, image: np.ndarray, recognition: Recognition, library: Library,
                  sign_id: str | None = None) -> np.ndarray:
     """The figure for `stage` (one of STAGES) of `image`, the colour photo for PHOTO_STAGES, else
     the photo or its gray; FigureError when it cannot be drawn."""
     if stage in ("matches", "inliers"):
         img = draw_matches(image, recognition, library, sign_id, inliers_only=stage == "inliers")
+    elif stage == "text":
+        img = draw_text(image, recognition, library)
     else:
         draw = {"input": draw_input, "gray": draw_gray, "mask": draw_mask, "blob": draw_blob, "crop": draw_crop}
         img = draw[stage](image, recognition)

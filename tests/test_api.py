@@ -16,10 +16,11 @@ import pytest
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
-from app.figures import GREEN, RED
+from app.figures import GREEN, RED, TEXT_BLOCK_PX, UNSEEN
 from app.server import create_app
 from app.workspace import Workspace, WorkspaceConfig
 from pipeline.library import SAMPLE_LIBRARY, load_library
+from pipeline.verify import CHECK_WIDTH
 from pipeline.synth import synthetic_camera
 from pipeline.camera import ros_camera_yaml
 from faults import fail_segmentation
@@ -265,6 +266,25 @@ def test_stage_figures(client):
     assert_error(client.get(f"/api/images/{image_id}/stages/matches?sign=nope"), 404, "not in the library")
     assert_error(client.get(f"/api/images/{image_id}/stages/sift"), 422, "input")
     client.delete(f"/api/images/{image_id}")
+
+
+def test_text_check_figure_or_why_there_is_none(client):
+    sign_id, wall_id = add_photos(client, "ministry_of_torture", "none")
+    r = client.get(f"/api/images/{sign_id}/stages/text")
+    assert r.status_code == 200 and r.content.startswith(PNG_SIGNATURE) and r.headers["x-settings-version"].isdigit()
+    figure = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR)
+    assert figure.shape[1] == CHECK_WIDTH * TEXT_BLOCK_PX  # the template's pixels as blocks, not resampled
+    assert has(figure, GREEN) and not has(figure, RED) and not has(figure, UNSEEN)  # every strip seen and passing
+    assert_error(client.get(f"/api/images/{wall_id}/stages/text"), 404, "no sign was recognised", "scores")
+    before = client.get("/api/settings").json()["settings"]["min_text_correlation"]
+    client.put("/api/settings", json={"min_text_correlation": 0})  # as the paper preset has it
+    wait_done(client)
+    assert_error(client.get(f"/api/images/{sign_id}/stages/text"), 404, "text check is off",
+                 "min_text_correlation 0")
+    client.put("/api/settings", json={"min_text_correlation": before})
+    wait_done(client)
+    for image_id in (sign_id, wall_id):
+        client.delete(f"/api/images/{image_id}")
 
 
 def label_bands(figure: np.ndarray) -> list[np.ndarray]:

@@ -10,6 +10,8 @@ import pytest
 from pipeline.camera import Camera, load_camera
 from pipeline.image import read_image, to_gray
 from pipeline.library import load_library
+from pipeline.recognize import recognize
+from pipeline.settings import preset
 from pipeline.verify import check_text, compare_text, rectify_text, text_template
 
 SCENES = Path(__file__).resolve().parents[1] / "sample_images" / "scenes"
@@ -94,3 +96,14 @@ def test_the_check_is_what_it_was_before_its_patch_was_exposed(name, gray, sign_
     assert compare_text(rectified, template).strips == strips  # the check is the patch against the template
     if name == "outside":
         assert not rectified.seen.any() and not rectified.patch.any()
+
+
+@pytest.mark.parametrize("name, camera", [("scene_002.jpg", None), ("scene_010.jpg", load_camera(SCENES / "camera.yaml"))])
+def test_a_result_holds_what_redraws_its_check(name, camera):
+    """The figure of the check (app/figures.py) reads the patch again from the result's H and camera:
+    they must give the strips the result reports."""
+    gray = to_gray(read_image(SCENES / name))
+    rec = recognize(gray, LIBRARY, preset("default"), camera)
+    template = text_template(LIBRARY, rec.label)
+    again = compare_text(rectify_text(gray, LIBRARY[rec.label], template, rec.H, rec.camera), template)
+    assert rec.label == TRUTH[name]["label"] and again == rec.text_check
