@@ -53,6 +53,8 @@ const NOTHING_TO_MEASURE = "No sign or white blob was found to measure: drag a b
 const input = stageFigure(INPUT_TITLE, false);
 const stages = Object.entries({ gray: "normalised gray", mask: "binary mask", blob: "largest blob", crop: "crop" })
   .map(([stage, title]) => ({ stage, figure: stageFigure(title) }));
+const TEXT_TITLE = "text check · the photo read through the sign's homography, over the library sign, strip by strip";
+const textCheck = stageFigure(TEXT_TITLE);
 
 // ---- rendering
 
@@ -86,6 +88,10 @@ function renderStages() {
   if (detail.error) input.set(`/api/images/${detail.id}/file`, "input · the photo as uploaded (it could not be run)");
   else input.set(stageUrl("input"), INPUT_TITLE);
   for (const { stage, figure } of stages) figure.set(stageUrl(stage));
+  const weakest = detail.result?.text_check?.weakest;
+  const bar = detail.settings?.min_text_correlation;
+  textCheck.set(stageUrl("text"), typeof weakest !== "number" ? TEXT_TITLE
+    : `${TEXT_TITLE} · weakest strip ${weakest.toFixed(3)} (a strip passes at ≥ ${bar})`);
   renderBox();
 }
 
@@ -492,7 +498,8 @@ export function initDetail() {
   area.append(el("div.drag-rect", { id: "drag-rect", hidden: true }));
   input.fig.classList.add("input-stage");
   $("#input-slot").replaceWith(input.fig);
-  fill($("#stages"), ...stages.map((s) => s.figure.fig));
+  textCheck.fig.classList.add("text-stage");
+  fill($("#stages"), ...stages.map((s) => s.figure.fig), textCheck.fig);
   bindDrag();
   bindChartClicks();
   fillSweepParams();

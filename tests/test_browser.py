@@ -21,7 +21,9 @@ import browser_harness as harness
 from chessboards import K_TRUE, render_boards
 from pipeline.exif import LensExif, focal_px
 from pipeline.image import NOT_AN_IMAGE
+from pipeline.verify import CHECK_WIDTH
 from app import tuning
+from app.figures import TEXT_BLOCK_PX
 from app.workspace import memory_text
 from serving import MISFIT_CAMERA
 
@@ -107,7 +109,7 @@ def test_upload_recognise_and_inspect(page, api, tmp_path):
     open_detail(page, card.get_attribute("data-id"))
     assert page.inner_text("#detail-name") == upload.name
     sizes = harness.stage_images_loaded(page, "#detail .stage img")
-    assert len(sizes) == 5 + 2 * len(api.get("/api/library").json())   # input, 4 stages, 2 per sign
+    assert len(sizes) == 6 + 2 * len(api.get("/api/library").json())   # input, 4 stages, text check, 2 per sign
     assert all(s["w"] > 0 for s in sizes), f"stage images that did not load: {[s for s in sizes if not s['w']]}"
     assert page.inner_text("#scores tr.winner td:first-child") == name
     pose = page.inner_text("#pose")
@@ -115,6 +117,30 @@ def test_upload_recognise_and_inspect(page, api, tmp_path):
     assert page.locator("#intrinsics dl").count() == 1
     page.screenshot(path=str(tmp_path / "signpose.png"))
     print(f"screenshot: {tmp_path / 'signpose.png'}")
+
+
+def test_detail_shows_the_text_check_legibly_or_why_not(page, api):
+    """The text check was only numbers in the JSON: its figure, the strips of the photo read through
+    the sign's homography over the library sign's, wide enough to read, its caption the weakest
+    strip; with the check off, the server's reason in its place."""
+    image_id = uploaded_scene(api)
+    weakest = api.get(f"/api/images/{image_id}").json()["result"]["text_check"]["weakest"]
+    open_detail(page, image_id)
+    figure = page.locator("#stages .text-stage")
+    [shown] = harness.stage_images_loaded(page, "#stages .text-stage img")
+    assert shown["w"] == CHECK_WIDTH * TEXT_BLOCK_PX and "/stages/text" in shown["src"]
+    caption = figure.locator("figcaption").inner_text()
+    assert caption.startswith("text check") and f"weakest strip {weakest:.3f}" in caption and "≥ 0.7" in caption
+    # The figure's writing is some 20 px tall: shown at half its size or more, it reads as the page's 11 px captions.
+    assert figure.locator("img").bounding_box()["width"] >= shown["w"] / 2
+    assert figure.locator("img").bounding_box()["width"] >= page.locator("#stages").bounding_box()["width"] - 1
+
+    harness.set_settings(page, api, {"min_text_correlation": 0})
+    note = figure.locator(".stage-note", has_text="text check is off")
+    note.wait_for()
+    assert "min_text_correlation 0" in note.inner_text() and "missing" in figure.get_attribute("class")
+    assert figure.locator("figcaption").inner_text() == "text check · the photo read through the sign's " \
+        "homography, over the library sign, strip by strip"
 
 
 def test_detail_close_button_stays_top_right(page, api):
