@@ -63,6 +63,9 @@ INITIAL_VIEW_LOOK_AT_M = (0.0, 0.0, -0.8)
 # Once there are cameras, new viewers and Reset View see the shown sign and its cameras from that
 # side, with room to spare for viser's control panel, which covers part of the frame.
 OVERVIEW_MARGIN = 1.4
+# viser writes a camera's label rightward from it at a size fixed on screen, about this many px a
+# character (measured in the page: "scene_002.jpg", 13 characters, 78 px).
+LABEL_PX_PER_CHAR = 6.0
 
 
 # --------------------------------------------------------------------------- geometry
@@ -403,6 +406,12 @@ class SceneHandle:
                               for n in self.cameras.values() if n.sign == self.world.value]])
         return overview_camera(points, fov_rad, aspect)
 
+    def _label_px(self) -> float:
+        """Screen px of the longest line of the labels shown in the shown world. The caller holds the lock."""
+        return LABEL_PX_PER_CHAR * max((len(line) for n in self.cameras.values()
+                                        if n.sign == self.world.value and n.label.visible
+                                        for line in n.label.text.split("\n")), default=0)
+
     def _frame_world(self) -> None:
         """Point new viewers' and Reset View's camera at the shown sign and its cameras, and the
         viewers' still where they were framed; a viewer the person has moved is left where it is.
@@ -424,10 +433,13 @@ class SceneHandle:
     def frame_for(self, client: viser.ClientHandle) -> None:
         """Point `client`'s camera at the shown sign and its cameras within its own canvas. The
         initial camera fits them in a square's height; a canvas narrower than tall (the page's 3D
-        column) is framed for its width, which the square's framing cuts at the sides."""
+        column) is framed for its width, which the square's framing cuts at the sides, less the
+        width of the widest label either side: a camera at the edge has its label beside it."""
         camera = client.camera
         with self._lock:
-            view = self._overview(camera.fov, min(camera.aspect, 1.0))
+            # at least a quarter of the width: labels wider than that cannot be helped by zooming out
+            room = max(0.25, 1.0 - 2.0 * self._label_px() / camera.image_width)
+            view = self._overview(camera.fov, min(camera.aspect * room, 1.0))
             framed = self._framed.get(client.client_id)
             # Every redraw comes here for the viewers left where they were framed: send changes only.
             if view is None or framed is not None and all(np.allclose(a, b) for a, b in zip(view, framed)):

@@ -13,8 +13,8 @@ import pytest
 import viser
 import viser.transforms as tf
 
-from app.scene import (NO_WORLD, attach, camera_pose_in_sign, frustum_scale, frustum_shape, image_plane_points,
-                       matched_points, status_markdown)
+from app.scene import (LABEL_PX_PER_CHAR, NO_WORLD, attach, camera_pose_in_sign, frustum_scale, frustum_shape,
+                       image_plane_points, matched_points, status_markdown)
 from app.workspace import SAMPLE_SCENES, Outcome, Workspace, WorkspaceConfig
 from pipeline.camera import assumed_camera
 from pipeline.settings import PRESETS, settings_schema
@@ -154,6 +154,20 @@ def test_a_viewer_narrower_than_tall_is_framed_for_its_width(scene):
     assert _widest(handle, viewer.camera) < 0.8 * viewer.across_deg
 
 
+def test_a_narrow_viewer_has_room_for_the_labels_of_the_cameras_at_its_edges(scene):
+    """The page's 3D column framed the cameras, not their labels, which viser writes rightward from
+    them: a camera near the edge had its name cut off there."""
+    handle, _ = scene
+    viewer = Viewer(1, 0.45, handle.server.initial_camera)
+    handle.frame_for(viewer)
+    half_px = viewer.camera.image_width / 2
+    label_px = max(LABEL_PX_PER_CHAR * len(n.label.text) for n in handle.cameras.values()
+                   if n.sign == handle.world.value and n.label.visible)
+    off_axis_px = half_px * math.tan(math.radians(_widest(handle, viewer.camera))) / math.tan(
+        math.radians(viewer.across_deg))
+    assert off_axis_px + label_px <= half_px, (off_axis_px, label_px, half_px)
+
+
 def test_viewers_left_as_framed_follow_new_cameras_and_one_moved_by_hand_stays(scene, monkeypatch):
     """Cameras drawn after a viewer had connected were outside its view until the page was reloaded."""
     handle, _ = scene
@@ -174,9 +188,10 @@ def test_viewers_left_as_framed_follow_new_cameras_and_one_moved_by_hand_stays(s
 class Viewer:
     """A viser client as `SceneHandle` sees it: an id and a camera of a canvas' aspect (width / height)."""
 
-    def __init__(self, client_id: int, aspect: float, start: viser.InitialCameraConfig):
+    def __init__(self, client_id: int, aspect: float, start: viser.InitialCameraConfig, height_px: int = 870):
         self.client_id = client_id
-        self.camera = type("Camera", (), dict(fov=start.fov, aspect=aspect, position=np.asarray(start.position),
+        self.camera = type("Camera", (), dict(fov=start.fov, aspect=aspect, image_width=round(aspect * height_px),
+                                              position=np.asarray(start.position),
                                               look_at=np.asarray(start.look_at)))()
         # half the canvas' width, in degrees
         self.across_deg = np.degrees(math.atan(math.tan(start.fov / 2) * min(aspect, 1.0)))
