@@ -98,7 +98,8 @@ def test_the_check_is_what_it_was_before_its_patch_was_exposed(name, gray, sign_
         assert not rectified.seen.any() and not rectified.patch.any()
 
 
-@pytest.mark.parametrize("name, camera", [("scene_002.jpg", None), ("scene_010.jpg", load_camera(SCENES / "camera.yaml"))])
+@pytest.mark.parametrize("name, camera", [("scene_002.jpg", None),
+                                          ("scene_010.jpg", load_camera(SCENES / "camera.yaml"))])
 def test_a_result_holds_what_redraws_its_check(name, camera):
     """The figure of the check (app/figures.py) reads the patch again from the result's H and camera:
     they must give the strips the result reports."""
