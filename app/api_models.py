@@ -115,6 +115,12 @@ class TextCheckOut(BaseModel):
     weakest: float | None
 
 
+class TurnedDownOut(BaseModel):
+    sign: str
+    source: str = Field(description="where it was found: 'blob 1', 'plaque 2', 'full frame', 'plaque fallback', ...")
+    text_check: TextCheckOut
+
+
 class RecognitionOut(BaseModel):
     """The CLI's JSON for one image (`signpose recognize --json`)."""
 
@@ -127,6 +133,8 @@ class RecognitionOut(BaseModel):
     pose: dict[str, Any] | None
     text_check: TextCheckOut | None = Field(description="the recognised sign's text against the library's "
                                                         "(null: not checked, min_text_correlation 0)")
+    turned_down: list[TurnedDownOut] = Field(description="winners whose text the check turned down, in the "
+                                                         "order found")
     timing_ms: dict[str, float]
     reused_stages: list[str] = Field(description="stages whose results came from the image's cache (their "
                                                  "times are a lookup's); empty in the CLI")

@@ -294,17 +294,25 @@ def draw_matches(image: np.ndarray, recognition: Recognition, library: Library, 
     return img
 
 
-def _text_problem(recognition: Recognition, library: Library) -> str | None:
-    """Why the result has no text check to draw, None when it has one."""
-    if recognition.label is None:
-        return ("no sign was recognised, so no text was checked (a winner the check turned down says so, "
-                "with its weakest strip, in the scores)")
-    if recognition.text_check is None:
-        return (f"the text check is off (min_text_correlation {recognition.settings.min_text_correlation:g}, as in "
-                "the paper preset): set it above 0 to check the recognised sign's text")
-    if recognition.label not in library.ids:
-        return f"sign {recognition.label!r} is no longer in the library; wait for the re-run to finish"
-    return None
+def _checked(recognition: Recognition, library: Library) -> tuple[str, np.ndarray, TextCheck, str]:
+    """(sign id, H, check, what it is) of the check to draw: the recognised sign's, else the first
+    winner the check turned down; FigureError saying why there is none."""
+    if recognition.text_check is not None:
+        sign_id, H, check = recognition.label, recognition.H, recognition.text_check
+        what = "the photo, read through the homography"
+    elif recognition.turned_down:
+        first = recognition.turned_down[0]
+        sign_id, H, check = first.sign, first.H, first.text
+        what = f"turned down: {first.source} read as {first.sign}"
+    elif recognition.settings.min_text_correlation <= 0:
+        raise FigureError(f"the text check is off (min_text_correlation {recognition.settings.min_text_correlation:g}, "
+                          "as in the paper preset): set it above 0 to check the recognised sign's text")
+    else:
+        raise FigureError("no sign was recognised and no winner turned down for its text, so no text was checked "
+                          "(the scores say why)")
+    if sign_id not in library.ids:
+        raise FigureError(f"sign {sign_id!r} is no longer in the library; wait for the re-run to finish")
+    return sign_id, H, check, what
 
 
 def _stretched(levels: np.ndarray, rows: tuple[int, int], mask: np.ndarray) -> np.ndarray:
@@ -357,17 +365,16 @@ def _text_band(width: int, texts: list[tuple[str, int, int, tuple[int, int, int]
 
 
 def draw_text(gray: np.ndarray, recognition: Recognition, library: Library) -> np.ndarray:
-    """The recognised sign's text check (pipeline/verify.py): above, the photo read at the library
-    sign's template pixels through the final H (the patch the check correlates); below, the
-    template; each strip outlined on both and its correlation between them, green when it reaches
-    the result's `min_text_correlation`, red when not, UNSEEN and so labelled when it lies mostly
-    outside the photo. FigureError when there is no check to draw."""
-    problem = _text_problem(recognition, library)
-    if problem is not None:
-        raise FigureError(problem)
-    check, sign = recognition.text_check, library[recognition.label]
+    """The recognised sign's text check (pipeline/verify.py), else that of the first winner it
+    turned down: above, the photo read at the library sign's template pixels through the final H
+    (the patch the check correlates); below, the template; each strip outlined on both and its
+    correlation between them, green when it reaches the result's `min_text_correlation`, red when
+    not, UNSEEN and so labelled when it lies mostly outside the photo. FigureError when there is
+    no check to draw."""
+    sign_id, H, check, what = _checked(recognition, library)
+    sign = library[sign_id]
     template = text_template(library, sign.id)
-    read = rectify_text(gray, sign, template, recognition.H, recognition.camera)
+    read = rectify_text(gray, sign, template, H, recognition.camera)
     minimum = recognition.settings.min_text_correlation
     colors = _strip_colors(check, minimum)
     photo = _text_panel(_stretched(read.patch, template.rows, read.seen), template, colors)
@@ -375,7 +382,7 @@ def draw_text(gray: np.ndarray, recognition: Recognition, library: Library) -> n
     width, edges = photo.shape[1], [int(c) * TEXT_BLOCK_PX for c in template.columns]
     values = [("unseen" if c is None else f"{c:.3f}", x0, x1, color)
               for c, x0, x1, color in zip(check.strips, edges[:-1], edges[1:], colors)]
-    head = _text_band(width, [("the photo, read through the homography", 0, width, WHITE)])
+    head = _text_band(width, [(what, 0, width, WHITE)])
     foot = _text_band(width, [(f"library sign {sign.id}: strips pass at {minimum:g} or more", 0, width, WHITE)])
     return np.vstack([head, photo, _text_band(width, values), library_sign, foot])
 

@@ -138,6 +138,20 @@ class Refined:
                 f"{min_correlation:g}): another sign sharing some of its words, or a homography that is off")
 
 
+@dataclass(frozen=True, eq=False)
+class TurnedDown:
+    """A winner the text check turned down: its `sign` id, where it was found (`source`: an
+    Attempt's, or "plaque fallback"), its refined H (library px -> image px) and the check."""
+
+    sign: str
+    source: str
+    H: np.ndarray = field(repr=False)
+    text: TextCheck
+
+    def to_json(self) -> dict:
+        return {"sign": self.sign, "source": self.source, "text_check": self.text.to_json()}
+
+
 def why_no_feature_winner(attempt: Attempt | None) -> str:
     """Why features recognised nothing in `attempt`, the region their answer came from: its
     leader's reason, or that no region was searched."""
@@ -153,6 +167,7 @@ class Recognition:
     ecc: the correlation of the dense alignment that refined it (None when not refined);
     outline: the plaque outline that refined it instead (None when not refined so);
     text_check: how its text, rectified through H, correlates with the sign's (None: not checked).
+    turned_down: the winners the text check turned down before it, in the order found.
     timing_ms: milliseconds per stage of STAGES and in "total"; reused_stages: the stages, in
     STAGES order, whose results came in whole or part from the caller's `StageCache`, so their
     times are a lookup's, not what the stage costs.
@@ -174,6 +189,7 @@ class Recognition:
     sign_corners_px: np.ndarray | None = field(repr=False, default=None)
     outline: Outline | None = field(repr=False, default=None)
     text_check: TextCheck | None = None
+    turned_down: list[TurnedDown] = field(default_factory=list)
 
     @property
     def best(self) -> SignScore | None:
@@ -223,6 +239,7 @@ class Recognition:
             "corners": _list(self.corners),
             "pose": self.pose.to_json() if self.pose is not None else None,
             "text_check": self.text_check.to_json() if self.text_check is not None else None,
+            "turned_down": [t.to_json() for t in self.turned_down],
             "timing_ms": {k: round(v, 3) for k, v in self.timing_ms.items()},
             "reused_stages": list(self.reused_stages),
             "warnings": list(self.warnings),
@@ -549,6 +566,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         return Refined(H, src, dst, ecc, outline, sign, text, notes)
 
     attempts: list[Attempt] = []
+    turned_down: list[TurnedDown] = []
     refined = None
     # A winner whose text is not its sign's is turned down, and the search goes on: the sign may
     # be elsewhere in the image.
@@ -560,6 +578,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
             why = refined.text_problem(settings.min_text_correlation)
             if why is None:
                 break
+            turned_down.append(TurnedDown(refined.sign.id, source, refined.H, refined.text))
             attempt.scores[attempt.winner].reason, attempt.winner, refined = why, None, None
     chosen = next((a for a in attempts if a.winner is not None), None)
     if chosen is None and attempts:
@@ -579,6 +598,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
             refined = refined_winner(None, plaque)
             why = refined.text_problem(settings.min_text_correlation)
             if why is not None:
+                turned_down.append(TurnedDown(refined.sign.id, "plaque fallback", refined.H, refined.text))
                 plaque, refined = dataclasses.replace(plaque, sign=None, H=None, reason=why), None
             else:
                 warnings.append(f"recognised by the plaque fallback (correlation {plaque.correlation:.2f}): "
@@ -612,7 +632,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     timing["total"] = (time.perf_counter() - t_start) * 1e3
     return Recognition((width, height), settings, camera, segmentation, attempts, chosen, plaque, H, ecc, pose,
                        timing, sorted(reused, key=STAGES.index), warnings,
-                       sign.corners_px if sign is not None else None, outline, text)
+                       sign.corners_px if sign is not None else None, outline, text, turned_down)
 
 
 def find_plaque(gray: np.ndarray, segmentation: Segmentation, library: Library, settings: Settings,

@@ -88,10 +88,15 @@ function renderStages() {
   if (detail.error) input.set(`/api/images/${detail.id}/file`, "input · the photo as uploaded (it could not be run)");
   else input.set(stageUrl("input"), INPUT_TITLE);
   for (const { stage, figure } of stages) figure.set(stageUrl(stage));
-  const weakest = detail.result?.text_check?.weakest;
+  // The recognised sign's check, else the first winner it turned down: what the figure draws.
+  const turnedDown = detail.result?.turned_down?.[0];
+  const check = detail.result?.text_check ?? turnedDown?.text_check;
+  const weakest = check?.weakest;
   const bar = detail.settings?.min_text_correlation;
+  const whose = detail.result?.text_check || !turnedDown ? ""
+    : ` · turned down: ${turnedDown.source} read as ${turnedDown.sign}`;
   textCheck.set(stageUrl("text"), typeof weakest !== "number" ? TEXT_TITLE
-    : `${TEXT_TITLE} · weakest strip ${weakest.toFixed(3)} (a strip passes at ≥ ${bar})`);
+    : `${TEXT_TITLE}${whose} · weakest strip ${weakest.toFixed(3)} (a strip passes at ≥ ${bar})`);
   renderBox();
 }
 

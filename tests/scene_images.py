@@ -14,7 +14,8 @@ import numpy as np
 from PIL import Image
 
 from app.workspace import SAMPLE_SCENES
-from pipeline.library import Library
+from pipeline.library import Library, LibrarySign
+from tools.render_library import render_sign
 
 SIZE = (640, 480)  # (w, h) px
 
@@ -73,6 +74,21 @@ def like_a_camera(image: np.ndarray, blur: float, seed: int) -> np.ndarray:
     """(H, W) float `image` blurred by a Gaussian of `blur` px and noised (σ 3 levels), as uint8."""
     noisy = cv2.GaussianBlur(image, (0, 0), blur) + np.random.default_rng(seed).normal(0, 3, image.shape)
     return np.clip(noisy, 0, 255).astype(np.uint8)
+
+
+def plaque_of(text: str, sign_id: str = "decoy") -> LibrarySign:
+    """A plaque of `text` made as the sample library's are (the same font, size and layout)."""
+    return LibrarySign(sign_id, text, text, "", 0.6, 0.24, np.asarray(render_sign(text)))
+
+
+# Other signs in the library's font, each sharing a word or most of its letters with one of its signs.
+DECOYS = ("رئيس الوزراء", "مكتب أمني", "وزارة الصحة", "مجمع تجاري", "وزارة الداخلية")
+PLAQUE_AT = np.array([[200, 170], [440, 180], [436, 276], [204, 268]], float)  # a 240 px plaque, a little oblique
+
+
+def decoy_image(text: str, seed: int) -> np.ndarray:
+    """(480, 640) uint8 photo of a plaque of `text` at PLAQUE_AT on a shaded wall."""
+    return like_a_camera(render_plaque(plaque_of(text), PLAQUE_AT, shaded_wall(seed), 0.92), 0.7, seed)
 
 
 def empty_photo(seed: int = 0) -> bytes:

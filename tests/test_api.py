@@ -24,8 +24,8 @@ from pipeline.verify import CHECK_WIDTH
 from pipeline.synth import synthetic_camera
 from pipeline.camera import ros_camera_yaml
 from faults import fail_segmentation
-from scene_images import (HEIC_START, big_photo, empty_photo, has, png_bomb, scrambled_scene, sign_photo, tiny_photo,
-                          with_focal_exif)
+from scene_images import (DECOYS, HEIC_START, big_photo, decoy_image, empty_photo, has, png_bomb, scrambled_scene,
+                          sign_photo, tiny_photo, with_focal_exif)
 from serving import (MISFIT_CAMERA, REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve,
                      stop_serve, upload, wait_done)
 
@@ -276,6 +276,14 @@ def test_text_check_figure_or_why_there_is_none(client):
     assert figure.shape[1] == CHECK_WIDTH * TEXT_BLOCK_PX  # the template's pixels as blocks, not resampled
     assert has(figure, GREEN) and not has(figure, RED) and not has(figure, UNSEEN)  # every strip seen and passing
     assert_error(client.get(f"/api/images/{wall_id}/stages/text"), 404, "no sign was recognised", "scores")
+    # A plaque of other words features read as chief_of_security: its turned-down check, in red.
+    decoy = cv2.imencode(".jpg", decoy_image(DECOYS[0], 0), [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
+    decoy_id = upload(client, ("decoy.jpg", decoy, None)).json()["images"][0]["id"]
+    wait_done(client)
+    result = client.get(f"/api/images/{decoy_id}").json()["result"]
+    assert not result["recognized"] and result["turned_down"][0]["text_check"]["weakest"] < 0.7
+    r = client.get(f"/api/images/{decoy_id}/stages/text")
+    assert r.status_code == 200 and has(cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR), RED)
     before = client.get("/api/settings").json()["settings"]["min_text_correlation"]
     client.put("/api/settings", json={"min_text_correlation": 0})  # as the paper preset has it
     wait_done(client)
@@ -283,7 +291,7 @@ def test_text_check_figure_or_why_there_is_none(client):
                  "min_text_correlation 0")
     client.put("/api/settings", json={"min_text_correlation": before})
     wait_done(client)
-    for image_id in (sign_id, wall_id):
+    for image_id in (sign_id, wall_id, decoy_id):
         client.delete(f"/api/images/{image_id}")
 
 

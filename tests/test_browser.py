@@ -25,6 +25,7 @@ from pipeline.verify import CHECK_WIDTH
 from app import tuning
 from app.figures import TEXT_BLOCK_PX
 from app.workspace import memory_text
+from scene_images import DECOYS, decoy_image
 from serving import MISFIT_CAMERA
 
 TRUTH = json.loads((harness.SCENES / "truth.json").read_text())["images"]
@@ -134,6 +135,21 @@ def test_detail_shows_the_text_check_legibly_or_why_not(page, api):
     # The figure's writing is some 20 px tall: shown at half its size or more, it reads as the page's 11 px captions.
     assert figure.locator("img").bounding_box()["width"] >= shown["w"] / 2
     assert figure.locator("img").bounding_box()["width"] >= page.locator("#stages").bounding_box()["width"] - 1
+
+    # A plaque of other words is no sign, but the check that turned it down is what to look at.
+    decoy = cv2.imencode(".jpg", decoy_image(DECOYS[0], 0), [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
+    r = api.post("/api/images", files={"files": ("decoy.jpg", decoy, "image/jpeg")})
+    r.raise_for_status()
+    harness.wait_server_idle(api)
+    decoy_id = r.json()["images"][0]["id"]
+    first = api.get(f"/api/images/{decoy_id}").json()["result"]["turned_down"][0]
+    open_detail(page, decoy_id)
+    harness.stage_images_loaded(page, "#stages .text-stage img")
+    caption = figure.locator("figcaption").inner_text()
+    assert f"turned down: {first['source']} read as {first['sign']}" in caption, caption
+    assert f"weakest strip {first['text_check']['weakest']:.3f}" in caption
+    api.delete(f"/api/images/{decoy_id}")
+    open_detail(page, image_id)
 
     harness.set_settings(page, api, {"min_text_correlation": 0})
     note = figure.locator(".stage-note", has_text="text check is off")

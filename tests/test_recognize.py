@@ -10,12 +10,11 @@ import pytest
 from pipeline.camera import Camera, load_camera
 from pipeline.features import library_features
 from pipeline.image import read_image
-from pipeline.library import LibrarySign, load_library
+from pipeline.library import load_library
 from pipeline.pose import rotation_error_deg
 from pipeline.recognize import decide, recognize, score_sign
 from pipeline.settings import preset
-from scene_images import like_a_camera, render_plaque, shaded_wall, sign_on_wall
-from tools.render_library import render_sign
+from scene_images import DECOYS, PLAQUE_AT, decoy_image, like_a_camera, plaque_of, render_plaque, shaded_wall, sign_on_wall
 
 SCENES = Path(__file__).resolve().parents[1] / "sample_images" / "scenes"
 TRUTH = json.loads((SCENES / "truth.json").read_text())["images"]
@@ -143,22 +142,12 @@ def test_far_signs_report_their_tilt_error_in_the_covariance_or_as_ambiguous(lib
     assert worst < 3.0 and ambiguous < 6  # some poses are judged by their covariance
 
 
-def plaque_of(text: str, sign_id: str = "decoy") -> LibrarySign:
-    """A plaque of `text` made as the sample library's are (the same font, size and layout)."""
-    return LibrarySign(sign_id, text, text, "", 0.6, 0.24, np.asarray(render_sign(text)))
-
-
-# Other signs in the library's font, each sharing a word or most of its letters with one of its signs.
-DECOYS = ("رئيس الوزراء", "مكتب أمني", "وزارة الصحة", "مجمع تجاري", "وزارة الداخلية")
-PLAQUE_AT = np.array([[200, 170], [440, 180], [436, 276], [204, 268]], float)  # a 240 px plaque, a little oblique
-
-
 def test_a_plaque_of_other_words_sharing_one_with_a_sign_is_not_read_as_that_sign(library):
     """Features name a sign from the part of it that matched: plaques of other words in the same
     font were answered as library signs (15-40 inliers on the shared word), with poses."""
     read_as = {}
     for k, text in enumerate(DECOYS):
-        image = like_a_camera(render_plaque(plaque_of(text), PLAQUE_AT, shaded_wall(k), 0.92), 0.7, k)
+        image = decoy_image(text, k)
         unchecked = recognize(image, library, preset("default").replace(min_text_correlation=0))
         rec = recognize(image, library, preset("default"))
         read_as[text] = unchecked.label
@@ -166,6 +155,9 @@ def test_a_plaque_of_other_words_sharing_one_with_a_sign_is_not_read_as_that_sig
         if unchecked.label is not None:  # turned down, and said why
             assert any(s.reason and s.reason.startswith(f"its text differs from {unchecked.label}'s")
                        for a in rec.attempts for s in a.scores), text
+            first = rec.turned_down[0]  # kept, to be shown
+            assert first.sign == unchecked.label and first.text.weakest < 0.7, (text, first)
+            assert rec.to_json("x")["turned_down"][0]["text_check"]["weakest"] == round(first.text.weakest, 4)
     assert sum(label is not None for label in read_as.values()) >= 3, read_as  # what the check is for
     for k, sign in enumerate(library.signs):  # the signs themselves, seen the same way, pass
         image = like_a_camera(render_plaque(sign, PLAQUE_AT, shaded_wall(k), 0.92), 0.7, k)
@@ -184,6 +176,7 @@ def test_the_search_goes_on_past_a_plaque_of_other_words_to_the_sign(library):
     rec = recognize(image, library, preset("default"))
     assert rec.label == sign.id and rec.attempts[0].source == "blob 1" and rec.attempts[0].winner is None
     assert rec.attempts[0].leader.reason.startswith("its text differs from chief_of_security's")
+    assert [(t.sign, t.source) for t in rec.turned_down] == [("chief_of_security", "blob 1")]
     assert rec.corners[:, 0].min() > 390  # the sign's, not the decoy's
 
 
