@@ -56,7 +56,17 @@ function numericControl(entry, id, change) {
   // As typed, not clamped to the range nor rounded to the step: the server says what it refuses
   // and why, and the form then shows the value it kept (push).
   const read = () => (enabled && !enabled.checked ? null : Number(num.value));
+  // Typed but not yet applied (Enter or leaving the field applies it): server updates must not
+  // overwrite it. A field merely holding the cursor is not typing: it follows other tabs.
+  let typing = false;
+  num.addEventListener("input", () => { typing = true; });
+  num.addEventListener("focusout", () => {
+    typing = false;
+    // Left unchanged after typing (no change event): show the value in use again.
+    if (!(entry.name in pending) && !inflight.has(entry.name)) write(state.settings[entry.name]);
+  });
   num.addEventListener("change", () => {
+    typing = false;
     // Left empty (or holding no number): nothing to send, so show the server's value again.
     if (num.value === "") {
       write(state.settings[entry.name]);
@@ -77,7 +87,7 @@ function numericControl(entry, id, change) {
       change();
     });
   }
-  return { head: [enabled, num].filter(Boolean), body: range, read, write };
+  return { head: [enabled, num].filter(Boolean), body: range, read, write, typing: () => typing };
 }
 
 // Released anywhere, not only over the slider it started on.
@@ -164,8 +174,7 @@ export function apply(payload, force = false) {
   if (payload.version !== undefined) state.version = payload.version;
   for (const [name, c] of controls) {
     if (!(name in settings)) continue;
-    const busy = name in pending || inflight.has(name) || dragging === name
-      || (document.activeElement?.id === `set-${name}` && c.entry.type !== "bool");
+    const busy = name in pending || inflight.has(name) || dragging === name || c.typing?.();
     if (busy && !force) continue;
     c.write(settings[name]);
     markChanged(name, settings[name]);
