@@ -377,7 +377,9 @@ def draw_text(gray: np.ndarray, recognition: Recognition, library: Library) -> n
     read = rectify_text(gray, sign, template, H, recognition.camera)
     minimum = recognition.settings.min_text_correlation
     colors = _strip_colors(check, minimum)
-    photo = _text_panel(_stretched(read.patch, template.rows, read.seen), template, colors)
+    # black where the photo was not seen: the check leaves those pixels out
+    photo = _text_panel(np.where(read.seen, _stretched(read.patch, template.rows, read.seen), 0).astype(np.uint8),
+                        template, colors)
     library_sign = _text_panel(_stretched(template.image, template.rows, np.ones_like(read.seen)), template, colors)
     width, edges = photo.shape[1], [int(c) * TEXT_BLOCK_PX for c in template.columns]
     values = [("unseen" if c is None else f"{c:.3f}", x0, x1, color)

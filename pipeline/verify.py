@@ -101,8 +101,8 @@ def text_template(library: Library, sign_id: str) -> TextTemplate:
 @dataclass(frozen=True)
 class Rectified:
     """An image read at a `TextTemplate`'s pixels through a homography: `patch` (h, w) float32 gray
-    levels 0-255, blurred as the template is (0 where a pixel's centre falls outside the image);
-    `seen` (h, w) bool, True where it falls inside."""
+    levels 0-255, blurred as the template is (the image's edge repeated where a pixel's centre
+    falls outside it, 0 when all do); `seen` (h, w) bool, True where it falls inside."""
 
     patch: np.ndarray
     seen: np.ndarray
@@ -113,10 +113,12 @@ def _strip_sums(values: np.ndarray, columns: np.ndarray) -> np.ndarray:
     return np.add.reduceat(values[:, :columns[-1]].sum(axis=0, dtype=np.float64), columns[:-1])
 
 
-def _strip_correlations(a: np.ndarray, b: np.ndarray, columns: np.ndarray) -> np.ndarray:
+def _strip_correlations(a: np.ndarray, b: np.ndarray, columns: np.ndarray, use: np.ndarray) -> np.ndarray:
     """(S,) zero-mean normalised cross-correlation of two (h, w) arrays in each strip of
-    `columns`; 0 where either is flat."""
-    n = np.diff(columns) * a.shape[0]
+    `columns`, over the pixels where the (h, w) bool `use` holds; 0 where either is flat."""
+    use = use.astype(np.float32)
+    a, b = a * use, b * use
+    n = np.maximum(_strip_sums(use, columns), 1.0)
     sa, sb = _strip_sums(a, columns), _strip_sums(b, columns)
     cov = _strip_sums(a * b, columns) - sa * sb / n
     var = (_strip_sums(a * a, columns) - sa**2 / n) * (_strip_sums(b * b, columns) - sb**2 / n)
@@ -152,7 +154,10 @@ def rectify_text(gray: np.ndarray, sign: LibrarySign, template: TextTemplate, H:
     if f < 0.5:
         view, to_small, _ = shrunk_view(view, f, None)
         at = at * np.diag(to_small)[:2] + to_small[:2, 2]
-    patch = cv2.remap(view, at[..., 0].astype(np.float32), at[..., 1].astype(np.float32), cv2.INTER_LINEAR)
+    # Beyond the image its edge is repeated, not black, so that the blur does not darken the seen
+    # pixels beside it; the correlation leaves the unseen ones out.
+    patch = cv2.remap(view, at[..., 0].astype(np.float32), at[..., 1].astype(np.float32), cv2.INTER_LINEAR,
+                      borderMode=cv2.BORDER_REPLICATE)
     return Rectified(cv2.GaussianBlur(patch.astype(np.float32), (0, 0), COMPARE_BLUR_SIGMA), seen)
 
 
@@ -160,8 +165,9 @@ def compare_text(rectified: Rectified, template: TextTemplate) -> TextCheck:
     """`rectified` against `template`, strip by strip (see the module docstring)."""
     top, bottom = template.rows
     columns = template.columns
-    visible = _strip_sums(rectified.seen[top:bottom], columns) / (np.diff(columns) * (bottom - top)) >= MIN_VISIBLE
-    correlations = _strip_correlations(rectified.patch[top:bottom], template.image[top:bottom], columns)
+    seen = rectified.seen[top:bottom]
+    visible = _strip_sums(seen, columns) / (np.diff(columns) * (bottom - top)) >= MIN_VISIBLE
+    correlations = _strip_correlations(rectified.patch[top:bottom], template.image[top:bottom], columns, seen)
     return TextCheck(tuple(float(c) if v else None for c, v in zip(correlations, visible)))
 
 
