@@ -41,10 +41,10 @@ def test_default_preset_is_accurate_on_real_photos():
     assert all(v is not None for v in rmse.values()), rmse
     assert np.median(list(rmse.values())) <= 1.5, rmse
     assert rmse["city"] < 1.0 and rmse["adam"] < 1.0, rmse
-    # as README says: photo A's corners land far outside B in the other three, which a sign's never do
+    # Photo A's corners land up to 0.83 frames outside B, as a sign's do seen from up close (these
+    # were refused at half a frame), and adam's, cut by B's edge, passes the text check on what B shows.
     answered = {name for name, (rec, _) in runs.items() if rec.recognized}
-    assert answered == {"boat", "city"}, answered
-    assert all(runs[name][0].scores[0].reason == "corners far outside the image" for name in set(SOLVABLE) - answered)
+    assert answered == set(SOLVABLE), answered
 
 
 def test_unsolvable_pair_is_reported_not_guessed():

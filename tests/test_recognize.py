@@ -180,6 +180,17 @@ def test_the_search_goes_on_past_a_plaque_of_other_words_to_the_sign(library):
     assert rec.corners[:, 0].min() > 390  # the sign's, not the decoy's
 
 
+def test_a_sign_wider_than_twice_the_frame_is_answered(library):
+    """A UAV closing in on a plaque: its features matched (28 inliers) but its corners, half a
+    frame and more outside the image, were taken for a degenerate fit and the answer was no sign."""
+    sign = library["security_compound"]
+    corners = np.array([[-380, -45], [1020, -35], [1015, 522], [-372, 515]], float)  # 2.2 frames wide
+    rec = recognize(like_a_camera(render_plaque(sign, corners, shaded_wall(3), 0.92), 0.7, 3), library,
+                    preset("default"))
+    assert rec.label == sign.id, [(a.source, a.leader and a.leader.reason) for a in rec.attempts]
+    assert np.abs(rec.corners - corners).max() < 3.0
+
+
 def test_a_frame_larger_than_max_search_size_is_searched_downscaled(library):
     """A 12 MP photo searched whole at full size took 2.8 GB in SIFT; above max_search_size
     the frame is downscaled for detection and the answer still comes in full-image pixels."""
