@@ -290,6 +290,8 @@ def _outline(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, seed: int,
     expected = _expected(np.hypot(*(start[[1, 2, 3, 0]] - start).T))
     for i in range(4):
         if found[i] < max(MIN_SIDE_POINTS, MIN_INLIER_FRACTION * expected[i]):
+            if _inside_fraction(start[i], start[(i + 1) % 4], gray.shape, camera) < MIN_INLIER_FRACTION:
+                return None, f"side {i + 1} lies mostly outside the image"
             return None, f"side {i + 1}: {found[i]} of {expected[i]} profiles on a straight edge (search {SEARCH_PX} px)"
     # corner i joins sides i - 1 and i: the cross product of their lines
     (a1, b1, c1), (a2, b2, c2) = lines[[3, 0, 1, 2]].T, lines.T
@@ -303,6 +305,16 @@ def _outline(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, seed: int,
     corners = ideal_corners if camera is None else distort_pixels(ideal_corners, camera)
     return Outline(corners, sign_to_quad(sign, corners), [pts[inliers & (side == i)] for i in range(4)],
                    sign_to_quad(sign, ideal_corners)), None
+
+
+def _inside_fraction(a: np.ndarray, b: np.ndarray, shape: tuple[int, ...], camera: Camera | None) -> float:
+    """The fraction of the side from `a` to `b` (ideal pinhole px with `camera`, else image px)
+    that the (H, W) image `shape` shows."""
+    pts = a + np.linspace(0.0, 1.0, 33)[:, None] * (b - a)
+    if camera is not None:
+        pts = distort_pixels(pts, camera)
+    h, w = shape[:2]
+    return float(np.mean((pts[:, 0] >= 0) & (pts[:, 0] <= w - 1) & (pts[:, 1] >= 0) & (pts[:, 1] <= h - 1)))
 
 
 def outline_fit(R: np.ndarray, t: np.ndarray, outline: Outline, sign: LibrarySign,

@@ -189,6 +189,9 @@ def test_a_sign_wider_than_twice_the_frame_is_answered(library):
                     preset("default"))
     assert rec.label == sign.id, [(a.source, a.leader and a.leader.reason) for a in rec.attempts]
     assert np.abs(rec.corners - corners).max() < 3.0
+    # its sides are beyond the frame: the outline is not used, and the warning says why in those words
+    assert any(w.startswith("plaque outline not used: side ") and "lies mostly outside the image" in w
+               for w in rec.warnings), rec.warnings
 
 
 def test_a_frame_larger_than_max_search_size_is_searched_downscaled(library):
