@@ -37,6 +37,12 @@ ASPECT_TOLERANCE = 0.02
 # Standard deviation of gray levels below which a sign image is blank: no features, and a
 # plaque correlation of zero with anything. The sample signs have 61-68.
 MIN_GRAY_SPREAD = 4.0
+# Physical sign sizes (metres) outside this range are refused as a slip of units: indoor signs
+# run from a door label a few cm wide to a banner across a hall, and a size typed in
+# centimetres (an A4 sign's width as 30) or millimetres (as 300) lands above it, as one
+# divided by 1000 once too often lands below. A sign 2 cm wide spans the ~60 px the plaque
+# fallback needs only from 20 cm away (f = 600 px); no wall is wider than 10 m indoors.
+SIGN_SIZE_RANGE_M = (0.02, 10.0)
 
 
 class LibraryError(ValueError):
@@ -138,9 +144,27 @@ def validate_sign_entry(entry: dict, where: str) -> dict:
             continue
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
             raise LibraryError(f"{where}: {key} must be a positive number of metres; got {value!r}")
-        if value > 100:
-            raise LibraryError(f"{where}: {key} = {value} m is not a plausible sign size (metres, not mm?)")
+        check_size_m(key, float(value), where)
     return entry
+
+
+def check_size_m(key: str, value: float, where: str) -> None:
+    """LibraryError when `value` metres (positive) is outside SIGN_SIZE_RANGE_M, naming the slip of
+    units that would explain it and what the value would then be."""
+    lo, hi = SIGN_SIZE_RANGE_M
+    if lo <= value <= hi:
+        return
+    bounds = f"signs are {lo:g}-{hi:g} m"
+    if value > hi:
+        readings = [(unit, f"{value:g} {symbol} is {value / per_m:g} m")
+                    for unit, symbol, per_m in (("centimetres", "cm", 100), ("millimetres", "mm", 1000))
+                    if lo <= value / per_m <= hi]
+        slip = (f" typed in {' or '.join(u for u, _ in readings)}? {'; '.join(r for _, r in readings)};"
+                if readings else "")
+        raise LibraryError(f"{where}: {key} = {value:g} m is larger than any indoor sign ({bounds}):{slip} "
+                           "give it in metres")
+    raise LibraryError(f"{where}: {key} = {value:g} m is {value * 1000:g} mm, smaller than any sign ({bounds}): "
+                       "converted to metres twice? give it in metres, e.g. 0.3 for a sign 30 cm wide")
 
 
 def make_sign(entry: dict, image: np.ndarray, where: str) -> LibrarySign:

@@ -198,7 +198,8 @@ def test_library_list_image_add_and_delete(client):
     for bad, words in (({"id": "../../etc/passwd"}, ("id", "a-z")), ({"id": "Caps"}, ("id",)),
                        ({"width_m": "nan"}, ("width_m",)), ({"width_m": "-1"}, ("width_m",)),
                        ({"width_m": "abc"}, ("body.width_m: ", "number")),
-                       ({"width_m": "400"}, ("metres",)), ({"height_m": "0.1"}, ("aspect",))):
+                       ({"width_m": "400"}, ("metres",)), ({"width_m": "30"}, ("centimetres", "30 cm is 0.3 m")),
+                       ({"width_m": "0.0003"}, ("0.3 mm", "metres")), ({"height_m": "0.1"}, ("aspect",))):
         r = client.post("/api/library", files={"file": ("d.jpg", photo, "image/jpeg")}, data=form | {"id": "x"} | bad)
         assert_error(r, 422, *words)
     assert_error(client.post("/api/library", files={"file": ("d.jpg", b"GIF89a nope", "image/gif")},
