@@ -24,8 +24,8 @@ from pipeline.verify import CHECK_WIDTH
 from pipeline.synth import synthetic_camera
 from pipeline.camera import ros_camera_yaml
 from faults import fail_segmentation
-from scene_images import (DECOYS, HEIC_START, big_photo, decoy_image, empty_photo, has, png_bomb, scrambled_scene,
-                          sign_photo, tiny_photo, with_focal_exif)
+from scene_images import (DECOYS, HEIC_START, big_photo, decoy_image, empty_photo, has, plaque_of, png_bomb,
+                          scrambled_scene, sign_photo, tiny_photo, with_focal_exif)
 from serving import (MISFIT_CAMERA, REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve,
                      stop_serve, upload, wait_done)
 
@@ -213,7 +213,7 @@ def test_library_list_image_add_and_delete(client):
 
 def test_a_sign_drawn_on_a_transparent_ground_is_a_sign_on_white(client):
     """Artwork exported with a transparent ground was refused as blank: alpha dropped, black on black."""
-    sign = LIBRARY["chief_of_security"]
+    sign = plaque_of(DECOYS[0])
     artwork = np.dstack([np.zeros((*sign.image.shape, 3), np.uint8), 255 - sign.image])  # only the ink is opaque
     form = {"id": "artwork", "width_m": str(sign.width_m), "height_m": str(sign.height_m)}
     r = client.post("/api/library", data=form,
@@ -222,6 +222,18 @@ def test_a_sign_drawn_on_a_transparent_ground_is_a_sign_on_white(client):
     stored = cv2.imdecode(np.frombuffer(client.get("/api/library/artwork/image").content, np.uint8), cv2.IMREAD_GRAYSCALE)
     assert stored.shape == sign.image.shape and np.abs(stored.astype(int) - sign.image).mean() < 1
     assert client.delete("/api/library/artwork").status_code == 204
+
+
+def test_a_sign_whose_image_cannot_be_told_from_another_signs_is_refused_naming_it(client):
+    """The same image under a second id was taken, and then neither sign was ever recognised ("margin over
+    the runner-up too small"), or the wrong one was."""
+    chief = LIBRARY["chief_of_security"]
+    again = cv2.imencode(".jpg", chief.image, [cv2.IMWRITE_JPEG_QUALITY, 80])[1].tobytes()  # re-exported
+    form = {"id": "chief_2", "width_m": str(chief.width_m)}
+    r = client.post("/api/library", data=form, files={"file": ("chief.jpg", again, "image/jpeg")})
+    assert_error(r, 409, "'chief_2'", "too like", "'chief_of_security' (Chief of Security)",
+                 "delete 'chief_of_security' first")
+    assert [s["id"] for s in client.get("/api/library").json()] == LIBRARY.ids
 
 
 # ---------------------------------------------------------------- images
