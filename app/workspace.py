@@ -364,7 +364,9 @@ class Workspace:
         self._closed = False
         self._trim_timer: threading.Timer | None = None
 
-        library = self.state.open_library(config.library_dir, SAMPLE_LIBRARY)
+        library, reread = self.state.open_library(config.library_dir, SAMPLE_LIBRARY)
+        if reread is not None:  # e.g. a sign's size corrected in the folder, or signs added in the page kept
+            log.warning("%s", reread.describe())
         if config.settings_file is None:
             settings = self.state.load_settings() or PRESETS["default"]
         else:  # e.g. settings tuned in the page since the last start are kept, not lost
@@ -390,7 +392,8 @@ class Workspace:
 
         self._runner = threading.Thread(target=self._rerun_loop, name="signpose-rerun", daemon=True)
         self._runner.start()
-        if stored is None and config.load_samples and self.state.library_origin() == SAMPLE_LIBRARY.resolve():
+        from_samples = self.state.library_record().copied_from == SAMPLE_LIBRARY.resolve()
+        if stored is None and config.load_samples and from_samples:
             self._load_samples()
         elif self._records:
             self._request_rerun()

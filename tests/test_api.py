@@ -863,6 +863,40 @@ def test_serve_camera_or_settings_keeps_what_the_state_held_that_differs_and_say
     assert put.items() <= restored.items() and len(list(state.glob(f"{what}.replaced-*"))) == 2
 
 
+def distance_m(url: str) -> float:
+    """How far the camera of `sign_photo` of security_compound is from the sign, by POST /api/recognize."""
+    photo = sign_photo(LIBRARY, "security_compound")
+    result = httpx.post(url + "api/recognize", files={"file": ("s.jpg", photo, "image/jpeg")}, timeout=TIMEOUT_S)
+    assert result.json()["label"] == "security_compound", result.text
+    return float(np.linalg.norm(result.json()["pose"]["t"]))
+
+
+def test_serve_reads_its_library_folder_again_when_it_was_edited(tmp_path):
+    """`serve --library DIR` kept its first copy of DIR: a sign's width corrected in DIR/library.json was
+    ignored at every later start with the same DIR, every pose off by the ratio."""
+    state = tmp_path / "state"
+    proc, url = start_serve(state)
+    try:
+        before = distance_m(url)
+    finally:
+        stop_serve(proc)
+    folder = tmp_path / "library"  # the copy `start_serve` gives as --library
+    meta = json.loads((folder / "library.json").read_text(encoding="utf-8"))
+    meta["signs"][0] |= {"width_m": 0.3, "height_m": 0.12}  # re-measured: half the size
+    (folder / "library.json").write_text(json.dumps(meta, ensure_ascii=False), encoding="utf-8")
+    proc, url = start_serve(state)
+    try:
+        assert httpx.get(url + "api/library", timeout=TIMEOUT_S).json()[0]["width_m"] == 0.3
+        assert distance_m(url) == pytest.approx(before / 2, rel=1e-3)
+    finally:
+        _, stderr = stop_serve(proc)
+    (kept,) = state.glob("library.replaced-*")
+    (line,) = [line for line in stderr.splitlines() if "--library" in line]
+    assert line == (f"--library {folder} was read again (it changed since the state copied it); changed: "
+                    "security_compound (width_m from 0.6 to 0.3 m, height_m from 0.24 to 0.12 m); the state's library "
+                    f"as it was is kept in {kept} (to use it again, start with --library {kept})")
+
+
 @pytest.mark.parametrize("what, file_name, data", [("camera", "camera.yaml", CAMERA_YAML),
                                                    ("settings", "settings.json", b'{"ratio": 0.7}')],
                          ids=("camera", "settings"))

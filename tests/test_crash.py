@@ -10,25 +10,16 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import httpx
-import numpy as np
 
 from app.state import TMP_SUFFIX, StateDir
 from pipeline.image import decode_image
 from pipeline.library import load_library
-from scene_images import tiny_photo
+from scene_images import block_sign, tiny_photo
 from serving import TIMEOUT_S, start_serve, stop_serve
 
 KILLS = 3
 SIGN_SIZE_M = {"width_m": "0.6", "height_m": "0.24"}
-
-
-def sign_png(seed: int) -> bytes:
-    """A 600 x 240 px sign of 60 x 24 random blocks: one no other seed's, or a sample's, is alike
-    (a copy of a sign already there is refused)."""
-    blocks = np.random.default_rng(seed).integers(0, 256, (24, 60), dtype=np.uint8)
-    return cv2.imencode(".png", cv2.resize(blocks, (600, 240), interpolation=cv2.INTER_NEAREST))[1].tobytes()
 
 
 @dataclass
@@ -65,7 +56,7 @@ def add(url: str, ack: Acknowledged, start: int) -> None:
                     r.raise_for_status()
                     ack.images.add(r.json()["images"][0]["id"])
                 elif step % 3 == 1:
-                    c.post("/api/library", files={"file": ("s.png", sign_png(step), "image/png")},
+                    c.post("/api/library", files={"file": ("s.png", block_sign(step), "image/png")},
                            data={"id": f"sign-{step}", **SIGN_SIZE_M}).raise_for_status()
                     ack.signs.add(f"sign-{step}")
                 else:
