@@ -545,11 +545,13 @@ def get_sign_image(sign_id: SignIdDep, workspace: WorkspaceDep) -> FileResponse:
           dependencies=[MULTIPART, ONE_FILE, single("id", "width_m", "name", "text", "height_m")])
 def add_sign(file: Annotated[UploadFile, File(description="the sign, photographed flat or as artwork")],
              id: Annotated[str, Form(description="1-64 of a-z, 0-9, _ and -")],
-             width_m: Annotated[float, Form(description="physical width, metres")],
+             width_m: Annotated[float, Form(description="physical width, metres (0.02-10)")],
              workspace: WorkspaceDep,
              name: Annotated[str, Form()] = "", text: Annotated[str, Form()] = "",
-             height_m: Annotated[float | None, Form(description="metres; default from the image aspect")] = None,
+             height_m: Annotated[float | None, Form(description="metres (0.02-10); default: from the image")] = None,
              ) -> SignOut:
+    """Add a sign; 409 when its id is taken, or when its image cannot be told apart from a sign's already
+    there (the message names it)."""
     _, data = read_upload(file)
     return SignOut.of(workspace.add_sign(id, data, name, text, width_m, height_m))
 

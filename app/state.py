@@ -11,8 +11,13 @@ Layout (every file name is chosen by the server, never by a client)::
                             a camera `--camera` replaced, as it was in camera.json (`--camera` reads it)
     assumed_fov.json        {"hfov_deg": float}: the field of view assumed without camera or EXIF; absent: 60°
     library/library.json    a complete sign library (`signpose recognize --library <state>/library`
-                            works), plus "copied_from": the library folder it started as a copy of
+                            works), plus "copied_from": the library folder it was last copied from,
+                            "fingerprint": that folder's content then (`library_fingerprint`), and
+                            "added": the ids of the signs added through the page or API since
     library/<image files>
+    library.replaced-<UTC time>/
+                            the state's library as it was before `--library` changed it (a library
+                            folder: `--library` reads it)
     images/index.json       [{"id", "name", "expected", "file", "media_type"}] in the order listed (the order chosen)
     images/<id>.<ext>       the original uploaded bytes
 
@@ -25,9 +30,12 @@ missing file; orphans left by a crash are swept on the next start.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import hashlib
 import json
 import operator
 import os
+import secrets
 import shutil
 import tempfile
 import time
@@ -35,12 +43,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, TypeVar
 
+import numpy as np
+
 from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, camera_from_json, check_hfov
 from pipeline.jsonfile import JsonError, parse_json
-from pipeline.library import Library, LibraryError, load_library
+from pipeline.library import Library, LibraryError, LibrarySign, alike_sign, load_library
 from pipeline.settings import Settings, SettingsError, load_settings
 
 TMP_SUFFIX = ".tmp"
+LIBRARY_ASIDE = f".library.old{TMP_SUFFIX}"  # the state's library while its replacement is moved in
 T = TypeVar("T")
 
 
@@ -75,8 +86,13 @@ def atomic_write(path: Path, data: bytes) -> None:
     _fsync_dir(path.parent)
 
 
+def json_bytes(data: Any) -> bytes:
+    """`data` as the state's JSON files hold it: UTF-8, indented, one final newline."""
+    return (json.dumps(data, ensure_ascii=False, indent=2) + "\n").encode("utf-8")
+
+
 def atomic_write_json(path: Path, data: Any) -> None:
-    atomic_write(path, (json.dumps(data, ensure_ascii=False, indent=2) + "\n").encode("utf-8"))
+    atomic_write(path, json_bytes(data))
 
 
 def remove_file(path: Path) -> None:
@@ -95,6 +111,11 @@ def unused_path(folder: Path, stem: str, suffix: str) -> Path:
     return path
 
 
+def replaced_path(folder: Path, stem: str, suffix: str) -> Path:
+    """A new `folder/<stem>.replaced-<UTC time><suffix>`: where a start option keeps what it replaced."""
+    return unused_path(folder, f"{stem}.replaced-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}", suffix)
+
+
 def same_intrinsics(a: Camera, b: Camera) -> bool:
     """Whether `a` and `b` are the same camera, wherever each was read from (`source` aside)."""
     return {**a.to_json(), "source": None} == {**b.to_json(), "source": None}
@@ -107,6 +128,121 @@ class Replaced:
 
     kept: Path
     damaged: bool
+
+
+@dataclass(frozen=True)
+class LibraryRecord:
+    """What the state's `library.json` records of where its signs came from: the folder it was last
+    copied from and that folder's `library_fingerprint` then, the ids of the signs added through the
+    page or API since (`added`), and the ids it lists. None where an older state wrote nothing (or the
+    file cannot be read): unknown."""
+
+    copied_from: Path | None
+    fingerprint: str | None
+    added: frozenset[str] | None
+    ids: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class LibraryMerge:
+    """The state's library merged with a library folder read again (`merge_library`): the signs of the
+    state's library `carried` over (those added in the page or API), and for the log, each "id (what)":
+    the folder's signs `changed` from the state's, the ids of its signs the state's library lacked
+    (`back`: new in the folder, or removed in the page since), the `kept` added ones and the state's
+    signs `dropped`."""
+
+    carried: list[LibrarySign]
+    changed: list[str]
+    back: list[str]
+    kept: list[str]
+    dropped: list[str]
+
+
+@dataclass(frozen=True)
+class LibraryReread:
+    """What a start with `--library folder` did to the state's library: read `folder` again (`why`),
+    merged it (`merge`), and kept the state's library as it was in `kept` (None: nothing of it was
+    dropped or changed), `damaged` when that could not be read."""
+
+    folder: Path
+    why: str
+    merge: LibraryMerge
+    kept: Path | None
+    damaged: bool
+
+    def describe(self) -> str:
+        """The one log line saying what happened, and where the state's library as it was is kept."""
+        m = self.merge
+        parts = [f"--library {self.folder} was read again ({self.why})"]
+        if not (m.changed or m.back or m.dropped):
+            parts.append("no sign changed")
+        for title, items in (("changed", m.changed),
+                             ("from the folder (new there, or removed in the page since)", m.back),
+                             ("kept, as added in the page", m.kept), ("dropped", m.dropped)):
+            if items:
+                parts.append(f"{title}: {', '.join(items)}")
+        if self.kept is not None:
+            parts.append(f"the state's library, which could not be read, is kept as it was in {self.kept}"
+                         if self.damaged else f"the state's library as it was is kept in {self.kept} (to use it "
+                         f"again, start with --library {self.kept})")
+        return "; ".join(parts)
+
+
+def library_fingerprint(library: Library) -> str:
+    """SHA-256 (hex) of a library folder's content as `library` read it: its library.json and each
+    sign's image file, bytes as on disk. Any edit to a size, a name or an image changes it."""
+    digest = hashlib.sha256()
+    for name in ["library.json", *dict.fromkeys(s.image_file for s in library.signs)]:
+        data = (library.root / name).read_bytes()
+        digest.update(f"{name}\0{len(data)}\0".encode())
+        digest.update(data)
+    return digest.hexdigest()
+
+
+def library_meta(signs: list[LibrarySign], origin: Path | None, fingerprint: str | None,
+                 added: list[str] | None) -> dict:
+    """The state's `library.json`: a library file (`signpose recognize --library` reads it) with its record."""
+    return {"signs": [s.to_json() for s in signs], "copied_from": str(origin) if origin is not None else None,
+            "fingerprint": fingerprint, "added": added}
+
+
+def sign_changes(old: LibrarySign, new: LibrarySign) -> str:
+    """How `new` differs from `old` (same id), e.g. "width_m from 1.2 to 0.6 m, image"; "" when in nothing."""
+    changes = [f"{key} from {getattr(old, key):g} to {getattr(new, key):g} m" for key in ("width_m", "height_m")
+               if getattr(old, key) != getattr(new, key)]
+    changes += [key for key in ("name", "text") if getattr(old, key) != getattr(new, key)]
+    if old.image.shape != new.image.shape or not np.array_equal(old.image, new.image):
+        changes.append("image")
+    return ", ".join(changes)
+
+
+def merge_library(held: Library | None, incoming: Library, added: frozenset[str] | None) -> LibraryMerge:
+    """The state's library `held` (None: unreadable) merged into the folder's `incoming`: every sign
+    of `incoming` is used; of `held`'s, those `added` in the page are carried over unless `incoming`
+    has a sign of that id (the folder's wins) or one they cannot be told apart from (`alike_sign`).
+    With `added` unknown (None: an older state), every sign the folder lacks counts as added."""
+    held_signs = {s.id: s for s in held.signs} if held is not None else {}
+    changed, back, dropped = [], [], []
+    for sign in incoming.signs:
+        old = held_signs.get(sign.id)
+        if old is None:
+            back.append(sign.id)
+        elif changes := sign_changes(old, sign):
+            if added is not None and sign.id in added:
+                dropped.append(f"{sign.id} (added in the page; the folder's sign of that id is used: {changes})")
+            else:
+                changed.append(f"{sign.id} ({changes})")
+    carried: list[LibrarySign] = []
+    for sign in held_signs.values():
+        if sign.id in incoming.ids:
+            continue
+        if added is not None and sign.id not in added:
+            dropped.append(f"{sign.id} (not in the folder)")
+        elif alike := alike_sign(sign.image, [*incoming.signs, *carried]):
+            dropped.append(f"{sign.id} (added in the page; too like {alike[0].id} to be told apart)")
+        else:
+            carried.append(sign)
+    return LibraryMerge(carried, changed, back, [s.id for s in carried], dropped)
 
 
 @dataclass(frozen=True)
@@ -191,8 +327,7 @@ class StateDir:
             keep = damaged = True
         replaced = None
         if keep:
-            stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
-            replaced = Replaced(unused_path(path.parent, f"{path.stem}.replaced-{stamp}", path.suffix), damaged)
+            replaced = Replaced(replaced_path(path.parent, path.stem, path.suffix), damaged)
             os.replace(path, replaced.kept)
             _fsync_dir(path.parent)
         save(new)
@@ -215,69 +350,130 @@ class StateDir:
 
     # ---- library
 
-    def library_origin(self) -> Path | None:
+    def library_record(self) -> LibraryRecord:
+        """What `library/library.json` records of its signs' origin; every field None when it cannot be read."""
         try:
             meta = parse_json((self.library_dir / "library.json").read_bytes())
         except (OSError, JsonError):
-            return None
-        origin = meta.get("copied_from") if isinstance(meta, dict) else None
-        return Path(origin) if isinstance(origin, str) else None
+            meta = None
+        if not isinstance(meta, dict):
+            return LibraryRecord(None, None, None, ())
+        origin, fingerprint, added, signs = (meta.get(k) for k in ("copied_from", "fingerprint", "added", "signs"))
+        return LibraryRecord(
+            Path(origin) if isinstance(origin, str) else None,
+            fingerprint if isinstance(fingerprint, str) else None,
+            frozenset(added) if isinstance(added, list) and all(isinstance(i, str) for i in added) else None,
+            tuple(e["id"] for e in signs if isinstance(e, dict) and isinstance(e.get("id"), str))
+            if isinstance(signs, list) else (),
+        )
 
-    def open_library(self, source: Path | None, default: Path) -> Library:
-        """The state's library, first copied from `source` (or `default` on a fresh state).
+    def open_library(self, source: Path | None, default: Path) -> tuple[Library, LibraryReread | None]:
+        """The state's library, and what reading `source` again did to it (None: not read again).
 
-        A `source` other than the one the state was copied from replaces the state's library
-        (edits made to the old one are dropped).
+        Without `source` the state's library is used as it is (a fresh state starts as a copy of
+        `default`). `source` (`--library`) is read at every start: when it is another folder than
+        the state's library was copied from, or its content differs (`library_fingerprint`), the
+        state's library becomes its signs plus the signs added through the page or API since
+        (`merge_library`), and the library as it was is moved to a new `library.replaced-<UTC time>`
+        when any of it is dropped or changed. Unchanged, it leaves the state's library as it is,
+        signs removed in the page included. A damaged state library stops a start without
+        `source`; with it, it is moved aside the same way.
         """
+        self._recover_library()
         meta = self.library_dir / "library.json"
-        wanted = Path(source).resolve() if source is not None else None
-        copy_from = None
-        if not meta.exists():
-            copy_from = wanted or Path(default).resolve()
-        elif wanted is not None and wanted != self.library_origin():
-            copy_from = wanted
-        if copy_from is not None:
+        held, damage = None, None
+        if meta.exists():
             try:
-                library = load_library(copy_from)  # validate before replacing anything
+                held = load_library(self.library_dir)
             except LibraryError as exc:
-                raise StateError(str(exc)) from None
-            self._copy_library(library, copy_from)
+                damage = exc
+        if source is None and meta.exists():
+            if held is None:
+                raise StateError(f"{damage}; start with --library <a library folder> to replace it (the damaged "
+                                 "one is kept, moved aside)")
+            return held, None
+        folder = Path(source if source is not None else default).resolve()
         try:
-            return load_library(self.library_dir)
-        except LibraryError as exc:
-            raise StateError(f"{exc}; delete {self.library_dir} to start again from --library") from None
+            incoming = load_library(folder)  # validated before anything is replaced
+            fingerprint = library_fingerprint(incoming)
+        except (LibraryError, OSError) as exc:
+            raise StateError(str(exc)) from None
+        record = self.library_record()
+        if not meta.exists():
+            self._write_library(incoming, [], fingerprint, keep_old=False)
+            return load_library(self.library_dir), None
+        if held is not None and record.copied_from == folder and record.fingerprint == fingerprint:
+            return held, None
+        merge = merge_library(held, incoming, record.added)
+        kept = self._write_library(incoming, merge.carried, fingerprint,
+                                   keep_old=held is None or bool(merge.changed or merge.dropped))
+        if held is None:
+            why = "the state's library could not be read"
+        elif record.copied_from != folder:
+            why = (f"the state's library was a copy of {record.copied_from}" if record.copied_from is not None
+                   else "the state had not recorded which folder it copied")
+        else:
+            why = ("it changed since the state copied it" if record.fingerprint is not None
+                   else "the state had not recorded what it copied")
+        return load_library(self.library_dir), LibraryReread(folder, why, merge, kept, damaged=held is None)
 
-    def _copy_library(self, library: Library, origin: Path) -> None:
+    def _write_library(self, incoming: Library, carried: list[LibrarySign], fingerprint: str,
+                       keep_old: bool) -> Path | None:
+        """Make library/ hold `incoming`'s signs and the `carried` ones (from the state's library, as
+        added), recorded as copied from `incoming.root` with `fingerprint`. The folder it replaces is
+        moved to a new `library.replaced-<UTC time>` when `keep_old` (that path is returned), else deleted."""
+        files = {sign.image_file: incoming.root / sign.image_file for sign in incoming.signs}
+        kept_signs = []
+        for sign in carried:
+            origin = self.library_dir / sign.image_file
+            if sign.image_file in files:  # a name the folder uses too
+                sign = dataclasses.replace(sign, image_file=f"{sign.id}-{secrets.token_hex(4)}{origin.suffix}")
+            files[sign.image_file] = origin
+            kept_signs.append(sign)
+        meta = library_meta([*incoming.signs, *kept_signs], incoming.root, fingerprint, [s.id for s in kept_signs])
         staging = Path(tempfile.mkdtemp(dir=self.root, prefix=".library.", suffix=TMP_SUFFIX))
+        aside = self.root / LIBRARY_ASIDE
         try:
-            for sign in library.signs:
-                shutil.copyfile(library.root / sign.image_file, staging / sign.image_file)
-            (staging / "library.json").write_text(json.dumps(
-                {"signs": [s.to_json() for s in library.signs], "copied_from": str(origin)},
-                ensure_ascii=False, indent=2) + "\n", encoding="utf-8")
+            for name, origin in files.items():
+                shutil.copyfile(origin, staging / name)
+            (staging / "library.json").write_bytes(json_bytes(meta))
             for path in staging.iterdir():
                 with open(path, "rb") as f:
                     os.fsync(f.fileno())
             _fsync_dir(staging)
-            # A folder cannot be replaced atomically; move the old one aside first so a crash
-            # leaves either it or the new copy in place (`sweep` removes the leftovers).
-            old = self.root / f".library.old{TMP_SUFFIX}"
-            shutil.rmtree(old, ignore_errors=True)
+            # A folder cannot be replaced atomically: the old one is moved aside first, and a start
+            # after a crash between the two moves puts it back (`_recover_library`).
+            shutil.rmtree(aside, ignore_errors=True)
             if self.library_dir.exists():
-                os.replace(self.library_dir, old)
+                os.replace(self.library_dir, aside)
             os.replace(staging, self.library_dir)
             _fsync_dir(self.root)
-            shutil.rmtree(old, ignore_errors=True)
         finally:
             shutil.rmtree(staging, ignore_errors=True)
+        if not aside.exists():
+            return None
+        if not keep_old:
+            shutil.rmtree(aside, ignore_errors=True)
+            return None
+        kept = replaced_path(self.root, "library", "")
+        os.replace(aside, kept)
+        _fsync_dir(self.root)
+        return kept
+
+    def _recover_library(self) -> None:
+        """Put back the library a crash left moved aside, before its replacement was moved in."""
+        aside = self.root / LIBRARY_ASIDE
+        if not self.library_dir.exists() and (aside / "library.json").exists():
+            os.replace(aside, self.library_dir)
+            _fsync_dir(self.root)
 
     def save_library(self, library: Library) -> None:
-        """Rewrite `library/library.json` for the signs in `library` (their files must already be there)."""
-        origin = self.library_origin()
-        atomic_write_json(self.library_dir / "library.json", {
-            "signs": [s.to_json() for s in library.signs],
-            "copied_from": str(origin) if origin is not None else None,
-        })
+        """Rewrite `library/library.json` for the signs in `library` (their files must already be there).
+        A sign it did not list before was added (through the page or API), and is recorded so."""
+        record = self.library_record()
+        added = None if record.added is None else [i for i in library.ids if i in record.added or i not in record.ids]
+        atomic_write_json(self.library_dir / "library.json",
+                          library_meta(library.signs, record.copied_from, record.fingerprint, added))
 
     def write_library_file(self, name: str, data: bytes) -> None:
         atomic_write(self.library_dir / name, data)

@@ -39,7 +39,8 @@ from pipeline.exif import ExifCamera, decode_with_exif
 from pipeline.features import library_features
 from pipeline.image import ImageError, to_gray, unreadable
 from pipeline.jsonfile import parse_json
-from pipeline.library import NO_SIGN, SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, make_sign, validate_sign_entry
+from pipeline.library import (MAX_LIKENESS, NO_SIGN, SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, alike_sign,
+                              make_sign, validate_sign_entry)
 from pipeline.recognize import PipelineError, Recognition, StageCache, run_pipeline
 from pipeline.settings import PRESETS, Settings, load_settings
 
@@ -363,7 +364,9 @@ class Workspace:
         self._closed = False
         self._trim_timer: threading.Timer | None = None
 
-        library = self.state.open_library(config.library_dir, SAMPLE_LIBRARY)
+        library, reread = self.state.open_library(config.library_dir, SAMPLE_LIBRARY)
+        if reread is not None:  # e.g. a sign's size corrected in the folder, or signs added in the page kept
+            log.warning("%s", reread.describe())
         if config.settings_file is None:
             settings = self.state.load_settings() or PRESETS["default"]
         else:  # e.g. settings tuned in the page since the last start are kept, not lost
@@ -389,7 +392,8 @@ class Workspace:
 
         self._runner = threading.Thread(target=self._rerun_loop, name="signpose-rerun", daemon=True)
         self._runner.start()
-        if stored is None and config.load_samples and self.state.library_origin() == SAMPLE_LIBRARY.resolve():
+        from_samples = self.state.library_record().copied_from == SAMPLE_LIBRARY.resolve()
+        if stored is None and config.load_samples and from_samples:
             self._load_samples()
         elif self._records:
             self._request_rerun()
@@ -677,7 +681,8 @@ class Workspace:
 
     def add_sign(self, sign_id: str, data: bytes, name: str = "", text: str = "",
                  width_m: float = 0.0, height_m: float | None = None) -> LibrarySign:
-        """Add a library sign from an encoded image; LibraryError / ImageError when unusable, Conflict on a taken id."""
+        """Add a library sign from an encoded image; LibraryError / ImageError when unusable, Conflict on a
+        taken id or an image that cannot be told apart from a sign's already there."""
         entry = validate_sign_entry({"id": sign_id, "name": name or sign_id, "text": text,
                                      "image": f"{sign_id}-{secrets.token_hex(4)}.png", "width_m": width_m,
                                      "height_m": height_m}, "new sign")
@@ -686,6 +691,13 @@ class Workspace:
         with self._lock:
             if sign_id in self.library.ids:
                 raise Conflict(f"the library already has a sign {sign_id!r}; delete it first or choose another id")
+            alike = alike_sign(sign.image, self.library.signs)
+            if alike is not None:
+                other, value = alike
+                raise Conflict(f"sign {sign_id!r}'s image is too like that of sign {other.id!r} ({other.name}) to "
+                               f"be told apart from it (likeness {value:.2f}; from {MAX_LIKENESS} on they cannot): "
+                               "photos of either would be answered as neither, or as the other. Choose an image of "
+                               f"this sign, or delete {other.id!r} first to replace it")
             # PNG whatever was uploaded: lossless, and what GET /api/library/{id}/image promises.
             self.state.write_library_file(sign.image_file, cv2.imencode(".png", image)[1].tobytes())
             self._set_library([*self.library.signs, sign])

@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Hashable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TypeVar
 
+import cv2
 import numpy as np
 
 from . import shipped_folder
@@ -37,6 +38,31 @@ ASPECT_TOLERANCE = 0.02
 # Standard deviation of gray levels below which a sign image is blank: no features, and a
 # plaque correlation of zero with anything. The sample signs have 61-68.
 MIN_GRAY_SPREAD = 4.0
+# Physical sign sizes (metres) outside this range are refused as a slip of units: indoor signs
+# run from a door label a few cm wide to a banner across a hall, and a size typed in
+# centimetres (an A4 sign's width as 30) or millimetres (as 300) lands above it, as one
+# divided by 1000 once too often lands below. A sign 2 cm wide spans the ~60 px the plaque
+# fallback needs only from 20 cm away (f = 600 px); no wall is wider than 10 m indoors.
+SIGN_SIZE_RANGE_M = (0.02, 10.0)
+# Two sign images alike beyond MAX_LIKENESS (see `likeness`) cannot be told apart: features score
+# both alike, the margin over the runner-up fails and neither is recognised, or the wrong one
+# wins. Measured on security_compound against altered copies, 10 synthetic photos each: copies
+# re-encoded, halved, dimmed, blurred or turned 180° (likeness 1.0), lit unevenly (0.98),
+# padded by 2.5-5 % (0.99), cropped by 1.5-3 % (0.90-0.95) or warped by 2-4 % (1.0) were
+# recognised 0-2 times in 10 and up to 7 answered as the copy; warped by 6-12 % (0.98-0.99),
+# 3-9 times, up to 4 as the copy; stretched by 3-40 % (1.0), 0-10 times. A crop of 6 % (0.80),
+# the mirror image (-0.01) and signs of a letter more or less (0.71, 0.76; 6 in 6) were told
+# apart. Other words sharing one with a sample sign (tests' DECOYS) reach 0.47, the sample signs
+# -0.29 to 0.11. Refused though told apart: padding of 10-20 % (0.92-0.97, 10 in 10: the plaque's
+# outline differs) and EXIT 7 against EXIT 8 (0.87, 18 in 20).
+MAX_LIKENESS = 0.85
+LIKENESS_SIZE = 60  # px, each side of the square both images are squeezed to
+LIKENESS_CELLS = (6, 2)  # columns and rows of the cells compared, each LIKENESS_SIZE / 6 x LIKENESS_SIZE / 2 px
+LIKENESS_SHADING_SIGMA = 8.0  # px at LIKENESS_SIZE: wider than strokes, narrower than the light across a sign
+# A cell with less than this fraction of the mean cell's detail in both images is blank in both:
+# its correlation would be that of noise.
+LIKENESS_BLANK = 0.05
+LIKENESS_ECC_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
 
 
 class LibraryError(ValueError):
@@ -138,9 +164,27 @@ def validate_sign_entry(entry: dict, where: str) -> dict:
             continue
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
             raise LibraryError(f"{where}: {key} must be a positive number of metres; got {value!r}")
-        if value > 100:
-            raise LibraryError(f"{where}: {key} = {value} m is not a plausible sign size (metres, not mm?)")
+        check_size_m(key, float(value), where)
     return entry
+
+
+def check_size_m(key: str, value: float, where: str) -> None:
+    """LibraryError when `value` metres (positive) is outside SIGN_SIZE_RANGE_M, naming the slip of
+    units that would explain it and what the value would then be."""
+    lo, hi = SIGN_SIZE_RANGE_M
+    if lo <= value <= hi:
+        return
+    bounds = f"signs are {lo:g}-{hi:g} m"
+    if value > hi:
+        readings = [(unit, f"{value:g} {symbol} is {value / per_m:g} m")
+                    for unit, symbol, per_m in (("centimetres", "cm", 100), ("millimetres", "mm", 1000))
+                    if lo <= value / per_m <= hi]
+        slip = (f" typed in {' or '.join(u for u, _ in readings)}? {'; '.join(r for _, r in readings)};"
+                if readings else "")
+        raise LibraryError(f"{where}: {key} = {value:g} m is larger than any indoor sign ({bounds}):{slip} "
+                           "give it in metres")
+    raise LibraryError(f"{where}: {key} = {value:g} m is {value * 1000:g} mm, smaller than any sign ({bounds}): "
+                       "converted to metres twice? give it in metres, e.g. 0.3 for a sign 30 cm wide")
 
 
 def make_sign(entry: dict, image: np.ndarray, where: str) -> LibrarySign:
@@ -164,6 +208,58 @@ def make_sign(entry: dict, image: np.ndarray, where: str) -> LibrarySign:
         id=entry["id"], name=str(entry.get("name") or entry["id"]), text=str(entry.get("text") or ""),
         image_file=entry["image"], width_m=width_m, height_m=height_m, image=image,
     )
+
+
+def _likeness_view(image: np.ndarray) -> np.ndarray:
+    """The (h, w) uint8 sign squeezed to LIKENESS_SIZE px square, blurred by 1 px and less its shading:
+    (LIKENESS_SIZE, LIKENESS_SIZE) float32."""
+    square = cv2.resize(image, (LIKENESS_SIZE, LIKENESS_SIZE), interpolation=cv2.INTER_AREA).astype(np.float32)
+    square = cv2.GaussianBlur(square, (0, 0), 1.0)
+    return square - cv2.GaussianBlur(square, (0, 0), LIKENESS_SHADING_SIGMA)
+
+
+def _cell_likeness(a: np.ndarray, b: np.ndarray) -> float:
+    """The lowest zero-mean normalised cross-correlation of two `_likeness_view`s over their
+    LIKENESS_CELLS, blank cells aside: two signs are alike only where every part is."""
+    cols, rows = LIKENESS_CELLS
+    size = LIKENESS_SIZE
+    a, b = (v.reshape(rows, size // rows, cols, size // cols).transpose(0, 2, 1, 3).reshape(rows * cols, -1)
+            for v in (a, b))
+    a, b = a - a.mean(axis=1, keepdims=True), b - b.mean(axis=1, keepdims=True)
+    detail_a, detail_b = (a * a).sum(axis=1), (b * b).sum(axis=1)
+    correlation = (a * b).sum(axis=1) / np.sqrt(np.maximum(detail_a * detail_b, 1e-12))
+    compared = np.maximum(detail_a, detail_b) > LIKENESS_BLANK * max(detail_a.mean(), detail_b.mean())
+    return float(correlation[compared].min())
+
+
+def _aligned(view: np.ndarray, onto: np.ndarray) -> np.ndarray:
+    """`view` warped onto `onto` (both `_likeness_view`s) by the homography ECC finds from none, or as
+    it is when ECC finds none."""
+    try:
+        _, warp = cv2.findTransformECC(onto, view, np.eye(3, dtype=np.float32), cv2.MOTION_HOMOGRAPHY,
+                                       LIKENESS_ECC_CRITERIA, None, 3)
+    except cv2.error:  # did not converge: nothing alike to align
+        return view
+    return cv2.warpPerspective(view, warp, view.shape[::-1], flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
+
+
+def likeness(a: np.ndarray, b: np.ndarray) -> float:
+    """How alike two (h, w) uint8 sign images are to features, from -1 to 1: `_cell_likeness` of
+    their `_likeness_view`s, as they are and with `b`'s aligned onto `a`'s by a homography (any
+    homography of a sign is the same sign to features, a photo of it at a slant too), the best
+    over `b`'s four quarter turns. Squeezed square, a copy at another size or aspect is as alike
+    as the sign itself."""
+    view_a, view_b = _likeness_view(a), _likeness_view(b)
+    turns = [np.ascontiguousarray(np.rot90(view_b, k)) for k in range(4)]
+    return max(max(_cell_likeness(view_a, turn), _cell_likeness(view_a, _aligned(turn, view_a))) for turn in turns)
+
+
+def alike_sign(image: np.ndarray, signs: Iterable[LibrarySign]) -> tuple[LibrarySign, float] | None:
+    """The sign among `signs` whose image the (h, w) uint8 `image` cannot be told apart from (`likeness`
+    at least MAX_LIKENESS), the likest, with its likeness; None when every one is distinct."""
+    scored = [(sign, likeness(sign.image, image)) for sign in signs]
+    alike = [(sign, value) for sign, value in scored if value >= MAX_LIKENESS]
+    return max(alike, key=lambda pair: pair[1]) if alike else None
 
 
 def load_library(root: str | Path = SAMPLE_LIBRARY) -> Library:

@@ -60,9 +60,17 @@ function renderLibrary() {
 
 // ---- adding one
 
-/** A sign id from a file name: "Exit sign (2).png" -> "exit_sign_2". */
-const idFrom = (fileName) => fileName.replace(/\.[^.]*$/, "").toLowerCase().replace(/[^a-z0-9_-]+/g, "_")
-  .replace(/^[_-]+|_+$/g, "").slice(0, 64);
+/** A sign id from a file name: "Exit sign (2).png" -> "exit_sign_2"; a name without a-z or 0-9
+ *  (مخرج.png) gives the first sign_<n> the library does not have, an id the server takes. */
+function idFrom(fileName) {
+  const id = fileName.replace(/\.[^.]*$/, "").toLowerCase().replace(/[^a-z0-9_-]+/g, "_")
+    .replace(/^[_-]+|_+$/g, "").slice(0, 64);
+  if (id) return id;
+  const taken = new Set(state.library.map((s) => s.id));
+  let n = 1;
+  while (taken.has(`sign_${n}`)) n += 1;
+  return `sign_${n}`;
+}
 
 /** The height the server will take from the width and the image's aspect, as the height's placeholder. */
 function showHeightHint() {
@@ -91,6 +99,19 @@ function showPicked() {
   if (!idTyped) $("#sign-id").value = idFrom(file.name);
 }
 
+/** What the form lacks before it can be sent, null when nothing: said in a message, since the
+ *  browser's own bubble for a required field was all a person saw, and easily missed. */
+function missing() {
+  if (!$("#sign-file").files.length) return "choose the sign's image first (or drop it on this dialog)";
+  if (!$("#sign-id").value.trim()) return "give the sign an id: 1-64 of a-z, 0-9, _ and -";
+  // A number field holds "" for what it cannot read ("0,6"): sent, a height would come from the image.
+  for (const key of ["width_m", "height_m"]) {
+    if ($(`#sign-${key}`).validity.badInput) return `the ${key.slice(0, -2)} is not a number: metres, e.g. 0.6`;
+  }
+  if (!$("#sign-width_m").value.trim()) return "give the sign's width in metres, measured on the wall";
+  return null;
+}
+
 function signForm() {
   const form = new FormData();
   form.append("file", $("#sign-file").files[0]);
@@ -100,6 +121,8 @@ function signForm() {
 
 async function addSign(event) {
   event.preventDefault();
+  const lacking = missing();
+  if (lacking) { toast(lacking, "error"); return; }
   const button = $("#sign-add");
   button.disabled = true;
   try {
@@ -117,6 +140,7 @@ async function addSign(event) {
 }
 
 function bindForm() {
+  $("#sign-form").noValidate = true;   // `missing` says what is lacking, the server what is wrong
   $("#sign-form").addEventListener("submit", addSign);
   $("#sign-file").addEventListener("change", showPicked);
   $("#sign-id").addEventListener("input", (e) => { idTyped = e.target.value !== ""; });

@@ -91,6 +91,13 @@ def decoy_image(text: str, seed: int) -> np.ndarray:
     return like_a_camera(render_plaque(plaque_of(text), PLAQUE_AT, shaded_wall(seed), 0.92), 0.7, seed)
 
 
+def block_sign(seed: int) -> bytes:
+    """PNG of a 600 x 240 px sign of 60 x 24 random blocks: no other seed's, nor a sample sign, is
+    alike (a copy of a sign the library has is refused)."""
+    blocks = np.random.default_rng(seed).integers(0, 256, (24, 60), dtype=np.uint8)
+    return cv2.imencode(".png", cv2.resize(blocks, (600, 240), interpolation=cv2.INTER_NEAREST))[1].tobytes()
+
+
 def empty_photo(seed: int = 0) -> bytes:
     """JPEG of a wall without a sign."""
     return cv2.imencode(".jpg", wall(seed))[1].tobytes()

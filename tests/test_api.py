@@ -24,8 +24,8 @@ from pipeline.verify import CHECK_WIDTH
 from pipeline.synth import synthetic_camera
 from pipeline.camera import ros_camera_yaml
 from faults import fail_segmentation
-from scene_images import (DECOYS, HEIC_START, big_photo, decoy_image, empty_photo, has, png_bomb, scrambled_scene,
-                          sign_photo, tiny_photo, with_focal_exif)
+from scene_images import (DECOYS, HEIC_START, big_photo, decoy_image, empty_photo, has, plaque_of, png_bomb,
+                          scrambled_scene, sign_photo, tiny_photo, with_focal_exif)
 from serving import (MISFIT_CAMERA, REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve,
                      stop_serve, upload, wait_done)
 
@@ -198,7 +198,8 @@ def test_library_list_image_add_and_delete(client):
     for bad, words in (({"id": "../../etc/passwd"}, ("id", "a-z")), ({"id": "Caps"}, ("id",)),
                        ({"width_m": "nan"}, ("width_m",)), ({"width_m": "-1"}, ("width_m",)),
                        ({"width_m": "abc"}, ("body.width_m: ", "number")),
-                       ({"width_m": "400"}, ("metres",)), ({"height_m": "0.1"}, ("aspect",))):
+                       ({"width_m": "400"}, ("metres",)), ({"width_m": "30"}, ("centimetres", "30 cm is 0.3 m")),
+                       ({"width_m": "0.0003"}, ("0.3 mm", "metres")), ({"height_m": "0.1"}, ("aspect",))):
         r = client.post("/api/library", files={"file": ("d.jpg", photo, "image/jpeg")}, data=form | {"id": "x"} | bad)
         assert_error(r, 422, *words)
     assert_error(client.post("/api/library", files={"file": ("d.jpg", b"GIF89a nope", "image/gif")},
@@ -212,7 +213,7 @@ def test_library_list_image_add_and_delete(client):
 
 def test_a_sign_drawn_on_a_transparent_ground_is_a_sign_on_white(client):
     """Artwork exported with a transparent ground was refused as blank: alpha dropped, black on black."""
-    sign = LIBRARY["chief_of_security"]
+    sign = plaque_of(DECOYS[0])
     artwork = np.dstack([np.zeros((*sign.image.shape, 3), np.uint8), 255 - sign.image])  # only the ink is opaque
     form = {"id": "artwork", "width_m": str(sign.width_m), "height_m": str(sign.height_m)}
     r = client.post("/api/library", data=form,
@@ -221,6 +222,18 @@ def test_a_sign_drawn_on_a_transparent_ground_is_a_sign_on_white(client):
     stored = cv2.imdecode(np.frombuffer(client.get("/api/library/artwork/image").content, np.uint8), cv2.IMREAD_GRAYSCALE)
     assert stored.shape == sign.image.shape and np.abs(stored.astype(int) - sign.image).mean() < 1
     assert client.delete("/api/library/artwork").status_code == 204
+
+
+def test_a_sign_whose_image_cannot_be_told_from_another_signs_is_refused_naming_it(client):
+    """The same image under a second id was taken, and then neither sign was ever recognised ("margin over
+    the runner-up too small"), or the wrong one was."""
+    chief = LIBRARY["chief_of_security"]
+    again = cv2.imencode(".jpg", chief.image, [cv2.IMWRITE_JPEG_QUALITY, 80])[1].tobytes()  # re-exported
+    form = {"id": "chief_2", "width_m": str(chief.width_m)}
+    r = client.post("/api/library", data=form, files={"file": ("chief.jpg", again, "image/jpeg")})
+    assert_error(r, 409, "'chief_2'", "too like", "'chief_of_security' (Chief of Security)",
+                 "delete 'chief_of_security' first")
+    assert [s["id"] for s in client.get("/api/library").json()] == LIBRARY.ids
 
 
 # ---------------------------------------------------------------- images
@@ -848,6 +861,40 @@ def test_serve_camera_or_settings_keeps_what_the_state_held_that_differs_and_say
     assert "replaced" not in stderr and list(state.glob(f"{what}.replaced-*.json")) == [kept]
     restored, _ = serve_with(state, what, kept)  # as the line says
     assert put.items() <= restored.items() and len(list(state.glob(f"{what}.replaced-*"))) == 2
+
+
+def distance_m(url: str) -> float:
+    """How far the camera of `sign_photo` of security_compound is from the sign, by POST /api/recognize."""
+    photo = sign_photo(LIBRARY, "security_compound")
+    result = httpx.post(url + "api/recognize", files={"file": ("s.jpg", photo, "image/jpeg")}, timeout=TIMEOUT_S)
+    assert result.json()["label"] == "security_compound", result.text
+    return float(np.linalg.norm(result.json()["pose"]["t"]))
+
+
+def test_serve_reads_its_library_folder_again_when_it_was_edited(tmp_path):
+    """`serve --library DIR` kept its first copy of DIR: a sign's width corrected in DIR/library.json was
+    ignored at every later start with the same DIR, every pose off by the ratio."""
+    state = tmp_path / "state"
+    proc, url = start_serve(state)
+    try:
+        before = distance_m(url)
+    finally:
+        stop_serve(proc)
+    folder = tmp_path / "library"  # the copy `start_serve` gives as --library
+    meta = json.loads((folder / "library.json").read_text(encoding="utf-8"))
+    meta["signs"][0] |= {"width_m": 0.3, "height_m": 0.12}  # re-measured: half the size
+    (folder / "library.json").write_text(json.dumps(meta, ensure_ascii=False), encoding="utf-8")
+    proc, url = start_serve(state)
+    try:
+        assert httpx.get(url + "api/library", timeout=TIMEOUT_S).json()[0]["width_m"] == 0.3
+        assert distance_m(url) == pytest.approx(before / 2, rel=1e-3)
+    finally:
+        _, stderr = stop_serve(proc)
+    (kept,) = state.glob("library.replaced-*")
+    (line,) = [line for line in stderr.splitlines() if "--library" in line]
+    assert line == (f"--library {folder} was read again (it changed since the state copied it); changed: "
+                    "security_compound (width_m from 0.6 to 0.3 m, height_m from 0.24 to 0.12 m); the state's library "
+                    f"as it was is kept in {kept} (to use it again, start with --library {kept})")
 
 
 @pytest.mark.parametrize("what, file_name, data", [("camera", "camera.yaml", CAMERA_YAML),

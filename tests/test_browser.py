@@ -21,6 +21,7 @@ import browser_harness as harness
 from chessboards import K_TRUE, render_boards
 from pipeline.exif import LensExif, focal_px
 from pipeline.image import NOT_AN_IMAGE
+from pipeline.library import SAMPLE_LIBRARY
 from pipeline.verify import CHECK_WIDTH
 from app import tuning
 from app.figures import TEXT_BLOCK_PX
@@ -1019,6 +1020,25 @@ def test_the_new_signs_id_follows_the_image_chosen_unless_typed(page, api, exit_
     page.fill("#sign-id", "")         # cleared: from the image again
     page.set_input_files("#sign-file", str(exit_sign))
     assert page.input_value("#sign-id") == "exit_sign"
+    page.keyboard.press("Escape")
+
+
+def test_an_image_named_in_arabic_gets_an_id_and_every_refused_add_says_why(page, api, tmp_path):
+    """An image named مخرج.png got an empty id, and *add* then did nothing but show the browser's
+    required-field bubble; a copy of a sign already there was taken, and neither was recognised again."""
+    copy = tmp_path / "مخرج.png"
+    copy.write_bytes((SAMPLE_LIBRARY / "security_compound.png").read_bytes())
+    page.click("#library-open")
+    page.click("#sign-add")
+    page.locator(".toast.error", has_text="choose the sign's image first").wait_for()
+    page.set_input_files("#sign-file", str(copy))
+    assert page.input_value("#sign-id") == "sign_1"
+    page.click("#sign-add")
+    page.locator(".toast.error", has_text="give the sign's width in metres").wait_for()
+    page.fill("#sign-width_m", "0.6")
+    page.click("#sign-add")
+    assert_toast_on_top(page, page.locator(".toast.error", has_text="too like that of sign 'security_compound'"))
+    assert "sign_1" not in [s["id"] for s in api.get("/api/library").json()]
     page.keyboard.press("Escape")
 
 

@@ -14,13 +14,12 @@ import httpx
 
 from app.state import TMP_SUFFIX, StateDir
 from pipeline.image import decode_image
-from pipeline.library import SAMPLE_LIBRARY, load_library
-from scene_images import tiny_photo
+from pipeline.library import load_library
+from scene_images import block_sign, tiny_photo
 from serving import TIMEOUT_S, start_serve, stop_serve
 
 KILLS = 3
-SIGN_PNG = (SAMPLE_LIBRARY / load_library(SAMPLE_LIBRARY).signs[0].image_file).read_bytes()
-SIGN_SIZE_M = {"width_m": "0.6", "height_m": "0.24"}  # the first sample sign's size
+SIGN_SIZE_M = {"width_m": "0.6", "height_m": "0.24"}
 
 
 @dataclass
@@ -57,7 +56,7 @@ def add(url: str, ack: Acknowledged, start: int) -> None:
                     r.raise_for_status()
                     ack.images.add(r.json()["images"][0]["id"])
                 elif step % 3 == 1:
-                    c.post("/api/library", files={"file": ("s.png", SIGN_PNG, "image/png")},
+                    c.post("/api/library", files={"file": ("s.png", block_sign(step), "image/png")},
                            data={"id": f"sign-{step}", **SIGN_SIZE_M}).raise_for_status()
                     ack.signs.add(f"sign-{step}")
                 else:

@@ -7,6 +7,7 @@ import gc
 import json
 import multiprocessing
 import os
+import shutil
 import threading
 import time
 import tracemalloc
@@ -19,14 +20,14 @@ import pytest
 
 import app.workspace as workspace_module
 import pipeline.recognize
-from app.state import StateDir, StateError, atomic_write
+from app.state import LIBRARY_ASIDE, StateDir, StateError, atomic_write
 from app.workspace import NO_SIGN, SAMPLE_SCENES, Conflict, ImageTooLarge, Workspace, WorkspaceConfig
 from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError
 from pipeline.evaluate import CORES
 from pipeline.image import ImageError, decode_image
 from pipeline.library import SAMPLE_LIBRARY, LibraryError, load_library
 from pipeline.settings import SettingsError
-from scene_images import big_photo, empty_photo, png_bomb, sign_photo, with_focal_exif
+from scene_images import big_photo, block_sign, empty_photo, png_bomb, sign_photo, with_focal_exif
 
 LIBRARY = load_library(SAMPLE_LIBRARY)
 IDLE_TIMEOUT_S = 30
@@ -418,6 +419,135 @@ def test_explicit_library_replaces_the_states_copy(make_workspace, tmp_path):
     make_workspace().close()
     assert make_workspace(library_dir=other).library.ids == ["chief_of_security"]
     assert make_workspace().library.ids == ["chief_of_security"]  # kept until another --library
+
+
+def library_folder(tmp_path: Path, name: str = "folder") -> Path:
+    """A copy of the sample library: the folder a team gives as --library."""
+    return Path(shutil.copytree(SAMPLE_LIBRARY, tmp_path / name))
+
+
+def edit_sign(folder: Path, sign_id: str, **changes) -> None:
+    """Change sign `sign_id`'s entry in `folder`/library.json, as a team editing it by hand."""
+    meta = folder / "library.json"
+    data = json.loads(meta.read_text(encoding="utf-8"))
+    for entry in data["signs"]:
+        if entry["id"] == sign_id:
+            entry.update(changes)
+    meta.write_text(json.dumps(data, ensure_ascii=False, indent=2), encoding="utf-8")
+
+
+def reread_lines(caplog) -> list[str]:
+    """The log lines saying what a start's --library did to the state's library, and forget them."""
+    lines = [r.getMessage() for r in caplog.records if "was read again" in r.getMessage()]
+    caplog.clear()
+    return lines
+
+
+def test_a_library_folder_edited_since_the_last_start_is_read_again(make_workspace, tmp_path, caplog):
+    """`serve --library DIR` copied DIR once: a width corrected in DIR/library.json, or a sign image
+    replaced, was ignored at every later start with the same DIR, poses off by the ratio."""
+    folder = library_folder(tmp_path)
+    make_workspace(library_dir=folder).close()
+    assert reread_lines(caplog) == []  # a fresh state copies the folder, as ever
+    edit_sign(folder, "security_compound", width_m=0.3, height_m=0.12)
+    chief = LIBRARY["chief_of_security"]
+    shutil.copyfile(SAMPLE_LIBRARY / LIBRARY["ministry_of_torture"].image_file, folder / chief.image_file)
+    ws = make_workspace(library_dir=folder)
+    assert (ws.library["security_compound"].width_m, ws.library["security_compound"].height_m) == (0.3, 0.12)
+    assert np.array_equal(ws.library["chief_of_security"].image, LIBRARY["ministry_of_torture"].image)
+    (kept,) = ws.state.root.glob("library.replaced-*")
+    assert load_library(kept)["security_compound"].width_m == 0.6  # the copy as it was, a library in its own right
+    assert reread_lines(caplog) == [
+        f"--library {folder} was read again (it changed since the state copied it); changed: security_compound "
+        "(width_m from 0.6 to 0.3 m, height_m from 0.24 to 0.12 m), chief_of_security (image); the state's library "
+        f"as it was is kept in {kept} (to use it again, start with --library {kept})"]
+    ws.close()
+    assert make_workspace(library_dir=folder).library["security_compound"].width_m == 0.3
+    assert reread_lines(caplog) == [] and len(list(ws.state.root.glob("library.replaced-*"))) == 1
+    edit_sign(folder, "security_compound", width_m=0.6, height_m=0.24)
+    assert make_workspace().library["security_compound"].width_m == 0.3  # without --library: the state's, as ever
+
+
+def test_signs_added_in_the_page_survive_a_start_with_another_or_an_edited_library(make_workspace, tmp_path, caplog):
+    """Signs added in the page were deleted, with no backup and no log line, by a start with --library at
+    another path (an identical copy of the folder, say, from a USB stick)."""
+    folder = library_folder(tmp_path)
+    ws = make_workspace(library_dir=folder)
+    ws.add_sign("lab12", block_sign(1), width_m=1.8)
+    ws.add_sign("exit_7", block_sign(2), width_m=0.3)
+    ws.remove_sign("ministry_of_torture")
+    ws.close()
+
+    copy = Path(shutil.copytree(folder, tmp_path / "usb"))
+    ws = make_workspace(library_dir=copy)
+    assert ws.library.ids == ["security_compound", "ministry_of_torture", "chief_of_security", "lab12", "exit_7"]
+    assert reread_lines(caplog) == [
+        f"--library {copy} was read again (the state's library was a copy of {folder}); from the folder (new "
+        "there, or removed in the page since): ministry_of_torture; kept, as added in the page: lab12, exit_7"]
+    assert list(ws.state.root.glob("library.replaced-*")) == []  # nothing of it was lost
+    ws.remove_sign("ministry_of_torture")
+    ws.close()
+    assert "ministry_of_torture" not in make_workspace(library_dir=copy).library.ids  # unchanged: the state's
+
+    # The folder gets a sign of an id added in the page (its own wins) and one that is a copy of another.
+    shutil.copyfile(SAMPLE_LIBRARY / LIBRARY["chief_of_security"].image_file, copy / "exit_7.png")
+    (copy / "lab.png").write_bytes(block_sign(1))
+    data = json.loads((copy / "library.json").read_text(encoding="utf-8"))
+    data["signs"][2] |= {"image": "exit_7.png", "id": "exit_7"}
+    data["signs"].append({"id": "lab_twelve", "image": "lab.png", "width_m": 1.8})
+    (copy / "library.json").write_text(json.dumps(data), encoding="utf-8")
+    ws = make_workspace(library_dir=copy)
+    assert ws.library.ids == ["security_compound", "ministry_of_torture", "exit_7", "lab_twelve"]
+    (kept,) = ws.state.root.glob("library.replaced-*")
+    assert reread_lines(caplog) == [
+        f"--library {copy} was read again (it changed since the state copied it); from the folder (new there, or "
+        "removed in the page since): ministry_of_torture, lab_twelve; dropped: exit_7 (added in the page; the "
+        "folder's sign of that id is used: width_m from 0.3 to 0.6 m, height_m from 0.12 to 0.24 m, name, text, "
+        "image), chief_of_security (not in the folder), lab12 (added in the page; too like lab_twelve to be told "
+        "apart); "
+        f"the state's library as it was is kept in {kept} (to use it again, start with --library {kept})"]
+    assert {"lab12", "exit_7", "chief_of_security"} <= set(load_library(kept).ids)
+
+
+def test_an_older_state_without_the_record_opens_and_keeps_its_signs(make_workspace, tmp_path, caplog):
+    """A state written before the folder's fingerprint and the added signs were recorded: every sign
+    the folder lacks counts as added."""
+    folder = library_folder(tmp_path)
+    ws = make_workspace(library_dir=folder)
+    ws.add_sign("lab12", block_sign(1), width_m=1.8)
+    ws.close()
+    meta = ws.state.library_dir / "library.json"
+    old = json.loads(meta.read_text(encoding="utf-8"))
+    meta.write_text(json.dumps({"signs": old["signs"], "copied_from": old["copied_from"]}), encoding="utf-8")
+    assert make_workspace().library.ids == [*LIBRARY.ids, "lab12"]  # without --library: as it is
+    ws = make_workspace(library_dir=folder)
+    assert ws.library.ids == [*LIBRARY.ids, "lab12"]
+    assert reread_lines(caplog) == [f"--library {folder} was read again (the state had not recorded what it copied); "
+                                    "no sign changed; kept, as added in the page: lab12"]
+    assert ws.state.library_record().added == {"lab12"}
+
+
+def test_a_damaged_state_library_is_replaced_by_library_and_kept(make_workspace, tmp_path, caplog):
+    folder = library_folder(tmp_path)
+    make_workspace(library_dir=folder).close()
+    state = StateDir(tmp_path / "state")
+    (state.library_dir / "library.json").write_bytes(b'{"signs": [{"id": "a", "ima')  # cut short
+    with pytest.raises(StateError, match="start with --library"):
+        make_workspace()
+    ws = make_workspace(library_dir=folder)
+    assert ws.library.ids == LIBRARY.ids
+    (kept,) = ws.state.root.glob("library.replaced-*")
+    assert (kept / "library.json").read_bytes() == b'{"signs": [{"id": "a", "ima'
+    (line,) = reread_lines(caplog)
+    assert line.endswith(f"the state's library, which could not be read, is kept as it was in {kept}")
+
+
+def test_a_library_a_crash_left_moved_aside_is_put_back(make_workspace, tmp_path):
+    ws = make_workspace()
+    ws.add_sign("lab12", block_sign(1), width_m=1.8)
+    ws.close()
+    os.replace(ws.state.library_dir, ws.state.root / LIBRARY_ASIDE)  # where a crash in _write_library leaves it
+    assert make_workspace().library.ids == [*LIBRARY.ids, "lab12"]
 
 
 def test_orphans_of_a_crash_are_swept(make_workspace):
