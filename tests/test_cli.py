@@ -37,7 +37,8 @@ def signpose(*args, cwd=ROOT):
 
 def check_schema(obj):
     assert set(obj) == {"image", "recognized", "label", "scores", "homography", "corners", "pose", "text_check",
-                        "timing_ms", "reused_stages", "warnings"}
+                        "turned_down", "timing_ms", "reused_stages", "warnings"}
+    assert all(set(t) == {"sign", "source", "text_check"} for t in obj["turned_down"])
     if obj["recognized"]:
         assert len(obj["text_check"]["strips"]) == 6 and obj["text_check"]["weakest"] >= 0.7
     assert obj["reused_stages"] == []  # the CLI keeps no cache between runs
