@@ -386,6 +386,17 @@ def test_ctrl_c_stops_evaluate_and_its_workers_with_one_line(tmp_path):
     assert "signpose evaluate: interrupted" in err and "Traceback" not in err
 
 
+def test_recognize_refuses_a_named_pipe_without_waiting_for_a_writer(tmp_path):
+    fifo = tmp_path / "photo.jpg"
+    os.mkfifo(fifo)
+    result = subprocess.run([sys.executable, "-m", "app.cli", "recognize", fifo, SCENES / "scene_002.jpg", "--json"],
+                            cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 1
+    refused, recognised = map(json.loads, result.stdout.splitlines())
+    assert refused == {"image": str(fifo), "error": f"{fifo}: is a named pipe (FIFO), not a regular file"}
+    assert recognised["recognized"]
+
+
 def console_script() -> list[str]:
     """The `signpose` command as pip's console-script wrapper runs it: pyproject.toml's entry point."""
     target = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]["scripts"]["signpose"]
