@@ -506,6 +506,9 @@ def format_table(report: Report) -> str:
     if wrong:
         lines += ["", "wrong answers:"]
         for r in wrong:
-            what = r.error or f"truth {r.sample.label or NO_SIGN}, answer {r.predicted or NO_SIGN}"
+            if r.error:  # an image's error names it first, as this line does
+                what = r.error.removeprefix(f"{r.sample.path}: ")
+            else:
+                what = f"truth {r.sample.label or NO_SIGN}, answer {r.predicted or NO_SIGN}"
             lines.append(f"  {r.sample.path}: {what}")
     return "\n".join(lines)

@@ -133,6 +133,14 @@ def test_counts_errors_and_confusion(monkeypatch, library):
     assert "set3" in text and "wrong answers" in text and negative in text
 
 
+def test_an_unreadable_image_is_named_once_among_the_wrong_answers(tmp_path, library):
+    (tmp_path / "none").mkdir()
+    bad = tmp_path / "none" / "bad.jpg"
+    bad.write_text("not a jpeg")
+    table = format_table(evaluate([load_dataset(tmp_path)], library, preset("default"), workers=1))
+    assert f"  {bad}: not an image file (use JPEG" in table and table.count(str(bad)) == 1  # not "bad.jpg: bad.jpg: ..."
+
+
 def test_summary_of_nothing_measurable():
     s = summarize([])
     assert s.images == 0 and s.rotation_deg is None and np.isnan(s.accuracy)
