@@ -23,9 +23,11 @@ from __future__ import annotations
 import ctypes
 import math
 import multiprocessing
+import multiprocessing.connection
 import os
 import queue
 import signal
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -356,9 +358,18 @@ def _start_worker(library: Library, settings: Settings, check_image: ImageCheck 
     process group: the calling process handles it and stops the workers after their image."""
     global _worker_state
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_exit_with_parent, name="exit with parent", daemon=True).start()
     cv2.setNumThreads(1)
     keep_freed_memory()
     _worker_state = library, settings, check_image, jobs, next_job, done
+
+
+def _exit_with_parent() -> None:
+    """End this worker process as soon as the process that started it has ended. One that stops as it should
+    stops its workers first; one killed outright (SIGKILL, the OOM killer) left them measuring the rest of the
+    images, then waiting forever to send results nobody would read, each holding its memory."""
+    multiprocessing.connection.wait([multiprocessing.parent_process().sentinel])
+    os._exit(1)
 
 
 def _take(next_job: Synchronized) -> int:

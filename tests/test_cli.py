@@ -12,6 +12,7 @@ import struct
 import subprocess
 import sys
 import termios
+import time
 import tomllib
 from pathlib import Path
 
@@ -370,20 +371,62 @@ def test_bad_paths_ports_and_numbers_are_refused_up_front_in_one_line(tmp_path, 
     assert sorted(p.name for p in tmp_path.iterdir()) == []  # no state, scenes or camera file made
 
 
-def test_ctrl_c_stops_evaluate_and_its_workers_with_one_line(tmp_path):
+def evaluate_under_way(tmp_path: Path) -> tuple[subprocess.Popen, int]:
+    """`signpose evaluate` of 200 images on 2 worker processes, as `on_a_terminal` gives it, once its progress
+    bar has passed 20 images: the workers are measuring."""
     copies = [shutil.copytree(ROOT / "sample_images" / "datasets" / "set3", tmp_path / f"set{i}") for i in range(40)]
-    # Ctrl-C in a terminal reaches the whole process group: the CLI and its worker processes.
     proc, terminal = on_a_terminal("evaluate", *copies, "--workers", "2")
     progress = ""
-    while not re.search(r"\| *([2-9]\d|1\d\d)/200 ", progress):  # 20 images in: the workers are measuring
+    while not re.search(r"\| *([2-9]\d|1\d\d)/200 ", progress):
         char = os.read(terminal, 1).decode(errors="replace")
         assert char, f"evaluate ended before its progress bar moved: {progress}"
         progress += char
+    return proc, terminal
+
+
+def children(pid: int) -> list[int]:
+    """The processes whose parent is process `pid` (read from /proc: the tests do without psutil)."""
+    return [int(entry.name) for entry in Path("/proc").iterdir()
+            if entry.name.isdigit() and (fields := process_status(int(entry.name))) and int(fields[1]) == pid]
+
+
+def process_status(pid: int) -> list[str] | None:
+    """The fields of /proc/PID/stat after the command name (state, parent, ...), None once the process is gone."""
+    try:
+        return (Path("/proc") / str(pid) / "stat").read_text().rpartition(")")[2].split()
+    except OSError:
+        return None
+
+
+def left_running(pids: list[int], within_s: float = 5.0) -> list[int]:
+    """Those of processes `pids` still running after `within_s` seconds (a zombie, ended but not yet reaped, is not),
+    killed so that a failing test leaves none behind."""
+    deadline = time.monotonic() + within_s
+    while (running := [p for p in pids if (process_status(p) or ["Z"])[0] != "Z"]) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    for pid in running:
+        os.kill(pid, signal.SIGKILL)
+    return running
+
+
+def test_ctrl_c_stops_evaluate_and_its_workers_with_one_line(tmp_path):
+    proc, terminal = evaluate_under_way(tmp_path)
+    # Ctrl-C in a terminal reaches the whole process group: the CLI and its worker processes.
     os.killpg(proc.pid, signal.SIGINT)
     proc.communicate(timeout=30)
     err = terminal_output(terminal)
     assert proc.returncode == 130
     assert "signpose evaluate: interrupted" in err and "Traceback" not in err
+
+
+def test_evaluates_worker_ends_with_it_when_it_is_killed_outright(tmp_path):
+    """SIGKILL (or the out-of-memory killer) leaves the CLI no way to stop its workers: they notice."""
+    proc, terminal = evaluate_under_way(tmp_path)
+    helpers = children(proc.pid)
+    proc.kill()
+    proc.wait(timeout=30)
+    assert left_running(helpers) == []
+    os.close(terminal)
 
 
 def test_recognize_refuses_a_named_pipe_without_waiting_for_a_writer(tmp_path):
