@@ -12,6 +12,7 @@ from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
+from typing import TextIO
 
 import cv2
 from tqdm import tqdm
@@ -96,7 +97,8 @@ def cmd_recognize(args) -> int:
     failed = 0
     if not args.json:
         print(f"{'image':<28} {'label':<22} {'inliers':>7} {'margin':>6}  pose")
-    for path in progress(args.images, desc="recognize", hidden=args.json or len(args.images) < 10, leave=False):
+    # The bar is on stderr, the table or the JSON on stdout: `--json > out.jsonl` shows it too.
+    for path in progress(args.images, desc="recognize", hidden=len(args.images) < 10, leave=False):
         name = str(path)
         try:
             image, _, exif = decode_upload(read_file(path), name, limit)
@@ -108,25 +110,32 @@ def cmd_recognize(args) -> int:
         except (ImageError, CameraError, PipelineError) as exc:
             failed += 1
             if args.json:
-                print(json.dumps({"image": name, "error": str(exc)}), flush=True)
+                say(json.dumps({"image": name, "error": str(exc)}))
             else:
                 # The row names the image already; the image errors begin with its path.
-                print(f"{Path(name).name:<28} error: {str(exc).removeprefix(name + ': ')}", flush=True)
+                say(f"{Path(name).name:<28} error: {str(exc).removeprefix(name + ': ')}")
             continue
         if args.json:
-            print(json.dumps(rec.to_json(name)), flush=True)
+            say(json.dumps(rec.to_json(name)))
         else:
-            print(format_row(Path(name).name, rec), flush=True)
-            for w in rec.warnings:
-                print(f"{'':<28}   warning: {w}")
+            say("\n".join([format_row(Path(name).name, rec), *(f"{'':<28}   warning: {w}" for w in rec.warnings)]))
     return unusable_images(failed, len(args.images))
 
 
 def progress(iterable: Iterable | None = None, *, hidden: bool = False, **options) -> tqdm:
     """A progress bar over images on stderr, drawn only when stderr is a terminal (tqdm's
     disable=None): in a log file or a CI log its redraws are carriage-return clutter. `hidden`:
-    never drawn. What a command prints when it is done (tables, counts) is printed either way."""
+    never drawn. What a command prints when it is done (tables, counts) is printed either way;
+    what it prints while the bar is drawn, it prints with `say`."""
     return tqdm(iterable, file=sys.stderr, unit="img", disable=True if hidden else None, **options)
+
+
+def say(text: str, file: TextIO | None = None) -> None:
+    """Print `text` on `file` (default stdout) at once, so that a reader sees each image's line as soon as it is
+    done. A progress bar drawn on the same terminal is cleared first and drawn again below: printed over it,
+    the text began at the bar's end."""
+    with tqdm.external_write_mode(file=file):
+        print(text, file=file, flush=True)
 
 
 def unusable_images(failed: int, total: int) -> int:
@@ -210,7 +219,7 @@ def cmd_calibrate(args) -> int:
                               leave=False):
             if isinstance(found, ImageError):
                 unreadable += 1
-                print(f"error: {found}", file=sys.stderr)
+                say(f"error: {found}", file=sys.stderr)
             else:
                 views.append(found)
     try:

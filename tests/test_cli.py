@@ -252,13 +252,14 @@ def test_an_implausible_exif_focal_length_is_said_where_the_field_of_view_is_ass
                 in assumed[0])
 
 
-def on_a_terminal(*args: object, cwd=ROOT) -> tuple[subprocess.Popen, int]:
+def on_a_terminal(*args: object, cwd=ROOT, stdout_too: bool = False) -> tuple[subprocess.Popen, int]:
     """`signpose *args` with its stderr on a pseudo-terminal, as in a shell: the process (stdout
-    piped) and the terminal's end to read stderr from (`terminal_output`)."""
+    piped, or on the terminal too when `stdout_too`) and the terminal's end to read from (`terminal_output`)."""
     terminal, stderr = pty.openpty()
     fcntl.ioctl(stderr, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))  # 24 x 100 (new ones are 0 x 0)
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", *map(str, args)], cwd=cwd, stdout=subprocess.PIPE,
-                            stderr=stderr, text=True, start_new_session=True)
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", *map(str, args)], cwd=cwd,
+                            stdout=stderr if stdout_too else subprocess.PIPE, stderr=stderr, text=True,
+                            start_new_session=True)
     os.close(stderr)
     return proc, terminal
 
@@ -427,6 +428,20 @@ def test_evaluates_worker_ends_with_it_when_it_is_killed_outright(tmp_path):
     proc.wait(timeout=30)
     assert left_running(helpers) == []
     os.close(terminal)
+
+
+def test_recognize_json_draws_its_progress_bar_between_whole_lines():
+    """`recognize --json > out.jsonl` drew no bar; and a line printed while the bar was drawn on the same
+    terminal began at the bar's end, in the table as in the JSON."""
+    images = sorted(SCENES.glob("*.jpg"))[:12]
+    proc, terminal = on_a_terminal("recognize", *images, "--json")
+    bar = terminal_output(terminal)  # read as it comes: a terminal nobody reads fills up, and its writer waits
+    assert len(proc.communicate(timeout=300)[0].splitlines()) == 12 and "/12 [" in bar
+    proc, terminal = on_a_terminal("recognize", *images, "--json", stdout_too=True)
+    # What is left of each terminal line: what was written after its last carriage return.
+    shown = [line.rpartition("\r")[2] for line in terminal_output(terminal).split("\r\n")]
+    assert proc.wait(timeout=300) == 0
+    assert [json.loads(line)["image"] for line in shown if line.startswith("{")] == list(map(str, images))
 
 
 def test_recognize_refuses_a_named_pipe_without_waiting_for_a_writer(tmp_path):
