@@ -7,17 +7,19 @@ import functools
 import json
 import math
 import os
+import signal
 import sys
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import closing, contextmanager, suppress
 from pathlib import Path
 from typing import TextIO
 
 import cv2
 from tqdm import tqdm
 
-from app.entry import EXIT_INTERRUPTED
+from app.entry import STOP_SIGNALS, Interrupted, interrupted, stopping_on_signals
 from app.workspace import HELD_BYTES_PER_PIXEL, WorkspaceConfig, check_image_header, decode_upload, held_bytes
 from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, assumed_camera, load_camera
 from pipeline.evaluate import CORES, keep_freed_memory
@@ -94,32 +96,41 @@ def cmd_recognize(args) -> int:
     library, settings, camera = load_inputs(args)
     keep_freed_memory()  # this process exists to run the pipeline: about 25 % faster per image
     limit = max_pixels(args)
-    failed = 0
+    done = failed = 0
     if not args.json:
         print(f"{'image':<28} {'label':<22} {'inliers':>7} {'margin':>6}  pose")
     # The bar is on stderr, the table or the JSON on stdout: `--json > out.jsonl` shows it too.
-    for path in progress(args.images, desc="recognize", hidden=len(args.images) < 10, leave=False):
-        name = str(path)
-        try:
-            image, _, exif = decode_upload(read_file(path), name, limit)
-            # Without a camera file, a JPEG's EXIF focal length beats the field of view recognize
-            # assumes, which is assumed here instead when it should say the EXIF's was refused.
-            refused = assumed_camera(image.shape[1], image.shape[0], note=exif.ignored) if exif.ignored else None
-            rec = run_pipeline(name, image, library, settings, camera or exif.camera or refused)
-        # CameraError: the camera cannot be scaled to this image; PipelineError: a failure inside the pipeline
-        except (ImageError, CameraError, PipelineError) as exc:
-            failed += 1
-            if args.json:
-                say(json.dumps({"image": name, "error": str(exc)}))
-            else:
-                # The row names the image already; the image errors begin with its path.
-                say(f"{Path(name).name:<28} error: {str(exc).removeprefix(name + ': ')}")
-            continue
-        if args.json:
-            say(json.dumps(rec.to_json(name)))
-        else:
-            say("\n".join([format_row(Path(name).name, rec), *(f"{'':<28}   warning: {w}" for w in rec.warnings)]))
+    with progress(args.images, desc="recognize", hidden=len(args.images) < 10, leave=False) as images, \
+            stopped_after(lambda: done, len(args.images), "images"):
+        for path in images:
+            failed += not recognize_one(str(path), library, settings, camera, limit, args.json)
+            done += 1
     return unusable_images(failed, len(args.images))
+
+
+def recognize_one(name: str, library: Library, settings: Settings, camera: Camera | None, limit: int,
+                  as_json: bool) -> bool:
+    """Recognise the image file `name` and print its line: a table row (and its warnings) or, `as_json`, a JSON
+    object; whether the image could be used (else the line says why not)."""
+    try:
+        image, _, exif = decode_upload(read_file(name), name, limit)
+        # Without a camera file, a JPEG's EXIF focal length beats the field of view recognize
+        # assumes, which is assumed here instead when it should say the EXIF's was refused.
+        refused = assumed_camera(image.shape[1], image.shape[0], note=exif.ignored) if exif.ignored else None
+        rec = run_pipeline(name, image, library, settings, camera or exif.camera or refused)
+    # CameraError: the camera cannot be scaled to this image; PipelineError: a failure inside the pipeline
+    except (ImageError, CameraError, PipelineError) as exc:
+        if as_json:
+            say(json.dumps({"image": name, "error": str(exc)}))
+        else:
+            # The row names the image already; the image errors begin with its path.
+            say(f"{Path(name).name:<28} error: {str(exc).removeprefix(name + ': ')}")
+        return False
+    if as_json:
+        say(json.dumps(rec.to_json(name)))
+    else:
+        say("\n".join([format_row(Path(name).name, rec), *(f"{'':<28}   warning: {w}" for w in rec.warnings)]))
+    return True
 
 
 def progress(iterable: Iterable | None = None, *, hidden: bool = False, **options) -> tqdm:
@@ -138,6 +149,16 @@ def say(text: str, file: TextIO | None = None) -> None:
         print(text, file=file, flush=True)
 
 
+@contextmanager
+def stopped_after(done: Callable[[], int], total: int, unit: str) -> Iterator[None]:
+    """Inside, an interruption (Ctrl-C, SIGTERM, SIGHUP) says in the command's message how far it got:
+    `done()` of `total` `unit` ("images")."""
+    try:
+        yield
+    except KeyboardInterrupt as exc:
+        raise Interrupted.after(exc, f"{done()} of {total} {unit}") from None
+
+
 def unusable_images(failed: int, total: int) -> int:
     """The exit status of a run over `total` images of which `failed` could not be used, said on stderr."""
     if failed:
@@ -148,12 +169,18 @@ def unusable_images(failed: int, total: int) -> int:
 def cmd_synth(args) -> int:
     from pipeline.synth import SynthError, generate_dataset
 
+    written = 0
+
+    def wrote(done: int, total: int) -> None:
+        nonlocal written
+        written = done
+        bar.update(1)
+
     try:
         library = load_library(args.library)
         # Shown once rendering takes a while, so a refused folder gets its error line alone.
-        with progress(total=args.n, desc="synth", delay=0.5) as bar:
-            generate_dataset(Path(args.out_dir), library, n=args.n, seed=args.seed,
-                             progress=lambda i, n: bar.update(1))
+        with progress(total=args.n, desc="synth", delay=0.5) as bar, stopped_after(lambda: written, args.n, "scenes"):
+            generate_dataset(Path(args.out_dir), library, n=args.n, seed=args.seed, progress=wrote)
     except (LibraryError, SynthError) as exc:
         raise CliError(str(exc)) from None
     except OSError as exc:  # a file in the way of the folder, a folder that cannot be made or written
@@ -163,7 +190,7 @@ def cmd_synth(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from pipeline.evaluate import check_labels, evaluate, format_table, load_dataset
+    from pipeline.evaluate import ImageResult, check_labels, format_table, load_dataset, measure, report_on
 
     library, settings, camera = load_inputs(args)
     roots = [Path(d).resolve() for d in args.datasets]
@@ -178,14 +205,25 @@ def cmd_evaluate(args) -> int:
     for dataset, given in zip(datasets, args.datasets):
         if names.count(dataset.name) > 1:  # a/set1 and b/set1: each its own row
             dataset.name = given
+    total = sum(len(d) for d in datasets)
+    results: list[ImageResult] = []
+    check = functools.partial(check_image_header, max_pixels=max_pixels(args))
     try:
-        with progress(total=sum(len(d) for d in datasets), desc="evaluate") as bar:
-            report = evaluate(datasets, library, settings, camera, progress=lambda *_: bar.update(1),
-                              workers=args.workers,
-                              check_image=functools.partial(check_image_header, max_pixels=max_pixels(args)))
+        with progress(total=total, desc="evaluate") as bar, stopped_after(lambda: len(results), total, "images"), \
+                closing(measure(datasets, library, settings, camera, args.workers, check)) as measured:
+            for result in measured:
+                results.append(result)
+                bar.update(1)
     except BrokenProcessPool:
         raise CliError("a worker process stopped before it finished (out of memory?); "
                        "fewer workers, e.g. --workers 1, need less") from None
+    except Interrupted as exc:
+        if results and not args.json:  # the table of what was measured; a JSON reader would take it for all
+            with suppress(OSError):  # after SIGHUP the terminal may be gone
+                print(f"partial results: the first {exc.done}\n"
+                      + format_table(report_on(datasets, library, settings, results)), flush=True)
+        raise
+    report = report_on(datasets, library, settings, results)
     print(json.dumps(report.to_json()) if args.json else format_table(report))
     return unusable_images(sum(r.error is not None for r in report.results), len(report.results))
 
@@ -214,7 +252,9 @@ def cmd_calibrate(args) -> int:
             return exc
 
     views, unreadable = [], 0
-    with ThreadPoolExecutor(CORES) as pool:  # OpenCV releases the GIL: a photo per core
+    with ThreadPoolExecutor(CORES) as pool, \
+            stopped_after(lambda: len(views) + unreadable, len(args.images), "photos searched"):
+        # OpenCV releases the GIL: a photo per core
         for found in progress(pool.map(search, map(str, args.images)), total=len(args.images), desc="calibrate",
                               leave=False):
             if isinstance(found, ImageError):
@@ -271,6 +311,10 @@ def cmd_serve(args) -> int:
         print("every request needs the token in that address (share it only with your team); from other "
               "machines use this one's network address in place of the host; scripts send the header "
               "'Authorization: Bearer <token>'", file=sys.stderr)
+    # uvicorn shuts down on SIGTERM as on Ctrl-C, then ends by the signal: Interrupted, raised inside its event
+    # loop, would cut the shutdown short (and SIGHUP ends the server at once, as it always did).
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, signal.SIG_DFL)
     serve(app, sock)
     return 0
 
@@ -411,13 +455,13 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     quiet_opencv()
     try:
-        return args.func(args)
+        with stopping_on_signals():
+            return args.func(args)
     except CliError as exc:
         print(f"signpose {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print(f"signpose {args.command}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as exc:  # Ctrl-C, and SIGTERM or SIGHUP as Interrupted
+        return interrupted(f"signpose {args.command}", exc)
     except BrokenPipeError:
         # The reader went away (`signpose recognize ... | head`): stop quietly, as Unix tools do.
         # Python would flush stdout again at exit and fail on the closed pipe, so point it at devnull.
