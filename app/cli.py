@@ -9,6 +9,7 @@ import math
 import os
 import signal
 import sys
+import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -30,6 +31,7 @@ from pipeline.settings import PRESETS, Settings, SettingsError, load_settings, p
 
 EXIT_USAGE = 2
 EXIT_BROKEN_PIPE = 141  # the shell's 128 + SIGPIPE
+STDOUT = "-"  # as an output file: standard output
 
 
 class CliError(Exception):
@@ -232,7 +234,7 @@ def cmd_calibrate(args) -> int:
     from app.calibration import read_gray
     from pipeline.calibrate import (BoardView, CalibrationError, calibrate, check_square, drop_outliers, find_board,
                                     format_report, parse_board)
-    from pipeline.camera import save_camera
+    from pipeline.camera import ros_camera_yaml, save_camera
 
     try:  # before reading a single photo
         board, square = parse_board(args.board), check_square(args.square)
@@ -268,7 +270,13 @@ def cmd_calibrate(args) -> int:
             calibration = drop_outliers(calibration)
     except CalibrationError as exc:
         raise CliError(str(exc)) from None
-    print(format_report(calibration))
+    # With `-o -` the camera file is what stdout carries (`> camera.yaml`, a pipe): the rest goes to stderr.
+    to_stdout = args.output == STDOUT
+    report = sys.stderr if to_stdout else sys.stdout
+    print(format_report(calibration), file=report)
+    if to_stdout:
+        print(ros_camera_yaml(calibration.camera), end="", flush=True)
+        return unusable_images(unreadable, len(args.images))
     try:
         save_camera(calibration.camera, args.output)
     except OSError as exc:  # checked up front, but the folder may be read-only or gone by now
@@ -362,10 +370,17 @@ def file_path(text: str) -> str:
 
 
 def output_path(text: str) -> str:
-    """argparse type: a file to write, checked before any work: not a folder, in a folder that exists."""
+    """argparse type: a file to write, or STDOUT, checked before any work: not a folder, in a folder that
+    exists and takes new files (a read-only file system or one without write permission does not)."""
+    if text == STDOUT:
+        return text
     folder = Path(file_path(text)).parent
     if not folder.is_dir():
         raise argparse.ArgumentTypeError(f"folder {str(folder)!r} does not exist")
+    try:
+        tempfile.TemporaryFile(dir=folder).close()
+    except OSError as exc:
+        raise argparse.ArgumentTypeError(f"cannot write into folder {str(folder)!r}: {exc.strerror}") from None
     return text
 
 
@@ -403,7 +418,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--board", required=True, help="inner corners COLSxROWS, e.g. 9x6 for a board of 10x7 squares")
     p.add_argument("--square", type=float, required=True, help="side of one printed square in metres, e.g. 0.025")
     p.add_argument("-o", "--output", type=output_path, default="camera.yaml",
-                   help="ROS camera_info YAML to write (default camera.yaml)")
+                   help="ROS camera_info YAML to write (default camera.yaml); - writes it on stdout, the report on "
+                        "stderr")
     p.add_argument("--drop-outliers", action="store_true", help="recalibrate without the views whose error stands out")
     add_max_megapixels(p)
     p.set_defaults(func=cmd_calibrate)

@@ -227,6 +227,17 @@ def test_cli_calibrate_writes_a_camera_file_recognize_can_read(rendered, tmp_pat
     assert abs(cam.K[0, 0] / K_TRUE[0, 0] - 1) < 0.01 and cam.has_distortion
 
 
+def test_cli_calibrate_o_dash_writes_the_camera_file_on_stdout(rendered, tmp_path, capsys, monkeypatch):
+    """`-o -` wrote a file named "-" and said to use it with `--camera -`."""
+    monkeypatch.chdir(tmp_path)
+    paths = write_photos(tmp_path, rendered[0][:5])
+    assert main(["calibrate", *paths, "--board", "9x6", "--square", "0.03", "-o", "-"]) == 0
+    out, err = capsys.readouterr()
+    (tmp_path / "piped.yaml").write_text(out)  # as `signpose calibrate ... -o - > piped.yaml` leaves it
+    assert abs(load_camera(tmp_path / "piped.yaml").K[0, 0] / K_TRUE[0, 0] - 1) < 0.01
+    assert "overall RMS" in err and "wrote" not in err and not (tmp_path / "-").exists()
+
+
 @pytest.mark.skipif(CORES < 2, reason="one core: no second search to run beside the first")
 def test_cli_calibrate_searches_photos_side_by_side(rendered, tmp_path, capsys, monkeypatch):
     """Each search waits for a second one to start, which never came when the photos were

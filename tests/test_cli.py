@@ -357,6 +357,9 @@ def test_bad_synth_and_evaluate_arguments_are_one_clear_line(tmp_path, args, mes
      "-o/--output: folder '{tmp}/no/such' does not exist"),
     (("calibrate", "{tmp}/missing.png", "--board", "9x6", "--square", 0.03, "-o", "{tmp}"),
      "-o/--output: '{tmp}' is a folder, not a file"),
+    # sysfs takes no new files, even from root: as a read-only file system, refused before the calibration
+    (("calibrate", "{tmp}/missing.png", "--board", "9x6", "--square", 0.03, "-o", "/sys/c.yaml"),
+     "-o/--output: cannot write into folder '/sys'"),
     (("calibrate", "{tmp}/missing.png", "--board", "9x6", "--square", 0, "-o", "{tmp}/c.yaml"),
      "square size must be a positive number"),
     (("calibrate", "{tmp}/missing.png", "--board", "9x6", "--square", "nan", "-o", "{tmp}/c.yaml"),
