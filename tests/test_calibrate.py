@@ -175,6 +175,8 @@ def test_calibrate_errors():
     views = projected_views(4)
     with pytest.raises(CalibrationError, match="not found in any of the 2"):
         calibrate([BoardView("a", SIZE, None), BoardView("b", SIZE, None)], BOARD, SQUARE_M)
+    with pytest.raises(CalibrationError, match=r"^no photo to calibrate from$"):  # the CLI's when none could be read
+        calibrate([], BOARD, SQUARE_M)
     with pytest.raises(CalibrationError, match="found in 2 usable image.*at least 3.*; check the board size"):
         calibrate(views[:2] + [BoardView("c", SIZE, None)], BOARD, SQUARE_M)
     with pytest.raises(CalibrationError, match="at least 3"):
