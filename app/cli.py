@@ -7,16 +7,20 @@ import functools
 import json
 import math
 import os
+import signal
 import sys
-from collections.abc import Callable, Iterable
+import tempfile
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import closing, contextmanager, suppress
 from pathlib import Path
+from typing import TextIO
 
 import cv2
 from tqdm import tqdm
 
-from app.entry import EXIT_INTERRUPTED
+from app.entry import STOP_SIGNALS, Interrupted, interrupted, stopping_on_signals
 from app.workspace import HELD_BYTES_PER_PIXEL, WorkspaceConfig, check_image_header, decode_upload, held_bytes
 from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, assumed_camera, load_camera
 from pipeline.evaluate import CORES, keep_freed_memory
@@ -27,6 +31,7 @@ from pipeline.settings import PRESETS, Settings, SettingsError, load_settings, p
 
 EXIT_USAGE = 2
 EXIT_BROKEN_PIPE = 141  # the shell's 128 + SIGPIPE
+STDOUT = "-"  # as an output file: standard output
 
 
 class CliError(Exception):
@@ -93,40 +98,67 @@ def cmd_recognize(args) -> int:
     library, settings, camera = load_inputs(args)
     keep_freed_memory()  # this process exists to run the pipeline: about 25 % faster per image
     limit = max_pixels(args)
-    failed = 0
+    done = failed = 0
     if not args.json:
         print(f"{'image':<28} {'label':<22} {'inliers':>7} {'margin':>6}  pose")
-    for path in progress(args.images, desc="recognize", hidden=args.json or len(args.images) < 10, leave=False):
-        name = str(path)
-        try:
-            image, _, exif = decode_upload(read_file(path), name, limit)
-            # Without a camera file, a JPEG's EXIF focal length beats the field of view recognize
-            # assumes, which is assumed here instead when it should say the EXIF's was refused.
-            refused = assumed_camera(image.shape[1], image.shape[0], note=exif.ignored) if exif.ignored else None
-            rec = run_pipeline(name, image, library, settings, camera or exif.camera or refused)
-        # CameraError: the camera cannot be scaled to this image; PipelineError: a failure inside the pipeline
-        except (ImageError, CameraError, PipelineError) as exc:
-            failed += 1
-            if args.json:
-                print(json.dumps({"image": name, "error": str(exc)}), flush=True)
-            else:
-                # The row names the image already; the image errors begin with its path.
-                print(f"{Path(name).name:<28} error: {str(exc).removeprefix(name + ': ')}", flush=True)
-            continue
-        if args.json:
-            print(json.dumps(rec.to_json(name)), flush=True)
-        else:
-            print(format_row(Path(name).name, rec), flush=True)
-            for w in rec.warnings:
-                print(f"{'':<28}   warning: {w}")
+    # The bar is on stderr, the table or the JSON on stdout: `--json > out.jsonl` shows it too.
+    with progress(args.images, desc="recognize", hidden=len(args.images) < 10, leave=False) as images, \
+            stopped_after(lambda: done, len(args.images), "images"):
+        for path in images:
+            failed += not recognize_one(str(path), library, settings, camera, limit, args.json)
+            done += 1
     return unusable_images(failed, len(args.images))
+
+
+def recognize_one(name: str, library: Library, settings: Settings, camera: Camera | None, limit: int,
+                  as_json: bool) -> bool:
+    """Recognise the image file `name` and print its line: a table row (and its warnings) or, `as_json`, a JSON
+    object; whether the image could be used (else the line says why not)."""
+    try:
+        image, _, exif = decode_upload(read_file(name), name, limit)
+        # Without a camera file, a JPEG's EXIF focal length beats the field of view recognize
+        # assumes, which is assumed here instead when it should say the EXIF's was refused.
+        refused = assumed_camera(image.shape[1], image.shape[0], note=exif.ignored) if exif.ignored else None
+        rec = run_pipeline(name, image, library, settings, camera or exif.camera or refused)
+    # CameraError: the camera cannot be scaled to this image; PipelineError: a failure inside the pipeline
+    except (ImageError, CameraError, PipelineError) as exc:
+        if as_json:
+            say(json.dumps({"image": name, "error": str(exc)}))
+        else:
+            # The row names the image already; the image errors begin with its path.
+            say(f"{Path(name).name:<28} error: {str(exc).removeprefix(name + ': ')}")
+        return False
+    if as_json:
+        say(json.dumps(rec.to_json(name)))
+    else:
+        say("\n".join([format_row(Path(name).name, rec), *(f"{'':<28}   warning: {w}" for w in rec.warnings)]))
+    return True
 
 
 def progress(iterable: Iterable | None = None, *, hidden: bool = False, **options) -> tqdm:
     """A progress bar over images on stderr, drawn only when stderr is a terminal (tqdm's
     disable=None): in a log file or a CI log its redraws are carriage-return clutter. `hidden`:
-    never drawn. What a command prints when it is done (tables, counts) is printed either way."""
+    never drawn. What a command prints when it is done (tables, counts) is printed either way;
+    what it prints while the bar is drawn, it prints with `say`."""
     return tqdm(iterable, file=sys.stderr, unit="img", disable=True if hidden else None, **options)
+
+
+def say(text: str, file: TextIO | None = None) -> None:
+    """Print `text` on `file` (default stdout) at once, so that a reader sees each image's line as soon as it is
+    done. A progress bar drawn on the same terminal is cleared first and drawn again below: printed over it,
+    the text began at the bar's end."""
+    with tqdm.external_write_mode(file=file):
+        print(text, file=file, flush=True)
+
+
+@contextmanager
+def stopped_after(done: Callable[[], int], total: int, unit: str) -> Iterator[None]:
+    """Inside, an interruption (Ctrl-C, SIGTERM, SIGHUP) says in the command's message how far it got:
+    `done()` of `total` `unit` ("images")."""
+    try:
+        yield
+    except KeyboardInterrupt as exc:
+        raise Interrupted.after(exc, f"{done()} of {total} {unit}") from None
 
 
 def unusable_images(failed: int, total: int) -> int:
@@ -139,12 +171,18 @@ def unusable_images(failed: int, total: int) -> int:
 def cmd_synth(args) -> int:
     from pipeline.synth import SynthError, generate_dataset
 
+    written = 0
+
+    def wrote(done: int, total: int) -> None:
+        nonlocal written
+        written = done
+        bar.update(1)
+
     try:
         library = load_library(args.library)
         # Shown once rendering takes a while, so a refused folder gets its error line alone.
-        with progress(total=args.n, desc="synth", delay=0.5) as bar:
-            generate_dataset(Path(args.out_dir), library, n=args.n, seed=args.seed,
-                             progress=lambda i, n: bar.update(1))
+        with progress(total=args.n, desc="synth", delay=0.5) as bar, stopped_after(lambda: written, args.n, "scenes"):
+            generate_dataset(Path(args.out_dir), library, n=args.n, seed=args.seed, progress=wrote)
     except (LibraryError, SynthError) as exc:
         raise CliError(str(exc)) from None
     except OSError as exc:  # a file in the way of the folder, a folder that cannot be made or written
@@ -154,7 +192,7 @@ def cmd_synth(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from pipeline.evaluate import check_labels, evaluate, format_table, load_dataset
+    from pipeline.evaluate import ImageResult, check_labels, format_table, load_dataset, measure, report_on
 
     library, settings, camera = load_inputs(args)
     roots = [Path(d).resolve() for d in args.datasets]
@@ -169,14 +207,25 @@ def cmd_evaluate(args) -> int:
     for dataset, given in zip(datasets, args.datasets):
         if names.count(dataset.name) > 1:  # a/set1 and b/set1: each its own row
             dataset.name = given
+    total = sum(len(d) for d in datasets)
+    results: list[ImageResult] = []
+    check = functools.partial(check_image_header, max_pixels=max_pixels(args))
     try:
-        with progress(total=sum(len(d) for d in datasets), desc="evaluate") as bar:
-            report = evaluate(datasets, library, settings, camera, progress=lambda *_: bar.update(1),
-                              workers=args.workers,
-                              check_image=functools.partial(check_image_header, max_pixels=max_pixels(args)))
+        with progress(total=total, desc="evaluate") as bar, stopped_after(lambda: len(results), total, "images"), \
+                closing(measure(datasets, library, settings, camera, args.workers, check)) as measured:
+            for result in measured:
+                results.append(result)
+                bar.update(1)
     except BrokenProcessPool:
         raise CliError("a worker process stopped before it finished (out of memory?); "
                        "fewer workers, e.g. --workers 1, need less") from None
+    except Interrupted as exc:
+        if results and not args.json:  # the table of what was measured; a JSON reader would take it for all
+            with suppress(OSError):  # after SIGHUP the terminal may be gone
+                print(f"partial results: the first {exc.done}\n"
+                      + format_table(report_on(datasets, library, settings, results)), flush=True)
+        raise
+    report = report_on(datasets, library, settings, results)
     print(json.dumps(report.to_json()) if args.json else format_table(report))
     return unusable_images(sum(r.error is not None for r in report.results), len(report.results))
 
@@ -185,7 +234,7 @@ def cmd_calibrate(args) -> int:
     from app.calibration import read_gray
     from pipeline.calibrate import (BoardView, CalibrationError, calibrate, check_square, drop_outliers, find_board,
                                     format_report, parse_board)
-    from pipeline.camera import save_camera
+    from pipeline.camera import ros_camera_yaml, save_camera
 
     try:  # before reading a single photo
         board, square = parse_board(args.board), check_square(args.square)
@@ -205,12 +254,14 @@ def cmd_calibrate(args) -> int:
             return exc
 
     views, unreadable = [], 0
-    with ThreadPoolExecutor(CORES) as pool:  # OpenCV releases the GIL: a photo per core
+    with ThreadPoolExecutor(CORES) as pool, \
+            stopped_after(lambda: len(views) + unreadable, len(args.images), "photos searched"):
+        # OpenCV releases the GIL: a photo per core
         for found in progress(pool.map(search, map(str, args.images)), total=len(args.images), desc="calibrate",
                               leave=False):
             if isinstance(found, ImageError):
                 unreadable += 1
-                print(f"error: {found}", file=sys.stderr)
+                say(f"error: {found}", file=sys.stderr)
             else:
                 views.append(found)
     try:
@@ -219,7 +270,13 @@ def cmd_calibrate(args) -> int:
             calibration = drop_outliers(calibration)
     except CalibrationError as exc:
         raise CliError(str(exc)) from None
-    print(format_report(calibration))
+    # With `-o -` the camera file is what stdout carries (`> camera.yaml`, a pipe): the rest goes to stderr.
+    to_stdout = args.output == STDOUT
+    report = sys.stderr if to_stdout else sys.stdout
+    print(format_report(calibration), file=report)
+    if to_stdout:
+        print(ros_camera_yaml(calibration.camera), end="", flush=True)
+        return unusable_images(unreadable, len(args.images))
     try:
         save_camera(calibration.camera, args.output)
     except OSError as exc:  # checked up front, but the folder may be read-only or gone by now
@@ -262,6 +319,10 @@ def cmd_serve(args) -> int:
         print("every request needs the token in that address (share it only with your team); from other "
               "machines use this one's network address in place of the host; scripts send the header "
               "'Authorization: Bearer <token>'", file=sys.stderr)
+    # uvicorn shuts down on SIGTERM as on Ctrl-C, then ends by the signal: Interrupted, raised inside its event
+    # loop, would cut the shutdown short (and SIGHUP ends the server at once, as it always did).
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, signal.SIG_DFL)
     serve(app, sock)
     return 0
 
@@ -309,10 +370,17 @@ def file_path(text: str) -> str:
 
 
 def output_path(text: str) -> str:
-    """argparse type: a file to write, checked before any work: not a folder, in a folder that exists."""
+    """argparse type: a file to write, or STDOUT, checked before any work: not a folder, in a folder that
+    exists and takes new files (a read-only file system or one without write permission does not)."""
+    if text == STDOUT:
+        return text
     folder = Path(file_path(text)).parent
     if not folder.is_dir():
         raise argparse.ArgumentTypeError(f"folder {str(folder)!r} does not exist")
+    try:
+        tempfile.TemporaryFile(dir=folder).close()
+    except OSError as exc:
+        raise argparse.ArgumentTypeError(f"cannot write into folder {str(folder)!r}: {exc.strerror}") from None
     return text
 
 
@@ -350,7 +418,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--board", required=True, help="inner corners COLSxROWS, e.g. 9x6 for a board of 10x7 squares")
     p.add_argument("--square", type=float, required=True, help="side of one printed square in metres, e.g. 0.025")
     p.add_argument("-o", "--output", type=output_path, default="camera.yaml",
-                   help="ROS camera_info YAML to write (default camera.yaml)")
+                   help="ROS camera_info YAML to write (default camera.yaml); - writes it on stdout, the report on "
+                        "stderr")
     p.add_argument("--drop-outliers", action="store_true", help="recalibrate without the views whose error stands out")
     add_max_megapixels(p)
     p.set_defaults(func=cmd_calibrate)
@@ -402,13 +471,13 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     quiet_opencv()
     try:
-        return args.func(args)
+        with stopping_on_signals():
+            return args.func(args)
     except CliError as exc:
         print(f"signpose {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print(f"signpose {args.command}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as exc:  # Ctrl-C, and SIGTERM or SIGHUP as Interrupted
+        return interrupted(f"signpose {args.command}", exc)
     except BrokenPipeError:
         # The reader went away (`signpose recognize ... | head`): stop quietly, as Unix tools do.
         # Python would flush stdout again at exit and fail on the closed pipe, so point it at devnull.

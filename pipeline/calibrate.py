@@ -264,6 +264,8 @@ def calibrate(views: list[BoardView], board: tuple[int, int], square_m: float,
     board = check_board(board)
     square_m = check_square(square_m)
     views = tuple(views)
+    if not views:  # every photo unreadable: the board was not missed, and no hint on its size helps
+        raise CalibrationError("no photo to calibrate from")
     found = [i for i, v in enumerate(views) if v.found]
     if not found:
         raise CalibrationError(f"the {board[0]}x{board[1]} board was not found in any of the {len(views)} image(s); "

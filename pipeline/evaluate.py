@@ -23,11 +23,14 @@ from __future__ import annotations
 import ctypes
 import math
 import multiprocessing
+import multiprocessing.connection
 import os
 import queue
 import signal
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
+from contextlib import closing
 from dataclasses import dataclass, field
 from multiprocessing.sharedctypes import Synchronized
 from pathlib import Path
@@ -356,9 +359,18 @@ def _start_worker(library: Library, settings: Settings, check_image: ImageCheck 
     process group: the calling process handles it and stops the workers after their image."""
     global _worker_state
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_exit_with_parent, name="exit with parent", daemon=True).start()
     cv2.setNumThreads(1)
     keep_freed_memory()
     _worker_state = library, settings, check_image, jobs, next_job, done
+
+
+def _exit_with_parent() -> None:
+    """End this worker process as soon as the process that started it has ended. One that stops as it should
+    stops its workers first; one killed outright (SIGKILL, the OOM killer) left them measuring the rest of the
+    images, then waiting forever to send results nobody would read, each holding its memory."""
+    multiprocessing.connection.wait([multiprocessing.parent_process().sentinel])
+    os._exit(1)
 
 
 def _take(next_job: Synchronized) -> int:
@@ -403,11 +415,12 @@ def _measure_all(jobs: list[Job], library: Library, settings: Settings, check_im
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)  # like the workers: one OpenCV thread per process
     helpers = min(workers, len(jobs)) - 1
+    tasks: list[Future] = []
     try:
         with ProcessPoolExecutor(helpers, context, initializer=_start_worker,
                                  initargs=(library, settings, check_image, jobs, next_job, done)) as pool:
-            tasks = [pool.submit(_work_through_jobs) for _ in range(helpers)]
             try:
+                tasks.extend(pool.submit(_work_through_jobs) for _ in range(helpers))
                 while next_result < len(jobs):
                     if (index := _take(next_job)) < len(jobs):
                         finished[index] = _measure(jobs[index], library, settings, check_image)
@@ -417,17 +430,24 @@ def _measure_all(jobs: list[Job], library: Library, settings: Settings, check_im
                     while next_result in finished:
                         yield finished.pop(next_result)
                         next_result += 1
-            finally:
-                with next_job.get_lock():  # interrupted or closed early: the workers stop after their image
-                    next_job.value = len(jobs)
+            finally:  # done, interrupted or closed early
+                _stop_workers(tasks, next_job, len(jobs), done)
     finally:
         cv2.setNumThreads(threads)
 
 
-def _receive(done: multiprocessing.Queue, tasks: list[Future], wait_s: float) -> list[tuple[int, ImageResult]]:
-    """The results the workers have sent, waiting up to `wait_s` for the first; raises a worker's error,
-    or BrokenProcessPool if one died, once they have all stopped with results still missing."""
-    stopped = all(task.done() for task in tasks)  # before reading: a stopped worker has sent everything
+def _stop_workers(tasks: list[Future], next_job: Synchronized, jobs: int, done: multiprocessing.Queue) -> None:
+    """Have the workers running `tasks` stop after their image, by leaving no job of the `jobs` to take, and wait
+    until they have, reading and dropping the results they still send: one whose result waits for room in a
+    full pipe would never stop, and the pool would wait for it forever."""
+    with next_job.get_lock():
+        next_job.value = jobs
+    while not all(task.done() for task in tasks):
+        _read_results(done, wait_s=0.1)
+
+
+def _read_results(done: multiprocessing.Queue, wait_s: float) -> list[tuple[int, ImageResult]]:
+    """The results the workers have sent, waiting up to `wait_s` for the first (0: not at all)."""
     received = []
     try:
         received.append(done.get(timeout=wait_s) if wait_s else done.get_nowait())
@@ -435,6 +455,14 @@ def _receive(done: multiprocessing.Queue, tasks: list[Future], wait_s: float) ->
             received.append(done.get_nowait())
     except queue.Empty:
         pass
+    return received
+
+
+def _receive(done: multiprocessing.Queue, tasks: list[Future], wait_s: float) -> list[tuple[int, ImageResult]]:
+    """The results the workers have sent, waiting up to `wait_s` for the first; raises a worker's error,
+    or BrokenProcessPool if one died, once they have all stopped with results still missing."""
+    stopped = all(task.done() for task in tasks)  # before reading: a stopped worker has sent everything
+    received = _read_results(done, wait_s)
     if stopped and not received and wait_s:
         for task in tasks:
             task.result()
@@ -449,13 +477,14 @@ def check_labels(datasets: Sequence[Dataset], library: Library) -> None:
         raise DatasetError(f"label(s) {', '.join(unknown)} are not in the library ({', '.join(library.ids)})")
 
 
-def evaluate(datasets: Sequence[Dataset], library: Library, settings: Settings, camera: Camera | None = None,
-             progress: Callable[[int, int], None] | None = None, workers: int | None = None,
-             check_image: ImageCheck | None = None) -> Report:
-    """Run the pipeline on every sample and compare with the truth.
+def measure(datasets: Sequence[Dataset], library: Library, settings: Settings, camera: Camera | None = None,
+            workers: int | None = None, check_image: ImageCheck | None = None) -> Iterator[ImageResult]:
+    """Run the pipeline on every sample and compare with the truth: each sample's result, in order, as soon as
+    it and those before it are done. Closed early (`contextlib.closing`) or interrupted, the worker processes
+    stop after their image.
 
     `camera`, when given, is used for every dataset; otherwise each dataset's own camera file,
-    and without one the pipeline's assumed camera. `progress(done, total)` follows each image.
+    and without one the pipeline's assumed camera.
     `workers`: processes sharing the images (default `CORES`, every core), each on one OpenCV thread,
     which is what the per-image times then measure; 1 runs them in this process.
     `check_image(data, name)`, when given, sees each file's bytes before decoding and may refuse the
@@ -463,18 +492,35 @@ def evaluate(datasets: Sequence[Dataset], library: Library, settings: Settings, 
     """
     check_labels(datasets, library)
     jobs = [(d.name, sample, camera or d.camera) for d in datasets for sample in d.samples]
-    results: list[ImageResult] = []
-    for result in _measure_all(jobs, library, settings, check_image, workers or CORES):
-        results.append(result)
-        if progress:
-            progress(len(results), len(jobs))
+    return _measure_all(jobs, library, settings, check_image, workers or CORES)
+
+
+def report_on(datasets: Sequence[Dataset], library: Library, settings: Settings,
+              results: Sequence[ImageResult]) -> Report:
+    """The report on `results`: `measure`'s on `datasets`, all of them or the first few (a dataset without
+    any has no summary)."""
     labels = [*library.ids, NO_SIGN]
     confusion = np.zeros((len(labels), len(labels)), int)
     for r in results:
         if r.error is None:
             confusion[labels.index(r.sample.label or NO_SIGN), labels.index(r.predicted or NO_SIGN)] += 1
-    by_dataset = {d.name: summarize([r for r in results if r.dataset == d.name]) for d in datasets}
-    return Report(settings, results, by_dataset, summarize(results), labels, confusion)
+    by_dataset = {d.name: summarize(mine) for d in datasets if (mine := [r for r in results if r.dataset == d.name])}
+    return Report(settings, list(results), by_dataset, summarize(results), labels, confusion)
+
+
+def evaluate(datasets: Sequence[Dataset], library: Library, settings: Settings, camera: Camera | None = None,
+             progress: Callable[[int, int], None] | None = None, workers: int | None = None,
+             check_image: ImageCheck | None = None) -> Report:
+    """The `report_on` every sample of `datasets`, `measure`d (see there for the options); `progress(done, total)`
+    follows each image."""
+    total = sum(len(d) for d in datasets)
+    results: list[ImageResult] = []
+    with closing(measure(datasets, library, settings, camera, workers, check_image)) as measured:
+        for result in measured:
+            results.append(result)
+            if progress:
+                progress(len(results), total)
+    return report_on(datasets, library, settings, results)
 
 
 def _pair(value: tuple[float, float] | None, unit: str, scale: float = 1.0) -> str:
@@ -506,6 +552,9 @@ def format_table(report: Report) -> str:
     if wrong:
         lines += ["", "wrong answers:"]
         for r in wrong:
-            what = r.error or f"truth {r.sample.label or NO_SIGN}, answer {r.predicted or NO_SIGN}"
+            if r.error:  # an image's error names it first, as this line does
+                what = r.error.removeprefix(f"{r.sample.path}: ")
+            else:
+                what = f"truth {r.sample.label or NO_SIGN}, answer {r.predicted or NO_SIGN}"
             lines.append(f"  {r.sample.path}: {what}")
     return "\n".join(lines)

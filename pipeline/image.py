@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import stat
 import struct
 from pathlib import Path
 
@@ -39,6 +40,9 @@ _MARKER = re.compile(rb"\xff([\x01-\xfe])")
 _AFTER_SCAN = frozenset([0xC4, 0xCC, 0xDB, 0xDD, 0xDC, 0xFE, 0xDA, 0xD9, *range(0xE0, 0xF0)])
 _STANDALONE = frozenset([0x01, *range(0xD0, 0xD8)])
 _GARBLED = ": decoded, part of the picture would be grey or garbled"
+# What `read_file` calls what it refuses to open, by the file type its stat gives.
+_NOT_FILES = {stat.S_IFDIR: "a directory", stat.S_IFIFO: "a named pipe (FIFO)", stat.S_IFSOCK: "a socket",
+              stat.S_IFCHR: "a device", stat.S_IFBLK: "a device"}
 
 
 class ImageError(ValueError):
@@ -198,16 +202,23 @@ def decode_image(data: bytes, name: str = "image") -> np.ndarray:
 
 
 def read_file(path: str | Path) -> bytes:
-    """The bytes of an image file, with `ImageError` for what a user can fix (missing, a folder, no access)."""
+    """The bytes of an image file, with `ImageError` for what a user can fix (missing, not a file, no access).
+
+    What is not a regular file is refused from its `stat`, never opened: reading a named pipe waits
+    for a writer, forever when there is none, and a device may never end.
+    """
     path = Path(path)
     try:
+        mode = path.stat().st_mode
+        if not stat.S_ISREG(mode):
+            raise ImageError(f"{path}: is {_NOT_FILES.get(stat.S_IFMT(mode), 'a special file')}, not a regular file")
         return path.read_bytes()
     except FileNotFoundError:
         raise ImageError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise ImageError(f"{path}: is a directory") from None
     except PermissionError:
         raise ImageError(f"{path}: permission denied") from None
+    except OSError as exc:  # a path through a file (NotADirectoryError), a link to itself, ...
+        raise ImageError(f"{path}: {exc.strerror or exc}") from None
 
 
 def read_image(path: str | Path) -> np.ndarray:

@@ -175,6 +175,8 @@ def test_calibrate_errors():
     views = projected_views(4)
     with pytest.raises(CalibrationError, match="not found in any of the 2"):
         calibrate([BoardView("a", SIZE, None), BoardView("b", SIZE, None)], BOARD, SQUARE_M)
+    with pytest.raises(CalibrationError, match=r"^no photo to calibrate from$"):  # the CLI's when none could be read
+        calibrate([], BOARD, SQUARE_M)
     with pytest.raises(CalibrationError, match="found in 2 usable image.*at least 3.*; check the board size"):
         calibrate(views[:2] + [BoardView("c", SIZE, None)], BOARD, SQUARE_M)
     with pytest.raises(CalibrationError, match="at least 3"):
@@ -225,6 +227,17 @@ def test_cli_calibrate_writes_a_camera_file_recognize_can_read(rendered, tmp_pat
     assert "overall RMS" in text and "board05.png" in text and "not found" in text and f"wrote {out}" in text
     cam = load_camera(out)
     assert abs(cam.K[0, 0] / K_TRUE[0, 0] - 1) < 0.01 and cam.has_distortion
+
+
+def test_cli_calibrate_o_dash_writes_the_camera_file_on_stdout(rendered, tmp_path, capsys, monkeypatch):
+    """`-o -` wrote a file named "-" and said to use it with `--camera -`."""
+    monkeypatch.chdir(tmp_path)
+    paths = write_photos(tmp_path, rendered[0][:5])
+    assert main(["calibrate", *paths, "--board", "9x6", "--square", "0.03", "-o", "-"]) == 0
+    out, err = capsys.readouterr()
+    (tmp_path / "piped.yaml").write_text(out)  # as `signpose calibrate ... -o - > piped.yaml` leaves it
+    assert abs(load_camera(tmp_path / "piped.yaml").K[0, 0] / K_TRUE[0, 0] - 1) < 0.01
+    assert "overall RMS" in err and "wrote" not in err and not (tmp_path / "-").exists()
 
 
 @pytest.mark.skipif(CORES < 2, reason="one core: no second search to run beside the first")

@@ -12,6 +12,7 @@ import struct
 import subprocess
 import sys
 import termios
+import time
 import tomllib
 from pathlib import Path
 
@@ -37,7 +38,8 @@ def signpose(*args, cwd=ROOT):
 
 def check_schema(obj):
     assert set(obj) == {"image", "recognized", "label", "scores", "homography", "corners", "pose", "text_check",
-                        "timing_ms", "reused_stages", "warnings"}
+                        "turned_down", "timing_ms", "reused_stages", "warnings"}
+    assert all(set(t) == {"sign", "source", "text_check"} for t in obj["turned_down"])
     if obj["recognized"]:
         assert len(obj["text_check"]["strips"]) == 6 and obj["text_check"]["weakest"] >= 0.7
     assert obj["reused_stages"] == []  # the CLI keeps no cache between runs
@@ -250,13 +252,14 @@ def test_an_implausible_exif_focal_length_is_said_where_the_field_of_view_is_ass
                 in assumed[0])
 
 
-def on_a_terminal(*args: object, cwd=ROOT) -> tuple[subprocess.Popen, int]:
+def on_a_terminal(*args: object, cwd=ROOT, stdout_too: bool = False) -> tuple[subprocess.Popen, int]:
     """`signpose *args` with its stderr on a pseudo-terminal, as in a shell: the process (stdout
-    piped) and the terminal's end to read stderr from (`terminal_output`)."""
+    piped, or on the terminal too when `stdout_too`) and the terminal's end to read from (`terminal_output`)."""
     terminal, stderr = pty.openpty()
     fcntl.ioctl(stderr, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))  # 24 x 100 (new ones are 0 x 0)
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", *map(str, args)], cwd=cwd, stdout=subprocess.PIPE,
-                            stderr=stderr, text=True, start_new_session=True)
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", *map(str, args)], cwd=cwd,
+                            stdout=stderr if stdout_too else subprocess.PIPE, stderr=stderr, text=True,
+                            start_new_session=True)
     os.close(stderr)
     return proc, terminal
 
@@ -354,6 +357,9 @@ def test_bad_synth_and_evaluate_arguments_are_one_clear_line(tmp_path, args, mes
      "-o/--output: folder '{tmp}/no/such' does not exist"),
     (("calibrate", "{tmp}/missing.png", "--board", "9x6", "--square", 0.03, "-o", "{tmp}"),
      "-o/--output: '{tmp}' is a folder, not a file"),
+    # sysfs takes no new files, even from root: as a read-only file system, refused before the calibration
+    (("calibrate", "{tmp}/missing.png", "--board", "9x6", "--square", 0.03, "-o", "/sys/c.yaml"),
+     "-o/--output: cannot write into folder '/sys'"),
     (("calibrate", "{tmp}/missing.png", "--board", "9x6", "--square", 0, "-o", "{tmp}/c.yaml"),
      "square size must be a positive number"),
     (("calibrate", "{tmp}/missing.png", "--board", "9x6", "--square", "nan", "-o", "{tmp}/c.yaml"),
@@ -369,20 +375,124 @@ def test_bad_paths_ports_and_numbers_are_refused_up_front_in_one_line(tmp_path, 
     assert sorted(p.name for p in tmp_path.iterdir()) == []  # no state, scenes or camera file made
 
 
-def test_ctrl_c_stops_evaluate_and_its_workers_with_one_line(tmp_path):
+def evaluate_under_way(tmp_path: Path) -> tuple[subprocess.Popen, int]:
+    """`signpose evaluate` of 200 images on 2 worker processes, as `on_a_terminal` gives it, once its progress
+    bar has passed 20 images: the workers are measuring."""
     copies = [shutil.copytree(ROOT / "sample_images" / "datasets" / "set3", tmp_path / f"set{i}") for i in range(40)]
-    # Ctrl-C in a terminal reaches the whole process group: the CLI and its worker processes.
     proc, terminal = on_a_terminal("evaluate", *copies, "--workers", "2")
     progress = ""
-    while not re.search(r"\| *([2-9]\d|1\d\d)/200 ", progress):  # 20 images in: the workers are measuring
+    while not re.search(r"\| *([2-9]\d|1\d\d)/200 ", progress):
         char = os.read(terminal, 1).decode(errors="replace")
         assert char, f"evaluate ended before its progress bar moved: {progress}"
         progress += char
+    return proc, terminal
+
+
+def children(pid: int) -> list[int]:
+    """The processes whose parent is process `pid` (read from /proc: the tests do without psutil)."""
+    return [int(entry.name) for entry in Path("/proc").iterdir()
+            if entry.name.isdigit() and (fields := process_status(int(entry.name))) and int(fields[1]) == pid]
+
+
+def process_status(pid: int) -> list[str] | None:
+    """The fields of /proc/PID/stat after the command name (state, parent, ...), None once the process is gone."""
+    try:
+        return (Path("/proc") / str(pid) / "stat").read_text().rpartition(")")[2].split()
+    except OSError:
+        return None
+
+
+def left_running(pids: list[int], within_s: float = 5.0) -> list[int]:
+    """Those of processes `pids` still running after `within_s` seconds (a zombie, ended but not yet reaped, is not),
+    killed so that a failing test leaves none behind."""
+    deadline = time.monotonic() + within_s
+    while (running := [p for p in pids if (process_status(p) or ["Z"])[0] != "Z"]) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    for pid in running:
+        os.kill(pid, signal.SIGKILL)
+    return running
+
+
+def test_ctrl_c_stops_evaluate_and_its_workers_with_one_line(tmp_path):
+    proc, terminal = evaluate_under_way(tmp_path)
+    # Ctrl-C in a terminal reaches the whole process group: the CLI and its worker processes.
     os.killpg(proc.pid, signal.SIGINT)
     proc.communicate(timeout=30)
     err = terminal_output(terminal)
     assert proc.returncode == 130
-    assert "signpose evaluate: interrupted" in err and "Traceback" not in err
+    assert re.search(r"signpose evaluate: interrupted after \d+ of 200 images", err) and "Traceback" not in err
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
+def test_sigterm_or_sighup_stop_evaluate_and_its_workers_as_ctrl_c_does(tmp_path, signum):
+    """`kill PID` (SIGTERM) reaches the CLI alone: it ended at once, and its worker went on measuring,
+    then waited forever to send results nobody read, holding its memory. SIGHUP, the terminal closing,
+    is stopped the same way."""
+    proc, terminal = evaluate_under_way(tmp_path)
+    helpers = children(proc.pid)  # the worker and multiprocessing's resource tracker
+    assert len(helpers) == 2
+    os.kill(proc.pid, signum)
+    proc.wait(timeout=30)
+    assert left_running(helpers) == []
+    out, _ = proc.communicate(timeout=30)
+    err = terminal_output(terminal)
+    assert proc.returncode == 128 + signum
+    said = re.search(rf"signpose evaluate: stopped by {signal.Signals(signum).name} after (\d+) of 200 images", err)
+    assert said and "Traceback" not in err, err
+    # What was measured, labelled as such: rows for the datasets reached and their total.
+    assert out.startswith(f"partial results: the first {said[1]} of 200 images\n")
+    assert next(line.split() for line in out.splitlines() if line.startswith("all "))[1] == said[1]
+    assert "nan" not in out
+
+
+def test_evaluates_worker_ends_with_it_when_it_is_killed_outright(tmp_path):
+    """SIGKILL (or the out-of-memory killer) leaves the CLI no way to stop its workers: they notice."""
+    proc, terminal = evaluate_under_way(tmp_path)
+    helpers = children(proc.pid)
+    proc.kill()
+    proc.wait(timeout=30)
+    assert left_running(helpers) == []
+    os.close(terminal)
+
+
+def test_sigterm_stops_recognize_between_whole_json_lines_and_says_how_many():
+    images = sorted(SCENES.glob("*.jpg")) * 4
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "recognize", *images, "--json"], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    first = proc.stdout.readline()
+    # Sent while an image is being measured: in the microseconds after a line, whether it counts is a toss-up.
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGTERM)
+    rest, err = proc.communicate(timeout=60)
+    lines = [first, *rest.splitlines()]
+    assert [json.loads(line)["image"] for line in lines] == list(map(str, images[:len(lines)]))
+    assert proc.returncode == 143 and "Traceback" not in err
+    assert err.splitlines()[-1] == f"signpose recognize: stopped by SIGTERM after {len(lines)} of {len(images)} images"
+
+
+def test_recognize_json_draws_its_progress_bar_between_whole_lines():
+    """`recognize --json > out.jsonl` drew no bar; and a line printed while the bar was drawn on the same
+    terminal began at the bar's end, in the table as in the JSON."""
+    images = sorted(SCENES.glob("*.jpg"))[:12]
+    proc, terminal = on_a_terminal("recognize", *images, "--json")
+    bar = terminal_output(terminal)  # read as it comes: a terminal nobody reads fills up, and its writer waits
+    assert len(proc.communicate(timeout=300)[0].splitlines()) == 12 and "/12 [" in bar
+    proc, terminal = on_a_terminal("recognize", *images, "--json", stdout_too=True)
+    # What is left of each terminal line: what was written after its last carriage return.
+    shown = [line.rpartition("\r")[2] for line in terminal_output(terminal).split("\r\n")]
+    assert proc.wait(timeout=300) == 0
+    assert [json.loads(line)["image"] for line in shown if line.startswith("{")] == list(map(str, images))
+
+
+def test_recognize_refuses_a_named_pipe_without_waiting_for_a_writer(tmp_path):
+    fifo = tmp_path / "photo.jpg"
+    os.mkfifo(fifo)
+    result = subprocess.run([sys.executable, "-m", "app.cli", "recognize", fifo, SCENES / "scene_002.jpg", "--json"],
+                            cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 1
+    refused, recognised = map(json.loads, result.stdout.splitlines())
+    assert refused == {"image": str(fifo), "error": f"{fifo}: is a named pipe (FIFO), not a regular file"}
+    assert recognised["recognized"]
 
 
 def console_script() -> list[str]:
@@ -392,7 +502,8 @@ def console_script() -> list[str]:
     return [sys.executable, "-c", f"import sys; from {module} import {function}; sys.exit({function}())"]
 
 
-def test_ctrl_c_while_the_command_is_still_starting_is_one_line_and_130():
+@pytest.mark.parametrize("signum, said", [(signal.SIGINT, "interrupted"), (signal.SIGTERM, "stopped by SIGTERM")])
+def test_a_signal_while_the_command_is_still_starting_is_one_line_and_128_plus_it(signum, said):
     # -X importtime writes a line to stderr as each module finishes importing: once numpy has, the
     # CLI's imports (OpenCV, FastAPI, the pipeline: 0.2 s more) are under way.
     command = [sys.executable, "-X", "importtime", *console_script()[1:], "recognize", SCENES / "scene_002.jpg"]
@@ -402,11 +513,11 @@ def test_ctrl_c_while_the_command_is_still_starting_is_one_line_and_130():
             break
     else:
         raise AssertionError("numpy was never imported")
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(signum)
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130, err
-    assert "Traceback" not in err and "KeyboardInterrupt" not in err
-    assert err.splitlines()[-1] in ("signpose: interrupted", "signpose recognize: interrupted")
+    assert proc.returncode == 128 + signum, err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err and "Interrupted" not in err
+    assert re.fullmatch(rf"signpose( recognize)?: {said}( after 0 of 1 images)?", err.splitlines()[-1])
 
 
 def test_a_reader_that_stops_early_ends_the_output_quietly():

@@ -3,6 +3,7 @@ import json
 import math
 import time
 import shutil
+import threading
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -133,6 +134,14 @@ def test_counts_errors_and_confusion(monkeypatch, library):
     assert "set3" in text and "wrong answers" in text and negative in text
 
 
+def test_an_unreadable_image_is_named_once_among_the_wrong_answers(tmp_path, library):
+    (tmp_path / "none").mkdir()
+    bad = tmp_path / "none" / "bad.jpg"
+    bad.write_text("not a jpeg")
+    table = format_table(evaluate([load_dataset(tmp_path)], library, preset("default"), workers=1))
+    assert f"  {bad}: not an image file (use JPEG" in table and table.count(str(bad)) == 1  # not "bad.jpg: bad.jpg: ..."
+
+
 def test_summary_of_nothing_measurable():
     s = summarize([])
     assert s.images == 0 and s.rotation_deg is None and np.isnan(s.accuracy)
@@ -176,6 +185,20 @@ def test_the_image_check_reaches_the_worker_processes(monkeypatch, library, tmp_
                       check_image=functools.partial(check_image_header, max_pixels=5_000_000))
     by_worker = [r.error for r in report.results if r.error != "measured in the calling process"]
     assert by_worker and all("6.0 megapixels, more than the limit of 5" in e for e in by_worker)
+
+
+def test_stopping_early_reads_what_the_workers_still_send(monkeypatch, library):
+    """A worker stopping with a result that waited for room in the pipe never stopped, as nobody read
+    the pipe any more, and the pool waited for it forever: here every result is larger than a pipe holds."""
+    image = sorted(SET3.glob("*.jpg"))[0]
+    jobs = [("big", Sample(image, None, params={"padding": "x" * 300_000}), None)] * 40
+    monkeypatch.setattr(evaluate_module, "_measure", _measured_here)  # the workers run the real one
+    measured = evaluate_module._measure_all(jobs, library, preset("default"), None, workers=2)
+    next(r for r in measured if r.error != "measured in the calling process")  # the worker is measuring
+    closing = threading.Thread(target=measured.close, daemon=True)  # as a Ctrl-C or a `closing` would
+    closing.start()
+    closing.join(30)
+    assert not closing.is_alive(), "the workers never stopped"
 
 
 def test_a_worker_error_reaches_the_caller(monkeypatch, library):

@@ -1,14 +1,18 @@
 """Decoding input images: transparency shown over white, and errors that say what is wrong."""
 
 import io
+import os
 import re
+import socket
+import threading
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 from PIL import Image
 
-from pipeline.image import ImageError, decode_image
+from pipeline.image import ImageError, decode_image, read_file
 from scene_images import HEIC_START, scrambled_scene
 
 # Black text on a transparent ground, as sign artwork is often drawn: the ground's colour
@@ -173,3 +177,37 @@ def test_heif_images_say_what_they_are_and_how_to_get_a_jpeg(name):
     with pytest.raises(ImageError) as info:
         decode_image(data, name)
     assert str(info.value).startswith(message)
+
+
+def refusal(path: Path) -> str:
+    """What `read_file` raises for `path`, read on a thread of its own: a read that never ends fails the test
+    instead of hanging it."""
+    outcome = []
+
+    def read() -> None:
+        try:
+            read_file(path)
+            outcome.append("read")
+        except Exception as exc:  # whatever it is, the assertion shows it
+            outcome.append(f"{type(exc).__name__}: {exc}")
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    reader.join(10)
+    assert outcome, f"reading {path} never ended"
+    return outcome[0]
+
+
+def test_read_file_refuses_what_is_not_a_regular_file_without_opening_it(tmp_path, monkeypatch):
+    """A named pipe called photo.jpg was opened, and reading it waited for a writer forever."""
+    monkeypatch.chdir(tmp_path)  # a socket's path must be short: bound by its name in this folder
+    os.mkfifo("photo.jpg")
+    with socket.socket(socket.AF_UNIX) as listening:
+        listening.bind("socket.jpg")
+        (tmp_path / "notes.txt").write_text("a file, not a folder")
+        for path, kind in [(tmp_path / "photo.jpg", "is a named pipe (FIFO), not a regular file"),
+                           (tmp_path / "socket.jpg", "is a socket, not a regular file"),
+                           (Path(os.devnull), "is a device, not a regular file"),
+                           (tmp_path, "is a directory, not a regular file"),
+                           (tmp_path / "notes.txt" / "photo.jpg", "Not a directory")]:
+            assert refusal(path) == f"ImageError: {path}: {kind}"
