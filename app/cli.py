@@ -430,8 +430,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--token", help="access token for every request (default: $SIGNPOSE_TOKEN; beyond loopback "
                                    "without either, a random one is made and printed)")
     p.add_argument("--port", type=port_number, default=8000, help="port, 0 to 65535 (default 8000; 0: any free port)")
-    p.add_argument("--library", help="sign library folder, copied into the state directory "
-                                     "(default: the state's library; on a fresh state the samples)")
+    p.add_argument("--library", help="sign library folder, read at every start: copied into the state directory "
+                                     "when it is new or has changed, keeping signs added in the page (default: the "
+                                     "state's library; on a fresh state the samples)")
     p.add_argument("--camera", type=file_path,
                    help="camera file; it becomes the state's camera, and one the state held that differs (e.g. "
                         "calibrated in the page) is kept as camera.replaced-<UTC time>.json in the state directory "
