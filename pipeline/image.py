@@ -226,6 +226,13 @@ def read_image(path: str | Path) -> np.ndarray:
     return decode_image(read_file(path), str(path))
 
 
+def inside_image(x: np.ndarray, y: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """Where the points (x, y) px (arrays of one shape) lie in an image of `shape` (H, W[, C]), from
+    the first pixel's centre to the last's: what a bilinear read sees without a border. Bool, shaped as x."""
+    h, w = shape[:2]
+    return (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)
+
+
 def to_gray(image: np.ndarray) -> np.ndarray:
     """(H, W, 3) BGR or (H, W) gray -> (H, W) uint8 gray."""
     return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)

@@ -29,6 +29,7 @@ import numpy as np
 
 from .camera import Camera
 from .homography import normalize_scale
+from .image import inside_image
 from .library import LibrarySign
 from .plaque import MAX_DIRECT_WIDTH_PX, SHRUNK_WIDTH_PX, quad_width, seen_grid, shrunk_view, sign_corners, sign_to_quad
 from .pose import distort_pixels, undistort_pixels
@@ -190,7 +191,7 @@ def _edge_points(gray: np.ndarray, corners: np.ndarray, half: float,
     x, y = ((base[:, i, None, None] + along * tangent[:, i, None, None]) + offsets * normal[:, i, None, None]
             for i in (0, 1))
     h, w = gray.shape
-    inside = ((x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)).reshape(len(x), -1).all(axis=1)
+    inside = inside_image(x, y, gray.shape).reshape(len(x), -1).all(axis=1)
     if not inside.any():
         return np.zeros((0, 2)), np.zeros(0, dtype=int)
     x, y, base, normal, side = x[inside], y[inside], base[inside], normal[inside], side[inside]
@@ -313,8 +314,7 @@ def _inside_fraction(a: np.ndarray, b: np.ndarray, shape: tuple[int, ...], camer
     pts = a + np.linspace(0.0, 1.0, 33)[:, None] * (b - a)
     if camera is not None:
         pts = distort_pixels(pts, camera)
-    h, w = shape[:2]
-    return float(np.mean((pts[:, 0] >= 0) & (pts[:, 0] <= w - 1) & (pts[:, 1] >= 0) & (pts[:, 1] <= h - 1)))
+    return float(np.mean(inside_image(pts[:, 0], pts[:, 1], shape)))
 
 
 def outline_fit(R: np.ndarray, t: np.ndarray, outline: Outline, sign: LibrarySign,

@@ -22,8 +22,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .library import Library, LibrarySign
 from .camera import Camera
+from .image import inside_image
+from .library import Library, LibrarySign
 from .plaque import COMPARE_BLUR_SIGMA, quad_width, shrunk_view, sign_corners, sign_to_quad
 from .pose import distort_pixels, undistort_pixels
 
@@ -139,8 +140,7 @@ def rectify_text(gray: np.ndarray, sign: LibrarySign, template: TextTemplate, H:
     if camera is not None:
         at = distort_pixels(at, camera)
     at = at.reshape(h, w, 2)
-    seen = ((at[..., 0] >= 0) & (at[..., 0] <= gray.shape[1] - 1) & (at[..., 1] >= 0)
-            & (at[..., 1] <= gray.shape[0] - 1))
+    seen = inside_image(at[..., 0], at[..., 1], gray.shape)
     # The box of every point read (a lens bows the sides outward, beyond the corners' box), and
     # a pixel more for the bilinear reads; cv2's, as numpy's min and max took half the check's time.
     bx, by, bw, bh = cv2.boundingRect(at.reshape(-1, 1, 2).astype(np.float32))
