@@ -568,8 +568,16 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         timing["pose"] += (time.perf_counter() - t0) * 1e3
         return Refined(H, src, dst, ecc, outline, sign, text, notes)
 
-    attempts: list[Attempt] = []
     turned_down: list[TurnedDown] = []
+
+    def turn_down(refined: Refined, source: str) -> str | None:
+        """Why `refined`, found in `source`, is turned down for its text (kept in `turned_down`), or None."""
+        why = refined.text_problem(settings.min_text_correlation)
+        if why is not None:
+            turned_down.append(TurnedDown(refined.sign.id, source, refined.H, refined.text))
+        return why
+
+    attempts: list[Attempt] = []
     refined = None
     # A winner whose text is not its sign's is turned down, and the search goes on: the sign may
     # be elsewhere in the image.
@@ -578,10 +586,9 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         attempts.append(attempt)
         if attempt.winner is not None:
             refined = refined_winner(attempt, None)
-            why = refined.text_problem(settings.min_text_correlation)
+            why = turn_down(refined, source)
             if why is None:
                 break
-            turned_down.append(TurnedDown(refined.sign.id, source, refined.H, refined.text))
             attempt.scores[attempt.winner].reason, attempt.winner, refined = why, None, None
     chosen = next((a for a in attempts if a.winner is not None), None)
     if chosen is None and attempts:
@@ -599,9 +606,8 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         timing["match"] += (time.perf_counter() - t0) * 1e3 - quads_ms
         if plaque is not None and plaque.sign is not None:
             refined = refined_winner(None, plaque)
-            why = refined.text_problem(settings.min_text_correlation)
+            why = turn_down(refined, "plaque fallback")
             if why is not None:
-                turned_down.append(TurnedDown(refined.sign.id, "plaque fallback", refined.H, refined.text))
                 plaque, refined = dataclasses.replace(plaque, sign=None, H=None, reason=why), None
             else:
                 warnings.append(f"recognised by the plaque fallback (correlation {plaque.correlation:.2f}): "
