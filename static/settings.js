@@ -63,7 +63,7 @@ function numericControl(entry, id, change) {
   num.addEventListener("focusout", () => {
     typing = false;
     // Left unchanged after typing (no change event): show the value in use again.
-    if (!(entry.name in pending) && !inflight.has(entry.name)) write(state.settings[entry.name]);
+    if (!held(entry.name)) write(state.settings[entry.name]);
   });
   num.addEventListener("change", () => {
     typing = false;
@@ -165,6 +165,12 @@ function markChanged(name, value) {
   c.row.classList.toggle("changed", value !== c.entry.default);
 }
 
+/** Whether setting `name`'s control holds a value of the person's that server updates must not
+ *  overwrite: an edit not yet sent or answered, a slider being dragged, a number being typed. */
+function held(name) {
+  return name in pending || inflight.has(name) || dragging === name || Boolean(controls.get(name).typing?.());
+}
+
 /** Show server settings `{version, settings}`; `force` also overwrites controls with local edits. */
 export function apply(payload, force = false) {
   if (!payload) return;
@@ -174,8 +180,7 @@ export function apply(payload, force = false) {
   if (payload.version !== undefined) state.version = payload.version;
   for (const [name, c] of controls) {
     if (!(name in settings)) continue;
-    const busy = name in pending || inflight.has(name) || dragging === name || c.typing?.();
-    if (busy && !force) continue;
+    if (held(name) && !force) continue;
     c.write(settings[name]);
     markChanged(name, settings[name]);
   }
