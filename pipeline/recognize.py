@@ -619,6 +619,11 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         H, src, dst, ecc, outline, sign, text = (refined.H, refined.src, refined.dst, refined.ecc, refined.outline,
                                                  refined.sign, refined.text)
         warnings += refined.notes
+        if text is not None and text.seen < len(text.strips):
+            # The check cannot tell the sign from a plaque sharing the words seen: "مكتب رئيس القسم"
+            # with only رئيس in the image reads as رئيس الأمن.
+            warnings.append(f"only {text.seen} of the {len(text.strips)} strips of {sign.id}'s text are in the image: "
+                            "a plaque sharing the words seen would read the same; check the rest of it")
         measured_by = ("outline" if outline is not None else
                        "features" if ecc is None and not no_feature_winner(chosen) else "dense")
         corner_sigma = CORNER_SIGMA_PX[measured_by]

@@ -46,6 +46,11 @@ class TextCheck:
     strips: tuple[float | None, ...]
 
     @property
+    def seen(self) -> int:
+        """How many strips were seen in the image."""
+        return sum(c is not None for c in self.strips)
+
+    @property
     def weakest(self) -> float | None:
         """The lowest correlation of the strips seen, None when none was seen."""
         seen = [c for c in self.strips if c is not None]

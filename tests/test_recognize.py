@@ -194,6 +194,25 @@ def test_a_sign_wider_than_twice_the_frame_is_answered(library):
                for w in rec.warnings), rec.warnings
 
 
+def test_a_sign_read_from_part_of_its_text_says_so(library):
+    """A plaque cut by the frame is judged on the text in view: مكتب رئيس القسم with only رئيس in
+    the image reads as رئيس الأمن, as the sign itself cut there does. Both were answered with no
+    word of it; the answer now says how much of the text it rests on."""
+    def seen_from(x0: float, plaque) -> object:
+        at = np.array([[x0, 150], [x0 + 500, 160], [x0 + 496, 360], [x0 + 4, 350]], float)
+        return recognize(like_a_camera(render_plaque(plaque, at, shaded_wall(3), 0.92), 0.7, 3), library,
+                         preset("default"))
+
+    sign = library["chief_of_security"]
+    partial = "of the 6 strips of chief_of_security's text are in the image"
+    whole = seen_from(100, sign)
+    assert whole.label == sign.id and not any(partial in w for w in whole.warnings), whole.warnings
+    for plaque in (sign, plaque_of("مكتب رئيس القسم")):
+        rec = seen_from(-200, plaque)
+        assert rec.label == sign.id and rec.text_check.seen == 3, rec.text_check
+        assert f"only 3 {partial}" in " ".join(rec.warnings), rec.warnings
+
+
 def test_a_frame_larger_than_max_search_size_is_searched_downscaled(library):
     """A 12 MP photo searched whole at full size took 2.8 GB in SIFT; above max_search_size
     the frame is downscaled for detection and the answer still comes in full-image pixels."""
