@@ -283,6 +283,11 @@ def load_library(root: str | Path = SAMPLE_LIBRARY) -> Library:
         except ImageError as exc:
             raise LibraryError(f"{where}: cannot read its image: {exc}") from None
         signs.append(make_sign(entry, image, where))
+        # as the page refuses to add such a copy, and for the same reason
+        if alike := alike_sign(image, signs[:-1]):
+            raise LibraryError(f"{where} ({entry['id']!r}) cannot be told apart from {alike[0].id!r} (likeness "
+                               f"{alike[1]:.2f}; from {MAX_LIKENESS} on features score both alike and neither is "
+                               "recognised, or the wrong one is): keep one of them in library.json")
     return Library(root=root, signs=signs)
 
 

@@ -51,6 +51,19 @@ def test_a_library_file_with_a_size_in_centimetres_is_refused(tmp_path):
         load_library(tmp_path / "library")
 
 
+def test_a_library_file_listing_a_copy_of_a_sign_is_refused_naming_both(tmp_path):
+    """The page refused a copy of a sign under another id; library.json took it, and neither copy
+    was recognised again (their margin over each other is nil)."""
+    shutil.copytree(SAMPLE_LIBRARY, tmp_path / "library")
+    meta = tmp_path / "library" / "library.json"
+    signs = json.loads(meta.read_text(encoding="utf-8"))["signs"]
+    signs.append(signs[0] | {"id": "entrance"})
+    meta.write_text(json.dumps({"signs": signs}), encoding="utf-8")
+    with pytest.raises(LibraryError, match=rf"sign #3 \('entrance'\) cannot be told apart from '{signs[0]['id']}' "
+                                           r"\(likeness 1\.00; .*keep one of them"):
+        load_library(tmp_path / "library")
+
+
 def copies(image: np.ndarray) -> dict[str, np.ndarray]:
     """`image` as a team might add it again: re-encoded, at another size, turned, with a margin, at a slant."""
     h, w = image.shape
