@@ -195,6 +195,9 @@ def cmd_evaluate(args) -> int:
     from pipeline.evaluate import ImageResult, check_labels, format_table, load_dataset, measure, report_on
 
     library, settings, camera = load_inputs(args)
+    # This process measures images too (all of them on one worker): evaluating 200 scenes took 6.8 s without it
+    # and 6.2 s with it on one worker, 4.4 s and 4.1 s on two.
+    keep_freed_memory()
     roots = [Path(d).resolve() for d in args.datasets]
     if len(set(roots)) < len(roots):
         raise CliError("a dataset folder is given twice")

@@ -25,13 +25,16 @@ import math
 import multiprocessing
 import multiprocessing.connection
 import os
+import pickle
 import queue
 import signal
 import threading
+import traceback
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from contextlib import closing
 from dataclasses import dataclass, field
+from multiprocessing.process import BaseProcess
 from multiprocessing.sharedctypes import Synchronized
 from pathlib import Path
 
@@ -315,11 +318,6 @@ def _measure(job: Job, library: Library, settings: Settings, check_image: ImageC
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
 _TRIM_BYTES, _MMAP_BYTES = 128 << 20, 32 << 20  # 32 MB: glibc's largest mmap threshold
 
-# What `_start_worker` hands this worker process: library, settings, the image check, the jobs, the
-# shared index of the next job to take, and the queue that carries (job index, result) back.
-_worker_state: tuple[Library, Settings, ImageCheck | None, list[Job], Synchronized, multiprocessing.Queue] | None = None
-
-
 def keep_freed_memory() -> None:
     """Have glibc keep freed memory for reuse instead of returning it to the system at once.
 
@@ -352,17 +350,46 @@ def _glibc(name: str):
     return getattr(ctypes.CDLL(None), name, None)
 
 
-def _start_worker(library: Library, settings: Settings, check_image: ImageCheck | None, jobs: list[Job],
-                  next_job: Synchronized, done: multiprocessing.Queue) -> None:
-    """Process-pool initializer. One OpenCV thread per worker: the pool already fills the cores,
-    and more threads than cores only make them wait for each other. Ctrl-C reaches the whole
-    process group: the calling process handles it and stops the workers after their image."""
-    global _worker_state
+# What a worker process is handed once the calling process has the library's features: the library, the
+# settings, the image check and the jobs, pickled; None when the calling process stopped before that.
+Work = tuple[Library, Settings, ImageCheck | None, list[Job]]
+
+
+@dataclass(eq=False)
+class _Failed:
+    """An error raised in a worker process and its traceback there, which a pickled exception loses."""
+
+    error: Exception
+    traceback: str
+
+
+class WorkerTraceback(Exception):
+    """Where in the worker process an error that `evaluate` raises again came from: the error's cause."""
+
+
+def _work_through_jobs(next_job: Synchronized, work: multiprocessing.Queue, done: multiprocessing.Queue) -> None:
+    """A worker process's whole life: wait for its `Work`, take jobs until none are left, sending each result
+    (or the error that stopped it) back at once, and end.
+
+    One OpenCV thread per worker: the processes already fill the cores, and more threads than cores only
+    make them wait for each other. Ctrl-C reaches the whole process group: the calling process handles it
+    and stops the workers after their image. Ends by os._exit once its results are in the pipe: tearing the
+    interpreter down (OpenCV, numpy, the pipeline's buffers) took 30 ms that the calling process waited for.
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     threading.Thread(target=_exit_with_parent, name="exit with parent", daemon=True).start()
     cv2.setNumThreads(1)
     keep_freed_memory()
-    _worker_state = library, settings, check_image, jobs, next_job, done
+    try:
+        if (given := pickle.loads(work.get())) is not None:
+            library, settings, check_image, jobs = given
+            while (index := _take(next_job)) < len(jobs):
+                done.put((index, _measure(jobs[index], library, settings, check_image)))
+    except Exception as exc:
+        done.put(_Failed(exc, traceback.format_exc()))
+    done.close()
+    done.join_thread()
+    os._exit(0)
 
 
 def _exit_with_parent() -> None:
@@ -381,18 +408,6 @@ def _take(next_job: Synchronized) -> int:
     return index
 
 
-def _work_through_jobs() -> None:
-    """A worker's whole task: take jobs until none are left, sending each result back at once."""
-    library, settings, check_image, jobs, next_job, done = _worker_state
-    try:
-        while (index := _take(next_job)) < len(jobs):
-            done.put((index, _measure(jobs[index], library, settings, check_image)))
-    finally:
-        # Flushed before the task ends, so every result is readable once the future is done.
-        done.close()
-        done.join_thread()
-
-
 def _measure_all(jobs: list[Job], library: Library, settings: Settings, check_image: ImageCheck | None,
                  workers: int) -> Iterator[ImageResult]:
     """`_measure` of every (dataset name, sample, camera) job, in order, on `workers` processes.
@@ -407,47 +422,70 @@ def _measure_all(jobs: list[Job], library: Library, settings: Settings, check_im
     if workers <= 1 or len(jobs) <= 1:
         yield from (_measure(job, library, settings, check_image) for job in jobs)
         return
-    library_features(library, settings)  # computed here once, pickled to every worker with the library
     context = multiprocessing.get_context("spawn")
-    next_job, done = context.Value("q", 0), context.Queue()
+    next_job, work, done = context.Value("q", 0), context.Queue(), context.Queue()
+    work.cancel_join_thread()  # a worker killed before it read its work: exiting must not wait to write it
+    helpers: list[BaseProcess] = []
     finished: dict[int, ImageResult] = {}
     next_result = 0
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)  # like the workers: one OpenCV thread per process
-    helpers = min(workers, len(jobs)) - 1
-    tasks: list[Future] = []
     try:
-        with ProcessPoolExecutor(helpers, context, initializer=_start_worker,
-                                 initargs=(library, settings, check_image, jobs, next_job, done)) as pool:
-            try:
-                tasks.extend(pool.submit(_work_through_jobs) for _ in range(helpers))
-                while next_result < len(jobs):
-                    if (index := _take(next_job)) < len(jobs):
-                        finished[index] = _measure(jobs[index], library, settings, check_image)
-                        finished.update(_receive(done, tasks, wait_s=0))
-                    else:
-                        finished.update(_receive(done, tasks, wait_s=0.1))
-                    while next_result in finished:
-                        yield finished.pop(next_result)
-                        next_result += 1
-            finally:  # done, interrupted or closed early
-                _stop_workers(tasks, next_job, len(jobs), done)
-    finally:
+        _start_workers(helpers, min(workers, len(jobs)) - 1, context, next_job, work, done,
+                       (library, settings, check_image, jobs))
+        while next_result < len(jobs):
+            if (index := _take(next_job)) < len(jobs):
+                finished[index] = _measure(jobs[index], library, settings, check_image)
+                finished.update(_receive(done, helpers, wait_s=0))
+            else:
+                finished.update(_receive(done, helpers, wait_s=0.1))
+            while next_result in finished:
+                yield finished.pop(next_result)
+                next_result += 1
+    finally:  # done, interrupted or closed early
+        _stop_workers(helpers, next_job, len(jobs), done)
         cv2.setNumThreads(threads)
 
 
-def _stop_workers(tasks: list[Future], next_job: Synchronized, jobs: int, done: multiprocessing.Queue) -> None:
-    """Have the workers running `tasks` stop after their image, by leaving no job of the `jobs` to take, and wait
-    until they have, reading and dropping the results they still send: one whose result waits for room in a
-    full pipe would never stop, and the pool would wait for it forever."""
+def _start_workers(helpers: list[BaseProcess], count: int, context: multiprocessing.context.SpawnContext,
+                   next_job: Synchronized, work: multiprocessing.Queue, done: multiprocessing.Queue,
+                   given: Work) -> None:
+    """Start `count` worker processes into `helpers`, compute the library's features and hand each the `given` work.
+
+    Started first: a worker takes about 0.3 s to import numpy, OpenCV and the pipeline, which it does
+    while this process computes the features (0.1-0.3 s for the sample library when not cached). The
+    work goes on a queue, not in the process's arguments: those are written to the new process before
+    `start` returns, and the library with its features (1.5 MB) filled the pipe, so this process sat
+    idle until the worker had imported everything. Pickled here, not by the queue's thread: this process
+    goes on to fill the library's caches while that thread would be pickling them. Interrupted or failing
+    before the work is handed out, each worker is told there is none: it would wait for it forever.
+    """
+    handed = pickle.dumps(None)
+    try:
+        for _ in range(count):
+            helper = context.Process(target=_work_through_jobs, args=(next_job, work, done), name="evaluate worker")
+            helper.start()
+            helpers.append(helper)
+        library_features(given[0], given[1])  # computed here once, pickled to every worker with the library
+        handed = pickle.dumps(given)
+    finally:
+        for _ in helpers:
+            work.put(handed)
+
+
+def _stop_workers(helpers: list[BaseProcess], next_job: Synchronized, jobs: int, done: multiprocessing.Queue) -> None:
+    """Have the worker processes `helpers` stop after their image, by leaving no job of the `jobs` to take, and wait
+    until they have ended, reading and dropping the results they still send: one whose result waits for room in
+    a full pipe would never end."""
     with next_job.get_lock():
         next_job.value = jobs
-    while not all(task.done() for task in tasks):
-        _read_results(done, wait_s=0.1)
+    while running := [helper.sentinel for helper in helpers if helper.is_alive()]:
+        multiprocessing.connection.wait(running, timeout=0.1)
+        _read_results(done, wait_s=0)
 
 
-def _read_results(done: multiprocessing.Queue, wait_s: float) -> list[tuple[int, ImageResult]]:
-    """The results the workers have sent, waiting up to `wait_s` for the first (0: not at all)."""
+def _read_results(done: multiprocessing.Queue, wait_s: float) -> list[tuple[int, ImageResult] | _Failed]:
+    """What the workers have sent, waiting up to `wait_s` for the first (0: not at all)."""
     received = []
     try:
         received.append(done.get(timeout=wait_s) if wait_s else done.get_nowait())
@@ -458,15 +496,16 @@ def _read_results(done: multiprocessing.Queue, wait_s: float) -> list[tuple[int,
     return received
 
 
-def _receive(done: multiprocessing.Queue, tasks: list[Future], wait_s: float) -> list[tuple[int, ImageResult]]:
-    """The results the workers have sent, waiting up to `wait_s` for the first; raises a worker's error,
-    or BrokenProcessPool if one died, once they have all stopped with results still missing."""
-    stopped = all(task.done() for task in tasks)  # before reading: a stopped worker has sent everything
+def _receive(done: multiprocessing.Queue, helpers: list[BaseProcess], wait_s: float) -> list[tuple[int, ImageResult]]:
+    """The results the worker processes `helpers` have sent, waiting up to `wait_s` for the first; raises a worker's
+    error, or BrokenProcessPool if they have all ended with results still missing (one was killed: out of memory?)."""
+    ended = not any(helper.is_alive() for helper in helpers)  # before reading: an ended worker has sent everything
     received = _read_results(done, wait_s)
-    if stopped and not received and wait_s:
-        for task in tasks:
-            task.result()
-        raise RuntimeError("evaluate's worker processes stopped before measuring every image")
+    for item in received:
+        if isinstance(item, _Failed):
+            raise item.error from WorkerTraceback(item.traceback)
+    if ended and not received and wait_s:
+        raise BrokenProcessPool("evaluate's worker processes stopped before measuring every image")
     return received
 
 

@@ -1,9 +1,13 @@
 import functools
 import json
 import math
+import multiprocessing
+import os
+import signal
 import time
 import shutil
 import threading
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -201,12 +205,41 @@ def test_stopping_early_reads_what_the_workers_still_send(monkeypatch, library):
     assert not closing.is_alive(), "the workers never stopped"
 
 
-def test_a_worker_error_reaches_the_caller(monkeypatch, library):
+def test_a_worker_error_reaches_the_caller_with_where_it_came_from(monkeypatch, library):
     broken = Sample(path=None, label=None)  # the spawned worker's real _measure raises on it
     dataset = Dataset("broken", SET3, [broken] * 40)
     monkeypatch.setattr(evaluate_module, "_measure", _measured_here)
-    with pytest.raises(TypeError):
+    with pytest.raises(TypeError) as raised:
         evaluate([dataset], library, preset("default"), workers=2)
+    assert isinstance(raised.value.__cause__, evaluate_module.WorkerTraceback)
+    assert "in _measure" in str(raised.value.__cause__)
+
+
+def test_workers_waiting_for_their_work_end_when_the_caller_fails_before_handing_it_out(monkeypatch, library):
+    def fail(library, settings):
+        raise RuntimeError("no features")
+
+    monkeypatch.setattr(evaluate_module, "library_features", fail)  # the workers are started before it runs
+    with pytest.raises(RuntimeError, match="no features"):
+        evaluate([load_dataset(SET3)], library, preset("default"), workers=2)
+    assert not multiprocessing.active_children()
+
+
+def _slow_check(data: bytes, name: str) -> None:
+    """An image check that keeps a worker on each image long enough to be killed in the middle of one."""
+    time.sleep(0.2)
+
+
+def test_a_worker_killed_outright_breaks_the_pool_instead_of_leaving_a_wait(monkeypatch, library):
+    dataset = Dataset("many", SET3, [Sample(sorted(SET3.glob("*.jpg"))[0], None)] * 40)
+    monkeypatch.setattr(evaluate_module, "_measure", _measured_here)  # the worker runs the real one
+    measured = evaluate_module._measure_all([("many", s, None) for s in dataset.samples], library,
+                                            preset("default"), _slow_check, workers=2)
+    next(r for r in measured if r.error != "measured in the calling process")  # the worker is measuring
+    [worker] = multiprocessing.active_children()
+    os.kill(worker.pid, signal.SIGKILL)  # as the OOM killer does, in the middle of its next image
+    with pytest.raises(BrokenProcessPool):
+        list(measured)
 
 
 def test_a_failure_inside_the_pipeline_is_that_images_error(monkeypatch, library):
