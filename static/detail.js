@@ -270,6 +270,11 @@ async function calibrate() {
 
 function renderCalib() {
   const out = $("#calib-result");
+  const typed = $("#calib-box");
+  // Results arrive while a box is being typed (a re-run, a settings change): the typing stays.
+  if (document.activeElement !== typed || typed.value === typed.dataset.entered) {
+    showBox(calib?.rect ?? boxes.get(detail?.id));
+  }
   $("#histogram").hidden = !calib?.histogram;
   if (!calib?.histogram) {
     fill(out, calib?.error ? el("span.warn", {}, calib.error) : null);
@@ -278,7 +283,7 @@ function renderCalib() {
   drawHistogram($("#histogram"), calib, state.settings);
   const [x0, y0, x1, y1] = calib.rect ?? [];
   const where = boxes.has(detail.id) ? `your box ${x1 - x0}×${y1 - y0} px`
-    : `${calib.source} (drag a box on the sign to measure another region)`;
+    : `${calib.source} (drag or type a box to measure another region)`;
   const suggestion = calib.suggested_threshold;
   fill(out,
     el("span.calib-where", {}, where),
@@ -292,6 +297,38 @@ function renderCalib() {
       onclick: () => setSetting("threshold", suggestion),
     }, "apply"),
     calib.warning ? el("span.warn", {}, calib.warning) : null);
+}
+
+/** Show `rect` [x0, y0, x1, y1] image px (or none) in the box field, with no problem. */
+function showBox(rect) {
+  const input = $("#calib-box");
+  input.value = input.dataset.entered = rect ? rect.join(", ") : "";
+  input.setCustomValidity("");
+  $("#calib-box-problem").hidden = true;
+}
+
+/** The box typed in `input` ("x0, y0, x1, y1" image px) measured, or what is wrong with it said beside it;
+ *  an empty one goes back to the region the pipeline found. The keyboard's way to what a drag does. */
+function typeBox(input) {
+  const text = input.value.trim();
+  const numbers = text.split(/[\s,;]+/).filter(Boolean).map(Number);
+  const [x0, y0, x1, y1] = numbers;
+  let problem = null;
+  if (text && (numbers.length !== 4 || !numbers.every(Number.isInteger))) {
+    problem = "type four whole numbers: x0, y0, x1, y1 (image px)";
+  } else if (text && !(0 <= x0 && x0 < x1 && x1 <= detail.width && 0 <= y0 && y0 < y1 && y1 <= detail.height)) {
+    problem = `a box inside the ${detail.width}×${detail.height} px image, x0 < x1 and y0 < y1`;
+  }
+  input.setCustomValidity(problem ?? "");
+  const said = $("#calib-box-problem");
+  said.textContent = problem ?? "";
+  said.hidden = !problem;
+  if (problem) return;  // kept, with what is wrong with it, until it is mended
+  input.dataset.entered = input.value;
+  if (text) boxes.set(detail.id, [x0, y0, x1, y1]);
+  else boxes.delete(detail.id);
+  renderBox();
+  calibrate();
 }
 
 function bindDrag() {
@@ -506,6 +543,7 @@ export function initDetail() {
   textCheck.fig.classList.add("text-stage");
   fill($("#stages"), ...stages.map((s) => s.figure.fig), textCheck.fig);
   bindDrag();
+  $("#calib-box").addEventListener("change", (e) => typeBox(e.target));
   bindChartClicks();
   fillSweepParams();
   $("#run-sweep").onclick = () => runSweep();

@@ -706,6 +706,35 @@ def test_threshold_calibration_and_sweep(page, api):
     assert "labelled" in page.inner_text("#sweep-info")
 
 
+def test_a_box_typed_is_measured_as_a_dragged_one(page, api):
+    """The box to measure could only be dragged with a mouse: typed, it is measured the same, a
+    wrong one is said beside it, and clearing it goes back to the region the pipeline found."""
+    image_id = uploaded_scene(api)
+    open_detail(page, image_id)
+    page.wait_for_selector("#histogram:not([hidden])")
+    found = page.input_value("#calib-box")
+    assert len(found.split(", ")) == 4, found  # the region the pipeline found, in numbers
+    page.fill("#calib-box", "100, 80, 300, 200")
+    page.press("#calib-box", "Enter")
+    page.locator("#calib-result", has_text="your box 200×120 px").wait_for()
+    expected = api.post("/api/calibrate/threshold", json={"image_id": image_id, "rect": [100, 80, 300, 200]}).json()
+    assert float(page.inner_text("#calib-result b.suggested")) == pytest.approx(expected["suggested_threshold"],
+                                                                               abs=1e-3)
+    assert page.is_visible("#drag-rect")
+    page.fill("#calib-box", "100, 80, 30")
+    page.press("#calib-box", "Enter")
+    page.locator("#calib-box-problem", has_text="type four whole numbers").wait_for()
+    page.fill("#calib-box", "100, 80, 9000, 200")
+    page.press("#calib-box", "Enter")
+    page.locator("#calib-box-problem", has_text="a box inside the 640×480 px image").wait_for()
+    assert "your box 200×120 px" in page.inner_text("#calib-result")  # the last good one still measured
+    page.fill("#calib-box", "")
+    page.press("#calib-box", "Enter")
+    page.wait_for_function("f => document.querySelector('#calib-box').value === f && "
+                           "!document.querySelector('#calib-result').textContent.includes('your box')", arg=found)
+    assert not page.is_visible("#drag-rect")
+
+
 def test_sweep_of_an_integer_setting_shows_whole_numbers(page, api):
     open_detail(page, uploaded_scene(api))
     page.select_option("#sweep-param", "min_matches")
