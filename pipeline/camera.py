@@ -30,6 +30,11 @@ ASSUMED_HFOV_RANGE_DEG = (10.0, 140.0)
 # A field of view under 0.1° is a telescope's: even the longest zoom a UAV carries sees several times
 # wider. It is held against the image's longer side, as a crop to a thin strip is still a camera.
 MIN_FOV_DEG = 0.1
+# A pinhole camera's field of view across the image stays under 180°; the widest rectilinear
+# lenses see about 130°, and a fisheye's calibrated fx (with its strong distortion) still puts
+# its pinhole field under 150°. Beyond MAX_FOV_DEG a focal length was typed in mm (4.2 for a
+# phone's lens, 1.4 cm from the sign instead of 1.4 m) or as a tiny number.
+MAX_FOV_DEG = 170.0
 # Without an image size, focal lengths and the principal point can only be held against a number:
 # 1e6 px is 0.1° across 1745 px, and far beyond any sensor (the widest aerial cameras have under
 # 30 000 px). A file for a longer lens gives its image size; for_image checks again against the image.
@@ -116,7 +121,7 @@ class Camera:
             raise CameraError("camera matrix has non-finite values")
         if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
             raise CameraError("camera matrix must have the form [[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
-        problem = _focal_length_problem(K[0, 0], K[1, 1], self.width, self.height)
+        problem = _focal_length_problem(K, self.width, self.height)
         if problem:
             raise CameraError(problem)
         # Sensor rows and columns are perpendicular to a fraction of a degree; |s| > fx is over 45° off.
@@ -186,7 +191,7 @@ class Camera:
         may be meant for any resolution, and MAX_UNSIZED_PX already keeps the arithmetic sound.
         """
         warnings = []
-        problem = _focal_length_problem(self.K[0, 0], self.K[1, 1], width, height)
+        problem = _focal_length_problem(self.K, width, height)
         if problem:
             warnings.append(f"the camera has no image size and does not fit this {width}x{height} px image: "
                             f"{problem}; the pose is meaningless")
@@ -204,11 +209,25 @@ class Camera:
                 "width": self.width, "height": self.height, "source": self.source}
 
 
-def _focal_length_problem(fx: float, fy: float, width: int | None, height: int | None) -> str | None:
-    """Why focal lengths `fx`, `fy` (px) are no real camera's for an image of `width` x `height` px
-    (None: not known): not positive, longer than MIN_FOV_DEG allows, or far from square; None if they are fine."""
+def _field_of_view_deg(f: float, c: float, side: float | None) -> float:
+    """Degrees a pinhole camera of focal length `f` and principal point `c` (px) sees across an image
+    `side` px long (None: twice the principal point, as a calibration puts it near the centre)."""
+    return math.degrees(math.atan(c / f) + math.atan(((side if side is not None else 2 * c) - c) / f))
+
+
+def _focal_length_problem(K: np.ndarray, width: int | None, height: int | None) -> str | None:
+    """Why the focal lengths of camera matrix K (3, 3) px are no real camera's for an image of `width` x
+    `height` px (None: not known): not positive, longer than MIN_FOV_DEG allows, shorter than MAX_FOV_DEG
+    allows, or far from square; None if they are fine."""
+    fx, fy = K[0, 0], K[1, 1]
     if fx <= 0 or fy <= 0:
         return f"focal lengths must be positive; got fx={fx}, fy={fy}"
+    for axis, f, c, side in (("fx", fx, K[0, 2], width), ("fy", fy, K[1, 2], height)):
+        if (fov := _field_of_view_deg(f, c, side)) > MAX_FOV_DEG:
+            across = "across the image" if side is not None else "across twice its principal point"
+            return (f"{axis}={f:.6g} px gives a field of view of {fov:.1f}° {across}, wider than a pinhole camera "
+                    f"sees ({MAX_FOV_DEG:g}° at most): focal lengths are in pixels, not mm (fx = focal length in mm "
+                    "x image width in px / sensor width in mm)")
     side = max((s for s in (width, height) if s is not None), default=None)
     longest = MAX_UNSIZED_PX if side is None else side / (2 * math.tan(math.radians(MIN_FOV_DEG) / 2))
     for axis, f in (("fx", fx), ("fy", fy)):

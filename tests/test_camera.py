@@ -557,6 +557,12 @@ def intrinsics(fx: float, fy: float, cx: float = 320, cy: float = 240, s: float 
     (intrinsics(500, 500, cx=1e300), (None, None), "principal point"),
     (intrinsics(500, 500, cx=320, cy=-1), (640, 480), "principal point"),
     (intrinsics(500, 500), (2**31, 480), "under 2"),
+    # a lens's focal length in mm typed where pixels belong: the camera 1 cm from the sign, silently
+    (intrinsics(4.2, 4.2), (640, 480), r"fx=4\.2 px gives a field of view of 178\.5° across the image.*not mm"),
+    (intrinsics(4.2, 4.2), (None, None), r"fx=4\.2 px gives a field of view of 178\.5° across twice its "
+                                         "principal point"),
+    (intrinsics(1e-9, 1e-9), (640, 480), "wider than a pinhole camera sees"),
+    (intrinsics(600, 20), (640, 480), r"fy=20 px gives a field of view of 170\.5°"),
 ])
 def test_implausible_intrinsics_are_refused(K, size, message):
     with pytest.raises(CameraError, match=message):
@@ -574,6 +580,14 @@ def test_distortion_no_lens_has_is_refused(dist, size):
 @pytest.mark.parametrize("dist", [[-0.3, 0.1, 0, 0, 0], [-0.45, 0.25, 0.001, -0.001, -0.1], [0.1, 0, 0, 0]])
 def test_wide_angle_distortion_is_a_camera(dist):
     Camera(intrinsics(554, 554), np.array(dist, float), 640, 480)
+
+
+@pytest.mark.parametrize("hfov_deg", [120, 160])
+def test_the_widest_lenses_are_cameras(hfov_deg):
+    """A 120° rectilinear action camera, and a pinhole field of 160° (a fisheye's fx is longer than that)."""
+    f = 320 / np.tan(np.radians(hfov_deg) / 2)
+    Camera(intrinsics(f, f), np.zeros(5), 640, 480)
+    Camera(intrinsics(f, f), np.zeros(5))
 
 
 def test_a_long_lens_with_its_image_size_is_a_camera():
