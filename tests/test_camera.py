@@ -155,6 +155,19 @@ def test_a_distortion_model_other_than_opencvs_is_refused(tmp_path, model):
     assert load_camera(p).has_distortion
 
 
+@pytest.mark.parametrize("model", ["plumb_bob", "rational_polynomial", "radtan"])
+def test_a_distortion_model_without_its_coefficients_is_refused(tmp_path, model):
+    """A file whose coefficients were lost on the way was read as distortion-free: the pose moved 0.25 m at 1.7 m."""
+    p = tmp_path / "cam.yaml"
+    p.write_text(ROS.replace("plumb_bob", model).replace("distortion_coefficients: {rows: 1, cols: 5, data: "
+                                                         "[-0.1, 0.01, 0, 0, 0]}\n", ""))
+    with pytest.raises(CameraError, match=f"distortion_model {model} names a lens with distortion, but the file "
+                                          "gives no coefficients"):
+        load_camera(p)
+    p.write_text(ROS.replace("plumb_bob", "none").replace("data: [-0.1, 0.01, 0, 0, 0]", "data: [0, 0, 0, 0, 0]"))
+    assert not load_camera(p).has_distortion
+
+
 def test_an_unset_distortion_model_without_coefficients_is_no_distortion(tmp_path):
     p = tmp_path / "cam.yaml"
     d = ROS2_MESSAGE[ROS2_MESSAGE.index("d:\n"):ROS2_MESSAGE.index("k:\n")]
