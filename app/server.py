@@ -47,7 +47,7 @@ from pipeline.camera import Camera, CameraError, camera_from_json, load_camera, 
 from pipeline.image import ImageError
 from pipeline.jsonfile import JsonError, parse_json
 from pipeline.library import ID_PATTERN, LibraryError
-from pipeline.settings import PRESETS, Settings, SettingsError, settings_schema
+from pipeline.settings import PRESETS, Settings, SettingsError, file_settings, settings_schema
 
 from . import figures, tuning
 from .api_models import (
@@ -522,7 +522,7 @@ def import_settings(file: Annotated[UploadFile, File(description="settings JSON,
     """Apply a settings file (as written by export or `--settings`) over the current settings."""
     name, data = read_upload(file)
     try:
-        changes = parse_json(data)
+        changes = file_settings(parse_json(data))
     except JsonError as exc:
         raise SettingsError(f"{name} is {exc}") from None
     workspace.update_settings(changes)

@@ -265,9 +265,17 @@ def preset(name: str) -> Settings:
         raise SettingsError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}") from None
 
 
+def file_settings(data: Any) -> Any:
+    """The settings a file's JSON `data` holds: itself, or, saved from `GET /api/settings`, the "settings"
+    of its {"version", "settings"}, which import and --settings refused as two unknown settings."""
+    if isinstance(data, dict) and set(data) == {"version", "settings"}:
+        return data["settings"]
+    return data
+
+
 def load_settings(path: str | Path, base: Settings | None = None) -> Settings:
-    """Read settings JSON (full or partial) from `path`."""
-    return Settings.from_dict(read_json(Path(path), SettingsError, "settings file"), base=base)
+    """Read settings JSON (full or partial, or as `GET /api/settings` answers) from `path`."""
+    return Settings.from_dict(file_settings(read_json(Path(path), SettingsError, "settings file")), base=base)
 
 
 def save_settings(settings: Settings, path: str | Path) -> None:

@@ -176,6 +176,12 @@ def test_schema_presets_export_and_import(client):
                  422, "s.json is an empty file (nothing in it to read)")
     assert_error(client.post("/api/settings/import", files={"file": ("s.json", b'{"ratio": 7}', "application/json")}),
                  422, "ratio")
+    # what GET /api/settings answers, saved to a file, was refused as two unknown settings
+    client.post("/api/settings/preset/paper")
+    answered = client.get("/api/settings").content
+    client.post("/api/settings/preset/default")
+    r = client.post("/api/settings/import", files={"file": ("saved.json", answered, "application/json")})
+    assert r.status_code == 200 and r.json()["settings"] == presets["paper"], r.text
     client.post("/api/settings/preset/default")
 
 

@@ -66,3 +66,10 @@ def test_whole_numbers_written_as_floats_are_held_as_ints(name, value):
         held = getattr(s, name)
         assert type(held) is int and held == value
     assert type(Settings.from_dict({"threshold": 0.5}).threshold) is float
+
+
+def test_settings_saved_from_the_api_work_as_a_settings_file(tmp_path):
+    """`GET /api/settings` answers {"version", "settings"}; saved as a file it was "unknown setting(s)"."""
+    path = tmp_path / "settings.json"
+    path.write_text(json.dumps({"version": 7, "settings": preset("paper").to_dict()}))
+    assert load_settings(path) == preset("paper")
