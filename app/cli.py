@@ -22,7 +22,7 @@ from tqdm import tqdm
 
 from app.entry import STOP_SIGNALS, Interrupted, interrupted, stopping_on_signals
 from app.workspace import HELD_BYTES_PER_PIXEL, WorkspaceConfig, check_image_header, decode_upload, held_bytes
-from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, assumed_camera, load_camera
+from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, assumed_camera, check_hfov, load_camera
 from pipeline.evaluate import CORES, keep_freed_memory
 from pipeline.image import ImageError, read_file
 from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
@@ -105,21 +105,20 @@ def cmd_recognize(args) -> int:
     with progress(args.images, desc="recognize", hidden=len(args.images) < 10, leave=False) as images, \
             stopped_after(lambda: done, len(args.images), "images"):
         for path in images:
-            failed += not recognize_one(str(path), library, settings, camera, limit, args.json)
+            failed += not recognize_one(str(path), library, settings, camera, args.assumed_fov, limit, args.json)
             done += 1
     return unusable_images(failed, len(args.images))
 
 
-def recognize_one(name: str, library: Library, settings: Settings, camera: Camera | None, limit: int,
-                  as_json: bool) -> bool:
+def recognize_one(name: str, library: Library, settings: Settings, camera: Camera | None, hfov_deg: float,
+                  limit: int, as_json: bool) -> bool:
     """Recognise the image file `name` and print its line: a table row (and its warnings) or, `as_json`, a JSON
-    object; whether the image could be used (else the line says why not)."""
+    object; whether the image could be used (else the line says why not). Without `camera`, the image's EXIF
+    focal length, else `hfov_deg` assumed, as the server chooses."""
     try:
         image, _, exif = decode_upload(read_file(name), name, limit)
-        # Without a camera file, a JPEG's EXIF focal length beats the field of view recognize
-        # assumes, which is assumed here instead when it should say the EXIF's was refused.
-        refused = assumed_camera(image.shape[1], image.shape[0], note=exif.ignored) if exif.ignored else None
-        rec = run_pipeline(name, image, library, settings, camera or exif.camera or refused)
+        rec = run_pipeline(name, image, library, settings,
+                           camera or exif.camera or assumed_camera(image.shape[1], image.shape[0], hfov_deg, exif.ignored))
     # CameraError: the camera cannot be scaled to this image; PipelineError: a failure inside the pipeline
     except (ImageError, CameraError, PipelineError) as exc:
         if as_json:
@@ -364,6 +363,14 @@ def positive_number(text: str) -> float:
     return value
 
 
+def field_of_view(text: str) -> float:
+    """argparse type: a horizontal field of view in degrees that the page would take too."""
+    try:
+        return check_hfov(float(text))
+    except (ValueError, CameraError) as exc:
+        raise argparse.ArgumentTypeError(str(exc) if isinstance(exc, CameraError) else f"{text!r} is not a number")
+
+
 def file_path(text: str) -> str:
     """argparse type: a file to read, refused at once when it is a folder (a missing file is
     left to its reader, whose message says what the file is for)."""
@@ -396,6 +403,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_common(p)
     add_max_megapixels(p)
     p.add_argument("--json", action="store_true", help="one JSON object per image per line")
+    p.add_argument("--assumed-fov", type=field_of_view, default=ASSUMED_HFOV_DEG, metavar="DEG",
+                   help="horizontal field of view assumed for an image without --camera or a usable EXIF focal "
+                        "length, as the page's assumed FOV (default %(default)g)")
     p.set_defaults(func=cmd_recognize)
 
     p = sub.add_parser("synth", help="render synthetic scenes with ground truth")

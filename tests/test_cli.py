@@ -21,6 +21,10 @@ import pytest
 
 from app.cli import build_parser, main
 from app.workspace import WorkspaceConfig
+from pipeline.camera import assumed_camera
+from pipeline.library import load_library
+from pipeline.recognize import recognize
+from pipeline.settings import preset
 from faults import fail_first_segmentation
 from scene_images import png_bomb
 
@@ -86,8 +90,9 @@ def test_bad_files_get_an_error_line_and_the_rest_still_run(tmp_path):
     assert [("error" in o) for o in objs] == [True, False, True, True]
     assert "not an image file" in objs[0]["error"] and "empty" in objs[2]["error"]  # as the server says
     check_schema(objs[1])
-    # no --camera: the assumed FOV is said, once
-    assert "no camera file: assumed 60° horizontal field of view, so the pose is approximate" in objs[1]["warnings"]
+    # no --camera: the assumed FOV is said, once, in the server's words
+    assert objs[1]["warnings"].count("no camera set and no usable EXIF focal length: assumed 60° horizontal field of "
+                                     "view, so the pose is approximate") == 1
     no_sign = json.loads(signpose("recognize", SCENES / "scene_000.jpg", "--json").stdout)
     assert no_sign["pose"] is None and not any("approximate" in w for w in no_sign["warnings"])
     table = signpose("recognize", fake, good)
@@ -171,6 +176,19 @@ def test_bad_settings_and_camera_files_are_one_clear_line(tmp_path, option, cont
     result = signpose("recognize", sorted(SCENES.glob("*.jpg"))[0], option, path)
     assert result.returncode == 2
     assert message in result.stderr and "Traceback" not in result.stderr
+
+
+def test_the_assumed_field_of_view_is_the_pages(tmp_path):
+    """The page's assumed FOV had no counterpart in the CLI (always 60°): a photo without a camera file or EXIF
+    could not give in the CLI what it gave in the page."""
+    scene = SCENES / "scene_002.jpg"
+    obj = json.loads(signpose("recognize", scene, "--assumed-fov", "65", "--json").stdout)
+    image = cv2.imread(str(scene))
+    expected = recognize(image, load_library(), preset("default"), assumed_camera(640, 480, 65.0))
+    assert obj["pose"]["t"] == pytest.approx(expected.pose.t.tolist(), abs=1e-9)
+    assert obj["warnings"] == expected.warnings and "assumed 65° horizontal field of view" in obj["warnings"][-1]
+    refused = signpose("recognize", scene, "--assumed-fov", "170")
+    assert refused.returncode == 2 and "the horizontal field of view must be 10° to 140°; got 170.0" in refused.stderr
 
 
 def test_whole_numbers_written_as_floats_in_a_settings_file_work(tmp_path):
