@@ -190,6 +190,30 @@ def test_calibrate_errors():
             calibrate(views, BOARD, square)
 
 
+def test_photos_of_another_size_are_named_with_how_it_differs_and_what_to_do():
+    """A photo at half the size was refused with "(portrait and landscape photos need separate
+    calibrations)", though it was neither; and the first photo's size was taken as the one, so an odd
+    first photo made every other one the odd one out."""
+    views = projected_views(4)
+    (w, h), corners = SIZE, views[0].corners
+
+    def refusal(*odd: BoardView) -> str:
+        with pytest.raises(CalibrationError) as err:
+            calibrate([*odd, *views], BOARD, SQUARE_M)
+        return str(err.value)
+
+    half = refusal(BoardView("half.png", (w // 2, h // 2), corners / 2))
+    assert half == ("the photos must all be one size, as a calibration holds for one: 4 of the 5 with the board are "
+                    "640x480 px, but half.png is 320x240 px, the same frame at another resolution (resized, or "
+                    "another resolution setting): retake it at 640x480 or leave it out (the calibrated camera is "
+                    "scaled to photos of that shape when it is used)")
+    turned = refusal(BoardView("tall.png", (h, w), corners))
+    assert "tall.png is 480x640 px, the frame turned on its side (portrait and landscape" in turned
+    cropped = refusal(BoardView("a.png", (480, 480), corners), BoardView("b.png", (480, 480), corners))
+    assert "4 of the 6 with the board are 640x480 px, but a.png, b.png are 480x480 px, another aspect" in cropped
+    assert "calibrate that size separately or leave them out" in cropped
+
+
 def test_a_fit_no_camera_could_have_is_a_calibration_error(monkeypatch):
     """OpenCV fits whatever the views allow; intrinsics `Camera` refuses (here fx 20x fy) must
     reach the user as a calibration problem, which the CLI and the page report, not a crash."""
