@@ -382,8 +382,18 @@ def format_report(calibration: Calibration) -> str:
     ]
     if outliers:
         names = ", ".join(f"{c.views[i].name} ({c.errors_px[i]:.2f} px)" for i in sorted(outliers))
-        lines.append(f"outliers (error > {c.outlier_threshold_px:.2f} px): {names}; "
-                     "retake or drop them (signpose calibrate --drop-outliers)")
+        lines.append(f"outliers (error > {c.outlier_threshold_px:.2f} px): {names}; {outlier_advice(c)}")
     lines += [f"warning: {w}" for w in c.warnings]
     return "\n".join(lines)
 
+
+def outlier_advice(calibration: Calibration) -> str:
+    """What to do about `calibration.outliers`. Once outliers have been dropped (`drop_outliers`), the
+    refit may flag others: they are not dropped in turn, since round after round would whittle down
+    any set, so the advice is no longer to drop them (it sent people round in a loop)."""
+    if not calibration.excluded:
+        return "retake or drop them (signpose calibrate --drop-outliers)"
+    they, them, are = ("it", "it", "is") if len(calibration.outliers) == 1 else ("they", "them", "are")
+    return (f"{they} stood out only in the refit without the outliers dropped, and {are} kept: outliers are "
+            "dropped once, as each refit shifts the errors and round after round would whittle the set down; "
+            f"retake {them}, or leave {them} out of the photos if the board is blurred or bent in {them}")

@@ -107,6 +107,24 @@ def test_outlier_reported_and_dropping_it_improves_rms():
     assert drop_outliers(better) is better
 
 
+def test_outliers_left_after_dropping_are_not_sent_to_drop_outliers_again():
+    """After `--drop-outliers` the refit flagged another photo, and the report still said "retake or
+    drop them (signpose calibrate --drop-outliers)": the option just used, which drops once."""
+    views = projected_views(12, noise_px=0.1)
+    rng = np.random.default_rng(7)
+    for i, name in ((5, "shaky.png"), (8, "blurry.png")):
+        views[i] = BoardView(name, SIZE, views[i].corners + rng.normal(0, 3.0, views[i].corners.shape))
+    dropped = calibrate(views, BOARD, SQUARE_M, exclude=(5,))  # as after a round that flagged shaky.png only
+    assert dropped.outliers == (8,)
+    line = next(line for line in format_report(dropped).splitlines() if line.startswith("outliers"))
+    assert "blurry.png" in line and "--drop-outliers" not in line
+    assert "stood out only in the refit without the outliers dropped, and is kept" in line
+    assert "retake it, or leave it out of the photos" in line
+    first = next(line for line in format_report(calibrate(views, BOARD, SQUARE_M)).splitlines()
+                 if line.startswith("outliers"))
+    assert first.endswith("retake or drop them (signpose calibrate --drop-outliers)")
+
+
 def test_to_json_reports_every_view_and_the_outlier_threshold():
     views = projected_views(8)
     views[2] = BoardView("shaky.png", SIZE, views[2].corners + np.random.default_rng(3).normal(0, 3.0, (54, 2)))
