@@ -236,7 +236,11 @@ class CalibrationOut(BaseModel):
     hint: str | None = Field(None, description="what to check when the board was found in too few of the photos to "
                                                "calibrate and not in all (its size, often given in squares rather "
                                                "than inner corners); null otherwise")
-    result: CalibrationResult | None = Field(description="null until run, and again after every change")
+    result: CalibrationResult | None = Field(
+        description="null until run, and again after photos are added or the board changes; when a photo is "
+                    "removed, fitted again to the photos left (the photos it left out stay out)")
+    unfitted: str | None = Field(None, description="why the photos left gave no result when they were fitted again "
+                                                   "after a photo was removed; null otherwise")
 
 
 class CalibrationAdded(CalibrationOut):

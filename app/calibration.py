@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.calibrate import (BoardView, Calibration, CalibrationError, calibrate, check_board, check_square, drop_outliers,
-                                find_board)
+from pipeline.calibrate import (MIN_VIEWS, BoardView, Calibration, CalibrationError, board_size_hint, calibrate,
+                                check_board, check_square, drop_outliers, find_board)
 from pipeline.camera import Camera
 from pipeline.evaluate import CORES
 from pipeline.image import decode_image, to_gray
@@ -58,6 +58,8 @@ class CalibrationState:
     board: (cols, rows) inner corners; square_m: side of a printed square, metres.
     result: the calibration of `photos` (views in this order) under this board, or None when
     nothing has been fitted since the last change.
+    unfitted: why `photos` gave no result when fitted again after a photo was removed (`refit`);
+    None otherwise.
     """
 
     revision: int = 0
@@ -65,6 +67,24 @@ class CalibrationState:
     square_m: float = DEFAULT_SQUARE_M
     photos: tuple[CalibrationPhoto, ...] = ()
     result: Calibration | None = None
+    unfitted: str | None = None
+
+    @property
+    def why_no_result(self) -> str:
+        """Why there is no `result`, in terms of the photos held, and what to do; for a request that
+        needs one. It said "add photos of the board" to someone holding 19 after one was removed."""
+        if not self.photos:
+            return "no calibration yet: add photos of the board, then run the calibration"
+        if self.unfitted:
+            return f"no calibration: the {len(self.photos)} photos left could not be fitted again: {self.unfitted}"
+        found, held = sum(p.view.found for p in self.photos), len(self.photos)
+        if found < MIN_VIEWS:
+            hint = board_size_hint(self.board, found, held)
+            return (f"no calibration: the {self.board[0]}x{self.board[1]} board is found in {found} of the {held} "
+                    f"photos held, and a calibration needs at least {MIN_VIEWS} (15-20 recommended): add photos of "
+                    "the board" + (f"; {hint}" if hint else ""))
+        return (f"no calibration of the {held} photos held (none is kept when photos are added or the board changes): "
+                "run the calibration")
 
     def photo(self, photo_id: str) -> CalibrationPhoto:
         """The photo with `photo_id`; KeyError when there is none."""
@@ -114,9 +134,10 @@ class CalibrationSession:
     def _commit(self, **changes: object) -> CalibrationState:
         """Replace the state by one with `changes` and the next revision (the caller holds the lock).
 
-        Any change but a fit makes the result stale, so it is dropped unless `changes` gives one.
+        Any change but a fit makes the result stale, so it is dropped unless `changes` gives one
+        (and with it why a refit gave none).
         """
-        changes.setdefault("result", None)
+        changes = {"result": None, "unfitted": None, **changes}
         self._state = dataclasses.replace(self._state, revision=self._state.revision + 1, **changes)
         return self._state
 
@@ -183,11 +204,16 @@ class CalibrationSession:
             self._search = None
 
     def remove(self, photo_id: str) -> CalibrationState:
-        """Forget one photo; KeyError when there is none with `photo_id`."""
+        """Forget one photo; KeyError when there is none with `photo_id`. A result is fitted again to
+        the photos left (`refit`): removing a photo, often the outlier, is a step in refining a
+        calibration, and dropping the result with it left camera.yaml and apply refusing for want
+        of one."""
         with self._lock:
             state = self._state
             state.photo(photo_id)
-            return self._commit(photos=tuple(p for p in state.photos if p.id != photo_id))
+            photos = tuple(p for p in state.photos if p.id != photo_id)
+            result, unfitted = refit(state, photos)
+            return self._commit(photos=photos, result=result, unfitted=unfitted)
 
     def clear(self) -> CalibrationState:
         """Forget every photo (the board stays)."""
@@ -206,6 +232,22 @@ class CalibrationSession:
             if without_outliers:
                 result = drop_outliers(result)
             return self._commit(result=result)
+
+
+def refit(state: CalibrationState, photos: tuple[CalibrationPhoto, ...]) -> tuple[Calibration | None, str | None]:
+    """The calibration of `photos`, some of `state`'s, fitted as `state.result` was (the photos it left
+    out, dropped outliers, stay out), or None and why `photos` give none (e.g. too few boards left).
+    (None, None) when `state` has no result: nothing was fitted to refit."""
+    if state.result is None:
+        return None, None
+    left_out = {state.photos[i].id for i in state.result.excluded}
+    try:
+        return calibrate([p.view for p in photos], state.board, state.square_m, fix_k3=state.result.fix_k3,
+                         exclude=tuple(i for i, p in enumerate(photos) if p.id in left_out)), None
+    except CalibrationError as exc:
+        kept_out = len(left_out & {p.id for p in photos})
+        return None, str(exc) + (f" (the {kept_out} dropped as outliers stay out)" if kept_out > 1 else
+                                 " (the one dropped as an outlier stays out)" if kept_out else "")
 
 
 def calibrated_camera(result: Calibration) -> Camera:

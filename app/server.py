@@ -781,7 +781,7 @@ def calibration_out(calibration: CalibrationSession, state: CalibrationState) ->
                           board=BoardSpec(cols=state.board[0], rows=state.board[1], square_m=state.square_m),
                           search=None if search is None else BoardSearchOut(
                               cols=search.board[0], rows=search.board[1], done=search.done, total=search.total),
-                          result=result)
+                          result=result, unfitted=state.unfitted)
 
 
 def no_such_photo(view_id: str) -> HTTPException:
@@ -790,9 +790,9 @@ def no_such_photo(view_id: str) -> HTTPException:
 
 
 def fitted(state: CalibrationState) -> Calibration:
-    """The state's calibration; 409 when there is none."""
+    """The state's calibration; 409 saying why there is none."""
     if state.result is None:
-        raise Conflict("no calibration yet: add photos of the board, then run the calibration")
+        raise Conflict(state.why_no_result)
     return state.result
 
 
@@ -852,6 +852,8 @@ def get_calibration_view(view_id: str, calibration: CalibrationDep,
 
 @api.delete("/calibration/views/{view_id}", status_code=status.HTTP_204_NO_CONTENT, tags=["calibration"])
 def delete_calibration_view(view_id: str, calibration: CalibrationDep) -> None:
+    """Forget one photo; the result, if any, is fitted again to the photos left (those it left out stay
+    out), or dropped when they give none (GET /api/calibration/camera.yaml's 409 then says why)."""
     try:
         calibration.remove(view_id)
     except KeyError:

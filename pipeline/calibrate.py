@@ -8,12 +8,13 @@ row-major order, N = cols * rows; board points are (N, 3) metres on the board pl
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from .camera import Camera, CameraError
+from .camera import Camera, CameraError, size_change
 
 MIN_VIEWS = 3
 # More inner corners per side than any printable board has; the detector's cost grows with them.
@@ -250,6 +251,40 @@ def board_size_hint(board: tuple[int, int], found: int, photos: int) -> str | No
             "border, must be in view")
 
 
+# What photos of another size than the calibration's are (`size_change`), and what to do with them.
+OTHER_SIZE_ADVICE = {
+    "scaled": "the same frame at another resolution (resized, or another resolution setting): retake {them} at "
+              "{width}x{height} or leave {them} out (the calibrated camera is scaled to photos of that shape when "
+              "it is used)",
+    "turned": "the frame turned on its side (portrait and landscape photos need separate calibrations): "
+              "calibrate that orientation separately or leave {them} out",
+    "reframed": "another aspect (cropped, or another camera mode): calibrate that size separately or leave {them} out",
+}
+
+
+def size_mismatch(views: tuple[BoardView, ...], found: list[int], size: tuple[int, int]) -> str | None:
+    """Why the `found` views cannot be calibrated together at `size` (width, height) px: which are
+    which other size, how it differs and what to do; None when all are `size`.
+
+    A calibration holds for one image size; said once as "portrait and landscape photos need separate
+    calibrations" for every other size, it misled about a photo that was merely half the size.
+    """
+    by_size: dict[tuple[int, int], list[str]] = {}
+    for i in found:
+        by_size.setdefault(tuple(views[i].image_size), []).append(views[i].name or str(i))
+    alike = len(by_size.pop(size, []))
+    if not by_size:
+        return None
+    others = []
+    for (w, h), names in by_size.items():
+        one = len(names) == 1
+        advice = OTHER_SIZE_ADVICE[size_change(size, (w, h))].format(
+            width=size[0], height=size[1], them="it" if one else "them")
+        others.append(f"{', '.join(names)} {'is' if one else 'are'} {w}x{h} px, {advice}")
+    return (f"the photos must all be one size, as a calibration holds for one: {alike} of the {len(found)} with the "
+            f"board are {size[0]}x{size[1]} px, but {'; and '.join(others)}")
+
+
 def calibrate(views: list[BoardView], board: tuple[int, int], square_m: float,
               image_size: tuple[int, int] | None = None, exclude: tuple[int, ...] = (),
               fix_k3: bool = True) -> Calibration:
@@ -270,11 +305,11 @@ def calibrate(views: list[BoardView], board: tuple[int, int], square_m: float,
     if not found:
         raise CalibrationError(f"the {board[0]}x{board[1]} board was not found in any of the {len(views)} image(s); "
                                f"{board_size_hint(board, 0, len(views))}")
-    size = image_size or views[found[0]].image_size
-    wrong = [views[i].name or str(i) for i in found if tuple(views[i].image_size) != tuple(size)]
-    if wrong:
-        raise CalibrationError(f"all images must be {size[0]}x{size[1]} px like the first; these differ: "
-                               f"{', '.join(wrong)} (portrait and landscape photos need separate calibrations)")
+    # The size most photos share, so that the odd ones out are named rather than the rest.
+    size = tuple(image_size or Counter(tuple(views[i].image_size) for i in found).most_common(1)[0][0])
+    mismatch = size_mismatch(views, found, size)
+    if mismatch:
+        raise CalibrationError(mismatch)
     n_corners = board[0] * board[1]
     wrong = [views[i].name or str(i) for i in found if views[i].corners.shape != (n_corners, 2)]
     if wrong:
@@ -347,7 +382,18 @@ def format_report(calibration: Calibration) -> str:
     ]
     if outliers:
         names = ", ".join(f"{c.views[i].name} ({c.errors_px[i]:.2f} px)" for i in sorted(outliers))
-        lines.append(f"outliers (error > {c.outlier_threshold_px:.2f} px): {names}; "
-                     "retake or drop them (signpose calibrate --drop-outliers)")
+        lines.append(f"outliers (error > {c.outlier_threshold_px:.2f} px): {names}; {outlier_advice(c)}")
     lines += [f"warning: {w}" for w in c.warnings]
     return "\n".join(lines)
+
+
+def outlier_advice(calibration: Calibration) -> str:
+    """What to do about `calibration.outliers`. Once outliers have been dropped (`drop_outliers`), the
+    refit may flag others: they are not dropped in turn, since round after round would whittle down
+    any set, so the advice is no longer to drop them (it sent people round in a loop)."""
+    if not calibration.excluded:
+        return "retake or drop them (signpose calibrate --drop-outliers)"
+    they, them, are = ("it", "it", "is") if len(calibration.outliers) == 1 else ("they", "them", "are")
+    return (f"{they} stood out only in the refit without the outliers dropped, and {are} kept: outliers are "
+            "dropped once, as each refit shifts the errors and round after round would whittle the set down; "
+            f"retake {them}, or leave {them} out of the photos if the board is blurred or bent in {them}")

@@ -13,6 +13,7 @@ import reprlib
 from dataclasses import dataclass, field
 from numbers import Integral, Real
 from pathlib import Path
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -164,17 +165,17 @@ class Camera:
         """
         if self.width is None or self.height is None:
             return self, self._unsized_warnings(width, height)
-        if (self.width, self.height) == (width, height):
+        change = size_change((self.width, self.height), (width, height))
+        if change == "same":
             return self, []
-        sx, sy = width / self.width, height / self.height
-        if abs((width / self.height) / (height / self.width) - 1) <= MAX_ASPECT_CHANGE < abs(sx / sy - 1):
-            # the camera's frame turned on its side, maybe also resized: a portrait phone photo
+        if change == "turned":  # a portrait phone photo
             raise CameraError(f"this {width}x{height} px image is the camera's {self.width}x{self.height} px turned "
                               "on its side: rotate the photo back, or calibrate the camera held this way")
-        if abs(sx / sy - 1) > MAX_ASPECT_CHANGE:
+        if change == "reframed":
             raise CameraError(f"this {width}x{height} px image has another aspect than the {self.width}x{self.height} "
                               "px the camera was calibrated at: a cropped or re-framed photo, whose intrinsics no "
                               f"scaling gives; calibrate the camera at {width}x{height}")
+        sx, sy = width / self.width, height / self.height
         warnings = [f"image is {width}x{height} px but the camera was calibrated at {self.width}x{self.height}; "
                     f"intrinsics scaled by {sx:.5g} x {sy:.5g}"]
         K = np.diag([sx, sy, 1.0]) @ self.K
@@ -267,6 +268,23 @@ def _distortion_problem(K: np.ndarray, dist: np.ndarray, width: int | None, heig
                 f"{MAX_DISTORTION_FACTOR:g}x their distance from the centre, which no real lens does; check the "
                 "coefficients and their order (k1, k2, p1, p2, k3, ...)")
     return None
+
+
+SizeChange = Literal["same", "scaled", "turned", "reframed"]
+
+
+def size_change(calibrated: tuple[int, int], image: tuple[int, int]) -> SizeChange:
+    """How an `image` size relates to the `calibrated` one (both (width, height) px): "same"; "scaled",
+    the same aspect within MAX_ASPECT_CHANGE, whose intrinsics are the calibration's scaled; "turned",
+    the frame on its side, maybe also resized; "reframed", cropped or another aspect. No scaling gives
+    the intrinsics of the last two: they need a calibration of their own."""
+    (cw, ch), (w, h) = calibrated, image
+    if (cw, ch) == (w, h):
+        return "same"
+    aspect_change = abs((w / cw) / (h / ch) - 1)
+    if abs((w / ch) / (h / cw) - 1) <= MAX_ASPECT_CHANGE < aspect_change:
+        return "turned"
+    return "reframed" if aspect_change > MAX_ASPECT_CHANGE else "scaled"
 
 
 def check_hfov(hfov_deg: float) -> float:

@@ -238,18 +238,24 @@ function renderSummary() {
     return;
   }
   if (!r) {
-    fill($("#calib-summary"), el("p.muted", {}, calib.views.length
-      ? `${plural(calib.views.length, "photo")}, the ${b.cols}×${b.rows} board found in ${found}`
-        + (found < calib.min_views ? ` (at least ${calib.min_views} needed; 15–20 recommended)` : ": run the calibration")
-        + (calib.hint ? `: ${calib.hint}` : "")
-      : "No photos yet."));
+    fill($("#calib-summary"), el("p.muted", {}, calib.unfitted
+      ? `The ${plural(calib.views.length, "photo")} left could not be fitted again: ${calib.unfitted}`
+      : calib.views.length
+        ? `${plural(calib.views.length, "photo")}, the ${b.cols}×${b.rows} board found in ${found}`
+          + (found < calib.min_views ? ` (at least ${calib.min_views} needed; 15–20 recommended)` : ": run the calibration")
+          + (calib.hint ? `: ${calib.hint}` : "")
+        : "No photos yet."));
     return;
   }
   const cam = r.camera, sd = r.intrinsics_std;
   const outliers = calib.views.filter((v) => v.outlier).length;
+  const dropped = calib.views.filter((v) => v.excluded).length;
+  // Outliers are dropped once (pipeline/calibrate.py, outlier_advice): those the refit flags are the
+  // photos' to fix, or "drop outliers" would be the advice again and refit to the same result.
+  const after = dropped ? ` after dropping ${dropped}: retake or remove ${outliers > 1 ? "them" : "it"} (×)` : "";
   fill($("#calib-summary"), el("dl.pose", {},
     [el("dt", {}, "RMS"), el("dd", { id: "calib-rms" }, `${fmt(r.rms_px, 3)} px from ${r.used} of ${calib.views.length} photos`
-      + (outliers ? ` · ${plural(outliers, "outlier")} (> ${fmt(r.outlier_threshold_px, 2)} px)` : ""))],
+      + (outliers ? ` · ${plural(outliers, "outlier")} (> ${fmt(r.outlier_threshold_px, 2)} px)${after}` : ""))],
     ...["fx", "fy", "cx", "cy"].map((k) => [el("dt", {}, k), el("dd", { dataset: { key: k } }, `${fmt(cam[k], 2)} ± ${fmt(sd[k], 2)} px`)]),
     [el("dt", {}, "distortion"), el("dd", {}, cam.dist.map((d) => fmt(d, 4)).join(" "))],
     [el("dt", {}, "image size"), el("dd", {}, `${cam.width}×${cam.height}`)],
@@ -294,7 +300,8 @@ function renderCalibration() {
   // A fit waits for the search and then fits the new board; the old result is dropped once it ends.
   const searching = Boolean(calib.search);
   $("#calib-run").disabled = searching || found < calib.min_views;
-  $("#calib-drop").disabled = searching || !calib.views.some((v) => v.outlier);
+  // Dropped once already: a second drop refits to the same result (see renderSummary).
+  $("#calib-drop").disabled = searching || calib.views.some((v) => v.excluded) || !calib.views.some((v) => v.outlier);
   $("#calib-apply").disabled = $("#calib-yaml").disabled = searching || !calib.result;
   renderSummary();
   fill($("#calib-warnings"), ...(calib.result?.warnings ?? []).map((w) => el("li", {}, w)));

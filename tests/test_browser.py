@@ -1161,6 +1161,39 @@ def test_calibration_photos_keep_the_order_they_were_chosen_in(page, api, tmp_pa
     assert [v["name"] for v in api.get("/api/calibration").json()["views"]] == [p.name for p in photos]
 
 
+def test_after_dropping_outliers_and_removing_a_photo_the_dialog_shows_what_to_do_and_the_new_fit(
+        page, api, tmp_path, no_camera):
+    """After "drop outliers" the refit flagged another photo and the button stayed on, to refit to
+    the same result; removing that photo then left no result at all (apply and download off, "run the
+    calibration") although 11 photos were held."""
+    images, _ = render_boards(12)
+    w = images[0].shape[1]
+    images[3] = cv2.resize(images[3], None, fx=1.1, fy=1.0)[:, :w]  # fits no camera: an outlier at once
+    x, y = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(images[1].shape[0], dtype=np.float32))
+    bend = (1.6 * np.sin(x / w * 2 * np.pi)).astype(np.float32)  # a board bent enough to stand out only in the refit
+    images[1] = cv2.remap(images[1], x, y + bend, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    photos = [tmp_path / f"board{i:02d}.png" for i in range(len(images))]
+    for path, image in zip(photos, images):
+        cv2.imwrite(str(path), image)
+    page.click("#camera-open")
+    page.set_input_files("#calib-picker", [str(p) for p in photos])
+    page.locator("#calib-rms", has_text="from 12 of 12 photos · 2 outliers").wait_for(timeout=120_000)
+
+    page.click("#calib-drop")
+    rms = page.locator("#calib-rms", has_text="from 10 of 12 photos · 1 outlier")
+    rms.wait_for()
+    assert rms.inner_text().endswith("after dropping 2: retake or remove it (×)")
+    assert page.is_disabled("#calib-drop")
+
+    bent = page.locator("#calib-views .view-card.outlier:not(.excluded)")
+    assert bent.get_attribute("title").startswith("board01.png")
+    bent.hover()  # as a person does: the × shows on the card under the pointer
+    bent.locator("button.remove").click()
+    page.locator("#calib-rms", has_text="from 9 of 11 photos").wait_for()  # the 2 dropped stay out
+    assert page.is_enabled("#calib-apply") and page.is_enabled("#calib-yaml")
+    assert len(api.get("/api/calibration").json()["views"]) == 11
+
+
 def test_assumed_field_of_view_and_typed_intrinsics(page, api, no_camera):
     image_id = uploaded_scene(api)
     open_detail(page, image_id)

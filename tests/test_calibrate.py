@@ -107,6 +107,24 @@ def test_outlier_reported_and_dropping_it_improves_rms():
     assert drop_outliers(better) is better
 
 
+def test_outliers_left_after_dropping_are_not_sent_to_drop_outliers_again():
+    """After `--drop-outliers` the refit flagged another photo, and the report still said "retake or
+    drop them (signpose calibrate --drop-outliers)": the option just used, which drops once."""
+    views = projected_views(12, noise_px=0.1)
+    rng = np.random.default_rng(7)
+    for i, name in ((5, "shaky.png"), (8, "blurry.png")):
+        views[i] = BoardView(name, SIZE, views[i].corners + rng.normal(0, 3.0, views[i].corners.shape))
+    dropped = calibrate(views, BOARD, SQUARE_M, exclude=(5,))  # as after a round that flagged shaky.png only
+    assert dropped.outliers == (8,)
+    line = next(line for line in format_report(dropped).splitlines() if line.startswith("outliers"))
+    assert "blurry.png" in line and "--drop-outliers" not in line
+    assert "stood out only in the refit without the outliers dropped, and is kept" in line
+    assert "retake it, or leave it out of the photos" in line
+    first = next(line for line in format_report(calibrate(views, BOARD, SQUARE_M)).splitlines()
+                 if line.startswith("outliers"))
+    assert first.endswith("retake or drop them (signpose calibrate --drop-outliers)")
+
+
 def test_to_json_reports_every_view_and_the_outlier_threshold():
     views = projected_views(8)
     views[2] = BoardView("shaky.png", SIZE, views[2].corners + np.random.default_rng(3).normal(0, 3.0, (54, 2)))
@@ -188,6 +206,30 @@ def test_calibrate_errors():
     for square in (0.0, -0.03, float("nan"), float("inf")):
         with pytest.raises(CalibrationError, match="square size"):
             calibrate(views, BOARD, square)
+
+
+def test_photos_of_another_size_are_named_with_how_it_differs_and_what_to_do():
+    """A photo at half the size was refused with "(portrait and landscape photos need separate
+    calibrations)", though it was neither; and the first photo's size was taken as the one, so an odd
+    first photo made every other one the odd one out."""
+    views = projected_views(4)
+    (w, h), corners = SIZE, views[0].corners
+
+    def refusal(*odd: BoardView) -> str:
+        with pytest.raises(CalibrationError) as err:
+            calibrate([*odd, *views], BOARD, SQUARE_M)
+        return str(err.value)
+
+    half = refusal(BoardView("half.png", (w // 2, h // 2), corners / 2))
+    assert half == ("the photos must all be one size, as a calibration holds for one: 4 of the 5 with the board are "
+                    "640x480 px, but half.png is 320x240 px, the same frame at another resolution (resized, or "
+                    "another resolution setting): retake it at 640x480 or leave it out (the calibrated camera is "
+                    "scaled to photos of that shape when it is used)")
+    turned = refusal(BoardView("tall.png", (h, w), corners))
+    assert "tall.png is 480x640 px, the frame turned on its side (portrait and landscape" in turned
+    cropped = refusal(BoardView("a.png", (480, 480), corners), BoardView("b.png", (480, 480), corners))
+    assert "4 of the 6 with the board are 640x480 px, but a.png, b.png are 480x480 px, another aspect" in cropped
+    assert "calibrate that size separately or leave them out" in cropped
 
 
 def test_a_fit_no_camera_could_have_is_a_calibration_error(monkeypatch):

@@ -135,8 +135,40 @@ def test_outliers_can_be_dropped_and_photos_deleted(client, photos):
 
     assert client.delete(f"/api/calibration/views/{warped_view['id']}").status_code == 204
     state = client.get("/api/calibration").json()
-    assert len(state["views"]) == 8 and state["result"] is None  # a change drops the stale result
+    assert len(state["views"]) == 8 and state["result"]["used"] == 8 and not any(v["excluded"] for v in state["views"])
     assert_error(client.delete(f"/api/calibration/views/{warped_view['id']}"), 404, "no calibration photo")
+
+
+def test_deleting_a_photo_fits_the_photos_left(client, photos):
+    """After DELETE /api/calibration/views/{id} the result was dropped: camera.yaml and apply
+    answered 409 "no calibration yet: add photos of the board" to someone holding the rest."""
+    rng = np.random.default_rng(5)
+    shaky = cv2.imdecode(np.frombuffer(photos[3][1], np.uint8), cv2.IMREAD_GRAYSCALE)
+    shaky = cv2.resize(shaky, None, fx=1.03, fy=1.0)[:, :SIZE[0]]  # found, but fits no camera the others agree on
+    shaky = np.clip(shaky + rng.normal(0, 2, shaky.shape), 0, 255).astype(np.uint8)
+    add(client, photos[:5] + [("shaky.png", cv2.imencode(".png", shaky)[1].tobytes())])
+    assert_error(client.get("/api/calibration/camera.yaml"), 409, "no calibration of the 6 photos held (none is "
+                 "kept when photos are added or the board changes): run the calibration")
+    ran = client.post("/api/calibration/run", json={"drop_outliers": True}).json()
+    assert ran["views"][5]["excluded"] and ran["result"]["used"] == 5
+
+    assert client.delete(f"/api/calibration/views/{ran['views'][0]['id']}").status_code == 204
+    state = client.get("/api/calibration").json()
+    assert state["result"]["used"] == 4 and state["views"][4]["excluded"] and state["unfitted"] is None
+    assert state["result"]["camera"]["fx"] == pytest.approx(K_TRUE[0, 0], rel=0.01)
+    assert state["result"]["camera"] != ran["result"]["camera"]  # fitted again, not the old one kept
+    r = client.get("/api/calibration/camera.yaml")
+    assert r.status_code == 200 and f"{state['result']['camera']['fx']:.6g}"[:6] in r.text
+    assert client.post("/api/calibration/apply").json()["camera"] == state["result"]["camera"]
+
+    for view in state["views"][:2]:  # 2 boards fitted are left, and the outlier
+        assert client.delete(f"/api/calibration/views/{view['id']}").status_code == 204
+    state = client.get("/api/calibration").json()
+    assert len(state["views"]) == 3 and state["result"] is None
+    assert state["unfitted"].startswith("the board was found in 2 usable image(s)")  # for the page to show
+    for r in (client.post("/api/calibration/apply"), client.get("/api/calibration/camera.yaml")):
+        assert_error(r, 409, "no calibration: the 3 photos left could not be fitted again: the board was found in 2 "
+                             "usable image(s); calibration needs at least 3", "(the one dropped as an outlier stays out)")
 
 
 def test_a_new_board_size_searches_every_photo_again(client, photos):
@@ -226,10 +258,10 @@ def test_bad_input_gets_a_clear_4xx_and_changes_nothing(client, photos):
     add(client, photos[:2] + [("blank.png", blank_png())])
     assert_error(client.post("/api/calibration/run", json={}), 422, "found in 2 usable image(s)", "at least 3")
     for r in (client.post("/api/calibration/apply"), client.get("/api/calibration/camera.yaml")):
-        assert_error(r, 409, "run the calibration")
+        assert_error(r, 409, "board is found in 2 of the 3 photos held", "at least 3", "inner corners")
     view_id = client.get("/api/calibration").json()["views"][0]["id"]
     assert_error(client.get(f"/api/calibration/views/{view_id}/image", params={"overlay": "undistorted"}), 409,
-                 "run the calibration")
+                 "found in 2 of the 3 photos held")
     assert client.get(f"/api/calibration/views/{view_id}/image", params={"overlay": "sideways"}).status_code == 422
     assert_error(client.get("/api/calibration/views/123456789abc/image"), 404, "no calibration photo")
     assert client.get("/api/camera").json()["camera"] is None
