@@ -5,7 +5,7 @@ import { api, failureOf, get } from "./api.js";
 import { approximateNote, KIND_LABELS } from "./camera.js";
 import { drawHistogram, drawSweep, valueAt } from "./charts.js";
 import { fillExpected, refreshImages, showStatus } from "./gallery.js";
-import { setSetting } from "./settings.js";
+import { setSetting, stepOf } from "./settings.js";
 import { state, on, select, signName } from "./store.js";
 import { $, el, fill, fmt, plural, report, toast } from "./ui.js";
 
@@ -405,9 +405,6 @@ function bindDrag() {
 
 /** The settings a sweep depends on: all but the swept one, so moving that one keeps it current. */
 const sweepKey = (settings, param) => JSON.stringify({ ...settings, [param]: null });
-
-/** The smallest change of the setting `entry`. */
-const stepOf = (entry) => entry.step || (entry.type === "int" ? 1 : 0.001);
 
 /** [lo, hi] widened to whole steps of the setting `entry`, within its bounds. */
 function onSteps([lo, hi], entry) {

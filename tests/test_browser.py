@@ -853,6 +853,29 @@ def test_sweep_axis_labels_do_not_overlap(page, api):
     page.unroute("**/api/sweep?*")
 
 
+def test_the_charts_show_the_threshold_as_the_form_does(page, api):
+    """A threshold of 0.755 read 0.76 on the histogram while the settings form showed 0.755."""
+    open_detail(page, uploaded_scene(api))
+    page.wait_for_selector("#histogram:not([hidden])")
+    page.evaluate("""() => { window.chartTexts = {};
+        const clearRect = CanvasRenderingContext2D.prototype.clearRect;
+        CanvasRenderingContext2D.prototype.clearRect = function (...args) {   // drawn afresh
+            window.chartTexts[this.canvas.id] = [];
+            return clearRect.apply(this, args); };
+        const fillText = CanvasRenderingContext2D.prototype.fillText;
+        CanvasRenderingContext2D.prototype.fillText = function (text, ...rest) {
+            window.chartTexts[this.canvas.id]?.push(String(text).trim());
+            return fillText.call(this, text, ...rest); }; }""")
+    harness.set_settings(page, api, {"threshold": 0.755})
+    assert page.input_value("#set-threshold") == "0.755"
+    page.wait_for_function("() => window.chartTexts.histogram?.includes('threshold 0.755')")
+    page.route("**/api/sweep?*", lambda route: route.fulfill(json=sweep_answer("threshold", 0.0, 1.0, 13, [5] * 13)))
+    page.click("#run-sweep")
+    page.wait_for_selector("#sweep:not([hidden])")
+    assert "now 0.755" in page.evaluate("window.chartTexts.sweep")
+    page.unroute("**/api/sweep?*")
+
+
 def test_sweep_bounds_follow_the_swept_setting(page, api):
     open_detail(page, uploaded_scene(api))
     entry = next(e for e in api.get("/api/settings/schema").json() if e["name"] == "max_features")
