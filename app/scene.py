@@ -313,9 +313,10 @@ class SceneHandle:
     signs: dict[str, SignNodes] = field(default_factory=dict)
     cameras: dict[str, CameraNodes] = field(default_factory=dict)
     _thumbnails: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
-    # (position, look_at) in m, by client id: the view each viewer was last framed to, kept while
-    # its camera stays there (the person has not moved it), so it follows the cameras drawn.
-    _framed: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
+    # By client id, from the viewer's first camera report (its canvas size): (position, look_at) in m
+    # of the view it was last framed to, kept while its camera stays there (the person has not moved
+    # it), so it follows the cameras drawn; None while it has not been framed on cameras.
+    _framed: dict[int, tuple[np.ndarray, np.ndarray] | None] = field(default_factory=dict, repr=False)
     _progress: dict[str, Any] = field(default_factory=dict, repr=False)
     _lock: threading.RLock = field(default_factory=threading.RLock, repr=False)
     _dirty: threading.Event = field(default_factory=threading.Event, repr=False)
@@ -414,21 +415,30 @@ class SceneHandle:
 
     def _frame_world(self) -> None:
         """Point new viewers' and Reset View's camera at the shown sign and its cameras, and the
-        viewers' still where they were framed; a viewer the person has moved is left where it is.
-        The caller holds the lock."""
+        viewers' not yet framed on cameras or still where they were framed; a viewer the person has
+        moved is left where it is. The caller holds the lock."""
         initial = self.server.initial_camera
         view = self._overview(initial.fov, 1.0)
-        if view is not None and not (np.allclose(initial.position, view[0]) and np.allclose(initial.look_at, view[1])):
+        if view is None:
+            # Nothing to look at: wherever a viewer is, the first cameras drawn are framed for it,
+            # as on a page opened then (an empty workspace, the default at the start of a round).
+            self._framed = dict.fromkeys(self._framed)
+            return
+        if not (np.allclose(initial.position, view[0]) and np.allclose(initial.look_at, view[1])):
             initial.position, initial.look_at = view
         for client in self.server.get_clients().values():
-            if self._still_framed(client):
+            if self._follows(client):
                 self.frame_for(client)
 
-    def _still_framed(self, client: viser.ClientHandle) -> bool:
-        """Whether `client`'s camera is where `frame_for` last put it, within the rounding of its reports."""
-        framed = self._framed.get(client.client_id)
-        return framed is not None and all(np.allclose(now, then, atol=FRAMED_TOLERANCE_M)
-                                          for now, then in zip((client.camera.position, client.camera.look_at), framed))
+    def _follows(self, client: viser.ClientHandle) -> bool:
+        """Whether `client` is framed as cameras come and go: its canvas is known and it has not been
+        framed on cameras yet, or its camera is where `frame_for` last put it, within the rounding
+        of its reports. The caller holds the lock."""
+        if client.client_id not in self._framed:
+            return False
+        framed = self._framed[client.client_id]
+        return framed is None or all(np.allclose(now, then, atol=FRAMED_TOLERANCE_M)
+                                     for now, then in zip((client.camera.position, client.camera.look_at), framed))
 
     def frame_for(self, client: viser.ClientHandle) -> None:
         """Point `client`'s camera at the shown sign and its cameras within its own canvas. The
@@ -450,11 +460,12 @@ class SceneHandle:
 
     def _on_connect(self, client: viser.ClientHandle) -> None:
         """Frame a new viewer's canvas once its size is known: its first camera report."""
-        framed = threading.Event()
 
         def on_camera(_camera: viser.CameraHandle) -> None:
-            if not framed.is_set():
-                framed.set()
+            with self._lock:
+                first = client.client_id not in self._framed
+                self._framed.setdefault(client.client_id, None)
+            if first:
                 self.frame_for(client)
 
         client.camera.on_update(on_camera)

@@ -1,6 +1,8 @@
 // Canvas charts: the gray histogram and the threshold sweep (threshold calibration), and the
 // per-photo reprojection errors of a camera calibration.
 
+import { settingText } from "./settings.js";
+
 const PAD = { left: 34, right: 34, top: 10, bottom: 20 };
 const INK = "#57606a";
 const GRID = "#d8dee4";
@@ -111,8 +113,11 @@ export function drawHistogram(canvas, calib, settings) {
   marker(p, calib.background_level, COLORS.background, "", [1, 2]);
   marker(p, calib.white_level, COLORS.white, "", [2, 3]);
   marker(p, calib.suggested_threshold, COLORS.suggested, "", [5, 3]);
-  marker(p, settings.high_threshold, COLORS.high, `high ${settings.high_threshold?.toFixed(2)}`, [], 1);
-  marker(p, settings.threshold, COLORS.threshold, `threshold ${settings.threshold.toFixed(2)}`);
+  if (settings.high_threshold !== null) {
+    marker(p, settings.high_threshold, COLORS.high, `high ${settingText("high_threshold", settings.high_threshold)}`,
+      [], 1);
+  }
+  marker(p, settings.threshold, COLORS.threshold, `threshold ${settingText("threshold", settings.threshold)}`);
 }
 
 function series(p, xs, ys, max, color) {
@@ -127,7 +132,7 @@ function series(p, xs, ys, max, color) {
 }
 
 /** Correct count (left axis) and smallest margin (right axis) against the swept setting's value,
- *  labelled with `digits` decimals (0 for an integer setting). */
+ *  labelled with `digits` decimals (0 for an integer setting); its `current` value as the form shows it. */
 export function drawSweep(canvas, sweep, current, digits) {
   const xs = sweep.values;
   const p = plot(canvas, xs[0], xs[xs.length - 1], digits);
@@ -152,7 +157,7 @@ export function drawSweep(canvas, sweep, current, digits) {
   ctx.fillText("0", PAD.left + w + 4, y(0));
   marker(p, sweep.centre, COLORS.suggested, `centre ${(sweep.centre ?? 0).toFixed(digits)}`, [5, 3], 1);
   if (current >= xs[0] && current <= xs[xs.length - 1]) {
-    marker(p, current, COLORS.threshold, `now ${current.toFixed(digits)}`);
+    marker(p, current, COLORS.threshold, `now ${settingText(sweep.param, current)}`);
   }
 }
 

@@ -5,7 +5,7 @@ import { api, failureOf, get } from "./api.js";
 import { approximateNote, KIND_LABELS } from "./camera.js";
 import { drawHistogram, drawSweep, valueAt } from "./charts.js";
 import { fillExpected, refreshImages, showStatus } from "./gallery.js";
-import { setSetting } from "./settings.js";
+import { setSetting, stepOf } from "./settings.js";
 import { state, on, select, signName } from "./store.js";
 import { $, el, fill, fmt, plural, report, toast } from "./ui.js";
 
@@ -21,7 +21,8 @@ const boxes = new Map();    // image id -> calibration box [x0, y0, x1, y1] in i
 // same settings version: the result version changes on every re-run.
 const stageUrl = (stage, query = "") => `/api/images/${detail.id}/stages/${stage}?v=${detail.result_version}${query}`;
 
-/** A figure whose <img> shows the server's reason (e.g. "no blob") when the stage cannot be drawn. */
+/** A figure whose <img> shows the server's reason (e.g. "no blob") when the stage cannot be drawn,
+ *  or the page's (`none`) when the result already says there is no figure to ask for. */
 function stageFigure(title, link = true) {
   const img = el("img", { alt: title, decoding: "async" });
   const note = el("div.stage-note");
@@ -44,6 +45,14 @@ function stageFigure(title, link = true) {
       if (link) box.href = url;
       if (img.getAttribute("src") !== url) img.src = url;
     },
+    // Not requested: the server would answer 404 or 409, an error in the console for every image.
+    none(message, title) {
+      if (title) caption.textContent = title;
+      if (link) box.removeAttribute("href");
+      img.removeAttribute("src");
+      fig.classList.add("missing");
+      note.textContent = message;
+    },
   };
 }
 
@@ -55,6 +64,9 @@ const stages = Object.entries({ gray: "normalised gray", mask: "binary mask", bl
   .map(([stage, title]) => ({ stage, figure: stageFigure(title) }));
 const TEXT_TITLE = "text check · the photo read through the sign's homography, over the library sign, strip by strip";
 const textCheck = stageFigure(TEXT_TITLE);
+
+/** Why the shown image, which has no result, has no figures. */
+const noResult = () => (detail.error ? "could not run" : "no result yet");
 
 // ---- rendering
 
@@ -84,19 +96,29 @@ function renderHead() {
 }
 
 function renderStages() {
+  const r = detail.result;
   // A failed run has no figures, but the photo itself still says a lot about why.
-  if (detail.error) input.set(`/api/images/${detail.id}/file`, "input · the photo as uploaded (it could not be run)");
-  else input.set(stageUrl("input"), INPUT_TITLE);
-  for (const { stage, figure } of stages) figure.set(stageUrl(stage));
+  if (r) input.set(stageUrl("input"), INPUT_TITLE);
+  else input.set(`/api/images/${detail.id}/file`, `input · the photo as uploaded (${noResult()})`);
+  for (const { stage, figure } of stages) {
+    if (r) figure.set(stageUrl(stage));
+    else figure.none(noResult());
+  }
   // The recognised sign's check, else the first winner it turned down: what the figure draws.
-  const turnedDown = detail.result?.turned_down?.[0];
-  const check = detail.result?.text_check ?? turnedDown?.text_check;
-  const weakest = check?.weakest;
+  const turnedDown = r?.turned_down?.[0];
+  const check = r?.text_check ?? turnedDown?.text_check;
   const bar = detail.settings?.min_text_correlation;
-  const whose = detail.result?.text_check || !turnedDown ? ""
-    : ` · turned down: ${turnedDown.source} read as ${turnedDown.sign}`;
-  textCheck.set(stageUrl("text"), typeof weakest !== "number" ? TEXT_TITLE
-    : `${TEXT_TITLE}${whose} · weakest strip ${weakest.toFixed(3)} (a strip passes at ≥ ${bar})`);
+  if (!check) {
+    const why = !r ? noResult() : bar > 0
+      ? "no sign was recognised and no winner turned down for its text, so no text was checked (the scores say why)"
+      : `the text check is off (min_text_correlation ${bar}): set it above 0 to check the recognised sign's text`;
+    textCheck.none(why, TEXT_TITLE);
+  } else {
+    const weakest = check.weakest;
+    const whose = r.text_check ? "" : ` · turned down: ${turnedDown.source} read as ${turnedDown.sign}`;
+    textCheck.set(stageUrl("text"), typeof weakest !== "number" ? TEXT_TITLE
+      : `${TEXT_TITLE}${whose} · weakest strip ${weakest.toFixed(3)} (a strip passes at ≥ ${bar})`);
+  }
   renderBox();
 }
 
@@ -196,8 +218,15 @@ function renderMatches() {
     m.row.classList.toggle("winner", won);
     m.reason.textContent = won ? "winner" : score?.reason ?? "";
     const query = `&sign=${encodeURIComponent(id)}`;
-    m.raw.set(stageUrl("matches", query), `${score?.matches ?? "–"} ratio-test matches`);
-    m.inliers.set(stageUrl("inliers", query), `${score?.inliers ?? "–"} RANSAC inliers`);
+    const raw = `${score?.matches ?? "–"} ratio-test matches`, inliers = `${score?.inliers ?? "–"} RANSAC inliers`;
+    if (score) {
+      m.raw.set(stageUrl("matches", query), raw);
+      m.inliers.set(stageUrl("inliers", query), inliers);
+    } else {
+      const why = !r ? noResult() : r.scores.length ? "not scored yet: its re-run is on the way" : "no region was searched";
+      m.raw.none(why, raw);
+      m.inliers.none(why, inliers);
+    }
   }
 }
 
@@ -258,12 +287,18 @@ function renderBox() {
 async function calibrate() {
   const id = detail.id;
   const rect = boxes.get(id) ?? null;
-  try {
-    calib = await api("POST", "/api/calibrate/threshold", { image_id: id, rect });
-  } catch (err) {
-    // Shown beside the histogram, where the person is looking. Without a box the server refuses
-    // (422) an image with no region to measure, in an API user's words.
-    calib = { error: !rect && err.status === 422 ? NOTHING_TO_MEASURE : err.message };
+  // Without a box the server measures the detected sign, else the blob the answer came from
+  // (tuning.sign_region): it would refuse an image with no result, or one with neither.
+  if (!rect && !detail.result?.corners && !detail.attempts.some((a) => a.source.startsWith("blob "))) {
+    calib = { error: NOTHING_TO_MEASURE };
+  } else {
+    try {
+      calib = await api("POST", "/api/calibrate/threshold", { image_id: id, rect });
+    } catch (err) {
+      // Shown beside the histogram, where the person is looking. Without a box the server refuses
+      // (422) an image with no region to measure, in an API user's words.
+      calib = { error: !rect && err.status === 422 ? NOTHING_TO_MEASURE : err.message };
+    }
   }
   if (detail?.id === id) renderCalib();
 }
@@ -370,9 +405,6 @@ function bindDrag() {
 
 /** The settings a sweep depends on: all but the swept one, so moving that one keeps it current. */
 const sweepKey = (settings, param) => JSON.stringify({ ...settings, [param]: null });
-
-/** The smallest change of the setting `entry`. */
-const stepOf = (entry) => entry.step || (entry.type === "int" ? 1 : 0.001);
 
 /** [lo, hi] widened to whole steps of the setting `entry`, within its bounds. */
 function onSteps([lo, hi], entry) {

@@ -13,10 +13,13 @@ let pending = {};             // edits not yet sent
 const inflight = new Map();
 let dragging = null;          // the slider under the pointer: server updates must not yank it
 
-const decimals = (step) => (String(step).split(".")[1] || "").length;
+const decimals = (x) => (String(x).split(".")[1] || "").length;
+
+/** The smallest change of the setting `entry`. */
+export const stepOf = (entry) => entry.step || (entry.type === "int" ? 1 : 0.001);
 
 function snap(value, entry) {
-  const step = entry.step || (entry.type === "int" ? 1 : 0.001);
+  const step = stepOf(entry);
   const v = Math.min(entry.max, Math.max(entry.min, Math.round(value / step) * step));
   return Number(v.toFixed(decimals(step)));
 }
@@ -194,6 +197,12 @@ export function apply(payload, force = false) {
   }
   $("#settings-version").textContent = `settings v${state.version}`;
   emit("settings", settings);
+}
+
+/** The setting `name`'s `value` as its field shows it, with at least its step's decimals: a
+ *  threshold of 0.755 (step 0.01) reads 0.755, not 0.76, and 0.8 reads 0.80. */
+export function settingText(name, value) {
+  return value.toFixed(Math.max(decimals(stepOf(controls.get(name).entry)), decimals(value)));
 }
 
 /** Change settings from elsewhere on the page (calibration, sweep): same path as a form edit. */

@@ -33,6 +33,7 @@ TRUTH = json.loads((harness.SCENES / "truth.json").read_text())["images"]
 # An easy scene with a sign: recognised at the default settings.
 SCENE = next(name for name, t in sorted(TRUTH.items()) if t["label"] and t["category"] == "easy")
 LABEL = TRUTH[SCENE]["label"]
+NO_SIGN = next(name for name, t in sorted(TRUTH.items()) if t["label"] is None)
 
 
 @pytest.fixture(scope="module")
@@ -852,6 +853,29 @@ def test_sweep_axis_labels_do_not_overlap(page, api):
     page.unroute("**/api/sweep?*")
 
 
+def test_the_charts_show_the_threshold_as_the_form_does(page, api):
+    """A threshold of 0.755 read 0.76 on the histogram while the settings form showed 0.755."""
+    open_detail(page, uploaded_scene(api))
+    page.wait_for_selector("#histogram:not([hidden])")
+    page.evaluate("""() => { window.chartTexts = {};
+        const clearRect = CanvasRenderingContext2D.prototype.clearRect;
+        CanvasRenderingContext2D.prototype.clearRect = function (...args) {   // drawn afresh
+            window.chartTexts[this.canvas.id] = [];
+            return clearRect.apply(this, args); };
+        const fillText = CanvasRenderingContext2D.prototype.fillText;
+        CanvasRenderingContext2D.prototype.fillText = function (text, ...rest) {
+            window.chartTexts[this.canvas.id]?.push(String(text).trim());
+            return fillText.call(this, text, ...rest); }; }""")
+    harness.set_settings(page, api, {"threshold": 0.755})
+    assert page.input_value("#set-threshold") == "0.755"
+    page.wait_for_function("() => window.chartTexts.histogram?.includes('threshold 0.755')")
+    page.route("**/api/sweep?*", lambda route: route.fulfill(json=sweep_answer("threshold", 0.0, 1.0, 13, [5] * 13)))
+    page.click("#run-sweep")
+    page.wait_for_selector("#sweep:not([hidden])")
+    assert "now 0.755" in page.evaluate("window.chartTexts.sweep")
+    page.unroute("**/api/sweep?*")
+
+
 def test_sweep_bounds_follow_the_swept_setting(page, api):
     open_detail(page, uploaded_scene(api))
     entry = next(e for e in api.get("/api/settings/schema").json() if e["name"] == "max_features")
@@ -1302,6 +1326,44 @@ def test_a_failed_image_says_why_without_figures(page, api, no_camera):
     assert card.locator(".card-label").inner_text() == "could not run"
     assert card.locator(".card-label").get_attribute("title") == error
     assert card.locator(".card-stats").inner_text() == ""
+
+
+def test_a_detail_asks_for_no_figure_its_result_says_is_not_there(page, api, no_camera):
+    """Every no-sign image logged a 404 for its text check's figure, and an image that could not be
+    run a 409 for every stage, its thumbnails showing the error clipped: the result says which
+    figures there are, and the others are placeholders the page words, whole in their boxes."""
+    problems = []
+    page.on("console", lambda msg: msg.type == "error" and problems.append(msg.text))
+    page.on("response", lambda response: response.status >= 400 and problems.append(f"{response.status} {response.url}"))
+    # A figure left for the next image's is aborted: that is no failure.
+    page.on("requestfailed", lambda request: request.failure != "net::ERR_ABORTED"
+            and problems.append(f"{request.failure} {request.url}"))
+    no_sign = next(i["id"] for i in api.get("/api/images").json()["images"] if i["name"] == NO_SIGN)
+    scene = uploaded_scene(api)
+
+    def shown(notes: str) -> list[str]:
+        """The placeholders under `notes`, once every figure asked for has loaded and the histogram measured."""
+        harness.stage_images_loaded(page, "#detail .stage img[src]")
+        page.wait_for_function("() => !document.querySelector('#histogram').hidden || "
+                               "document.querySelector('#calib-result').textContent")
+        for note in page.locator(notes).all():
+            inside, box = note.bounding_box(), note.locator("xpath=..").bounding_box()
+            assert box["y"] <= inside["y"] and inside["y"] + inside["height"] <= box["y"] + box["height"] + 0.5
+        return page.locator(notes).all_inner_texts()
+
+    open_detail(page, no_sign)
+    assert shown("#detail .stage.missing .stage-note") == ["no sign was recognised and no winner turned down for "
+                                                          "its text, so no text was checked (the scores say why)"]
+    assert not problems, problems
+    api.put("/api/camera", json=MISFIT_CAMERA).raise_for_status()
+    harness.wait_server_idle(api)
+    open_detail(page, scene)
+    page.locator("#detail-badge", has_text="error").wait_for()
+    library = api.get("/api/library").json()
+    assert shown("#stages .stage-note") == ["could not run"] * 5
+    assert shown("#match-grid .stage-note") == ["could not run"] * 2 * len(library)
+    assert page.inner_text("#calib-result").startswith("No sign or white blob was found to measure")
+    assert not problems, problems
 
 
 def test_a_sign_the_plaque_fallback_found_shows_its_correlation_not_zero_inliers(page, api):

@@ -7,14 +7,16 @@ import math
 import dataclasses
 import json
 import time
+import types
 
 import numpy as np
 import pytest
 import viser
 import viser.transforms as tf
 
-from app.scene import (LABEL_PX_PER_CHAR, NO_WORLD, attach, camera_pose_in_sign, frustum_scale, frustum_shape,
-                       image_plane_points, matched_points, status_markdown)
+from app.scene import (INITIAL_VIEW_LOOK_AT_M, INITIAL_VIEW_POSITION_M, LABEL_PX_PER_CHAR, NO_WORLD, attach,
+                       camera_pose_in_sign, frustum_scale, frustum_shape, image_plane_points, matched_points,
+                       status_markdown)
 from app.workspace import SAMPLE_SCENES, Outcome, Workspace, WorkspaceConfig
 from pipeline.camera import assumed_camera
 from pipeline.settings import PRESETS, settings_schema
@@ -185,19 +187,55 @@ def test_viewers_left_as_framed_follow_new_cameras_and_one_moved_by_hand_stays(s
     assert np.array_equal(moved.camera.position, held)
 
 
+def test_viewers_are_framed_on_the_first_cameras_drawn_in_an_empty_scene(scene, monkeypatch):
+    """A page opened on an empty workspace (`serve --library DIR` loads no samples: the start of a
+    round) was never framed: the first photo's camera, metres off, stayed outside its view until
+    Reset View. A viewer moved by hand, then emptied of cameras, has nothing left to keep either."""
+    handle, workspace = scene
+    initial = handle.server.initial_camera
+    moved = Viewer(2, 1.6, initial)
+    monkeypatch.setattr(handle.server, "get_clients", lambda: {2: moved})
+    handle.frame_for(moved)
+    moved.camera.position = np.asarray(moved.camera.position) + (0.0, 0.0, -0.5)  # the person pulled back
+    workspace.update_settings({"plaque_fallback": False, "min_inliers": handle.panel.controls["min_inliers"].input.max})
+    settle(handle, workspace)
+    assert not handle.cameras
+    # a page opened now, on a fresh server's starting view, looked around while there is nothing to see
+    fresh = Viewer(1, 0.45, types.SimpleNamespace(fov=initial.fov, position=INITIAL_VIEW_POSITION_M,
+                                                  look_at=INITIAL_VIEW_LOOK_AT_M))
+    monkeypatch.setattr(handle.server, "get_clients", lambda: {1: fresh, 2: moved})
+    handle._on_connect(fresh)
+    fresh.report()
+    fresh.camera.position = np.asarray(fresh.camera.position) + (0.3, 0.0, 0.0)
+    workspace.replace_settings(PRESETS["default"])
+    settle(handle, workspace)
+    far = next(n for n in handle.cameras.values() if n.sign == handle.world.value)
+    far.frustum.position = (3.0, -2.0, -7.0)  # as a camera 8 m off would be drawn
+    handle.redraw()
+    for viewer in (fresh, moved):
+        assert _widest(handle, viewer.camera) < 0.8 * viewer.across_deg, viewer.client_id
+
+
 class Viewer:
     """A viser client as `SceneHandle` sees it: an id and a camera of a canvas' aspect (width / height)."""
 
     def __init__(self, client_id: int, aspect: float, start: viser.InitialCameraConfig, height_px: int = 870):
         self.client_id = client_id
+        self._on_camera = []
         self.camera = type("Camera", (), dict(fov=start.fov, aspect=aspect, image_width=round(aspect * height_px),
                                               position=np.asarray(start.position),
-                                              look_at=np.asarray(start.look_at)))()
+                                              look_at=np.asarray(start.look_at),
+                                              on_update=lambda _camera, callback: self._on_camera.append(callback)))()
         # half the canvas' width, in degrees
         self.across_deg = np.degrees(math.atan(math.tan(start.fov / 2) * min(aspect, 1.0)))
 
     def atomic(self):
         return contextlib.nullcontext()
+
+    def report(self) -> None:
+        """What viser does when the viewer reports its camera, as it does once connected."""
+        for callback in self._on_camera:
+            callback(self.camera)
 
 
 def _widest(handle, camera) -> float:
