@@ -22,7 +22,7 @@ from tqdm import tqdm
 
 from app.entry import STOP_SIGNALS, Interrupted, interrupted, stopping_on_signals
 from app.workspace import HELD_BYTES_PER_PIXEL, WorkspaceConfig, check_image_header, decode_upload, held_bytes
-from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, assumed_camera, check_hfov, load_camera
+from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, check_hfov, load_camera
 from pipeline.evaluate import CORES, keep_freed_memory
 from pipeline.image import ImageError, read_file
 from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
@@ -118,7 +118,7 @@ def recognize_one(name: str, library: Library, settings: Settings, camera: Camer
     try:
         image, _, exif = decode_upload(read_file(name), name, limit)
         rec = run_pipeline(name, image, library, settings,
-                           camera or exif.camera or assumed_camera(image.shape[1], image.shape[0], hfov_deg, exif.ignored))
+                           camera or exif.or_assumed(image.shape[1], image.shape[0], hfov_deg))
     # CameraError: the camera cannot be scaled to this image; PipelineError: a failure inside the pipeline
     except (ImageError, CameraError, PipelineError) as exc:
         if as_json:

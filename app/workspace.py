@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-from pipeline.camera import Camera, CameraError, assumed_camera, check_hfov, load_camera
+from pipeline.camera import Camera, CameraError, check_hfov, load_camera
 from pipeline.evaluate import CORES, release_freed_memory
 from pipeline.exif import ExifCamera, decode_with_exif
 from pipeline.features import library_features
@@ -147,7 +147,7 @@ class Snapshot:
         """The intrinsics a `width` x `height` px image is recognised with: the workspace's camera, else
         the image's EXIF focal length, else the assumed field of view (saying so when the EXIF
         records a focal length that was refused)."""
-        return self.camera or exif.camera or assumed_camera(width, height, self.assumed_hfov_deg, exif.ignored)
+        return self.camera or exif.or_assumed(width, height, self.assumed_hfov_deg)
 
 
 @dataclass(frozen=True, order=True)

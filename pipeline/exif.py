@@ -14,7 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .camera import Camera
+from .camera import Camera, assumed_camera
 from .image import decode_image, image_format
 
 # The 35 mm-equivalent focal length is defined by the angle of view across the diagonal of a
@@ -216,6 +216,11 @@ class ExifCamera(NamedTuple):
 
     camera: Camera | None = None
     ignored: str | None = None
+
+    def or_assumed(self, width: int, height: int, hfov_deg: float) -> Camera:
+        """The EXIF's camera, else one of `hfov_deg` horizontal field of view for the `width` x `height` px
+        image (saying so when the EXIF records a focal length that was refused)."""
+        return self.camera or assumed_camera(width, height, hfov_deg, self.ignored)
 
 
 def exif_camera(data: bytes, width: int, height: int) -> ExifCamera:
