@@ -400,13 +400,12 @@ class StateDir:
             raise StateError(str(exc)) from None
         record = self.library_record()
         if not meta.exists():
-            self._write_library(incoming, [], fingerprint, keep_old=False)
-            return load_library(self.library_dir), None
+            return self._write_library(incoming, [], fingerprint, keep_old=False)[0], None
         if held is not None and record.copied_from == folder and record.fingerprint == fingerprint:
             return held, None
         merge = merge_library(held, incoming, record.added)
-        kept = self._write_library(incoming, merge.carried, fingerprint,
-                                   keep_old=held is None or bool(merge.changed or merge.dropped))
+        library, kept = self._write_library(incoming, merge.carried, fingerprint,
+                                            keep_old=held is None or bool(merge.changed or merge.dropped))
         if held is None:
             why = "the state's library could not be read"
         elif record.copied_from != folder:
@@ -415,13 +414,14 @@ class StateDir:
         else:
             why = ("it changed since the state copied it" if record.fingerprint is not None
                    else "the state had not recorded what it copied")
-        return load_library(self.library_dir), LibraryReread(folder, why, merge, kept, damaged=held is None)
+        return library, LibraryReread(folder, why, merge, kept, damaged=held is None)
 
     def _write_library(self, incoming: Library, carried: list[LibrarySign], fingerprint: str,
-                       keep_old: bool) -> Path | None:
+                       keep_old: bool) -> tuple[Library, Path | None]:
         """Make library/ hold `incoming`'s signs and the `carried` ones (from the state's library, as
-        added), recorded as copied from `incoming.root` with `fingerprint`. The folder it replaces is
-        moved to a new `library.replaced-<UTC time>` when `keep_old` (that path is returned), else deleted."""
+        added), recorded as copied from `incoming.root` with `fingerprint`; returns that library (its signs
+        were validated as read, so it is not read back) and where the folder it replaces was moved (a new
+        `library.replaced-<UTC time>`, when `keep_old`; else it is deleted, and None)."""
         files = {sign.image_file: incoming.root / sign.image_file for sign in incoming.signs}
         kept_signs = []
         for sign in carried:
@@ -450,15 +450,16 @@ class StateDir:
             _fsync_dir(self.root)
         finally:
             shutil.rmtree(staging, ignore_errors=True)
+        library = Library(self.library_dir, [*incoming.signs, *kept_signs])
         if not aside.exists():
-            return None
+            return library, None
         if not keep_old:
             shutil.rmtree(aside, ignore_errors=True)
-            return None
+            return library, None
         kept = replaced_path(self.root, "library", "")
         os.replace(aside, kept)
         _fsync_dir(self.root)
-        return kept
+        return library, kept
 
     def _recover_library(self) -> None:
         """Put back the library a crash left moved aside, before its replacement was moved in."""
