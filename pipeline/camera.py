@@ -130,7 +130,10 @@ class Camera:
             raise CameraError(f"skew s={K[0, 1]:.6g} exceeds fx={K[0, 0]:.6g}; real cameras have s close to 0")
         cx, cy = K[0, 2], K[1, 2]
         w, h = self.width or MAX_UNSIZED_PX, self.height or MAX_UNSIZED_PX
-        if not (0 <= cx <= w and 0 <= cy <= h):
+        # Pixel centres are at whole px, so the image spans -0.5 .. w - 0.5; the half pixel either
+        # side keeps the bound true of the camera of the image shrunk (`pipeline.plaque.shrunk_view`):
+        # cx = 0 became -0.15 there, and a close sign failed in the pipeline.
+        if not (-0.5 <= cx <= w + 0.5 and -0.5 <= cy <= h + 0.5):
             raise CameraError(f"principal point ({cx:.6g}, {cy:.6g}) px lies outside the image (0..{w:g} x 0..{h:g} px)")
         dist = np.asarray(self.dist, dtype=np.float64).ravel()
         if dist.size not in (0, 4, 5, 8, 12, 14):

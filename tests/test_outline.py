@@ -202,3 +202,14 @@ def test_dense_refinement_under_lens_distortion_aligns_as_without():
             corners = undistort_pixels(sign_corners(library[rec.label], rec.H), camera)
             errors.append(np.abs(corners - sample.corners).max())
         assert errors[1] < errors[0] + 0.5, (sample.path.name, errors)
+
+
+def test_a_close_sign_is_outlined_with_the_principal_point_at_the_image_edge(sign):
+    """The camera of the shrunk image a wide sign is outlined in moves the principal point half a
+    pixel outwards: from cx = 0, a camera file allows, to -0.15, which the camera check refused,
+    and recognition failed. The image spans -0.5 .. w - 0.5 in pixel centres."""
+    corners = np.array([[60.0, 150], [580, 165], [575, 370], [66, 355]])
+    camera = Camera(np.array([[554.0, 0, 0], [0, 554, 240], [0, 0, 1]]), np.zeros(5), 640, 480)
+    rec = recognize(plaque_image(sign, 90, corners=corners), load_library(), preset("default"), camera)
+    assert rec.label == sign.id and rec.outline is not None
+    assert np.abs(rec.corners - corners).max() < 1.0
