@@ -41,9 +41,10 @@ MAX_FOV_DEG = 170.0
 # 30 000 px). A file for a longer lens gives its image size; for_image checks again against the image.
 MAX_UNSIZED_PX = 1e6
 # A calibrated principal point lies within a few percent of the image centre (lens decentring); a
-# quarter of the width or height off means a file for another resolution (one for twice the size
-# puts it on this image's corner, half the width and height off).
-MAX_CENTRE_OFFSET = 0.25
+# fifth of the width or height off means values in mm or a file for another resolution (one for
+# twice the size puts it on this image's corner, half the width and height off; one for half the
+# size a quarter off).
+MAX_CENTRE_OFFSET = 0.2
 # OpenCV holds an image's width and height in a C int: no image is larger.
 MAX_IMAGE_SIDE_PX = 2**31 - 1
 # Real pixels are square to a percent or two and anamorphic lenses squeeze 2x at most: fx/fy beyond
@@ -129,6 +130,9 @@ class Camera:
         if abs(K[0, 1]) > K[0, 0]:
             raise CameraError(f"skew s={K[0, 1]:.6g} exceeds fx={K[0, 0]:.6g}; real cameras have s close to 0")
         cx, cy = K[0, 2], K[1, 2]
+        if self.width is not None and (problem := _centre_problem(cx, cy, self.width, self.height)):
+            raise CameraError(f"{problem}: a calibration puts it within a few percent of the centre; check that the "
+                              "values are in pixels and that the file's image size is the calibration's")
         w, h = self.width or MAX_UNSIZED_PX, self.height or MAX_UNSIZED_PX
         # Pixel centres are at whole px, so the image spans -0.5 .. w - 0.5; the half pixel either
         # side keeps the bound true of the camera of the image shrunk (`pipeline.plaque.shrunk_view`):
@@ -191,21 +195,20 @@ class Camera:
     def _unsized_warnings(self, width: int, height: int) -> list[str]:
         """Why this camera without an image size may not be meant for a `width` x `height` px image.
 
-        Only now can its numbers be held against an image size. Warnings, not errors: such a file
-        may be meant for any resolution, and MAX_UNSIZED_PX already keeps the arithmetic sound.
+        Only now can its numbers be held against an image size. A principal point far from the
+        centre is a warning, as such a file may be meant for any resolution; focal lengths no
+        camera has for this image (in mm, say) are a CameraError, as the pose would be meaningless.
         """
-        warnings = []
         problem = _focal_length_problem(self.K, width, height)
         if problem:
-            warnings.append(f"the camera has no image size and does not fit this {width}x{height} px image: "
-                            f"{problem}; the pose is meaningless")
-        cx, cy = self.K[0, 2], self.K[1, 2]
-        if abs(cx - width / 2) > MAX_CENTRE_OFFSET * width or abs(cy - height / 2) > MAX_CENTRE_OFFSET * height:
-            warnings.append(f"the camera has no image size and its principal point ({cx:g}, {cy:g}) px is far from "
-                            f"the centre ({width / 2:g}, {height / 2:g}) of this {width}x{height} px image: the file "
-                            "was probably made for another resolution; give it that resolution's width and height "
-                            "so it is scaled to the image, or the pose is wrong")
-        return warnings
+            raise CameraError(f"the camera has no image size and does not fit this {width}x{height} px image: "
+                              f"{problem}")
+        problem = _centre_problem(self.K[0, 2], self.K[1, 2], width, height)
+        if problem:
+            return [f"the camera has no image size and its {problem}: the file was probably made for another "
+                    "resolution; give it that resolution's width and height so it is scaled to the image, or the "
+                    "pose is wrong"]
+        return []
 
     def to_json(self) -> dict:
         K = self.K
@@ -214,9 +217,21 @@ class Camera:
 
 
 def _field_of_view_deg(f: float, c: float, side: float | None) -> float:
-    """Degrees a pinhole camera of focal length `f` and principal point `c` (px) sees across an image
-    `side` px long (None: twice the principal point, as a calibration puts it near the centre)."""
-    return math.degrees(math.atan(c / f) + math.atan(((side if side is not None else 2 * c) - c) / f))
+    """Degrees a pinhole camera of focal length `f` (px) sees across an image `side` px long, about
+    its centre (None: twice the principal point `c`, as a calibration puts it near the centre).
+    About the principal point, a focal length and principal point both in mm (4.2 and 2.8) gave
+    under 125° across 1280 px."""
+    half = side / 2 if side is not None else c
+    return math.degrees(2 * math.atan(half / f))
+
+
+def _centre_problem(cx: float, cy: float, width: int, height: int) -> str | None:
+    """Why principal point (cx, cy) px is no calibration's for a `width` x `height` px image (more
+    than MAX_CENTRE_OFFSET of a side off its centre), or None."""
+    if abs(cx - width / 2) > MAX_CENTRE_OFFSET * width or abs(cy - height / 2) > MAX_CENTRE_OFFSET * height:
+        return (f"principal point ({cx:g}, {cy:g}) px is far from the centre ({width / 2:g}, {height / 2:g}) of "
+                f"the {width}x{height} px image")
+    return None
 
 
 def _focal_length_problem(K: np.ndarray, width: int | None, height: int | None) -> str | None:

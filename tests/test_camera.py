@@ -636,10 +636,34 @@ def test_an_image_of_another_aspect_than_the_calibration_is_an_error(size, messa
     assert cam.for_image(1281, 960)[0].K[0, 0] == pytest.approx(1000.78, abs=0.01)  # within 1 %: scaled
 
 
-def test_a_camera_without_size_too_long_for_the_image_is_a_warning():
-    cam = Camera(intrinsics(4e5, 4e5))
-    same, warnings = cam.for_image(640, 480)
-    assert same is cam and len(warnings) == 1 and "field of view under 0.1°" in warnings[0]
+@pytest.mark.parametrize("fx, cx, cy, message", [
+    (8e5, 640, 480, "fx=800000 px makes the image's 1280 px a field of view under 0.1°"),
+    # a lens's focal length and the sensor's centre in mm: about the principal point the field of
+    # view across 1280 px came to 123°, and the pose was 15° and 2 m off with no word
+    (4.2, 2.8, 2.1, r"fx=4\.2 px gives a field of view of 179\.2° across the image.*not mm"),
+])
+def test_a_camera_without_size_that_cannot_take_the_image_is_an_error(fx, cx, cy, message):
+    """Its pose would be meaningless; it was answered, with a warning."""
+    with pytest.raises(CameraError, match="the camera has no image size and does not fit this 1280x960 px image: "
+                                          + message):
+        Camera(intrinsics(fx, fx, cx, cy)).for_image(1280, 960)
+
+
+CENTRE_PROBLEM = "principal point ({:g}, {:g}) px is far from the centre (640, 480) of the 1280x960 px image"
+
+
+@pytest.mark.parametrize("data, message", [
+    ({"fx": 4.2, "fy": 4.2, "cx": 2.8, "cy": 2.1}, r"fx=4\.2 px gives a field of view of 179\.2°.*not mm"),  # in mm
+    ({"fx": 1000, "fy": 1000, "cx": 20, "cy": 15}, re.escape(CENTRE_PROBLEM.format(20, 15))),
+    ({"fx": 500, "fy": 500, "cx": 320, "cy": 240}, re.escape(CENTRE_PROBLEM.format(320, 240))),  # a 640x480 calibration
+])
+def test_a_principal_point_far_from_the_centre_of_the_image_size_given_is_refused(data, message):
+    """Each gave a pose without a warning (the first 15° and 2 m off): a principal point in the
+    image was all that was asked of it, and the field of view was measured about it."""
+    with pytest.raises(CameraError, match=message):
+        camera_from_json({**data, "width": 1280, "height": 960})
+    assert camera_from_json({"fx": 1000, "fy": 1000, "cx": 640 + 0.19 * 1280, "cy": 480 - 0.19 * 960, "width": 1280,
+                             "height": 960})
 
 
 CORNER_JSON = {"fx": 1108.5, "fy": 1108.5, "cx": 640, "cy": 480}  # a 1280 x 960 calibration without its size
