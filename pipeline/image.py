@@ -165,19 +165,26 @@ def transparent(data: bytes) -> bool:
     return False
 
 
+def to_8bit(image: np.ndarray) -> np.ndarray:
+    """A uint8 or uint16 image -> uint8, 16 bits shifted down by as many bits as its largest value
+    has beyond 8: 10- and 12-bit camera data stored in 16 bits (values up to 1023 or 4095) keeps
+    its levels, which the top 8 of 16 bits (OpenCV's scaling) left at 0-3 and 0-15."""
+    if image.dtype != np.uint16:
+        return image
+    return (image >> max(0, int(image.max()).bit_length() - 8)).astype(np.uint8)
+
+
 def on_white(image: np.ndarray) -> np.ndarray:
     """(H, W, 4) BGRA, 8- or 16-bit -> (H, W, 3) uint8 BGR over white, as a page shows it (a sign's
     artwork drawn on a transparent ground is a sign on white)."""
-    if image.dtype == np.uint16:
-        image = (image >> 8).astype(np.uint8)  # as IMREAD_COLOR scales 16 bits
-    alpha = image[..., 3:].astype(np.float32) / 255
-    return np.round(image[..., :3] * alpha + 255 * (1 - alpha)).astype(np.uint8)
+    opacity = image[..., 3:].astype(np.float32) / np.iinfo(image.dtype).max
+    return np.round(to_8bit(image[..., :3]) * opacity + 255 * (1 - opacity)).astype(np.uint8)
 
 
 def decode_image(data: bytes, name: str = "image") -> np.ndarray:
     """Encoded bytes (JPEG, PNG, TIFF, WebP, BMP, GIF first frame, ...) -> (H, W, 3) uint8 BGR.
 
-    EXIF orientation is applied; 16-bit images are scaled to 8 bits, transparent pixels (PNG,
+    EXIF orientation is applied; 16-bit images are scaled to 8 bits (`to_8bit`), transparent pixels (PNG,
     WebP) shown over white, gray expanded. A JPEG whose data is damaged is refused (`jpeg_damage`),
     as one that cannot be decoded is.
     """
@@ -193,12 +200,13 @@ def decode_image(data: bytes, name: str = "image") -> np.ndarray:
             image = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
             if image is not None and image.ndim == 3 and image.shape[2] == 4:
                 return on_white(image)
-        image = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+        # ANYDEPTH: 16 bits as they are, for to_8bit (IMREAD_COLOR keeps their top 8)
+        image = cv2.imdecode(buf, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
     except cv2.error as exc:
         raise ImageError(f"{name}: cannot decode image: {exc.err or exc}") from None
-    if image is None:
+    if image is None or image.dtype not in (np.uint8, np.uint16):
         raise unreadable(data, name)
-    return image
+    return to_8bit(image)
 
 
 def read_file(path: str | Path) -> bytes:

@@ -211,3 +211,16 @@ def test_read_file_refuses_what_is_not_a_regular_file_without_opening_it(tmp_pat
                            (tmp_path, "is a directory, not a regular file"),
                            (tmp_path / "notes.txt" / "photo.jpg", "Not a directory")]:
             assert refusal(path) == f"ImageError: {path}: {kind}"
+
+
+@pytest.mark.parametrize("bits", [8, 10, 12, 16])
+def test_camera_data_of_any_depth_in_16_bits_keeps_its_levels(bits):
+    """A mono12 or mono10 camera's frames saved as 16-bit PNG: the top 8 of 16 bits left them at
+    levels 0-15 and 0-3, features found no match, and a harder scene was missed."""
+    scene = cv2.imread(str(Path(__file__).parents[1] / "sample_images" / "scenes" / "scene_002.jpg"))
+    if bits == 16:
+        deep = scene.astype(np.uint16) * 257
+    else:
+        deep = scene.astype(np.uint16) << (bits - 8)
+    image = decode_image(cv2.imencode(".png", deep)[1].tobytes(), f"mono{bits}.png")
+    assert image.dtype == np.uint8 and np.array_equal(image, scene)
