@@ -224,3 +224,15 @@ def test_camera_data_of_any_depth_in_16_bits_keeps_its_levels(bits):
         deep = scene.astype(np.uint16) << (bits - 8)
     image = decode_image(cv2.imencode(".png", deep)[1].tobytes(), f"mono{bits}.png")
     assert image.dtype == np.uint8 and np.array_equal(image, scene)
+
+
+@pytest.mark.parametrize("start, stop", [(5000, 15000), (5000, 25000), (3000, 4000)])
+def test_a_jpeg_with_zeros_over_its_image_data_is_refused(start, stop):
+    """Zeros (a failing card or copy) make no marker, so the structure stayed sound; libjpeg ran out
+    of data and drew the rest grey, and the photo was answered "no sign" (the tester's 10 kB)."""
+    data = bytearray((Path(__file__).parents[1] / "sample_images" / "scenes" / "scene_002.jpg").read_bytes())
+    data[start:stop] = bytes(stop - start)
+    assert cv2.imdecode(np.frombuffer(bytes(data), np.uint8), cv2.IMREAD_COLOR) is not None
+    with pytest.raises(ImageError, match=r"zeroed\.jpg: damaged JPEG file \(its image data runs out before its last "
+                                         r"block, which is drawn flat grey \(128\)"):
+        decode_image(bytes(data), "zeroed.jpg")
