@@ -320,6 +320,12 @@ def assumed_camera(width: int, height: int, hfov_deg: float = ASSUMED_HFOV_DEG, 
     reported): why nothing better was had, e.g. the EXIF focal length that was refused.
     """
     f = (width / 2) / math.tan(math.radians(hfov_deg) / 2)
+    # A strip far taller than wide (1 x 4000 px) would see more than a pinhole camera can down its
+    # height, and the camera's own check refused it, blaming focal lengths in mm.
+    tallest = MAX_FOV_DEG - 1
+    if (height / 2) / f > math.tan(math.radians(tallest) / 2):
+        f = (height / 2) / math.tan(math.radians(tallest) / 2)
+        note = ", ".join(filter(None, (note, f"narrower, as the image is {tallest:g}° tall")))
     K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]])
     source = f"assumed {hfov_deg:g}° horizontal field of view" + (f" ({note})" if note else "")
     return Camera(K, np.zeros(5), width, height, source)

@@ -612,8 +612,13 @@ def test_a_long_lens_with_its_image_size_is_a_camera():
 
 
 def test_a_thin_crop_is_held_against_its_long_side():
-    """A 4000 x 1 px strip is a camera's: vertically it sees a sliver, but 4000 px span 60°."""
+    """A 4000 x 1 px strip is a camera's: vertically it sees a sliver, but 4000 px span 60°.
+    Turned upright, 60° across 1 px made it 180° tall, and the assumption was refused as a
+    focal length in mm; it is held to 169°."""
     assert assumed_camera(4000, 1).for_image(4000, 1)[1] == []
+    tall = assumed_camera(1, 4000)
+    assert tall.K[1, 1] == pytest.approx(2000 / math.tan(math.radians(84.5)))
+    assert tall.source == "assumed 60° horizontal field of view (narrower, as the image is 169° tall)"
 
 
 def test_sample_camera_files_load():

@@ -147,6 +147,8 @@ ODD_IMAGES = {
     "cmyk.jpg": (encode(Image.new("CMYK", (64, 48), (0, 200, 0, 0)), "JPEG"), (64, 48)),
     "one_pixel.jpg": (encode(Image.new("RGB", (1, 1), (255, 255, 255)), "JPEG"), (1, 1)),
     "strip.png": (encode(Image.new("L", (4000, 1), 255), "PNG"), (4000, 1)),
+    # the assumed camera of a tall strip saw 180° down it, and the camera check refused its own assumption
+    "tall_strip.png": (encode(Image.new("L", (1, 4000), 255), "PNG"), (1, 4000)),
     "black.jpg": (encode(Image.new("RGB", (640, 480)), "JPEG"), (640, 480)),
     "white.png": (encode(Image.new("RGB", (640, 480), (255, 255, 255)), "PNG"), (640, 480)),
     "animated.gif": (animated_gif(), (64, 48)),  # the first frame
