@@ -173,8 +173,10 @@ def shrunk_view(gray: np.ndarray, f: float, camera: Camera | None) -> tuple[np.n
     small = cv2.resize(gray, (max(1, round(w * f)), max(1, round(h * f))), interpolation=cv2.INTER_AREA)
     fx, fy = small.shape[1] / w, small.shape[0] / h
     to_small = np.array([[fx, 0, 0.5 * fx - 0.5], [0, fy, 0.5 * fy - 0.5], [0, 0, 1]])
-    lens = None if camera is None else Camera(to_small @ camera.K, camera.dist, small.shape[1], small.shape[0],
-                                              camera.source)
+    # Without an image size: the bounds a camera file is held to (its principal point near the
+    # centre of its image) are not this copy's to meet; the half pixel moved a camera allowed to the
+    # image's edge out of it, and recognition failed.
+    lens = None if camera is None else Camera(to_small @ camera.K, camera.dist, source=camera.source)
     return small, to_small, lens
 
 

@@ -205,11 +205,12 @@ def test_dense_refinement_under_lens_distortion_aligns_as_without():
 
 
 def test_a_close_sign_is_outlined_with_the_principal_point_at_the_image_edge(sign):
-    """The camera of the shrunk image a wide sign is outlined in moves the principal point half a
-    pixel outwards: from cx = 0, a camera file allows, to -0.15, which the camera check refused,
-    and recognition failed. The image spans -0.5 .. w - 0.5 in pixel centres."""
+    """The camera of the shrunk image a wide sign is outlined in was held to a camera file's bounds:
+    a file without an image size, its principal point at this image's edge (cx = 0, warned as
+    made for another resolution), moved half a pixel out of the image there, and recognition failed."""
     corners = np.array([[60.0, 150], [580, 165], [575, 370], [66, 355]])
-    camera = Camera(np.array([[554.0, 0, 0], [0, 554, 240], [0, 0, 1]]), np.zeros(5), 640, 480)
+    camera = Camera(np.array([[554.0, 0, 0], [0, 554, 240], [0, 0, 1]]), np.zeros(5))
     rec = recognize(plaque_image(sign, 90, corners=corners), load_library(), preset("default"), camera)
     assert rec.label == sign.id and rec.outline is not None
+    assert any("another resolution" in w for w in rec.warnings)
     assert np.abs(rec.corners - corners).max() < 1.0
