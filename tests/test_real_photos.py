@@ -43,8 +43,12 @@ def test_default_preset_is_accurate_on_real_photos():
     assert rmse["city"] < 1.0 and rmse["adam"] < 1.0, rmse
     # Photo A's corners land up to 0.83 frames outside B, as a sign's do seen from up close (these
     # were refused at half a frame), and adam's, cut by B's edge, passes the text check on what B shows.
+    # WhiteBoard's part of A in view, under B's other glare, does not (its H is right all the same):
+    # with strips counted only when 90 % in view, none of its was, and it passed with nothing checked.
     answered = {name for name, (rec, _) in runs.items() if rec.recognized}
-    assert answered == set(SOLVABLE), answered
+    assert answered == set(SOLVABLE) - {"WhiteBoard"}, answered
+    text = runs["WhiteBoard"][0].turned_down[0].text
+    assert text.seen == 3 and text.weakest < 0.5, text
 
 
 def test_unsolvable_pair_is_reported_not_guessed():
