@@ -21,12 +21,13 @@ import browser_harness as harness
 from chessboards import K_TRUE, render_boards
 from pipeline.exif import LensExif, focal_px
 from pipeline.image import NOT_AN_IMAGE
-from pipeline.library import SAMPLE_LIBRARY
+from pipeline.library import SAMPLE_LIBRARY, load_library
 from pipeline.verify import CHECK_WIDTH
 from app import tuning
 from app.figures import TEXT_BLOCK_PX
+from app.scene import LABEL_SEPARATOR
 from app.workspace import memory_text
-from scene_images import DECOYS, decoy_image
+from scene_images import DECOYS, decoy_image, sign_seen_from
 from serving import MISFIT_CAMERA
 
 TRUTH = json.loads((harness.SCENES / "truth.json").read_text())["images"]
@@ -974,6 +975,80 @@ def test_viser_scene_connects_and_shares_the_settings(page, api):
 
     harness.set_settings(page, api, {"threshold": 0.55})
     page.wait_for_function("el => el.getAttribute('aria-valuenow') === '0.55'", arg=thumb.element_handle())
+
+
+# The camera labels viser draws in the 3D view (on its canvas, not in the page): where each visible
+# one is, as its client places it (client/src/label: written rightward and down from its camera,
+# 12 px type on a background a fifth of a line larger), in the view's CSS px; and the world shown.
+LABEL_BOXES = """() => {
+    const m = window.__viserMutable, tree = window.__viserSceneTree.getState();
+    const canvas = m.canvas.getBoundingClientRect();
+    const ctx = document.createElement("canvas").getContext("2d");
+    ctx.font = '12px -apple-system, BlinkMacSystemFont, "Segoe UI", "Roboto", "Helvetica Neue", Arial, sans-serif';
+    const probe = ctx.measureText("Mg");
+    const line = probe.fontBoundingBoxAscent + probe.fontBoundingBoxDescent, pad = 0.2 * line;
+    const labels = Object.entries(tree).filter(([, n]) => n?.message?.type === "LabelMessage" && n.effectiveVisibility)
+        .map(([name, n]) => {
+            const parent = m.nodeRefFromName[name.slice(0, name.lastIndexOf("/"))];
+            const at = parent.position.clone().set(...(m.nodePoseData[name]?.position ?? [0, 0, 0]))
+                .applyMatrix4(parent.matrixWorld).project(m.camera);
+            const lines = n.message.props.text.split("\\n");
+            const left = (at.x + 1) / 2 * canvas.width, top = (1 - at.y) / 2 * canvas.height;
+            return { lines, left, top, right: left + Math.max(...lines.map((l) => ctx.measureText(l).width)) + pad,
+                     bottom: top + lines.length * line + pad };
+        });
+    const world = Object.keys(tree).find((name) => /^\\/signs\\/[^/]+$/.test(name) && tree[name].effectiveVisibility);
+    return { labels, world: world?.split("/")[2], width: canvas.width, height: canvas.height };
+}"""
+
+
+def labels_laid_out(page, names: list[str], timeout: float = 30) -> tuple[list[str], list, list]:
+    """The names the 3D view's camera labels list, the pairs of labels that overlap and the labels
+    reaching past the view's right or bottom edge, once every one of `names` is listed and no label
+    overlaps or reaches past (or `timeout` s have passed: the labels are laid out again as the view
+    is framed, on the server's redraw thread)."""
+    frame = viser_frame(page)
+    deadline = time.monotonic() + timeout
+    while True:
+        shown = frame.evaluate(LABEL_BOXES)
+        boxes = shown["labels"]
+        listed = [name for box in boxes for line in box["lines"] for name in line.split(LABEL_SEPARATOR)]
+        overlaps = [(a["lines"][0], b["lines"][0]) for i, a in enumerate(boxes) for b in boxes[:i]
+                    if a["left"] < b["right"] and b["left"] < a["right"] and a["top"] < b["bottom"]
+                    and b["top"] < a["bottom"]]
+        outside = [b["lines"][0] for b in boxes if b["right"] > shown["width"] or b["bottom"] > shown["height"]]
+        if set(names) <= set(listed) and not overlaps and not outside or time.monotonic() > deadline:
+            return listed, overlaps, outside
+        time.sleep(0.3)
+
+
+def test_twenty_camera_labels_in_the_3d_view_do_not_overlap(page, api):
+    """Thirteen cameras and more printed their names over each other in the page's narrow 3D column,
+    and in the strip under the images (1280 px wide and less): labels that would overlap share one,
+    a name a line, or several to fit above the strip's bottom."""
+    frame = viser_frame(page)
+    world = frame.wait_for_function(f"() => ({LABEL_BOXES})().world", timeout=30_000).json_value()
+    library = load_library(SAMPLE_LIBRARY)
+    # 20 cameras on a grid a metre or two in front of the sign shown, named as phones name photos
+    spots = [(x, y, -z) for z in (1.2, 1.8) for x in (-0.9, -0.45, 0.0, 0.45, 0.9) for y in (-0.25, 0.2)]
+    names = [f"IMG_20240512_1034{i:02d}.jpg" for i in range(len(spots))]
+    r = api.post("/api/images", files=[("files", (name, sign_seen_from(library, world, spot, seed=i), "image/jpeg"))
+                                       for i, (name, spot) in enumerate(zip(names, spots))])
+    r.raise_for_status()
+    ids = [i["id"] for i in r.json()["images"]]
+    try:
+        harness.wait_server_idle(api)
+        assert [api.get(f"/api/images/{i}").json()["label"] for i in ids] == [world] * len(ids)
+        for size in ({"width": 1600, "height": 1000}, {"width": 1280, "height": 800}):   # the column, the strip
+            page.set_viewport_size(size)
+            listed, overlaps, outside = labels_laid_out(page, names)
+            assert set(names) <= set(listed), (size, sorted(set(names) - set(listed)))
+            assert not overlaps, (size, overlaps)
+            assert not outside, (size, outside)
+            assert len(listed) == len(set(listed)), "a name is listed twice"
+    finally:
+        for image_id in ids:
+            api.delete(f"/api/images/{image_id}").raise_for_status()
 
 
 def test_viser_scene_reconnects_after_a_server_restart(browser, tmp_path):
