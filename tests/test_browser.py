@@ -877,6 +877,46 @@ def test_the_charts_show_the_threshold_as_the_form_does(page, api):
     page.unroute("**/api/sweep?*")
 
 
+def test_the_charts_set_their_value_from_the_keyboard(page, api):
+    """The threshold histogram and the sweep chart set the value where they are clicked, and did
+    nothing from the keyboard: each is a slider of its setting that Tab reaches, showing its focus and
+    saying what it does and the value now; ← → step it by the setting's step (ten with Shift), Home and
+    End go to the chart's ends, as a click there would, and ← → no longer step through the images."""
+    image_id = uploaded_scene(api)
+    open_detail(page, image_id)
+    histogram = page.locator("#histogram")
+    histogram.wait_for()
+    page.focus("#detail-expected")
+    tab_to(page, "histogram", limit=30)
+    assert page.evaluate("() => getComputedStyle(document.activeElement).outlineStyle") == "solid", "no focus ring"
+    assert histogram.get_attribute("role") == "slider" and histogram.get_attribute("aria-valuenow") == "0.75"
+    assert re.fullmatch(r"threshold histogram: click, or press .+ to set threshold; now 0\.75",
+                        histogram.get_attribute("aria-label"))
+    page.keyboard.press("ArrowRight")
+    page.keyboard.press("ArrowRight")   # before the server has answered the first: steps on from it
+    harness.wait_setting(page, api, {"threshold": 0.77})
+    page.wait_for_function("() => document.querySelector('#histogram').ariaLabel.endsWith('now 0.77')")
+    assert page.get_attribute("#detail", "data-id") == image_id, "the arrow keys stepped to another image"
+    page.keyboard.press("Shift+ArrowLeft")
+    harness.wait_setting(page, api, {"threshold": 0.67})
+    page.keyboard.press("End")
+    harness.wait_setting(page, api, {"threshold": 1.0})
+    assert histogram.evaluate("e => e === document.activeElement")
+
+    page.route("**/api/sweep?*", lambda route: route.fulfill(json=sweep_answer("ratio", 0.5, 0.9, 5, [5] * 5)))
+    page.select_option("#sweep-param", "ratio")
+    page.click("#run-sweep")
+    chart = page.locator("#sweep")
+    chart.wait_for()
+    tab_to(page, "sweep", limit=3)
+    assert chart.get_attribute("aria-label").startswith("sweep chart: ") and "to set ratio; now 0.75" in \
+        chart.get_attribute("aria-label")
+    for key, value in (("End", 0.9), ("ArrowLeft", 0.89), ("Home", 0.5)):
+        page.keyboard.press(key)
+        harness.wait_setting(page, api, {"ratio": value})
+    page.unroute("**/api/sweep?*")
+
+
 def test_sweep_bounds_follow_the_swept_setting(page, api):
     open_detail(page, uploaded_scene(api))
     entry = next(e for e in api.get("/api/settings/schema").json() if e["name"] == "max_features")
