@@ -258,6 +258,63 @@ def test_phone_width_stacks_the_panels(page):
     page.click("#library-close")
 
 
+# The top bar's parts that stick out of the window, are cut off by a box holding them, are cut short
+# (…) or break over two lines.
+TOP_BAR_CUT = """() => [...document.querySelectorAll(
+        '.topbar h1, #run-status, #settings-version, #counts .count, #memory, #live')].filter((e) => {
+    const r = e.getBoundingClientRect();
+    if (r.width === 0) return false;   // not shown (the memory figure on a phone)
+    for (let box = e.parentElement; box !== document.body; box = box.parentElement) {
+        const b = box.getBoundingClientRect();
+        if (getComputedStyle(box).overflow !== "visible"
+            && (r.left < b.left - 0.5 || r.right > b.right + 0.5 || r.top < b.top - 0.5 || r.bottom > b.bottom + 0.5)) {
+            return true;
+        }
+    }
+    return r.left < 0 || r.right > innerWidth || r.top < 0 || r.bottom > innerHeight
+        || e.scrollWidth > e.clientWidth + 1 || r.height > 26;
+}).map((e) => e.id || e.textContent)"""
+
+
+def test_a_small_window_shows_the_whole_top_bar_and_scrolls_only_when_asked(page, api, tmp_path):
+    """At 800×600 the top bar cut its counts off (and broke the title and the status over two lines).
+    The page scrolls as a whole in a window up to 1280 px wide: stepping to the next image (→)
+    scrolled it back up to the image's card, taking the detail being read out of sight."""
+    page.set_viewport_size({"width": 800, "height": 600})
+    page.evaluate("() => { window.scrolled = []; addEventListener('scroll', () => window.scrolled.push(scrollY)); }")
+    # Every kind of count the top bar shows: right, wrong, recognised and no sign unlabelled; the
+    # results arriving as the page shows.
+    wrong = next(s for s in api.get("/api/library").json() if s["id"] != LABEL)["id"]
+    for name, scene, expected in (("small-wrong.jpg", SCENE, wrong), ("small-sign.jpg", SCENE, ""),
+                                  ("small-none.jpg", NO_SIGN, "")):
+        api.post("/api/images", files={"files": (name, (harness.SCENES / scene).read_bytes(), "image/jpeg")},
+                 data={"expected": expected}).raise_for_status()
+    upload = tmp_path / "small-upload.jpg"
+    upload.write_bytes((harness.SCENES / SCENE).read_bytes())
+    try:
+        harness.upload(page, [upload], expected=LABEL)
+        harness.wait_cards(page, ["small-wrong.jpg", "small-sign.jpg", "small-none.jpg"])
+        for status in ("accuracy", "status-wrong", "status-recognized", "status-none"):
+            page.locator(f"#counts .{status}").wait_for()
+        assert page.evaluate(TOP_BAR_CUT) == []
+        assert page.evaluate("() => [scrollY, window.scrolled.length]") == [0, 0]
+
+        # Reading the detail, below the gallery: → steps to the next image and nothing scrolls.
+        first = page.get_attribute("#detail", "data-id")
+        reading = page.evaluate("() => { scrollTo(0, document.querySelector('#detail').getBoundingClientRect().top"
+                                " + scrollY); return scrollY; }")
+        assert reading > 0
+        for _ in range(3):
+            page.keyboard.press("ArrowRight")
+        page.wait_for_function("id => document.querySelector('#detail').dataset.id !== id", arg=first)
+        harness.stage_images_loaded(page, "#detail .stage img")
+        assert page.evaluate("() => scrollY") == reading
+    finally:
+        for image in api.get("/api/images").json()["images"]:
+            if image["name"].startswith("small-"):
+                api.delete(f"/api/images/{image['id']}").raise_for_status()
+
+
 def test_drop_many_files_with_progress(page, api):
     names = [f"drop-{i}-{SCENE}" for i in range(2)]
     data = base64.b64encode((harness.SCENES / SCENE).read_bytes()).decode()
