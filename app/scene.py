@@ -214,45 +214,81 @@ def screen_px(points: np.ndarray, camera: viser.CameraHandle) -> np.ndarray:
     return px
 
 
+# How far a label's box stands left of and above its anchor, in widths and heights: viser's anchors
+# name the box's corner or edge at it ("top-left": the box rightward and down).
+ANCHOR_SHIFT = {"left": 0.0, "top": 0.0, "center": 0.5, "right": 1.0, "bottom": 1.0}
+
+
 @dataclass(frozen=True)
 class SharedLabel:
-    """One label: written from camera `at` (an index), it names `cameras` (indices, in order) in `text`."""
+    """One label: written from camera `at` (an index), it names `cameras` (indices, in order) in
+    `text`; `anchor` is the corner of its box at the camera, as viser's labels are anchored."""
 
     at: int
     cameras: list[int]
     text: str
+    anchor: str = "top-left"
+
+    def box(self, view: View) -> tuple[float, float, float, float]:
+        """(left, top, right, bottom) px on `view`'s screen; NaN when its camera is behind the viewer."""
+        (x, y), (width, height) = view.px[self.at], label_size_px(self.text)
+        vertical, horizontal = self.anchor.split("-")
+        left, top = x - width * ANCHOR_SHIFT[horizontal], y - height * ANCHOR_SHIFT[vertical]
+        return left, top, left + width, top + height
+
+    def beyond(self, view: View) -> float:
+        """How far, px, it reaches past the edges of `view`'s screen (0 when its camera is behind the viewer)."""
+        left, top, right, bottom = self.box(view)
+        if not np.isfinite(left):
+            return 0.0
+        return max(0.0, -left) + max(0.0, -top) + max(0.0, right - view.width) + max(0.0, bottom - view.height)
+
+    def fits(self, view: View) -> bool:
+        """Whether it is drawn whole on `view`'s screen (or not at all: its camera behind the viewer)."""
+        return self.beyond(view) == 0
 
 
 def shared_label(group: list[int], texts: list[str], views: list[View]) -> SharedLabel:
     """The label of `group` (indices into `texts`, each camera's own text; `labels_apart`' views):
-    written from its camera highest on the first viewer's screen, so that the list it makes runs
-    down past the others, its texts one a line, or as many a line as it takes to fit above the
-    bottom of every viewer's canvas (the 3D strip under the images is some 300 px high)."""
-    at = group[0]
-    if views:
-        at = min(group, key=lambda i: (views[0].px[i, 1] if np.isfinite(views[0].px[i, 1]) else math.inf, i))
-    pad = 0.2 * LABEL_LINE_PX
-    rows = min((max(1, int((view.height - view.px[at, 1] - pad) // LABEL_LINE_PX)) for view in views
-                if np.isfinite(view.px[at, 1])), default=len(group))
-    per_line = math.ceil(len(group) / rows)
+    its texts one a line, written rightward and down from its camera highest on the first viewer's
+    screen, so that the list runs down past the others; else, to be drawn whole on every viewer's
+    screen, leftward, or up from the lowest camera, or centred on the middle one (three dozen names
+    in the page's 3D column), or several texts a line (in the 3D strip under the images, some 300 px
+    high, twenty names one a line ran past its bottom). When none is drawn whole, the one that
+    reaches least past the edges."""
     names = [texts[i] for i in group]
-    return SharedLabel(at, group, "\n".join(LABEL_SEPARATOR.join(names[i:i + per_line])
-                                            for i in range(0, len(names), per_line)))
+    top = middle = bottom = group[0]
+    if views:
+        y = {i: views[0].px[i, 1] for i in group if np.isfinite(views[0].px[i, 1])}
+        if y:
+            order = sorted(y, key=y.get)
+            top, middle, bottom = order[0], order[len(order) // 2], order[-1]
+    best, least = None, math.inf
+    for per_line in range(1, len(names) + 1):
+        text = "\n".join(LABEL_SEPARATOR.join(names[i:i + per_line]) for i in range(0, len(names), per_line))
+        for at, anchor in ((top, "top-left"), (top, "top-right"), (bottom, "bottom-left"), (bottom, "bottom-right"),
+                           (middle, "center-left"), (middle, "center-right"), (top, "top-center"),
+                           (bottom, "bottom-center"), (middle, "center-center")):
+            label = SharedLabel(at, group, text, anchor)
+            beyond = sum(label.beyond(view) for view in views)
+            if beyond == 0:
+                return label
+            if beyond < least:
+                best, least = label, beyond
+        if views and label_size_px(text)[0] > max(view.width for view in views):
+            break   # more a line would only be wider still
+    return best
 
 
 def labels_apart(groups: list[list[int]], texts: list[str], views: list[View]) -> list[SharedLabel]:
     """The labels of cameras whose own label texts are `texts`, `groups` of them (indices, as
     `label_groups` gives them) sharing one, merged until no two overlap on any of the viewers'
-    screens (`views`, where each camera is seen: `View`): a label is written rightward and down from
-    its camera, and a shared one lists its group's texts (`shared_label`). In order of their first
-    camera."""
+    screens (`views`, where each camera is seen: `View`): a label lists its group's texts, written
+    from one of its cameras (`shared_label`). In order of their first camera."""
     while True:
         labels = [shared_label(group, texts, views) for group in groups]
-        boxes = []
-        for label in labels:
-            size = label_size_px(label.text)
-            boxes.append([[*view.px[label.at], *(view.px[label.at] + size)] for view in views])
-        b = np.asarray(boxes, float).reshape(len(labels), len(views), 4)   # left, top, right, bottom
+        b = np.asarray([[label.box(view) for view in views] for label in labels], float).reshape(
+            len(labels), len(views), 4)   # left, top, right, bottom
         # NaN (behind a viewer) compares false: such a label overlaps nothing on that screen.
         overlap = ((b[:, None, :, 0] < b[None, :, :, 2] + LABEL_GAP_PX)
                    & (b[None, :, :, 0] < b[:, None, :, 2] + LABEL_GAP_PX)
@@ -680,6 +716,8 @@ class SceneHandle:
             for label in labels_apart(label_groups(list(positions), self.frustum_width.value), texts, views):
                 if nodes[label.at].label.text != label.text:
                     nodes[label.at].label.text = label.text
+                if nodes[label.at].label.anchor != label.anchor:
+                    nodes[label.at].label.anchor = label.anchor
                 for i in label.cameras:
                     if nodes[i].label.visible != (i == label.at):
                         nodes[i].label.visible = i == label.at

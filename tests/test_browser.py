@@ -1075,7 +1075,7 @@ def test_viser_scene_connects_and_shares_the_settings(page, api):
 
 
 # The camera labels viser draws in the 3D view (on its canvas, not in the page): where each visible
-# one is, as its client places it (client/src/label: written rightward and down from its camera,
+# one is, as its client places it (client/src/label: the corner its anchor names at its camera,
 # 12 px type on a background a fifth of a line larger), in the view's CSS px; and the world shown.
 LABEL_BOXES = """() => {
     const m = window.__viserMutable, tree = window.__viserSceneTree.getState();
@@ -1090,9 +1090,13 @@ LABEL_BOXES = """() => {
             const at = parent.position.clone().set(...(m.nodePoseData[name]?.position ?? [0, 0, 0]))
                 .applyMatrix4(parent.matrixWorld).project(m.camera);
             const lines = n.message.props.text.split("\\n");
-            const left = (at.x + 1) / 2 * canvas.width, top = (1 - at.y) / 2 * canvas.height;
-            return { lines, left, top, right: left + Math.max(...lines.map((l) => ctx.measureText(l).width)) + pad,
-                     bottom: top + lines.length * line + pad };
+            const width = Math.max(...lines.map((l) => ctx.measureText(l).width)) + pad;
+            const height = lines.length * line + pad;
+            const [vertical, horizontal] = n.message.props.anchor.split("-");
+            const shift = { left: 0, top: 0, center: 0.5, right: 1, bottom: 1 };
+            const left = (at.x + 1) / 2 * canvas.width - shift[horizontal] * width;
+            const top = (1 - at.y) / 2 * canvas.height - shift[vertical] * height;
+            return { lines, left, top, right: left + width, bottom: top + height };
         });
     const world = Object.keys(tree).find((name) => /^\\/signs\\/[^/]+$/.test(name) && tree[name].effectiveVisibility);
     return { labels, world: world?.split("/")[2], width: canvas.width, height: canvas.height };
@@ -1101,7 +1105,7 @@ LABEL_BOXES = """() => {
 
 def labels_laid_out(page, names: list[str], timeout: float = 30) -> tuple[list[str], list, list]:
     """The names the 3D view's camera labels list, the pairs of labels that overlap and the labels
-    reaching past the view's right or bottom edge, once every one of `names` is listed and no label
+    reaching past the view's edges, once every one of `names` is listed and no label
     overlaps or reaches past (or `timeout` s have passed: the labels are laid out again as the view
     is framed, on the server's redraw thread)."""
     frame = viser_frame(page)
@@ -1113,7 +1117,9 @@ def labels_laid_out(page, names: list[str], timeout: float = 30) -> tuple[list[s
         overlaps = [(a["lines"][0], b["lines"][0]) for i, a in enumerate(boxes) for b in boxes[:i]
                     if a["left"] < b["right"] and b["left"] < a["right"] and a["top"] < b["bottom"]
                     and b["top"] < a["bottom"]]
-        outside = [b["lines"][0] for b in boxes if b["right"] > shown["width"] or b["bottom"] > shown["height"]]
+        outside = [(b["lines"], [round(b[k]) for k in ("left", "top", "right", "bottom")], shown["width"], shown["height"])
+                   for b in boxes if b["left"] < 0 or b["top"] < 0 or b["right"] > shown["width"]
+                   or b["bottom"] > shown["height"]]
         if set(names) <= set(listed) and not overlaps and not outside or time.monotonic() > deadline:
             return listed, overlaps, outside
         time.sleep(0.3)
@@ -1122,7 +1128,7 @@ def labels_laid_out(page, names: list[str], timeout: float = 30) -> tuple[list[s
 def test_twenty_camera_labels_in_the_3d_view_do_not_overlap(page, api):
     """Thirteen cameras and more printed their names over each other in the page's narrow 3D column,
     and in the strip under the images (1280 px wide and less): labels that would overlap share one,
-    a name a line, or several to fit above the strip's bottom."""
+    a name a line, or several to fit above the strip's bottom; none runs off the view."""
     frame = viser_frame(page)
     world = frame.wait_for_function(f"() => ({LABEL_BOXES})().world", timeout=30_000).json_value()
     library = load_library(SAMPLE_LIBRARY)

@@ -377,7 +377,7 @@ def test_screen_px_is_where_a_viewer_sees_a_point():
 
 def _overlapping(labels, view: View) -> list:
     """The pairs of `labels` (SharedLabel) whose boxes on `view`'s screen overlap, or come nearer than LABEL_GAP_PX."""
-    boxes = [(*view.px[label.at], *(view.px[label.at] + label_size_px(label.text))) for label in labels]
+    boxes = [label.box(view) for label in labels]
     return [(a, b) for i, a in enumerate(boxes) for b in boxes[:i]
             if a[0] < b[2] + LABEL_GAP_PX and b[0] < a[2] + LABEL_GAP_PX
             and a[1] < b[3] + LABEL_GAP_PX and b[1] < a[3] + LABEL_GAP_PX]
@@ -413,8 +413,19 @@ def test_a_shared_label_lists_several_names_a_line_to_fit_above_the_bottom_of_th
     strip = View.of(_camera((0, 0, -4), (0, 0.3, 0), 1260, 300, 50), positions)
     [label] = labels_apart(label_groups(list(positions), 0.001), names, [strip])
     lines = label.text.split("\n")
-    assert strip.px[label.at, 1] + label_size_px(label.text)[1] <= 300 and len(lines) > 1
+    assert label.fits(strip) and 1 < len(lines) < 20
     assert [name for line in lines for name in line.split(LABEL_SEPARATOR)] == names
+
+
+def test_a_label_that_would_run_off_the_view_is_written_the_other_way():
+    """A camera near the right edge of the page's narrow 3D column had its name cut off there."""
+    # one camera 100 px left of the right edge, forty standing together 160 px above the bottom, at the left
+    points = np.array([[0.13, -0.3, 0]] + [[-0.2, 0.3, 0]] * 40)
+    view = View.of(_camera((0, 0, -1.0), (0, 0, 0), 446, 900, 50), points)
+    names = [f"IMG_20240512_1034{i:02d}.jpg" for i in range(41)]
+    right, low = labels_apart([[0], list(range(1, 41))], names, [view])
+    assert right.anchor == "top-right" and right.fits(view)
+    assert low.anchor == "bottom-left" and low.fits(view) and low.text.split("\n") == names[1:]
 
 
 def test_upload_button_adds_an_image(scene):
