@@ -213,6 +213,10 @@ class CalibrationResult(BaseModel):
     outlier_threshold_px: float
     used: int = Field(description="photos the intrinsics were fitted to")
     warnings: list[str] = Field(description="reasons to distrust the result, each with what to do")
+    outlier_advice: str | None = Field(
+        None, description="what to do about the outliers, in the words of the page's Camera dialog (its drop "
+                          "outliers button, a photo's ×): drop them, or, once dropped, retake or remove those the "
+                          "refit flags; null without outliers")
 
 
 class BoardSearchOut(BaseModel):

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.calibrate import (MIN_VIEWS, BoardView, Calibration, CalibrationError, board_size_hint, calibrate,
-                                check_board, check_square, drop_outliers, find_board)
+                                check_board, check_square, drop_outliers, find_board, outlier_advice)
 from pipeline.camera import Camera
 from pipeline.evaluate import CORES
 from pipeline.image import decode_image, to_gray
@@ -248,6 +248,12 @@ def refit(state: CalibrationState, photos: tuple[CalibrationPhoto, ...]) -> tupl
         kept_out = len(left_out & {p.id for p in photos})
         return None, str(exc) + (f" (the {kept_out} dropped as outliers stay out)" if kept_out > 1 else
                                  " (the one dropped as an outlier stays out)" if kept_out else "")
+
+
+def page_outlier_advice(result: Calibration) -> str | None:
+    """What to do about `result`'s outliers in the words of the page's Camera dialog (its "drop
+    outliers" button and each photo's ×), which shows it as it comes; None without outliers."""
+    return outlier_advice(result, drop="drop outliers", leave_out="remove {them} (×)") if result.outliers else None
 
 
 def calibrated_camera(result: Calibration) -> Camera:

@@ -63,9 +63,17 @@ INITIAL_VIEW_LOOK_AT_M = (0.0, 0.0, -0.8)
 # Once there are cameras, new viewers and Reset View see the shown sign and its cameras from that
 # side, with room to spare for viser's control panel, which covers part of the frame.
 OVERVIEW_MARGIN = 1.4
-# viser writes a camera's label rightward from it at a size fixed on screen, about this many px a
-# character (measured in the page: "scene_002.jpg", 13 characters, 78 px).
-LABEL_PX_PER_CHAR = 6.0
+# viser writes a camera's label rightward and down from it at a size fixed on screen: 12 px type
+# (Arial or Helvetica where there is no system UI font), lines 14 px apart, on a background a fifth
+# of a line larger (viser's client/src/label). Px a character, at most: capitals and m, w; narrow
+# ones; the others, digits and _ the widest of them ("scene_002.jpg" measures 78 px in the page).
+LABEL_LINE_PX = 14.0
+LABEL_WIDE_PX, LABEL_NARROW_PX, LABEL_CHAR_PX = 9.0, 3.4, 6.7
+LABEL_NARROW = set(".,:;!|'ijlI ")
+# Labels nearer each other on screen than this read as one.
+LABEL_GAP_PX = 2.0
+# Between the texts a shared label lists on one line.
+LABEL_SEPARATOR = "   "
 
 
 # --------------------------------------------------------------------------- geometry
@@ -133,10 +141,10 @@ def fit_width(image: np.ndarray, max_width: int) -> np.ndarray:
     return cv2.resize(rgb, (max_width, max(1, round(h * max_width / w))), interpolation=cv2.INTER_AREA)
 
 
-def label_groups(positions: list[np.ndarray], radius_m: float) -> list[list[int]]:
-    """Indices into `positions` ((3,) metres each) grouped so that each stands within `radius_m` of
-    another in its group (single linkage); the groups in order of their first index, each in order."""
-    parent = list(range(len(positions)))
+def linked_groups(n: int, linked: Callable[[int, int], bool]) -> list[list[int]]:
+    """0 … n-1 grouped so that each is `linked(i, j)` (j < i) to another in its group (single
+    linkage); the groups in order of their first index, each in order."""
+    parent = list(range(n))
 
     def root(i: int) -> int:
         while parent[i] != i:
@@ -144,14 +152,152 @@ def label_groups(positions: list[np.ndarray], radius_m: float) -> list[list[int]
             i = parent[i]
         return i
 
-    for i, a in enumerate(positions):
+    for i in range(n):
         for j in range(i):
-            if np.linalg.norm(np.asarray(a) - np.asarray(positions[j])) < radius_m:
+            if linked(i, j):
                 parent[root(i)] = root(j)
     groups: dict[int, list[int]] = {}
-    for i in range(len(positions)):
+    for i in range(n):
         groups.setdefault(root(i), []).append(i)
     return list(groups.values())
+
+
+def label_groups(positions: list[np.ndarray], radius_m: float) -> list[list[int]]:
+    """Indices into `positions` ((3,) metres each) grouped so that each stands within `radius_m` of
+    another in its group (single linkage); the groups in order of their first index, each in order."""
+    return linked_groups(len(positions), lambda i, j: bool(
+        np.linalg.norm(np.asarray(positions[i]) - np.asarray(positions[j])) < radius_m))
+
+
+def label_size_px(text: str) -> tuple[float, float]:
+    """(width, height) on screen, px, of the label viser draws for `text` (lines split at "\n"):
+    an upper bound for the fonts viser's labels use."""
+    width = max(sum(LABEL_WIDE_PX if c.isupper() and c != "I" or c in "mw" else
+                    LABEL_NARROW_PX if c in LABEL_NARROW else LABEL_CHAR_PX for c in line)
+                for line in text.split("\n"))
+    pad = 0.2 * LABEL_LINE_PX
+    return width + pad, LABEL_LINE_PX * (text.count("\n") + 1) + pad
+
+
+@dataclass(frozen=True)
+class View:
+    """Where a viewer sees things: `px` (N, 2) canvas px of each camera (`screen_px`), in a canvas
+    `width` × `height` px."""
+
+    px: np.ndarray
+    width: float
+    height: float
+
+    @staticmethod
+    def of(camera: viser.CameraHandle, points: np.ndarray) -> View:
+        """Where the viewer with `camera` sees `points` (N, 3) m."""
+        return View(screen_px(points, camera), camera.image_width, camera.image_width / camera.aspect)
+
+
+def screen_px(points: np.ndarray, camera: viser.CameraHandle) -> np.ndarray:
+    """(N, 2) px in the canvas of a viewer's `camera` of `points` (N, 3) m; NaN for those behind it.
+
+    Canvas px as the viewer reports its size: device pixels, so on a screen of two pixels to the
+    CSS px the labels, sized in CSS px, are twice the size found here.
+    """
+    forward = np.asarray(camera.look_at, float) - camera.position
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, camera.up_direction)
+    right /= np.linalg.norm(right)
+    local = (np.asarray(points, float).reshape(-1, 3) - camera.position) @ np.stack(
+        [right, np.cross(forward, right), forward], axis=1)   # OpenCV axes: x right, y down, z ahead
+    height = camera.image_width / camera.aspect
+    focal = height / 2 / math.tan(camera.fov / 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        px = focal * local[:, :2] / local[:, 2:] + [camera.image_width / 2, height / 2]
+    px[local[:, 2] <= 0] = np.nan
+    return px
+
+
+# How far a label's box stands left of and above its anchor, in widths and heights: viser's anchors
+# name the box's corner or edge at it ("top-left": the box rightward and down).
+ANCHOR_SHIFT = {"left": 0.0, "top": 0.0, "center": 0.5, "right": 1.0, "bottom": 1.0}
+
+
+@dataclass(frozen=True)
+class SharedLabel:
+    """One label: written from camera `at` (an index), it names `cameras` (indices, in order) in
+    `text`; `anchor` is the corner of its box at the camera, as viser's labels are anchored."""
+
+    at: int
+    cameras: list[int]
+    text: str
+    anchor: str = "top-left"
+
+    def box(self, view: View) -> tuple[float, float, float, float]:
+        """(left, top, right, bottom) px on `view`'s screen; NaN when its camera is behind the viewer."""
+        (x, y), (width, height) = view.px[self.at], label_size_px(self.text)
+        vertical, horizontal = self.anchor.split("-")
+        left, top = x - width * ANCHOR_SHIFT[horizontal], y - height * ANCHOR_SHIFT[vertical]
+        return left, top, left + width, top + height
+
+    def beyond(self, view: View) -> float:
+        """How far, px, it reaches past the edges of `view`'s screen (0 when its camera is behind the viewer)."""
+        left, top, right, bottom = self.box(view)
+        if not np.isfinite(left):
+            return 0.0
+        return max(0.0, -left) + max(0.0, -top) + max(0.0, right - view.width) + max(0.0, bottom - view.height)
+
+    def fits(self, view: View) -> bool:
+        """Whether it is drawn whole on `view`'s screen (or not at all: its camera behind the viewer)."""
+        return self.beyond(view) == 0
+
+
+def shared_label(group: list[int], texts: list[str], views: list[View]) -> SharedLabel:
+    """The label of `group` (indices into `texts`, each camera's own text; `labels_apart`' views):
+    its texts one a line, written rightward and down from its camera highest on the first viewer's
+    screen, so that the list runs down past the others; else, to be drawn whole on every viewer's
+    screen, leftward, or up from the lowest camera, or centred on the middle one (three dozen names
+    in the page's 3D column), or several texts a line (in the 3D strip under the images, some 300 px
+    high, twenty names one a line ran past its bottom). When none is drawn whole, the one that
+    reaches least past the edges."""
+    names = [texts[i] for i in group]
+    top = middle = bottom = group[0]
+    if views:
+        y = {i: views[0].px[i, 1] for i in group if np.isfinite(views[0].px[i, 1])}
+        if y:
+            order = sorted(y, key=y.get)
+            top, middle, bottom = order[0], order[len(order) // 2], order[-1]
+    best, least = None, math.inf
+    for per_line in range(1, len(names) + 1):
+        text = "\n".join(LABEL_SEPARATOR.join(names[i:i + per_line]) for i in range(0, len(names), per_line))
+        for at, anchor in ((top, "top-left"), (top, "top-right"), (bottom, "bottom-left"), (bottom, "bottom-right"),
+                           (middle, "center-left"), (middle, "center-right"), (top, "top-center"),
+                           (bottom, "bottom-center"), (middle, "center-center")):
+            label = SharedLabel(at, group, text, anchor)
+            beyond = sum(label.beyond(view) for view in views)
+            if beyond == 0:
+                return label
+            if beyond < least:
+                best, least = label, beyond
+        if views and label_size_px(text)[0] > max(view.width for view in views):
+            break   # more a line would only be wider still
+    return best
+
+
+def labels_apart(groups: list[list[int]], texts: list[str], views: list[View]) -> list[SharedLabel]:
+    """The labels of cameras whose own label texts are `texts`, `groups` of them (indices, as
+    `label_groups` gives them) sharing one, merged until no two overlap on any of the viewers'
+    screens (`views`, where each camera is seen: `View`): a label lists its group's texts, written
+    from one of its cameras (`shared_label`). In order of their first camera."""
+    while True:
+        labels = [shared_label(group, texts, views) for group in groups]
+        b = np.asarray([[label.box(view) for view in views] for label in labels], float).reshape(
+            len(labels), len(views), 4)   # left, top, right, bottom
+        # NaN (behind a viewer) compares false: such a label overlaps nothing on that screen.
+        overlap = ((b[:, None, :, 0] < b[None, :, :, 2] + LABEL_GAP_PX)
+                   & (b[None, :, :, 0] < b[:, None, :, 2] + LABEL_GAP_PX)
+                   & (b[:, None, :, 1] < b[None, :, :, 3] + LABEL_GAP_PX)
+                   & (b[None, :, :, 1] < b[:, None, :, 3] + LABEL_GAP_PX)).any(axis=2)
+        merged = linked_groups(len(groups), lambda i, j: bool(overlap[i, j]))
+        if len(merged) == len(groups):
+            return labels
+        groups = [sorted(i for k in parts for i in groups[k]) for parts in merged]
 
 
 def label_rgb(library: Library, label: str) -> tuple[int, int, int]:
@@ -288,6 +434,7 @@ class CameraNodes:
     frustum: viser.CameraFrustumHandle
     label: viser.LabelHandle
     matches: viser.LineSegmentsHandle
+    text: str   # its own label text; its label may list others' too (`_share_labels`)
 
     def remove(self) -> None:
         self.matches.remove()
@@ -396,6 +543,12 @@ class SceneHandle:
                 nodes.matches.visible = self.show_matches.value
             self._frame_world()
 
+    def _on_world(self, event: viser.GuiEvent | None = None) -> None:
+        """Show the world chosen; its labels are laid out in the viewers' views at the next redraw
+        (those of a world not shown are not)."""
+        self._on_view_option(event)
+        self._dirty.set()
+
     def _overview(self, fov_rad: float, aspect: float) -> tuple[np.ndarray, np.ndarray] | None:
         """`overview_camera` of the shown sign and its cameras; None without a sign. The caller
         holds the lock."""
@@ -408,10 +561,10 @@ class SceneHandle:
         return overview_camera(points, fov_rad, aspect)
 
     def _label_px(self) -> float:
-        """Screen px of the longest line of the labels shown in the shown world. The caller holds the lock."""
-        return LABEL_PX_PER_CHAR * max((len(line) for n in self.cameras.values()
-                                        if n.sign == self.world.value and n.label.visible
-                                        for line in n.label.text.split("\n")), default=0)
+        """Screen px of the widest camera's own label text in the shown world: not of the labels as
+        shared, which are laid out in the views framed with this. The caller holds the lock."""
+        return max((label_size_px(n.text)[0] for n in self.cameras.values() if n.sign == self.world.value),
+                   default=0)
 
     def _frame_world(self) -> None:
         """Point new viewers' and Reset View's camera at the shown sign and its cameras, and the
@@ -458,8 +611,14 @@ class SceneHandle:
         with client.atomic():
             camera.position, camera.look_at = view
 
+    def _viewers(self) -> list[viser.ClientHandle]:
+        """The viewers connected that have reported their camera (`_framed` holds them). The caller
+        holds the lock."""
+        return [c for c in self.server.get_clients().values() if c.client_id in self._framed]
+
     def _on_connect(self, client: viser.ClientHandle) -> None:
-        """Frame a new viewer's canvas once its size is known: its first camera report."""
+        """Frame a new viewer's canvas once its size is known: its first camera report. As its view
+        moves, its labels are laid out again (`_share_labels`), on the redraw thread."""
 
         def on_camera(_camera: viser.CameraHandle) -> None:
             with self._lock:
@@ -467,6 +626,7 @@ class SceneHandle:
                 self._framed.setdefault(client.client_id, None)
             if first:
                 self.frame_for(client)
+            self._dirty.set()
 
         client.camera.on_update(on_camera)
 
@@ -529,8 +689,8 @@ class SceneHandle:
                 nodes = self.cameras.get(record.id)
                 if nodes is None or nodes.recognition is not rec or stale_geometry:
                     self._draw_camera(record, rec, library)
-            self._share_labels(shown)
             self._choose_world(counts)
+            self._share_labels(shown)   # laid out in the views as framed for the world chosen
             generation = self.workspace.snapshot.generation
             self.status.content = status_markdown(
                 [status_of(r.expected, o, generation) for r, o in zip(records, outcomes)], outcomes, self._progress)
@@ -538,20 +698,29 @@ class SceneHandle:
     def _share_labels(self, shown: list[tuple[ImageRecord, Recognition]]) -> None:
         """One label for each group of cameras in a sign's world standing closer than the drawn photo
         width: their frustums overlap, and a label each, at their centres, printed one name over
-        another (the same photo uploaded twice, a burst). The first camera's lists every name, one a
-        line; the others' are hidden. The caller holds the lock; `shown` are the cameras drawn."""
+        another (the same photo uploaded twice, a burst). In the world shown, the groups whose labels
+        would overlap on a viewer's screen share one too: a dozen cameras seen from a few metres in
+        the page's narrow 3D column printed their names over each other. One camera's label lists
+        every name (`shared_label`); the others' are hidden. The caller holds the lock; `shown` are
+        the cameras drawn."""
         by_sign: dict[str, list[tuple[ImageRecord, Recognition]]] = {}
         for record, rec in shown:
             by_sign.setdefault(rec.label, []).append((record, rec))
-        for cameras in by_sign.values():
+        for sign, cameras in by_sign.items():
             nodes = [self.cameras[record.id] for record, _ in cameras]
-            for group in label_groups([np.asarray(n.frustum.position) for n in nodes], self.frustum_width.value):
-                text = "\n".join(_camera_text(*cameras[i]) for i in group)
-                if nodes[group[0]].label.text != text:
-                    nodes[group[0]].label.text = text
-                for i in group:
-                    if nodes[i].label.visible != (i == group[0]):
-                        nodes[i].label.visible = i == group[0]
+            positions = np.array([n.frustum.position for n in nodes], float).reshape(-1, 3)
+            texts = [_camera_text(*camera) for camera in cameras]
+            for node, text in zip(nodes, texts):
+                node.text = text
+            views = [View.of(c.camera, positions) for c in self._viewers()] if sign == self.world.value else []
+            for label in labels_apart(label_groups(list(positions), self.frustum_width.value), texts, views):
+                if nodes[label.at].label.text != label.text:
+                    nodes[label.at].label.text = label.text
+                if nodes[label.at].label.anchor != label.anchor:
+                    nodes[label.at].label.anchor = label.anchor
+                for i in label.cameras:
+                    if nodes[i].label.visible != (i == label.at):
+                        nodes[i].label.visible = i == label.at
 
     def _remove_cameras(self, image_ids: set[str]) -> None:
         for image_id in image_ids:
@@ -608,7 +777,7 @@ class SceneHandle:
         matches = self.server.scene.add_line_segments(
             f"/signs/{rec.label}/matches/{record.id}", np.stack([on_sign, on_photo_world], axis=1), color,
             thickness=1.0, thickness_units="screen", visible=self.show_matches.value)
-        self.cameras[record.id] = CameraNodes(rec.label, rec, frustum, label, matches)
+        self.cameras[record.id] = CameraNodes(rec.label, rec, frustum, label, matches, _camera_text(record, rec))
 
     def _add_frustum(self, record: ImageRecord, sign_id: str, fov: float, aspect: float, scale: float,
                      color: tuple[int, int, int], position: np.ndarray, wxyz: np.ndarray) -> viser.CameraFrustumHandle:
@@ -687,7 +856,7 @@ def attach(server: viser.ViserServer, workspace: Workspace) -> SceneHandle:
     panel = add_settings_panel(gui, workspace.settings, lambda changes, client: scene._apply_settings(changes, client))
     panel.version = workspace.settings_version
     scene = SceneHandle(server, workspace, panel, world, show_matches, frustum_width, status, upload)
-    world.on_update(scene._on_view_option)
+    world.on_update(scene._on_world)
     show_matches.on_update(scene._on_view_option)
     frustum_width.on_update(scene._on_frustum_width)
     upload.on_upload(scene._on_upload)

@@ -56,7 +56,8 @@ from .api_models import (
     CalibrationRunIn, CalibrationView, CameraIntrinsics, CameraModel, CameraOut, ExpectedIn, Health, ImageDetail,
     ImagesOut, ImagesRemoved, ImageSummary, RecognitionOut, SettingField, SettingsOut, SignOut, SweepOut, UploadOut,
 )
-from .calibration import PREVIEW_MAX_SIDE, CalibrationSession, CalibrationState, calibrated_camera
+from .calibration import (PREVIEW_MAX_SIDE, CalibrationSession, CalibrationState, calibrated_camera,
+                          page_outlier_advice)
 from .security import DOCS_ASSETS, AccessGuard, SecurityHeaders
 from .viser_proxy import mount_viser
 from .workspace import (
@@ -773,7 +774,8 @@ def calibration_out(calibration: CalibrationSession, state: CalibrationState) ->
                              id=p.id, width=p.view.image_size[0], height=p.view.image_size[1])
              for i, p in enumerate(state.photos)]
     result = None if summary is None else CalibrationResult.model_validate(
-        {**summary, "camera": intrinsics(calibrated_camera(state.result))})
+        {**summary, "camera": intrinsics(calibrated_camera(state.result)),
+         "outlier_advice": page_outlier_advice(state.result)})
     search = calibration.search
     return CalibrationOut(revision=state.revision, min_views=MIN_VIEWS, max_views=calibration.max_photos,
                           max_square_m=MAX_SQUARE_M, views=views,

@@ -387,13 +387,18 @@ def format_report(calibration: Calibration) -> str:
     return "\n".join(lines)
 
 
-def outlier_advice(calibration: Calibration) -> str:
-    """What to do about `calibration.outliers`. Once outliers have been dropped (`drop_outliers`), the
-    refit may flag others: they are not dropped in turn, since round after round would whittle down
-    any set, so the advice is no longer to drop them (it sent people round in a loop)."""
+def outlier_advice(calibration: Calibration, drop: str = "signpose calibrate --drop-outliers",
+                   leave_out: str = "leave {them} out of the photos") -> str:
+    """What to do about `calibration.outliers`, in the words of the tool at hand: `drop`, what drops
+    outliers; `leave_out`, how to leave photos out ({them}: "it" or "them"). The CLI's by default;
+    the page's buttons are another's (app/calibration.py), sent to it, which shows them as they come.
+
+    Once outliers have been dropped (`drop_outliers`), the refit may flag others: they are not
+    dropped in turn, since round after round would whittle down any set, so the advice is no longer
+    to drop them (it sent people round in a loop)."""
     if not calibration.excluded:
-        return "retake or drop them (signpose calibrate --drop-outliers)"
+        return f"retake or drop them ({drop})"
     they, them, are = ("it", "it", "is") if len(calibration.outliers) == 1 else ("they", "them", "are")
     return (f"{they} stood out only in the refit without the outliers dropped, and {are} kept: outliers are "
             "dropped once, as each refit shifts the errors and round after round would whittle the set down; "
-            f"retake {them}, or leave {them} out of the photos if the board is blurred or bent in {them}")
+            f"retake {them}, or {leave_out.format(them=them)} if the board is blurred or bent in {them}")

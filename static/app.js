@@ -34,6 +34,14 @@ async function loadHealth() {
   }
 }
 
+/** The top bar's height, as --topbar-height for style.css: the messages show under it, and it takes
+ *  a second line in a narrow window. */
+function followTopbarHeight() {
+  const bar = $(".topbar");
+  new ResizeObserver(() => document.documentElement.style.setProperty("--topbar-height", `${bar.offsetHeight}px`))
+    .observe(bar);
+}
+
 /** Everything the event stream could have told us while it was down. */
 async function resync() {
   try {
@@ -76,6 +84,7 @@ const linkedImage = () => new URLSearchParams(location.hash.slice(1)).get("image
 async function main() {
   window.addEventListener("unhandledrejection", (e) => report(e.reason));
   initScene();   // first: the 3D view loads beside the page's own requests
+  followTopbarHeight();
   const [health] = await Promise.all([get("/api/health"), loadLibrary()]);
   $("#app-version").textContent = `v${health.version}`;
   showMemory(health);

@@ -249,13 +249,13 @@ function renderSummary() {
   }
   const cam = r.camera, sd = r.intrinsics_std;
   const outliers = calib.views.filter((v) => v.outlier).length;
-  const dropped = calib.views.filter((v) => v.excluded).length;
-  // Outliers are dropped once (pipeline/calibrate.py, outlier_advice): those the refit flags are the
-  // photos' to fix, or "drop outliers" would be the advice again and refit to the same result.
-  const after = dropped ? ` after dropping ${dropped}: retake or remove ${outliers > 1 ? "them" : "it"} (×)` : "";
   fill($("#calib-summary"), el("dl.pose", {},
     [el("dt", {}, "RMS"), el("dd", { id: "calib-rms" }, `${fmt(r.rms_px, 3)} px from ${r.used} of ${calib.views.length} photos`
-      + (outliers ? ` · ${plural(outliers, "outlier")} (> ${fmt(r.outlier_threshold_px, 2)} px)${after}` : ""))],
+      + (outliers ? ` · ${plural(outliers, "outlier")} (> ${fmt(r.outlier_threshold_px, 2)} px)` : ""))],
+    // The server's advice (app/calibration.py, page_outlier_advice), shown as it comes: one copy of
+    // what to do about outliers (dropped once; those the refit flags are to retake or remove) serves
+    // the CLI and the page.
+    r.outlier_advice ? [el("dt", {}, "outliers"), el("dd.plain", { id: "calib-advice" }, r.outlier_advice)] : null,
     ...["fx", "fy", "cx", "cy"].map((k) => [el("dt", {}, k), el("dd", { dataset: { key: k } }, `${fmt(cam[k], 2)} ± ${fmt(sd[k], 2)} px`)]),
     [el("dt", {}, "distortion"), el("dd", {}, cam.dist.map((d) => fmt(d, 4)).join(" "))],
     [el("dt", {}, "image size"), el("dd", {}, `${cam.width}×${cam.height}`)],

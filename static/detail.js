@@ -5,7 +5,7 @@ import { api, failureOf, get } from "./api.js";
 import { approximateNote, KIND_LABELS } from "./camera.js";
 import { drawHistogram, drawSweep, valueAt } from "./charts.js";
 import { fillExpected, refreshImages, showStatus } from "./gallery.js";
-import { setSetting, stepOf } from "./settings.js";
+import { setSetting, settingText, settingValue, stepOf } from "./settings.js";
 import { state, on, select, signName } from "./store.js";
 import { $, el, fill, fmt, plural, report, toast } from "./ui.js";
 
@@ -316,6 +316,7 @@ function renderCalib() {
     return;
   }
   drawHistogram($("#histogram"), calib, state.settings);
+  describeChart($("#histogram"), histogramScale());
   const [x0, y0, x1, y1] = calib.rect ?? [];
   const where = boxes.has(detail.id) ? `your box ${x1 - x0}×${y1 - y0} px`
     : `${calib.source} (drag or type a box to measure another region)`;
@@ -538,6 +539,7 @@ function renderSweep() {
   const verdict = sweep.band ? bandVerdict(sweep, entry, digits)
     : { centre: null, parts: [el("span.warn", {}, `no ${sweep.param} value gets every labelled image right`)] };
   drawSweep(canvas, { ...sweep, centre: verdict.centre }, state.settings[sweep.param], digits);   // marked where offered
+  describeChart(canvas, sweepScale());
   fill(info,
     el("span", {}, el("i.swatch.correct"), `correct of ${sweep.labelled} labelled`),
     el("span", {}, el("i.swatch.margin"), "smallest margin"),
@@ -548,13 +550,59 @@ function renderSweep() {
       ? el("span.warn", {}, "other settings changed since: run again") : null);
 }
 
-/** Clicking a chart sets the value there: faster than finding the slider. */
-function bindChartClicks() {
-  $("#histogram").addEventListener("click", (e) =>
-    setSetting("threshold", valueAt(e.currentTarget, e.clientX, 0, 1)));
-  $("#sweep").addEventListener("click", (e) => {
-    const xs = sweep.values;
-    setSetting(sweep.param, valueAt(e.currentTarget, e.clientX, xs[0], xs[xs.length - 1]));
+// ---- the charts as sliders: a click sets the value under it, and so do the keys
+
+/** What the histogram sets, over the values it shows. */
+const histogramScale = () => ({ name: "threshold", lo: 0, hi: 1, what: "threshold histogram" });
+
+/** What the sweep chart sets (the setting swept), over the values it shows; null before a sweep. */
+const sweepScale = () => sweep && {
+  name: sweep.param, lo: sweep.values[0], hi: sweep.values[sweep.values.length - 1], what: "sweep chart" };
+
+// A focused chart's keys: steps of the setting each takes it by (ten with Shift), as a slider's do.
+const STEP_KEYS = { ArrowLeft: -1, ArrowDown: -1, ArrowRight: 1, ArrowUp: 1 };
+
+/** The value the key of keydown `e` takes the setting of `scale` to, within what the chart shows; null
+ *  for a key a chart does not take. Arrows step on from the value the form holds, not yet answered. */
+function keyedValue(e, { name, lo, hi }) {
+  if (e.altKey || e.ctrlKey || e.metaKey) return null;
+  if (e.key === "Home") return lo;
+  if (e.key === "End") return hi;
+  const direction = STEP_KEYS[e.key];
+  if (!direction) return null;
+  const entry = state.schema.find((x) => x.name === name);
+  const now = settingValue(name) ?? lo;   // a setting off (null) starts from the chart's low end
+  return Math.min(hi, Math.max(lo, now + direction * (e.shiftKey ? 10 : 1) * stepOf(entry)));
+}
+
+/** Say on `canvas`, a chart drawn over `scale`, what it does and the value it marks now (a slider's
+ *  ARIA attributes), so that a keyboard or screen reader user finds it as a control. */
+function describeChart(canvas, { name, lo, hi, what }) {
+  const now = state.settings[name];
+  const text = now === null || now === undefined ? "off" : settingText(name, now);
+  canvas.setAttribute("aria-label", `${what}: click, or press ← → (with Shift, ten steps), Home or End, `
+    + `to set ${name}; now ${text}`);
+  canvas.setAttribute("aria-valuemin", lo);
+  canvas.setAttribute("aria-valuemax", hi);
+  canvas.setAttribute("aria-valuetext", text);
+  if (typeof now === "number") canvas.setAttribute("aria-valuenow", now);
+  else canvas.removeAttribute("aria-valuenow");
+}
+
+/** Clicking a chart sets the value there: faster than finding the slider. The keyboard does the
+ *  same on a focused chart (`keyedValue`), by the same path; the keys it takes are not the detail
+ *  view's (← → there step through the images). */
+function bindChart(canvas, scale) {
+  canvas.addEventListener("click", (e) => {
+    const s = scale();
+    if (s) setSetting(s.name, valueAt(canvas, e.clientX, s.lo, s.hi));
+  });
+  canvas.addEventListener("keydown", (e) => {
+    const s = scale();
+    const value = s && keyedValue(e, s);
+    if (value === null || value === undefined) return;
+    e.preventDefault();   // nor does the panel scroll
+    setSetting(s.name, value);
   });
 }
 
@@ -576,15 +624,17 @@ export function initDetail() {
   fill($("#stages"), ...stages.map((s) => s.figure.fig), textCheck.fig);
   bindDrag();
   $("#calib-box").addEventListener("change", (e) => typeBox(e.target));
-  bindChartClicks();
+  bindChart($("#histogram"), histogramScale);
+  bindChart($("#sweep"), sweepScale);
   fillSweepParams();
   $("#run-sweep").onclick = () => runSweep();
   $("#prev").onclick = () => step(-1);
   $("#next").onclick = () => step(1);
   $("#detail-close").onclick = () => select(null);
   document.addEventListener("keydown", (e) => {
-    // Keys typed in a field, or in the Camera dialog over the page, are not for the detail view.
-    if (e.target.closest("input, select, textarea, dialog") || !state.selected) return;
+    // Keys typed in a field, or in the Camera dialog over the page, are not for the detail view,
+    // nor those a control took (a chart's arrows).
+    if (e.defaultPrevented || e.target.closest("input, select, textarea, dialog") || !state.selected) return;
     if (e.key === "ArrowLeft") step(-1);
     else if (e.key === "ArrowRight") step(1);
     else if (e.key === "Escape") select(null);

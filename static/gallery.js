@@ -167,6 +167,17 @@ async function removeAll() {
   }
 }
 
+/** Scroll the gallery, and only it, so that `card` shows whole in it. scrollIntoView also scrolled
+ *  the images panel and the page: stepping to the next image (→) took the detail view being read,
+ *  below the gallery in a low window, out of sight. */
+function reveal(card) {
+  const gallery = $("#gallery");
+  const box = gallery.getBoundingClientRect(), at = card.getBoundingClientRect();
+  const pad = parseFloat(getComputedStyle(gallery).paddingTop);
+  if (at.top < box.top + pad) gallery.scrollTop -= box.top + pad - at.top;
+  else if (at.bottom > box.bottom - pad) gallery.scrollTop += Math.min(at.bottom - box.bottom + pad, at.top - box.top - pad);
+}
+
 export function initGallery() {
   bindUpload();
   fillExpected($("#expected"));
@@ -174,7 +185,8 @@ export function initGallery() {
   on("images", renderGallery);
   on("select", () => {
     for (const [id, { card }] of cards) card.classList.toggle("selected", id === state.selected);
-    cards.get(state.selected)?.card.scrollIntoView({ block: "nearest" });
+    const card = cards.get(state.selected)?.card;
+    if (card) reveal(card);
   });
   $("#clear-images").onclick = removeAll;
 }

@@ -205,6 +205,10 @@ export function settingText(name, value) {
   return value.toFixed(Math.max(decimals(stepOf(controls.get(name).entry)), decimals(value)));
 }
 
+/** The setting `name`'s value as its form control holds it, an edit not yet sent or answered
+ *  included: a key pressed again before the server has answered steps on from it. */
+export const settingValue = (name) => controls.get(name).read();
+
 /** Change settings from elsewhere on the page (calibration, sweep): same path as a form edit. */
 export function setSetting(name, value) {
   const c = controls.get(name);

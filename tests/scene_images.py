@@ -148,3 +148,21 @@ HEIC_START = b"\x00\x00\x00\x18ftypheic\x00\x00\x00\x00mif1heic" + bytes(100)
 def has(img: np.ndarray, color: tuple[int, int, int]) -> bool:
     """Whether `img` has a pixel of exactly `color` (BGR): the core of a line or letter drawn in it."""
     return bool(np.all(img == color, axis=2).any())
+
+
+def sign_seen_from(library: Library, sign_id: str, position_m: tuple[float, float, float], seed: int = 0,
+                   hfov_deg: float = 60.0) -> bytes:
+    """JPEG of `sign_id` on a noisy wall, photographed by a pinhole camera of `hfov_deg` (the page's
+    default assumed field of view, so the pose recognised is this one) standing at `position_m` in
+    the sign frame (z < 0: in front of it) and looking at the sign's centre, upright."""
+    sign = library[sign_id]
+    forward = -np.asarray(position_m, float) / np.linalg.norm(position_m)
+    right = np.cross([0.0, 1.0, 0.0], forward)   # the sign's y runs down, as the camera's does
+    right /= np.linalg.norm(right)
+    R = np.stack([right, np.cross(forward, right), forward])
+    f = SIZE[0] / 2 / np.tan(np.radians(hfov_deg) / 2)
+    K = np.array([[f, 0, SIZE[0] / 2], [0, f, SIZE[1] / 2], [0, 0, 1]])
+    in_camera = (sign.to_metric(sign.corners_px) - position_m) @ R.T
+    corners = (in_camera @ K.T)[:, :2] / in_camera[:, 2:]
+    gray = sign_on_wall(sign, corners, seed)
+    return cv2.imencode(".jpg", cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR), [cv2.IMWRITE_JPEG_QUALITY, 92])[1].tobytes()

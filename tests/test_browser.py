@@ -21,12 +21,13 @@ import browser_harness as harness
 from chessboards import K_TRUE, render_boards
 from pipeline.exif import LensExif, focal_px
 from pipeline.image import NOT_AN_IMAGE
-from pipeline.library import SAMPLE_LIBRARY
+from pipeline.library import SAMPLE_LIBRARY, load_library
 from pipeline.verify import CHECK_WIDTH
 from app import tuning
 from app.figures import TEXT_BLOCK_PX
+from app.scene import LABEL_SEPARATOR
 from app.workspace import memory_text
-from scene_images import DECOYS, decoy_image
+from scene_images import DECOYS, decoy_image, sign_seen_from
 from serving import MISFIT_CAMERA
 
 TRUTH = json.loads((harness.SCENES / "truth.json").read_text())["images"]
@@ -255,6 +256,63 @@ def test_phone_width_stacks_the_panels(page):
     harness.stage_images_loaded(page, "#library-signs img")
     assert overflowing(page, "#library-dialog") == []
     page.click("#library-close")
+
+
+# The top bar's parts that stick out of the window, are cut off by a box holding them, are cut short
+# (…) or break over two lines.
+TOP_BAR_CUT = """() => [...document.querySelectorAll(
+        '.topbar h1, #run-status, #settings-version, #counts .count, #memory, #live')].filter((e) => {
+    const r = e.getBoundingClientRect();
+    if (r.width === 0) return false;   // not shown (the memory figure on a phone)
+    for (let box = e.parentElement; box !== document.body; box = box.parentElement) {
+        const b = box.getBoundingClientRect();
+        if (getComputedStyle(box).overflow !== "visible"
+            && (r.left < b.left - 0.5 || r.right > b.right + 0.5 || r.top < b.top - 0.5 || r.bottom > b.bottom + 0.5)) {
+            return true;
+        }
+    }
+    return r.left < 0 || r.right > innerWidth || r.top < 0 || r.bottom > innerHeight
+        || e.scrollWidth > e.clientWidth + 1 || r.height > 26;
+}).map((e) => e.id || e.textContent)"""
+
+
+def test_a_small_window_shows_the_whole_top_bar_and_scrolls_only_when_asked(page, api, tmp_path):
+    """At 800×600 the top bar cut its counts off (and broke the title and the status over two lines).
+    The page scrolls as a whole in a window up to 1280 px wide: stepping to the next image (→)
+    scrolled it back up to the image's card, taking the detail being read out of sight."""
+    page.set_viewport_size({"width": 800, "height": 600})
+    page.evaluate("() => { window.scrolled = []; addEventListener('scroll', () => window.scrolled.push(scrollY)); }")
+    # Every kind of count the top bar shows: right, wrong, recognised and no sign unlabelled; the
+    # results arriving as the page shows.
+    wrong = next(s for s in api.get("/api/library").json() if s["id"] != LABEL)["id"]
+    for name, scene, expected in (("small-wrong.jpg", SCENE, wrong), ("small-sign.jpg", SCENE, ""),
+                                  ("small-none.jpg", NO_SIGN, "")):
+        api.post("/api/images", files={"files": (name, (harness.SCENES / scene).read_bytes(), "image/jpeg")},
+                 data={"expected": expected}).raise_for_status()
+    upload = tmp_path / "small-upload.jpg"
+    upload.write_bytes((harness.SCENES / SCENE).read_bytes())
+    try:
+        harness.upload(page, [upload], expected=LABEL)
+        harness.wait_cards(page, ["small-wrong.jpg", "small-sign.jpg", "small-none.jpg"])
+        for status in ("accuracy", "status-wrong", "status-recognized", "status-none"):
+            page.locator(f"#counts .{status}").wait_for()
+        assert page.evaluate(TOP_BAR_CUT) == []
+        assert page.evaluate("() => [scrollY, window.scrolled.length]") == [0, 0]
+
+        # Reading the detail, below the gallery: → steps to the next image and nothing scrolls.
+        first = page.get_attribute("#detail", "data-id")
+        reading = page.evaluate("() => { scrollTo(0, document.querySelector('#detail').getBoundingClientRect().top"
+                                " + scrollY); return scrollY; }")
+        assert reading > 0
+        for _ in range(3):
+            page.keyboard.press("ArrowRight")
+        page.wait_for_function("id => document.querySelector('#detail').dataset.id !== id", arg=first)
+        harness.stage_images_loaded(page, "#detail .stage img")
+        assert page.evaluate("() => scrollY") == reading
+    finally:
+        for image in api.get("/api/images").json()["images"]:
+            if image["name"].startswith("small-"):
+                api.delete(f"/api/images/{image['id']}").raise_for_status()
 
 
 def test_drop_many_files_with_progress(page, api):
@@ -876,6 +934,46 @@ def test_the_charts_show_the_threshold_as_the_form_does(page, api):
     page.unroute("**/api/sweep?*")
 
 
+def test_the_charts_set_their_value_from_the_keyboard(page, api):
+    """The threshold histogram and the sweep chart set the value where they are clicked, and did
+    nothing from the keyboard: each is a slider of its setting that Tab reaches, showing its focus and
+    saying what it does and the value now; ← → step it by the setting's step (ten with Shift), Home and
+    End go to the chart's ends, as a click there would, and ← → no longer step through the images."""
+    image_id = uploaded_scene(api)
+    open_detail(page, image_id)
+    histogram = page.locator("#histogram")
+    histogram.wait_for()
+    page.focus("#detail-expected")
+    tab_to(page, "histogram", limit=30)
+    assert page.evaluate("() => getComputedStyle(document.activeElement).outlineStyle") == "solid", "no focus ring"
+    assert histogram.get_attribute("role") == "slider" and histogram.get_attribute("aria-valuenow") == "0.75"
+    assert re.fullmatch(r"threshold histogram: click, or press .+ to set threshold; now 0\.75",
+                        histogram.get_attribute("aria-label"))
+    page.keyboard.press("ArrowRight")
+    page.keyboard.press("ArrowRight")   # before the server has answered the first: steps on from it
+    harness.wait_setting(page, api, {"threshold": 0.77})
+    page.wait_for_function("() => document.querySelector('#histogram').ariaLabel.endsWith('now 0.77')")
+    assert page.get_attribute("#detail", "data-id") == image_id, "the arrow keys stepped to another image"
+    page.keyboard.press("Shift+ArrowLeft")
+    harness.wait_setting(page, api, {"threshold": 0.67})
+    page.keyboard.press("End")
+    harness.wait_setting(page, api, {"threshold": 1.0})
+    assert histogram.evaluate("e => e === document.activeElement")
+
+    page.route("**/api/sweep?*", lambda route: route.fulfill(json=sweep_answer("ratio", 0.5, 0.9, 5, [5] * 5)))
+    page.select_option("#sweep-param", "ratio")
+    page.click("#run-sweep")
+    chart = page.locator("#sweep")
+    chart.wait_for()
+    tab_to(page, "sweep", limit=3)
+    assert chart.get_attribute("aria-label").startswith("sweep chart: ") and "to set ratio; now 0.75" in \
+        chart.get_attribute("aria-label")
+    for key, value in (("End", 0.9), ("ArrowLeft", 0.89), ("Home", 0.5)):
+        page.keyboard.press(key)
+        harness.wait_setting(page, api, {"ratio": value})
+    page.unroute("**/api/sweep?*")
+
+
 def test_sweep_bounds_follow_the_swept_setting(page, api):
     open_detail(page, uploaded_scene(api))
     entry = next(e for e in api.get("/api/settings/schema").json() if e["name"] == "max_features")
@@ -974,6 +1072,86 @@ def test_viser_scene_connects_and_shares_the_settings(page, api):
 
     harness.set_settings(page, api, {"threshold": 0.55})
     page.wait_for_function("el => el.getAttribute('aria-valuenow') === '0.55'", arg=thumb.element_handle())
+
+
+# The camera labels viser draws in the 3D view (on its canvas, not in the page): where each visible
+# one is, as its client places it (client/src/label: the corner its anchor names at its camera,
+# 12 px type on a background a fifth of a line larger), in the view's CSS px; and the world shown.
+LABEL_BOXES = """() => {
+    const m = window.__viserMutable, tree = window.__viserSceneTree.getState();
+    const canvas = m.canvas.getBoundingClientRect();
+    const ctx = document.createElement("canvas").getContext("2d");
+    ctx.font = '12px -apple-system, BlinkMacSystemFont, "Segoe UI", "Roboto", "Helvetica Neue", Arial, sans-serif';
+    const probe = ctx.measureText("Mg");
+    const line = probe.fontBoundingBoxAscent + probe.fontBoundingBoxDescent, pad = 0.2 * line;
+    const labels = Object.entries(tree).filter(([, n]) => n?.message?.type === "LabelMessage" && n.effectiveVisibility)
+        .map(([name, n]) => {
+            const parent = m.nodeRefFromName[name.slice(0, name.lastIndexOf("/"))];
+            const at = parent.position.clone().set(...(m.nodePoseData[name]?.position ?? [0, 0, 0]))
+                .applyMatrix4(parent.matrixWorld).project(m.camera);
+            const lines = n.message.props.text.split("\\n");
+            const width = Math.max(...lines.map((l) => ctx.measureText(l).width)) + pad;
+            const height = lines.length * line + pad;
+            const [vertical, horizontal] = n.message.props.anchor.split("-");
+            const shift = { left: 0, top: 0, center: 0.5, right: 1, bottom: 1 };
+            const left = (at.x + 1) / 2 * canvas.width - shift[horizontal] * width;
+            const top = (1 - at.y) / 2 * canvas.height - shift[vertical] * height;
+            return { lines, left, top, right: left + width, bottom: top + height };
+        });
+    const world = Object.keys(tree).find((name) => /^\\/signs\\/[^/]+$/.test(name) && tree[name].effectiveVisibility);
+    return { labels, world: world?.split("/")[2], width: canvas.width, height: canvas.height };
+}"""
+
+
+def labels_laid_out(page, names: list[str], timeout: float = 30) -> tuple[list[str], list, list]:
+    """The names the 3D view's camera labels list, the pairs of labels that overlap and the labels
+    reaching past the view's edges, once every one of `names` is listed and no label
+    overlaps or reaches past (or `timeout` s have passed: the labels are laid out again as the view
+    is framed, on the server's redraw thread)."""
+    frame = viser_frame(page)
+    deadline = time.monotonic() + timeout
+    while True:
+        shown = frame.evaluate(LABEL_BOXES)
+        boxes = shown["labels"]
+        listed = [name for box in boxes for line in box["lines"] for name in line.split(LABEL_SEPARATOR)]
+        overlaps = [(a["lines"][0], b["lines"][0]) for i, a in enumerate(boxes) for b in boxes[:i]
+                    if a["left"] < b["right"] and b["left"] < a["right"] and a["top"] < b["bottom"]
+                    and b["top"] < a["bottom"]]
+        outside = [(b["lines"], [round(b[k]) for k in ("left", "top", "right", "bottom")], shown["width"], shown["height"])
+                   for b in boxes if b["left"] < 0 or b["top"] < 0 or b["right"] > shown["width"]
+                   or b["bottom"] > shown["height"]]
+        if set(names) <= set(listed) and not overlaps and not outside or time.monotonic() > deadline:
+            return listed, overlaps, outside
+        time.sleep(0.3)
+
+
+def test_twenty_camera_labels_in_the_3d_view_do_not_overlap(page, api):
+    """Thirteen cameras and more printed their names over each other in the page's narrow 3D column,
+    and in the strip under the images (1280 px wide and less): labels that would overlap share one,
+    a name a line, or several to fit above the strip's bottom; none runs off the view."""
+    frame = viser_frame(page)
+    world = frame.wait_for_function(f"() => ({LABEL_BOXES})().world", timeout=30_000).json_value()
+    library = load_library(SAMPLE_LIBRARY)
+    # 20 cameras on a grid a metre or two in front of the sign shown, named as phones name photos
+    spots = [(x, y, -z) for z in (1.2, 1.8) for x in (-0.9, -0.45, 0.0, 0.45, 0.9) for y in (-0.25, 0.2)]
+    names = [f"IMG_20240512_1034{i:02d}.jpg" for i in range(len(spots))]
+    r = api.post("/api/images", files=[("files", (name, sign_seen_from(library, world, spot, seed=i), "image/jpeg"))
+                                       for i, (name, spot) in enumerate(zip(names, spots))])
+    r.raise_for_status()
+    ids = [i["id"] for i in r.json()["images"]]
+    try:
+        harness.wait_server_idle(api)
+        assert [api.get(f"/api/images/{i}").json()["label"] for i in ids] == [world] * len(ids)
+        for size in ({"width": 1600, "height": 1000}, {"width": 1280, "height": 800}):   # the column, the strip
+            page.set_viewport_size(size)
+            listed, overlaps, outside = labels_laid_out(page, names)
+            assert set(names) <= set(listed), (size, sorted(set(names) - set(listed)))
+            assert not overlaps, (size, overlaps)
+            assert not outside, (size, outside)
+            assert len(listed) == len(set(listed)), "a name is listed twice"
+    finally:
+        for image_id in ids:
+            api.delete(f"/api/images/{image_id}").raise_for_status()
 
 
 def test_viser_scene_reconnects_after_a_server_restart(browser, tmp_path):
@@ -1189,7 +1367,8 @@ def test_after_dropping_outliers_and_removing_a_photo_the_dialog_shows_what_to_d
         page, api, tmp_path, no_camera):
     """After "drop outliers" the refit flagged another photo and the button stayed on, to refit to
     the same result; removing that photo then left no result at all (apply and download off, "run the
-    calibration") although 11 photos were held."""
+    calibration") although 11 photos were held. What to do about outliers is the server's advice, as
+    it words it (the page had its own copy of it)."""
     images, _ = render_boards(12)
     w = images[0].shape[1]
     images[3] = cv2.resize(images[3], None, fx=1.1, fy=1.0)[:, :w]  # fits no camera: an outlier at once
@@ -1202,11 +1381,15 @@ def test_after_dropping_outliers_and_removing_a_photo_the_dialog_shows_what_to_d
     page.click("#camera-open")
     page.set_input_files("#calib-picker", [str(p) for p in photos])
     page.locator("#calib-rms", has_text="from 12 of 12 photos · 2 outliers").wait_for(timeout=120_000)
+    advice = api.get("/api/calibration").json()["result"]["outlier_advice"]
+    assert page.inner_text("#calib-advice") == advice == "retake or drop them (drop outliers)"
 
     page.click("#calib-drop")
     rms = page.locator("#calib-rms", has_text="from 10 of 12 photos · 1 outlier")
     rms.wait_for()
-    assert rms.inner_text().endswith("after dropping 2: retake or remove it (×)")
+    advice = api.get("/api/calibration").json()["result"]["outlier_advice"]
+    assert advice.endswith("retake it, or remove it (×) if the board is blurred or bent in it")
+    assert page.inner_text("#calib-advice") == advice
     assert page.is_disabled("#calib-drop")
 
     bent = page.locator("#calib-views .view-card.outlier:not(.excluded)")

@@ -129,9 +129,12 @@ def test_outliers_can_be_dropped_and_photos_deleted(client, photos):
     state = client.post("/api/calibration/run", json={"drop_outliers": False}).json()
     warped_view = state["views"][8]
     assert warped_view["outlier"] and warped_view["error_px"] > state["result"]["outlier_threshold_px"]
+    # What to do, in the words of the page, which shows it as it comes: its button, not the CLI's option.
+    assert state["result"]["outlier_advice"] == "retake or drop them (drop outliers)"
     rms = state["result"]["rms_px"]
     state = client.post("/api/calibration/run", json={"drop_outliers": True}).json()
     assert state["views"][8]["excluded"] and state["result"]["used"] == 8 and state["result"]["rms_px"] < rms / 2
+    assert (state["result"]["outlier_advice"] is None) == (not any(v["outlier"] for v in state["views"]))
 
     assert client.delete(f"/api/calibration/views/{warped_view['id']}").status_code == 204
     state = client.get("/api/calibration").json()

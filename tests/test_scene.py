@@ -14,9 +14,9 @@ import pytest
 import viser
 import viser.transforms as tf
 
-from app.scene import (INITIAL_VIEW_LOOK_AT_M, INITIAL_VIEW_POSITION_M, LABEL_PX_PER_CHAR, NO_WORLD, attach,
-                       camera_pose_in_sign, frustum_scale, frustum_shape, image_plane_points, matched_points,
-                       status_markdown)
+from app.scene import (INITIAL_VIEW_LOOK_AT_M, INITIAL_VIEW_POSITION_M, LABEL_GAP_PX, LABEL_SEPARATOR, NO_WORLD,
+                       View, attach, camera_pose_in_sign, frustum_scale, frustum_shape, image_plane_points,
+                       label_groups, label_size_px, labels_apart, matched_points, screen_px, status_markdown)
 from app.workspace import SAMPLE_SCENES, Outcome, Workspace, WorkspaceConfig
 from pipeline.camera import assumed_camera
 from pipeline.settings import PRESETS, settings_schema
@@ -163,7 +163,7 @@ def test_a_narrow_viewer_has_room_for_the_labels_of_the_cameras_at_its_edges(sce
     viewer = Viewer(1, 0.45, handle.server.initial_camera)
     handle.frame_for(viewer)
     half_px = viewer.camera.image_width / 2
-    label_px = max(LABEL_PX_PER_CHAR * len(n.label.text) for n in handle.cameras.values()
+    label_px = max(label_size_px(n.label.text)[0] for n in handle.cameras.values()
                    if n.sign == handle.world.value and n.label.visible)
     off_axis_px = half_px * math.tan(math.radians(_widest(handle, viewer.camera))) / math.tan(
         math.radians(viewer.across_deg))
@@ -225,6 +225,7 @@ class Viewer:
         self.camera = type("Camera", (), dict(fov=start.fov, aspect=aspect, image_width=round(aspect * height_px),
                                               position=np.asarray(start.position),
                                               look_at=np.asarray(start.look_at),
+                                              up_direction=np.array([0.0, -1.0, 0.0]),
                                               on_update=lambda _camera, callback: self._on_camera.append(callback)))()
         # half the canvas' width, in degrees
         self.across_deg = np.degrees(math.atan(math.tan(start.fov / 2) * min(aspect, 1.0)))
@@ -358,6 +359,73 @@ def test_cameras_standing_together_share_one_label(scene):
     settle(handle, workspace)
     label = handle.cameras[original.id].label
     assert label.visible and label.text == original.name
+
+
+def _camera(position, look_at, width_px: int, height_px: int, fov_deg: float = 90):
+    """A viewer's camera as viser reports it, y down the sign as the scene sets it up."""
+    return types.SimpleNamespace(position=np.asarray(position, float), look_at=np.asarray(look_at, float),
+                                 up_direction=np.array([0.0, -1.0, 0.0]), fov=math.radians(fov_deg),
+                                 image_width=width_px, aspect=width_px / height_px)
+
+
+def test_screen_px_is_where_a_viewer_sees_a_point():
+    camera = _camera((0, 0, 0), (0, 0, 1), 400, 200)
+    px = screen_px(np.array([[0, 0, 1], [1, 0, 1], [0, 1, 1], [0, 0, -1]]), camera)
+    np.testing.assert_allclose(px[:3], [[200, 100], [300, 100], [200, 200]])   # f = 100 px: 200 high, 90°
+    assert np.isnan(px[3]).all()   # behind the viewer
+
+
+def _overlapping(labels, view: View) -> list:
+    """The pairs of `labels` (SharedLabel) whose boxes on `view`'s screen overlap, or come nearer than LABEL_GAP_PX."""
+    boxes = [label.box(view) for label in labels]
+    return [(a, b) for i, a in enumerate(boxes) for b in boxes[:i]
+            if a[0] < b[2] + LABEL_GAP_PX and b[0] < a[2] + LABEL_GAP_PX
+            and a[1] < b[3] + LABEL_GAP_PX and b[1] < a[3] + LABEL_GAP_PX]
+
+
+def test_labels_that_would_overlap_on_a_viewers_screen_share_one():
+    """Twenty cameras a few metres off, seen in the page's narrow 3D column: their names were
+    printed over each other. Labels that would overlap share one, so that none does, and every
+    name is shown once; seen closer, where each has room, every camera keeps its own."""
+    names = [f"IMG_20240512_1034{i:02d}.jpg" for i in range(20)]
+    positions = np.array([(x, y, z) for z in (-1.2, -1.8) for x in np.linspace(-0.9, 0.9, 5) for y in (-0.25, 0.2)])
+    groups = label_groups(list(positions), 0.25)
+    assert len(groups) == 20   # none standing together
+    column = View.of(_camera((-1.5, -1.0, -5.0), (0, 0, -1.0), 446, 900, 50), positions)   # the page's 3D column
+    close = View.of(_camera((0, 0, -4), (0, 0, -1.5), 1600, 1000, 50), positions)
+    shared = labels_apart(groups, names, [column])
+    assert sorted(i for label in shared for i in label.cameras) == list(range(20)) and not _overlapping(shared, column)
+    for label in shared:   # one a line, written from the camera highest on screen
+        assert label.text.split("\n") == [names[i] for i in label.cameras]
+        assert column.px[label.at, 1] == min(column.px[i, 1] for i in label.cameras)
+    assert [(label.at, label.cameras, label.text) for label in labels_apart(groups, names, [close])] == \
+        [(i, [i], names[i]) for i in range(20)]
+    # Apart on one viewer's screen is not enough: no label may overlap another on any.
+    both = labels_apart(groups, names, [close, column])
+    assert not _overlapping(both, close) and not _overlapping(both, column)
+
+
+def test_a_shared_label_lists_several_names_a_line_to_fit_above_the_bottom_of_the_view():
+    """In the 3D strip under the images (1280 px wide and less), 300 px high, twenty names one a
+    line ran past its bottom."""
+    names = [f"IMG_20240512_1034{i:02d}.jpg" for i in range(20)]
+    positions = np.array([(x, 0, -2.0) for x in np.linspace(-0.1, 0.1, 20)])
+    strip = View.of(_camera((0, 0, -4), (0, 0.3, 0), 1260, 300, 50), positions)
+    [label] = labels_apart(label_groups(list(positions), 0.001), names, [strip])
+    lines = label.text.split("\n")
+    assert label.fits(strip) and 1 < len(lines) < 20
+    assert [name for line in lines for name in line.split(LABEL_SEPARATOR)] == names
+
+
+def test_a_label_that_would_run_off_the_view_is_written_the_other_way():
+    """A camera near the right edge of the page's narrow 3D column had its name cut off there."""
+    # one camera 100 px left of the right edge, forty standing together 160 px above the bottom, at the left
+    points = np.array([[0.13, -0.3, 0]] + [[-0.2, 0.3, 0]] * 40)
+    view = View.of(_camera((0, 0, -1.0), (0, 0, 0), 446, 900, 50), points)
+    names = [f"IMG_20240512_1034{i:02d}.jpg" for i in range(41)]
+    right, low = labels_apart([[0], list(range(1, 41))], names, [view])
+    assert right.anchor == "top-right" and right.fits(view)
+    assert low.anchor == "bottom-left" and low.fits(view) and low.text.split("\n") == names[1:]
 
 
 def test_upload_button_adds_an_image(scene):
