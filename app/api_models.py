@@ -244,7 +244,8 @@ class CalibrationOut(BaseModel):
         description="null until run, and again after photos are added or the board changes; when a photo is "
                     "removed, fitted again to the photos left (the photos it left out stay out)")
     unfitted: str | None = Field(None, description="why the photos left gave no result when they were fitted again "
-                                                   "after a photo was removed; null otherwise")
+                                                   "after a photo was removed, said anew after each removal since "
+                                                   "the last run; null otherwise")
 
 
 class CalibrationAdded(CalibrationOut):

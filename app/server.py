@@ -854,8 +854,9 @@ def get_calibration_view(view_id: str, calibration: CalibrationDep,
 
 @api.delete("/calibration/views/{view_id}", status_code=status.HTTP_204_NO_CONTENT, tags=["calibration"])
 def delete_calibration_view(view_id: str, calibration: CalibrationDep) -> None:
-    """Forget one photo; the result, if any, is fitted again to the photos left (those it left out stay
-    out), or dropped when they give none (GET /api/calibration/camera.yaml's 409 then says why)."""
+    """Forget one photo; after a run, the photos left are fitted again as it fitted them (those it left
+    out stay out), after every removal; when they give no result, `unfitted` and the 409 of GET
+    /api/calibration/camera.yaml say why."""
     try:
         calibration.remove(view_id)
     except KeyError:

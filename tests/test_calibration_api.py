@@ -60,6 +60,16 @@ def blank_png() -> bytes:
     return cv2.imencode(".png", np.full(SIZE[::-1], 200, np.uint8))[1].tobytes()
 
 
+def shaky_photo(photos: list[tuple[str, bytes]], name: str = "shaky.png") -> tuple[str, bytes]:
+    """(name, PNG bytes) of photos[3] stretched by 3 % in x, with noise: the board is found, but its
+    corners fit no camera the others agree on (an outlier)."""
+    rng = np.random.default_rng(5)
+    image = cv2.imdecode(np.frombuffer(photos[3][1], np.uint8), cv2.IMREAD_GRAYSCALE)
+    warped = cv2.resize(image, None, fx=1.03, fy=1.0)[:, :SIZE[0]]
+    warped = np.clip(warped + rng.normal(0, 2, warped.shape), 0, 255).astype(np.uint8)
+    return name, cv2.imencode(".png", warped)[1].tobytes()
+
+
 def test_upload_run_apply_and_download(client, photos, tmp_path):
     sign = upload(client, ("sign.jpg", sign_photo(load_library(SAMPLE_LIBRARY), "security_compound"), None))
     sign_id = sign.json()["images"][0]["id"]
@@ -119,12 +129,7 @@ def test_upload_run_apply_and_download(client, photos, tmp_path):
 
 
 def test_outliers_can_be_dropped_and_photos_deleted(client, photos):
-    rng = np.random.default_rng(5)
-    image = cv2.imdecode(np.frombuffer(photos[3][1], np.uint8), cv2.IMREAD_GRAYSCALE)
-    # Stretched by 3 % in x: the board is found, but its corners fit no camera the others agree on.
-    warped = cv2.resize(image, None, fx=1.03, fy=1.0)[:, :SIZE[0]]
-    warped = np.clip(warped + rng.normal(0, 2, warped.shape), 0, 255).astype(np.uint8)
-    state = add(client, photos[:8] + [("warped.png", cv2.imencode(".png", warped)[1].tobytes())]).json()
+    state = add(client, photos[:8] + [shaky_photo(photos, "warped.png")]).json()
     assert all(v["found"] for v in state["views"])
     state = client.post("/api/calibration/run", json={"drop_outliers": False}).json()
     warped_view = state["views"][8]
@@ -145,11 +150,7 @@ def test_outliers_can_be_dropped_and_photos_deleted(client, photos):
 def test_deleting_a_photo_fits_the_photos_left(client, photos):
     """After DELETE /api/calibration/views/{id} the result was dropped: camera.yaml and apply
     answered 409 "no calibration yet: add photos of the board" to someone holding the rest."""
-    rng = np.random.default_rng(5)
-    shaky = cv2.imdecode(np.frombuffer(photos[3][1], np.uint8), cv2.IMREAD_GRAYSCALE)
-    shaky = cv2.resize(shaky, None, fx=1.03, fy=1.0)[:, :SIZE[0]]  # found, but fits no camera the others agree on
-    shaky = np.clip(shaky + rng.normal(0, 2, shaky.shape), 0, 255).astype(np.uint8)
-    add(client, photos[:5] + [("shaky.png", cv2.imencode(".png", shaky)[1].tobytes())])
+    add(client, photos[:5] + [shaky_photo(photos)])
     assert_error(client.get("/api/calibration/camera.yaml"), 409, "no calibration of the 6 photos held (none is "
                  "kept when photos are added or the board changes): run the calibration")
     ran = client.post("/api/calibration/run", json={"drop_outliers": True}).json()
@@ -172,6 +173,40 @@ def test_deleting_a_photo_fits_the_photos_left(client, photos):
     for r in (client.post("/api/calibration/apply"), client.get("/api/calibration/camera.yaml")):
         assert_error(r, 409, "no calibration: the 3 photos left could not be fitted again: the board was found in 2 "
                              "usable image(s); calibration needs at least 3", "(the one dropped as an outlier stays out)")
+
+
+def test_why_the_photos_left_give_no_fit_is_said_again_after_every_removal(client, photos):
+    """Removing photos one by one after dropping an outlier: the first removal below 3 boards said
+    why no fit was left, the next one blanked it, and apply and camera.yaml then answered 409 "none is
+    kept when photos are added or the board changes", which nobody had done."""
+    state = add(client, photos[:5] + [shaky_photo(photos), ("blank.png", blank_png())]).json()
+    ran = client.post("/api/calibration/run", json={"drop_outliers": True}).json()
+    assert ran["views"][5]["excluded"] and ran["result"]["used"] == 5
+    for view in ran["views"][:3]:
+        assert client.delete(f"/api/calibration/views/{view['id']}").status_code == 204
+    assert client.get("/api/calibration").json()["unfitted"].startswith("the board was found in 2 usable image(s)")
+
+    assert client.delete(f"/api/calibration/views/{ran['views'][3]['id']}").status_code == 204
+    state = client.get("/api/calibration").json()
+    assert len(state["views"]) == 3 and state["result"] is None
+    assert state["unfitted"].startswith("the board was found in 1 usable image(s); calibration needs at least 3")
+    assert state["unfitted"].endswith("(the one dropped as an outlier stays out)")
+    for r in (client.post("/api/calibration/apply"), client.get("/api/calibration/camera.yaml")):
+        assert_error(r, 409, "no calibration: the 3 photos left could not be fitted again: the board was found in 1 "
+                             "usable image(s)")
+        assert "none is kept" not in r.json()["detail"]
+
+    # said again, for the photos now left: the outlier gone, nothing is said of it
+    assert client.delete(f"/api/calibration/views/{ran['views'][5]['id']}").status_code == 204
+    state = client.get("/api/calibration").json()
+    assert state["unfitted"].startswith("the board was found in 1 usable image(s)") and "outlier" not in state["unfitted"]
+    assert_error(client.get("/api/calibration/camera.yaml"), 409, "the 2 photos left could not be fitted again")
+    # the last photo gone, there is nothing left to fit, and nothing to say of a fit
+    for view in state["views"]:
+        assert client.delete(f"/api/calibration/views/{view['id']}").status_code == 204
+    state = client.get("/api/calibration").json()
+    assert state["views"] == [] and state["unfitted"] is None
+    assert_error(client.get("/api/calibration/camera.yaml"), 409, "no calibration yet: add photos")
 
 
 def test_a_new_board_size_searches_every_photo_again(client, photos):
