@@ -194,7 +194,9 @@ class CalibrationView(BaseModel):
                                                      "camera, px; null until calibrated or when not found")
     tilt_deg: float | None = Field(None, description="angle between the board's normal and the optical axis")
     outlier: bool = Field(False, description="error far above the others' (above outlier_threshold_px)")
-    excluded: bool = Field(False, description="left out of the fit as an outlier (run with drop_outliers)")
+    excluded: bool = Field(False, description="left out of the fit as an outlier (run with drop_outliers); it stays "
+                                              "out as photos are removed, also while those left give no result "
+                                              "(`unfitted`), until the next run")
 
 
 class IntrinsicsStd(BaseModel):

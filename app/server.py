@@ -770,7 +770,10 @@ def calibration_out(calibration: CalibrationSession, state: CalibrationState) ->
     """The response for `state`, a state of `calibration` (read once by the caller: photos, board
     and result must agree)."""
     summary = state.result.to_json() if state.result is not None else None
-    views = [CalibrationView(**(summary["views"][i] if summary else {"name": p.name, "found": p.view.found}),
+    # Without a result, the photos the last run dropped as outliers are still out (`unfitted` counts without them).
+    left_out = state.recipe.left_out if state.recipe else frozenset()
+    views = [CalibrationView(**(summary["views"][i] if summary else
+                                {"name": p.name, "found": p.view.found, "excluded": p.id in left_out}),
                              id=p.id, width=p.view.image_size[0], height=p.view.image_size[1])
              for i, p in enumerate(state.photos)]
     result = None if summary is None else CalibrationResult.model_validate(

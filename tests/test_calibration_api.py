@@ -209,6 +209,25 @@ def test_why_the_photos_left_give_no_fit_is_said_again_after_every_removal(clien
     assert_error(client.get("/api/calibration/camera.yaml"), 409, "no calibration yet: add photos")
 
 
+def test_a_photo_dropped_as_an_outlier_is_shown_dropped_while_the_photos_left_give_no_fit(client, photos):
+    """`unfitted` said "the one dropped as an outlier stays out" while that photo's view said
+    excluded: false, as if it counted among the boards the fit could use."""
+    add(client, photos[:4] + [shaky_photo(photos)])
+    ran = client.post("/api/calibration/run", json={"drop_outliers": True}).json()
+    assert ran["views"][4]["excluded"] and ran["result"]["used"] == 4
+    for view in ran["views"][:2]:
+        assert client.delete(f"/api/calibration/views/{view['id']}").status_code == 204
+    state = client.get("/api/calibration").json()
+    assert state["result"] is None and state["unfitted"].startswith("the board was found in 2 usable image(s)")
+    assert state["unfitted"].endswith("(the one dropped as an outlier stays out)")
+    assert [(v["name"], v["found"], v["excluded"]) for v in state["views"]] == [
+        (photos[2][0], True, False), (photos[3][0], True, False), ("shaky.png", True, True)]
+    assert sum(v["found"] and not v["excluded"] for v in state["views"]) == 2  # the count `unfitted` gives
+    # a run fits afresh: every photo with the board, the one dropped before included
+    state = client.post("/api/calibration/run", json={}).json()
+    assert state["result"]["used"] == 3 and not any(v["excluded"] for v in state["views"])
+
+
 def test_a_new_board_size_searches_every_photo_again(client, photos):
     add(client, photos[:3])
     state = client.put("/api/calibration/board", json=BOARD_SPEC | {"cols": 7, "rows": 5}).json()
