@@ -239,9 +239,10 @@ class CalibrationOut(BaseModel):
     max_views: int = Field(description="photos the calibration holds at most")
     max_square_m: float = Field(description="largest board square, metres: beyond, the size was typed in millimetres")
     views: list[CalibrationView] = Field(description="in the order chosen (`batch`, `position`)")
-    hint: str | None = Field(None, description="what to check when the board was found in too few of the photos to "
-                                               "calibrate and not in all (its size, often given in squares rather "
-                                               "than inner corners); null otherwise")
+    hint: str | None = Field(None, description="what to do when the board is found in too few of the photos to "
+                                               "calibrate: check its size (often given in squares rather than inner "
+                                               "corners) when it is found in fewer than half of them, else add "
+                                               "photos; null otherwise")
     result: CalibrationResult | None = Field(
         description="null until run, and again after photos are added or the board changes; when a photo is "
                     "removed, fitted again to the photos left (the photos it left out stay out)")

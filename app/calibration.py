@@ -17,8 +17,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.calibrate import (MIN_VIEWS, BoardView, Calibration, CalibrationError, board_size_hint, calibrate,
-                                check_board, check_square, drop_outliers, find_board, outlier_advice)
+from pipeline.calibrate import (MIN_VIEWS, BoardView, Calibration, CalibrationError, calibrate,
+                                check_board, check_square, drop_outliers, find_board, outlier_advice,
+                                too_few_boards_advice)
 from pipeline.camera import Camera
 from pipeline.evaluate import CORES
 from pipeline.image import decode_image, to_gray
@@ -96,10 +97,9 @@ class CalibrationState:
             return f"no calibration: the {len(self.photos)} photos left could not be fitted again: {self.unfitted}"
         found, held = sum(p.view.found for p in self.photos), len(self.photos)
         if found < MIN_VIEWS:
-            hint = board_size_hint(self.board, found, held)
             return (f"no calibration: the {self.board[0]}x{self.board[1]} board is found in {found} of the {held} "
-                    f"photos held, and a calibration needs at least {MIN_VIEWS} (15-20 recommended): add photos of "
-                    "the board" + (f"; {hint}" if hint else ""))
+                    f"photos held, and a calibration needs at least {MIN_VIEWS} (15-20 recommended): "
+                    f"{too_few_boards_advice(self.board, found, held)}")
         return (f"no calibration of the {held} photos held (none is kept when photos are added or the board changes): "
                 "run the calibration")
 

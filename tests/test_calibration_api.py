@@ -315,7 +315,11 @@ def test_bad_input_gets_a_clear_4xx_and_changes_nothing(client, photos):
     add(client, photos[:2] + [("blank.png", blank_png())])
     assert_error(client.post("/api/calibration/run", json={}), 422, "found in 2 usable image(s)", "at least 3")
     for r in (client.post("/api/calibration/apply"), client.get("/api/calibration/camera.yaml")):
-        assert_error(r, 409, "board is found in 2 of the 3 photos held", "at least 3", "inner corners")
+        # found in most: its size is right, and photos are what is missing
+        assert_error(r, 409, "board is found in 2 of the 3 photos held", "at least 3 (15-20 recommended): add photos "
+                             "of the board")
+        assert "inner corners" not in r.json()["detail"]
+    assert client.get("/api/calibration").json()["hint"] == "add photos of the board"
     view_id = client.get("/api/calibration").json()["views"][0]["id"]
     assert_error(client.get(f"/api/calibration/views/{view_id}/image", params={"overlay": "undistorted"}), 409,
                  "found in 2 of the 3 photos held")
