@@ -197,6 +197,11 @@ class CalibrationView(BaseModel):
     excluded: bool = Field(False, description="left out of the fit as an outlier (run with drop_outliers); it stays "
                                               "out as photos are removed, also while those left give no result "
                                               "(`unfitted`), until the next run")
+    other_size: str | None = Field(None, description="when the board was found in this photo but the photo is not "
+                                                     "the size most photos with the board share: its size and "
+                                                     "theirs, \"640x480, the others 1280x960\" (a calibration "
+                                                     "holds for one size, so a run is refused: see size_mismatch); "
+                                                     "null otherwise")
 
 
 class IntrinsicsStd(BaseModel):
@@ -246,6 +251,10 @@ class CalibrationOut(BaseModel):
     result: CalibrationResult | None = Field(
         description="null until run, and again after photos are added or the board changes; when a photo is "
                     "removed, fitted again to the photos left (the photos it left out stay out)")
+    size_mismatch: str | None = Field(None, description="why the photos with the board cannot be calibrated "
+                                                        "together, as a run would refuse: which are which other size "
+                                                        "than most, how it differs and what to do; null when they are "
+                                                        "all one size")
     unfitted: str | None = Field(None, description="why the photos left gave no result when they were fitted again "
                                                    "after a photo was removed, said anew after each removal since "
                                                    "the last run; null otherwise")

@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.calibrate import (MIN_VIEWS, BoardView, Calibration, CalibrationError, calibrate,
-                                check_board, check_square, drop_outliers, find_board, outlier_advice,
-                                too_few_boards_advice)
+                                check_board, check_square, drop_outliers, find_board, other_sizes, outlier_advice,
+                                reference_size, size_mismatch, too_few_boards_advice)
 from pipeline.camera import Camera
 from pipeline.evaluate import CORES
 from pipeline.image import decode_image, to_gray
@@ -88,6 +88,23 @@ class CalibrationState:
     recipe: FitRecipe | None = None
 
     @property
+    def size_mismatch(self) -> str | None:
+        """Why the photos with the board cannot be calibrated together (which are which other size than
+        most, and what to do), as the run refuses; None when they are all one size."""
+        views = tuple(p.view for p in self.photos)
+        found = [i for i, v in enumerate(views) if v.found]
+        return size_mismatch(views, found, reference_size(views, found)) if found else None
+
+    @property
+    def other_sizes(self) -> dict[str, str]:
+        """{photo id: "640x480, the others 1280x960"} for each photo with the board of another size than
+        most (`size_mismatch` says what to do), shown on its card before any run: such photos were
+        marked "found", and the summary said to run the calibration, which every run refused."""
+        views = tuple(p.view for p in self.photos)
+        return {self.photos[i].id: note
+                for i, note in other_sizes(views, [i for i, v in enumerate(views) if v.found]).items()}
+
+    @property
     def why_no_result(self) -> str:
         """Why there is no `result`, in terms of the photos held, and what to do; for a request that
         needs one. It said "add photos of the board" to someone holding 19 after one was removed."""
@@ -100,6 +117,8 @@ class CalibrationState:
             return (f"no calibration: the {self.board[0]}x{self.board[1]} board is found in {found} of the {held} "
                     f"photos held, and a calibration needs at least {MIN_VIEWS} (15-20 recommended): "
                     f"{too_few_boards_advice(self.board, found, held)}")
+        if mismatch := self.size_mismatch:
+            return f"no calibration: {mismatch}"
         return (f"no calibration of the {held} photos held (none is kept when photos are added or the board changes): "
                 "run the calibration")
 

@@ -772,9 +772,11 @@ def calibration_out(calibration: CalibrationSession, state: CalibrationState) ->
     summary = state.result.to_json() if state.result is not None else None
     # Without a result, the photos the last run dropped as outliers are still out (`unfitted` counts without them).
     left_out = state.recipe.left_out if state.recipe else frozenset()
+    other_sizes = state.other_sizes
     views = [CalibrationView(**(summary["views"][i] if summary else
                                 {"name": p.name, "found": p.view.found, "excluded": p.id in left_out}),
-                             id=p.id, width=p.view.image_size[0], height=p.view.image_size[1])
+                             id=p.id, width=p.view.image_size[0], height=p.view.image_size[1],
+                             other_size=other_sizes.get(p.id))
              for i, p in enumerate(state.photos)]
     result = None if summary is None else CalibrationResult.model_validate(
         {**summary, "camera": intrinsics(calibrated_camera(state.result)),
@@ -786,7 +788,7 @@ def calibration_out(calibration: CalibrationSession, state: CalibrationState) ->
                           board=BoardSpec(cols=state.board[0], rows=state.board[1], square_m=state.square_m),
                           search=None if search is None else BoardSearchOut(
                               cols=search.board[0], rows=search.board[1], done=search.done, total=search.total),
-                          result=result, unfitted=state.unfitted)
+                          result=result, unfitted=state.unfitted, size_mismatch=state.size_mismatch)
 
 
 def few_boards_hint(board: tuple[int, int], found: int, held: int) -> str | None:

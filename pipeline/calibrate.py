@@ -267,6 +267,24 @@ OTHER_SIZE_ADVICE = {
 }
 
 
+def reference_size(views: tuple[BoardView, ...], found: list[int]) -> tuple[int, int]:
+    """The size (width, height) px most of the `found` views share (the first listed of sizes tied):
+    the size a calibration of them is for, so that the odd ones out are named rather than the rest."""
+    return tuple(Counter(tuple(views[i].image_size) for i in found).most_common(1)[0][0])
+
+
+def other_sizes(views: tuple[BoardView, ...], found: list[int]) -> dict[int, str]:
+    """The `found` views of another size than `reference_size`, each with its size and theirs:
+    {index: "640x480, the others 1280x960"} ("most 1280x960" when a third size is among them).
+    Such views make `calibrate` refuse (`size_mismatch`); {} when all are one size."""
+    if not found:
+        return {}
+    w, h = reference_size(views, found)
+    odd = [i for i in found if tuple(views[i].image_size) != (w, h)]
+    others = "the others" if len({tuple(views[i].image_size) for i in odd}) == 1 else "most"
+    return {i: f"{views[i].image_size[0]}x{views[i].image_size[1]}, {others} {w}x{h}" for i in odd}
+
+
 def size_mismatch(views: tuple[BoardView, ...], found: list[int], size: tuple[int, int]) -> str | None:
     """Why the `found` views cannot be calibrated together at `size` (width, height) px: which are
     which other size, how it differs and what to do; None when all are `size`.
@@ -310,8 +328,7 @@ def calibrate(views: list[BoardView], board: tuple[int, int], square_m: float,
     if not found:
         raise CalibrationError(f"the {board[0]}x{board[1]} board was not found in any of the {len(views)} image(s); "
                                f"{too_few_boards_advice(board, 0, len(views))}")
-    # The size most photos share, so that the odd ones out are named rather than the rest.
-    size = tuple(image_size or Counter(tuple(views[i].image_size) for i in found).most_common(1)[0][0])
+    size = tuple(image_size or reference_size(views, found))
     mismatch = size_mismatch(views, found, size)
     if mismatch:
         raise CalibrationError(mismatch)

@@ -15,7 +15,7 @@ import pytest
 from app import calibration
 from app.server import create_app
 from app.workspace import WorkspaceConfig
-from chessboards import BOARD, K_TRUE, SIZE, SQUARE_M, render_boards
+from chessboards import BOARD, K_TRUE, SIZE, SQUARE_M, render_boards, shaky_board
 from pipeline.calibrate import find_board
 from pipeline.camera import load_camera
 from pipeline.evaluate import CORES
@@ -61,13 +61,9 @@ def blank_png() -> bytes:
 
 
 def shaky_photo(photos: list[tuple[str, bytes]], name: str = "shaky.png") -> tuple[str, bytes]:
-    """(name, PNG bytes) of photos[3] stretched by 3 % in x, with noise: the board is found, but its
-    corners fit no camera the others agree on (an outlier)."""
-    rng = np.random.default_rng(5)
+    """(name, PNG bytes) of photos[3] made an outlier (`shaky_board`)."""
     image = cv2.imdecode(np.frombuffer(photos[3][1], np.uint8), cv2.IMREAD_GRAYSCALE)
-    warped = cv2.resize(image, None, fx=1.03, fy=1.0)[:, :SIZE[0]]
-    warped = np.clip(warped + rng.normal(0, 2, warped.shape), 0, 255).astype(np.uint8)
-    return name, cv2.imencode(".png", warped)[1].tobytes()
+    return name, cv2.imencode(".png", shaky_board(image))[1].tobytes()
 
 
 def test_upload_run_apply_and_download(client, photos, tmp_path):
@@ -226,6 +222,30 @@ def test_a_photo_dropped_as_an_outlier_is_shown_dropped_while_the_photos_left_gi
     # a run fits afresh: every photo with the board, the one dropped before included
     state = client.post("/api/calibration/run", json={}).json()
     assert state["result"]["used"] == 3 and not any(v["excluded"] for v in state["views"])
+
+
+def test_photos_of_another_size_than_most_are_flagged_before_any_run(client, photos):
+    """A photo of another size was listed "found", and the page said to run the calibration, which
+    every run refused (its message named each size): the odd photo is flagged, and why a run cannot
+    fit them, before any run."""
+    large = cv2.resize(cv2.imdecode(np.frombuffer(photos[4][1], np.uint8), cv2.IMREAD_GRAYSCALE), (800, 600))
+    state = add(client, [("large.png", cv2.imencode(".png", large)[1].tobytes()), *photos[:4]]).json()
+    assert all(v["found"] for v in state["views"]) and state["result"] is None
+    # the size most photos share is the one others are measured against, whichever came first
+    assert [v["other_size"] for v in state["views"]] == ["800x600, the others 640x480"] + [None] * 4
+    assert state["size_mismatch"] == ("the photos must all be one size, as a calibration holds for one: 4 of the 5 "
+                                      "with the board are 640x480 px, but large.png is 800x600 px, the same frame at "
+                                      "another resolution (resized, or another resolution setting): retake it at "
+                                      "640x480 or leave it out (the calibrated camera is scaled to photos of that "
+                                      "shape when it is used)")
+    assert_error(client.post("/api/calibration/run", json={}), 422, state["size_mismatch"])  # what a run says
+    for r in (client.post("/api/calibration/apply"), client.get("/api/calibration/camera.yaml")):
+        assert_error(r, 409, f"no calibration: {state['size_mismatch']}")
+
+    assert client.delete(f"/api/calibration/views/{state['views'][0]['id']}").status_code == 204
+    state = client.get("/api/calibration").json()
+    assert state["size_mismatch"] is None and not any(v["other_size"] for v in state["views"])
+    assert client.post("/api/calibration/run", json={}).json()["result"]["used"] == 4
 
 
 def test_a_new_board_size_searches_every_photo_again(client, photos):
