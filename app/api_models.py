@@ -194,7 +194,14 @@ class CalibrationView(BaseModel):
                                                      "camera, px; null until calibrated or when not found")
     tilt_deg: float | None = Field(None, description="angle between the board's normal and the optical axis")
     outlier: bool = Field(False, description="error far above the others' (above outlier_threshold_px)")
-    excluded: bool = Field(False, description="left out of the fit as an outlier (run with drop_outliers)")
+    excluded: bool = Field(False, description="left out of the fit as an outlier (run with drop_outliers); it stays "
+                                              "out as photos are removed, also while those left give no result "
+                                              "(`unfitted`), until the next run")
+    other_size: str | None = Field(None, description="when the board was found in this photo but the photo is not "
+                                                     "the size most photos with the board share: its size and "
+                                                     "theirs, \"640x480, the others 1280x960\" (a calibration "
+                                                     "holds for one size, so a run is refused: see size_mismatch); "
+                                                     "null otherwise")
 
 
 class IntrinsicsStd(BaseModel):
@@ -237,14 +244,20 @@ class CalibrationOut(BaseModel):
     max_views: int = Field(description="photos the calibration holds at most")
     max_square_m: float = Field(description="largest board square, metres: beyond, the size was typed in millimetres")
     views: list[CalibrationView] = Field(description="in the order chosen (`batch`, `position`)")
-    hint: str | None = Field(None, description="what to check when the board was found in too few of the photos to "
-                                               "calibrate and not in all (its size, often given in squares rather "
-                                               "than inner corners); null otherwise")
+    hint: str | None = Field(None, description="what to do when the board is found in too few of the photos to "
+                                               "calibrate: check its size (often given in squares rather than inner "
+                                               "corners) when it is found in fewer than half of them, else add "
+                                               "photos; null otherwise")
     result: CalibrationResult | None = Field(
         description="null until run, and again after photos are added or the board changes; when a photo is "
                     "removed, fitted again to the photos left (the photos it left out stay out)")
+    size_mismatch: str | None = Field(None, description="why the photos with the board cannot be calibrated "
+                                                        "together, as a run would refuse: which are which other size "
+                                                        "than most, how it differs and what to do; null when they are "
+                                                        "all one size")
     unfitted: str | None = Field(None, description="why the photos left gave no result when they were fitted again "
-                                                   "after a photo was removed; null otherwise")
+                                                   "after a photo was removed, said anew after each removal since "
+                                                   "the last run; null otherwise")
 
 
 class CalibrationAdded(CalibrationOut):

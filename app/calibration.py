@@ -17,8 +17,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.calibrate import (MIN_VIEWS, BoardView, Calibration, CalibrationError, board_size_hint, calibrate,
-                                check_board, check_square, drop_outliers, find_board, outlier_advice)
+from pipeline.calibrate import (MIN_VIEWS, BoardView, Calibration, CalibrationError, calibrate,
+                                check_board, check_square, drop_outliers, find_board, other_sizes, outlier_advice,
+                                reference_size, size_mismatch, too_few_boards_advice)
 from pipeline.camera import Camera
 from pipeline.evaluate import CORES
 from pipeline.image import decode_image, to_gray
@@ -52,6 +53,18 @@ class CalibrationPhoto:
 
 
 @dataclass(frozen=True)
+class FitRecipe:
+    """How the photos were last fitted, to fit those left again as photos are removed (`refit`).
+
+    left_out: ids of the photos left out of the fit (dropped as outliers), which stay out.
+    fix_k3: whether k3 was held at 0.
+    """
+
+    left_out: frozenset[str]
+    fix_k3: bool
+
+
+@dataclass(frozen=True)
 class CalibrationState:
     """The session at one moment, replaced as a whole on every change (`revision` + 1).
 
@@ -60,6 +73,10 @@ class CalibrationState:
     nothing has been fitted since the last change.
     unfitted: why `photos` gave no result when fitted again after a photo was removed (`refit`);
     None otherwise.
+    recipe: how the last run fitted the photos, kept as photos are removed, whether or not those
+    left still give a result: each removal fits them again the same way and says anew why they
+    give none (it was lost with the result, and the next removal said nothing, or worse). None
+    before a run, and once photos are added or the board changes.
     """
 
     revision: int = 0
@@ -68,6 +85,24 @@ class CalibrationState:
     photos: tuple[CalibrationPhoto, ...] = ()
     result: Calibration | None = None
     unfitted: str | None = None
+    recipe: FitRecipe | None = None
+
+    @property
+    def size_mismatch(self) -> str | None:
+        """Why the photos with the board cannot be calibrated together (which are which other size than
+        most, and what to do), as the run refuses; None when they are all one size."""
+        views = tuple(p.view for p in self.photos)
+        found = [i for i, v in enumerate(views) if v.found]
+        return size_mismatch(views, found, reference_size(views, found)) if found else None
+
+    @property
+    def other_sizes(self) -> dict[str, str]:
+        """{photo id: "640x480, the others 1280x960"} for each photo with the board of another size than
+        most (`size_mismatch` says what to do), shown on its card before any run: such photos were
+        marked "found", and the summary said to run the calibration, which every run refused."""
+        views = tuple(p.view for p in self.photos)
+        return {self.photos[i].id: note
+                for i, note in other_sizes(views, [i for i, v in enumerate(views) if v.found]).items()}
 
     @property
     def why_no_result(self) -> str:
@@ -79,10 +114,11 @@ class CalibrationState:
             return f"no calibration: the {len(self.photos)} photos left could not be fitted again: {self.unfitted}"
         found, held = sum(p.view.found for p in self.photos), len(self.photos)
         if found < MIN_VIEWS:
-            hint = board_size_hint(self.board, found, held)
             return (f"no calibration: the {self.board[0]}x{self.board[1]} board is found in {found} of the {held} "
-                    f"photos held, and a calibration needs at least {MIN_VIEWS} (15-20 recommended): add photos of "
-                    "the board" + (f"; {hint}" if hint else ""))
+                    f"photos held, and a calibration needs at least {MIN_VIEWS} (15-20 recommended): "
+                    f"{too_few_boards_advice(self.board, found, held)}")
+        if mismatch := self.size_mismatch:
+            return f"no calibration: {mismatch}"
         return (f"no calibration of the {held} photos held (none is kept when photos are added or the board changes): "
                 "run the calibration")
 
@@ -135,9 +171,9 @@ class CalibrationSession:
         """Replace the state by one with `changes` and the next revision (the caller holds the lock).
 
         Any change but a fit makes the result stale, so it is dropped unless `changes` gives one
-        (and with it why a refit gave none).
+        (and with it why a refit gave none, and how the photos were fitted).
         """
-        changes = {"result": None, "unfitted": None, **changes}
+        changes = {"result": None, "unfitted": None, "recipe": None, **changes}
         self._state = dataclasses.replace(self._state, revision=self._state.revision + 1, **changes)
         return self._state
 
@@ -204,16 +240,20 @@ class CalibrationSession:
             self._search = None
 
     def remove(self, photo_id: str) -> CalibrationState:
-        """Forget one photo; KeyError when there is none with `photo_id`. A result is fitted again to
-        the photos left (`refit`): removing a photo, often the outlier, is a step in refining a
+        """Forget one photo; KeyError when there is none with `photo_id`. The photos left are fitted
+        again as the last run fitted them (`refit`, `recipe`), after every removal, whether or not the
+        one before still gave a result: removing a photo, often the outlier, is a step in refining a
         calibration, and dropping the result with it left camera.yaml and apply refusing for want
         of one."""
         with self._lock:
             state = self._state
             state.photo(photo_id)
             photos = tuple(p for p in state.photos if p.id != photo_id)
-            result, unfitted = refit(state, photos)
-            return self._commit(photos=photos, result=result, unfitted=unfitted)
+            if not photos or state.recipe is None:  # no fit to keep up
+                return self._commit(photos=photos)
+            recipe = dataclasses.replace(state.recipe, left_out=state.recipe.left_out & {p.id for p in photos})
+            result, unfitted = refit(state.board, state.square_m, recipe, photos)
+            return self._commit(photos=photos, result=result, unfitted=unfitted, recipe=recipe)
 
     def clear(self) -> CalibrationState:
         """Forget every photo (the board stays)."""
@@ -231,21 +271,21 @@ class CalibrationSession:
             result = calibrate([p.view for p in state.photos], state.board, state.square_m)
             if without_outliers:
                 result = drop_outliers(result)
-            return self._commit(result=result)
+            recipe = FitRecipe(frozenset(state.photos[i].id for i in result.excluded), result.fix_k3)
+            return self._commit(result=result, recipe=recipe)
 
 
-def refit(state: CalibrationState, photos: tuple[CalibrationPhoto, ...]) -> tuple[Calibration | None, str | None]:
-    """The calibration of `photos`, some of `state`'s, fitted as `state.result` was (the photos it left
-    out, dropped outliers, stay out), or None and why `photos` give none (e.g. too few boards left).
-    (None, None) when `state` has no result: nothing was fitted to refit."""
-    if state.result is None:
-        return None, None
-    left_out = {state.photos[i].id for i in state.result.excluded}
+def refit(board: tuple[int, int], square_m: float, recipe: FitRecipe,
+          photos: tuple[CalibrationPhoto, ...]) -> tuple[Calibration | None, str | None]:
+    """The calibration of `photos` on `board` ((cols, rows) inner corners, `square_m` metre squares),
+    fitted as `recipe` says (the photos it left out, dropped outliers, stay out), or None and why
+    `photos` give none (e.g. too few boards left)."""
+    left_out = recipe.left_out & {p.id for p in photos}
     try:
-        return calibrate([p.view for p in photos], state.board, state.square_m, fix_k3=state.result.fix_k3,
+        return calibrate([p.view for p in photos], board, square_m, fix_k3=recipe.fix_k3,
                          exclude=tuple(i for i, p in enumerate(photos) if p.id in left_out)), None
     except CalibrationError as exc:
-        kept_out = len(left_out & {p.id for p in photos})
+        kept_out = len(left_out)
         return None, str(exc) + (f" (the {kept_out} dropped as outliers stay out)" if kept_out > 1 else
                                  " (the one dropped as an outlier stays out)" if kept_out else "")
 

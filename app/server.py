@@ -42,7 +42,7 @@ from starlette.datastructures import FormData, Headers, UploadFile as FormFile
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from pipeline import shipped_folder
-from pipeline.calibrate import MAX_SQUARE_M, MIN_VIEWS, Calibration, CalibrationError, board_size_hint
+from pipeline.calibrate import MAX_SQUARE_M, MIN_VIEWS, Calibration, CalibrationError, too_few_boards_advice
 from pipeline.camera import Camera, CameraError, camera_from_json, load_camera, ros_camera_yaml
 from pipeline.image import ImageError
 from pipeline.jsonfile import JsonError, parse_json
@@ -770,8 +770,13 @@ def calibration_out(calibration: CalibrationSession, state: CalibrationState) ->
     """The response for `state`, a state of `calibration` (read once by the caller: photos, board
     and result must agree)."""
     summary = state.result.to_json() if state.result is not None else None
-    views = [CalibrationView(**(summary["views"][i] if summary else {"name": p.name, "found": p.view.found}),
-                             id=p.id, width=p.view.image_size[0], height=p.view.image_size[1])
+    # Without a result, the photos the last run dropped as outliers are still out (`unfitted` counts without them).
+    left_out = state.recipe.left_out if state.recipe else frozenset()
+    other_sizes = state.other_sizes
+    views = [CalibrationView(**(summary["views"][i] if summary else
+                                {"name": p.name, "found": p.view.found, "excluded": p.id in left_out}),
+                             id=p.id, width=p.view.image_size[0], height=p.view.image_size[1],
+                             other_size=other_sizes.get(p.id))
              for i, p in enumerate(state.photos)]
     result = None if summary is None else CalibrationResult.model_validate(
         {**summary, "camera": intrinsics(calibrated_camera(state.result)),
@@ -779,11 +784,17 @@ def calibration_out(calibration: CalibrationSession, state: CalibrationState) ->
     search = calibration.search
     return CalibrationOut(revision=state.revision, min_views=MIN_VIEWS, max_views=calibration.max_photos,
                           max_square_m=MAX_SQUARE_M, views=views,
-                          hint=board_size_hint(state.board, sum(v.found for v in views), len(views)),
+                          hint=few_boards_hint(state.board, sum(v.found for v in views), len(views)),
                           board=BoardSpec(cols=state.board[0], rows=state.board[1], square_m=state.square_m),
                           search=None if search is None else BoardSearchOut(
                               cols=search.board[0], rows=search.board[1], done=search.done, total=search.total),
-                          result=result, unfitted=state.unfitted)
+                          result=result, unfitted=state.unfitted, size_mismatch=state.size_mismatch)
+
+
+def few_boards_hint(board: tuple[int, int], found: int, held: int) -> str | None:
+    """What to do when the board, found in `found` of the `held` photos, is found in too few to
+    calibrate (add photos, or check its size); None with enough, or no photos."""
+    return too_few_boards_advice(board, found, held) if held and found < MIN_VIEWS else None
 
 
 def no_such_photo(view_id: str) -> HTTPException:
@@ -854,8 +865,9 @@ def get_calibration_view(view_id: str, calibration: CalibrationDep,
 
 @api.delete("/calibration/views/{view_id}", status_code=status.HTTP_204_NO_CONTENT, tags=["calibration"])
 def delete_calibration_view(view_id: str, calibration: CalibrationDep) -> None:
-    """Forget one photo; the result, if any, is fitted again to the photos left (those it left out stay
-    out), or dropped when they give none (GET /api/calibration/camera.yaml's 409 then says why)."""
+    """Forget one photo; after a run, the photos left are fitted again as it fitted them (those it left
+    out stay out), after every removal; when they give no result, `unfitted` and the 409 of GET
+    /api/calibration/camera.yaml say why."""
     try:
         calibration.remove(view_id)
     except KeyError:

@@ -239,12 +239,17 @@ def outlier_threshold(errors_px: np.ndarray) -> float:
     return max(2 * median, median + 3 * mad, OUTLIER_FLOOR_PX)
 
 
-def board_size_hint(board: tuple[int, int], found: int, photos: int) -> str | None:
-    """What to check when the `board` ((cols, rows) inner corners) was found in only `found` of
-    `photos`, too few to calibrate: most often its size was given in squares, and then it is found
-    in none. None when it was found in every photo (more photos are what is missing) or enough."""
-    if found >= MIN_VIEWS or found == photos:
-        return None
+ADD_PHOTOS = "add photos of the board"
+
+
+def too_few_boards_advice(board: tuple[int, int], found: int, photos: int) -> str:
+    """What to do when the `board` ((cols, rows) inner corners), found in `found` of `photos`, is
+    found in too few to calibrate. Missing from most of them (found in fewer than half), its size is
+    suspect: most often it was given in squares, and then it is found in none. Found in most, its
+    size is right and photos are what is missing: a set whose photos were removed one by one was
+    told to check the board size once one photo without the board was among the few left."""
+    if 2 * found >= photos:
+        return ADD_PHOTOS
     cols, rows = board
     return (f"check the board size: it counts inner corners (where four squares meet) across x down, not squares, "
             f"so {cols}x{rows} is a board of {cols + 1}x{rows + 1} squares; and the whole board, with its white "
@@ -260,6 +265,24 @@ OTHER_SIZE_ADVICE = {
               "calibrate that orientation separately or leave {them} out",
     "reframed": "another aspect (cropped, or another camera mode): calibrate that size separately or leave {them} out",
 }
+
+
+def reference_size(views: tuple[BoardView, ...], found: list[int]) -> tuple[int, int]:
+    """The size (width, height) px most of the `found` views share (the first listed of sizes tied):
+    the size a calibration of them is for, so that the odd ones out are named rather than the rest."""
+    return tuple(Counter(tuple(views[i].image_size) for i in found).most_common(1)[0][0])
+
+
+def other_sizes(views: tuple[BoardView, ...], found: list[int]) -> dict[int, str]:
+    """The `found` views of another size than `reference_size`, each with its size and theirs:
+    {index: "640x480, the others 1280x960"} ("most 1280x960" when a third size is among them).
+    Such views make `calibrate` refuse (`size_mismatch`); {} when all are one size."""
+    if not found:
+        return {}
+    w, h = reference_size(views, found)
+    odd = [i for i in found if tuple(views[i].image_size) != (w, h)]
+    others = "the others" if len({tuple(views[i].image_size) for i in odd}) == 1 else "most"
+    return {i: f"{views[i].image_size[0]}x{views[i].image_size[1]}, {others} {w}x{h}" for i in odd}
 
 
 def size_mismatch(views: tuple[BoardView, ...], found: list[int], size: tuple[int, int]) -> str | None:
@@ -304,9 +327,8 @@ def calibrate(views: list[BoardView], board: tuple[int, int], square_m: float,
     found = [i for i, v in enumerate(views) if v.found]
     if not found:
         raise CalibrationError(f"the {board[0]}x{board[1]} board was not found in any of the {len(views)} image(s); "
-                               f"{board_size_hint(board, 0, len(views))}")
-    # The size most photos share, so that the odd ones out are named rather than the rest.
-    size = tuple(image_size or Counter(tuple(views[i].image_size) for i in found).most_common(1)[0][0])
+                               f"{too_few_boards_advice(board, 0, len(views))}")
+    size = tuple(image_size or reference_size(views, found))
     mismatch = size_mismatch(views, found, size)
     if mismatch:
         raise CalibrationError(mismatch)
@@ -317,10 +339,10 @@ def calibrate(views: list[BoardView], board: tuple[int, int], square_m: float,
                                f"number: {', '.join(wrong)}")
     fit = [i for i in found if i not in exclude]
     if len(fit) < MIN_VIEWS:
-        hint = board_size_hint(board, len(found), len(views))
+        # Boards found but left out (outliers) still show its size is right: more photos are missing.
+        advice = too_few_boards_advice(board, len(found), len(views)) if len(found) < MIN_VIEWS else ADD_PHOTOS
         raise CalibrationError(f"the board was found in {len(fit)} usable image(s); calibration needs at least "
-                               f"{MIN_VIEWS} (15-20 recommended, tilted and spread over the frame)"
-                               + (f"; {hint}" if hint else ""))
+                               f"{MIN_VIEWS} (15-20 recommended, tilted and spread over the frame); {advice}")
     obj = board_points(board, square_m)
     flags = cv2.CALIB_FIX_K3 if fix_k3 else 0
     rms, K, dist, rvecs, tvecs, std_intr, _, per_view = cv2.calibrateCameraExtended(

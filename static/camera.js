@@ -198,10 +198,11 @@ async function change(method, url, body) {
 }
 
 function viewCard(view, index) {
-  const flags = [view.found ? null : "board not found", view.outlier ? "outlier" : null,
+  // other_size: found, but not the size most photos share, so no run can fit them (calib.size_mismatch).
+  const flags = [view.found ? null : "board not found", view.other_size, view.outlier ? "outlier" : null,
     view.excluded ? "left out of the fit" : null].filter(Boolean);
-  return el(`div.view-card${view.found ? "" : ".notfound"}${view.outlier ? ".outlier" : ""}`
-    + `${view.excluded ? ".excluded" : ""}${view.id === selected ? ".selected" : ""}`, {
+  return el(`div.view-card${view.found ? "" : ".notfound"}${view.other_size ? ".othersize" : ""}`
+    + `${view.outlier ? ".outlier" : ""}${view.excluded ? ".excluded" : ""}${view.id === selected ? ".selected" : ""}`, {
     tabIndex: 0, role: "button", dataset: { id: view.id, found: view.found },
     title: `${view.name} · ${view.width}×${view.height}${flags.length ? ` · ${flags.join(", ")}` : ""}`,
     onclick: () => selectView(view.id),
@@ -214,6 +215,7 @@ function viewCard(view, index) {
       view.tilt_deg === null ? null : el("span", { title: "board tilt from facing the camera" }, `${fmt(view.tilt_deg, 0)}°`),
       view.outlier ? el("b.bad", {}, "outlier") : null, view.excluded ? el("span", {}, "dropped") : null]
     : el("span.bad", {}, "board not found")),
+  view.other_size ? el("div.card-note.bad", {}, view.other_size) : null,
   el("button.icon.remove", {
     type: "button", title: "Remove this photo",
     onclick: async (e) => {
@@ -238,13 +240,17 @@ function renderSummary() {
     return;
   }
   if (!r) {
+    // Photos of another size than most: said before any run, which would refuse them.
+    const sizes = calib.size_mismatch;
     fill($("#calib-summary"), el("p.muted", {}, calib.unfitted
       ? `The ${plural(calib.views.length, "photo")} left could not be fitted again: ${calib.unfitted}`
       : calib.views.length
         ? `${plural(calib.views.length, "photo")}, the ${b.cols}×${b.rows} board found in ${found}`
-          + (found < calib.min_views ? ` (at least ${calib.min_views} needed; 15–20 recommended)` : ": run the calibration")
+          + (found < calib.min_views ? ` (at least ${calib.min_views} needed; 15–20 recommended)`
+            : sizes ? "" : ": run the calibration")
           + (calib.hint ? `: ${calib.hint}` : "")
-        : "No photos yet."));
+        : "No photos yet."),
+    sizes && !calib.unfitted ? el("p.warn", { id: "calib-sizes" }, sizes) : null);
     return;
   }
   const cam = r.camera, sd = r.intrinsics_std;
@@ -299,7 +305,7 @@ function renderCalibration() {
   const found = calib.views.filter((v) => v.found).length;
   // A fit waits for the search and then fits the new board; the old result is dropped once it ends.
   const searching = Boolean(calib.search);
-  $("#calib-run").disabled = searching || found < calib.min_views;
+  $("#calib-run").disabled = searching || found < calib.min_views || Boolean(calib.size_mismatch);
   // Dropped once already: a second drop refits to the same result (see renderSummary).
   $("#calib-drop").disabled = searching || calib.views.some((v) => v.excluded) || !calib.views.some((v) => v.outlier);
   $("#calib-apply").disabled = $("#calib-yaml").disabled = searching || !calib.result;
@@ -335,7 +341,7 @@ function bindCalibration() {
     },
     // Once a batch is in, fit at once when it can be: the chart is what people add photos for.
     idle: () => {
-      if (calib && calib.views.filter((v) => v.found).length >= calib.min_views) run(false);
+      if (calib && calib.views.filter((v) => v.found).length >= calib.min_views && !calib.size_mismatch) run(false);
     },
   });
   const picker = $("#calib-picker");

@@ -67,3 +67,11 @@ def projected_corners(rvec, tvec, K=K_TRUE, dist=DIST_TRUE) -> np.ndarray:
     """(N, 2) px where the board's inner corners land at pose (rvec, tvec)."""
     img, _ = cv2.projectPoints(board_points(BOARD, SQUARE_M), rvec, tvec, K, dist)
     return img.reshape(-1, 2)
+
+
+def shaky_board(image: np.ndarray, seed: int = 5) -> np.ndarray:
+    """A board photo ((H, W) uint8) stretched by 3 % in x, with noise: the board is found, but its
+    corners fit no camera the other photos agree on (an outlier)."""
+    rng = np.random.default_rng(seed)
+    warped = cv2.resize(image, None, fx=1.03, fy=1.0)[:, :image.shape[1]]
+    return np.clip(warped + rng.normal(0, 2, warped.shape), 0, 255).astype(np.uint8)

@@ -18,7 +18,7 @@ import pytest
 from PIL import Image
 
 import browser_harness as harness
-from chessboards import K_TRUE, render_boards
+from chessboards import K_TRUE, render_boards, shaky_board
 from pipeline.exif import LensExif, focal_px
 from pipeline.image import NOT_AN_IMAGE
 from pipeline.library import SAMPLE_LIBRARY, load_library
@@ -1399,6 +1399,65 @@ def test_after_dropping_outliers_and_removing_a_photo_the_dialog_shows_what_to_d
     page.locator("#calib-rms", has_text="from 9 of 11 photos").wait_for()  # the 2 dropped stay out
     assert page.is_enabled("#calib-apply") and page.is_enabled("#calib-yaml")
     assert len(api.get("/api/calibration").json()["views"]) == 11
+
+
+def test_removing_photos_one_by_one_after_dropping_an_outlier_keeps_saying_why_there_is_no_fit(
+        page, api, no_camera):
+    """Photos removed one by one after "drop outliers": once two boards were left the page blanked why
+    the rest could not be fitted, told to check the board size (it was right), and showed the photo
+    dropped as an outlier as found and not dropped."""
+    images, _ = render_boards(5)
+    images += [shaky_board(images[3]), np.full_like(images[0], 200)]   # an outlier, and a photo without the board
+    names = [f"board{i}.png" for i in range(5)] + ["shaky.png", "blank.png"]
+    api.post("/api/calibration/images", files=[("files", (n, cv2.imencode(".png", im)[1].tobytes(), "image/png"))
+                                               for n, im in zip(names, images)]).raise_for_status()
+    assert api.post("/api/calibration/run", json={"drop_outliers": True}).json()["views"][5]["excluded"]
+    page.click("#camera-open")
+    page.locator("#calib-rms", has_text="from 5 of 7 photos").wait_for()
+    summary = page.locator("#calib-summary")
+    for left, usable in ((6, 4), (5, 3), (4, 2), (3, 1)):
+        card = page.locator("#calib-views .view-card", has=page.locator(".card-name", has_text="board"))
+        card.first.hover()   # as a person does: the × shows on the card under the pointer
+        card.first.locator("button.remove").click()
+        page.wait_for_function("n => document.querySelectorAll('#calib-views .view-card').length === n", arg=left)
+        if usable >= 3:
+            page.locator("#calib-rms", has_text=f"from {usable} of {left} photos").wait_for()
+    said = summary.locator("p", has_text="could not be fitted again")
+    said.wait_for()
+    assert said.inner_text() == ("The 3 photos left could not be fitted again: the board was found in 1 usable image(s); "
+                                 "calibration needs at least 3 (15-20 recommended, tilted and spread over the frame); "
+                                 "add photos of the board (the one dropped as an outlier stays out)")
+    assert "check the board size" not in summary.inner_text()
+    shaky = page.locator("#calib-views .view-card", has=page.locator(".card-name", has_text="shaky.png"))
+    assert "excluded" in shaky.get_attribute("class").split() and "dropped" in shaky.locator(".card-stats").inner_text()
+    assert page.is_disabled("#calib-apply") and page.is_disabled("#calib-yaml")
+
+
+def test_a_photo_of_another_size_is_flagged_before_any_run(page, api, tmp_path, no_camera):
+    """A photo of another size was marked "found" and the summary said "run the calibration", but
+    every run failed with a toast: the card and the summary say so first, and no run is tried."""
+    images, _ = render_boards(4)
+    images.insert(1, cv2.resize(images[1], (800, 600)))
+    photos = [tmp_path / f"size{i}.png" for i in range(len(images))]
+    for path, image in zip(photos, images):
+        cv2.imwrite(str(path), image)
+    runs = []
+    page.on("request", lambda request: "/api/calibration/run" in request.url and runs.append(request))
+    page.click("#camera-open")
+    page.set_input_files("#calib-picker", [str(p) for p in photos])
+    page.wait_for_function("() => document.querySelectorAll('#calib-views .view-card').length === 5", timeout=60_000)
+    odd = page.locator("#calib-views .view-card.othersize")
+    state = api.get("/api/calibration").json()
+    assert len(state["views"]) == 5 and all(v["found"] for v in state["views"])
+    assert odd.count() == 1 and odd.locator(".card-name").inner_text() == "2. size1.png"
+    assert odd.locator(".card-note").inner_text() == "800x600, the others 640x480"
+    assert "800×600 · 800x600, the others 640x480" in odd.get_attribute("title")
+    summary = page.locator("#calib-summary")
+    assert summary.locator("#calib-sizes").inner_text() == state["size_mismatch"]
+    assert "size1.png is 800x600 px" in state["size_mismatch"] and "run the calibration" not in summary.inner_text()
+    assert page.is_disabled("#calib-run")
+    page.wait_for_timeout(1000)  # the batch is in: a fit would have been asked for by now
+    assert not runs and page.locator(".toast.error").count() == 0
 
 
 def test_assumed_field_of_view_and_typed_intrinsics(page, api, no_camera):

@@ -10,8 +10,9 @@ import pytest
 import pipeline.calibrate as calib
 from app.cli import main
 from chessboards import BOARD, DIST_TRUE, K_TRUE, SIZE, SQUARE_M, board_poses, projected_corners, render_boards
-from pipeline.calibrate import (BoardView, CalibrationError, board_size_hint, calibrate, chessboard_image, drop_outliers,
-                                find_board, format_report, parse_board)
+from pipeline.calibrate import (BoardView, CalibrationError, calibrate, chessboard_image, drop_outliers,
+                                find_board, format_report, other_sizes, parse_board,
+                                too_few_boards_advice)
 from pipeline.camera import Camera, load_camera, save_camera
 from pipeline.evaluate import CORES
 from pipeline.library import LibrarySign
@@ -177,16 +178,18 @@ def test_parse_board_rejects(text):
         parse_board(text)
 
 
-@pytest.mark.parametrize("found, photos, hinted", [(0, 17, True), (2, 17, True), (0, 1, True),
-                                                   (2, 2, False),   # found in every photo: more photos are missing
-                                                   (3, 17, False)])  # enough to calibrate
-def test_a_board_found_in_too_few_photos_says_to_check_its_size(found, photos, hinted):
+@pytest.mark.parametrize("found, photos, size_is_suspect", [
+    (0, 17, True), (2, 17, True), (0, 1, True), (1, 3, True),  # missing from most photos: a size counted in squares?
+    (2, 3, False), (1, 2, False), (2, 2, False)])  # found in most: its size is right, photos are missing
+def test_too_few_boards_say_to_check_the_board_size_only_when_it_is_missing_from_most_photos(
+        found, photos, size_is_suspect):
     """The page said "the 8×6 board found in 0 (at least 3 needed; 15–20 recommended)" and no more,
-    when the size had been counted in squares."""
-    hint = board_size_hint((8, 6), found, photos)
-    assert (hint == "check the board size: it counts inner corners (where four squares meet) across x down, not "
-                    "squares, so 8x6 is a board of 9x7 squares; and the whole board, with its white border, must "
-                    "be in view") if hinted else hint is None
+    when the size had been counted in squares; then, once photos had been removed from a set whose
+    board size was right, "found in 2 (at least 3 needed): check the board size" of 2 in 3."""
+    advice = too_few_boards_advice((8, 6), found, photos)
+    assert advice == ("check the board size: it counts inner corners (where four squares meet) across x down, not "
+                      "squares, so 8x6 is a board of 9x7 squares; and the whole board, with its white border, must "
+                      "be in view" if size_is_suspect else "add photos of the board")
 
 
 def test_calibrate_errors():
@@ -196,8 +199,10 @@ def test_calibrate_errors():
     with pytest.raises(CalibrationError, match=r"^no photo to calibrate from$"):  # the CLI's when none could be read
         calibrate([], BOARD, SQUARE_M)
     with pytest.raises(CalibrationError, match="found in 2 usable image.*at least 3.*; check the board size"):
+        calibrate(views[:2] + [BoardView(c, SIZE, None) for c in "cde"], BOARD, SQUARE_M)
+    with pytest.raises(CalibrationError, match=r"found in 2 usable image.*at least 3.*\); add photos of the board$"):
         calibrate(views[:2] + [BoardView("c", SIZE, None)], BOARD, SQUARE_M)
-    with pytest.raises(CalibrationError, match="at least 3"):
+    with pytest.raises(CalibrationError, match=r"at least 3.*; add photos of the board$"):  # found in 4, 2 left out
         calibrate(views, BOARD, SQUARE_M, exclude=(0, 1))
     with pytest.raises(CalibrationError, match="portrait.png"):
         calibrate(views + [BoardView("portrait.png", SIZE[::-1], views[0].corners)], BOARD, SQUARE_M)
@@ -230,6 +235,17 @@ def test_photos_of_another_size_are_named_with_how_it_differs_and_what_to_do():
     cropped = refusal(BoardView("a.png", (480, 480), corners), BoardView("b.png", (480, 480), corners))
     assert "4 of the 6 with the board are 640x480 px, but a.png, b.png are 480x480 px, another aspect" in cropped
     assert "calibrate that size separately or leave them out" in cropped
+
+
+def test_photos_of_another_size_are_named_against_the_size_most_share():
+    """What a photo's card says before any run: its size and the one most photos share."""
+    views = projected_views(3)
+    corners = views[0].corners
+    half, tall = BoardView("half.png", (320, 240), corners / 2), BoardView("tall.png", (480, 640), corners)
+    missed = BoardView("missed.png", (100, 100), None)  # no board: no run is refused over it
+    assert other_sizes((half, *views, missed), [0, 1, 2, 3]) == {0: "320x240, the others 640x480"}
+    assert other_sizes((half, *views, tall), [0, 1, 2, 3, 4]) == {0: "320x240, most 640x480", 4: "480x640, most 640x480"}
+    assert other_sizes(tuple(views), [0, 1, 2]) == {} and other_sizes((missed,), []) == {}
 
 
 def test_a_fit_no_camera_could_have_is_a_calibration_error(monkeypatch):
