@@ -38,7 +38,8 @@ CHECK_WIDTH = 128  # px of the rectified sign: fine enough for the words' letter
 # the 1280 x 960 benchmark scenes cutting the sign at either side, top or bottom (35-85 % of it
 # in view), and 288 of plaques of other words pasted on real photos: at 0.5 every sign answered
 # right at 0.9 still was, correct answers with no strip seen went from 19 to 2, and wrong ones
-# from 12 to 11 (each warned that only part of the text is in view).
+# from 12 to 11 (each warned that only part of the text is in view). A landmark partly in view
+# under other light is checked now too, and may be turned down (the WhiteBoard photo pair).
 MIN_VISIBLE = 0.5
 # Content: template pixels at least this fraction of the template's range away from its background.
 CONTENT_CONTRAST = 0.25
