@@ -88,6 +88,19 @@ class CalibrationState:
     recipe: FitRecipe | None = None
 
     @property
+    def found(self) -> int:
+        """How many of the photos show the board."""
+        return sum(p.view.found for p in self.photos)
+
+    @property
+    def few_boards_advice(self) -> str | None:
+        """What to do when the board is found in too few of the photos to calibrate (add photos, or
+        check its size); None with enough, or no photos."""
+        if not self.photos or self.found >= MIN_VIEWS:
+            return None
+        return too_few_boards_advice(self.board, self.found, len(self.photos))
+
+    @property
     def size_mismatch(self) -> str | None:
         """Why the photos with the board cannot be calibrated together (which are which other size than
         most, and what to do), as the run refuses; None when they are all one size."""
@@ -112,11 +125,10 @@ class CalibrationState:
             return "no calibration yet: add photos of the board, then run the calibration"
         if self.unfitted:
             return f"no calibration: the {len(self.photos)} photos left could not be fitted again: {self.unfitted}"
-        found, held = sum(p.view.found for p in self.photos), len(self.photos)
-        if found < MIN_VIEWS:
-            return (f"no calibration: the {self.board[0]}x{self.board[1]} board is found in {found} of the {held} "
-                    f"photos held, and a calibration needs at least {MIN_VIEWS} (15-20 recommended): "
-                    f"{too_few_boards_advice(self.board, found, held)}")
+        held = len(self.photos)
+        if advice := self.few_boards_advice:
+            return (f"no calibration: the {self.board[0]}x{self.board[1]} board is found in {self.found} of the "
+                    f"{held} photos held, and a calibration needs at least {MIN_VIEWS} (15-20 recommended): {advice}")
         if mismatch := self.size_mismatch:
             return f"no calibration: {mismatch}"
         return (f"no calibration of the {held} photos held (none is kept when photos are added or the board changes): "
@@ -278,14 +290,13 @@ class CalibrationSession:
 def refit(board: tuple[int, int], square_m: float, recipe: FitRecipe,
           photos: tuple[CalibrationPhoto, ...]) -> tuple[Calibration | None, str | None]:
     """The calibration of `photos` on `board` ((cols, rows) inner corners, `square_m` metre squares),
-    fitted as `recipe` says (the photos it left out, dropped outliers, stay out), or None and why
-    `photos` give none (e.g. too few boards left)."""
-    left_out = recipe.left_out & {p.id for p in photos}
+    fitted as `recipe` says (the photos it left out, dropped outliers, stay out: ids among `photos`),
+    or None and why `photos` give none (e.g. too few boards left)."""
     try:
         return calibrate([p.view for p in photos], board, square_m, fix_k3=recipe.fix_k3,
-                         exclude=tuple(i for i, p in enumerate(photos) if p.id in left_out)), None
+                         exclude=tuple(i for i, p in enumerate(photos) if p.id in recipe.left_out)), None
     except CalibrationError as exc:
-        kept_out = len(left_out)
+        kept_out = len(recipe.left_out)
         return None, str(exc) + (f" (the {kept_out} dropped as outliers stay out)" if kept_out > 1 else
                                  " (the one dropped as an outlier stays out)" if kept_out else "")
 

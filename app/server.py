@@ -42,7 +42,7 @@ from starlette.datastructures import FormData, Headers, UploadFile as FormFile
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from pipeline import shipped_folder
-from pipeline.calibrate import MAX_SQUARE_M, MIN_VIEWS, Calibration, CalibrationError, too_few_boards_advice
+from pipeline.calibrate import MAX_SQUARE_M, MIN_VIEWS, Calibration, CalibrationError
 from pipeline.camera import Camera, CameraError, camera_from_json, load_camera, ros_camera_yaml
 from pipeline.image import ImageError
 from pipeline.jsonfile import JsonError, parse_json
@@ -784,17 +784,11 @@ def calibration_out(calibration: CalibrationSession, state: CalibrationState) ->
     search = calibration.search
     return CalibrationOut(revision=state.revision, min_views=MIN_VIEWS, max_views=calibration.max_photos,
                           max_square_m=MAX_SQUARE_M, views=views,
-                          hint=few_boards_hint(state.board, sum(v.found for v in views), len(views)),
+                          hint=state.few_boards_advice,
                           board=BoardSpec(cols=state.board[0], rows=state.board[1], square_m=state.square_m),
                           search=None if search is None else BoardSearchOut(
                               cols=search.board[0], rows=search.board[1], done=search.done, total=search.total),
                           result=result, unfitted=state.unfitted, size_mismatch=state.size_mismatch)
-
-
-def few_boards_hint(board: tuple[int, int], found: int, held: int) -> str | None:
-    """What to do when the board, found in `found` of the `held` photos, is found in too few to
-    calibrate (add photos, or check its size); None with enough, or no photos."""
-    return too_few_boards_advice(board, found, held) if held and found < MIN_VIEWS else None
 
 
 def no_such_photo(view_id: str) -> HTTPException:
