@@ -171,7 +171,7 @@ class Camera:
         turned on its side, cropped or re-framed, whose intrinsics no scaling gives.
         """
         if self.width is None or self.height is None:
-            return self, self._unsized_warnings(width, height)
+            return self, self._check_unsized_fit(width, height)
         change = size_change((self.width, self.height), (width, height))
         if change == "same":
             return self, []
@@ -192,8 +192,9 @@ class Camera:
             raise CameraError(f"the camera calibrated at {self.width}x{self.height} px cannot be scaled to this "
                               f"{width}x{height} px image: {exc}") from None
 
-    def _unsized_warnings(self, width: int, height: int) -> list[str]:
-        """Why this camera without an image size may not be meant for a `width` x `height` px image.
+    def _check_unsized_fit(self, width: int, height: int) -> list[str]:
+        """Warnings why this camera without an image size may not be meant for a `width` x `height` px
+        image; CameraError when it cannot be.
 
         Only now can its numbers be held against an image size. A principal point far from the
         centre is a warning, as such a file may be meant for any resolution; focal lengths no
