@@ -23,7 +23,7 @@ from tqdm import tqdm
 from app.entry import STOP_SIGNALS, Interrupted, interrupted, stopping_on_signals
 from app.workspace import HELD_BYTES_PER_PIXEL, WorkspaceConfig, check_image_header, decode_upload, held_bytes
 from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, check_hfov, load_camera
-from pipeline.evaluate import CORES, keep_freed_memory
+from pipeline.evaluate import CORES, keep_freed_memory, pad_to
 from pipeline.image import ImageError, read_file
 from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
 from pipeline.recognize import PipelineError, Recognition, run_pipeline, why_no_feature_winner
@@ -77,7 +77,7 @@ def format_row(name: str, rec: Recognition) -> str:
     """One table row: the label, how it was recognised (feature inliers and margin, or the plaque
     fallback, which has neither) and the camera position in the sign's frame (metres)."""
     if not rec.recognized:
-        return f"{name:<28} {'-':<22} {'':>7} {'':>6}  no sign ({why_no_feature_winner(rec.attempt)})"
+        return f"{pad_to(name, 28)} {'-':<22} {'':>7} {'':>6}  no sign ({why_no_feature_winner(rec.attempt)})"
     how = ""
     if rec.by_plaque:
         inliers, margin = "-", "-"
@@ -91,7 +91,7 @@ def format_row(name: str, rec: Recognition) -> str:
         where = f"cam at ({x:+.2f}, {y:+.2f}, {z:+.2f}) m, rmse {pose.reprojection_rmse_px:.2f} px"
         if pose.ambiguous:
             where += ", ambiguous"
-    return f"{name:<28} {rec.label:<22} {inliers:>7} {margin:>6}  {'; '.join(filter(None, (how, where)))}"
+    return f"{pad_to(name, 28)} {rec.label:<22} {inliers:>7} {margin:>6}  {'; '.join(filter(None, (how, where)))}"
 
 
 def cmd_recognize(args) -> int:
@@ -125,7 +125,7 @@ def recognize_one(name: str, library: Library, settings: Settings, camera: Camer
             say(json.dumps({"image": name, "error": str(exc)}))
         else:
             # The row names the image already; the image errors begin with its path.
-            say(f"{Path(name).name:<28} error: {str(exc).removeprefix(name + ': ')}")
+            say(f"{pad_to(Path(name).name, 28)} error: {str(exc).removeprefix(name + ': ')}")
         return False
     if as_json:
         say(json.dumps(rec.to_json(name)))

@@ -30,6 +30,7 @@ import queue
 import signal
 import threading
 import traceback
+import unicodedata
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import closing
@@ -567,18 +568,31 @@ def _pair(value: tuple[float, float] | None, unit: str, scale: float = 1.0) -> s
     return "-" if value is None else f"{scale * value[0]:.2f} / {scale * value[1]:.2f}{unit}"
 
 
+def text_columns(text: str) -> int:
+    """Terminal columns `text` takes: none for combining marks (Arabic vowel signs) and format
+    characters, two for wide (CJK) characters, one for the rest. `len` counts the marks, so names
+    with them came out short and the columns after them shifted left."""
+    return sum(0 if unicodedata.combining(c) or unicodedata.category(c) == "Cf" else
+               2 if unicodedata.east_asian_width(c) in "WF" else 1 for c in text)
+
+
+def pad_to(text: str, columns: int) -> str:
+    """`text` left-aligned in at least `columns` terminal columns (`text_columns`)."""
+    return text + " " * max(0, columns - text_columns(text))
+
+
 def format_table(report: Report) -> str:
     """Readable text: per-dataset table, the confusion matrix and the images answered wrongly."""
     rows = list(report.datasets.items())
     if len(rows) > 1:
         rows.append(("all", report.total))
-    name_width = max(16, *(len(name) + 2 for name, _ in rows))
+    name_width = max(16, *(text_columns(name) + 2 for name, _ in rows))
     head = (f"{'dataset':<{name_width}}{'images':>7}{'correct':>8}{'accuracy':>10}{'avg time':>11}{'false pos':>10}"
             f"   {'rotation med/p90':>17}{'translation med/p90':>21}{'position med/p90':>19}{'corners med/p90':>18}")
     lines = [head, "-" * len(head)]
     for name, s in rows:
         fp = f"{s.false_positives}/{s.negatives}" if s.negatives else "-"
-        lines.append(f"{name:<{name_width}}{s.images:>7}{s.correct:>8}{100 * s.accuracy:>9.1f}%{s.mean_time_ms:>8.1f} ms"
+        lines.append(f"{pad_to(name, name_width)}{s.images:>7}{s.correct:>8}{100 * s.accuracy:>9.1f}%{s.mean_time_ms:>8.1f} ms"
                      f"{fp:>10}   {_pair(s.rotation_deg, '°'):>17}{_pair(s.translation_pct, '%'):>21}"
                      f"{_pair(s.position_m, ' cm', 100):>19}"
                      f"{_pair(s.corner_px, ' px'):>18}")

@@ -19,7 +19,7 @@ import pipeline.evaluate as evaluate_module
 import pipeline.recognize as recognize_module
 from app.workspace import check_image_header
 from pipeline.evaluate import (Dataset, DatasetError, ImageResult, Sample, evaluate, format_table, load_dataset,
-                               summarize)
+                               summarize, text_columns)
 from pipeline.library import load_library
 from pipeline.settings import preset
 from faults import fail_first_segmentation
@@ -144,6 +144,16 @@ def test_an_unreadable_image_is_named_once_among_the_wrong_answers(tmp_path, lib
     bad.write_text("not a jpeg")
     table = format_table(evaluate([load_dataset(tmp_path)], library, preset("default"), workers=1))
     assert f"  {bad}: not an image file (use JPEG" in table and table.count(str(bad)) == 1  # not "bad.jpg: bad.jpg: ..."
+
+
+def test_table_columns_line_up_after_a_name_with_arabic_vowel_marks(library):
+    # Four of مُجَمَّع's eight characters are marks that take no column: padded by len(), its row
+    # came out four columns short.
+    datasets = [load_dataset(SET3), load_dataset(SET3)]
+    datasets[0].name = "مُجَمَّع"
+    rows = format_table(evaluate(datasets, library, preset("default"), workers=1)).splitlines()[2:5]
+    assert [row.split()[0] for row in rows] == ["مُجَمَّع", "set3", "all"]
+    assert len({text_columns(row[:row.index("%")]) for row in rows}) == 1
 
 
 def test_summary_of_nothing_measurable():
