@@ -383,6 +383,17 @@ def read_upload(file: FormFile, unnamed: str = "upload") -> tuple[str, bytes]:
     return display_name(file.filename or unnamed), file.file.read()
 
 
+def camera_file_fields(body: bytes) -> dict | None:
+    """The JSON object `body` when it has none of fx, fy, cx, cy: a camera file's keys (`K`,
+    `camera_matrix`, ...), as scripts holding OpenCV's or ROS's JSON send them; None for anything
+    else, which is read as `CameraModel`."""
+    try:
+        data = json.loads(body)
+    except ValueError:
+        return None
+    return data if isinstance(data, dict) and not data.keys() & {"fx", "fy", "cx", "cy"} else None
+
+
 def camera_from_upload(name: str, data: bytes) -> Camera:
     """Parse an uploaded camera file (any load_camera reads); CameraError names the upload, not a temp path."""
     suffix = Path(name).suffix.lower()
@@ -718,6 +729,8 @@ def get_camera(workspace: WorkspaceDep) -> CameraOut:
 
 @api.put("/camera", response_model=CameraOut, tags=["camera"], openapi_extra={"requestBody": {
     "required": True,
+    "description": "JSON intrinsics {fx, fy, cx, cy, ...}, or the keys of a JSON camera file (K or camera_matrix, "
+                   "D or distortion_coefficients, ...); or a camera file uploaded",
     "content": {
         "application/json": {"schema": CameraModel.model_json_schema()},
         "multipart/form-data": {"schema": {
@@ -737,11 +750,14 @@ async def put_camera(request: Request, workspace: WorkspaceDep) -> CameraOut:
             name, data = await run_in_threadpool(read_upload, the_file(form), "camera")
         camera = await run_in_threadpool(camera_from_upload, name, data)
     elif content_type.startswith("application/json"):
+        body = await request.body()
         try:
-            body = CameraModel.model_validate_json(await request.body())
-        except ValidationError as exc:  # located in the body, as FastAPI locates the errors of the bodies it parses
-            raise RequestValidationError([{**e, "loc": ("body", *e["loc"])} for e in exc.errors()]) from None
-        camera = camera_from_json(body.model_dump(), source="json")
+            camera = camera_from_json(CameraModel.model_validate_json(body).model_dump(), source="json")
+        except ValidationError as exc:
+            fields = camera_file_fields(body)
+            if fields is None:  # located in the body, as FastAPI locates the errors of the bodies it parses
+                raise RequestValidationError([{**e, "loc": ("body", *e["loc"])} for e in exc.errors()]) from None
+            camera = camera_from_json(fields, source="json")
     else:
         raise HTTPException(status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
                             "send JSON intrinsics {fx, fy, cx, cy, dist, width, height} "

@@ -664,6 +664,23 @@ def test_camera_json_file_errors_and_reset(client):
     assert client.delete("/api/camera").json() == NO_CAMERA
 
 
+@pytest.mark.parametrize("body", [
+    {"K": [[500, 0, 320], [0, 510, 240], [0, 0, 1]], "D": [-0.1, 0.01, 0, 0, 0], "width": 640, "height": 480},
+    {"camera_matrix": {"rows": 3, "cols": 3, "data": [500, 0, 320, 0, 510, 240, 0, 0, 1]},
+     "distortion_coefficients": {"rows": 1, "cols": 5, "data": [-0.1, 0.01, 0, 0, 0]},
+     "image_width": 640, "image_height": 480},
+])
+def test_camera_json_may_be_a_camera_files_keys(client, body):
+    # scripts hold OpenCV's or ROS's JSON, not fx, fy, cx, cy
+    r = client.put("/api/camera", json=body)
+    assert r.status_code == 200, r.text
+    camera = r.json()["camera"]
+    assert [camera[k] for k in ("fx", "fy", "cx", "cy", "width", "height")] == [500, 510, 320, 240, 640, 480]
+    assert camera["dist"] == [-0.1, 0.01, 0, 0, 0]
+    assert_error(client.put("/api/camera", json={"K": [[500, 0, 320], [0, 510, 240]]}), 422, "3x3")
+    assert_error(client.put("/api/camera", json={"D": [0, 0, 0, 0]}), 422, "camera_matrix", "K")
+
+
 @pytest.mark.parametrize("path, body, where, what", [
     ("/api/camera", {"fx": "500"}, "body.fx", 'not text: write 500, not "500"'),
     ("/api/camera", {"cy": True}, "body.cy", "not true or false"),
