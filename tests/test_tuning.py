@@ -1,9 +1,14 @@
 """Choosing settings: threshold advice from a box, the sweep's values and the centre of its working band (app/tuning.py)."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from app.tuning import band_centre, rect_mask, suggest_threshold, sweep_values, working_band
+from app.tuning import band_centre, level_histogram, rect_mask, suggest_threshold, sweep_values, working_band
+from pipeline.image import read_image, to_gray
+
+SCENE = Path(__file__).resolve().parent.parent / "sample_images" / "scenes" / "scene_000.jpg"
 
 
 @pytest.mark.parametrize("lo, hi, steps, correct, centre", [
@@ -34,3 +39,19 @@ def test_a_box_inside_the_sign_is_told_to_take_in_the_wall_and_no_setting_in_use
     assert "normalization 'minmax'" in suggest_threshold(image, "scale", inside, "rectangle").warning
     around = suggest_threshold(image, "minmax", rect_mask((48, 48, 252, 152), 300, 200), "rectangle")
     assert around.warning is None and around.background_level < around.suggested_threshold < around.white_level
+
+
+def test_the_histogram_of_a_dim_photo_stretched_by_minmax_has_no_comb():
+    """A dim photo using 62 gray levels, stretched over 256 bins: binned as they were, three in four
+    bins between its darkest and brightest came out empty."""
+    dim = (60 + 0.55 * to_gray(read_image(SCENE))).astype(np.uint8)
+    inside = rect_mask((0, 0, dim.shape[1], dim.shape[0]), dim.shape[1], dim.shape[0])
+    histogram = level_histogram(dim, "minmax", inside)
+    assert histogram.sum() == dim.size
+    occupied = histogram[np.flatnonzero(histogram)[0]:np.flatnonzero(histogram)[-1] + 1]
+    assert (occupied == 0).sum() < 0.05 * occupied.size
+    # where the pixels are: their normalised levels' median and mean, to a bin
+    values = (dim - float(dim.min())) / (int(dim.max()) - int(dim.min()))
+    centres = (np.arange(256) + 0.5) / 256
+    assert np.average(centres, weights=histogram) == pytest.approx(values.mean(), abs=1 / 256)
+    assert centres[np.searchsorted(np.cumsum(histogram), dim.size / 2)] == pytest.approx(np.median(values), abs=1 / 256)
