@@ -11,7 +11,8 @@ subtree per recognised sign under ``/signs/<sign id>`` and a "Sign world" dropdo
 them at a time; the default is the sign with the most recognised images.
 
 Workspace events arrive on worker threads; they only mark the scene dirty, and one redraw thread
-brings the viser scene up to date at most every `REDRAW_INTERVAL_S`.
+brings the viser scene up to date at most every `REDRAW_INTERVAL_S`. A viewer's view moving marks
+only its labels' layout stale, which that thread lays out again without redrawing the rest.
 """
 
 from __future__ import annotations
@@ -446,7 +447,8 @@ class CameraNodes:
 class SceneHandle:
     """Everything `attach` added to a viser server; `close()` detaches from the workspace.
 
-    `signs` and `cameras` (keyed by image id) mirror the workspace as of the last `redraw()`.
+    `signs` and `cameras` (keyed by image id) mirror the workspace as of the last `redraw()`, and
+    `_shown` lists the cameras it drew, whose labels `relayout_labels()` lays out again.
     """
 
     server: viser.ViserServer
@@ -465,8 +467,12 @@ class SceneHandle:
     # it), so it follows the cameras drawn; None while it has not been framed on cameras.
     _framed: dict[int, tuple[np.ndarray, np.ndarray] | None] = field(default_factory=dict, repr=False)
     _progress: dict[str, Any] = field(default_factory=dict, repr=False)
+    _shown: list[tuple[ImageRecord, Recognition]] = field(default_factory=list, repr=False)
     _lock: threading.RLock = field(default_factory=threading.RLock, repr=False)
+    # Set when the scene is stale (`_mark_stale`) or closed; `_stale_all` says whether more than the
+    # labels' layout is stale.
     _dirty: threading.Event = field(default_factory=threading.Event, repr=False)
+    _stale_all: bool = False
     _closed: bool = False
     _stale_geometry: bool = False
     _stale_signs: bool = False
@@ -479,7 +485,7 @@ class SceneHandle:
         self._unsubscribe = self.workspace.subscribe(self._on_event)
         self._thread = threading.Thread(target=self._redraw_loop, name="signpose-scene", daemon=True)
         self._thread.start()
-        self._dirty.set()
+        self._mark_stale()
 
     def close(self) -> None:
         """Stop following the workspace; the viser nodes stay as they are. Safe to call twice."""
@@ -492,14 +498,28 @@ class SceneHandle:
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=5)
 
+    def _mark_stale(self, labels_only: bool = False) -> None:
+        """Have the redraw thread bring the scene up to date: all of it, or only the labels' layout."""
+        if not labels_only:
+            self._stale_all = True
+        self._dirty.set()
+
     def _redraw_loop(self) -> None:
         while True:
             self._dirty.wait()
             if self._closed:
                 return
             self._dirty.clear()
+            # Reset only once read as set: a mark coming between the two is then drawn by this
+            # redraw, which reads the workspace after it.
+            everything = self._stale_all
+            if everything:
+                self._stale_all = False
             try:
-                self.redraw()
+                if everything:
+                    self.redraw()
+                else:
+                    self.relayout_labels()
             except Exception:  # a bad record must not stop later redraws
                 log.exception("scene redraw failed")
             # Events arriving during this pause fold into a single next redraw.
@@ -513,7 +533,7 @@ class SceneHandle:
             self._progress = event.payload
         elif event.kind == "library":
             self._stale_signs = True
-        self._dirty.set()
+        self._mark_stale()
 
     # ---- user actions
 
@@ -544,10 +564,10 @@ class SceneHandle:
             self._frame_world()
 
     def _on_world(self, event: viser.GuiEvent | None = None) -> None:
-        """Show the world chosen; its labels are laid out in the viewers' views at the next redraw
+        """Show the world chosen; its labels are laid out in the viewers' views on the redraw thread
         (those of a world not shown are not)."""
         self._on_view_option(event)
-        self._dirty.set()
+        self._mark_stale(labels_only=True)
 
     def _overview(self, fov_rad: float, aspect: float) -> tuple[np.ndarray, np.ndarray] | None:
         """`overview_camera` of the shown sign and its cameras; None without a sign. The caller
@@ -618,7 +638,7 @@ class SceneHandle:
 
     def _on_connect(self, client: viser.ClientHandle) -> None:
         """Frame a new viewer's canvas once its size is known: its first camera report. As its view
-        moves, its labels are laid out again (`_share_labels`), on the redraw thread."""
+        moves, its labels are laid out again (`relayout_labels`), on the redraw thread."""
 
         def on_camera(_camera: viser.CameraHandle) -> None:
             with self._lock:
@@ -626,7 +646,7 @@ class SceneHandle:
                 self._framed.setdefault(client.client_id, None)
             if first:
                 self.frame_for(client)
-            self._dirty.set()
+            self._mark_stale(labels_only=True)
 
         client.camera.on_update(on_camera)
 
@@ -636,7 +656,7 @@ class SceneHandle:
 
     def _on_frustum_width(self, _event: viser.GuiEvent) -> None:
         self._stale_geometry = True
-        self._dirty.set()
+        self._mark_stale()
 
     def view_from(self, image_id: str, client: viser.ClientHandle) -> None:
         """Move `client`'s viewport to the estimated camera of `image_id`, looking along its optical axis."""
@@ -690,10 +710,17 @@ class SceneHandle:
                 if nodes is None or nodes.recognition is not rec or stale_geometry:
                     self._draw_camera(record, rec, library)
             self._choose_world(counts)
+            self._shown = shown
             self._share_labels(shown)   # laid out in the views as framed for the world chosen
             generation = self.workspace.snapshot.generation
             self.status.content = status_markdown(
                 [status_of(r.expected, o, generation) for r, o in zip(records, outcomes)], outcomes, self._progress)
+
+    def relayout_labels(self) -> None:
+        """Lay the labels of the cameras the last `redraw()` drew out again in the viewers' views as
+        they are now: all that a view moving changes."""
+        with self._lock:
+            self._share_labels(self._shown)
 
     def _share_labels(self, shown: list[tuple[ImageRecord, Recognition]]) -> None:
         """One label for each group of cameras in a sign's world standing closer than the drawn photo

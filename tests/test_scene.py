@@ -216,6 +216,32 @@ def test_viewers_are_framed_on_the_first_cameras_drawn_in_an_empty_scene(scene, 
         assert _widest(handle, viewer.camera) < 0.8 * viewer.across_deg, viewer.client_id
 
 
+def test_a_view_moving_lays_out_the_labels_again_and_redraws_nothing_else(scene, monkeypatch):
+    """Every camera report of every viewer (a dozen a second while one is dragged) ran the whole
+    redraw: listing the images, comparing every record and writing the status line again, where
+    only the labels' layout depends on the view."""
+    handle, workspace = scene
+    viewer = Viewer(1, 0.45, handle.server.initial_camera)
+    monkeypatch.setattr(handle.server, "get_clients", lambda: {1: viewer})
+    handle._on_connect(viewer)
+    viewer.report()   # framed for its canvas
+    settle(handle, workspace)
+    world = [n for n in handle.cameras.values() if n.sign == handle.world.value]
+    framed = [n.label.visible for n in world]
+    assert len(world) > 1 and sum(framed) > 1
+    redraw, redraws = handle.redraw, []
+    monkeypatch.setattr(handle, "redraw", lambda: (redraws.append(time.monotonic()), redraw()))
+    near = viewer.camera.position
+    viewer.camera.position = viewer.camera.look_at + 40 * (near - viewer.camera.look_at)   # its names print as one
+    viewer.report()
+    wait_for(lambda: sum(n.label.visible for n in world) == 1)
+    viewer.camera.position = near
+    viewer.report()
+    wait_for(lambda: [n.label.visible for n in world] == framed)
+    time.sleep(0.3)
+    assert not redraws
+
+
 class Viewer:
     """A viser client as `SceneHandle` sees it: an id and a camera of a canvas' aspect (width / height)."""
 
