@@ -315,6 +315,49 @@ def test_a_small_window_shows_the_whole_top_bar_and_scrolls_only_when_asked(page
                 api.delete(f"/api/images/{image['id']}").raise_for_status()
 
 
+# Page coordinates (CSS px) of the layout's panels and the detail view's end, with the window's
+# height and how far the page and the images panel scroll.
+LAYOUT = """() => {
+    const at = (s) => { const r = document.querySelector(s).getBoundingClientRect();
+                        return { top: r.top + scrollY, bottom: r.bottom + scrollY, height: r.height }; };
+    const panel = (s) => { const e = document.querySelector(s);
+                           return { ...at(s), scrolls: e.scrollHeight > e.clientHeight }; };
+    return { window: innerHeight, page: document.documentElement.scrollHeight, topbar: at(".topbar"),
+             settings: panel(".settings-panel"), work: panel(".work-panel"), scene: at(".scene-panel"),
+             view: at("#scene") };
+}"""
+
+
+@pytest.mark.parametrize("width, height", [(1024, 700), (1280, 800)])
+def test_up_to_1280_px_the_panels_fill_the_window_over_the_3d_strip(page, width, height):
+    """Up to 1280 px wide the layout's height (the window under the top bar, and the 3D strip) never
+    applied: the settings and the images ran their whole length (2,200 px at 1024×700), and the 3D
+    view lay under them three windows down. They fill the window under the top bar, each scrolling
+    inside as on wider screens, the detail read to its end there; the page scrolls down to the 3D
+    strip, whole in the window."""
+    page.set_viewport_size({"width": width, "height": height})
+    page.wait_for_selector("#detail:not([hidden])")   # the first image opens by itself
+    harness.stage_images_loaded(page, "#detail .stage img")
+    layout = page.evaluate(LAYOUT)
+    for name in ("settings", "work"):
+        box = layout[name]
+        assert box["top"] == pytest.approx(layout["topbar"]["bottom"] + 8, abs=1), (name, box)
+        assert box["bottom"] == pytest.approx(height - 8, abs=1), (name, box)
+    assert layout["settings"]["scrolls"] and layout["work"]["scrolls"]
+    scene, view = layout["scene"], layout["view"]
+    assert scene["top"] == pytest.approx(height, abs=1) and scene["height"] == pytest.approx(360, abs=1)
+    assert layout["page"] == pytest.approx(scene["bottom"] + 8, abs=1)
+    assert scene["top"] < view["top"] and view["bottom"] <= scene["bottom"] and view["height"] > 300
+    assert overflowing(page, "main.layout") == []
+
+    page.evaluate("() => { const work = document.querySelector('.work-panel'); work.scrollTop = work.scrollHeight; }")
+    end, work = (page.locator(s).bounding_box() for s in ("#detail", ".work-panel"))
+    assert end["y"] + end["height"] <= work["y"] + work["height"] + 0.5, "the detail's end is out of reach"
+    page.evaluate("() => scrollTo(0, document.documentElement.scrollHeight)")
+    strip = page.locator(".scene-panel").bounding_box()
+    assert strip["y"] >= 0 and strip["y"] + strip["height"] <= height
+
+
 def test_drop_many_files_with_progress(page, api):
     names = [f"drop-{i}-{SCENE}" for i in range(2)]
     data = base64.b64encode((harness.SCENES / SCENE).read_bytes()).decode()
