@@ -64,10 +64,12 @@ INITIAL_VIEW_LOOK_AT_M = (0.0, 0.0, -0.8)
 # Once there are cameras, new viewers and Reset View see the shown sign and its cameras from that
 # side, with room to spare for viser's control panel, which covers part of the frame.
 OVERVIEW_MARGIN = 1.4
-# viser writes a camera's label rightward and down from it at a size fixed on screen: 12 px type
-# (Arial or Helvetica where there is no system UI font), lines 14 px apart, on a background a fifth
-# of a line larger (viser's client/src/label). Px a character, at most: capitals and m, w; narrow
-# ones; the others, digits and _ the widest of them ("scene_002.jpg" measures 78 px in the page).
+# viser writes a camera's label rightward and down from it at a size fixed on screen, in CSS px
+# whatever the screen's device pixels: 12 px type (Arial or Helvetica where there is no system UI
+# font), lines 14 px apart, on a background a fifth of a line larger (viser's client/src/label;
+# measured in Chromium: 151 × 28 px for two lines, 302 × 59 device px at 2 to the CSS px). Px a
+# character, at most: capitals and m, w; narrow ones; the others, digits and _ the widest of them
+# ("scene_002.jpg" measures 78 px in the page).
 LABEL_LINE_PX = 14.0
 LABEL_WIDE_PX, LABEL_NARROW_PX, LABEL_CHAR_PX = 9.0, 3.4, 6.7
 LABEL_NARROW = set(".,:;!|'ijlI ")
@@ -75,6 +77,9 @@ LABEL_NARROW = set(".,:;!|'ijlI ")
 LABEL_GAP_PX = 2.0
 # Between the texts a shared label lists on one line.
 LABEL_SEPARATOR = "   "
+# Canvas sizes whose device px per CSS px are kept (`SceneHandle.set_canvas_scale`): a window being
+# resized reports many.
+MAX_CANVAS_SIZES = 64
 
 
 # --------------------------------------------------------------------------- geometry
@@ -171,7 +176,7 @@ def label_groups(positions: list[np.ndarray], radius_m: float) -> list[list[int]
 
 
 def label_size_px(text: str) -> tuple[float, float]:
-    """(width, height) on screen, px, of the label viser draws for `text` (lines split at "\n"):
+    """(width, height) on screen, CSS px, of the label viser draws for `text` (lines split at "\n"):
     an upper bound for the fonts viser's labels use."""
     width = max(sum(LABEL_WIDE_PX if c.isupper() and c != "I" or c in "mw" else
                     LABEL_NARROW_PX if c in LABEL_NARROW else LABEL_CHAR_PX for c in line)
@@ -182,24 +187,27 @@ def label_size_px(text: str) -> tuple[float, float]:
 
 @dataclass(frozen=True)
 class View:
-    """Where a viewer sees things: `px` (N, 2) canvas px of each camera (`screen_px`), in a canvas
-    `width` × `height` px."""
+    """Where a viewer sees things, in the CSS px its labels are sized in (`label_size_px`): `px`
+    (N, 2) of each camera in its canvas, `width` × `height` px."""
 
     px: np.ndarray
     width: float
     height: float
 
     @staticmethod
-    def of(camera: viser.CameraHandle, points: np.ndarray) -> View:
-        """Where the viewer with `camera` sees `points` (N, 3) m."""
-        return View(screen_px(points, camera), camera.image_width, camera.image_width / camera.aspect)
+    def of(camera: viser.CameraHandle, points: np.ndarray, px_per_css_px: float = 1.0) -> View:
+        """Where the viewer with `camera` sees `points` (N, 3) m, its canvas (reported in device
+        px, `screen_px`) drawn at `px_per_css_px` device px to the CSS px."""
+        return View(screen_px(points, camera) / px_per_css_px, camera.image_width / px_per_css_px,
+                    camera.image_width / camera.aspect / px_per_css_px)
 
 
 def screen_px(points: np.ndarray, camera: viser.CameraHandle) -> np.ndarray:
     """(N, 2) px in the canvas of a viewer's `camera` of `points` (N, 3) m; NaN for those behind it.
 
-    Canvas px as the viewer reports its size: device pixels, so on a screen of two pixels to the
-    CSS px the labels, sized in CSS px, are twice the size found here.
+    Canvas px as the viewer reports its size: device pixels (the canvas' width and height in
+    viser's client), as many to the CSS px as the screen has, or fewer while viser lowers its
+    resolution to keep its frame rate.
     """
     forward = np.asarray(camera.look_at, float) - camera.position
     forward /= np.linalg.norm(forward)
@@ -467,6 +475,9 @@ class SceneHandle:
     # it), so it follows the cameras drawn; None while it has not been framed on cameras.
     _framed: dict[int, tuple[np.ndarray, np.ndarray] | None] = field(default_factory=dict, repr=False)
     _progress: dict[str, Any] = field(default_factory=dict, repr=False)
+    # Device px to the CSS px by canvas size (width, height) in device px as viewers report it
+    # (`set_canvas_scale`); viser draws labels at a size in CSS px. Sizes not heard of: 1.
+    _px_per_css_px: dict[tuple[int, int], float] = field(default_factory=dict, repr=False)
     _shown: list[tuple[ImageRecord, Recognition]] = field(default_factory=list, repr=False)
     _lock: threading.RLock = field(default_factory=threading.RLock, repr=False)
     # Set when the scene is stale (`_mark_stale`) or closed; `_stale_all` says whether more than the
@@ -581,7 +592,7 @@ class SceneHandle:
         return overview_camera(points, fov_rad, aspect)
 
     def _label_px(self) -> float:
-        """Screen px of the widest camera's own label text in the shown world: not of the labels as
+        """CSS px of the widest camera's own label text in the shown world: not of the labels as
         shared, which are laid out in the views framed with this. The caller holds the lock."""
         return max((label_size_px(n.text)[0] for n in self.cameras.values() if n.sign == self.world.value),
                    default=0)
@@ -620,8 +631,9 @@ class SceneHandle:
         width of the widest label either side: a camera at the edge has its label beside it."""
         camera = client.camera
         with self._lock:
+            css_width = camera.image_width / self._px_per_css_px_of(camera)
             # at least a quarter of the width: labels wider than that cannot be helped by zooming out
-            room = max(0.25, 1.0 - 2.0 * self._label_px() / camera.image_width)
+            room = max(0.25, 1.0 - 2.0 * self._label_px() / css_width)
             view = self._overview(camera.fov, min(camera.aspect * room, 1.0))
             framed = self._framed.get(client.client_id)
             # Every redraw comes here for the viewers left where they were framed: send changes only.
@@ -653,6 +665,24 @@ class SceneHandle:
     def _on_disconnect(self, client: viser.ClientHandle) -> None:
         with self._lock:
             self._framed.pop(client.client_id, None)
+
+    def set_canvas_scale(self, width_px: int, height_px: int, px_per_css_px: float) -> None:
+        """Note that a viewer's canvas reported as `width_px` × `height_px` device px is drawn at
+        `px_per_css_px` device px to the CSS px (its page says so: viser does not); the viewers are
+        framed, and their labels laid out, again."""
+        with self._lock:
+            sizes = self._px_per_css_px
+            if sizes.get((width_px, height_px)) == px_per_css_px:
+                return
+            sizes.pop((width_px, height_px), None)   # the newest last, the oldest first to go
+            sizes[width_px, height_px] = px_per_css_px
+            while len(sizes) > MAX_CANVAS_SIZES:
+                del sizes[next(iter(sizes))]
+        self._mark_stale()
+
+    def _px_per_css_px_of(self, camera: viser.CameraHandle) -> float:
+        """Device px to the CSS px of the canvas `camera` reports. The caller holds the lock."""
+        return self._px_per_css_px.get((camera.image_width, camera.image_height), 1.0)
 
     def _on_frustum_width(self, _event: viser.GuiEvent) -> None:
         self._stale_geometry = True
@@ -739,7 +769,8 @@ class SceneHandle:
             texts = [_camera_text(*camera) for camera in cameras]
             for node, text in zip(nodes, texts):
                 node.text = text
-            views = [View.of(c.camera, positions) for c in self._viewers()] if sign == self.world.value else []
+            views = [View.of(c.camera, positions, self._px_per_css_px_of(c.camera)) for c in self._viewers()
+                     ] if sign == self.world.value else []
             for label in labels_apart(label_groups(list(positions), self.frustum_width.value), texts, views):
                 if nodes[label.at].label.text != label.text:
                     nodes[label.at].label.text = label.text
