@@ -176,6 +176,14 @@ class AssumedFovIn(BaseModel):
     hfov_deg: Number = Field(description="horizontal field of view, degrees (10 to 140)")
 
 
+class CanvasScaleIn(BaseModel):
+    width: WholeNumber = Field(ge=1, le=100_000, description="width of the 3D view's canvas as viser reports it: "
+                                                             "device px")
+    height: WholeNumber = Field(ge=1, le=100_000, description="its height, device px")
+    px_per_css_px: Number = Field(gt=0, le=100, description="its device px to the CSS px: the screen's "
+                                  "devicePixelRatio, or less while viser lowers its resolution to keep its frame rate")
+
+
 class BoardSpec(BaseModel):
     """A printed chessboard: inner corners (where four squares meet) across and down, and the square side."""
 

@@ -11,7 +11,8 @@ subtree per recognised sign under ``/signs/<sign id>`` and a "Sign world" dropdo
 them at a time; the default is the sign with the most recognised images.
 
 Workspace events arrive on worker threads; they only mark the scene dirty, and one redraw thread
-brings the viser scene up to date at most every `REDRAW_INTERVAL_S`.
+brings the viser scene up to date at most every `REDRAW_INTERVAL_S`. A viewer's view moving marks
+only its labels' layout stale, which that thread lays out again without redrawing the rest.
 """
 
 from __future__ import annotations
@@ -63,10 +64,12 @@ INITIAL_VIEW_LOOK_AT_M = (0.0, 0.0, -0.8)
 # Once there are cameras, new viewers and Reset View see the shown sign and its cameras from that
 # side, with room to spare for viser's control panel, which covers part of the frame.
 OVERVIEW_MARGIN = 1.4
-# viser writes a camera's label rightward and down from it at a size fixed on screen: 12 px type
-# (Arial or Helvetica where there is no system UI font), lines 14 px apart, on a background a fifth
-# of a line larger (viser's client/src/label). Px a character, at most: capitals and m, w; narrow
-# ones; the others, digits and _ the widest of them ("scene_002.jpg" measures 78 px in the page).
+# viser writes a camera's label rightward and down from it at a size fixed on screen, in CSS px
+# whatever the screen's device pixels: 12 px type (Arial or Helvetica where there is no system UI
+# font), lines 14 px apart, on a background a fifth of a line larger (viser's client/src/label;
+# measured in Chromium: 151 × 28 px for two lines, 302 × 59 device px at 2 to the CSS px). Px a
+# character, at most: capitals and m, w; narrow ones; the others, digits and _ the widest of them
+# ("scene_002.jpg" measures 78 px in the page).
 LABEL_LINE_PX = 14.0
 LABEL_WIDE_PX, LABEL_NARROW_PX, LABEL_CHAR_PX = 9.0, 3.4, 6.7
 LABEL_NARROW = set(".,:;!|'ijlI ")
@@ -74,6 +77,9 @@ LABEL_NARROW = set(".,:;!|'ijlI ")
 LABEL_GAP_PX = 2.0
 # Between the texts a shared label lists on one line.
 LABEL_SEPARATOR = "   "
+# Canvas sizes whose device px per CSS px are kept (`SceneHandle.set_canvas_scale`): a window being
+# resized reports many.
+MAX_CANVAS_SIZES = 64
 
 
 # --------------------------------------------------------------------------- geometry
@@ -170,7 +176,7 @@ def label_groups(positions: list[np.ndarray], radius_m: float) -> list[list[int]
 
 
 def label_size_px(text: str) -> tuple[float, float]:
-    """(width, height) on screen, px, of the label viser draws for `text` (lines split at "\n"):
+    """(width, height) on screen, CSS px, of the label viser draws for `text` (lines split at "\n"):
     an upper bound for the fonts viser's labels use."""
     width = max(sum(LABEL_WIDE_PX if c.isupper() and c != "I" or c in "mw" else
                     LABEL_NARROW_PX if c in LABEL_NARROW else LABEL_CHAR_PX for c in line)
@@ -181,24 +187,27 @@ def label_size_px(text: str) -> tuple[float, float]:
 
 @dataclass(frozen=True)
 class View:
-    """Where a viewer sees things: `px` (N, 2) canvas px of each camera (`screen_px`), in a canvas
-    `width` × `height` px."""
+    """Where a viewer sees things, in the CSS px its labels are sized in (`label_size_px`): `px`
+    (N, 2) of each camera in its canvas, `width` × `height` px."""
 
     px: np.ndarray
     width: float
     height: float
 
     @staticmethod
-    def of(camera: viser.CameraHandle, points: np.ndarray) -> View:
-        """Where the viewer with `camera` sees `points` (N, 3) m."""
-        return View(screen_px(points, camera), camera.image_width, camera.image_width / camera.aspect)
+    def of(camera: viser.CameraHandle, points: np.ndarray, px_per_css_px: float = 1.0) -> View:
+        """Where the viewer with `camera` sees `points` (N, 3) m, its canvas (reported in device
+        px, `screen_px`) drawn at `px_per_css_px` device px to the CSS px."""
+        return View(screen_px(points, camera) / px_per_css_px, camera.image_width / px_per_css_px,
+                    camera.image_width / camera.aspect / px_per_css_px)
 
 
 def screen_px(points: np.ndarray, camera: viser.CameraHandle) -> np.ndarray:
     """(N, 2) px in the canvas of a viewer's `camera` of `points` (N, 3) m; NaN for those behind it.
 
-    Canvas px as the viewer reports its size: device pixels, so on a screen of two pixels to the
-    CSS px the labels, sized in CSS px, are twice the size found here.
+    Canvas px as the viewer reports its size: device pixels (the canvas' width and height in
+    viser's client), as many to the CSS px as the screen has, or fewer while viser lowers its
+    resolution to keep its frame rate.
     """
     forward = np.asarray(camera.look_at, float) - camera.position
     forward /= np.linalg.norm(forward)
@@ -446,7 +455,8 @@ class CameraNodes:
 class SceneHandle:
     """Everything `attach` added to a viser server; `close()` detaches from the workspace.
 
-    `signs` and `cameras` (keyed by image id) mirror the workspace as of the last `redraw()`.
+    `signs` and `cameras` (keyed by image id) mirror the workspace as of the last `redraw()`, and
+    `_shown` lists the cameras it drew, whose labels `relayout_labels()` lays out again.
     """
 
     server: viser.ViserServer
@@ -465,8 +475,15 @@ class SceneHandle:
     # it), so it follows the cameras drawn; None while it has not been framed on cameras.
     _framed: dict[int, tuple[np.ndarray, np.ndarray] | None] = field(default_factory=dict, repr=False)
     _progress: dict[str, Any] = field(default_factory=dict, repr=False)
+    # Device px to the CSS px by canvas size (width, height) in device px as viewers report it
+    # (`set_canvas_scale`); viser draws labels at a size in CSS px. Sizes not heard of: 1.
+    _px_per_css_px: dict[tuple[int, int], float] = field(default_factory=dict, repr=False)
+    _shown: list[tuple[ImageRecord, Recognition]] = field(default_factory=list, repr=False)
     _lock: threading.RLock = field(default_factory=threading.RLock, repr=False)
+    # Set when the scene is stale (`_mark_stale`) or closed; `_stale_all` says whether more than the
+    # labels' layout is stale.
     _dirty: threading.Event = field(default_factory=threading.Event, repr=False)
+    _stale_all: bool = False
     _closed: bool = False
     _stale_geometry: bool = False
     _stale_signs: bool = False
@@ -479,7 +496,7 @@ class SceneHandle:
         self._unsubscribe = self.workspace.subscribe(self._on_event)
         self._thread = threading.Thread(target=self._redraw_loop, name="signpose-scene", daemon=True)
         self._thread.start()
-        self._dirty.set()
+        self._mark_stale()
 
     def close(self) -> None:
         """Stop following the workspace; the viser nodes stay as they are. Safe to call twice."""
@@ -492,14 +509,28 @@ class SceneHandle:
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=5)
 
+    def _mark_stale(self, labels_only: bool = False) -> None:
+        """Have the redraw thread bring the scene up to date: all of it, or only the labels' layout."""
+        if not labels_only:
+            self._stale_all = True
+        self._dirty.set()
+
     def _redraw_loop(self) -> None:
         while True:
             self._dirty.wait()
             if self._closed:
                 return
             self._dirty.clear()
+            # Reset only once read as set: a mark coming between the two is then drawn by this
+            # redraw, which reads the workspace after it.
+            everything = self._stale_all
+            if everything:
+                self._stale_all = False
             try:
-                self.redraw()
+                if everything:
+                    self.redraw()
+                else:
+                    self.relayout_labels()
             except Exception:  # a bad record must not stop later redraws
                 log.exception("scene redraw failed")
             # Events arriving during this pause fold into a single next redraw.
@@ -513,7 +544,7 @@ class SceneHandle:
             self._progress = event.payload
         elif event.kind == "library":
             self._stale_signs = True
-        self._dirty.set()
+        self._mark_stale()
 
     # ---- user actions
 
@@ -544,10 +575,10 @@ class SceneHandle:
             self._frame_world()
 
     def _on_world(self, event: viser.GuiEvent | None = None) -> None:
-        """Show the world chosen; its labels are laid out in the viewers' views at the next redraw
+        """Show the world chosen; its labels are laid out in the viewers' views on the redraw thread
         (those of a world not shown are not)."""
         self._on_view_option(event)
-        self._dirty.set()
+        self._mark_stale(labels_only=True)
 
     def _overview(self, fov_rad: float, aspect: float) -> tuple[np.ndarray, np.ndarray] | None:
         """`overview_camera` of the shown sign and its cameras; None without a sign. The caller
@@ -561,7 +592,7 @@ class SceneHandle:
         return overview_camera(points, fov_rad, aspect)
 
     def _label_px(self) -> float:
-        """Screen px of the widest camera's own label text in the shown world: not of the labels as
+        """CSS px of the widest camera's own label text in the shown world: not of the labels as
         shared, which are laid out in the views framed with this. The caller holds the lock."""
         return max((label_size_px(n.text)[0] for n in self.cameras.values() if n.sign == self.world.value),
                    default=0)
@@ -600,8 +631,9 @@ class SceneHandle:
         width of the widest label either side: a camera at the edge has its label beside it."""
         camera = client.camera
         with self._lock:
+            css_width = camera.image_width / self._px_per_css_px_of(camera)
             # at least a quarter of the width: labels wider than that cannot be helped by zooming out
-            room = max(0.25, 1.0 - 2.0 * self._label_px() / camera.image_width)
+            room = max(0.25, 1.0 - 2.0 * self._label_px() / css_width)
             view = self._overview(camera.fov, min(camera.aspect * room, 1.0))
             framed = self._framed.get(client.client_id)
             # Every redraw comes here for the viewers left where they were framed: send changes only.
@@ -618,7 +650,7 @@ class SceneHandle:
 
     def _on_connect(self, client: viser.ClientHandle) -> None:
         """Frame a new viewer's canvas once its size is known: its first camera report. As its view
-        moves, its labels are laid out again (`_share_labels`), on the redraw thread."""
+        moves, its labels are laid out again (`relayout_labels`), on the redraw thread."""
 
         def on_camera(_camera: viser.CameraHandle) -> None:
             with self._lock:
@@ -626,7 +658,7 @@ class SceneHandle:
                 self._framed.setdefault(client.client_id, None)
             if first:
                 self.frame_for(client)
-            self._dirty.set()
+            self._mark_stale(labels_only=True)
 
         client.camera.on_update(on_camera)
 
@@ -634,9 +666,27 @@ class SceneHandle:
         with self._lock:
             self._framed.pop(client.client_id, None)
 
+    def set_canvas_scale(self, width_px: int, height_px: int, px_per_css_px: float) -> None:
+        """Note that a viewer's canvas reported as `width_px` × `height_px` device px is drawn at
+        `px_per_css_px` device px to the CSS px (its page says so: viser does not); the viewers are
+        framed, and their labels laid out, again."""
+        with self._lock:
+            sizes = self._px_per_css_px
+            if sizes.get((width_px, height_px)) == px_per_css_px:
+                return
+            sizes.pop((width_px, height_px), None)   # the newest last, the oldest first to go
+            sizes[width_px, height_px] = px_per_css_px
+            while len(sizes) > MAX_CANVAS_SIZES:
+                del sizes[next(iter(sizes))]
+        self._mark_stale()
+
+    def _px_per_css_px_of(self, camera: viser.CameraHandle) -> float:
+        """Device px to the CSS px of the canvas `camera` reports. The caller holds the lock."""
+        return self._px_per_css_px.get((camera.image_width, camera.image_height), 1.0)
+
     def _on_frustum_width(self, _event: viser.GuiEvent) -> None:
         self._stale_geometry = True
-        self._dirty.set()
+        self._mark_stale()
 
     def view_from(self, image_id: str, client: viser.ClientHandle) -> None:
         """Move `client`'s viewport to the estimated camera of `image_id`, looking along its optical axis."""
@@ -690,10 +740,17 @@ class SceneHandle:
                 if nodes is None or nodes.recognition is not rec or stale_geometry:
                     self._draw_camera(record, rec, library)
             self._choose_world(counts)
+            self._shown = shown
             self._share_labels(shown)   # laid out in the views as framed for the world chosen
             generation = self.workspace.snapshot.generation
             self.status.content = status_markdown(
                 [status_of(r.expected, o, generation) for r, o in zip(records, outcomes)], outcomes, self._progress)
+
+    def relayout_labels(self) -> None:
+        """Lay the labels of the cameras the last `redraw()` drew out again in the viewers' views as
+        they are now: all that a view moving changes."""
+        with self._lock:
+            self._share_labels(self._shown)
 
     def _share_labels(self, shown: list[tuple[ImageRecord, Recognition]]) -> None:
         """One label for each group of cameras in a sign's world standing closer than the drawn photo
@@ -712,7 +769,8 @@ class SceneHandle:
             texts = [_camera_text(*camera) for camera in cameras]
             for node, text in zip(nodes, texts):
                 node.text = text
-            views = [View.of(c.camera, positions) for c in self._viewers()] if sign == self.world.value else []
+            views = [View.of(c.camera, positions, self._px_per_css_px_of(c.camera)) for c in self._viewers()
+                     ] if sign == self.world.value else []
             for label in labels_apart(label_groups(list(positions), self.frustum_width.value), texts, views):
                 if nodes[label.at].label.text != label.text:
                     nodes[label.at].label.text = label.text

@@ -53,8 +53,9 @@ from . import figures, tuning
 from .api_models import (
     AssumedFovIn, AttemptOut, BoardSearchOut, BoardSpec, CalibrateIn, CalibrateOut, CalibrationAdded, CalibrationOut,
     CalibrationResult,
-    CalibrationRunIn, CalibrationView, CameraIntrinsics, CameraModel, CameraOut, ExpectedIn, Health, ImageDetail,
-    ImagesOut, ImagesRemoved, ImageSummary, RecognitionOut, SettingField, SettingsOut, SignOut, SweepOut, UploadOut,
+    CalibrationRunIn, CalibrationView, CameraIntrinsics, CameraModel, CameraOut, CanvasScaleIn, ExpectedIn, Health,
+    ImageDetail, ImagesOut, ImagesRemoved, ImageSummary, RecognitionOut, SettingField, SettingsOut, SignOut, SweepOut,
+    UploadOut,
 )
 from .calibration import (PREVIEW_MAX_SIDE, CalibrationSession, CalibrationState, calibrated_camera,
                           page_outlier_advice)
@@ -899,6 +900,16 @@ def get_calibration_yaml(calibration: CalibrationDep) -> Response:
                     headers={"Content-Disposition": 'attachment; filename="camera.yaml"'})
 
 
+@api.put("/scene/canvas", status_code=status.HTTP_204_NO_CONTENT, tags=["scene"], dependencies=[JSON_BODY])
+def put_scene_canvas(canvas: CanvasScaleIn, request: Request) -> None:
+    """How many device px a 3D view's canvas of this size (as viser reports it) has to the CSS px:
+    viser's client reports its canvas in device px but draws the camera labels at a size in CSS px,
+    and the scene lays them out in CSS px. viser's page sends this (static/viser-canvas.js)."""
+    scene = request.app.state.scene
+    if scene is not None:
+        scene.set_canvas_scale(canvas.width, canvas.height, canvas.px_per_css_px)
+
+
 def _attach_scene(server: viser.ViserServer, workspace: Workspace):
     """The colleague-owned viser scene, when app/scene.py exists; its handle (with close()) or None."""
     try:
@@ -926,7 +937,7 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
         with contextlib.redirect_stdout(io.StringIO()):
             server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
         app.state.viser_url = f"ws://127.0.0.1:{server.get_port()}"
-        scene = _attach_scene(server, workspace)
+        scene = app.state.scene = _attach_scene(server, workspace)
         try:
             yield
         finally:
@@ -940,6 +951,7 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
     app = FastAPIOffline(title="signpose", version=package_version(), lifespan=lifespan, static_url=DOCS_ASSETS,
                          summary="Recognise known planar signs and recover the camera pose; tune every step.")
     app.state.workspace = workspace
+    app.state.scene = None   # until the lifespan attaches it
     app.state.calibration = CalibrationSession(workspace.config.max_pixels)
     # The last added runs first: headers on every answer, then access, then the body limit.
     app.add_middleware(UploadLimit, max_bytes=workspace.config.max_upload_bytes)

@@ -4,7 +4,8 @@ viser 1.1 serves its client and websocket from its own server (the `websockets` 
 no ASGI mount, so FastAPI serves the client's build files and relays the websocket. The client
 connects to its page's own URL with http -> ws and the trailing slash dropped (the page
 `/viser/` connects to `ws://<host>/viser`), offering the subprotocol `viser-v<version>` that
-viser checks; both `/viser` and `/viser/` are relayed.
+viser checks; both `/viser` and `/viser/` are relayed. Its page gets one script of ours,
+`CANVAS_SCRIPT`.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from pathlib import Path
 import viser
 import websockets
 from fastapi import FastAPI, WebSocket
-from fastapi.responses import RedirectResponse
+from fastapi.responses import HTMLResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.websockets import WebSocketDisconnect
 from websockets.asyncio.client import connect
@@ -32,6 +33,9 @@ CONNECT_TIMEOUT_S = 5.0
 # 1005, 1006 and 1015 only report what happened and must never be sent.
 UNREACHABLE, NORMAL = 1011, 1000
 UNSENDABLE = (1005, 1006, 1015)
+# The page's static/viser-canvas.js: it tells the server how many device px viser's canvas has to
+# the CSS px, which viser's client does not, in the page's 3D view and in its pop-out tab alike.
+CANVAS_SCRIPT = '<script src="/viser-canvas.js" defer></script>'
 
 
 async def relay(websocket: WebSocket, upstream_url: str) -> None:
@@ -97,4 +101,7 @@ def mount_viser(app: FastAPI) -> None:
         app.add_api_websocket_route(path, viser_websocket, name="viser websocket")
     # Relative URLs in the page resolve against /viser/, not /.
     app.add_api_route("/viser", lambda: RedirectResponse("/viser/"), include_in_schema=False)
+    page = (VISER_CLIENT_BUILD / "index.html").read_text(encoding="utf-8").replace(
+        "</head>", f"{CANVAS_SCRIPT}</head>", 1)
+    app.add_api_route("/viser/", lambda: HTMLResponse(page), include_in_schema=False)
     app.mount("/viser", StaticFiles(directory=VISER_CLIENT_BUILD, html=True), name="viser")

@@ -67,10 +67,11 @@ def launch(playwright):
     return playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
 
 
-def open_page(browser, base: str):
+def open_page(browser, base: str, device_scale_factor: float = 1):
     """The tool's page, loaded, with page errors and Content-Security-Policy refusals (in the page
-    or the viser iframe) collected in `page.errors`."""
-    page = browser.new_page(viewport=VIEWPORT)
+    or the viser iframe) collected in `page.errors`; on a screen of `device_scale_factor` device
+    pixels to the CSS px."""
+    page = browser.new_page(viewport=VIEWPORT, device_scale_factor=device_scale_factor)
     page.errors = []
     page.on("pageerror", lambda exc: page.errors.append(str(exc)))
     page.on("console", lambda msg: msg.type == "error" and "Content Security Policy" in msg.text

@@ -18,6 +18,7 @@ from websockets.sync.client import connect
 
 from app.figures import GREEN, RED, TEXT_BLOCK_PX, UNSEEN
 from app.server import create_app
+from app.viser_proxy import CANVAS_SCRIPT
 from app.workspace import Workspace, WorkspaceConfig
 from pipeline.library import SAMPLE_LIBRARY, load_library
 from pipeline.verify import CHECK_WIDTH
@@ -795,6 +796,20 @@ def test_viser_client_is_served_and_its_websocket_relayed(client, base_url):
         with pytest.raises(ConnectionClosed) as closed:
             ws.recv(timeout=10)
     assert closed.value.rcvd.code == 1002 and "Version mismatch" in closed.value.rcvd.reason
+
+
+def test_the_3d_views_page_tells_the_server_its_canvas_scale(client):
+    """viser's client reports its canvas in device px and draws the camera labels at a size in CSS
+    px: its page gets our script, which says how many device px its canvas has to the CSS px."""
+    page = client.get("/viser/").text
+    assert "<title>Viser</title>" in page and page.count(CANVAS_SCRIPT) == 1
+    assert "setInterval" in client.get("/viser-canvas.js").text
+    canvas = {"width": 892, "height": 1800, "px_per_css_px": 2.0}
+    assert client.put("/api/scene/canvas", json=canvas).status_code == 204
+    for bad in ({"width": 0}, {"height": 1e6}, {"px_per_css_px": 0}, {"px_per_css_px": "2"}):
+        r = client.put("/api/scene/canvas", json=canvas | bad)
+        assert r.status_code == 422, (bad, r.text)
+    assert client.put("/api/scene/canvas", content=json.dumps(canvas)).status_code == 415
 
 
 def test_remove_every_image_at_once(tmp_path):

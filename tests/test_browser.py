@@ -315,6 +315,49 @@ def test_a_small_window_shows_the_whole_top_bar_and_scrolls_only_when_asked(page
                 api.delete(f"/api/images/{image['id']}").raise_for_status()
 
 
+# Page coordinates (CSS px) of the layout's panels and the detail view's end, with the window's
+# height and how far the page and the images panel scroll.
+LAYOUT = """() => {
+    const at = (s) => { const r = document.querySelector(s).getBoundingClientRect();
+                        return { top: r.top + scrollY, bottom: r.bottom + scrollY, height: r.height }; };
+    const panel = (s) => { const e = document.querySelector(s);
+                           return { ...at(s), scrolls: e.scrollHeight > e.clientHeight }; };
+    return { window: innerHeight, page: document.documentElement.scrollHeight, topbar: at(".topbar"),
+             settings: panel(".settings-panel"), work: panel(".work-panel"), scene: at(".scene-panel"),
+             view: at("#scene") };
+}"""
+
+
+@pytest.mark.parametrize("width, height", [(1024, 700), (1280, 800)])
+def test_up_to_1280_px_the_panels_fill_the_window_over_the_3d_strip(page, width, height):
+    """Up to 1280 px wide the layout's height (the window under the top bar, and the 3D strip) never
+    applied: the settings and the images ran their whole length (2,200 px at 1024×700), and the 3D
+    view lay under them three windows down. They fill the window under the top bar, each scrolling
+    inside as on wider screens, the detail read to its end there; the page scrolls down to the 3D
+    strip, whole in the window."""
+    page.set_viewport_size({"width": width, "height": height})
+    page.wait_for_selector("#detail:not([hidden])")   # the first image opens by itself
+    harness.stage_images_loaded(page, "#detail .stage img")
+    layout = page.evaluate(LAYOUT)
+    for name in ("settings", "work"):
+        box = layout[name]
+        assert box["top"] == pytest.approx(layout["topbar"]["bottom"] + 8, abs=1), (name, box)
+        assert box["bottom"] == pytest.approx(height - 8, abs=1), (name, box)
+    assert layout["settings"]["scrolls"] and layout["work"]["scrolls"]
+    scene, view = layout["scene"], layout["view"]
+    assert scene["top"] == pytest.approx(height, abs=1) and scene["height"] == pytest.approx(360, abs=1)
+    assert layout["page"] == pytest.approx(scene["bottom"] + 8, abs=1)
+    assert scene["top"] < view["top"] and view["bottom"] <= scene["bottom"] and view["height"] > 300
+    assert overflowing(page, "main.layout") == []
+
+    page.evaluate("() => { const work = document.querySelector('.work-panel'); work.scrollTop = work.scrollHeight; }")
+    end, work = (page.locator(s).bounding_box() for s in ("#detail", ".work-panel"))
+    assert end["y"] + end["height"] <= work["y"] + work["height"] + 0.5, "the detail's end is out of reach"
+    page.evaluate("() => scrollTo(0, document.documentElement.scrollHeight)")
+    strip = page.locator(".scene-panel").bounding_box()
+    assert strip["y"] >= 0 and strip["y"] + strip["height"] <= height
+
+
 def test_drop_many_files_with_progress(page, api):
     names = [f"drop-{i}-{SCENE}" for i in range(2)]
     data = base64.b64encode((harness.SCENES / SCENE).read_bytes()).decode()
@@ -1125,10 +1168,12 @@ def labels_laid_out(page, names: list[str], timeout: float = 30) -> tuple[list[s
         time.sleep(0.3)
 
 
-def test_twenty_camera_labels_in_the_3d_view_do_not_overlap(page, api):
+def test_twenty_camera_labels_in_the_3d_view_do_not_overlap(page, api, browser, base):
     """Thirteen cameras and more printed their names over each other in the page's narrow 3D column,
     and in the strip under the images (1280 px wide and less): labels that would overlap share one,
-    a name a line, or several to fit above the strip's bottom; none runs off the view."""
+    a name a line, or several to fit above the strip's bottom; none runs off the view. So on a
+    screen of two device pixels to the CSS px, where viser reports its canvas in device pixels and
+    draws the labels at their size in CSS px: they were laid out at half their size and overlapped."""
     frame = viser_frame(page)
     world = frame.wait_for_function(f"() => ({LABEL_BOXES})().world", timeout=30_000).json_value()
     library = load_library(SAMPLE_LIBRARY)
@@ -1142,13 +1187,19 @@ def test_twenty_camera_labels_in_the_3d_view_do_not_overlap(page, api):
     try:
         harness.wait_server_idle(api)
         assert [api.get(f"/api/images/{i}").json()["label"] for i in ids] == [world] * len(ids)
-        for size in ({"width": 1600, "height": 1000}, {"width": 1280, "height": 800}):   # the column, the strip
-            page.set_viewport_size(size)
-            listed, overlaps, outside = labels_laid_out(page, names)
-            assert set(names) <= set(listed), (size, sorted(set(names) - set(listed)))
-            assert not overlaps, (size, overlaps)
-            assert not outside, (size, outside)
-            assert len(listed) == len(set(listed)), "a name is listed twice"
+        sharp = harness.open_page(browser, base, device_scale_factor=2)
+        try:
+            for screen in (page, sharp):
+                for size in ({"width": 1600, "height": 1000}, {"width": 1280, "height": 800}):   # the column, the strip
+                    screen.set_viewport_size(size)
+                    listed, overlaps, outside = labels_laid_out(screen, names)
+                    where = (screen.evaluate("devicePixelRatio"), size)
+                    assert set(names) <= set(listed), (where, sorted(set(names) - set(listed)))
+                    assert not overlaps, (where, overlaps)
+                    assert not outside, (where, outside)
+                    assert len(listed) == len(set(listed)), "a name is listed twice"
+        finally:
+            harness.close_page(sharp)
     finally:
         for image_id in ids:
             api.delete(f"/api/images/{image_id}").raise_for_status()

@@ -216,6 +216,32 @@ def test_viewers_are_framed_on_the_first_cameras_drawn_in_an_empty_scene(scene, 
         assert _widest(handle, viewer.camera) < 0.8 * viewer.across_deg, viewer.client_id
 
 
+def test_a_view_moving_lays_out_the_labels_again_and_redraws_nothing_else(scene, monkeypatch):
+    """Every camera report of every viewer (a dozen a second while one is dragged) ran the whole
+    redraw: listing the images, comparing every record and writing the status line again, where
+    only the labels' layout depends on the view."""
+    handle, workspace = scene
+    viewer = Viewer(1, 0.45, handle.server.initial_camera)
+    monkeypatch.setattr(handle.server, "get_clients", lambda: {1: viewer})
+    handle._on_connect(viewer)
+    viewer.report()   # framed for its canvas
+    settle(handle, workspace)
+    world = [n for n in handle.cameras.values() if n.sign == handle.world.value]
+    framed = [n.label.visible for n in world]
+    assert len(world) > 1 and sum(framed) > 1
+    redraw, redraws = handle.redraw, []
+    monkeypatch.setattr(handle, "redraw", lambda: (redraws.append(time.monotonic()), redraw()))
+    near = viewer.camera.position
+    viewer.camera.position = viewer.camera.look_at + 40 * (near - viewer.camera.look_at)   # its names print as one
+    viewer.report()
+    wait_for(lambda: sum(n.label.visible for n in world) == 1)
+    viewer.camera.position = near
+    viewer.report()
+    wait_for(lambda: [n.label.visible for n in world] == framed)
+    time.sleep(0.3)
+    assert not redraws
+
+
 class Viewer:
     """A viser client as `SceneHandle` sees it: an id and a camera of a canvas' aspect (width / height)."""
 
@@ -223,7 +249,7 @@ class Viewer:
         self.client_id = client_id
         self._on_camera = []
         self.camera = type("Camera", (), dict(fov=start.fov, aspect=aspect, image_width=round(aspect * height_px),
-                                              position=np.asarray(start.position),
+                                              image_height=height_px, position=np.asarray(start.position),
                                               look_at=np.asarray(start.look_at),
                                               up_direction=np.array([0.0, -1.0, 0.0]),
                                               on_update=lambda _camera, callback: self._on_camera.append(callback)))()
@@ -381,6 +407,39 @@ def _overlapping(labels, view: View) -> list:
     return [(a, b) for i, a in enumerate(boxes) for b in boxes[:i]
             if a[0] < b[2] + LABEL_GAP_PX and b[0] < a[2] + LABEL_GAP_PX
             and a[1] < b[3] + LABEL_GAP_PX and b[1] < a[3] + LABEL_GAP_PX]
+
+
+def test_labels_are_laid_out_in_css_px_on_a_screen_of_two_device_px_to_one():
+    """viser reports its canvas in device px and draws the labels at a size in CSS px: on a screen of
+    two device px to the CSS px they were laid out at half their size on it, and overlapped there.
+    A view of such a canvas is in CSS px, as that of the same canvas on a screen of one."""
+    names = [f"IMG_20240512_1034{i:02d}.jpg" for i in range(20)]
+    positions = np.array([(x, y, z) for z in (-1.2, -1.8) for x in np.linspace(-0.9, 0.9, 5) for y in (-0.25, 0.2)])
+    groups = label_groups(list(positions), 0.25)
+    pose = ((-1.5, -1.0, -5.0), (0, 0, -1.0))
+    column = View.of(_camera(*pose, 446, 900, 50), positions)
+    sharp = View.of(_camera(*pose, 892, 1800, 50), positions, px_per_css_px=2.0)
+    np.testing.assert_allclose(sharp.px, column.px)
+    assert (sharp.width, sharp.height) == (column.width, column.height)
+    assert labels_apart(groups, names, [sharp]) == labels_apart(groups, names, [column])
+    # read as CSS px, the sharp canvas seemed to have room for four times the labels
+    assert len(labels_apart(groups, names, [View.of(_camera(*pose, 892, 1800, 50), positions)])) > len(
+        labels_apart(groups, names, [column]))
+
+
+def test_a_canvas_scale_heard_of_frames_and_lays_out_its_viewer_in_css_px(scene, monkeypatch):
+    """A viewer on a screen of two device px to the CSS px, told apart by its canvas' size in device
+    px, is framed with room for its labels at their size there: the room a canvas half its size on
+    a screen of one has."""
+    handle, _ = scene
+    start = handle.server.initial_camera
+    plain, sharp = Viewer(1, 0.5, start), Viewer(2, 0.5, start, height_px=2 * 870)
+    handle.frame_for(plain)
+    handle.frame_for(sharp)
+    assert _widest(handle, sharp.camera) > _widest(handle, plain.camera) + 0.5   # labels half their size
+    monkeypatch.setattr(handle.server, "get_clients", lambda: {2: sharp})
+    handle.set_canvas_scale(sharp.camera.image_width, sharp.camera.image_height, 2.0)
+    wait_for(lambda: np.allclose(sharp.camera.position, plain.camera.position))
 
 
 def test_labels_that_would_overlap_on_a_viewers_screen_share_one():
