@@ -137,6 +137,9 @@ class Refined:
         """Why the winner is turned down for its text (`settings.min_text_correlation`), None if it is not."""
         if self.text is None or self.text.passes(min_correlation):
             return None
+        if self.text.weakest is None:
+            return (f"none of {self.sign.id}'s text is in the image (each of its {len(self.text.strips)} strips lies "
+                    "mostly outside it): a plaque of other words would read the same")
         return (f"its text differs from {self.sign.id}'s (weakest strip correlation {self.text.weakest:.2f} < "
                 f"{min_correlation:g}): another sign sharing some of its words, or a homography that is off")
 

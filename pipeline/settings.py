@@ -109,7 +109,7 @@ class Settings:
     min_inliers: int = _num(10, 4, 1000, "Decision", "A sign with fewer RANSAC inliers is rejected", step=1)
     min_margin: int = _num(5, 0, 1000, "Decision",
                            "The winner needs this many more inliers than the runner-up", step=1)
-    min_text_correlation: float = _num(0.7, 0.0, 1.0, "Decision",
+    min_text_correlation: float = _num(0.75, 0.0, 1.0, "Decision",
                                        "The winner's text, rectified, must correlate with its sign's this much in "
                                        "each of 6 strips across it (turns down other signs sharing a word); "
                                        "0: no check", step=0.01)

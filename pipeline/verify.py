@@ -12,7 +12,9 @@ Measured with STRIPS 6 at CHECK_WIDTH 128 px: the 14 of 18 plaques of other Arab
 library's font, on real photos, that features read as a library sign reached at most 0.64 with
 it; 643 true signs (568 with a pose within 5° on synthetic scenes at 640x480 and 1280x960 and
 the sample datasets, 75 pasted on real photos under glare, blur, noise and low light) at least
-0.85. Signs read with a pose 34° and 68° off reached 0.68 and 0.14.
+0.85. Signs read with a pose 34° and 68° off reached 0.68 and 0.14. Later a tester's وزارة
+التعليم, which differs from وزارة التعذيب only in its last letters, reached 0.72 in that strip:
+`min_text_correlation` became 0.75 (right answers on 1684 test images reached at least 0.83).
 """
 
 from __future__ import annotations
@@ -64,9 +66,12 @@ class TextCheck:
         return min(seen) if seen else None
 
     def passes(self, min_correlation: float) -> bool:
-        """Whether every strip seen reaches `min_correlation` (a check with no strip seen passes:
-        there is nothing to hold against the sign)."""
-        return self.weakest is None or self.weakest >= min_correlation
+        """Whether at least one strip was seen and every strip seen reaches `min_correlation`.
+
+        With no strip seen (a sign cut by the frame across its text) nothing tells it from a plaque
+        of other words: رئيس الوزراء and وزارة التعليم cut so were answered as رئيس الأمن and وزارة
+        التعذيب."""
+        return self.weakest is not None and self.weakest >= min_correlation
 
     def to_json(self) -> dict:
         return {"strips": [None if c is None else round(c, 4) for c in self.strips],

@@ -82,7 +82,8 @@ def plaque_of(text: str, sign_id: str = "decoy") -> LibrarySign:
 
 
 # Other signs in the library's font, each sharing a word or most of its letters with one of its signs.
-DECOYS = ("رئيس الوزراء", "مكتب أمني", "وزارة الصحة", "مجمع تجاري", "وزارة الداخلية")
+# وزارة التعليم differs from وزارة التعذيب only in its last letters, all in one strip (0.72-0.73 there).
+DECOYS = ("رئيس الوزراء", "مكتب أمني", "وزارة الصحة", "مجمع تجاري", "وزارة الداخلية", "وزارة التعليم")
 PLAQUE_AT = np.array([[200, 170], [440, 180], [436, 276], [204, 268]], float)  # a 240 px plaque, a little oblique
 
 

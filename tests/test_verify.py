@@ -10,7 +10,7 @@ import pytest
 from pipeline.camera import Camera, load_camera
 from pipeline.image import read_image, to_gray
 from pipeline.library import load_library
-from pipeline.recognize import recognize
+from pipeline.recognize import Refined, recognize
 from pipeline.settings import preset
 from pipeline.verify import check_text, compare_text, rectify_text, text_template
 
@@ -54,6 +54,21 @@ def test_a_sign_at_the_frame_edge_is_judged_on_what_is_seen():
         check = check_text(gray[:, cut:], LIBRARY, sign, shifted(H, -cut))
         weakest[cut] = check.weakest
     assert min(weakest.values()) > 0.95, weakest
+
+
+def test_a_sign_whose_text_is_all_outside_the_frame_is_turned_down():
+    """With no strip seen the check passed, with nothing checked: plaques of other words cut by the
+    frame across their text (رئيس الوزراء, وزارة التعليم) were answered as the signs they share a
+    word with."""
+    gray, sign, H = to_gray(read_image(SCENES / "scene_002.jpg")), TRUTH["scene_002.jpg"]["label"], \
+        np.array(TRUTH["scene_002.jpg"]["H"])
+    top, bottom = corners_of(sign, H)[:, 1].min(), corners_of(sign, H)[:, 1].max()
+    cut = int(top + 0.65 * (bottom - top))  # the frame's top edge below the middle of the text
+    check = check_text(gray[cut:], LIBRARY, sign, shifted(H, 0, -cut))
+    assert check.seen == 0 and not check.passes(0.0), check
+    refined = Refined(H, None, None, None, None, LIBRARY[sign], check, [])
+    assert refined.text_problem(0.75).startswith(f"none of {sign}'s text is in the image"), refined.text_problem(0.75)
+    assert check_text(gray, LIBRARY, sign, H).passes(0.75)
 
 
 def shifted(H: np.ndarray, dx: float, dy: float = 0.0) -> np.ndarray:
