@@ -87,10 +87,28 @@ NO_DISTORTION_MODELS = ("", "none")
 MODEL_KEYS = ("distortion_model", "camera_model", "fisheye_model")
 # A camera of a Kalibr camchain: cam0, cam1, ...
 KALIBR_CAMERA = re.compile(r"cam\d+")
+# The most numbers each value may hold: the 3x3 camera matrix, OpenCV's longest distortion vector
+# (k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4 tx ty), Kalibr's intrinsics and resolution. Counted before they
+# are read: a million numbers (a 4 MB PUT /api/camera) took 0.6 s to refuse.
+MOST_MATRIX_VALUES, MOST_DISTORTION_VALUES, MOST_INTRINSICS_VALUES, MOST_RESOLUTION_VALUES = 9, 14, 4, 2
 
 
 class CameraError(ValueError):
     """A camera file or intrinsics that cannot be used; the message says which and why."""
+
+
+class _CameraYamlLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing aliases (`*name`, and so `<<: *name` merges) with a CameraError
+    saying where. A camera file has no use for them, and they let a few hundred bytes stand for
+    billions of values: a 421-byte file of nested aliases took 19 s and 3 GB to read."""
+
+    def compose_node(self, parent: yaml.Node | None, index: object) -> yaml.Node:
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            mark = event.start_mark
+            raise CameraError(f"line {mark.line + 1}, column {mark.column + 1}: YAML alias *{event.anchor}: camera "
+                              "files are read without anchors and aliases; write the values out")
+        return super().compose_node(parent, index)
 
 
 @dataclass(frozen=True, eq=False)
@@ -353,10 +371,30 @@ def _number(value: object, name: str) -> float:
     raise CameraError(f"{name} must be a number; got {reprlib.repr(value)}")
 
 
-def _numbers(value: object, name: str) -> np.ndarray:
-    """A number or (nested) list of numbers as a float64 array of its shape; CameraError naming `name` otherwise."""
+def _numbers(value: object, name: str, most: int) -> np.ndarray:
+    """A number, a list of numbers or a list of rows of numbers (a matrix), at most `most` of them, as a
+    float64 array of its shape; CameraError naming `name` otherwise."""
+    _check_count(value, name, most)
     items = np.array(value, dtype=object)  # ragged lists stay lists here, and _number rejects them
     return np.array([_number(v, name) for v in items.flat], dtype=np.float64).reshape(items.shape)
+
+
+def _check_count(value: object, name: str, most: int) -> None:
+    """CameraError naming `name` unless `value` is a number, or a list of numbers or of rows of them (as
+    lists or arrays), of at most `most` numbers. Walked without recursion, refusing a list as soon as
+    its length alone passes `most`, so that a million numbers, or lists nested a thousand deep, are
+    refused before anything is made of them."""
+    count, stack = 0, [(value, 0)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, list):
+            if depth == 2:
+                raise CameraError(f"{name} must be numbers, or rows of numbers; got lists nested deeper")
+            if count + len(item) > most:  # each item holds at least one number
+                raise CameraError(f"{name} has more than {most} values")
+            stack.extend((v, depth + 1) for v in item)
+        elif (count := count + (item.size if isinstance(item, np.ndarray) else 1)) > most:
+            raise CameraError(f"{name} has more than {most} values")
 
 
 def _opt_int(value: object, name: str) -> int | None:
@@ -369,17 +407,18 @@ def _opt_int(value: object, name: str) -> int | None:
     return int(value)
 
 
-def _matrix(node: object, name: str, rows: int | None, cols: int | None) -> np.ndarray:
-    """A ROS-style {rows, cols, data} node (or a plain nested list) named `name` as an array."""
+def _matrix(node: object, name: str, rows: int | None, cols: int | None, most: int) -> np.ndarray:
+    """A ROS-style {rows, cols, data} node (or a plain nested list) named `name`, of at most `most`
+    values, as an array."""
     if isinstance(node, dict) and "data" in node:
-        data = _numbers(node["data"], f"{name}.data")
+        data = _numbers(node["data"], f"{name}.data", most)
         r, c = _opt_int(node.get("rows", rows), f"{name}.rows"), _opt_int(node.get("cols", cols), f"{name}.cols")
         if r is not None and c is not None:
             if data.size != r * c:
                 raise CameraError(f"{name} declares {r}x{c} but has {data.size} values")
             data = data.reshape(r, c)
         return data
-    return _numbers(node, name)
+    return _numbers(node, name, most)
 
 
 def _one_of(fields: dict, keys: tuple[str, ...], what: str) -> tuple[str, object] | None:
@@ -435,7 +474,7 @@ def _camera_matrix(fields: dict, kind: str) -> np.ndarray:
                           f"cy keys; this {kind} has none")
     key, value = found
     if key in MATRIX_KEYS:
-        K = _matrix(value, key, 3, 3)
+        K = _matrix(value, key, 3, 3, MOST_MATRIX_VALUES)
         if K.size != 9:
             raise CameraError(f"{key} must have 9 values (the 3x3 matrix, row by row); got {K.size}")
         if not K.any():  # CameraInfo's convention for a camera nobody calibrated, whatever its model says
@@ -443,7 +482,7 @@ def _camera_matrix(fields: dict, kind: str) -> np.ndarray:
                               "(`signpose calibrate`, or ROS's camera_calibration) and give that file")
         return K.reshape(3, 3)
     if key == "intrinsics":
-        focal = _numbers(value, key).ravel()
+        focal = _numbers(value, key, MOST_INTRINSICS_VALUES).ravel()
         if focal.size != 4:
             raise CameraError(f"intrinsics must be Kalibr's pinhole [fu, fv, pu, pv] (fx, fy, cx, cy in px); "
                               f"got {reprlib.repr(value)}")
@@ -469,7 +508,7 @@ def _camera_from_fields(fields: dict, source: str, kind: str) -> Camera:
         raise CameraError(f"distortion_model {model} names a lens with distortion, but the file gives no "
                           f"coefficients (under {', '.join(DISTORTION_KEYS)}): add them, or set distortion_model "
                           "to none for a lens without distortion")
-    dist = np.zeros(0) if found is None else _matrix(found[1], found[0], None, None).ravel()
+    dist = np.zeros(0) if found is None else _matrix(found[1], found[0], None, None, MOST_DISTORTION_VALUES).ravel()
     problem = _model_problem(fields, dist)
     if problem:
         raise CameraError(problem)
@@ -487,7 +526,7 @@ def _image_size(fields: dict) -> tuple[int | None, int | None]:
     if width or height:
         other = (width or height)[0]
         raise CameraError(f"the image size is given twice, as resolution and {other}: keep the one meant")
-    values = _numbers(resolution, "resolution").ravel()
+    values = _numbers(resolution, "resolution", MOST_RESOLUTION_VALUES).ravel()
     if values.size != 2:
         raise CameraError(f"resolution must be [width, height] in px; got {reprlib.repr(resolution)}")
     return _opt_int(float(values[0]), "resolution width"), _opt_int(float(values[1]), "resolution height")
@@ -623,7 +662,7 @@ def _parse_camera(text: str, path: Path) -> Camera:
     try:
         # YAML is a superset of JSON. `ros2 topic echo` ends each message with "---", which starts
         # another (empty) document; without --once it prints one after the other: the first is used.
-        data = next((d for d in yaml.safe_load_all(text) if d is not None), None)
+        data = next((d for d in yaml.load_all(text, _CameraYamlLoader) if d is not None), None)
     except yaml.YAMLError as exc:
         raise CameraError(f"neither valid YAML nor JSON ({_yaml_error(exc)})") from None
     if not isinstance(data, dict):

@@ -706,3 +706,42 @@ def test_the_other_resolution_warning_reaches_the_recognition():
 ])
 def test_unparsable_files_are_one_line_errors_with_the_position(tmp_path, text, message):
     assert_one_line_error(tmp_path / "camera.yaml", text, message)
+
+
+def alias_bomb(levels: int) -> str:
+    """A YAML file whose `k` stands, through `levels` of aliases, for 9**levels values: 421 bytes and
+    9**8 of them took 19 s and 3 GB to refuse."""
+    lines = ["a0: &a0 [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]"]
+    lines += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 9)}]" for i in range(1, levels)]
+    return "\n".join([*lines, f"k: *a{levels - 1}", ""])
+
+
+@pytest.mark.parametrize("text, message", [
+    (alias_bomb(5), "line 2, column 10: YAML alias *a0: camera files are read without anchors and aliases"),
+    # aliases sparing a repeat in a file of sound numbers are refused all the same
+    (ROS2_MESSAGE.replace("\nk:\n", "\nk: &k\n").replace("\np:\n", "\npp: *k\np:\n"), "line 35, column 5: YAML alias *k"),
+    # a merge key is an alias too
+    ("base: &b {width: 640, height: 480}\n<<: *b\nfx: 500\nfy: 500\ncx: 320\ncy: 240\n",
+     "line 2, column 5: YAML alias *b"),
+], ids=["bomb", "repeat", "merge"])
+def test_yaml_aliases_are_refused_saying_where(tmp_path, text, message):
+    assert_one_line_error(tmp_path / "camera.yaml", text, message)
+
+
+@pytest.mark.parametrize("data, message", [
+    ({"k": [0.0] * 1_000_000}, "k has more than 9 values"),
+    ({"camera_matrix": {"rows": 1000, "cols": 1000, "data": [0.0] * 1_000_000}},
+     "camera_matrix.data has more than 9 values"),
+    ({"K": [[500, 0, 320], [0, 500, 240], [0, 0, 1], [0, 0, 0]]}, "K has more than 9 values"),
+    ({"K": np.eye(4)}, "K has more than 9 values"),  # an OpenCV FileStorage matrix is read as an array
+    ({"fx": 500, "fy": 500, "cx": 320, "cy": 240, "dist": [0.0] * 15}, "dist has more than 14 values"),
+    ({"intrinsics": [500, 500, 320, 240, 0], "resolution": [640, 480]}, "intrinsics has more than 4 values"),
+    ({"intrinsics": [500, 500, 320, 240], "resolution": [640, 480, 3]}, "resolution has more than 2 values"),
+    ({"k": [[[500, 0, 320], [0, 500, 240], [0, 0, 1]]]}, "k must be numbers, or rows of numbers; got lists nested"),
+])
+def test_a_value_holding_more_numbers_than_it_can_is_refused_before_it_is_read(data, message):
+    """A camera matrix is 9 numbers, a distortion vector at most 14: a million (0.6 s to refuse, when
+    they were read before they were counted), or lists nested three deep, are no camera's."""
+    with pytest.raises(CameraError, match=re.escape(message)):
+        camera_from_json(data)
+    assert camera_from_json({"K": [[500, 0, 320], [0, 500, 240], [0, 0, 1]], "dist": [[-0.1] + [0] * 13]})
