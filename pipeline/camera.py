@@ -91,6 +91,16 @@ KALIBR_CAMERA = re.compile(r"cam\d+")
 # (k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4 tx ty), Kalibr's intrinsics and resolution. Counted before they
 # are read: a million numbers (a 4 MB PUT /api/camera) took 0.6 s to refuse.
 MOST_MATRIX_VALUES, MOST_DISTORTION_VALUES, MOST_INTRINSICS_VALUES, MOST_RESOLUTION_VALUES = 9, 14, 4, 2
+# Camera files nest their values a few levels deep (a ROS message's header.stamp.sec, a row of a Kalibr
+# camera's 4x4 transform). Deeper, a file is no camera's, and reading it recursed past Python's stack
+# (a RecursionError: a traceback, an HTTP 500) or, 20,000 to 40,000 levels down in OpenCV's
+# FileStorage parser, past the process's (a segmentation fault: the server gone).
+MAX_NESTING = 20
+# OpenCV's calibration sample writes every view's corners too, some tens of kB, and `ros2 topic echo`
+# a message of about 1 kB a frame until stopped; a camera file is under MAX_CAMERA_FILE_BYTES. A ROS,
+# Kalibr or JSON camera has some tens of values (MAX_YAML_NODES): PyYAML reads about 25,000 a second
+# (a list of a million numbers, 5 MB, took 38 s and 830 MB), so it stops at MAX_YAML_NODES.
+MAX_CAMERA_FILE_BYTES, MAX_YAML_NODES = 1_000_000, 10_000
 
 
 class CameraError(ValueError):
@@ -98,17 +108,41 @@ class CameraError(ValueError):
 
 
 class _CameraYamlLoader(yaml.SafeLoader):
-    """PyYAML's safe loader, refusing aliases (`*name`, and so `<<: *name` merges) with a CameraError
-    saying where. A camera file has no use for them, and they let a few hundred bytes stand for
-    billions of values: a 421-byte file of nested aliases took 19 s and 3 GB to read."""
+    """PyYAML's safe loader, refusing with a CameraError saying where: aliases (`*name`, and so `<<:
+    *name` merges), as a camera file has no use for them and they let a few hundred bytes stand for
+    billions of values (a 421-byte file of nested aliases took 19 s and 3 GB to read); values nested
+    more than MAX_NESTING deep, which PyYAML's recursion would take past Python's stack; and more than
+    MAX_YAML_NODES values. Documents are composed one at a time: those after the first are not read."""
+
+    def __init__(self, stream: str) -> None:
+        super().__init__(stream)
+        self.depth = self.nodes = 0
 
     def compose_node(self, parent: yaml.Node | None, index: object) -> yaml.Node:
-        if self.check_event(yaml.AliasEvent):
-            event = self.peek_event()
-            mark = event.start_mark
-            raise CameraError(f"line {mark.line + 1}, column {mark.column + 1}: YAML alias *{event.anchor}: camera "
-                              "files are read without anchors and aliases; write the values out")
-        return super().compose_node(parent, index)
+        event = self.peek_event()
+        mark = event.start_mark
+        where = f"line {mark.line + 1}, column {mark.column + 1}"
+        if isinstance(event, yaml.AliasEvent):
+            raise CameraError(f"{where}: YAML alias *{event.anchor}: camera files are read without anchors and "
+                              "aliases; write the values out")
+        if self.depth == MAX_NESTING:
+            raise CameraError(f"{where}: {NESTED_TOO_DEEP}")
+        self.nodes += 1
+        if self.nodes > MAX_YAML_NODES:
+            raise CameraError(f"{where}: more than {MAX_YAML_NODES} values, where a camera file has some tens: give one "
+                              "with the camera's matrix, distortion and image size")
+        self.depth += 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self.depth -= 1
+
+
+NESTED_TOO_DEEP = f"values nested more than {MAX_NESTING} levels deep, which no camera file's are"
+# What OpenCV's FileStorage parsers recurse into: a flow bracket opening or closing, an XML element's
+# start or end tag (group 1 "/" for an end tag, group 2 "/" for an empty element), and a line's run of
+# compact block-sequence dashes (group 3: "- - - 1" nests three deep).
+_FILESTORAGE_NESTING = re.compile(r"[\[{]|[\]}]|<(/?)[A-Za-z_][^<>]*?(/?)>|^[ \t]*((?:-[ \t]+)+)", re.MULTILINE)
 
 
 @dataclass(frozen=True, eq=False)
@@ -547,8 +581,11 @@ def _kalibr_camera(data: dict) -> tuple[str, dict] | None:
     return (names[0], data[names[0]]) if names else None
 
 
-def _filestorage_value(node: cv2.FileNode) -> object:
-    """A FileStorage node as Python: a number, text, a list, an array for an OpenCV matrix, else a dict."""
+def _filestorage_value(node: cv2.FileNode, depth: int = 1) -> object:
+    """A FileStorage node `depth` levels down as Python: a number, text, a list, an array for an OpenCV
+    matrix, else a dict; CameraError for a node more than MAX_NESTING levels down."""
+    if depth > MAX_NESTING:
+        raise CameraError(NESTED_TOO_DEEP)
     if node.isInt():
         return int(node.real())
     if node.isReal():
@@ -556,13 +593,13 @@ def _filestorage_value(node: cv2.FileNode) -> object:
     if node.isString():
         return node.string()
     if node.isSeq():
-        return [_filestorage_value(node.at(i)) for i in range(node.size())]
+        return [_filestorage_value(node.at(i), depth + 1) for i in range(node.size())]
     if node.isMap():
         try:
             return node.mat()
         except cv2.error:  # a mapping that is no matrix, or a matrix with data that are not numbers: its
             # fields, which _matrix reads as ROS's {rows, cols, data} and names what is wrong in them
-            return {k: _filestorage_value(node.getNode(k)) for k in node.keys()}
+            return {k: _filestorage_value(node.getNode(k), depth + 1) for k in node.keys()}
     return None
 
 
@@ -577,9 +614,29 @@ def _xml_declaration_first(text: str) -> str:
     return (body[:end] or '<?xml version="1.0"?>') + text[:len(text) - len(body)] + body[end:]
 
 
+def _filestorage_too_deep(text: str) -> bool:
+    """Whether OpenCV's FileStorage parser might recurse more than MAX_NESTING levels into `text`: the
+    flow brackets and XML elements open, plus a line's compact dashes (_FILESTORAGE_NESTING). A bound,
+    not a parse: brackets in quoted text count too. Nesting by indentation is not counted: in a
+    camera file's MAX_CAMERA_FILE_BYTES it reaches under 1,500 levels, which OpenCV takes."""
+    depth = 0
+    for token in _FILESTORAGE_NESTING.finditer(text):
+        if token[3]:
+            deepest = depth + token[3].count("-")
+        else:
+            depth += -1 if token[0] in "]}" or token[1] else 0 if token[2] else 1
+            deepest = depth
+        if deepest > MAX_NESTING:
+            return True
+    return False
+
+
 def _filestorage_fields(text: str, syntax: str) -> dict:
     """The top-level nodes of the OpenCV FileStorage `text` in `syntax` (_filestorage_syntax), as
-    Python (_filestorage_value)."""
+    Python (_filestorage_value). CameraError for values nested more than MAX_NESTING deep, before
+    OpenCV's parser, whose recursion a deep enough file takes past the process's stack."""
+    if _filestorage_too_deep(text):
+        raise CameraError(NESTED_TOO_DEEP)
     if syntax == "XML":
         text = _xml_declaration_first(text)
     try:
@@ -613,9 +670,15 @@ def load_camera(path: str | Path) -> Camera:
     """
     path = Path(path)
     try:
-        text = _camera_text(path.read_bytes())
+        with path.open("rb") as file:
+            data = file.read(MAX_CAMERA_FILE_BYTES + 1)
     except FileNotFoundError:
         raise CameraError(f"camera file not found: {path}") from None
+    if len(data) > MAX_CAMERA_FILE_BYTES:
+        raise CameraError(f"camera file {path} is over {MAX_CAMERA_FILE_BYTES // 1000} kB, which no camera file "
+                          "is: give one with the camera's matrix, distortion and image size")
+    try:
+        text = _camera_text(data)
     except ValueError:  # a UnicodeDecodeError, or a NUL character
         raise CameraError(f"camera file {path} is not text (UTF-8, or UTF-16 with a byte-order mark)") from None
     try:

@@ -745,3 +745,45 @@ def test_a_value_holding_more_numbers_than_it_can_is_refused_before_it_is_read(d
     with pytest.raises(CameraError, match=re.escape(message)):
         camera_from_json(data)
     assert camera_from_json({"K": [[500, 0, 320], [0, 500, 240], [0, 0, 1]], "dist": [[-0.1] + [0] * 13]})
+
+
+def indented(levels: int) -> str:
+    """Mappings nested `levels` deep by indentation alone, a number at the bottom."""
+    return "".join(f"{'  ' * i}a{i}:\n" for i in range(levels)) + "  " * levels + "1\n"
+
+
+# Deeper than Python's stack takes; from 20,000 to 40,000 levels OpenCV's parser crashed the process,
+# which tests/test_cli.py tries in a process of its own.
+DEEP = 10_000
+
+
+@pytest.mark.parametrize("text, message", [
+    ("k: " + "[" * DEEP + "]" * DEEP, "line 1, column 23: values nested more than 20 levels deep"),
+    ("k:\n" + "- " * DEEP + "1\n", "line 2, column 39: values nested more than 20 levels deep"),
+    (indented(600), "line 20, column 39: values nested more than 20 levels deep"),
+    ("%YAML:1.0\n---\nk: " + "[" * DEEP + "]" * DEEP, "values nested more than 20 levels deep"),
+    ("%YAML:1.0\n---\nk:\n  " + "- " * DEEP + "1\n", "values nested more than 20 levels deep"),
+    ('{"type_id": "opencv-matrix", "k": ' + "[" * DEEP + "]" * DEEP + "}", "values nested more than 20 levels"),
+    ('<?xml version="1.0"?>\n<opencv_storage>\n' + "<a>" * DEEP + "</a>" * DEEP + "\n</opencv_storage>\n",
+     "values nested more than 20 levels deep"),
+    # too few bytes to take OpenCV's parser past its stack, as many as take Python's past its own
+    ("%YAML:1.0\n---\n" + indented(600), "values nested more than 20 levels deep"),
+], ids=["yaml flow", "yaml dashes", "yaml indented", "opencv yaml flow", "opencv yaml dashes", "opencv json",
+        "opencv xml", "opencv yaml indented"])
+def test_values_nested_deeper_than_any_camera_files_are_refused(tmp_path, text, message):
+    """Each was a RecursionError's traceback (an HTTP 500 in PUT /api/camera)."""
+    assert_one_line_error(tmp_path / "camera.yaml", text, message)
+
+
+def test_a_camera_file_too_large_for_one_or_with_too_many_values_is_refused(tmp_path):
+    """A YAML list of a million numbers (5 MB) took 38 s and 830 MB to refuse."""
+    sound = json.dumps({"fx": 500, "fy": 500, "cx": 320, "cy": 240})
+    (tmp_path / "a.json").write_text(sound + " " * 1_000_000)
+    with pytest.raises(CameraError, match=re.escape(f"camera file {tmp_path / 'a.json'} is over 1000 kB, which no "
+                                                    "camera file is")):
+        load_camera(tmp_path / "a.json")
+    many = sound[:-1] + "".join(f', "n{i}": {i}' for i in range(5000)) + "}"
+    assert_one_line_error(tmp_path / "b.json", many, "line 1, column 72760: more than 10000 values, where a camera")
+    # `ros2 topic echo` run on past its first message, 600 kB of them: the first is read, not the rest
+    (tmp_path / "echo.yaml").write_text(ROS2_MESSAGE * 600)
+    assert load_camera(tmp_path / "echo.yaml").K[0, 0] == 500

@@ -178,6 +178,25 @@ def test_bad_settings_and_camera_files_are_one_clear_line(tmp_path, option, cont
     assert message in result.stderr and "Traceback" not in result.stderr
 
 
+DEEP = 100_000  # levels of nesting: far past Python's stack, and OpenCV's parser's (from 20,000 to 40,000)
+
+
+@pytest.mark.parametrize("option, name, content, message", [
+    ("--camera", "deep.yaml", "k: " + "[" * DEEP + "]" * DEEP, "line 1, column 23: values nested more than 20"),
+    ("--camera", "deep.xml", '<?xml version="1.0"?>\n<opencv_storage>\n' + "<a>" * DEEP + "</a>" * DEEP
+     + "\n</opencv_storage>\n", "values nested more than 20 levels deep"),
+    ("--camera", "dashes.yaml", "%YAML:1.0\n---\nk:\n  " + "- " * DEEP + "1\n", "values nested more than 20 levels"),
+], ids=["yaml", "opencv xml", "opencv yaml"])
+def test_a_file_nested_deeper_than_any_is_one_line_naming_it(tmp_path, option, name, content, message):
+    """A RecursionError's traceback, or a segmentation fault (exit -11) in OpenCV's FileStorage parser."""
+    path = tmp_path / name
+    path.write_text(content)
+    result = signpose("recognize", sorted(SCENES.glob("*.jpg"))[0], option, path)
+    assert result.returncode == 2, result.stderr[-300:]
+    assert result.stderr.splitlines()[-1].startswith(f"signpose recognize: error: {path}: {message}")
+    assert "Traceback" not in result.stderr
+
+
 def test_the_assumed_field_of_view_is_the_pages(tmp_path):
     """The page's assumed FOV had no counterpart in the CLI (always 60°): a photo without a camera file or EXIF
     could not give in the CLI what it gave in the page."""
