@@ -16,8 +16,9 @@ class JsonError(ValueError):
 def parse_json(data: bytes) -> object:
     """The document in JSON `data`: UTF-8 text, with or without the byte-order mark (BOM) that
     Windows editors (Notepad, PowerShell) begin it with, as browsers and `json.loads` on bytes
-    accept it. Raises JsonError for nothing but blanks, bytes that are not UTF-8, or text that is
-    not JSON."""
+    accept it. Raises JsonError for nothing but blanks, bytes that are not UTF-8, text that is not
+    JSON, or JSON nested deeper than Python's stack (no file of signpose's is more than a few levels
+    deep; it was a RecursionError's traceback, and an HTTP 500)."""
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -28,6 +29,9 @@ def parse_json(data: bytes) -> object:
         return json.loads(text)
     except json.JSONDecodeError as exc:
         raise JsonError(f"not valid JSON: {exc}") from None
+    except RecursionError:
+        raise JsonError("JSON nested too deep to read (hundreds of levels), where no file of signpose's is more "
+                        "than a few levels deep") from None
 
 
 def read_json(path: Path, error: type[Exception], what: str = "") -> object:

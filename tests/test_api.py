@@ -702,6 +702,27 @@ def test_camera_numbers_must_be_json_numbers_not_text(client, path, body, where,
     client.delete("/api/camera")
 
 
+DEEP = 100_000  # levels of nesting, far past Python's stack
+
+
+@pytest.mark.parametrize("path, request_args, words", [
+    ("/api/camera", {"files": {"file": ("deep.yaml", b"k: " + b"[" * DEEP + b"]" * DEEP)}},
+     ["deep.yaml: line 1, column 23: values nested more than 20 levels deep"]),
+    ("/api/camera", {"json": None, "content": b'{"K": ' + b"[" * DEEP + b"]" * DEEP + b"}"},
+     ["the body is not valid JSON", "recursion limit exceeded"]),
+    ("/api/settings/import", {"files": {"file": ("deep.json", b'{"a": ' * DEEP + b"1" + b"}" * DEEP)}},
+     ["deep.json is JSON nested too deep to read"]),
+], ids=["camera file", "camera json", "settings file"])
+def test_input_nested_deeper_than_any_is_a_422_and_the_server_serves_on(client, path, request_args, words):
+    """Each was an HTTP 500 (a RecursionError)."""
+    before = client.get("/api/camera").json(), client.get("/api/settings").json()
+    if "content" in request_args:
+        request_args = {"content": request_args["content"], "headers": {"content-type": "application/json"}}
+    method = client.put if path == "/api/camera" else client.post
+    assert_error(method(path, **request_args), 422, *words)
+    assert (client.get("/api/camera").json(), client.get("/api/settings").json()) == before
+
+
 @pytest.mark.parametrize("size, given", [({"width": 640}, "width"), ({"height": 480}, "height")])
 def test_camera_json_with_the_image_width_or_height_alone_is_refused(client, size, given):
     """It was stored with the other null, and so never scaled to an image."""

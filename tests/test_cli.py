@@ -182,18 +182,21 @@ DEEP = 100_000  # levels of nesting: far past Python's stack, and OpenCV's parse
 
 
 @pytest.mark.parametrize("option, name, content, message", [
-    ("--camera", "deep.yaml", "k: " + "[" * DEEP + "]" * DEEP, "line 1, column 23: values nested more than 20"),
+    ("--camera", "deep.yaml", "k: " + "[" * DEEP + "]" * DEEP,
+     "{path}: line 1, column 23: values nested more than 20 levels deep"),
     ("--camera", "deep.xml", '<?xml version="1.0"?>\n<opencv_storage>\n' + "<a>" * DEEP + "</a>" * DEEP
-     + "\n</opencv_storage>\n", "values nested more than 20 levels deep"),
-    ("--camera", "dashes.yaml", "%YAML:1.0\n---\nk:\n  " + "- " * DEEP + "1\n", "values nested more than 20 levels"),
-], ids=["yaml", "opencv xml", "opencv yaml"])
+     + "\n</opencv_storage>\n", "{path}: values nested more than 20 levels deep"),
+    ("--camera", "dashes.yaml", "%YAML:1.0\n---\nk:\n  " + "- " * DEEP + "1\n",
+     "{path}: values nested more than 20 levels deep"),
+    ("--settings", "deep.json", '{"a": ' * DEEP + "1" + "}" * DEEP, "settings file {path} is JSON nested too deep"),
+], ids=["yaml", "opencv xml", "opencv yaml", "settings"])
 def test_a_file_nested_deeper_than_any_is_one_line_naming_it(tmp_path, option, name, content, message):
     """A RecursionError's traceback, or a segmentation fault (exit -11) in OpenCV's FileStorage parser."""
     path = tmp_path / name
     path.write_text(content)
     result = signpose("recognize", sorted(SCENES.glob("*.jpg"))[0], option, path)
     assert result.returncode == 2, result.stderr[-300:]
-    assert result.stderr.splitlines()[-1].startswith(f"signpose recognize: error: {path}: {message}")
+    assert result.stderr.splitlines()[-1].startswith("signpose recognize: error: " + message.format(path=path))
     assert "Traceback" not in result.stderr
 
 
