@@ -78,6 +78,14 @@ DISTORTION_LIKE = re.compile(r"distort|^dist(?!ance)|fisheye|^[kp]\d$", re.IGNOR
 # OpenCV's distortion model on a pinhole camera (k1 k2 p1 p2 [k3 ...]), by ROS's names for 5 and 8
 # coefficients and Kalibr's ("radial-tangential") for 4.
 OPENCV_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "radtan")
+# OpenCV's distortion vector by its length: its terms, and the distortion_model ROS or Kalibr names it
+# (None: neither names it). Each model named has that many at most (fewer are OpenCV's with the rest
+# 0, as plumb_bob's k1 k2 p1 p2 with k3 = 0); more are terms the model named has not.
+COEFFICIENT_COUNTS = {4: ("k1 k2 p1 p2", "radtan"), 5: ("k1 k2 p1 p2 k3", "plumb_bob"),
+                      8: ("k1 k2 p1 p2 k3 k4 k5 k6", "rational_polynomial"),
+                      12: ("k1 ... k6 s1 s2 s3 s4, thin-prism terms", None),
+                      14: ("k1 ... k6 s1 ... s4 tx ty, thin-prism and tilt terms", None)}
+MODEL_COEFFICIENTS = {model: n for n, (_, model) in COEFFICIENT_COUNTS.items() if model}
 # `distortion_model`s that name no distortion (ROS's field never set, Kalibr's "none"): taken
 # without coefficients only, as coefficients under them follow no known model.
 NO_DISTORTION_MODELS = ("", "none")
@@ -495,6 +503,12 @@ def _model_problem(fields: dict, dist: np.ndarray) -> str | None:
                     f"({', '.join(OPENCV_DISTORTION_MODELS[:-1])} or {OPENCV_DISTORTION_MODELS[-1]}: k1 k2 p1 p2 k3 "
                     "...) on a pinhole camera; calibrate with `signpose calibrate`, or undistort the photos first "
                     "and give zero distortion")
+        most = MODEL_COEFFICIENTS.get(name)
+        if most is not None and dist.size > most and dist.size in COEFFICIENT_COUNTS:
+            terms, other = COEFFICIENT_COUNTS[dist.size]
+            fix = f": set {key} to {other}" if other else f", which ROS and Kalibr name no model for: leave {key} out"
+            return (f"{key} {model} has {most} coefficients ({COEFFICIENT_COUNTS[most][0]}), but {dist.size} are "
+                    f"given ({terms}){fix}, or give {most}")
     return None
 
 

@@ -168,6 +168,28 @@ def test_a_distortion_model_without_its_coefficients_is_refused(tmp_path, model)
     assert not load_camera(p).has_distortion
 
 
+@pytest.mark.parametrize("model, count, message", [
+    ("plumb_bob", 8, "distortion_model plumb_bob has 5 coefficients (k1 k2 p1 p2 k3), but 8 are given (k1 k2 p1 p2 k3 "
+                     "k4 k5 k6): set distortion_model to rational_polynomial, or give 5"),
+    ("PLUMB_BOB", 14, "distortion_model PLUMB_BOB has 5 coefficients (k1 k2 p1 p2 k3), but 14 are given (k1 ... k6 s1 "
+                      "... s4 tx ty, thin-prism and tilt terms), which ROS and Kalibr name no model for: leave "
+                      "distortion_model out, or give 5"),
+    ("radtan", 5, "distortion_model radtan has 4 coefficients (k1 k2 p1 p2), but 5 are given (k1 k2 p1 p2 k3): set "
+                  "distortion_model to plumb_bob, or give 4"),
+    ("rational_polynomial", 12, "distortion_model rational_polynomial has 8 coefficients"),
+])
+def test_more_coefficients_than_the_model_named_has_are_refused_naming_the_model_they_are(tmp_path, model, count,
+                                                                                          message):
+    """plumb_bob's 8 coefficients were taken as OpenCV's rational model: the file says two things."""
+    d = ROS2_MESSAGE[ROS2_MESSAGE.index("d:\n"):ROS2_MESSAGE.index("k:\n")]
+    text = ROS2_MESSAGE.replace(d, f"d: {[-0.1] + [0.0] * (count - 1)}\n").replace("plumb_bob", model)
+    assert_one_line_error(tmp_path / "cam.yaml", text, message)
+    for fewer, fine in (("plumb_bob", 4), ("rational_polynomial", 5), ("rational_polynomial", 8)):  # the rest 0
+        (tmp_path / "fine.yaml").write_text(text.replace(model, fewer).replace(f"d: {[-0.1] + [0.0] * (count - 1)}",
+                                                                               f"d: {[-0.1] + [0.0] * (fine - 1)}"))
+        assert load_camera(tmp_path / "fine.yaml").dist.size == fine
+
+
 def test_an_unset_distortion_model_without_coefficients_is_no_distortion(tmp_path):
     p = tmp_path / "cam.yaml"
     d = ROS2_MESSAGE[ROS2_MESSAGE.index("d:\n"):ROS2_MESSAGE.index("k:\n")]
