@@ -369,8 +369,11 @@ def size_change(calibrated: tuple[int, int], image: tuple[int, int]) -> SizeChan
 def check_hfov(hfov_deg: float) -> float:
     """`hfov_deg` as a float; CameraError unless it is a horizontal field of view in ASSUMED_HFOV_RANGE_DEG."""
     lo, hi = ASSUMED_HFOV_RANGE_DEG
-    if isinstance(hfov_deg, bool) or not isinstance(hfov_deg, (int, float)) or not lo <= hfov_deg <= hi:
-        raise CameraError(f"the horizontal field of view must be {lo:g}° to {hi:g}°; got {hfov_deg!r}")
+    number = isinstance(hfov_deg, (int, float)) and not isinstance(hfov_deg, bool)
+    if not number or not lo <= hfov_deg <= hi:
+        # A number as typed (-0, 1e+03), not as Python writes floats: -0 was said as "got -0.0", or "0.0".
+        given = f"{hfov_deg:g}" if number else reprlib.repr(hfov_deg)
+        raise CameraError(f"the horizontal field of view must be {lo:g}° to {hi:g}°; got {given}")
     return float(hfov_deg)
 
 

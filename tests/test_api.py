@@ -772,9 +772,11 @@ def test_assumed_field_of_view_for_photos_without_camera_or_exif(client):
     warnings = client.get(f"/api/images/{plain}").json()["result"]["warnings"]
     assert any("75°" in w and "approximate" in w for w in warnings), warnings
     assert client.get(f"/api/images/{phone}").json()["camera"]["kind"] == "exif"  # EXIF comes first
-    for bad in (5, 170, float("nan")):
-        assert_error(client.put("/api/camera/assumed", content=json.dumps({"hfov_deg": bad}),
-                                headers={"content-type": "application/json"}), 422, "10° to 140°")
+    for bad, said in ((5, "5"), (170, "170"), (float("nan"), "nan"), (-0.0, "-0")):  # -0 was "got -0.0"
+        r = client.put("/api/camera/assumed", content=json.dumps({"hfov_deg": bad}),
+                       headers={"content-type": "application/json"})
+        assert_error(r, 422, "10° to 140°")
+        assert r.json()["detail"].endswith(f"; got {said}")
     for bad in ("wide", None):
         assert_error(client.put("/api/camera/assumed", json={"hfov_deg": bad}), 422, "hfov_deg")
     assert client.get("/api/camera").json()["assumed_hfov_deg"] == 75.0

@@ -209,8 +209,10 @@ def test_the_assumed_field_of_view_is_the_pages(tmp_path):
     expected = recognize(image, load_library(), preset("default"), assumed_camera(640, 480, 65.0))
     assert obj["pose"]["t"] == pytest.approx(expected.pose.t.tolist(), abs=1e-9)
     assert obj["warnings"] == expected.warnings and "assumed 65° horizontal field of view" in obj["warnings"][-1]
-    refused = signpose("recognize", scene, "--assumed-fov", "170")
-    assert refused.returncode == 2 and "the horizontal field of view must be 10° to 140°; got 170.0" in refused.stderr
+    for typed in ("170", "-0"):  # as typed: -0 was said as "got -0.0", over the API as "got 0.0"
+        refused = signpose("recognize", scene, "--assumed-fov", typed)
+        assert refused.returncode == 2, refused.stderr
+        assert refused.stderr.endswith(f"the horizontal field of view must be 10° to 140°; got {typed}\n")
 
 
 def test_whole_numbers_written_as_floats_in_a_settings_file_work(tmp_path):
