@@ -159,6 +159,8 @@ class Camera:
 
     `source` says where the numbers came from ("file:<path>", "json", "assumed 60° hfov", ...).
     CameraError when the numbers are no real camera's (the bounds above MIN_FOV_DEG .. MAX_FOCAL_RATIO).
+    Its principal point is held to a calibration's bounds where one comes in (principal_point_problem),
+    not here: the cameras made from one (scaled to an image, of a shrunk copy) keep it where it is.
     """
 
     K: np.ndarray
@@ -189,16 +191,6 @@ class Camera:
         # Sensor rows and columns are perpendicular to a fraction of a degree; |s| > fx is over 45° off.
         if abs(K[0, 1]) > K[0, 0]:
             raise CameraError(f"skew s={K[0, 1]:.6g} exceeds fx={K[0, 0]:.6g}; real cameras have s close to 0")
-        cx, cy = K[0, 2], K[1, 2]
-        if self.width is not None and (problem := _centre_problem(cx, cy, self.width, self.height)):
-            raise CameraError(f"{problem}: a calibration puts it within a few percent of the centre; check that the "
-                              "values are in pixels and that the file's image size is the calibration's")
-        w, h = self.width or MAX_UNSIZED_PX, self.height or MAX_UNSIZED_PX
-        # Pixel centres are at whole px, so the image spans -0.5 .. w - 0.5; the half pixel either
-        # side keeps the bound true of the camera of the image shrunk (`pipeline.plaque.shrunk_view`):
-        # cx = 0 became -0.15 there, and a close sign failed in the pipeline.
-        if not (-0.5 <= cx <= w + 0.5 and -0.5 <= cy <= h + 0.5):
-            raise CameraError(f"principal point ({cx:.6g}, {cy:.6g}) px lies outside the image (0..{w:g} x 0..{h:g} px)")
         dist = np.asarray(self.dist, dtype=np.float64).ravel()
         if dist.size not in (0, 4, 5, 8, 12, 14):
             raise CameraError(f"distortion must have 4, 5, 8, 12 or 14 coefficients; got {dist.size}")
@@ -284,6 +276,25 @@ def _field_of_view_deg(f: float, c: float, side: float | None) -> float:
     under 125° across 1280 px."""
     half = side / 2 if side is not None else c
     return math.degrees(2 * math.atan(half / f))
+
+
+def principal_point_problem(camera: Camera) -> str | None:
+    """Why `camera`'s principal point is no calibration's, or None: with an image size, more than
+    MAX_CENTRE_OFFSET of a side off the image's centre (values in mm, or a file for another
+    resolution, whose principal point is at a corner or a quarter in); without one, off the image
+    whatever its size (negative) or beyond MAX_UNSIZED_PX. For what a calibration gives (a camera file,
+    a chessboard fit), not for the cameras made from one: scaled, or of a crop of the image."""
+    cx, cy = camera.K[0, 2], camera.K[1, 2]
+    if camera.width is not None:
+        return _centre_problem(cx, cy, camera.width, camera.height)
+    # Pixel centres are at whole px, so an image spans -0.5 .. w - 0.5.
+    if min(cx, cy) < -0.5:
+        return (f"principal point ({cx:g}, {cy:g}) px is left of or above the image: it is in px from the image's "
+                "top-left corner, near the image's centre")
+    if max(cx, cy) > MAX_UNSIZED_PX:
+        return (f"principal point ({cx:g}, {cy:g}) px is beyond {MAX_UNSIZED_PX:g} px, past any image; check the "
+                "values, or give the file the image width and height")
+    return None
 
 
 def _centre_problem(cx: float, cy: float, width: int, height: int) -> str | None:
@@ -563,7 +574,14 @@ def _camera_from_fields(fields: dict, source: str, kind: str) -> Camera:
     problem = _model_problem(fields, dist)
     if problem:
         raise CameraError(problem)
-    return Camera(_camera_matrix(fields, kind), dist, *_image_size(fields), source)
+    camera = Camera(_camera_matrix(fields, kind), dist, *_image_size(fields), source)
+    problem = principal_point_problem(camera)
+    if problem and camera.width is not None:
+        problem += (": a calibration puts it within a few percent of the centre; check that the values are in pixels "
+                    "and that the file's image size is the calibration's")
+    if problem:
+        raise CameraError(problem)
+    return camera
 
 
 def _image_size(fields: dict) -> tuple[int | None, int | None]:

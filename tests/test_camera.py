@@ -590,7 +590,6 @@ def intrinsics(fx: float, fy: float, cx: float = 320, cy: float = 240, s: float 
     (intrinsics(5010, 500), (640, 480), "fx/fy = 10"),
     (intrinsics(500, 500, s=1e300), (640, 480), "skew"),
     (intrinsics(500, 500, cx=1e300), (None, None), "principal point"),
-    (intrinsics(500, 500, cx=320, cy=-1), (640, 480), "principal point"),
     (intrinsics(500, 500), (2**31, 480), "under 2"),
     # a lens's focal length in mm typed where pixels belong: the camera 1 cm from the sign, silently
     (intrinsics(4.2, 4.2), (640, 480), r"fx=4\.2 px gives a field of view of 178\.5° across the image.*not mm"),
@@ -691,6 +690,16 @@ def test_a_principal_point_far_from_the_centre_of_the_image_size_given_is_refuse
         camera_from_json({**data, "width": 1280, "height": 960})
     assert camera_from_json({"fx": 1000, "fy": 1000, "cx": 640 + 0.19 * 1280, "cy": 480 - 0.19 * 960, "width": 1280,
                              "height": 960})
+
+
+def test_the_principal_point_is_held_to_a_calibrations_bounds_where_one_comes_in():
+    """A camera file's, or a chessboard fit's: not the camera of a crop of the image, whose principal
+    point may lie anywhere, even outside it."""
+    with pytest.raises(CameraError, match=re.escape("principal point (320, -1) px is far from the centre (320, 240) "
+                                                    "of the 640x480 px image: a calibration puts it within")):
+        camera_from_json({"fx": 500, "fy": 500, "cx": 320, "cy": -1, "width": 640, "height": 480})
+    crop = Camera(intrinsics(500, 500, cx=320, cy=-1), np.zeros(5), 640, 480)
+    assert crop.for_image(320, 240)[0].K[1, 2] == -0.5
 
 
 CORNER_JSON = {"fx": 1108.5, "fy": 1108.5, "cx": 640, "cy": 480}  # a 1280 x 960 calibration without its size
