@@ -249,19 +249,26 @@ class Camera:
         image; CameraError when it cannot be.
 
         Only now can its numbers be held against an image size. A principal point far from the
-        centre is a warning, as such a file may be meant for any resolution; focal lengths no
-        camera has for this image (in mm, say) are a CameraError, as the pose would be meaningless.
+        centre but in the image is a warning, as such a file may be meant for any resolution; one
+        outside the image, or focal lengths no camera has for it (in mm, say), are a CameraError, as
+        a camera with an image size is: the pose would be meaningless (9 m off, for a phone's
+        calibration at 4032x3024 on a 640x480 image).
         """
         problem = _focal_length_problem(self.K, width, height)
         if problem:
             raise CameraError(f"the camera has no image size and does not fit this {width}x{height} px image: "
                               f"{problem}")
-        problem = _centre_problem(self.K[0, 2], self.K[1, 2], width, height)
-        if problem:
-            return [f"the camera has no image size and its {problem}: the file was probably made for another "
-                    "resolution; give it that resolution's width and height so it is scaled to the image, or the "
-                    "pose is wrong"]
-        return []
+        cx, cy = self.K[0, 2], self.K[1, 2]
+        if _centre_problem(cx, cy, width, height) is None:
+            return []
+        advice = _unsized_advice(cx, cy, width, height)
+        # Pixel centres are at whole px, so an image spans -0.5 .. w - 0.5: a half pixel beyond, as a
+        # file for twice the size puts it at w, on the corner.
+        if not (-0.5 <= cx <= width + 0.5 and -0.5 <= cy <= height + 0.5):
+            raise CameraError(f"the camera has no image size and its principal point ({cx:g}, {cy:g}) px lies outside "
+                              f"this {width}x{height} px image, where a calibration puts it near the centre: {advice}")
+        return [f"the camera has no image size and its {_centre_problem(cx, cy, width, height)}: {advice}, or the "
+                "pose is wrong"]
 
     def to_json(self) -> dict:
         K = self.K
@@ -295,6 +302,18 @@ def principal_point_problem(camera: Camera) -> str | None:
         return (f"principal point ({cx:g}, {cy:g}) px is beyond {MAX_UNSIZED_PX:g} px, past any image; check the "
                 "values, or give the file the image width and height")
     return None
+
+
+def _unsized_advice(cx: float, cy: float, width: int, height: int) -> str:
+    """What to give a camera file without an image size, whose principal point (cx, cy) px is far from
+    the centre of a `width` x `height` px image: the image size it was made for, named when twice its
+    principal point is this image's size scaled (a calibration puts it near its image's centre)."""
+    made_for = (round(2 * cx), round(2 * cy))
+    if min(made_for) > 0 and size_change(made_for, (width, height)) == "scaled":
+        return (f"the file was probably made for another resolution, {made_for[0]}x{made_for[1]} px (twice its principal "
+                "point): give it that width and height, and it is scaled to this image")
+    return ("the file was probably made for another resolution: give it that resolution's width and height, and it is "
+            "scaled to this image")
 
 
 def _centre_problem(cx: float, cy: float, width: int, height: int) -> str | None:

@@ -715,6 +715,37 @@ def test_a_camera_without_size_for_another_resolution_is_a_warning():
     assert "another resolution" in warnings[0] and "width and height" in warnings[0]
 
 
+def test_a_camera_without_size_whose_principal_point_lies_outside_the_image_cannot_take_it():
+    """A phone's calibration at 4032x3024 without its size, on a 640x480 image: a warning, and a pose 9 m
+    off, where the same camera with its size is refused (another aspect) or scaled (the same)."""
+    phone = camera_from_json({"fx": 3000, "fy": 3000, "cx": 2016, "cy": 1512})
+    with pytest.raises(CameraError, match=re.escape(
+            "the camera has no image size and its principal point (2016, 1512) px lies outside this 640x480 px image, "
+            "where a calibration puts it near the centre: the file was probably made for another resolution, "
+            "4032x3024 px (twice its principal point): give it that width and height, and it is scaled to this "
+            "image")):
+        phone.for_image(640, 480)
+    assert phone.for_image(4032, 3024) == (phone, [])
+    # what the error says to do works
+    sized = camera_from_json({"fx": 3000, "fy": 3000, "cx": 2016, "cy": 1512, "width": 4032, "height": 3024})
+    assert sized.for_image(640, 480)[0].K[0, 2] == 320
+    # a crop's own size named: no image size twice the principal point has this image's aspect
+    with pytest.raises(CameraError, match="made for another resolution: give it that resolution's width and height"):
+        camera_from_json({"fx": 554, "fy": 554, "cx": 800, "cy": 240}).for_image(640, 480)
+
+
+@pytest.mark.parametrize("cx, cy, message", [
+    (-20, 240, "principal point (-20, 240) px is left of or above the image: it is in px from the image's top-left "
+               "corner, near the image's centre"),
+    (320, 2e6, "principal point (320, 2e+06) px is beyond 1e+06 px, past any image; check the values, or give the "
+               "file the image width and height"),
+])
+def test_a_principal_point_no_image_has_is_refused_with_what_to_do(cx, cy, message):
+    """It was "outside the image (0..1e+06 x 0..1e+06 px)", an image nobody had given."""
+    with pytest.raises(CameraError, match=re.escape(message)):
+        camera_from_json({"fx": 4e5, "fy": 4e5, "cx": cx, "cy": cy})  # a focal length that allows it
+
+
 def test_the_other_resolution_warning_reaches_the_recognition():
     scenes = Path(__file__).parents[1] / "sample_images" / "scenes"
     rec = recognize(read_image(scenes / "scene_002.jpg"), load_library(SAMPLE_LIBRARY), preset("default"),

@@ -200,6 +200,19 @@ def test_a_file_nested_deeper_than_any_is_one_line_naming_it(tmp_path, option, n
     assert "Traceback" not in result.stderr
 
 
+def test_a_camera_without_size_whose_principal_point_is_off_the_image_fails_it(tmp_path):
+    """A phone's calibration (4032x3024) without its size gave this 640x480 sample a pose 9 m off, with a
+    warning; its numbers cannot describe this image."""
+    camera = tmp_path / "phone.json"
+    camera.write_text('{"fx": 3000, "fy": 3000, "cx": 2016, "cy": 1512}')
+    result = signpose("recognize", SCENES / "scene_002.jpg", "--camera", camera, "--json")
+    assert result.returncode == 1, result.stdout
+    line = json.loads(result.stdout)
+    assert line["error"].startswith("the camera has no image size and its principal point (2016, 1512) px lies "
+                                    "outside this 640x480 px image")
+    assert "4032x3024" in line["error"]
+
+
 def test_the_assumed_field_of_view_is_the_pages(tmp_path):
     """The page's assumed FOV had no counterpart in the CLI (always 60°): a photo without a camera file or EXIF
     could not give in the CLI what it gave in the page."""
