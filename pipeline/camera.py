@@ -95,6 +95,9 @@ NO_DISTORTION_MODELS = ("", "none")
 MODEL_KEYS = ("distortion_model", "camera_model", "fisheye_model")
 # A camera of a Kalibr camchain: cam0, cam1, ...
 KALIBR_CAMERA = re.compile(r"cam\d+")
+# ROS's CameraInfo.roi: the part of the sensor read out, in px of the full, unbinned sensor (its
+# do_rectify, whether consumers should rectify it, does not change what the raw image is).
+ROI_KEYS = ("x_offset", "y_offset", "width", "height")
 # The most numbers each value may hold: the 3x3 camera matrix, OpenCV's longest distortion vector
 # (k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4 tx ty), Kalibr's intrinsics and resolution. Counted before they
 # are read: a million numbers (a 4 MB PUT /api/camera) took 0.6 s to refuse.
@@ -161,6 +164,8 @@ class Camera:
     CameraError when the numbers are no real camera's (the bounds above MIN_FOV_DEG .. MAX_FOCAL_RATIO).
     Its principal point is held to a calibration's bounds where one comes in (principal_point_problem),
     not here: the cameras made from one (scaled to an image, of a shrunk copy) keep it where it is.
+    `window`: where its images lie on the sensor its calibration is for, when they are part of it
+    (`SensorWindow.camera`); None: the whole sensor, or not known.
     """
 
     K: np.ndarray
@@ -168,6 +173,7 @@ class Camera:
     width: int | None = None
     height: int | None = None
     source: str = "given"
+    window: SensorWindow | None = None
 
     def __post_init__(self) -> None:
         for name in ("width", "height"):
@@ -271,9 +277,44 @@ class Camera:
                 "pose is wrong"]
 
     def to_json(self) -> dict:
+        """The intrinsics its images are taken with (px) and where they came from."""
         K = self.K
         return {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "dist": self.dist.tolist(),
                 "width": self.width, "height": self.height, "source": self.source}
+
+    def file_json(self) -> dict:
+        """This camera as a camera file gives it, which camera_from_json reads back: a window of a sensor
+        as the sensor's calibration with its roi and binning; any other as to_json."""
+        if self.window is None:
+            return self.to_json()
+        return {**self.window.sensor.to_json(), "roi": dict(zip(ROI_KEYS, self.window.roi)),
+                "binning_x": self.window.binning[0], "binning_y": self.window.binning[1], "source": self.source}
+
+
+@dataclass(frozen=True, eq=False)
+class SensorWindow:
+    """The part of a sensor a camera's images are, as ROS's CameraInfo gives it (sensor_msgs/CameraInfo):
+    `sensor`, the calibration of the whole sensor, full resolution and unbinned (K for its width x
+    height px); `roi` (x_offset, y_offset, width, height) px of it read out, in its px; `binning`
+    (x, y) sensor px summed into an image px across and down. Images are the roi's width // x by its
+    height // y px."""
+
+    sensor: Camera
+    roi: tuple[int, int, int, int]
+    binning: tuple[int, int]
+
+    def camera(self) -> Camera:
+        """The camera of the images read out: the sensor's K in their px, for their size.
+
+        Sensor px (X, Y), pixel centres at whole numbers, is image px ((X - x_offset + 0.5) / bx - 0.5,
+        (Y - y_offset + 0.5) / by - 0.5): image px u sums sensor px x_offset + bx·u .. + bx - 1, whose
+        centre is there. ROS's image_geometry divides cx - x_offset by bx, a quarter of a pixel off at
+        binning 2 (renders binned by averaging 2x2 and 3x3 px put the sign's corners where this puts
+        them, 0.01 px on average, not there).
+        """
+        (x, y, w, h), (bx, by) = self.roi, self.binning
+        to_image = np.array([[1 / bx, 0, (0.5 - x) / bx - 0.5], [0, 1 / by, (0.5 - y) / by - 0.5], [0, 0, 1]])
+        return Camera(to_image @ self.sensor.K, self.sensor.dist, w // bx, h // by, self.sensor.source, self)
 
 
 def _field_of_view_deg(f: float, c: float, side: float | None) -> float:
@@ -600,7 +641,46 @@ def _camera_from_fields(fields: dict, source: str, kind: str) -> Camera:
                     "and that the file's image size is the calibration's")
     if problem:
         raise CameraError(problem)
-    return camera
+    window = _sensor_window(fields, camera)
+    return camera if window is None else window.camera()
+
+
+def _sensor_window(fields: dict, sensor: Camera) -> SensorWindow | None:
+    """The part of `sensor` the images are that `fields` give (ROS's `roi` and `binning_x`, `binning_y`),
+    None for the whole sensor unbinned (an all-zero or absent roi, binning 0 or 1); CameraError naming
+    the key for a roi off the sensor, or a window without the sensor's size it is in px of."""
+    roi = fields.get("roi")
+    binning = tuple(_whole(fields.get(key), key) or 1 for key in ("binning_x", "binning_y"))  # ROS: 0 is 1
+    if roi is not None:
+        if not isinstance(roi, dict) or set(roi) - {"do_rectify"} != set(ROI_KEYS):
+            raise CameraError(f"roi must be x_offset, y_offset, width and height, in px of the full, unbinned sensor "
+                              f"(ROS's CameraInfo.roi); got {reprlib.repr(roi)}")
+        roi = tuple(_whole(roi[key], f"roi.{key}") for key in ROI_KEYS)
+    if roi is None or not any(roi):  # ROS's all-zero roi is the whole sensor
+        if binning == (1, 1):
+            return None
+        roi = (0, 0, sensor.width, sensor.height)
+    if sensor.width is None:
+        raise CameraError("roi and binning are in px of the full, unbinned sensor: give its image_width and "
+                          "image_height (or width and height) too")
+    x, y, w, h = roi
+    if not (w and h):
+        raise CameraError(f"roi width and height must be positive (an all-zero roi is the whole sensor); got {w}x{h}")
+    if x + w > sensor.width or y + h > sensor.height:
+        raise CameraError(f"roi {w}x{h} px at ({x}, {y}) reaches past the {sensor.width}x{sensor.height} px sensor: "
+                          "the roi is in px of the full, unbinned sensor, and the camera matrix, width and height "
+                          "are the whole sensor's")
+    if w < binning[0] or h < binning[1]:
+        raise CameraError(f"binning {binning[0]}x{binning[1]} leaves no image px of the {w}x{h} px roi")
+    return SensorWindow(sensor, roi, binning)
+
+
+def _whole(value: object, name: str) -> int | None:
+    """`value` (None: absent) as a whole number of px, 0 to MAX_IMAGE_SIDE_PX; CameraError naming `name`."""
+    number = _opt_int(value, name)
+    if number is not None and not 0 <= number <= MAX_IMAGE_SIDE_PX:
+        raise CameraError(f"{name} must be a whole number of px from 0 to 2**31 - 1; got {number}")
+    return number
 
 
 def _image_size(fields: dict) -> tuple[int | None, int | None]:

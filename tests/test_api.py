@@ -22,7 +22,7 @@ from app.workspace import Workspace, WorkspaceConfig
 from pipeline.library import SAMPLE_LIBRARY, load_library
 from pipeline.verify import CHECK_WIDTH
 from pipeline.synth import synthetic_camera
-from pipeline.camera import ros_camera_yaml
+from pipeline.camera import load_camera, ros_camera_yaml
 from faults import fail_segmentation
 from scene_images import (DECOYS, HEIC_START, big_photo, decoy_image, empty_photo, has, plaque_of, png_bomb,
                           scrambled_scene, sign_photo, tiny_photo, with_focal_exif)
@@ -700,6 +700,33 @@ def test_camera_numbers_must_be_json_numbers_not_text(client, path, body, where,
     r = client.put("/api/camera", files={"file": ("cam.yaml", CAMERA_YAML, "application/x-yaml")})
     assert r.status_code == 200 and r.json()["camera"]["kind"] == "file"
     client.delete("/api/camera")
+
+
+# A 1280x960 sensor's calibration, its left half read out 640x480 from (0, 240) and binned 2x2: its images are
+# 320x240 px, the principal point at their right edge.
+SENSOR = {"fx": 554.0, "fy": 554.0, "cx": 640.0, "cy": 480.0, "width": 1280, "height": 960}
+WINDOW = {"roi": {"x_offset": 0, "y_offset": 240, "width": 640, "height": 480}, "binning_x": 2, "binning_y": 2}
+WINDOWED = {"fx": 277.0, "fy": 277.0, "cx": 319.75, "cy": 119.75, "width": 320, "height": 240}
+
+
+@pytest.mark.parametrize("request_args", [
+    {"json": SENSOR | WINDOW},
+    {"files": {"file": ("cam.yaml", b"image_width: 1280\nimage_height: 960\ncamera_matrix: {rows: 3, cols: 3, "
+                                    b"data: [554, 0, 640, 0, 554, 480, 0, 0, 1]}\nbinning_x: 2\nbinning_y: 2\n"
+                                    b"roi: {x_offset: 0, y_offset: 240, width: 640, height: 480, do_rectify: false}\n",
+                        "application/x-yaml")}},
+], ids=["json", "file"])
+def test_a_camera_of_part_of_its_sensor_is_taken_and_kept_as_its_file_gives_it(tmp_path, request_args):
+    """PUT /api/camera's JSON dropped roi and binning: the camera became the whole sensor's, and a 320x240
+    photo got its K scaled by 0.25. The state keeps the sensor's calibration with the roi (its camera.json
+    is read by --camera), and answers give the intrinsics the images are taken with."""
+    with running(create_app(config(tmp_path / "state"))) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        r = c.put("/api/camera", **request_args)
+        assert r.status_code == 200, r.text
+        assert {k: r.json()["camera"][k] for k in WINDOWED} == WINDOWED and r.json()["warnings"] == []
+    kept = load_camera(tmp_path / "state" / "camera.json")
+    assert {k: kept.to_json()[k] for k in WINDOWED} == WINDOWED
+    assert kept.file_json()["roi"] == WINDOW["roi"] and kept.file_json()["cx"] == 640
 
 
 DEEP = 100_000  # levels of nesting, far past Python's stack

@@ -4,14 +4,17 @@ import math
 import re
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
 from pipeline.camera import Camera, CameraError, assumed_camera, camera_from_json, load_camera, save_camera
 from pipeline.image import read_image
 from pipeline.library import SAMPLE_LIBRARY, load_library
+from pipeline.pose import camera_position
 from pipeline.recognize import recognize
 from pipeline.settings import preset
+from pipeline.synth import render_scene, synthetic_camera
 
 ROS = """image_width: 640
 image_height: 480
@@ -849,3 +852,132 @@ def test_a_camera_file_too_large_for_one_or_with_too_many_values_is_refused(tmp_
     # `ros2 topic echo` run on past its first message, 600 kB of them: the first is read, not the rest
     (tmp_path / "echo.yaml").write_text(ROS2_MESSAGE * 600)
     assert load_camera(tmp_path / "echo.yaml").K[0, 0] == 500
+
+
+# ---- a camera whose images are part of its sensor: ROS's roi and binning
+
+SCENES = Path(__file__).parents[1] / "sample_images" / "scenes"
+
+
+@pytest.fixture(scope="module")
+def sensor_render():
+    """(library, the 1280x960 sensor's camera, a render of a sign through it, the recognition of the whole
+    render); the sign lies at x 366..774, y 393..613 px."""
+    library = load_library()
+    sensor = synthetic_camera((1280, 960))
+    scene = render_scene(library, "security_compound", sensor, np.random.default_rng(11), "easy")
+    return library, sensor, scene, recognize(scene.image, library, preset("default"), sensor)
+
+
+def read_out(image: np.ndarray, roi: tuple[int, int, int, int], binning: tuple[int, int]) -> np.ndarray:
+    """What a sensor delivers of `image`, its full frame: the `roi` (x_offset, y_offset, width, height) px,
+    each `binning` (x, y) block of px averaged into one, the last px of a row or column short of a whole
+    block left out."""
+    x, y, w, h = roi
+    (bx, by), size = binning, (w // binning[0], h // binning[1])
+    return cv2.resize(image[y:y + size[1] * by, x:x + size[0] * bx], size, interpolation=cv2.INTER_AREA)
+
+
+def ros2_message(K: np.ndarray, size: tuple[int, int], roi: tuple[int, int, int, int], binning: tuple[int, int],
+                 do_rectify: bool = False) -> str:
+    """A CameraInfo as `ros2 topic echo --once` prints it, the camera K (3, 3) px of a sensor of `size` px."""
+    x, y, w, h = roi
+    return (ROS2_MESSAGE.replace("height: 480\nwidth: 640\n", f"height: {size[1]}\nwidth: {size[0]}\n")
+            .replace(k_list(K_VALUES), k_list(K.ravel().tolist())).replace("d:\n- -0.1\n- 0.01\n", "d:\n- 0.0\n- 0.0\n")
+            .replace(MESSAGE_END, f"binning_x: {binning[0]}\nbinning_y: {binning[1]}\nroi:\n  x_offset: {x}\n"
+                                  f"  y_offset: {y}\n  height: {h}\n  width: {w}\n  do_rectify: {str(do_rectify).lower()}\n"
+                                  "---\n"))
+
+
+def ros_file(K: np.ndarray, size: tuple[int, int], roi: tuple[int, int, int, int], binning: tuple[int, int]) -> str:
+    """camera_calibration's file of a sensor of `size` px, with the roi and binning a driver reads it out with."""
+    x, y, w, h = roi
+    return (ROS.replace("[500, 0, 320, 0, 510, 240, 0, 0, 1]", str(K.ravel().tolist())).replace("-0.1, 0.01", "0, 0")
+            .replace("image_width: 640\nimage_height: 480", f"image_width: {size[0]}\nimage_height: {size[1]}")
+            + f"binning_x: {binning[0]}\nbinning_y: {binning[1]}\n"
+              f"roi: {{x_offset: {x}, y_offset: {y}, width: {w}, height: {h}}}\n")
+
+
+def plain_json(K: np.ndarray, size: tuple[int, int], roi: tuple[int, int, int, int], binning: tuple[int, int]) -> str:
+    return json.dumps({"K": K.tolist(), "width": size[0], "height": size[1], "binning_x": binning[0],
+                       "binning_y": binning[1], "roi": dict(zip(("x_offset", "y_offset", "width", "height"), roi))})
+
+
+@pytest.mark.parametrize("form, roi, binning", [
+    (ros2_message, (300, 250, 640, 480), (0, 0)),  # ROS's 0: no binning
+    (ros_file, (300, 250, 640, 480), (2, 2)),
+    (plain_json, (0, 0, 0, 0), (2, 1)),  # all zeros: the whole sensor
+    (ros2_message, (0, 0, 0, 0), (3, 3)),  # 1280 px are 426 whole blocks of 3
+], ids=["message roi", "file roi binned", "json binned 2x1", "message binned 3x3"])
+def test_part_of_the_sensor_gives_the_pose_and_corners_the_whole_sensor_does(tmp_path, sensor_render, form, roi,
+                                                                             binning):
+    """A camera_info of a 1280x960 sensor read out 640x480 at (320, 240) gave the sample scene a camera
+    0.5 m off: its roi was ignored and its K scaled by 0.5. Each image here is a render read out as a
+    sensor does; its camera, from the file, must put the sign where the whole render's recognition
+    does (the pixel-centre convention: ROS's image_geometry's cx / binning is 0.25 px off at 2, 0.33 px
+    at 3), and the camera where the render's truth has it."""
+    library, sensor, scene, whole = sensor_render
+    path = tmp_path / "camera.yaml"
+    path.write_text(form(sensor.K, (1280, 960), roi, binning))
+    window = roi if any(roi) else (0, 0, 1280, 960)
+    image = read_out(scene.image, window, tuple(b or 1 for b in binning))
+    camera = load_camera(path)
+    assert camera.for_image(image.shape[1], image.shape[0]) == (camera, [])  # its images' size: not scaled
+    rec = recognize(image, library, preset("default"), camera)
+    assert rec.label == "security_compound" and rec.outline is not None
+    # sensor px -> image px, as the camera has it
+    to_image = camera.K @ np.linalg.inv(sensor.K)
+    expected = np.column_stack([whole.corners, np.ones(4)]) @ to_image.T
+    assert np.abs((rec.corners - expected[:, :2]).mean(axis=0)).max() < 0.1
+    truth = camera_position(scene.R, scene.t)
+    assert np.linalg.norm(rec.pose.camera_position - truth) < 0.005
+
+
+def test_do_rectify_does_not_change_the_raw_images_camera(tmp_path):
+    """do_rectify asks consumers for a rectified roi; the image given is still the raw roi."""
+    K = synthetic_camera((1280, 960)).K
+    cameras = []
+    for do_rectify in (False, True):
+        (tmp_path / "camera.yaml").write_text(ros2_message(K, (1280, 960), (300, 250, 640, 480), (2, 2), do_rectify))
+        cameras.append(load_camera(tmp_path / "camera.yaml"))
+    assert np.array_equal(cameras[0].K, cameras[1].K) and cameras[0].width == cameras[1].width == 320
+
+
+@pytest.mark.parametrize("roi, binning, size, message", [
+    ((700, 0, 640, 480), (0, 0), (1280, 960), "roi 640x480 px at (700, 0) reaches past the 1280x960 px sensor: the "
+                                              "roi is in px of the full, unbinned sensor"),
+    ((320, 240, 0, 480), (0, 0), (1280, 960), "roi width and height must be positive (an all-zero roi is the whole "
+                                              "sensor); got 0x480"),
+    ((0, 0, 640, 480), (1024, 1), (1280, 960), "binning 1024x1 leaves no image px of the 640x480 px roi"),
+    ((320, 240, 640, 480), (0, 0), None, "roi and binning are in px of the full, unbinned sensor: give its "
+                                         "image_width and image_height"),
+    ((-5, 0, 640, 480), (0, 0), (1280, 960), "roi.x_offset must be a whole number of px from 0 to 2**31 - 1; got -5"),
+])
+def test_a_roi_or_binning_the_sensor_cannot_have_is_refused(roi, binning, size, message):
+    data = {"K": synthetic_camera((1280, 960)).K.tolist(), "binning_x": binning[0], "binning_y": binning[1],
+            "roi": dict(zip(("x_offset", "y_offset", "width", "height"), roi))}
+    with pytest.raises(CameraError, match=re.escape(message)):
+        camera_from_json(data | ({"width": size[0], "height": size[1]} if size else {}))
+
+
+@pytest.mark.parametrize("roi", [{"x": 0, "y": 0, "w": 640, "h": 480}, [0, 0, 640, 480],
+                                 {"x_offset": 0, "y_offset": 0, "width": 640}])
+def test_a_roi_that_is_not_rosss_four_numbers_is_refused(roi):
+    with pytest.raises(CameraError, match="roi must be x_offset, y_offset, width and height, in px of the full"):
+        camera_from_json({"fx": 500, "fy": 500, "cx": 640, "cy": 480, "width": 1280, "height": 960, "roi": roi})
+
+
+def test_part_of_a_sensor_is_written_as_its_file_gives_it_and_read_back():
+    """The state directory's camera.json, which `--camera` reads: the crop's own K and size would be
+    refused there, its principal point far from their centre."""
+    data = {"fx": 554.0, "fy": 554.0, "cx": 640.0, "cy": 480.0, "dist": [-0.1, 0.0, 0.0, 0.0, 0.0], "width": 1280,
+            "height": 960, "roi": {"x_offset": 700, "y_offset": 0, "width": 580, "height": 480}, "binning_x": 2,
+            "binning_y": 2}
+    camera = camera_from_json(data, source="file:cam.yaml")
+    assert camera.to_json() == {"fx": 277.0, "fy": 277.0, "cx": -30.25, "cy": 239.75, "dist": [-0.1, 0, 0, 0, 0],
+                                "width": 290, "height": 240, "source": "file:cam.yaml"}
+    assert camera.file_json() == data | {"source": "file:cam.yaml"}
+    again = camera_from_json(json.loads(json.dumps(camera.file_json())), source="file:cam.yaml")
+    assert np.array_equal(again.K, camera.K) and again.file_json() == camera.file_json()
+    with pytest.raises(CameraError, match="far from the centre"):
+        camera_from_json(camera.to_json())

@@ -17,6 +17,7 @@ import tomllib
 from pathlib import Path
 
 import cv2
+import numpy as np
 import pytest
 
 from app.cli import build_parser, main
@@ -198,6 +199,41 @@ def test_a_file_nested_deeper_than_any_is_one_line_naming_it(tmp_path, option, n
     assert result.returncode == 2, result.stderr[-300:]
     assert result.stderr.splitlines()[-1].startswith("signpose recognize: error: " + message.format(path=path))
     assert "Traceback" not in result.stderr
+
+
+def test_a_camera_info_of_part_of_the_sensor_gives_the_true_pose(tmp_path):
+    """`ros2 topic echo` of a 1280x960 sensor read out 640x480 from (320, 240): scene_002 exactly. Its roi
+    was ignored and its K scaled by 0.5, and the camera was put at (0.429, 0.13, -0.86)."""
+    camera = tmp_path / "camera_info.yaml"
+    camera.write_text("""header:
+  stamp:
+    sec: 0
+    nanosec: 0
+  frame_id: camera
+height: 960
+width: 1280
+distortion_model: plumb_bob
+d: [0.0, 0.0, 0.0, 0.0, 0.0]
+k: [554.2562584220408, 0.0, 640.0, 0.0, 554.2562584220408, 480.0, 0.0, 0.0, 1.0]
+r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+p: [554.2562584220408, 0.0, 640.0, 0.0, 0.0, 554.2562584220408, 480.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+binning_x: 0
+binning_y: 0
+roi:
+  x_offset: 320
+  y_offset: 240
+  height: 480
+  width: 640
+  do_rectify: false
+---
+""")
+    result = signpose("recognize", SCENES / "scene_002.jpg", "--camera", camera, "--json")
+    assert result.returncode == 0, result.stderr
+    obj = json.loads(result.stdout)
+    truth = json.loads((SCENES / "truth.json").read_text())["images"]["scene_002.jpg"]
+    R, t = np.array(truth["R"]), np.array(truth["t"])
+    assert np.linalg.norm(np.array(obj["pose"]["camera_position"]) + R.T @ t) < 0.005
+    assert obj["warnings"] == []  # no scaling
 
 
 def test_a_camera_without_size_whose_principal_point_is_off_the_image_fails_it(tmp_path):
