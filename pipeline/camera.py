@@ -98,6 +98,10 @@ KALIBR_CAMERA = re.compile(r"cam\d+")
 # ROS's CameraInfo.roi: the part of the sensor read out, in px of the full, unbinned sensor (its
 # do_rectify, whether consumers should rectify it, does not change what the raw image is).
 ROI_KEYS = ("x_offset", "y_offset", "width", "height")
+# How a camera whose images are a crop of its sensor is given: its principal point is where the crop
+# puts it, which no calibration of the crop's own size has.
+CROP_ADVICE = ("for a crop of a larger sensor, give the sensor's camera matrix, width and height, with the crop as roi "
+               "(x_offset, y_offset, width, height, in the sensor's px)")
 # The most numbers each value may hold: the 3x3 camera matrix, OpenCV's longest distortion vector
 # (k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4 tx ty), Kalibr's intrinsics and resolution. Counted before they
 # are read: a million numbers (a 4 MB PUT /api/camera) took 0.6 s to refuse.
@@ -348,13 +352,14 @@ def principal_point_problem(camera: Camera) -> str | None:
 def _unsized_advice(cx: float, cy: float, width: int, height: int) -> str:
     """What to give a camera file without an image size, whose principal point (cx, cy) px is far from
     the centre of a `width` x `height` px image: the image size it was made for, named when twice its
-    principal point is this image's size scaled (a calibration puts it near its image's centre)."""
+    principal point is this image's size scaled (a calibration puts it near its image's centre); else
+    that, or the sensor this image is a crop of (the size of the crop alone would be refused)."""
     made_for = (round(2 * cx), round(2 * cy))
     if min(made_for) > 0 and size_change(made_for, (width, height)) == "scaled":
         return (f"the file was probably made for another resolution, {made_for[0]}x{made_for[1]} px (twice its principal "
                 "point): give it that width and height, and it is scaled to this image")
     return ("the file was probably made for another resolution: give it that resolution's width and height, and it is "
-            "scaled to this image")
+            f"scaled to this image; {CROP_ADVICE}")
 
 
 def _centre_problem(cx: float, cy: float, width: int, height: int) -> str | None:
@@ -638,7 +643,8 @@ def _camera_from_fields(fields: dict, source: str, kind: str) -> Camera:
     problem = principal_point_problem(camera)
     if problem and camera.width is not None:
         problem += (": a calibration puts it within a few percent of the centre; check that the values are in pixels "
-                    "and that the file's image size is the calibration's")
+                    "and that the file's image size is the calibration's" + ("" if "roi" in fields else
+                                                                              f"; {CROP_ADVICE}"))
     if problem:
         raise CameraError(problem)
     window = _sensor_window(fields, camera)

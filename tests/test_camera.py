@@ -981,3 +981,38 @@ def test_part_of_a_sensor_is_written_as_its_file_gives_it_and_read_back():
     assert np.array_equal(again.K, camera.K) and again.file_json() == camera.file_json()
     with pytest.raises(CameraError, match="far from the centre"):
         camera_from_json(camera.to_json())
+
+
+# scene_002 read out of a sensor 400 px wide from its left edge: the sign lies at x 166..346 px
+CROP = {"fx": 554.2562584220408, "fy": 554.2562584220408, "cx": 320, "cy": 240}
+
+
+def test_a_crop_given_with_its_own_size_is_refused_saying_how_to_give_it(tmp_path):
+    """The crop's own K and size look like a file for another resolution; the refusal said only to check
+    the values and the size, which were right, and the crop had no way in."""
+    image = read_image(SCENES / "scene_002.jpg")
+    path = tmp_path / "crop.json"
+    path.write_text(json.dumps(CROP | {"width": 400, "height": 480}))
+    with pytest.raises(CameraError, match=re.escape("far from the centre (200, 240) of the 400x480 px image: a "
+                                                    "calibration puts it within a few percent of the centre; check "
+                                                    "that the values are in pixels and that the file's image size is "
+                                                    "the calibration's; for a crop of a larger sensor, give the "
+                                                    "sensor's camera matrix, width and height, with the crop as roi")):
+        load_camera(path)
+    # as it says: the sensor's K and size with the crop as roi, which gives the whole image's pose
+    path.write_text(json.dumps(CROP | {"width": 640, "height": 480,
+                                       "roi": {"x_offset": 0, "y_offset": 0, "width": 400, "height": 480}}))
+    library = load_library(SAMPLE_LIBRARY)
+    crop = recognize(image[:, :400], library, preset("default"), load_camera(path))
+    whole = recognize(image, library, preset("default"), load_camera(SCENES / "camera.yaml"))
+    assert np.linalg.norm(crop.pose.camera_position - whole.pose.camera_position) < 0.002
+    truth = json.loads((SCENES / "truth.json").read_text())["images"]["scene_002.jpg"]
+    assert np.linalg.norm(crop.pose.camera_position - camera_position(np.array(truth["R"]), np.array(truth["t"]))) < 0.005
+    # without a size the crop's K is used as it is, with a warning that must not lead to the refusal alone
+    unsized = camera_from_json(CROP)
+    assert unsized.for_image(400, 480)[1] == [
+        "the camera has no image size and its principal point (320, 240) px is far from the centre (200, 240) of the "
+        "400x480 px image: the file was probably made for another resolution: give it that resolution's width and "
+        "height, and it is scaled to this image; for a crop of a larger sensor, give the sensor's camera matrix, "
+        "width and height, with the crop as roi (x_offset, y_offset, width, height, in the sensor's px), or the pose "
+        "is wrong"]
