@@ -126,8 +126,9 @@ class _CameraYamlLoader(yaml.SafeLoader):
     """PyYAML's safe loader, refusing with a CameraError saying where: aliases (`*name`, and so `<<:
     *name` merges), as a camera file has no use for them and they let a few hundred bytes stand for
     billions of values (a 421-byte file of nested aliases took 19 s and 3 GB to read); values nested
-    more than MAX_NESTING deep, which PyYAML's recursion would take past Python's stack; and more than
-    MAX_YAML_NODES values. Documents are composed one at a time: those after the first are not read."""
+    more than MAX_NESTING deep, which PyYAML's recursion would take past Python's stack; more than
+    MAX_YAML_NODES values; and whole numbers too long for Python to read (a ValueError's traceback).
+    Documents are composed one at a time: those after the first are not read."""
 
     def __init__(self, stream: str) -> None:
         super().__init__(stream)
@@ -151,6 +152,17 @@ class _CameraYamlLoader(yaml.SafeLoader):
             return super().compose_node(parent, index)
         finally:
             self.depth -= 1
+
+    def construct_yaml_int(self, node: yaml.ScalarNode) -> int:
+        try:
+            return super().construct_yaml_int(node)
+        except ValueError:  # Python reads no whole number of more than sys.get_int_max_str_digits() digits
+            mark = node.start_mark
+            raise CameraError(f"line {mark.line + 1}, column {mark.column + 1}: a whole number of {len(node.value)} "
+                              "characters, which no camera value has") from None
+
+
+_CameraYamlLoader.add_constructor("tag:yaml.org,2002:int", _CameraYamlLoader.construct_yaml_int)
 
 
 NESTED_TOO_DEEP = f"values nested more than {MAX_NESTING} levels deep, which no camera file's are"

@@ -730,21 +730,30 @@ def test_a_camera_of_part_of_its_sensor_is_taken_and_kept_as_its_file_gives_it(t
 
 
 DEEP = 100_000  # levels of nesting, far past Python's stack
+LONG = b"1" * 5000  # a whole number of more digits than Python reads (4300)
 
 
 @pytest.mark.parametrize("path, request_args, words", [
     ("/api/camera", {"files": {"file": ("deep.yaml", b"k: " + b"[" * DEEP + b"]" * DEEP)}},
      ["deep.yaml: line 1, column 23: values nested more than 20 levels deep"]),
-    ("/api/camera", {"json": None, "content": b'{"K": ' + b"[" * DEEP + b"]" * DEEP + b"}"},
+    ("/api/camera", {"content": b'{"K": ' + b"[" * DEEP + b"]" * DEEP + b"}"},
      ["the body is not valid JSON", "recursion limit exceeded"]),
     ("/api/settings/import", {"files": {"file": ("deep.json", b'{"a": ' * DEEP + b"1" + b"}" * DEEP)}},
      ["deep.json is JSON nested too deep to read"]),
-], ids=["camera file", "camera json", "settings file"])
-def test_input_nested_deeper_than_any_is_a_422_and_the_server_serves_on(client, path, request_args, words):
-    """Each was an HTTP 500 (a RecursionError)."""
+    ("/api/camera", {"files": {"file": ("long.yaml", b"fy: 500\ncx: 320\ncy: 240\nfx: " + LONG)}},
+     ["long.yaml: line 4, column 5: a whole number of 5000 characters"]),
+    ("/api/camera", {"content": b'{"K": [' + LONG + b", 0, 320, 0, 500, 240, 0, 0, 1]}"},
+     ["the body is not valid JSON", "number out of range"]),
+    ("/api/settings/import", {"files": {"file": ("long.json", b'{"threshold": ' + LONG + b"}")}},
+     ["long.json is JSON with a whole number of over 4300 digits"]),
+], ids=["deep camera file", "deep camera json", "deep settings file", "long camera file", "long camera json",
+        "long settings file"])
+def test_input_python_cannot_hold_is_a_422_and_changes_nothing(client, path, request_args, words):
+    """Each was an HTTP 500: a RecursionError, nested some thousand levels deep, or a ValueError, a whole
+    number longer than Python reads."""
     before = client.get("/api/camera").json(), client.get("/api/settings").json()
     if "content" in request_args:
-        request_args = {"content": request_args["content"], "headers": {"content-type": "application/json"}}
+        request_args = {**request_args, "headers": {"content-type": "application/json"}}
     method = client.put if path == "/api/camera" else client.post
     assert_error(method(path, **request_args), 422, *words)
     assert (client.get("/api/camera").json(), client.get("/api/settings").json()) == before
