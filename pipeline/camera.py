@@ -811,10 +811,12 @@ def load_camera(path: str | Path) -> Camera:
     (_kalibr_camera), or JSON `{fx, fy, cx, cy, dist}`.
 
     Every format is read with the same keys (MATRIX_KEYS, DISTORTION_KEYS, WIDTH_KEYS, HEIGHT_KEYS,
-    MODEL_KEYS), so that e.g. `dist_coeffs` beside a `camera_matrix` list is read, not dropped. Other
-    keys (a calibration's date, error and board; a message's header, `r`, `p`, binning and roi, as
-    the rectification and projection matrices are not used) are ignored, except those that look
-    like distortion or a lens model (DISTORTION_LIKE), which are refused. OpenCV's distortion model
+    MODEL_KEYS, and ROS's `roi`, `binning_x`, `binning_y`: _sensor_window), so that e.g. `dist_coeffs`
+    beside a `camera_matrix` list is read, not dropped. Other keys (a calibration's date, error and
+    board; a message's header, `r` and `p`, as the rectification and projection matrices are not
+    used) are ignored, except those that look like distortion or a lens model (DISTORTION_LIKE), which
+    are refused. Files that no camera file is (nested deep, large, YAML aliases) are refused before
+    they are read far: see _CameraYamlLoader and _filestorage_fields. OpenCV's distortion model
     only (ROS's `plumb_bob` or `rational_polynomial`, Kalibr's pinhole `radtan`; the calibration
     sample's `fisheye_model: 0`): any other is refused, since its coefficients mean something else.
     A file that names no model cannot be told from OpenCV's: cv2.fisheye's 4 coefficients without
