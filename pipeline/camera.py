@@ -655,7 +655,7 @@ def _camera_from_fields(fields: dict, source: str, kind: str) -> Camera:
     problem = principal_point_problem(camera)
     if problem and camera.width is not None:
         problem += (": a calibration puts it within a few percent of the centre; check that the values are in pixels "
-                    "and that the file's image size is the calibration's" + ("" if "roi" in fields else
+                    "and that the file's image size is the calibration's" + ("" if fields.get("roi") is not None else
                                                                               f"; {CROP_ADVICE}"))
     if problem:
         raise CameraError(problem)

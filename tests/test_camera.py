@@ -1005,6 +1005,8 @@ def test_a_crop_given_with_its_own_size_is_refused_saying_how_to_give_it(tmp_pat
                                                     "the calibration's; for a crop of a larger sensor, give the "
                                                     "sensor's camera matrix, width and height, with the crop as roi")):
         load_camera(path)
+    with pytest.raises(CameraError, match="for a crop of a larger sensor"):  # as PUT /api/camera's JSON gives it
+        camera_from_json(CROP | {"width": 400, "height": 480, "roi": None, "binning_x": None, "binning_y": None})
     # as it says: the sensor's K and size with the crop as roi, which gives the whole image's pose
     path.write_text(json.dumps(CROP | {"width": 640, "height": 480,
                                        "roi": {"x_offset": 0, "y_offset": 0, "width": 400, "height": 480}}))
