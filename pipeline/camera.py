@@ -281,7 +281,8 @@ class Camera:
             raise CameraError(f"the camera has no image size and does not fit this {width}x{height} px image: "
                               f"{problem}")
         cx, cy = self.K[0, 2], self.K[1, 2]
-        if _centre_problem(cx, cy, width, height) is None:
+        problem = _centre_problem(cx, cy, width, height)
+        if problem is None:
             return []
         advice = _unsized_advice(cx, cy, width, height)
         # Pixel centres are at whole px, so an image spans -0.5 .. w - 0.5: a half pixel beyond, as a
@@ -289,8 +290,7 @@ class Camera:
         if not (-0.5 <= cx <= width + 0.5 and -0.5 <= cy <= height + 0.5):
             raise CameraError(f"the camera has no image size and its principal point ({cx:g}, {cy:g}) px lies outside "
                               f"this {width}x{height} px image, where a calibration puts it near the centre: {advice}")
-        return [f"the camera has no image size and its {_centre_problem(cx, cy, width, height)}: {advice}, or the "
-                "pose is wrong"]
+        return [f"the camera has no image size and its {problem}: {advice}, or the pose is wrong"]
 
     def to_json(self) -> dict:
         """The intrinsics its images are taken with (px) and where they came from."""
