@@ -141,7 +141,7 @@ class RecognitionOut(BaseModel):
     warnings: list[str]
 
 
-class CameraModel(BaseModel):
+class PinholeModel(BaseModel):
     """Pinhole intrinsics in px; `dist` OpenCV's (k1, k2, p1, p2[, k3, ...])."""
 
     fx: Number
@@ -154,7 +154,30 @@ class CameraModel(BaseModel):
     height: WholeNumber | None = Field(None, description="image height the intrinsics are for, px; with width")
 
 
-class CameraIntrinsics(CameraModel):
+class RoiModel(BaseModel):
+    """ROS's CameraInfo.roi: the part of the sensor the images are, in px of the full, unbinned sensor."""
+
+    x_offset: WholeNumber
+    y_offset: WholeNumber
+    width: WholeNumber
+    height: WholeNumber
+
+
+class CameraModel(PinholeModel):
+    """PUT /api/camera's JSON: intrinsics for images of width x height px, or, with `roi` or binning, those
+    of the whole sensor (full resolution, unbinned) with the part of it the images are, as ROS's
+    CameraInfo gives them."""
+
+    roi: RoiModel | None = Field(None, description="the part of the sensor the images are (x_offset, y_offset, "
+                                                   "width, height px of the full sensor); all zeros: all of it")
+    binning_x: WholeNumber | None = Field(None, description="sensor px summed into an image px across (0 or 1: none)")
+    binning_y: WholeNumber | None = Field(None, description="sensor px summed into an image px down (0 or 1: none)")
+
+
+class CameraIntrinsics(PinholeModel):
+    """The intrinsics images are taken with: for a camera given with a roi or binning, those of the part of
+    the sensor they are, for their size."""
+
     source: str = Field(description='where the numbers came from, e.g. "upload:cam.yaml", "json", '
                                     '"calibration: 15 views, RMS 0.21 px", "EXIF focal length 4.2 mm", '
                                     '"assumed 60° horizontal field of view"')

@@ -389,8 +389,8 @@ def camera_file_fields(body: bytes) -> dict | None:
     `camera_matrix`, ...), as scripts holding OpenCV's or ROS's JSON send them; None for anything
     else, which is read as `CameraModel`."""
     try:
-        data = json.loads(body)
-    except ValueError:
+        data = parse_json(body)
+    except JsonError:  # said as CameraModel's error: where in the body, and why
         return None
     return data if isinstance(data, dict) and not data.keys() & {"fx", "fy", "cx", "cy"} else None
 

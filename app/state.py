@@ -6,7 +6,8 @@ Layout (every file name is chosen by the server, never by a client)::
     settings.replaced-<UTC time>.json
                             settings `--settings` replaced, as they were in settings.json (`--settings` reads it,
                             unless settings.json was damaged: then it is kept as it was, to mend by hand)
-    camera.json             {fx, fy, cx, cy, dist, width, height, source}; absent: EXIF or assumed per image
+    camera.json             {fx, fy, cx, cy, dist, width, height, source}, and roi and binning_x, binning_y for
+                            part of a sensor (Camera.file_json); absent: EXIF or assumed per image
     camera.replaced-<UTC time>.json
                             a camera `--camera` replaced, as it was in camera.json (`--camera` reads it)
     assumed_fov.json        {"hfov_deg": float}: the field of view assumed without camera or EXIF; absent: 60°
@@ -117,8 +118,8 @@ def replaced_path(folder: Path, stem: str, suffix: str) -> Path:
 
 
 def same_intrinsics(a: Camera, b: Camera) -> bool:
-    """Whether `a` and `b` are the same camera, wherever each was read from (`source` aside)."""
-    return {**a.to_json(), "source": None} == {**b.to_json(), "source": None}
+    """Whether `a` and `b` are the same camera file, wherever each was read from (`source` aside)."""
+    return {**a.file_json(), "source": None} == {**b.file_json(), "source": None}
 
 
 @dataclass(frozen=True)
@@ -307,7 +308,7 @@ class StateDir:
         if camera is None:
             remove_file(self.camera_path)
         else:
-            atomic_write_json(self.camera_path, camera.to_json())
+            atomic_write_json(self.camera_path, camera.file_json())
 
     def replace_camera(self, camera: Camera) -> Replaced | None:
         """Save `camera` as the state's camera. A different camera held before is not lost: it is

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .camera import Camera, CameraError, size_change
+from .camera import Camera, CameraError, principal_point_problem, size_change
 
 MIN_VIEWS = 3
 # More inner corners per side than any printable board has; the detector's cost grows with them.
@@ -350,9 +350,12 @@ def calibrate(views: list[BoardView], board: tuple[int, int], square_m: float,
         None, None, flags=flags)
     try:
         camera = Camera(K, dist.ravel(), int(size[0]), int(size[1]), "calibrated")
-    except CameraError as exc:  # a degenerate fit, e.g. views that barely tilt the board
-        raise CalibrationError(f"the fit gave no usable camera ({exc}); add views with the board tilted "
-                               "and spread over the frame") from None
+        problem = principal_point_problem(camera)
+    except CameraError as exc:
+        problem = str(exc)
+    if problem:  # a degenerate fit, e.g. views that barely tilt the board
+        raise CalibrationError(f"the fit gave no usable camera ({problem}); add views with the board tilted "
+                               "and spread over the frame")
 
     n = len(views)
     errors, rv, tv = np.full(n, np.nan), np.full((n, 3), np.nan), np.full((n, 3), np.nan)

@@ -78,6 +78,14 @@ DISTORTION_LIKE = re.compile(r"distort|^dist(?!ance)|fisheye|^[kp]\d$", re.IGNOR
 # OpenCV's distortion model on a pinhole camera (k1 k2 p1 p2 [k3 ...]), by ROS's names for 5 and 8
 # coefficients and Kalibr's ("radial-tangential") for 4.
 OPENCV_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "radtan")
+# OpenCV's distortion vector by its length: its terms, and the distortion_model ROS or Kalibr names it
+# (None: neither names it). Each model named has that many at most (fewer are OpenCV's with the rest
+# 0, as plumb_bob's k1 k2 p1 p2 with k3 = 0); more are terms the model named has not.
+COEFFICIENT_COUNTS = {4: ("k1 k2 p1 p2", "radtan"), 5: ("k1 k2 p1 p2 k3", "plumb_bob"),
+                      8: ("k1 k2 p1 p2 k3 k4 k5 k6", "rational_polynomial"),
+                      12: ("k1 ... k6 s1 s2 s3 s4, thin-prism terms", None),
+                      14: ("k1 ... k6 s1 ... s4 tx ty, thin-prism and tilt terms", None)}
+MODEL_COEFFICIENTS = {model: n for n, (_, model) in COEFFICIENT_COUNTS.items() if model}
 # `distortion_model`s that name no distortion (ROS's field never set, Kalibr's "none"): taken
 # without coefficients only, as coefficients under them follow no known model.
 NO_DISTORTION_MODELS = ("", "none")
@@ -87,10 +95,81 @@ NO_DISTORTION_MODELS = ("", "none")
 MODEL_KEYS = ("distortion_model", "camera_model", "fisheye_model")
 # A camera of a Kalibr camchain: cam0, cam1, ...
 KALIBR_CAMERA = re.compile(r"cam\d+")
+# ROS's CameraInfo.roi: the part of the sensor read out, in px of the full, unbinned sensor (its
+# do_rectify, whether consumers should rectify it, does not change what the raw image is).
+ROI_KEYS = ("x_offset", "y_offset", "width", "height")
+# How a camera whose images are a crop of its sensor is given: its principal point is where the crop
+# puts it, which no calibration of the crop's own size has.
+CROP_ADVICE = ("for a crop of a larger sensor, give the sensor's camera matrix, width and height, with the crop as roi "
+               "(x_offset, y_offset, width, height, in the sensor's px)")
+# The most numbers each value may hold: the 3x3 camera matrix, OpenCV's longest distortion vector
+# (k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4 tx ty), Kalibr's intrinsics and resolution. Counted before they
+# are read: a million numbers (a 4 MB PUT /api/camera) took 0.6 s to refuse.
+MOST_MATRIX_VALUES, MOST_DISTORTION_VALUES, MOST_INTRINSICS_VALUES, MOST_RESOLUTION_VALUES = 9, 14, 4, 2
+# Camera files nest their values a few levels deep (a ROS message's header.stamp.sec, a row of a Kalibr
+# camera's 4x4 transform). Deeper, a file is no camera's, and reading it recursed past Python's stack
+# (a RecursionError: a traceback, an HTTP 500) or, 20,000 to 40,000 levels down in OpenCV's
+# FileStorage parser, past the process's (a segmentation fault: the server gone).
+MAX_NESTING = 20
+# OpenCV's calibration sample writes every view's corners too, some tens of kB, and `ros2 topic echo`
+# a message of about 1 kB a frame until stopped; a camera file is under MAX_CAMERA_FILE_BYTES. A ROS,
+# Kalibr or JSON camera has some tens of values (MAX_YAML_NODES): PyYAML reads about 25,000 a second
+# (a list of a million numbers, 5 MB, took 38 s and 830 MB), so it stops at MAX_YAML_NODES.
+MAX_CAMERA_FILE_BYTES, MAX_YAML_NODES = 1_000_000, 10_000
 
 
 class CameraError(ValueError):
     """A camera file or intrinsics that cannot be used; the message says which and why."""
+
+
+class _CameraYamlLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing with a CameraError saying where: aliases (`*name`, and so `<<:
+    *name` merges), as a camera file has no use for them and they let a few hundred bytes stand for
+    billions of values (a 421-byte file of nested aliases took 19 s and 3 GB to read); values nested
+    more than MAX_NESTING deep, which PyYAML's recursion would take past Python's stack; more than
+    MAX_YAML_NODES values; and whole numbers too long for Python to read (a ValueError's traceback).
+    Documents are composed one at a time: those after the first are not read."""
+
+    def __init__(self, stream: str) -> None:
+        super().__init__(stream)
+        self.depth = self.nodes = 0
+
+    def compose_node(self, parent: yaml.Node | None, index: object) -> yaml.Node:
+        event = self.peek_event()
+        mark = event.start_mark
+        where = f"line {mark.line + 1}, column {mark.column + 1}"
+        if isinstance(event, yaml.AliasEvent):
+            raise CameraError(f"{where}: YAML alias *{event.anchor}: camera files are read without anchors and "
+                              "aliases; write the values out")
+        if self.depth == MAX_NESTING:
+            raise CameraError(f"{where}: {NESTED_TOO_DEEP}")
+        self.nodes += 1
+        if self.nodes > MAX_YAML_NODES:
+            raise CameraError(f"{where}: more than {MAX_YAML_NODES} values, where a camera file has some tens: give one "
+                              "with the camera's matrix, distortion and image size")
+        self.depth += 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self.depth -= 1
+
+    def construct_yaml_int(self, node: yaml.ScalarNode) -> int:
+        try:
+            return super().construct_yaml_int(node)
+        except ValueError:  # Python reads no whole number of more than sys.get_int_max_str_digits() digits
+            mark = node.start_mark
+            raise CameraError(f"line {mark.line + 1}, column {mark.column + 1}: a whole number of {len(node.value)} "
+                              "characters, which no camera value has") from None
+
+
+_CameraYamlLoader.add_constructor("tag:yaml.org,2002:int", _CameraYamlLoader.construct_yaml_int)
+
+
+NESTED_TOO_DEEP = f"values nested more than {MAX_NESTING} levels deep, which no camera file's are"
+# What OpenCV's FileStorage parsers recurse into: a flow bracket opening or closing, an XML element's
+# start or end tag (group 1 "/" for an end tag, group 2 "/" for an empty element), and a line's run of
+# compact block-sequence dashes (group 3: "- - - 1" nests three deep).
+_FILESTORAGE_NESTING = re.compile(r"[\[{]|[\]}]|<(/?)[A-Za-z_][^<>]*?(/?)>|^[ \t]*((?:-[ \t]+)+)", re.MULTILINE)
 
 
 @dataclass(frozen=True, eq=False)
@@ -99,6 +178,10 @@ class Camera:
 
     `source` says where the numbers came from ("file:<path>", "json", "assumed 60° hfov", ...).
     CameraError when the numbers are no real camera's (the bounds above MIN_FOV_DEG .. MAX_FOCAL_RATIO).
+    Its principal point is held to a calibration's bounds where one comes in (principal_point_problem),
+    not here: the cameras made from one (scaled to an image, of a shrunk copy) keep it where it is.
+    `window`: where its images lie on the sensor its calibration is for, when they are part of it
+    (`SensorWindow.camera`); None: the whole sensor, or not known.
     """
 
     K: np.ndarray
@@ -106,6 +189,7 @@ class Camera:
     width: int | None = None
     height: int | None = None
     source: str = "given"
+    window: SensorWindow | None = None
 
     def __post_init__(self) -> None:
         for name in ("width", "height"):
@@ -129,16 +213,6 @@ class Camera:
         # Sensor rows and columns are perpendicular to a fraction of a degree; |s| > fx is over 45° off.
         if abs(K[0, 1]) > K[0, 0]:
             raise CameraError(f"skew s={K[0, 1]:.6g} exceeds fx={K[0, 0]:.6g}; real cameras have s close to 0")
-        cx, cy = K[0, 2], K[1, 2]
-        if self.width is not None and (problem := _centre_problem(cx, cy, self.width, self.height)):
-            raise CameraError(f"{problem}: a calibration puts it within a few percent of the centre; check that the "
-                              "values are in pixels and that the file's image size is the calibration's")
-        w, h = self.width or MAX_UNSIZED_PX, self.height or MAX_UNSIZED_PX
-        # Pixel centres are at whole px, so the image spans -0.5 .. w - 0.5; the half pixel either
-        # side keeps the bound true of the camera of the image shrunk (`pipeline.plaque.shrunk_view`):
-        # cx = 0 became -0.15 there, and a close sign failed in the pipeline.
-        if not (-0.5 <= cx <= w + 0.5 and -0.5 <= cy <= h + 0.5):
-            raise CameraError(f"principal point ({cx:.6g}, {cy:.6g}) px lies outside the image (0..{w:g} x 0..{h:g} px)")
         dist = np.asarray(self.dist, dtype=np.float64).ravel()
         if dist.size not in (0, 4, 5, 8, 12, 14):
             raise CameraError(f"distortion must have 4, 5, 8, 12 or 14 coefficients; got {dist.size}")
@@ -197,24 +271,66 @@ class Camera:
         image; CameraError when it cannot be.
 
         Only now can its numbers be held against an image size. A principal point far from the
-        centre is a warning, as such a file may be meant for any resolution; focal lengths no
-        camera has for this image (in mm, say) are a CameraError, as the pose would be meaningless.
+        centre but in the image is a warning, as such a file may be meant for any resolution; one
+        outside the image, or focal lengths no camera has for it (in mm, say), are a CameraError, as
+        a camera with an image size is: the pose would be meaningless (9 m off, for a phone's
+        calibration at 4032x3024 on a 640x480 image).
         """
         problem = _focal_length_problem(self.K, width, height)
         if problem:
             raise CameraError(f"the camera has no image size and does not fit this {width}x{height} px image: "
                               f"{problem}")
-        problem = _centre_problem(self.K[0, 2], self.K[1, 2], width, height)
-        if problem:
-            return [f"the camera has no image size and its {problem}: the file was probably made for another "
-                    "resolution; give it that resolution's width and height so it is scaled to the image, or the "
-                    "pose is wrong"]
-        return []
+        cx, cy = self.K[0, 2], self.K[1, 2]
+        problem = _centre_problem(cx, cy, width, height)
+        if problem is None:
+            return []
+        advice = _unsized_advice(cx, cy, width, height)
+        # Pixel centres are at whole px, so an image spans -0.5 .. w - 0.5: a half pixel beyond, as a
+        # file for twice the size puts it at w, on the corner.
+        if not (-0.5 <= cx <= width + 0.5 and -0.5 <= cy <= height + 0.5):
+            raise CameraError(f"the camera has no image size and its principal point ({cx:g}, {cy:g}) px lies outside "
+                              f"this {width}x{height} px image, where a calibration puts it near the centre: {advice}")
+        return [f"the camera has no image size and its {problem}: {advice}, or the pose is wrong"]
 
     def to_json(self) -> dict:
+        """The intrinsics its images are taken with (px) and where they came from."""
         K = self.K
         return {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "dist": self.dist.tolist(),
                 "width": self.width, "height": self.height, "source": self.source}
+
+    def file_json(self) -> dict:
+        """This camera as a camera file gives it, which camera_from_json reads back: a window of a sensor
+        as the sensor's calibration with its roi and binning; any other as to_json."""
+        if self.window is None:
+            return self.to_json()
+        return {**self.window.sensor.to_json(), "roi": dict(zip(ROI_KEYS, self.window.roi)),
+                "binning_x": self.window.binning[0], "binning_y": self.window.binning[1], "source": self.source}
+
+
+@dataclass(frozen=True, eq=False)
+class SensorWindow:
+    """The part of a sensor a camera's images are, as ROS's CameraInfo gives it (sensor_msgs/CameraInfo):
+    `sensor`, the calibration of the whole sensor, full resolution and unbinned (K for its width x
+    height px); `roi` (x_offset, y_offset, width, height) px of it read out, in its px; `binning`
+    (x, y) sensor px summed into an image px across and down. Images are the roi's width // x by its
+    height // y px."""
+
+    sensor: Camera
+    roi: tuple[int, int, int, int]
+    binning: tuple[int, int]
+
+    def camera(self) -> Camera:
+        """The camera of the images read out: the sensor's K in their px, for their size.
+
+        Sensor px (X, Y), pixel centres at whole numbers, is image px ((X - x_offset + 0.5) / bx - 0.5,
+        (Y - y_offset + 0.5) / by - 0.5): image px u sums sensor px x_offset + bx·u .. + bx - 1, whose
+        centre is there. ROS's image_geometry divides cx - x_offset by bx, a quarter of a pixel off at
+        binning 2 (renders binned by averaging 2x2 and 3x3 px put the sign's corners where this puts
+        them, 0.01 px on average, not there).
+        """
+        (x, y, w, h), (bx, by) = self.roi, self.binning
+        to_image = np.array([[1 / bx, 0, (0.5 - x) / bx - 0.5], [0, 1 / by, (0.5 - y) / by - 0.5], [0, 0, 1]])
+        return Camera(to_image @ self.sensor.K, self.sensor.dist, w // bx, h // by, self.sensor.source, self)
 
 
 def _field_of_view_deg(f: float, c: float, side: float | None) -> float:
@@ -224,6 +340,38 @@ def _field_of_view_deg(f: float, c: float, side: float | None) -> float:
     under 125° across 1280 px."""
     half = side / 2 if side is not None else c
     return math.degrees(2 * math.atan(half / f))
+
+
+def principal_point_problem(camera: Camera) -> str | None:
+    """Why `camera`'s principal point is no calibration's, or None: with an image size, more than
+    MAX_CENTRE_OFFSET of a side off the image's centre (values in mm, or a file for another
+    resolution, whose principal point is at a corner or a quarter in); without one, off the image
+    whatever its size (negative) or beyond MAX_UNSIZED_PX. For what a calibration gives (a camera file,
+    a chessboard fit), not for the cameras made from one: scaled, or of a crop of the image."""
+    cx, cy = camera.K[0, 2], camera.K[1, 2]
+    if camera.width is not None:
+        return _centre_problem(cx, cy, camera.width, camera.height)
+    # Pixel centres are at whole px, so an image spans -0.5 .. w - 0.5.
+    if min(cx, cy) < -0.5:
+        return (f"principal point ({cx:g}, {cy:g}) px is left of or above the image: it is in px from the image's "
+                "top-left corner, near the image's centre")
+    if max(cx, cy) > MAX_UNSIZED_PX:
+        return (f"principal point ({cx:g}, {cy:g}) px is beyond {MAX_UNSIZED_PX:g} px, past any image; check the "
+                "values, or give the file the image width and height")
+    return None
+
+
+def _unsized_advice(cx: float, cy: float, width: int, height: int) -> str:
+    """What to give a camera file without an image size, whose principal point (cx, cy) px is far from
+    the centre of a `width` x `height` px image: the image size it was made for, named when twice its
+    principal point is this image's size scaled (a calibration puts it near its image's centre); else
+    that, or the sensor this image is a crop of (the size of the crop alone would be refused)."""
+    made_for = (round(2 * cx), round(2 * cy))
+    if min(made_for) > 0 and size_change(made_for, (width, height)) == "scaled":
+        return (f"the file was probably made for another resolution, {made_for[0]}x{made_for[1]} px (twice its principal "
+                "point): give it that width and height, and it is scaled to this image")
+    return ("the file was probably made for another resolution: give it that resolution's width and height, and it is "
+            f"scaled to this image; {CROP_ADVICE}")
 
 
 def _centre_problem(cx: float, cy: float, width: int, height: int) -> str | None:
@@ -309,8 +457,11 @@ def size_change(calibrated: tuple[int, int], image: tuple[int, int]) -> SizeChan
 def check_hfov(hfov_deg: float) -> float:
     """`hfov_deg` as a float; CameraError unless it is a horizontal field of view in ASSUMED_HFOV_RANGE_DEG."""
     lo, hi = ASSUMED_HFOV_RANGE_DEG
-    if isinstance(hfov_deg, bool) or not isinstance(hfov_deg, (int, float)) or not lo <= hfov_deg <= hi:
-        raise CameraError(f"the horizontal field of view must be {lo:g}° to {hi:g}°; got {hfov_deg!r}")
+    number = isinstance(hfov_deg, (int, float)) and not isinstance(hfov_deg, bool)
+    if not number or not lo <= hfov_deg <= hi:
+        # A number as typed (-0, 1e+03), not as Python writes floats: -0 was said as "got -0.0", or "0.0".
+        given = f"{hfov_deg:g}" if number else reprlib.repr(hfov_deg)
+        raise CameraError(f"the horizontal field of view must be {lo:g}° to {hi:g}°; got {given}")
     return float(hfov_deg)
 
 
@@ -353,10 +504,30 @@ def _number(value: object, name: str) -> float:
     raise CameraError(f"{name} must be a number; got {reprlib.repr(value)}")
 
 
-def _numbers(value: object, name: str) -> np.ndarray:
-    """A number or (nested) list of numbers as a float64 array of its shape; CameraError naming `name` otherwise."""
+def _numbers(value: object, name: str, most: int) -> np.ndarray:
+    """A number, a list of numbers or a list of rows of numbers (a matrix), at most `most` of them, as a
+    float64 array of its shape; CameraError naming `name` otherwise."""
+    _check_count(value, name, most)
     items = np.array(value, dtype=object)  # ragged lists stay lists here, and _number rejects them
     return np.array([_number(v, name) for v in items.flat], dtype=np.float64).reshape(items.shape)
+
+
+def _check_count(value: object, name: str, most: int) -> None:
+    """CameraError naming `name` unless `value` is a number, or a list of numbers or of rows of them (as
+    lists or arrays), of at most `most` numbers. Walked without recursion, refusing a list as soon as
+    its length alone passes `most`, so that a million numbers, or lists nested a thousand deep, are
+    refused before anything is made of them."""
+    count, stack = 0, [(value, 0)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, list):
+            if depth == 2:
+                raise CameraError(f"{name} must be numbers, or rows of numbers; got lists nested deeper")
+            if count + len(item) > most:  # each item holds at least one number
+                raise CameraError(f"{name} has more than {most} values")
+            stack.extend((v, depth + 1) for v in item)
+        elif (count := count + (item.size if isinstance(item, np.ndarray) else 1)) > most:
+            raise CameraError(f"{name} has more than {most} values")
 
 
 def _opt_int(value: object, name: str) -> int | None:
@@ -369,17 +540,18 @@ def _opt_int(value: object, name: str) -> int | None:
     return int(value)
 
 
-def _matrix(node: object, name: str, rows: int | None, cols: int | None) -> np.ndarray:
-    """A ROS-style {rows, cols, data} node (or a plain nested list) named `name` as an array."""
+def _matrix(node: object, name: str, rows: int | None, cols: int | None, most: int) -> np.ndarray:
+    """A ROS-style {rows, cols, data} node (or a plain nested list) named `name`, of at most `most`
+    values, as an array."""
     if isinstance(node, dict) and "data" in node:
-        data = _numbers(node["data"], f"{name}.data")
+        data = _numbers(node["data"], f"{name}.data", most)
         r, c = _opt_int(node.get("rows", rows), f"{name}.rows"), _opt_int(node.get("cols", cols), f"{name}.cols")
         if r is not None and c is not None:
             if data.size != r * c:
                 raise CameraError(f"{name} declares {r}x{c} but has {data.size} values")
             data = data.reshape(r, c)
         return data
-    return _numbers(node, name)
+    return _numbers(node, name, most)
 
 
 def _one_of(fields: dict, keys: tuple[str, ...], what: str) -> tuple[str, object] | None:
@@ -422,6 +594,12 @@ def _model_problem(fields: dict, dist: np.ndarray) -> str | None:
                     f"({', '.join(OPENCV_DISTORTION_MODELS[:-1])} or {OPENCV_DISTORTION_MODELS[-1]}: k1 k2 p1 p2 k3 "
                     "...) on a pinhole camera; calibrate with `signpose calibrate`, or undistort the photos first "
                     "and give zero distortion")
+        most = MODEL_COEFFICIENTS.get(name)
+        if most is not None and dist.size > most and dist.size in COEFFICIENT_COUNTS:
+            terms, other = COEFFICIENT_COUNTS[dist.size]
+            fix = f": set {key} to {other}" if other else f", which ROS and Kalibr name no model for: leave {key} out"
+            return (f"{key} {model} has {most} coefficients ({COEFFICIENT_COUNTS[most][0]}), but {dist.size} are "
+                    f"given ({terms}){fix}, or give {most}")
     return None
 
 
@@ -435,7 +613,7 @@ def _camera_matrix(fields: dict, kind: str) -> np.ndarray:
                           f"cy keys; this {kind} has none")
     key, value = found
     if key in MATRIX_KEYS:
-        K = _matrix(value, key, 3, 3)
+        K = _matrix(value, key, 3, 3, MOST_MATRIX_VALUES)
         if K.size != 9:
             raise CameraError(f"{key} must have 9 values (the 3x3 matrix, row by row); got {K.size}")
         if not K.any():  # CameraInfo's convention for a camera nobody calibrated, whatever its model says
@@ -443,7 +621,7 @@ def _camera_matrix(fields: dict, kind: str) -> np.ndarray:
                               "(`signpose calibrate`, or ROS's camera_calibration) and give that file")
         return K.reshape(3, 3)
     if key == "intrinsics":
-        focal = _numbers(value, key).ravel()
+        focal = _numbers(value, key, MOST_INTRINSICS_VALUES).ravel()
         if focal.size != 4:
             raise CameraError(f"intrinsics must be Kalibr's pinhole [fu, fv, pu, pv] (fx, fy, cx, cy in px); "
                               f"got {reprlib.repr(value)}")
@@ -469,11 +647,58 @@ def _camera_from_fields(fields: dict, source: str, kind: str) -> Camera:
         raise CameraError(f"distortion_model {model} names a lens with distortion, but the file gives no "
                           f"coefficients (under {', '.join(DISTORTION_KEYS)}): add them, or set distortion_model "
                           "to none for a lens without distortion")
-    dist = np.zeros(0) if found is None else _matrix(found[1], found[0], None, None).ravel()
+    dist = np.zeros(0) if found is None else _matrix(found[1], found[0], None, None, MOST_DISTORTION_VALUES).ravel()
     problem = _model_problem(fields, dist)
     if problem:
         raise CameraError(problem)
-    return Camera(_camera_matrix(fields, kind), dist, *_image_size(fields), source)
+    camera = Camera(_camera_matrix(fields, kind), dist, *_image_size(fields), source)
+    problem = principal_point_problem(camera)
+    if problem and camera.width is not None:
+        problem += (": a calibration puts it within a few percent of the centre; check that the values are in pixels "
+                    "and that the file's image size is the calibration's" + ("" if fields.get("roi") is not None else
+                                                                              f"; {CROP_ADVICE}"))
+    if problem:
+        raise CameraError(problem)
+    window = _sensor_window(fields, camera)
+    return camera if window is None else window.camera()
+
+
+def _sensor_window(fields: dict, sensor: Camera) -> SensorWindow | None:
+    """The part of `sensor` the images are that `fields` give (ROS's `roi` and `binning_x`, `binning_y`),
+    None for the whole sensor unbinned (an all-zero or absent roi, binning 0 or 1); CameraError naming
+    the key for a roi off the sensor, or a window without the sensor's size it is in px of."""
+    roi = fields.get("roi")
+    binning = tuple(_whole(fields.get(key), key) or 1 for key in ("binning_x", "binning_y"))  # ROS: 0 is 1
+    if roi is not None:
+        if not isinstance(roi, dict) or set(roi) - {"do_rectify"} != set(ROI_KEYS):
+            raise CameraError(f"roi must be x_offset, y_offset, width and height, in px of the full, unbinned sensor "
+                              f"(ROS's CameraInfo.roi); got {reprlib.repr(roi)}")
+        roi = tuple(_whole(roi[key], f"roi.{key}") for key in ROI_KEYS)
+    if roi is None or not any(roi):  # ROS's all-zero roi is the whole sensor
+        if binning == (1, 1):
+            return None
+        roi = (0, 0, sensor.width, sensor.height)
+    if sensor.width is None:
+        raise CameraError("roi and binning are in px of the full, unbinned sensor: give its image_width and "
+                          "image_height (or width and height) too")
+    x, y, w, h = roi
+    if not (w and h):
+        raise CameraError(f"roi width and height must be positive (an all-zero roi is the whole sensor); got {w}x{h}")
+    if x + w > sensor.width or y + h > sensor.height:
+        raise CameraError(f"roi {w}x{h} px at ({x}, {y}) reaches past the {sensor.width}x{sensor.height} px sensor: "
+                          "the roi is in px of the full, unbinned sensor, and the camera matrix, width and height "
+                          "are the whole sensor's")
+    if w < binning[0] or h < binning[1]:
+        raise CameraError(f"binning {binning[0]}x{binning[1]} leaves no image px of the {w}x{h} px roi")
+    return SensorWindow(sensor, roi, binning)
+
+
+def _whole(value: object, name: str) -> int | None:
+    """`value` (None: absent) as a whole number of px, 0 to MAX_IMAGE_SIDE_PX; CameraError naming `name`."""
+    number = _opt_int(value, name)
+    if number is not None and not 0 <= number <= MAX_IMAGE_SIDE_PX:
+        raise CameraError(f"{name} must be a whole number of px from 0 to 2**31 - 1; got {number}")
+    return number
 
 
 def _image_size(fields: dict) -> tuple[int | None, int | None]:
@@ -487,7 +712,7 @@ def _image_size(fields: dict) -> tuple[int | None, int | None]:
     if width or height:
         other = (width or height)[0]
         raise CameraError(f"the image size is given twice, as resolution and {other}: keep the one meant")
-    values = _numbers(resolution, "resolution").ravel()
+    values = _numbers(resolution, "resolution", MOST_RESOLUTION_VALUES).ravel()
     if values.size != 2:
         raise CameraError(f"resolution must be [width, height] in px; got {reprlib.repr(resolution)}")
     return _opt_int(float(values[0]), "resolution width"), _opt_int(float(values[1]), "resolution height")
@@ -508,8 +733,11 @@ def _kalibr_camera(data: dict) -> tuple[str, dict] | None:
     return (names[0], data[names[0]]) if names else None
 
 
-def _filestorage_value(node: cv2.FileNode) -> object:
-    """A FileStorage node as Python: a number, text, a list, an array for an OpenCV matrix, else a dict."""
+def _filestorage_value(node: cv2.FileNode, depth: int = 1) -> object:
+    """A FileStorage node `depth` levels down as Python: a number, text, a list, an array for an OpenCV
+    matrix, else a dict; CameraError for a node more than MAX_NESTING levels down."""
+    if depth > MAX_NESTING:
+        raise CameraError(NESTED_TOO_DEEP)
     if node.isInt():
         return int(node.real())
     if node.isReal():
@@ -517,13 +745,13 @@ def _filestorage_value(node: cv2.FileNode) -> object:
     if node.isString():
         return node.string()
     if node.isSeq():
-        return [_filestorage_value(node.at(i)) for i in range(node.size())]
+        return [_filestorage_value(node.at(i), depth + 1) for i in range(node.size())]
     if node.isMap():
         try:
             return node.mat()
         except cv2.error:  # a mapping that is no matrix, or a matrix with data that are not numbers: its
             # fields, which _matrix reads as ROS's {rows, cols, data} and names what is wrong in them
-            return {k: _filestorage_value(node.getNode(k)) for k in node.keys()}
+            return {k: _filestorage_value(node.getNode(k), depth + 1) for k in node.keys()}
     return None
 
 
@@ -538,9 +766,29 @@ def _xml_declaration_first(text: str) -> str:
     return (body[:end] or '<?xml version="1.0"?>') + text[:len(text) - len(body)] + body[end:]
 
 
+def _filestorage_too_deep(text: str) -> bool:
+    """Whether OpenCV's FileStorage parser might recurse more than MAX_NESTING levels into `text`: the
+    flow brackets and XML elements open, plus a line's compact dashes (_FILESTORAGE_NESTING). A bound,
+    not a parse: brackets in quoted text count too. Nesting by indentation is not counted: in a
+    camera file's MAX_CAMERA_FILE_BYTES it reaches under 1,500 levels, which OpenCV takes."""
+    depth = 0
+    for token in _FILESTORAGE_NESTING.finditer(text):
+        if token[3]:
+            deepest = depth + token[3].count("-")
+        else:
+            depth += -1 if token[0] in "]}" or token[1] else 0 if token[2] else 1
+            deepest = depth
+        if deepest > MAX_NESTING:
+            return True
+    return False
+
+
 def _filestorage_fields(text: str, syntax: str) -> dict:
     """The top-level nodes of the OpenCV FileStorage `text` in `syntax` (_filestorage_syntax), as
-    Python (_filestorage_value)."""
+    Python (_filestorage_value). CameraError for values nested more than MAX_NESTING deep, before
+    OpenCV's parser, whose recursion a deep enough file takes past the process's stack."""
+    if _filestorage_too_deep(text):
+        raise CameraError(NESTED_TOO_DEEP)
     if syntax == "XML":
         text = _xml_declaration_first(text)
     try:
@@ -563,10 +811,12 @@ def load_camera(path: str | Path) -> Camera:
     (_kalibr_camera), or JSON `{fx, fy, cx, cy, dist}`.
 
     Every format is read with the same keys (MATRIX_KEYS, DISTORTION_KEYS, WIDTH_KEYS, HEIGHT_KEYS,
-    MODEL_KEYS), so that e.g. `dist_coeffs` beside a `camera_matrix` list is read, not dropped. Other
-    keys (a calibration's date, error and board; a message's header, `r`, `p`, binning and roi, as
-    the rectification and projection matrices are not used) are ignored, except those that look
-    like distortion or a lens model (DISTORTION_LIKE), which are refused. OpenCV's distortion model
+    MODEL_KEYS, and ROS's `roi`, `binning_x`, `binning_y`: _sensor_window), so that e.g. `dist_coeffs`
+    beside a `camera_matrix` list is read, not dropped. Other keys (a calibration's date, error and
+    board; a message's header, `r` and `p`, as the rectification and projection matrices are not
+    used) are ignored, except those that look like distortion or a lens model (DISTORTION_LIKE), which
+    are refused. Files that no camera file is (nested deep, large, YAML aliases) are refused before
+    they are read far: see _CameraYamlLoader and _filestorage_fields. OpenCV's distortion model
     only (ROS's `plumb_bob` or `rational_polynomial`, Kalibr's pinhole `radtan`; the calibration
     sample's `fisheye_model: 0`): any other is refused, since its coefficients mean something else.
     A file that names no model cannot be told from OpenCV's: cv2.fisheye's 4 coefficients without
@@ -574,9 +824,15 @@ def load_camera(path: str | Path) -> Camera:
     """
     path = Path(path)
     try:
-        text = _camera_text(path.read_bytes())
+        with path.open("rb") as file:
+            data = file.read(MAX_CAMERA_FILE_BYTES + 1)
     except FileNotFoundError:
         raise CameraError(f"camera file not found: {path}") from None
+    if len(data) > MAX_CAMERA_FILE_BYTES:
+        raise CameraError(f"camera file {path} is over {MAX_CAMERA_FILE_BYTES // 1000} kB, which no camera file "
+                          "is: give one with the camera's matrix, distortion and image size")
+    try:
+        text = _camera_text(data)
     except ValueError:  # a UnicodeDecodeError, or a NUL character
         raise CameraError(f"camera file {path} is not text (UTF-8, or UTF-16 with a byte-order mark)") from None
     try:
@@ -623,7 +879,7 @@ def _parse_camera(text: str, path: Path) -> Camera:
     try:
         # YAML is a superset of JSON. `ros2 topic echo` ends each message with "---", which starts
         # another (empty) document; without --once it prints one after the other: the first is used.
-        data = next((d for d in yaml.safe_load_all(text) if d is not None), None)
+        data = next((d for d in yaml.load_all(text, _CameraYamlLoader) if d is not None), None)
     except yaml.YAMLError as exc:
         raise CameraError(f"neither valid YAML nor JSON ({_yaml_error(exc)})") from None
     if not isinstance(data, dict):

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import reprlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -172,7 +173,7 @@ class Settings:
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
-            raise SettingsError(f"unknown setting(s): {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+            raise SettingsError(f"unknown setting(s): {reprlib.repr(unknown)[1:-1]}; known: {', '.join(sorted(known))}")
         merged = {**(base or cls()).to_dict(), **data}
         return cls(**merged)
 
@@ -192,22 +193,22 @@ def _check_field(f: dataclasses.Field, value: Any) -> Any:
         raise SettingsError(f"{name} must not be null")
     if "choices" in meta:
         if value not in meta["choices"]:
-            raise SettingsError(f"{name} must be one of {', '.join(meta['choices'])}; got {value!r}")
+            raise SettingsError(f"{name} must be one of {', '.join(meta['choices'])}; got {reprlib.repr(value)}")
         return value
     if isinstance(f.default, bool):
         if not isinstance(value, bool):
-            raise SettingsError(f"{name} must be true or false; got {value!r}")
+            raise SettingsError(f"{name} must be true or false; got {reprlib.repr(value)}")
         return value
     is_int = _is_int_field(f)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise SettingsError(f"{name} must be a number; got {value!r}")
+        raise SettingsError(f"{name} must be a number; got {reprlib.repr(value)}")
     # Only floats can be non-finite or fractional; float() of a huge JSON integer would overflow.
     if isinstance(value, float) and not math.isfinite(value):
-        raise SettingsError(f"{name} must be finite; got {value!r}")
+        raise SettingsError(f"{name} must be finite; got {reprlib.repr(value)}")
     if is_int and isinstance(value, float) and not value.is_integer():
-        raise SettingsError(f"{name} must be a whole number; got {value!r}")
+        raise SettingsError(f"{name} must be a whole number; got {reprlib.repr(value)}")
     if not meta["min"] <= value <= meta["max"]:
-        raise SettingsError(f"{name} must be between {meta['min']} and {meta['max']}; got {value!r}")
+        raise SettingsError(f"{name} must be between {meta['min']} and {meta['max']}; got {reprlib.repr(value)}")
     return int(value) if is_int else value
 
 

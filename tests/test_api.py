@@ -23,7 +23,7 @@ from app.workspace import Workspace, WorkspaceConfig
 from pipeline.library import SAMPLE_LIBRARY, load_library
 from pipeline.verify import CHECK_WIDTH
 from pipeline.synth import synthetic_camera
-from pipeline.camera import ros_camera_yaml
+from pipeline.camera import load_camera, ros_camera_yaml
 from faults import fail_segmentation
 from scene_images import (DECOYS, HEIC_START, big_photo, decoy_image, empty_photo, has, plaque_of, png_bomb,
                           scrambled_scene, sign_photo, tiny_photo, with_focal_exif)
@@ -703,6 +703,63 @@ def test_camera_numbers_must_be_json_numbers_not_text(client, path, body, where,
     client.delete("/api/camera")
 
 
+# A 1280x960 sensor's calibration, its left half read out 640x480 from (0, 240) and binned 2x2: its images are
+# 320x240 px, the principal point at their right edge.
+SENSOR = {"fx": 554.0, "fy": 554.0, "cx": 640.0, "cy": 480.0, "width": 1280, "height": 960}
+WINDOW = {"roi": {"x_offset": 0, "y_offset": 240, "width": 640, "height": 480}, "binning_x": 2, "binning_y": 2}
+WINDOWED = {"fx": 277.0, "fy": 277.0, "cx": 319.75, "cy": 119.75, "width": 320, "height": 240}
+
+
+@pytest.mark.parametrize("request_args", [
+    {"json": SENSOR | WINDOW},
+    {"files": {"file": ("cam.yaml", b"image_width: 1280\nimage_height: 960\ncamera_matrix: {rows: 3, cols: 3, "
+                                    b"data: [554, 0, 640, 0, 554, 480, 0, 0, 1]}\nbinning_x: 2\nbinning_y: 2\n"
+                                    b"roi: {x_offset: 0, y_offset: 240, width: 640, height: 480, do_rectify: false}\n",
+                        "application/x-yaml")}},
+], ids=["json", "file"])
+def test_a_camera_of_part_of_its_sensor_is_taken_and_kept_as_its_file_gives_it(tmp_path, request_args):
+    """PUT /api/camera's JSON dropped roi and binning: the camera became the whole sensor's, and a 320x240
+    photo got its K scaled by 0.25. The state keeps the sensor's calibration with the roi (its camera.json
+    is read by --camera), and answers give the intrinsics the images are taken with."""
+    with running(create_app(config(tmp_path / "state"))) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        r = c.put("/api/camera", **request_args)
+        assert r.status_code == 200, r.text
+        assert {k: r.json()["camera"][k] for k in WINDOWED} == WINDOWED and r.json()["warnings"] == []
+    kept = load_camera(tmp_path / "state" / "camera.json")
+    assert {k: kept.to_json()[k] for k in WINDOWED} == WINDOWED
+    assert kept.file_json()["roi"] == WINDOW["roi"] and kept.file_json()["cx"] == 640
+
+
+DEEP = 100_000  # levels of nesting, far past Python's stack
+LONG = b"1" * 5000  # a whole number of more digits than Python reads (4300)
+
+
+@pytest.mark.parametrize("path, request_args, words", [
+    ("/api/camera", {"files": {"file": ("deep.yaml", b"k: " + b"[" * DEEP + b"]" * DEEP)}},
+     ["deep.yaml: line 1, column 23: values nested more than 20 levels deep"]),
+    ("/api/camera", {"content": b'{"K": ' + b"[" * DEEP + b"]" * DEEP + b"}"},
+     ["the body is not valid JSON", "recursion limit exceeded"]),
+    ("/api/settings/import", {"files": {"file": ("deep.json", b'{"a": ' * DEEP + b"1" + b"}" * DEEP)}},
+     ["deep.json is JSON nested too deep to read"]),
+    ("/api/camera", {"files": {"file": ("long.yaml", b"fy: 500\ncx: 320\ncy: 240\nfx: " + LONG)}},
+     ["long.yaml: line 4, column 5: a whole number of 5000 characters"]),
+    ("/api/camera", {"content": b'{"K": [' + LONG + b", 0, 320, 0, 500, 240, 0, 0, 1]}"},
+     ["the body is not valid JSON", "number out of range"]),
+    ("/api/settings/import", {"files": {"file": ("long.json", b'{"threshold": ' + LONG + b"}")}},
+     ["long.json is JSON with a whole number of over 4300 digits"]),
+], ids=["deep camera file", "deep camera json", "deep settings file", "long camera file", "long camera json",
+        "long settings file"])
+def test_input_python_cannot_hold_is_a_422_and_changes_nothing(client, path, request_args, words):
+    """Each was an HTTP 500: a RecursionError, nested some thousand levels deep, or a ValueError, a whole
+    number longer than Python reads."""
+    before = client.get("/api/camera").json(), client.get("/api/settings").json()
+    if "content" in request_args:
+        request_args = {**request_args, "headers": {"content-type": "application/json"}}
+    method = client.put if path == "/api/camera" else client.post
+    assert_error(method(path, **request_args), 422, *words)
+    assert (client.get("/api/camera").json(), client.get("/api/settings").json()) == before
+
+
 @pytest.mark.parametrize("size, given", [({"width": 640}, "width"), ({"height": 480}, "height")])
 def test_camera_json_with_the_image_width_or_height_alone_is_refused(client, size, given):
     """It was stored with the other null, and so never scaled to an image."""
@@ -752,9 +809,11 @@ def test_assumed_field_of_view_for_photos_without_camera_or_exif(client):
     warnings = client.get(f"/api/images/{plain}").json()["result"]["warnings"]
     assert any("75°" in w and "approximate" in w for w in warnings), warnings
     assert client.get(f"/api/images/{phone}").json()["camera"]["kind"] == "exif"  # EXIF comes first
-    for bad in (5, 170, float("nan")):
-        assert_error(client.put("/api/camera/assumed", content=json.dumps({"hfov_deg": bad}),
-                                headers={"content-type": "application/json"}), 422, "10° to 140°")
+    for bad, said in ((5, "5"), (170, "170"), (float("nan"), "nan"), (-0.0, "-0")):  # -0 was "got -0.0"
+        r = client.put("/api/camera/assumed", content=json.dumps({"hfov_deg": bad}),
+                       headers={"content-type": "application/json"})
+        assert_error(r, 422, "10° to 140°")
+        assert r.json()["detail"].endswith(f"; got {said}")
     for bad in ("wide", None):
         assert_error(client.put("/api/camera/assumed", json={"hfov_deg": bad}), 422, "hfov_deg")
     assert client.get("/api/camera").json()["assumed_hfov_deg"] == 75.0

@@ -4,14 +4,17 @@ import math
 import re
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
 from pipeline.camera import Camera, CameraError, assumed_camera, camera_from_json, load_camera, save_camera
 from pipeline.image import read_image
 from pipeline.library import SAMPLE_LIBRARY, load_library
+from pipeline.pose import camera_position
 from pipeline.recognize import recognize
 from pipeline.settings import preset
+from pipeline.synth import render_scene, synthetic_camera
 
 ROS = """image_width: 640
 image_height: 480
@@ -166,6 +169,28 @@ def test_a_distortion_model_without_its_coefficients_is_refused(tmp_path, model)
         load_camera(p)
     p.write_text(ROS.replace("plumb_bob", "none").replace("data: [-0.1, 0.01, 0, 0, 0]", "data: [0, 0, 0, 0, 0]"))
     assert not load_camera(p).has_distortion
+
+
+@pytest.mark.parametrize("model, count, message", [
+    ("plumb_bob", 8, "distortion_model plumb_bob has 5 coefficients (k1 k2 p1 p2 k3), but 8 are given (k1 k2 p1 p2 k3 "
+                     "k4 k5 k6): set distortion_model to rational_polynomial, or give 5"),
+    ("PLUMB_BOB", 14, "distortion_model PLUMB_BOB has 5 coefficients (k1 k2 p1 p2 k3), but 14 are given (k1 ... k6 s1 "
+                      "... s4 tx ty, thin-prism and tilt terms), which ROS and Kalibr name no model for: leave "
+                      "distortion_model out, or give 5"),
+    ("radtan", 5, "distortion_model radtan has 4 coefficients (k1 k2 p1 p2), but 5 are given (k1 k2 p1 p2 k3): set "
+                  "distortion_model to plumb_bob, or give 4"),
+    ("rational_polynomial", 12, "distortion_model rational_polynomial has 8 coefficients"),
+])
+def test_more_coefficients_than_the_model_named_has_are_refused_naming_the_model_they_are(tmp_path, model, count,
+                                                                                          message):
+    """plumb_bob's 8 coefficients were taken as OpenCV's rational model: the file says two things."""
+    d = ROS2_MESSAGE[ROS2_MESSAGE.index("d:\n"):ROS2_MESSAGE.index("k:\n")]
+    text = ROS2_MESSAGE.replace(d, f"d: {[-0.1] + [0.0] * (count - 1)}\n").replace("plumb_bob", model)
+    assert_one_line_error(tmp_path / "cam.yaml", text, message)
+    for fewer, fine in (("plumb_bob", 4), ("rational_polynomial", 5), ("rational_polynomial", 8)):  # the rest 0
+        (tmp_path / "fine.yaml").write_text(text.replace(model, fewer).replace(f"d: {[-0.1] + [0.0] * (count - 1)}",
+                                                                               f"d: {[-0.1] + [0.0] * (fine - 1)}"))
+        assert load_camera(tmp_path / "fine.yaml").dist.size == fine
 
 
 def test_an_unset_distortion_model_without_coefficients_is_no_distortion(tmp_path):
@@ -568,7 +593,6 @@ def intrinsics(fx: float, fy: float, cx: float = 320, cy: float = 240, s: float 
     (intrinsics(5010, 500), (640, 480), "fx/fy = 10"),
     (intrinsics(500, 500, s=1e300), (640, 480), "skew"),
     (intrinsics(500, 500, cx=1e300), (None, None), "principal point"),
-    (intrinsics(500, 500, cx=320, cy=-1), (640, 480), "principal point"),
     (intrinsics(500, 500), (2**31, 480), "under 2"),
     # a lens's focal length in mm typed where pixels belong: the camera 1 cm from the sign, silently
     (intrinsics(4.2, 4.2), (640, 480), r"fx=4\.2 px gives a field of view of 178\.5° across the image.*not mm"),
@@ -671,6 +695,16 @@ def test_a_principal_point_far_from_the_centre_of_the_image_size_given_is_refuse
                              "height": 960})
 
 
+def test_the_principal_point_is_held_to_a_calibrations_bounds_where_one_comes_in():
+    """A camera file's, or a chessboard fit's: not the camera of a crop of the image, whose principal
+    point may lie anywhere, even outside it."""
+    with pytest.raises(CameraError, match=re.escape("principal point (320, -1) px is far from the centre (320, 240) "
+                                                    "of the 640x480 px image: a calibration puts it within")):
+        camera_from_json({"fx": 500, "fy": 500, "cx": 320, "cy": -1, "width": 640, "height": 480})
+    crop = Camera(intrinsics(500, 500, cx=320, cy=-1), np.zeros(5), 640, 480)
+    assert crop.for_image(320, 240)[0].K[1, 2] == -0.5
+
+
 CORNER_JSON = {"fx": 1108.5, "fy": 1108.5, "cx": 640, "cy": 480}  # a 1280 x 960 calibration without its size
 
 
@@ -682,6 +716,37 @@ def test_a_camera_without_size_for_another_resolution_is_a_warning():
     assert same is cam and len(warnings) == 1
     assert "principal point (640, 480) px is far from the centre (320, 240)" in warnings[0]
     assert "another resolution" in warnings[0] and "width and height" in warnings[0]
+
+
+def test_a_camera_without_size_whose_principal_point_lies_outside_the_image_cannot_take_it():
+    """A phone's calibration at 4032x3024 without its size, on a 640x480 image: a warning, and a pose 9 m
+    off, where the same camera with its size is refused (another aspect) or scaled (the same)."""
+    phone = camera_from_json({"fx": 3000, "fy": 3000, "cx": 2016, "cy": 1512})
+    with pytest.raises(CameraError, match=re.escape(
+            "the camera has no image size and its principal point (2016, 1512) px lies outside this 640x480 px image, "
+            "where a calibration puts it near the centre: the file was probably made for another resolution, "
+            "4032x3024 px (twice its principal point): give it that width and height, and it is scaled to this "
+            "image")):
+        phone.for_image(640, 480)
+    assert phone.for_image(4032, 3024) == (phone, [])
+    # what the error says to do works
+    sized = camera_from_json({"fx": 3000, "fy": 3000, "cx": 2016, "cy": 1512, "width": 4032, "height": 3024})
+    assert sized.for_image(640, 480)[0].K[0, 2] == 320
+    # a crop's own size named: no image size twice the principal point has this image's aspect
+    with pytest.raises(CameraError, match="made for another resolution: give it that resolution's width and height"):
+        camera_from_json({"fx": 554, "fy": 554, "cx": 800, "cy": 240}).for_image(640, 480)
+
+
+@pytest.mark.parametrize("cx, cy, message", [
+    (-20, 240, "principal point (-20, 240) px is left of or above the image: it is in px from the image's top-left "
+               "corner, near the image's centre"),
+    (320, 2e6, "principal point (320, 2e+06) px is beyond 1e+06 px, past any image; check the values, or give the "
+               "file the image width and height"),
+])
+def test_a_principal_point_no_image_has_is_refused_with_what_to_do(cx, cy, message):
+    """It was "outside the image (0..1e+06 x 0..1e+06 px)", an image nobody had given."""
+    with pytest.raises(CameraError, match=re.escape(message)):
+        camera_from_json({"fx": 4e5, "fy": 4e5, "cx": cx, "cy": cy})  # a focal length that allows it
 
 
 def test_the_other_resolution_warning_reaches_the_recognition():
@@ -706,3 +771,256 @@ def test_the_other_resolution_warning_reaches_the_recognition():
 ])
 def test_unparsable_files_are_one_line_errors_with_the_position(tmp_path, text, message):
     assert_one_line_error(tmp_path / "camera.yaml", text, message)
+
+
+def alias_bomb(levels: int) -> str:
+    """A YAML file whose `k` stands, through `levels` of aliases, for 9**levels values: 421 bytes and
+    9**8 of them took 19 s and 3 GB to refuse."""
+    lines = ["a0: &a0 [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]"]
+    lines += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 9)}]" for i in range(1, levels)]
+    return "\n".join([*lines, f"k: *a{levels - 1}", ""])
+
+
+@pytest.mark.parametrize("text, message", [
+    (alias_bomb(5), "line 2, column 10: YAML alias *a0: camera files are read without anchors and aliases"),
+    # aliases sparing a repeat in a file of sound numbers are refused all the same
+    (ROS2_MESSAGE.replace("\nk:\n", "\nk: &k\n").replace("\np:\n", "\npp: *k\np:\n"), "line 35, column 5: YAML alias *k"),
+    # a merge key is an alias too
+    ("base: &b {width: 640, height: 480}\n<<: *b\nfx: 500\nfy: 500\ncx: 320\ncy: 240\n",
+     "line 2, column 5: YAML alias *b"),
+], ids=["bomb", "repeat", "merge"])
+def test_yaml_aliases_are_refused_saying_where(tmp_path, text, message):
+    assert_one_line_error(tmp_path / "camera.yaml", text, message)
+
+
+@pytest.mark.parametrize("data, message", [
+    ({"k": [0.0] * 1_000_000}, "k has more than 9 values"),
+    ({"camera_matrix": {"rows": 1000, "cols": 1000, "data": [0.0] * 1_000_000}},
+     "camera_matrix.data has more than 9 values"),
+    ({"K": [[500, 0, 320], [0, 500, 240], [0, 0, 1], [0, 0, 0]]}, "K has more than 9 values"),
+    ({"K": np.eye(4)}, "K has more than 9 values"),  # an OpenCV FileStorage matrix is read as an array
+    ({"fx": 500, "fy": 500, "cx": 320, "cy": 240, "dist": [0.0] * 15}, "dist has more than 14 values"),
+    ({"intrinsics": [500, 500, 320, 240, 0], "resolution": [640, 480]}, "intrinsics has more than 4 values"),
+    ({"intrinsics": [500, 500, 320, 240], "resolution": [640, 480, 3]}, "resolution has more than 2 values"),
+    ({"k": [[[500, 0, 320], [0, 500, 240], [0, 0, 1]]]}, "k must be numbers, or rows of numbers; got lists nested"),
+])
+def test_a_value_holding_more_numbers_than_it_can_is_refused_before_it_is_read(data, message):
+    """A camera matrix is 9 numbers, a distortion vector at most 14: a million (0.6 s to refuse, when
+    they were read before they were counted), or lists nested three deep, are no camera's."""
+    with pytest.raises(CameraError, match=re.escape(message)):
+        camera_from_json(data)
+    assert camera_from_json({"K": [[500, 0, 320], [0, 500, 240], [0, 0, 1]], "dist": [[-0.1] + [0] * 13]})
+
+
+def indented(levels: int) -> str:
+    """Mappings nested `levels` deep by indentation alone, a number at the bottom."""
+    return "".join(f"{'  ' * i}a{i}:\n" for i in range(levels)) + "  " * levels + "1\n"
+
+
+# Deeper than Python's stack takes; from 20,000 to 40,000 levels OpenCV's parser crashed the process,
+# which tests/test_cli.py tries in a process of its own.
+DEEP = 10_000
+
+
+@pytest.mark.parametrize("text, message", [
+    ("k: " + "[" * DEEP + "]" * DEEP, "line 1, column 23: values nested more than 20 levels deep"),
+    ("k:\n" + "- " * DEEP + "1\n", "line 2, column 39: values nested more than 20 levels deep"),
+    (indented(600), "line 20, column 39: values nested more than 20 levels deep"),
+    ("%YAML:1.0\n---\nk: " + "[" * DEEP + "]" * DEEP, "values nested more than 20 levels deep"),
+    ("%YAML:1.0\n---\nk:\n  " + "- " * DEEP + "1\n", "values nested more than 20 levels deep"),
+    ('{"type_id": "opencv-matrix", "k": ' + "[" * DEEP + "]" * DEEP + "}", "values nested more than 20 levels"),
+    ('<?xml version="1.0"?>\n<opencv_storage>\n' + "<a>" * DEEP + "</a>" * DEEP + "\n</opencv_storage>\n",
+     "values nested more than 20 levels deep"),
+    # too few bytes to take OpenCV's parser past its stack, as many as take Python's past its own
+    ("%YAML:1.0\n---\n" + indented(600), "values nested more than 20 levels deep"),
+], ids=["yaml flow", "yaml dashes", "yaml indented", "opencv yaml flow", "opencv yaml dashes", "opencv json",
+        "opencv xml", "opencv yaml indented"])
+def test_values_nested_deeper_than_any_camera_files_are_refused(tmp_path, text, message):
+    """Each was a RecursionError's traceback (an HTTP 500 in PUT /api/camera)."""
+    assert_one_line_error(tmp_path / "camera.yaml", text, message)
+
+
+def test_a_whole_number_too_long_for_python_is_refused_saying_where(tmp_path):
+    """A ValueError's traceback (an HTTP 500 in PUT /api/camera): Python reads no int of 4301 digits."""
+    assert_one_line_error(tmp_path / "camera.yaml", "fy: 500\nfx: " + "1" * 5000 + "\ncx: 320\ncy: 240\n",
+                          "line 2, column 5: a whole number of 5000 characters, which no camera value has")
+
+
+def test_a_camera_file_too_large_for_one_or_with_too_many_values_is_refused(tmp_path):
+    """A YAML list of a million numbers (5 MB) took 38 s and 830 MB to refuse."""
+    sound = json.dumps({"fx": 500, "fy": 500, "cx": 320, "cy": 240})
+    (tmp_path / "a.json").write_text(sound + " " * 1_000_000)
+    with pytest.raises(CameraError, match=re.escape(f"camera file {tmp_path / 'a.json'} is over 1000 kB, which no "
+                                                    "camera file is")):
+        load_camera(tmp_path / "a.json")
+    many = sound[:-1] + "".join(f', "n{i}": {i}' for i in range(5000)) + "}"
+    assert_one_line_error(tmp_path / "b.json", many, "line 1, column 72760: more than 10000 values, where a camera")
+    # `ros2 topic echo` run on past its first message, 600 kB of them: the first is read, not the rest
+    (tmp_path / "echo.yaml").write_text(ROS2_MESSAGE * 600)
+    assert load_camera(tmp_path / "echo.yaml").K[0, 0] == 500
+
+
+# ---- a camera whose images are part of its sensor: ROS's roi and binning
+
+SCENES = Path(__file__).parents[1] / "sample_images" / "scenes"
+
+
+@pytest.fixture(scope="module")
+def sensor_render():
+    """(library, the 1280x960 sensor's camera, a render of a sign through it, the recognition of the whole
+    render); the sign lies at x 366..774, y 393..613 px."""
+    library = load_library()
+    sensor = synthetic_camera((1280, 960))
+    scene = render_scene(library, "security_compound", sensor, np.random.default_rng(11), "easy")
+    return library, sensor, scene, recognize(scene.image, library, preset("default"), sensor)
+
+
+def read_out(image: np.ndarray, roi: tuple[int, int, int, int], binning: tuple[int, int]) -> np.ndarray:
+    """What a sensor delivers of `image`, its full frame: the `roi` (x_offset, y_offset, width, height) px,
+    each `binning` (x, y) block of px averaged into one, the last px of a row or column short of a whole
+    block left out."""
+    x, y, w, h = roi
+    (bx, by), size = binning, (w // binning[0], h // binning[1])
+    return cv2.resize(image[y:y + size[1] * by, x:x + size[0] * bx], size, interpolation=cv2.INTER_AREA)
+
+
+def ros2_message(K: np.ndarray, size: tuple[int, int], roi: tuple[int, int, int, int], binning: tuple[int, int],
+                 do_rectify: bool = False) -> str:
+    """A CameraInfo as `ros2 topic echo --once` prints it, the camera K (3, 3) px of a sensor of `size` px."""
+    x, y, w, h = roi
+    return (ROS2_MESSAGE.replace("height: 480\nwidth: 640\n", f"height: {size[1]}\nwidth: {size[0]}\n")
+            .replace(k_list(K_VALUES), k_list(K.ravel().tolist())).replace("d:\n- -0.1\n- 0.01\n", "d:\n- 0.0\n- 0.0\n")
+            .replace(MESSAGE_END, f"binning_x: {binning[0]}\nbinning_y: {binning[1]}\nroi:\n  x_offset: {x}\n"
+                                  f"  y_offset: {y}\n  height: {h}\n  width: {w}\n  do_rectify: {str(do_rectify).lower()}\n"
+                                  "---\n"))
+
+
+def ros_file(K: np.ndarray, size: tuple[int, int], roi: tuple[int, int, int, int], binning: tuple[int, int]) -> str:
+    """camera_calibration's file of a sensor of `size` px, with the roi and binning a driver reads it out with."""
+    x, y, w, h = roi
+    return (ROS.replace("[500, 0, 320, 0, 510, 240, 0, 0, 1]", str(K.ravel().tolist())).replace("-0.1, 0.01", "0, 0")
+            .replace("image_width: 640\nimage_height: 480", f"image_width: {size[0]}\nimage_height: {size[1]}")
+            + f"binning_x: {binning[0]}\nbinning_y: {binning[1]}\n"
+              f"roi: {{x_offset: {x}, y_offset: {y}, width: {w}, height: {h}}}\n")
+
+
+def plain_json(K: np.ndarray, size: tuple[int, int], roi: tuple[int, int, int, int], binning: tuple[int, int]) -> str:
+    return json.dumps({"K": K.tolist(), "width": size[0], "height": size[1], "binning_x": binning[0],
+                       "binning_y": binning[1], "roi": dict(zip(("x_offset", "y_offset", "width", "height"), roi))})
+
+
+@pytest.mark.parametrize("form, roi, binning", [
+    (ros2_message, (300, 250, 640, 480), (0, 0)),  # ROS's 0: no binning
+    (ros_file, (300, 250, 640, 480), (2, 2)),
+    (plain_json, (0, 0, 0, 0), (2, 1)),  # all zeros: the whole sensor
+    (ros2_message, (0, 0, 0, 0), (3, 3)),  # 1280 px are 426 whole blocks of 3
+], ids=["message roi", "file roi binned", "json binned 2x1", "message binned 3x3"])
+def test_part_of_the_sensor_gives_the_pose_and_corners_the_whole_sensor_does(tmp_path, sensor_render, form, roi,
+                                                                             binning):
+    """A camera_info of a 1280x960 sensor read out 640x480 at (320, 240) gave the sample scene a camera
+    0.5 m off: its roi was ignored and its K scaled by 0.5. Each image here is a render read out as a
+    sensor does; its camera, from the file, must put the sign where the whole render's recognition
+    does (the pixel-centre convention: ROS's image_geometry's cx / binning is 0.25 px off at 2, 0.33 px
+    at 3), and the camera where the render's truth has it."""
+    library, sensor, scene, whole = sensor_render
+    path = tmp_path / "camera.yaml"
+    path.write_text(form(sensor.K, (1280, 960), roi, binning))
+    window = roi if any(roi) else (0, 0, 1280, 960)
+    image = read_out(scene.image, window, tuple(b or 1 for b in binning))
+    camera = load_camera(path)
+    assert camera.for_image(image.shape[1], image.shape[0]) == (camera, [])  # its images' size: not scaled
+    rec = recognize(image, library, preset("default"), camera)
+    assert rec.label == "security_compound" and rec.outline is not None
+    # sensor px -> image px, as the camera has it
+    to_image = camera.K @ np.linalg.inv(sensor.K)
+    expected = np.column_stack([whole.corners, np.ones(4)]) @ to_image.T
+    assert np.abs((rec.corners - expected[:, :2]).mean(axis=0)).max() < 0.1
+    truth = camera_position(scene.R, scene.t)
+    assert np.linalg.norm(rec.pose.camera_position - truth) < 0.005
+
+
+def test_do_rectify_does_not_change_the_raw_images_camera(tmp_path):
+    """do_rectify asks consumers for a rectified roi; the image given is still the raw roi."""
+    K = synthetic_camera((1280, 960)).K
+    cameras = []
+    for do_rectify in (False, True):
+        (tmp_path / "camera.yaml").write_text(ros2_message(K, (1280, 960), (300, 250, 640, 480), (2, 2), do_rectify))
+        cameras.append(load_camera(tmp_path / "camera.yaml"))
+    assert np.array_equal(cameras[0].K, cameras[1].K) and cameras[0].width == cameras[1].width == 320
+
+
+@pytest.mark.parametrize("roi, binning, size, message", [
+    ((700, 0, 640, 480), (0, 0), (1280, 960), "roi 640x480 px at (700, 0) reaches past the 1280x960 px sensor: the "
+                                              "roi is in px of the full, unbinned sensor"),
+    ((320, 240, 0, 480), (0, 0), (1280, 960), "roi width and height must be positive (an all-zero roi is the whole "
+                                              "sensor); got 0x480"),
+    ((0, 0, 640, 480), (1024, 1), (1280, 960), "binning 1024x1 leaves no image px of the 640x480 px roi"),
+    ((320, 240, 640, 480), (0, 0), None, "roi and binning are in px of the full, unbinned sensor: give its "
+                                         "image_width and image_height"),
+    ((-5, 0, 640, 480), (0, 0), (1280, 960), "roi.x_offset must be a whole number of px from 0 to 2**31 - 1; got -5"),
+])
+def test_a_roi_or_binning_the_sensor_cannot_have_is_refused(roi, binning, size, message):
+    data = {"K": synthetic_camera((1280, 960)).K.tolist(), "binning_x": binning[0], "binning_y": binning[1],
+            "roi": dict(zip(("x_offset", "y_offset", "width", "height"), roi))}
+    with pytest.raises(CameraError, match=re.escape(message)):
+        camera_from_json(data | ({"width": size[0], "height": size[1]} if size else {}))
+
+
+@pytest.mark.parametrize("roi", [{"x": 0, "y": 0, "w": 640, "h": 480}, [0, 0, 640, 480],
+                                 {"x_offset": 0, "y_offset": 0, "width": 640}])
+def test_a_roi_that_is_not_rosss_four_numbers_is_refused(roi):
+    with pytest.raises(CameraError, match="roi must be x_offset, y_offset, width and height, in px of the full"):
+        camera_from_json({"fx": 500, "fy": 500, "cx": 640, "cy": 480, "width": 1280, "height": 960, "roi": roi})
+
+
+def test_part_of_a_sensor_is_written_as_its_file_gives_it_and_read_back():
+    """The state directory's camera.json, which `--camera` reads: the crop's own K and size would be
+    refused there, its principal point far from their centre."""
+    data = {"fx": 554.0, "fy": 554.0, "cx": 640.0, "cy": 480.0, "dist": [-0.1, 0.0, 0.0, 0.0, 0.0], "width": 1280,
+            "height": 960, "roi": {"x_offset": 700, "y_offset": 0, "width": 580, "height": 480}, "binning_x": 2,
+            "binning_y": 2}
+    camera = camera_from_json(data, source="file:cam.yaml")
+    assert camera.to_json() == {"fx": 277.0, "fy": 277.0, "cx": -30.25, "cy": 239.75, "dist": [-0.1, 0, 0, 0, 0],
+                                "width": 290, "height": 240, "source": "file:cam.yaml"}
+    assert camera.file_json() == data | {"source": "file:cam.yaml"}
+    again = camera_from_json(json.loads(json.dumps(camera.file_json())), source="file:cam.yaml")
+    assert np.array_equal(again.K, camera.K) and again.file_json() == camera.file_json()
+    with pytest.raises(CameraError, match="far from the centre"):
+        camera_from_json(camera.to_json())
+
+
+# scene_002 read out of a sensor 400 px wide from its left edge: the sign lies at x 166..346 px
+CROP = {"fx": 554.2562584220408, "fy": 554.2562584220408, "cx": 320, "cy": 240}
+
+
+def test_a_crop_given_with_its_own_size_is_refused_saying_how_to_give_it(tmp_path):
+    """The crop's own K and size look like a file for another resolution; the refusal said only to check
+    the values and the size, which were right, and the crop had no way in."""
+    image = read_image(SCENES / "scene_002.jpg")
+    path = tmp_path / "crop.json"
+    path.write_text(json.dumps(CROP | {"width": 400, "height": 480}))
+    with pytest.raises(CameraError, match=re.escape("far from the centre (200, 240) of the 400x480 px image: a "
+                                                    "calibration puts it within a few percent of the centre; check "
+                                                    "that the values are in pixels and that the file's image size is "
+                                                    "the calibration's; for a crop of a larger sensor, give the "
+                                                    "sensor's camera matrix, width and height, with the crop as roi")):
+        load_camera(path)
+    with pytest.raises(CameraError, match="for a crop of a larger sensor"):  # as PUT /api/camera's JSON gives it
+        camera_from_json(CROP | {"width": 400, "height": 480, "roi": None, "binning_x": None, "binning_y": None})
+    # as it says: the sensor's K and size with the crop as roi, which gives the whole image's pose
+    path.write_text(json.dumps(CROP | {"width": 640, "height": 480,
+                                       "roi": {"x_offset": 0, "y_offset": 0, "width": 400, "height": 480}}))
+    library = load_library(SAMPLE_LIBRARY)
+    crop = recognize(image[:, :400], library, preset("default"), load_camera(path))
+    whole = recognize(image, library, preset("default"), load_camera(SCENES / "camera.yaml"))
+    assert np.linalg.norm(crop.pose.camera_position - whole.pose.camera_position) < 0.002
+    truth = json.loads((SCENES / "truth.json").read_text())["images"]["scene_002.jpg"]
+    assert np.linalg.norm(crop.pose.camera_position - camera_position(np.array(truth["R"]), np.array(truth["t"]))) < 0.005
+    # without a size the crop's K is used as it is, with a warning that must not lead to the refusal alone
+    unsized = camera_from_json(CROP)
+    assert unsized.for_image(400, 480)[1] == [
+        "the camera has no image size and its principal point (320, 240) px is far from the centre (200, 240) of the "
+        "400x480 px image: the file was probably made for another resolution: give it that resolution's width and "
+        "height, and it is scaled to this image; for a crop of a larger sensor, give the sensor's camera matrix, "
+        "width and height, with the crop as roi (x_offset, y_offset, width, height, in the sensor's px), or the pose "
+        "is wrong"]

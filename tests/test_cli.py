@@ -17,6 +17,7 @@ import tomllib
 from pathlib import Path
 
 import cv2
+import numpy as np
 import pytest
 
 from app.cli import build_parser, main
@@ -178,6 +179,76 @@ def test_bad_settings_and_camera_files_are_one_clear_line(tmp_path, option, cont
     assert message in result.stderr and "Traceback" not in result.stderr
 
 
+DEEP = 100_000  # levels of nesting: far past Python's stack, and OpenCV's parser's (from 20,000 to 40,000)
+
+
+@pytest.mark.parametrize("option, name, content, message", [
+    ("--camera", "deep.yaml", "k: " + "[" * DEEP + "]" * DEEP,
+     "{path}: line 1, column 23: values nested more than 20 levels deep"),
+    ("--camera", "deep.xml", '<?xml version="1.0"?>\n<opencv_storage>\n' + "<a>" * DEEP + "</a>" * DEEP
+     + "\n</opencv_storage>\n", "{path}: values nested more than 20 levels deep"),
+    ("--camera", "dashes.yaml", "%YAML:1.0\n---\nk:\n  " + "- " * DEEP + "1\n",
+     "{path}: values nested more than 20 levels deep"),
+    ("--settings", "deep.json", '{"a": ' * DEEP + "1" + "}" * DEEP, "settings file {path} is JSON nested too deep"),
+], ids=["yaml", "opencv xml", "opencv yaml", "settings"])
+def test_a_file_nested_deeper_than_any_is_one_line_naming_it(tmp_path, option, name, content, message):
+    """A RecursionError's traceback, or a segmentation fault (exit -11) in OpenCV's FileStorage parser."""
+    path = tmp_path / name
+    path.write_text(content)
+    result = signpose("recognize", sorted(SCENES.glob("*.jpg"))[0], option, path)
+    assert result.returncode == 2, result.stderr[-300:]
+    assert result.stderr.splitlines()[-1].startswith("signpose recognize: error: " + message.format(path=path))
+    assert "Traceback" not in result.stderr
+
+
+def test_a_camera_info_of_part_of_the_sensor_gives_the_true_pose(tmp_path):
+    """`ros2 topic echo` of a 1280x960 sensor read out 640x480 from (320, 240): scene_002 exactly. Its roi
+    was ignored and its K scaled by 0.5, and the camera was put at (0.429, 0.13, -0.86)."""
+    camera = tmp_path / "camera_info.yaml"
+    camera.write_text("""header:
+  stamp:
+    sec: 0
+    nanosec: 0
+  frame_id: camera
+height: 960
+width: 1280
+distortion_model: plumb_bob
+d: [0.0, 0.0, 0.0, 0.0, 0.0]
+k: [554.2562584220408, 0.0, 640.0, 0.0, 554.2562584220408, 480.0, 0.0, 0.0, 1.0]
+r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+p: [554.2562584220408, 0.0, 640.0, 0.0, 0.0, 554.2562584220408, 480.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+binning_x: 0
+binning_y: 0
+roi:
+  x_offset: 320
+  y_offset: 240
+  height: 480
+  width: 640
+  do_rectify: false
+---
+""")
+    result = signpose("recognize", SCENES / "scene_002.jpg", "--camera", camera, "--json")
+    assert result.returncode == 0, result.stderr
+    obj = json.loads(result.stdout)
+    truth = json.loads((SCENES / "truth.json").read_text())["images"]["scene_002.jpg"]
+    R, t = np.array(truth["R"]), np.array(truth["t"])
+    assert np.linalg.norm(np.array(obj["pose"]["camera_position"]) + R.T @ t) < 0.005
+    assert obj["warnings"] == []  # no scaling
+
+
+def test_a_camera_without_size_whose_principal_point_is_off_the_image_fails_it(tmp_path):
+    """A phone's calibration (4032x3024) without its size gave this 640x480 sample a pose 9 m off, with a
+    warning; its numbers cannot describe this image."""
+    camera = tmp_path / "phone.json"
+    camera.write_text('{"fx": 3000, "fy": 3000, "cx": 2016, "cy": 1512}')
+    result = signpose("recognize", SCENES / "scene_002.jpg", "--camera", camera, "--json")
+    assert result.returncode == 1, result.stdout
+    line = json.loads(result.stdout)
+    assert line["error"].startswith("the camera has no image size and its principal point (2016, 1512) px lies "
+                                    "outside this 640x480 px image")
+    assert "4032x3024" in line["error"]
+
+
 def test_the_assumed_field_of_view_is_the_pages(tmp_path):
     """The page's assumed FOV had no counterpart in the CLI (always 60°): a photo without a camera file or EXIF
     could not give in the CLI what it gave in the page."""
@@ -187,8 +258,10 @@ def test_the_assumed_field_of_view_is_the_pages(tmp_path):
     expected = recognize(image, load_library(), preset("default"), assumed_camera(640, 480, 65.0))
     assert obj["pose"]["t"] == pytest.approx(expected.pose.t.tolist(), abs=1e-9)
     assert obj["warnings"] == expected.warnings and "assumed 65° horizontal field of view" in obj["warnings"][-1]
-    refused = signpose("recognize", scene, "--assumed-fov", "170")
-    assert refused.returncode == 2 and "the horizontal field of view must be 10° to 140°; got 170.0" in refused.stderr
+    for typed in ("170", "-0"):  # as typed: -0 was said as "got -0.0", over the API as "got 0.0"
+        refused = signpose("recognize", scene, "--assumed-fov", typed)
+        assert refused.returncode == 2, refused.stderr
+        assert refused.stderr.endswith(f"the horizontal field of view must be 10° to 140°; got {typed}\n")
 
 
 def test_whole_numbers_written_as_floats_in_a_settings_file_work(tmp_path):

@@ -20,7 +20,13 @@ LOADERS = [  # (file name, loader given the folder, its error)
 @pytest.mark.parametrize("content, message", [(b'{"a": ', "is not valid JSON"), (b"\xff\xfe{}", "is not valid JSON"),
                                               # said so, not "Expecting value: line 1 column 1 (char 0)"
                                               (b"", r"is an empty file \(nothing in it to read\)"),
-                                              (BOM + b" \r\n", r"is an empty file \(nothing in it to read\)")])
+                                              (BOM + b" \r\n", r"is an empty file \(nothing in it to read\)"),
+                                              # a RecursionError's traceback (an HTTP 500 in the page's import)
+                                              (b"[" * 100_000 + b"]" * 100_000, "is JSON nested too deep to read"),
+                                              # a ValueError's traceback: Python reads no int of 4301 digits
+                                              (b'{"a": ' + b"1" * 5000 + b"}",
+                                               "is JSON with a whole number of over 4300 digits")],
+                         ids=["cut short", "not UTF-8", "empty", "blank", "nested deep", "long number"])
 @pytest.mark.parametrize("name, load, error", LOADERS, ids=[n for n, _, _ in LOADERS])
 def test_bad_json_is_the_loaders_error_naming_the_file(tmp_path, name, load, error, content, message):
     (tmp_path / name).write_bytes(content)

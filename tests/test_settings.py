@@ -31,6 +31,18 @@ def test_invalid_values_are_clear_errors(changes, message):
         Settings().replace(**changes)
 
 
+@pytest.mark.parametrize("changes, message", [
+    ({"threshold": [1] * 1_000_000}, "threshold must be a number; got [1, 1, 1, 1, 1, 1, ...]"),
+    ({"detector": "x" * 100_000}, "detector must be one of sift, orb; got 'xxxxxxxxxxxx...xxxxxxxxxxxxx'"),
+    ({"x" * 100_000: 1, "thresold": 0.5}, "unknown setting(s): 'thresold', 'xxxxxxxxxxxx...xxxxxxxxxxxxx'; known: "),
+])
+def test_an_error_shows_a_value_or_name_shortened(changes, message):
+    """A settings file's million-number value was written out whole: a 6 MB error line, or detail of a 422."""
+    with pytest.raises(SettingsError) as info:
+        Settings().replace(**changes)
+    assert str(info.value).startswith(message) and len(str(info.value)) < 1000
+
+
 def test_partial_json_round_trip(tmp_path):
     path = tmp_path / "s.json"
     path.write_text(json.dumps({"threshold": 0.7, "high_threshold": None}))
