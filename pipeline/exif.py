@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .camera import Camera, assumed_camera
-from .image import decode_image, image_format
+from .image import decode_image, exif_tiff, tiff_ifd
 
 # The 35 mm-equivalent focal length is defined by the angle of view across the diagonal of a
 # 36 x 24 mm frame, which keeps it independent of the image's aspect and orientation.
@@ -32,9 +32,6 @@ _TAG_PIXEL_X = 0xA002
 _TAG_PIXEL_Y = 0xA003
 # FocalPlaneResolutionUnit code -> millimetres per unit (2, inches, is the default).
 _UNIT_MM = {2: 25.4, 3: 10.0, 4: 1.0, 5: 1e-3}
-# TIFF field type -> (struct code, size in bytes) for the numeric types the tags above use
-# (13 is an IFD offset, stored like a LONG).
-_TYPES = {3: ("H", 2), 4: ("I", 4), 5: ("II", 8), 13: ("I", 4)}
 
 
 @dataclass(frozen=True)
@@ -53,88 +50,6 @@ class LensExif:
     pixel_size: tuple[int, int] | None
 
 
-def exif_tiff(data: bytes) -> bytes | None:
-    """The TIFF block of encoded image `data`'s EXIF: a JPEG's APP1 "Exif" segment, a PNG's eXIf
-    chunk or a WebP's EXIF chunk; None for another format, or no EXIF. Some writers begin a PNG's
-    or WebP's with the "Exif\\0\\0" a JPEG's has: it is dropped."""
-    if data[:2] == b"\xff\xd8":
-        return _jpeg_exif(data)
-    reader = {"PNG": _png_exif, "WebP": _webp_exif}.get(image_format(data))
-    tiff = reader(data) if reader else None
-    return tiff.removeprefix(b"Exif\x00\x00") if tiff is not None else None
-
-
-def _png_exif(png: bytes) -> bytes | None:
-    """The data of a PNG's eXIf chunk, or None. Chunks: a 4-byte big-endian length, a 4-byte type,
-    the data, a 4-byte CRC."""
-    pos = 8  # after the signature
-    while pos + 8 <= len(png):
-        length, kind = struct.unpack_from(">I4s", png, pos)
-        if kind == b"eXIf":
-            return png[pos + 8:pos + 8 + length]
-        if kind == b"IEND":
-            return None
-        pos += 12 + length
-    return None
-
-
-def _webp_exif(webp: bytes) -> bytes | None:
-    """The data of a WebP's EXIF chunk, or None. After the 12-byte RIFF header, chunks: a FourCC, a
-    4-byte little-endian size, the data, padded to an even size."""
-    pos = 12
-    while pos + 8 <= len(webp):
-        kind, size = struct.unpack_from("<4sI", webp, pos)
-        if kind == b"EXIF":
-            return webp[pos + 8:pos + 8 + size]
-        pos += 8 + size + (size & 1)
-    return None
-
-
-def _jpeg_exif(jpeg: bytes) -> bytes | None:
-    """The TIFF block inside a JPEG's APP1 "Exif" segment, or None."""
-    pos = 2
-    while pos + 4 <= len(jpeg):
-        if jpeg[pos] != 0xFF:
-            return None
-        marker = jpeg[pos + 1]
-        if marker == 0xFF:  # fill byte before a marker
-            pos += 1
-            continue
-        if marker == 0xDA or marker == 0xD9:  # image data or end: metadata comes before these
-            return None
-        if 0xD0 <= marker <= 0xD7 or marker == 0x01:  # markers without a length
-            pos += 2
-            continue
-        (length,) = struct.unpack(">H", jpeg[pos + 2:pos + 4])
-        payload = jpeg[pos + 4:pos + 2 + length]
-        if marker == 0xE1 and payload.startswith(b"Exif\x00\x00"):
-            return payload[6:]
-        pos += 2 + length
-    return None
-
-
-def _ifd(tiff: bytes, offset: int, order: str) -> dict[int, float]:
-    """Tag -> first value of each numeric entry of the IFD at `offset` (a RATIONAL as num / den).
-
-    Only the first value is read: every tag used here holds one, and a corrupt count must not
-    make us allocate or read gigabytes.
-    """
-    (count,) = struct.unpack_from(order + "H", tiff, offset)
-    entries = {}
-    for i in range(count):
-        tag, kind, n, inline = struct.unpack_from(order + "HHI4s", tiff, offset + 2 + 12 * i)
-        if kind not in _TYPES or n == 0:
-            continue
-        code, size = _TYPES[kind]
-        data = inline if size * n <= 4 else tiff[struct.unpack(order + "I", inline)[0]:]
-        value = struct.unpack_from(order + code, data)
-        if kind != 5:
-            entries[tag] = float(value[0])
-        elif value[1]:
-            entries[tag] = value[0] / value[1]
-    return entries
-
-
 def _positive(value: float | None) -> float | None:
     return value if value is not None and value > 0 else None
 
@@ -147,10 +62,10 @@ def read_lens_exif(data: bytes) -> LensExif | None:
         return None
     order = "<" if tiff[:2] == b"II" else ">"
     try:
-        ifd0 = _ifd(tiff, struct.unpack_from(order + "I", tiff, 4)[0], order)
+        ifd0 = tiff_ifd(tiff, struct.unpack_from(order + "I", tiff, 4)[0], order)
         if _TAG_EXIF_IFD not in ifd0:
             return None
-        exif = _ifd(tiff, int(ifd0[_TAG_EXIF_IFD]), order)
+        exif = tiff_ifd(tiff, int(ifd0[_TAG_EXIF_IFD]), order)
     except struct.error:  # offsets pointing outside the block: truncated or corrupt EXIF
         return None
     plane = _positive(exif.get(_TAG_PLANE_X_RES))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 import stat
 import struct
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -40,6 +41,14 @@ _MARKER = re.compile(rb"\xff([\x01-\xfe])")
 _AFTER_SCAN = frozenset([0xC4, 0xCC, 0xDB, 0xDD, 0xDC, 0xFE, 0xDA, 0xD9, *range(0xE0, 0xF0)])
 _STANDALONE = frozenset([0x01, *range(0xD0, 0xD8)])
 _GARBLED = ": decoded, part of the picture would be grey or garbled"
+# EXIF orientations, and how each turns the pixels as stored into those shown (1, as stored, is not here):
+# 3 a half turn, 6 and 8 a quarter turn clockwise and anticlockwise, 2 and 4 mirrored left-right and
+# top-bottom, 5 and 7 mirrored across the main and the other diagonal.
+ORIENTATIONS = range(1, 9)
+_TURNS = {2: lambda im: cv2.flip(im, 1), 3: lambda im: cv2.rotate(im, cv2.ROTATE_180), 4: lambda im: cv2.flip(im, 0),
+          5: cv2.transpose, 6: lambda im: cv2.rotate(im, cv2.ROTATE_90_CLOCKWISE),
+          7: lambda im: cv2.rotate(cv2.transpose(im), cv2.ROTATE_180),
+          8: lambda im: cv2.rotate(im, cv2.ROTATE_90_COUNTERCLOCKWISE)}
 # What `read_file` calls what it refuses to open, by the file type its stat gives.
 _NOT_FILES = {stat.S_IFDIR: "a directory", stat.S_IFIFO: "a named pipe (FIFO)", stat.S_IFSOCK: "a socket",
               stat.S_IFCHR: "a device", stat.S_IFBLK: "a device"}
@@ -178,6 +187,113 @@ def transparent(data: bytes) -> bool:
     return False
 
 
+# TIFF field type -> (struct code, size in bytes) for the numeric types of the EXIF tags signpose
+# reads (13 is an IFD offset, stored like a LONG).
+_TYPES = {3: ("H", 2), 4: ("I", 4), 5: ("II", 8), 13: ("I", 4)}
+_TAG_ORIENTATION = 0x0112
+
+
+def exif_tiff(data: bytes) -> bytes | None:
+    """The TIFF block of encoded image `data`'s EXIF: a JPEG's APP1 "Exif" segment, a PNG's eXIf
+    chunk or a WebP's EXIF chunk; None for another format, or no EXIF. Some writers begin a PNG's
+    or WebP's with the "Exif\\0\\0" a JPEG's has: it is dropped."""
+    if data[:2] == b"\xff\xd8":
+        return _jpeg_exif(data)
+    reader = {"PNG": _png_exif, "WebP": _webp_exif}.get(image_format(data))
+    tiff = reader(data) if reader else None
+    return tiff.removeprefix(b"Exif\x00\x00") if tiff is not None else None
+
+
+def _png_exif(png: bytes) -> bytes | None:
+    """The data of a PNG's eXIf chunk, or None. Chunks: a 4-byte big-endian length, a 4-byte type,
+    the data, a 4-byte CRC."""
+    pos = 8  # after the signature
+    while pos + 8 <= len(png):
+        length, kind = struct.unpack_from(">I4s", png, pos)
+        if kind == b"eXIf":
+            return png[pos + 8:pos + 8 + length]
+        if kind == b"IEND":
+            return None
+        pos += 12 + length
+    return None
+
+
+def _webp_exif(webp: bytes) -> bytes | None:
+    """The data of a WebP's EXIF chunk, or None. After the 12-byte RIFF header, chunks: a FourCC, a
+    4-byte little-endian size, the data, padded to an even size."""
+    pos = 12
+    while pos + 8 <= len(webp):
+        kind, size = struct.unpack_from("<4sI", webp, pos)
+        if kind == b"EXIF":
+            return webp[pos + 8:pos + 8 + size]
+        pos += 8 + size + (size & 1)
+    return None
+
+
+def _jpeg_segments(jpeg: bytes) -> Iterator[tuple[int, bytes]]:
+    """(marker, payload) of each segment of a JPEG's header, up to its first scan (or end)."""
+    pos = 2
+    while pos + 4 <= len(jpeg):
+        if jpeg[pos] != 0xFF:
+            return
+        marker = jpeg[pos + 1]
+        if marker == 0xFF:  # fill byte before a marker
+            pos += 1
+            continue
+        if marker == 0xDA or marker == 0xD9:  # image data or end: the header comes before these
+            return
+        if 0xD0 <= marker <= 0xD7 or marker == 0x01:  # markers without a length
+            pos += 2
+            continue
+        (length,) = struct.unpack(">H", jpeg[pos + 2:pos + 4])
+        yield marker, jpeg[pos + 4:pos + 2 + length]
+        pos += 2 + length
+
+
+def _jpeg_exif(jpeg: bytes) -> bytes | None:
+    """The TIFF block inside a JPEG's APP1 "Exif" segment, or None."""
+    return next((payload[6:] for marker, payload in _jpeg_segments(jpeg)
+                 if marker == 0xE1 and payload.startswith(b"Exif\x00\x00")), None)
+
+
+def tiff_ifd(tiff: bytes, offset: int, order: str) -> dict[int, float]:
+    """Tag -> first value of each numeric entry of the IFD at `offset` (a RATIONAL as num / den).
+
+    Only the first value is read: every tag signpose reads holds one, and a corrupt count must not
+    make us allocate or read gigabytes.
+    """
+    (count,) = struct.unpack_from(order + "H", tiff, offset)
+    entries = {}
+    for i in range(count):
+        tag, kind, n, inline = struct.unpack_from(order + "HHI4s", tiff, offset + 2 + 12 * i)
+        if kind not in _TYPES or n == 0:
+            continue
+        code, size = _TYPES[kind]
+        data = inline if size * n <= 4 else tiff[struct.unpack(order + "I", inline)[0]:]
+        value = struct.unpack_from(order + code, data)
+        if kind != 5:
+            entries[tag] = float(value[0])
+        elif value[1]:
+            entries[tag] = value[0] / value[1]
+    return entries
+
+
+def exif_orientation(data: bytes) -> int:
+    """The EXIF orientation of encoded image `data`, 1-8: how its pixels as stored are turned to be
+    shown (1: as stored; 3: a half turn; 6 and 8: a quarter turn clockwise and anticlockwise; 2, 4,
+    5, 7: those mirrored), from its EXIF (`exif_tiff`) or, for a TIFF, its first IFD. 1 when it
+    has none, or a value out of range (as decoders read it)."""
+    tiff = data if image_format(data) == "TIFF" else exif_tiff(data)
+    if tiff is None or tiff[:4] not in (b"II*\x00", b"MM\x00*"):
+        return 1
+    order = "<" if tiff[:2] == b"II" else ">"
+    try:
+        value = tiff_ifd(tiff, struct.unpack_from(order + "I", tiff, 4)[0], order).get(_TAG_ORIENTATION, 1.0)
+    except struct.error:  # offsets pointing outside the block: truncated or corrupt EXIF
+        return 1
+    return int(value) if value in ORIENTATIONS else 1
+
+
 def to_8bit(image: np.ndarray) -> np.ndarray:
     """A uint8 or uint16 image -> uint8, 16 bits shifted down by as many bits as its largest value
     has beyond 8: 10- and 12-bit camera data stored in 16 bits (values up to 1023 or 4095) keeps
@@ -194,36 +310,60 @@ def on_white(image: np.ndarray) -> np.ndarray:
     return np.round(to_8bit(image[..., :3]) * opacity + 255 * (1 - opacity)).astype(np.uint8)
 
 
-def decode_image(data: bytes, name: str = "image") -> np.ndarray:
+def decode_image(data: bytes, name: str = "image", as_stored: bool = False) -> np.ndarray:
     """Encoded bytes (JPEG, PNG, TIFF, WebP, BMP, GIF first frame, ...) -> (H, W, 3) uint8 BGR.
 
-    EXIF orientation is applied; 16-bit images are scaled to 8 bits (`to_8bit`), transparent pixels (PNG,
-    WebP) shown over white, gray expanded. A JPEG whose data is damaged is refused (`jpeg_damage`, `grey_filled`),
-    as one that cannot be decoded is.
+    Turned as its EXIF orientation says (`exif_orientation`), as it is shown; with `as_stored`,
+    its pixels as the camera stored them, which is what a camera file describes. 16-bit images
+    are scaled to 8 bits (`to_8bit`), transparent pixels (PNG, WebP) shown over white, gray
+    expanded. A JPEG whose data is damaged is refused (`jpeg_damage`, `grey_filled`), as one that
+    cannot be decoded is.
     """
     if not data:
         raise ImageError(f"{name}: file is empty")
+    kind = image_format(data)
     # Before decoding: libjpeg would decode damage as grey or garbled pixels, warning only on stderr.
-    damage = jpeg_damage(data) if image_format(data) == "JPEG" else None
+    damage = jpeg_damage(data) if kind == "JPEG" else None
     if damage:
         raise ImageError(f"{name}: damaged or truncated JPEG file ({damage}); copy or export it again")
-    buf = np.frombuffer(data, dtype=np.uint8)
     try:
-        if transparent(data):
-            image = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
-            if image is not None and image.ndim == 3 and image.shape[2] == 4:
-                return on_white(image)
-        # ANYDEPTH: 16 bits as they are, for to_8bit (IMREAD_COLOR keeps their top 8)
-        image = cv2.imdecode(buf, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+        image = _decode_as_stored(np.frombuffer(data, dtype=np.uint8), transparent(data))
     except cv2.error as exc:
         raise ImageError(f"{name}: cannot decode image: {exc.err or exc}") from None
     if image is None or image.dtype not in (np.uint8, np.uint16):
         raise unreadable(data, name)
-    if image_format(data) == "JPEG" and grey_filled(image):
+    if kind == "JPEG" and grey_filled(image):
         raise ImageError(f"{name}: damaged JPEG file (its image data runs out before its last block, which is drawn "
                          "flat grey (128) as libjpeg draws missing data; part of the picture is grey or garbled); "
                          "copy or export it again (a picture really flat grey 128 in its corner: save it as PNG)")
-    return to_8bit(image)
+    image, orientation = to_8bit(image), exif_orientation(data)
+    if kind == "TIFF":  # libtiff turns it as its orientation says, whatever OpenCV is asked
+        return turned(image, orientation, undo=True) if as_stored else image
+    return image if as_stored else turned(image, orientation)
+
+
+def _decode_as_stored(buf: np.ndarray, with_alpha: bool) -> np.ndarray | None:
+    """Encoded image `buf` (uint8) decoded as (H, W, 3) BGR of 8 or 16 bits, its pixels as stored
+    (a TIFF's excepted, see decode_image), `with_alpha` shown over white; None when OpenCV cannot.
+
+    Turned by the caller, not by OpenCV: which formats OpenCV turns depends on its version and the
+    mode read (never with alpha), and the camera must be turned as the pixels were.
+    """
+    if with_alpha:
+        image = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+        if image is not None and image.ndim == 3 and image.shape[2] == 4:
+            return on_white(image)
+    # ANYDEPTH: 16 bits as they are, for to_8bit (IMREAD_COLOR keeps their top 8)
+    return cv2.imdecode(buf, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH | cv2.IMREAD_IGNORE_ORIENTATION)
+
+
+def turned(image: np.ndarray, orientation: int, undo: bool = False) -> np.ndarray:
+    """`image` (H, W[, C]) as stored, turned as EXIF `orientation` (1-8, `exif_orientation`) says to
+    be shown; with `undo`, `image` as shown turned back to as stored."""
+    if undo:
+        orientation = {6: 8, 8: 6}.get(orientation, orientation)  # the others undo themselves
+    turn = _TURNS.get(orientation)
+    return turn(image) if turn else image
 
 
 def read_file(path: str | Path) -> bytes:

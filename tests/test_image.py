@@ -10,9 +10,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from PIL import Image
+from PIL import Image, ImageOps
 
-from pipeline.image import ImageError, decode_image, read_file
+from pipeline.image import ImageError, decode_image, exif_orientation, read_file
 from scene_images import HEIC_START, scrambled_scene
 
 # Black text on a transparent ground, as sign artwork is often drawn: the ground's colour
@@ -236,3 +236,34 @@ def test_a_jpeg_with_zeros_over_its_image_data_is_refused(start, stop):
     with pytest.raises(ImageError, match=r"zeroed\.jpg: damaged JPEG file \(its image data runs out before its last "
                                          r"block, which is drawn flat grey \(128\)"):
         decode_image(bytes(data), "zeroed.jpg")
+
+
+# 40 x 60 px RGB, a white square top left and a red bar top right: no turn or mirror leaves it as it is.
+PICTURE = np.zeros((40, 60, 3), np.uint8)
+PICTURE[:10, :10] = 255
+PICTURE[:5, 50:] = (255, 0, 0)
+
+
+def oriented(fmt: str, mode: str, orientation: int) -> bytes:
+    """PICTURE, as its pixels are stored, saved by Pillow as `fmt` in `mode` with EXIF `orientation`."""
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    image = Image.fromarray(PICTURE).convert(mode)
+    if fmt == "TIFF":  # the orientation is the TIFF's own tag
+        return encode(image, fmt, exif=exif)
+    lossless = {"WEBP": {"lossless": True}, "JPEG": {"quality": 100, "subsampling": 0}}.get(fmt, {})  # near enough
+    return encode(image, fmt, exif=exif.tobytes(), **lossless)
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+@pytest.mark.parametrize("fmt, mode", [("JPEG", "RGB"), ("PNG", "RGB"), ("PNG", "RGBA"), ("WEBP", "RGBA"),
+                                       ("TIFF", "RGB")])
+def test_every_format_is_turned_as_its_exif_orientation_says(fmt, mode, orientation):
+    """A PNG or WebP with alpha was decoded as stored whatever its orientation (OpenCV turns none it reads with
+    alpha), and which formats OpenCV turns depends on its version: the camera must be turned as the pixels were."""
+    data = oriented(fmt, mode, orientation)
+    # Pillow turns a TIFF as it loads it, and the others when asked
+    shown = np.asarray(ImageOps.exif_transpose(Image.open(io.BytesIO(data))).convert("RGB"))[..., ::-1]
+    assert exif_orientation(data) == orientation
+    for image, expected in ((decode_image(data), shown), (decode_image(data, as_stored=True), PICTURE[..., ::-1])):
+        assert image.shape == expected.shape and np.abs(image.astype(int) - expected).max() <= 8
