@@ -144,10 +144,10 @@ class Snapshot:
     assumed_hfov_deg: float
 
     def camera_for(self, exif: ExifCamera, width: int, height: int) -> Camera:
-        """The intrinsics a `width` x `height` px image is recognised with: the workspace's camera, else
-        the image's EXIF focal length, else the assumed field of view (saying so when the EXIF
-        records a focal length that was refused)."""
-        return self.camera or exif.or_assumed(width, height, self.assumed_hfov_deg)
+        """The intrinsics an image decoded to `width` x `height` px is recognised with: the workspace's
+        camera turned as its EXIF orientation turned it, else the image's EXIF focal length, else the
+        assumed field of view (`ExifCamera.camera_for`). CameraError when the camera does not fit it."""
+        return exif.camera_for(self.camera, width, height, self.assumed_hfov_deg)
 
 
 @dataclass(frozen=True, order=True)

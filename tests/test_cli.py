@@ -17,16 +17,17 @@ import tomllib
 from pathlib import Path
 
 import cv2
+import numpy as np
 import pytest
 
 from app.cli import build_parser, main
 from app.workspace import WorkspaceConfig
-from pipeline.camera import assumed_camera
+from pipeline.camera import assumed_camera, save_camera
 from pipeline.library import load_library
 from pipeline.recognize import recognize
 from pipeline.settings import preset
 from faults import fail_first_segmentation
-from scene_images import png_bomb
+from scene_images import OFF_CENTRE, TURNED_SCENE, png_bomb, turned_photos, turned_scene_position
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "sample_images" / "scenes"
@@ -562,6 +563,43 @@ def test_an_image_the_camera_cannot_be_scaled_to_is_that_images_error(tmp_path):
     assert objs[0]["error"].startswith("this 480x640 px image is the camera's 640x480 px turned on its side")
     assert objs[1]["label"] == "chief_of_security"
     assert "1 of 2 image(s) could not be used" in result.stderr
+
+
+def write_turned_photos(folder: Path) -> dict[int, Path]:
+    """turned_photos of every orientation (1-8) written into `folder`, with OFF_CENTRE as its camera.yaml."""
+    folder.mkdir(exist_ok=True)
+    save_camera(OFF_CENTRE, folder / "camera.yaml")
+    paths = {o: folder / f"turned_{o}.jpg" for o in range(1, 9)}
+    for orientation, photo in turned_photos(*paths).items():
+        paths[orientation].write_bytes(photo)
+    return paths
+
+
+def test_a_camera_file_turns_with_the_photos_exif_orientation(tmp_path):
+    """A camera file describes the pixels as the camera stored them; a photo is read turned as its EXIF orientation
+    says. The camera stayed as it was: upside down (3), its principal point 60 px off centre put the camera 8 cm
+    from where it stood, with no warning, and a quarter turn (6, 8) was refused as a photo turned on its side."""
+    paths = write_turned_photos(tmp_path)
+    result = signpose("recognize", *paths.values(), "--camera", tmp_path / "camera.yaml", "--json")
+    answers = {o: json.loads(line) for o, line in zip(paths, result.stdout.splitlines())}
+    for orientation in (1, 3, 6, 8):
+        position = answers[orientation]["pose"]["camera_position"]
+        assert np.linalg.norm(position - turned_scene_position()) < 0.005, (orientation, position)
+    for orientation in (2, 4, 5, 7):  # no camera sees a mirror image
+        assert "mirrored" in answers[orientation]["error"], answers[orientation]
+
+
+def test_evaluate_turns_the_datasets_camera_with_each_photos_exif_orientation(tmp_path):
+    """As `recognize --camera` does: the dataset's camera.yaml describes the pixels as stored."""
+    paths = write_turned_photos(tmp_path / "turned")
+    truth = json.loads((SCENES / "truth.json").read_text())["images"][TURNED_SCENE]
+    (tmp_path / "turned" / "truth.json").write_text(json.dumps(
+        {"images": {paths[o].name: {"label": truth["label"], "R": truth["R"], "t": truth["t"]} for o in (1, 3, 6, 8)}}))
+    for o in (2, 4, 5, 7):
+        paths[o].unlink()
+    report = json.loads(signpose("evaluate", tmp_path / "turned", "--workers", 1, "--json").stdout)
+    errors = [image["position_error_m"] for image in report["images"]]
+    assert len(errors) == 4 and max(errors) < 0.005, report["images"]
 
 
 def test_option_defaults_are_read_from_the_workspace_config(monkeypatch):
