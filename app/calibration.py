@@ -152,10 +152,13 @@ class BoardSearch:
 
 
 def read_gray(name: str, data: bytes, max_pixels: int) -> np.ndarray:
-    """An uploaded photo as (H, W) uint8 gray; ImageError / ImageTooLarge as for any upload
-    (checked and decoded as `decode_upload` does, without its EXIF camera: a board fixes the intrinsics)."""
+    """An uploaded photo as (H, W) uint8 gray, its pixels as the camera stored them; ImageError /
+    ImageTooLarge as for any upload (checked and decoded as `decode_upload` does, without its EXIF
+    camera: a board fixes the intrinsics). Not turned by its EXIF orientation: the camera file
+    describes the pixels as stored, and each photo recognised turns it as that photo's orientation
+    says (`pipeline.exif.turned_camera`), so photos taken held either way calibrate together."""
     check_image_header(data, name, max_pixels)
-    return to_gray(decode_image(data, name))
+    return to_gray(decode_image(data, name, as_stored=True))
 
 
 class CalibrationSession:

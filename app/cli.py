@@ -428,7 +428,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("calibrate", help="camera intrinsics from photos of a printed chessboard (docs/calibration.md)")
-    p.add_argument("images", nargs="+", help="photos of the board, all the same size and orientation")
+    p.add_argument("images", nargs="+", help="photos of the board, all the same size as the camera stored them "
+                                             "(read without their EXIF orientation, as a camera file describes)")
     p.add_argument("--board", required=True, help="inner corners COLSxROWS, e.g. 9x6 for a board of 10x7 squares")
     p.add_argument("--square", type=float, required=True, help="side of one printed square in metres, e.g. 0.025")
     p.add_argument("-o", "--output", type=output_path, default="camera.yaml",
