@@ -19,6 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from PIL import Image
 
 from app.cli import build_parser, main
 from app.workspace import WorkspaceConfig
@@ -149,6 +150,21 @@ def test_a_truncated_image_gets_signposes_line_and_not_opencvs_warning(tmp_path)
         assert "cut.png" in out and "damaged or truncated PNG file" in out and "WARN" not in result.stderr, result.stderr
 
 
+def test_decoders_say_nothing_on_the_terminal_of_an_image_signpose_refuses(tmp_path):
+    """libjpeg's "Corrupt JPEG data: premature end of data segment" and OpenCV's "[ERROR:0@1.6] ... imdecode_" of a
+    float TIFF were printed among the table's rows; each image has signpose's own line."""
+    photo = bytearray((SCENES / "scene_002.jpg").read_bytes())
+    photo[5000:25000] = bytes(20000)  # zeros over its data: libjpeg runs out and warns
+    (tmp_path / "zeroed.jpg").write_bytes(photo)
+    Image.fromarray(np.full((48, 64), 0.5, np.float32)).save(tmp_path / "float.tiff")  # OpenCV fails, and logs it
+    result = signpose("recognize", tmp_path / "zeroed.jpg", tmp_path / "float.tiff", SCENES / "scene_002.jpg",
+                      "--camera", SCENES / "camera.yaml")
+    rows = result.stdout.splitlines()
+    assert [row.split()[0] for row in rows] == ["image", "zeroed.jpg", "float.tiff", "scene_002.jpg"], rows
+    assert "damaged JPEG file" in rows[1] and "float32 samples" in rows[2]
+    assert result.stderr == "2 of 3 image(s) could not be used\n"
+
+
 def test_a_damaged_jpeg_is_told_apart_from_a_file_that_is_no_image(tmp_path):
     photo = (SCENES / "scene_002.jpg").read_bytes()
     cases = {"header_cut.jpg": photo[:300],          # cut inside its header: not even its size can be read
@@ -241,8 +257,6 @@ def test_the_table_gives_the_plaque_fallbacks_answer_as_the_json_does():
 
 
 def test_exif_focal_length_is_used_without_a_camera_file(tmp_path):
-    from PIL import Image
-
     src = SCENES / json.loads((SCENES / "truth.json").read_text())["camera"]
     assert src.exists()
     scene = next(n for n, t in json.loads((SCENES / "truth.json").read_text())["images"].items() if t["label"])
@@ -255,8 +269,6 @@ def test_exif_focal_length_is_used_without_a_camera_file(tmp_path):
 
 
 def test_an_implausible_exif_focal_length_is_said_where_the_field_of_view_is_assumed(tmp_path):
-    from PIL import Image
-
     scene = SCENES / "scene_002.jpg"  # a sign: the pose, and so the note on it, is there
     for focal_35mm in (0, 65535):  # what cameras write when they do not know it
         exif = Image.Exif()

@@ -4,6 +4,8 @@ import io
 import os
 import re
 import socket
+import subprocess
+import sys
 import threading
 from pathlib import Path
 
@@ -348,3 +350,36 @@ def test_every_format_is_turned_as_its_exif_orientation_says(fmt, mode, orientat
     assert exif_orientation(data) == orientation
     for image, expected in ((decode_image(data), shown), (decode_image(data, as_stored=True), PICTURE[..., ::-1])):
         assert image.shape == expected.shape and np.abs(image.astype(int) - expected).max() <= 8
+
+
+def test_decoders_chatter_is_kept_off_stderr_and_other_threads_writes_are_not(capfd):
+    """libjpeg warns from C on file descriptor 2 of an image signpose refuses in its own words. Decodes on four
+    threads, while a fifth writes its own lines on stderr: each of those lines arrives, none of libjpeg's, and
+    stderr is left where it was."""
+    damaged = ZEROED_JPEGS["zeros_mid.jpg"][0]
+    assert b"Corrupt JPEG data" in decoder_output(damaged)  # what is kept off
+
+    def decode_all() -> None:
+        for _ in range(20):
+            with pytest.raises(ImageError):
+                decode_image(damaged, "zeros_mid.jpg")
+            decode_image(SOUND_JPEGS["baseline.jpg"])
+
+    def write_lines() -> None:
+        for i in range(200):
+            os.write(2, f"line {i} of another thread\n".encode())
+
+    threads = [threading.Thread(target=decode_all) for _ in range(4)] + [threading.Thread(target=write_lines)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    os.write(2, b"after\n")
+    err = capfd.readouterr().err
+    assert sorted(err.splitlines()) == sorted([f"line {i} of another thread" for i in range(200)] + ["after"])
+
+
+def decoder_output(data: bytes) -> bytes:
+    """What OpenCV's decoders print on file descriptor 2 decoding `data`, in a process of their own."""
+    code = "import sys, numpy, cv2; cv2.imdecode(numpy.frombuffer(sys.stdin.buffer.read(), numpy.uint8), 1)"
+    return subprocess.run([sys.executable, "-c", code], input=data, capture_output=True).stderr
