@@ -189,7 +189,8 @@ def turned_camera(camera: Camera, orientation: int, width: int, height: int) -> 
     F = A @ camera.K[:2, :2] @ A.T
     if F[1, 0] != 0:  # OpenCV's K has no place for the skew a quarter turn moves below the diagonal
         raise CameraError(f"this camera's skew s={camera.K[0, 1]:g} cannot be turned with a photo turned {words} by "
-                          "its EXIF orientation: calibrate without skew, or turn the photo's pixels as stored")
+                          "its EXIF orientation: calibrate without skew, or set the photo's orientation to 1 to use "
+                          "its pixels as the camera stored them")
     K = np.eye(3)
     K[:2, :2], K[:2, 2] = F, A @ camera.K[:2, 2] + (A == -1) @ (size - 1)
     dist = camera.dist.copy()
@@ -199,7 +200,7 @@ def turned_camera(camera: Camera, orientation: int, width: int, height: int) -> 
     if dist.size == 14 and dist[12:].any():
         if quarter:  # the sensor's tilt, Ry(tau_y) Rx(tau_x), turned is Rx Ry: another model
             raise CameraError("a tilted-sensor camera (tau_x, tau_y) cannot be turned a quarter turn with its photo: "
-                              "turn the photo's pixels as stored")
+                              "set the photo's EXIF orientation to 1 to use its pixels as the camera stored them")
         dist[12:] = -dist[12:]
     w, h = (int(size[1]), int(size[0])) if quarter else (int(size[0]), int(size[1]))
     return Camera(K, dist, *((w, h) if camera.width is not None else (None, None)),
