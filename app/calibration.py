@@ -22,10 +22,10 @@ from pipeline.calibrate import (MIN_VIEWS, BoardView, Calibration, CalibrationEr
                                 reference_size, size_mismatch, too_few_boards_advice)
 from pipeline.camera import Camera
 from pipeline.evaluate import CORES
-from pipeline.image import decode_image, to_gray
+from pipeline.image import ImageError, decode_image, to_gray
 
 from .figures import fit
-from .workspace import Conflict, Slot, check_image_header, slot_for
+from .workspace import Conflict, Slot, check_image_header, read_each, refused_together, slot_for
 
 # Figures of calibration photos are drawn from a copy this size: enough for a full-width preview.
 PREVIEW_MAX_SIDE = 1280
@@ -152,10 +152,13 @@ class BoardSearch:
 
 
 def read_gray(name: str, data: bytes, max_pixels: int) -> np.ndarray:
-    """An uploaded photo as (H, W) uint8 gray; ImageError / ImageTooLarge as for any upload
-    (checked and decoded as `decode_upload` does, without its EXIF camera: a board fixes the intrinsics)."""
+    """An uploaded photo as (H, W) uint8 gray, its pixels as the camera stored them; ImageError /
+    ImageTooLarge as for any upload (checked and decoded as `decode_upload` does, without its EXIF
+    camera: a board fixes the intrinsics). Not turned by its EXIF orientation: the camera file
+    describes the pixels as stored, and each photo recognised turns it as that photo's orientation
+    says (`pipeline.exif.turned_camera`), so photos taken held either way calibrate together."""
     check_image_header(data, name, max_pixels)
-    return to_gray(decode_image(data, name))
+    return to_gray(decode_image(data, name, as_stored=True))
 
 
 class CalibrationSession:
@@ -200,9 +203,13 @@ class CalibrationSession:
         """Add photos (display name, encoded bytes) and search each for the board; they are listed at
         `position` on in `batch` (`Slot`), or after every photo held without one. Returns the state
         and the new photos' ids, in `uploads`' order. All or nothing: ImageError for a file that is
-        not a usable image, Conflict past the photo limit."""
+        not a usable image (naming every one), Conflict past the photo limit."""
         self._check_room(len(uploads))
-        grays = [read_gray(name, data, self.max_pixels) for name, data in uploads]
+        refused: dict[int, ImageError] = {}
+        grays = read_each(dict(enumerate(uploads)), lambda u: read_gray(u[0], u[1], self.max_pixels), refused)
+        if refused:
+            raise refused_together(refused, len(uploads))
+        grays = list(grays.values())
         previews = [fit(gray, PREVIEW_MAX_SIDE) for gray in grays]  # made once: they do not depend on the board
         names = [name for name, _ in uploads]
         while True:

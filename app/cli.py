@@ -113,13 +113,14 @@ def cmd_recognize(args) -> int:
 def recognize_one(name: str, library: Library, settings: Settings, camera: Camera | None, hfov_deg: float,
                   limit: int, as_json: bool) -> bool:
     """Recognise the image file `name` and print its line: a table row (and its warnings) or, `as_json`, a JSON
-    object; whether the image could be used (else the line says why not). Without `camera`, the image's EXIF
-    focal length, else `hfov_deg` assumed, as the server chooses."""
+    object; whether the image could be used (else the line says why not). `camera` turned as the image's EXIF
+    orientation turned it; without one, the image's EXIF focal length, else `hfov_deg` assumed, as the server
+    chooses."""
     try:
         image, _, exif = decode_upload(read_file(name), name, limit)
         rec = run_pipeline(name, image, library, settings,
-                           camera or exif.or_assumed(image.shape[1], image.shape[0], hfov_deg))
-    # CameraError: the camera cannot be scaled to this image; PipelineError: a failure inside the pipeline
+                           exif.camera_for(camera, image.shape[1], image.shape[0], hfov_deg))
+    # CameraError: the camera cannot be turned or scaled to this image; PipelineError: a failure inside the pipeline
     except (ImageError, CameraError, PipelineError) as exc:
         if as_json:
             say(json.dumps({"image": name, "error": str(exc)}))
@@ -427,7 +428,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("calibrate", help="camera intrinsics from photos of a printed chessboard (docs/calibration.md)")
-    p.add_argument("images", nargs="+", help="photos of the board, all the same size and orientation")
+    p.add_argument("images", nargs="+", help="photos of the board, all the same size as the camera stored them "
+                                             "(read without their EXIF orientation, as a camera file describes)")
     p.add_argument("--board", required=True, help="inner corners COLSxROWS, e.g. 9x6 for a board of 10x7 squares")
     p.add_argument("--square", type=float, required=True, help="side of one printed square in metres, e.g. 0.025")
     p.add_argument("-o", "--output", type=output_path, default="camera.yaml",

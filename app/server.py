@@ -44,6 +44,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from pipeline import shipped_folder
 from pipeline.calibrate import MAX_SQUARE_M, MIN_VIEWS, Calibration, CalibrationError
 from pipeline.camera import Camera, CameraError, camera_from_json, load_camera, ros_camera_yaml
+from pipeline.exif import turned_camera
 from pipeline.image import ImageError
 from pipeline.jsonfile import JsonError, parse_json
 from pipeline.library import ID_PATTERN, LibraryError
@@ -344,17 +345,18 @@ def misfit_warnings(camera: Camera | None, images: list[ImageRecord]) -> list[st
     one's CameraError. The camera is kept all the same: it may be meant for photos still to come."""
     if camera is None:
         return []
-    failures: dict[tuple[int, int], str] = {}
-    for size in {(r.width, r.height) for r in images}:
+    failures: dict[tuple[int, int, int], str] = {}  # (width, height, EXIF orientation) -> why not
+    for kind in {(r.width, r.height, r.exif.orientation) for r in images}:
+        width, height, orientation = kind
         try:
-            camera.for_image(*size)
+            turned_camera(camera, orientation, width, height).for_image(width, height)
         except CameraError as exc:
-            failures[size] = str(exc)
-    misfits = [r for r in images if (r.width, r.height) in failures]
+            failures[kind] = str(exc)
+    misfits = [failures[key] for r in images if (key := (r.width, r.height, r.exif.orientation)) in failures]
     if not misfits:
         return []
     which = "fits none" if len(misfits) == len(images) else f"does not fit {len(misfits)}"
-    return [f"the camera {which} of the {len(images)} images held: {failures[misfits[0].width, misfits[0].height]}"]
+    return [f"the camera {which} of the {len(images)} images held: {misfits[0]}"]
 
 
 def camera_out(workspace: Workspace) -> CameraOut:

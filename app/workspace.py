@@ -27,7 +27,7 @@ from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, NamedTuple
+from typing import Any, Callable, NamedTuple, TypeVar
 
 import cv2
 import numpy as np
@@ -102,6 +102,36 @@ class ImageTooLarge(ImageError):
     """An image whose pixel count exceeds the limit (a decompression bomb or a huge scan)."""
 
 
+Upload = TypeVar("Upload")
+Read = TypeVar("Read")
+
+
+def read_each(uploads: dict[int, Upload], read: Callable[[Upload], Read],
+              refused: dict[int, ImageError]) -> dict[int, Read]:
+    """`read` of each of `uploads` (by its place in the request) that it does not refuse; those it refuses go
+    into `refused` with why. The files of a request are added all or none, and the error names every
+    unusable one (`refused_together`), not the first alone."""
+    done = {}
+    for place, upload in uploads.items():
+        try:
+            done[place] = read(upload)
+        except ImageError as exc:
+            refused[place] = exc
+    return done
+
+
+def refused_together(refused: dict[int, ImageError], total: int) -> ImageError:
+    """One error for the files `refused` (by their place) among the `total` of a request, none of which is
+    added: the file's own when it came alone, else naming each in turn; ImageTooLarge (413) when each
+    was too large."""
+    errors = [refused[place] for place in sorted(refused)]
+    if total == 1:
+        return errors[0]
+    kind = ImageTooLarge if all(isinstance(e, ImageTooLarge) for e in errors) else ImageError
+    return kind(f"{len(errors)} of the {total} files cannot be used, so none was added: "
+                + "; ".join(f"({n}) {error}" for n, error in enumerate(errors, 1)))
+
+
 @dataclass(frozen=True)
 class WorkspaceConfig:
     """Options of `signpose serve` (sizes in bytes and pixels, times in seconds)."""
@@ -144,10 +174,10 @@ class Snapshot:
     assumed_hfov_deg: float
 
     def camera_for(self, exif: ExifCamera, width: int, height: int) -> Camera:
-        """The intrinsics a `width` x `height` px image is recognised with: the workspace's camera, else
-        the image's EXIF focal length, else the assumed field of view (saying so when the EXIF
-        records a focal length that was refused)."""
-        return self.camera or exif.or_assumed(width, height, self.assumed_hfov_deg)
+        """The intrinsics an image decoded to `width` x `height` px is recognised with: the workspace's
+        camera turned as its EXIF orientation turned it, else the image's EXIF focal length, else the
+        assumed field of view (`ExifCamera.camera_for`). CameraError when the camera does not fit it."""
+        return exif.camera_for(self.camera, width, height, self.assumed_hfov_deg)
 
 
 @dataclass(frozen=True, order=True)
@@ -474,22 +504,26 @@ class Workspace:
         """Decode, store and queue (name, encoded bytes, expected label) uploads, all or none; they are
         listed at `position` on in `batch` (`Slot`), or after every image held without one.
 
-        Raises ImageError (ImageTooLarge for too many pixels, or an image that alone would take
-        more than `max_memory_bytes`), LibraryError for an unknown expected label, Conflict when the
-        images would exceed `max_images` or `max_memory_bytes`.
+        Raises ImageError naming every unusable file (ImageTooLarge for too many pixels, or an image
+        that alone would take more than `max_memory_bytes`), LibraryError for an unknown expected
+        label, Conflict when the images would exceed `max_images` or `max_memory_bytes`.
         """
         checked = [(display_name(name), data, self.check_expected(expected)) for name, data, expected in uploads]
-        headers = [check_image_header(data, name, self.config.max_pixels) for name, data, _ in checked]
-        sizes = [(name, header.width * header.height) for (name, _, _), header in zip(checked, headers)]
+        by_place, refused = dict(enumerate(checked)), {}
+        headers = read_each(by_place, lambda u: check_image_header(u[1], u[0], self.config.max_pixels), refused)
+        sizes = [(by_place[place][0], header.width * header.height) for place, header in headers.items()]
         with self._lock:
             self._check_room(sizes)  # before decoding anything
         # Decoded here, in the caller's thread: the pipeline pool may be busy with a long re-run.
-        decoded = [decode_gray(data, name) for name, data, _ in checked]
+        decoded = read_each({place: by_place[place] for place in headers}, lambda u: decode_gray(u[1], u[0]), refused)
+        if refused:
+            raise refused_together(refused, len(checked))
         records = []
         try:
             # Files first, outside the lock (each write is fsync'd); until the index names them a
             # crash leaves only orphans, which the next start sweeps.
-            for (name, data, expected), (gray, exif), (media_type, _, _) in zip(checked, decoded, headers):
+            for (name, data, expected), (gray, exif), (media_type, _, _) in zip(checked, decoded.values(),
+                                                                                headers.values()):
                 image_id = secrets.token_hex(6)
                 records.append(ImageRecord(image_id, name, expected, gray, image_id + _extension(media_type),
                                            media_type, exif))

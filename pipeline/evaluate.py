@@ -43,8 +43,9 @@ import cv2
 import numpy as np
 
 from .camera import Camera, CameraError, load_camera
+from .exif import turned_camera
 from .features import library_features
-from .image import ImageError, decode_image, read_file
+from .image import ImageError, decode_image, exif_orientation, read_file
 from .jsonfile import read_json
 from .library import NO_SIGN, Library
 from .pose import camera_position, rotation_error_deg
@@ -298,8 +299,10 @@ def _measure(job: Job, library: Library, settings: Settings, check_image: ImageC
         if check_image is not None:
             check_image(data, str(sample.path))
         image = decode_image(data, str(sample.path))
+        if camera is not None:  # it describes the pixels as stored, which the EXIF orientation turned
+            camera = turned_camera(camera, exif_orientation(data), image.shape[1], image.shape[0])
         rec = run_pipeline(str(sample.path), image, library, settings, camera)
-    # CameraError: the camera cannot be scaled to this image; PipelineError: a failure inside the pipeline
+    # CameraError: the camera cannot be turned or scaled to this image; PipelineError: a failure inside the pipeline
     except (ImageError, CameraError, PipelineError) as exc:
         return ImageResult(dataset, sample, None, math.nan, error=str(exc))
     result = ImageResult(dataset, sample, rec.label, rec.timing_ms["total"])

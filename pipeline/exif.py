@@ -1,8 +1,11 @@
-"""Approximate intrinsics from an image's EXIF lens data (JPEG, PNG, WebP), read with the standard library only.
+"""What an image's EXIF (JPEG, PNG, WebP) says of its camera, read with the standard library only:
+approximate intrinsics from its lens data, and how its orientation turns a camera file's.
 
 Better than an assumed field of view when there is no calibration: phones and cameras record
 the focal length and either the sensor's pixel density or the 35 mm-equivalent focal length.
 Distortion is unknown, so the result has none; the principal point is taken as the image centre.
+A camera file describes the pixels as the camera stored them; a photo is decoded turned as its
+EXIF orientation says, and the camera is turned with it (`turned_camera`).
 """
 
 from __future__ import annotations
@@ -14,8 +17,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .camera import Camera, assumed_camera
-from .image import decode_image, image_format
+from .camera import Camera, CameraError, assumed_camera
+from .image import decode_image, exif_orientation, exif_tiff, tiff_ifd
 
 # The 35 mm-equivalent focal length is defined by the angle of view across the diagonal of a
 # 36 x 24 mm frame, which keeps it independent of the image's aspect and orientation.
@@ -32,9 +35,6 @@ _TAG_PIXEL_X = 0xA002
 _TAG_PIXEL_Y = 0xA003
 # FocalPlaneResolutionUnit code -> millimetres per unit (2, inches, is the default).
 _UNIT_MM = {2: 25.4, 3: 10.0, 4: 1.0, 5: 1e-3}
-# TIFF field type -> (struct code, size in bytes) for the numeric types the tags above use
-# (13 is an IFD offset, stored like a LONG).
-_TYPES = {3: ("H", 2), 4: ("I", 4), 5: ("II", 8), 13: ("I", 4)}
 
 
 @dataclass(frozen=True)
@@ -53,88 +53,6 @@ class LensExif:
     pixel_size: tuple[int, int] | None
 
 
-def exif_tiff(data: bytes) -> bytes | None:
-    """The TIFF block of encoded image `data`'s EXIF: a JPEG's APP1 "Exif" segment, a PNG's eXIf
-    chunk or a WebP's EXIF chunk; None for another format, or no EXIF. Some writers begin a PNG's
-    or WebP's with the "Exif\\0\\0" a JPEG's has: it is dropped."""
-    if data[:2] == b"\xff\xd8":
-        return _jpeg_exif(data)
-    reader = {"PNG": _png_exif, "WebP": _webp_exif}.get(image_format(data))
-    tiff = reader(data) if reader else None
-    return tiff.removeprefix(b"Exif\x00\x00") if tiff is not None else None
-
-
-def _png_exif(png: bytes) -> bytes | None:
-    """The data of a PNG's eXIf chunk, or None. Chunks: a 4-byte big-endian length, a 4-byte type,
-    the data, a 4-byte CRC."""
-    pos = 8  # after the signature
-    while pos + 8 <= len(png):
-        length, kind = struct.unpack_from(">I4s", png, pos)
-        if kind == b"eXIf":
-            return png[pos + 8:pos + 8 + length]
-        if kind == b"IEND":
-            return None
-        pos += 12 + length
-    return None
-
-
-def _webp_exif(webp: bytes) -> bytes | None:
-    """The data of a WebP's EXIF chunk, or None. After the 12-byte RIFF header, chunks: a FourCC, a
-    4-byte little-endian size, the data, padded to an even size."""
-    pos = 12
-    while pos + 8 <= len(webp):
-        kind, size = struct.unpack_from("<4sI", webp, pos)
-        if kind == b"EXIF":
-            return webp[pos + 8:pos + 8 + size]
-        pos += 8 + size + (size & 1)
-    return None
-
-
-def _jpeg_exif(jpeg: bytes) -> bytes | None:
-    """The TIFF block inside a JPEG's APP1 "Exif" segment, or None."""
-    pos = 2
-    while pos + 4 <= len(jpeg):
-        if jpeg[pos] != 0xFF:
-            return None
-        marker = jpeg[pos + 1]
-        if marker == 0xFF:  # fill byte before a marker
-            pos += 1
-            continue
-        if marker == 0xDA or marker == 0xD9:  # image data or end: metadata comes before these
-            return None
-        if 0xD0 <= marker <= 0xD7 or marker == 0x01:  # markers without a length
-            pos += 2
-            continue
-        (length,) = struct.unpack(">H", jpeg[pos + 2:pos + 4])
-        payload = jpeg[pos + 4:pos + 2 + length]
-        if marker == 0xE1 and payload.startswith(b"Exif\x00\x00"):
-            return payload[6:]
-        pos += 2 + length
-    return None
-
-
-def _ifd(tiff: bytes, offset: int, order: str) -> dict[int, float]:
-    """Tag -> first value of each numeric entry of the IFD at `offset` (a RATIONAL as num / den).
-
-    Only the first value is read: every tag used here holds one, and a corrupt count must not
-    make us allocate or read gigabytes.
-    """
-    (count,) = struct.unpack_from(order + "H", tiff, offset)
-    entries = {}
-    for i in range(count):
-        tag, kind, n, inline = struct.unpack_from(order + "HHI4s", tiff, offset + 2 + 12 * i)
-        if kind not in _TYPES or n == 0:
-            continue
-        code, size = _TYPES[kind]
-        data = inline if size * n <= 4 else tiff[struct.unpack(order + "I", inline)[0]:]
-        value = struct.unpack_from(order + code, data)
-        if kind != 5:
-            entries[tag] = float(value[0])
-        elif value[1]:
-            entries[tag] = value[0] / value[1]
-    return entries
-
-
 def _positive(value: float | None) -> float | None:
     return value if value is not None and value > 0 else None
 
@@ -147,10 +65,10 @@ def read_lens_exif(data: bytes) -> LensExif | None:
         return None
     order = "<" if tiff[:2] == b"II" else ">"
     try:
-        ifd0 = _ifd(tiff, struct.unpack_from(order + "I", tiff, 4)[0], order)
+        ifd0 = tiff_ifd(tiff, struct.unpack_from(order + "I", tiff, 4)[0], order)
         if _TAG_EXIF_IFD not in ifd0:
             return None
-        exif = _ifd(tiff, int(ifd0[_TAG_EXIF_IFD]), order)
+        exif = tiff_ifd(tiff, int(ifd0[_TAG_EXIF_IFD]), order)
     except struct.error:  # offsets pointing outside the block: truncated or corrupt EXIF
         return None
     plane = _positive(exif.get(_TAG_PLANE_X_RES))
@@ -212,34 +130,102 @@ def ignored_focal(lens: LensExif, width: int, height: int) -> str | None:
 
 class ExifCamera(NamedTuple):
     """What a photo's EXIF gives for its camera: `camera`, from a plausible focal length, or None;
-    then `ignored` says which focal length the EXIF records that was refused, if it records one."""
+    then `ignored` says which focal length the EXIF records that was refused, if it records one.
+    `orientation`: its EXIF orientation (1-8), which turned its pixels as they were decoded."""
 
     camera: Camera | None = None
     ignored: str | None = None
+    orientation: int = 1
 
-    def or_assumed(self, width: int, height: int, hfov_deg: float) -> Camera:
-        """The EXIF's camera, else one of `hfov_deg` horizontal field of view for the `width` x `height` px
-        image (saying so when the EXIF records a focal length that was refused)."""
+    def camera_for(self, camera: Camera | None, width: int, height: int, hfov_deg: float) -> Camera:
+        """The intrinsics the photo, decoded to `width` x `height` px, is recognised with: `camera` (a camera
+        file's) turned as the photo was (`turned_camera`); without one the EXIF's camera, else one of `hfov_deg`
+        horizontal field of view (saying so when the EXIF records a focal length that was refused).
+        CameraError when `camera` cannot be turned, or does not fit the photo as stored."""
+        if camera is not None:
+            return turned_camera(camera, self.orientation, width, height)
         return self.camera or assumed_camera(width, height, hfov_deg, self.ignored)
+
+
+# The EXIF orientations that turn a photo, and how: the 2x2 matrix A taking a point's (x, y) in the
+# pixels as stored, about any centre, to (x, y) as shown, and in what words. The others mirror it.
+_TURNS = {3: (np.array([[-1, 0], [0, -1]]), "a half turn"),
+          6: (np.array([[0, -1], [1, 0]]), "a quarter turn clockwise"),
+          8: (np.array([[0, 1], [-1, 0]]), "a quarter turn anticlockwise")}
+_MIRRORS = {2: "left to right", 4: "top to bottom", 5: "across its diagonal", 7: "across its other diagonal"}
+
+
+def turned_camera(camera: Camera, orientation: int, width: int, height: int) -> Camera:
+    """`camera`, from a camera file, which describes the pixels as the camera stored them, for a photo of
+    EXIF `orientation` decoded turned as it says (`pipeline.image.decode_image`) to `width` x `height` px.
+
+    Under the turn, pixel centres map as x_shown = A x_stored + b (A in _TURNS, b keeping whole pixels at
+    0 .. size - 1), and so do normalised image points, whose camera frame turns about its z axis: K's
+    focal lengths swap under a quarter turn, and the distortion's tangential (p2, p1) and thin-prism
+    (s1, s3), (s2, s4) terms turn as vectors do (OpenCV's model: x'' = x r(r²) + 2 p1 x y + p2 (r² +
+    2x²) + s1 r² + s2 r⁴ and likewise for y, radial terms unchanged). R and t of a pose are then in
+    the frame of the photo as shown, and the camera's position in the sign frame is the same
+    whatever the orientation. Not scaled: the pipeline scales the result to the photo (with its
+    note). CameraError for a mirrored photo (no camera sees a mirror image: its pose would be a
+    mirror's), a skewed or tilted-sensor (tau) camera under a quarter turn (its K or model cannot
+    hold the turn), or a camera that does not fit the photo's pixels as stored.
+    """
+    if orientation in _MIRRORS:
+        raise CameraError(f"the photo's EXIF orientation {orientation} shows it mirrored {_MIRRORS[orientation]}, "
+                          "and a mirror image is no camera's view (its pose would be a mirror's): set its "
+                          "orientation to 1 to use its pixels as the camera stored them, or leave out the camera")
+    if orientation not in _TURNS:
+        return camera
+    A, words = _TURNS[orientation]
+    quarter = A[0, 0] == 0
+    stored = (height, width) if quarter else (width, height)
+    try:
+        camera.for_image(*stored)
+    except CameraError as exc:
+        raise CameraError(f"{exc} (a camera file describes the pixels as the camera stored them: {stored[0]}x"
+                          f"{stored[1]} px in this photo, shown {width}x{height} as its EXIF orientation "
+                          f"{orientation} turns them)") from None
+    size = np.array((camera.width, camera.height) if camera.width is not None else stored)
+    F = A @ camera.K[:2, :2] @ A.T
+    if F[1, 0] != 0:  # OpenCV's K has no place for the skew a quarter turn moves below the diagonal
+        raise CameraError(f"this camera's skew s={camera.K[0, 1]:g} cannot be turned with a photo turned {words} by "
+                          "its EXIF orientation: calibrate without skew, or set the photo's orientation to 1 to use "
+                          "its pixels as the camera stored them")
+    K = np.eye(3)
+    K[:2, :2], K[:2, 2] = F, A @ camera.K[:2, 2] + (A == -1) @ (size - 1)
+    dist = camera.dist.copy()
+    dist[[3, 2]] = A @ camera.dist[[3, 2]]  # (p2, p1)
+    if dist.size >= 12:
+        dist[[8, 10]], dist[[9, 11]] = A @ camera.dist[[8, 10]], A @ camera.dist[[9, 11]]
+    if dist.size == 14 and dist[12:].any():
+        if quarter:  # the sensor's tilt, Ry(tau_y) Rx(tau_x), turned is Rx Ry: another model
+            raise CameraError("a tilted-sensor camera (tau_x, tau_y) cannot be turned a quarter turn with its photo: "
+                              "set the photo's EXIF orientation to 1 to use its pixels as the camera stored them")
+        dist[12:] = -dist[12:]
+    w, h = (int(size[1]), int(size[0])) if quarter else (int(size[0]), int(size[1]))
+    return Camera(K, dist, *((w, h) if camera.width is not None else (None, None)),
+                  f"{camera.source}, turned {words} with the photo (EXIF orientation {orientation})")
 
 
 def exif_camera(data: bytes, width: int, height: int) -> ExifCamera:
     """A distortion-free camera for the decoded `width` x `height` image from the EXIF of its encoded
     `data` (JPEG, PNG, WebP), or why none (`ExifCamera`).
 
-    `width`, `height` are of the image as decoded (after EXIF orientation). `source` names the
-    EXIF fields used, e.g. "EXIF focal length 4.2 mm (35 mm equiv 26 mm)".
+    `width`, `height` are of the image as decoded (after EXIF orientation, which the result keeps
+    for a camera file's intrinsics: `ExifCamera.camera_for`). `source` names the EXIF fields used,
+    e.g. "EXIF focal length 4.2 mm (35 mm equiv 26 mm)". Centred with square pixels, the camera is
+    the same however the photo was turned.
     """
-    lens = read_lens_exif(data)
+    lens, orientation = read_lens_exif(data), exif_orientation(data)
     f = focal_px(lens, width, height) if lens is not None else None
     if f is None:
-        return ExifCamera(None, ignored_focal(lens, width, height) if lens is not None else None)
+        return ExifCamera(None, ignored_focal(lens, width, height) if lens is not None else None, orientation)
     parts = [f"focal length {lens.focal_mm:.3g} mm"] if lens.focal_mm else []
     if lens.focal_35mm:
         parts.append(f"35 mm equiv {lens.focal_35mm:.3g} mm")
     source = "EXIF " + (f"{parts[0]} ({parts[1]})" if len(parts) == 2 else parts[0])
     K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]])
-    return ExifCamera(Camera(K, np.zeros(5), width, height, source))
+    return ExifCamera(Camera(K, np.zeros(5), width, height, source), orientation=orientation)
 
 
 def decode_with_exif(data: bytes, name: str) -> tuple[np.ndarray, ExifCamera]:

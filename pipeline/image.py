@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import os
 import re
 import stat
 import struct
+import tempfile
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -40,9 +44,26 @@ _MARKER = re.compile(rb"\xff([\x01-\xfe])")
 _AFTER_SCAN = frozenset([0xC4, 0xCC, 0xDB, 0xDD, 0xDC, 0xFE, 0xDA, 0xD9, *range(0xE0, 0xF0)])
 _STANDALONE = frozenset([0x01, *range(0xD0, 0xD8)])
 _GARBLED = ": decoded, part of the picture would be grey or garbled"
+# EXIF orientations, and how each turns the pixels as stored into those shown (1, as stored, is not here):
+# 3 a half turn, 6 and 8 a quarter turn clockwise and anticlockwise, 2 and 4 mirrored left-right and
+# top-bottom, 5 and 7 mirrored across the main and the other diagonal.
+ORIENTATIONS = range(1, 9)
+_TURNS = {2: lambda im: cv2.flip(im, 1), 3: lambda im: cv2.rotate(im, cv2.ROTATE_180), 4: lambda im: cv2.flip(im, 0),
+          5: cv2.transpose, 6: lambda im: cv2.rotate(im, cv2.ROTATE_90_CLOCKWISE),
+          7: lambda im: cv2.rotate(cv2.transpose(im), cv2.ROTATE_180),
+          8: lambda im: cv2.rotate(im, cv2.ROTATE_90_COUNTERCLOCKWISE)}
 # What `read_file` calls what it refuses to open, by the file type its stat gives.
 _NOT_FILES = {stat.S_IFDIR: "a directory", stat.S_IFIFO: "a named pipe (FIFO)", stat.S_IFSOCK: "a socket",
               stat.S_IFCHR: "a device", stat.S_IFBLK: "a device"}
+
+
+# What decoders print on the process's stderr of an image signpose refuses, or reads, saying so in its own words:
+# libjpeg's warnings on corrupt data, libpng's, and OpenCV's log of a decode that failed (and the blank line after).
+_DECODER_CHATTER = re.compile(
+    rb"^(?:Corrupt JPEG data|Premature end of JPEG file|Invalid SOS parameters|Inconsistent progression|"
+    rb"Warning: unknown JFIF|libpng (?:warning|error)|\[ ?(?:WARN|ERROR):[^\]\n]*\] global (?:loadsave|grfmt))"
+    rb"[^\n]*\n\n?", re.MULTILINE)
+_STDERR_CAPTURE = threading.Lock()
 
 
 class ImageError(ValueError):
@@ -81,7 +102,7 @@ def unreadable(data: bytes, name: str) -> ImageError:
     if kind is None:
         return ImageError(f"{name}: {NOT_AN_IMAGE}")
     try:
-        decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        decoded = _imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error:
         decoded = None
     if decoded is not None:
@@ -151,17 +172,62 @@ def _scan_end(data: bytes, pos: int, restart_interval: int) -> tuple[int, str | 
     return -1, "it ends inside its image data: cut short"
 
 
-def grey_filled(image: np.ndarray) -> bool:
-    """Whether a decoded JPEG (H, W, 3) BGR uint8 ends in libjpeg's fill for missing image data:
-    the 8 x 8 pixels in a corner (the last block, wherever EXIF orientation turned it) exactly
-    grey 128 in every channel.
+def grey_fill(image: np.ndarray, mcu: tuple[int, int]) -> str | None:
+    """Why a decoded JPEG, (H, W, 3) BGR uint8 with its pixels as stored, is unusable for libjpeg's
+    fill for missing image data, or None.
 
-    Zeros written over image data (a card or copy failing) leave the marker structure
-    `jpeg_damage` reads sound, as 0x00 bytes make no marker; libjpeg then runs out of data before
-    the last block and draws the rest grey. No photo or render among 2050 sound JPEGs (the
-    benchmark and sample scenes, real photos) ended so; each of 16 damaged ones did.
+    Zeros written over image data (a card or copy failing) leave the marker structure `jpeg_damage`
+    reads sound, as 0x00 bytes make no marker. libjpeg decodes MCUs (`mcu`: their (height, width)
+    px, `jpeg_mcu`) in raster order; once the data runs out it draws every one left flat grey 128,
+    to the last. So the picture ends, in that order, in a run of flat MCUs, checked but for each
+    one's first row and column, which chroma upsampling blends with the MCUs above and left. A
+    picture with flat grey 128 of its own may end so too (a letterbox, a render's background): it
+    is not damaged by this rule when its first MCU is flat as well (a border all round), or when
+    the MCU above the run's first is (a flat area reaching up, where the fill begins at an MCU).
+    A picture flat 128 all over is unusable either way. Of 3447 sound JPEGs (benchmark, sample and
+    test scenes, real photos, chessboard renders) none is refused but one flat grey all over (a
+    corner of 8 x 8 px flat 128, the rule before, refused 35); of 2880 copies of 480 of them,
+    zeroed, cut or flipped, it refuses the 2595 that rule did, and what libjpeg garbles without a
+    grey end (146) it cannot tell.
     """
-    return any(bool((corner == 128).all()) for corner in (image[:8, :8], image[:8, -8:], image[-8:, :8], image[-8:, -8:]))
+    mh, mw = mcu
+    h, w = image.shape[:2]
+    rows, cols = -(-h // mh), -(-w // mw)
+    ys, xs = np.arange(rows * mh), np.arange(cols * mw)
+    # An MCU's first row and column are left out unless they are all of it in the image; past the edge, nothing.
+    skip_y = ((ys % mh == 0) & (ys + 1 < h)) | (ys >= h)
+    skip_x = ((xs % mw == 0) & (xs + 1 < w)) | (xs >= w)
+    flat = np.zeros((rows * mh, cols * mw), bool)
+    flat[:h, :w] = (image == 128).all(axis=2)
+    flat |= skip_y[:, None] | skip_x[None, :]
+    blocks = flat.reshape(rows, mh, cols, mw).all(axis=(1, 3)).ravel()
+    if blocks.all():
+        return ("the picture is flat grey (128) all over, which is what libjpeg draws for a JPEG whose image data is "
+                "missing: copy or export it again (a blank grey picture has nothing to recognise)")
+    start = int(np.flatnonzero(~blocks)[-1]) + 1  # the first MCU of the flat run that ends the picture
+    if start == blocks.size or blocks[0] or (start >= cols and blocks[start - cols]):
+        return None
+    return (f"damaged JPEG file (its image data runs out before its end, and the last "
+            f"{100 * (blocks.size - start) / blocks.size:.2g} % of its picture is drawn flat grey (128), as libjpeg "
+            "draws missing data); copy or export it again (a picture that really ends in flat grey 128: save it as "
+            "PNG)")
+
+
+# Start of frame markers, which give the components' sampling factors (not DHT 0xC4, JPG 0xC8, DAC 0xCC).
+_SOF = frozenset([0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF])
+
+
+def jpeg_mcu(jpeg: bytes) -> tuple[int, int]:
+    """(height, width) px of the MCU, the unit a JPEG is decoded in, from its frame header: 8 x 8 for one
+    component (gray), else 8 times the largest vertical and horizontal sampling factors (16 x 16 for the
+    usual 4:2:0). 8 x 8 when the header says nothing usable."""
+    for marker, payload in _jpeg_segments(jpeg):
+        if marker in _SOF:
+            factors = payload[7:6 + 3 * payload[5]:3] if len(payload) > 5 and payload[5] > 1 else b""
+            if factors:  # per component: its id, then H in the high and V in the low nibble, then its table
+                return 8 * max(f & 15 for f in factors), 8 * max(f >> 4 for f in factors)
+            return 8, 8
+    return 8, 8
 
 
 def transparent(data: bytes) -> bool:
@@ -176,6 +242,113 @@ def transparent(data: bytes) -> bool:
         if data[12:16] == b"VP8L":  # lossless: 14-bit width - 1, 14-bit height - 1, then alpha_is_used
             return bool(int.from_bytes(data[21:25], "little") >> 28 & 1)
     return False
+
+
+# TIFF field type -> (struct code, size in bytes) for the numeric types of the EXIF tags signpose
+# reads (13 is an IFD offset, stored like a LONG).
+_TYPES = {3: ("H", 2), 4: ("I", 4), 5: ("II", 8), 13: ("I", 4)}
+_TAG_ORIENTATION = 0x0112
+
+
+def exif_tiff(data: bytes) -> bytes | None:
+    """The TIFF block of encoded image `data`'s EXIF: a JPEG's APP1 "Exif" segment, a PNG's eXIf
+    chunk or a WebP's EXIF chunk; None for another format, or no EXIF. Some writers begin a PNG's
+    or WebP's with the "Exif\\0\\0" a JPEG's has: it is dropped."""
+    if data[:2] == b"\xff\xd8":
+        return _jpeg_exif(data)
+    reader = {"PNG": _png_exif, "WebP": _webp_exif}.get(image_format(data))
+    tiff = reader(data) if reader else None
+    return tiff.removeprefix(b"Exif\x00\x00") if tiff is not None else None
+
+
+def _png_exif(png: bytes) -> bytes | None:
+    """The data of a PNG's eXIf chunk, or None. Chunks: a 4-byte big-endian length, a 4-byte type,
+    the data, a 4-byte CRC."""
+    pos = 8  # after the signature
+    while pos + 8 <= len(png):
+        length, kind = struct.unpack_from(">I4s", png, pos)
+        if kind == b"eXIf":
+            return png[pos + 8:pos + 8 + length]
+        if kind == b"IEND":
+            return None
+        pos += 12 + length
+    return None
+
+
+def _webp_exif(webp: bytes) -> bytes | None:
+    """The data of a WebP's EXIF chunk, or None. After the 12-byte RIFF header, chunks: a FourCC, a
+    4-byte little-endian size, the data, padded to an even size."""
+    pos = 12
+    while pos + 8 <= len(webp):
+        kind, size = struct.unpack_from("<4sI", webp, pos)
+        if kind == b"EXIF":
+            return webp[pos + 8:pos + 8 + size]
+        pos += 8 + size + (size & 1)
+    return None
+
+
+def _jpeg_segments(jpeg: bytes) -> Iterator[tuple[int, bytes]]:
+    """(marker, payload) of each segment of a JPEG's header, up to its first scan (or end)."""
+    pos = 2
+    while pos + 4 <= len(jpeg):
+        if jpeg[pos] != 0xFF:
+            return
+        marker = jpeg[pos + 1]
+        if marker == 0xFF:  # fill byte before a marker
+            pos += 1
+            continue
+        if marker == 0xDA or marker == 0xD9:  # image data or end: the header comes before these
+            return
+        if 0xD0 <= marker <= 0xD7 or marker == 0x01:  # markers without a length
+            pos += 2
+            continue
+        (length,) = struct.unpack(">H", jpeg[pos + 2:pos + 4])
+        yield marker, jpeg[pos + 4:pos + 2 + length]
+        pos += 2 + length
+
+
+def _jpeg_exif(jpeg: bytes) -> bytes | None:
+    """The TIFF block inside a JPEG's APP1 "Exif" segment, or None."""
+    return next((payload[6:] for marker, payload in _jpeg_segments(jpeg)
+                 if marker == 0xE1 and payload.startswith(b"Exif\x00\x00")), None)
+
+
+def tiff_ifd(tiff: bytes, offset: int, order: str) -> dict[int, float]:
+    """Tag -> first value of each numeric entry of the IFD at `offset` (a RATIONAL as num / den).
+
+    Only the first value is read: every tag signpose reads holds one, and a corrupt count must not
+    make us allocate or read gigabytes.
+    """
+    (count,) = struct.unpack_from(order + "H", tiff, offset)
+    entries = {}
+    for i in range(count):
+        tag, kind, n, inline = struct.unpack_from(order + "HHI4s", tiff, offset + 2 + 12 * i)
+        if kind not in _TYPES or n == 0:
+            continue
+        code, size = _TYPES[kind]
+        data = inline if size * n <= 4 else tiff[struct.unpack(order + "I", inline)[0]:]
+        value = struct.unpack_from(order + code, data)
+        if kind != 5:
+            entries[tag] = float(value[0])
+        elif value[1]:
+            entries[tag] = value[0] / value[1]
+    return entries
+
+
+def exif_orientation(data: bytes) -> int:
+    """The EXIF orientation of encoded image `data`, 1-8: how its pixels as stored are turned to be
+    shown (1: as stored; 3: a half turn; 6 and 8: a quarter turn clockwise and anticlockwise; 2, 4,
+    5, 7: those mirrored), from its EXIF (`exif_tiff`) or, for a TIFF, its first IFD. 1 when it
+    has none, or a value out of range (as decoders read it)."""
+    tiff = data if image_format(data) == "TIFF" else exif_tiff(data)
+    if tiff is None or tiff[:4] not in (b"II*\x00", b"MM\x00*"):
+        return 1
+    order = "<" if tiff[:2] == b"II" else ">"
+    try:
+        value = tiff_ifd(tiff, struct.unpack_from(order + "I", tiff, 4)[0], order).get(_TAG_ORIENTATION, 1.0)
+    except struct.error:  # offsets pointing outside the block: truncated or corrupt EXIF
+        return 1
+    return int(value) if value in ORIENTATIONS else 1
 
 
 def to_8bit(image: np.ndarray) -> np.ndarray:
@@ -194,36 +367,83 @@ def on_white(image: np.ndarray) -> np.ndarray:
     return np.round(to_8bit(image[..., :3]) * opacity + 255 * (1 - opacity)).astype(np.uint8)
 
 
-def decode_image(data: bytes, name: str = "image") -> np.ndarray:
+def decode_image(data: bytes, name: str = "image", as_stored: bool = False) -> np.ndarray:
     """Encoded bytes (JPEG, PNG, TIFF, WebP, BMP, GIF first frame, ...) -> (H, W, 3) uint8 BGR.
 
-    EXIF orientation is applied; 16-bit images are scaled to 8 bits (`to_8bit`), transparent pixels (PNG,
-    WebP) shown over white, gray expanded. A JPEG whose data is damaged is refused (`jpeg_damage`, `grey_filled`),
-    as one that cannot be decoded is.
+    Turned as its EXIF orientation says (`exif_orientation`), as it is shown; with `as_stored`,
+    its pixels as the camera stored them, which is what a camera file describes. 16-bit images
+    are scaled to 8 bits (`to_8bit`), transparent pixels (PNG, WebP) shown over white, gray
+    expanded. A JPEG whose data is damaged is refused (`jpeg_damage`, `grey_fill`), as one that
+    cannot be decoded is.
     """
     if not data:
         raise ImageError(f"{name}: file is empty")
+    kind = image_format(data)
     # Before decoding: libjpeg would decode damage as grey or garbled pixels, warning only on stderr.
-    damage = jpeg_damage(data) if image_format(data) == "JPEG" else None
+    damage = jpeg_damage(data) if kind == "JPEG" else None
     if damage:
         raise ImageError(f"{name}: damaged or truncated JPEG file ({damage}); copy or export it again")
-    buf = np.frombuffer(data, dtype=np.uint8)
     try:
-        if transparent(data):
-            image = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
-            if image is not None and image.ndim == 3 and image.shape[2] == 4:
-                return on_white(image)
-        # ANYDEPTH: 16 bits as they are, for to_8bit (IMREAD_COLOR keeps their top 8)
-        image = cv2.imdecode(buf, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+        image = _decode_as_stored(np.frombuffer(data, dtype=np.uint8), transparent(data))
     except cv2.error as exc:
         raise ImageError(f"{name}: cannot decode image: {exc.err or exc}") from None
     if image is None or image.dtype not in (np.uint8, np.uint16):
         raise unreadable(data, name)
-    if image_format(data) == "JPEG" and grey_filled(image):
-        raise ImageError(f"{name}: damaged JPEG file (its image data runs out before its last block, which is drawn "
-                         "flat grey (128) as libjpeg draws missing data; part of the picture is grey or garbled); "
-                         "copy or export it again (a picture really flat grey 128 in its corner: save it as PNG)")
-    return to_8bit(image)
+    # As stored: libjpeg fills missing data in the order it decodes, before any EXIF orientation turns it.
+    fill = grey_fill(image, jpeg_mcu(data)) if kind == "JPEG" else None
+    if fill:
+        raise ImageError(f"{name}: {fill}")
+    image, orientation = to_8bit(image), exif_orientation(data)
+    if kind == "TIFF":  # libtiff turns it as its orientation says, whatever OpenCV is asked
+        return turned(image, orientation, undo=True) if as_stored else image
+    return image if as_stored else turned(image, orientation)
+
+
+def _imdecode(buf: np.ndarray, flags: int) -> np.ndarray | None:
+    """cv2.imdecode, with what the decoders print on stderr (_DECODER_CHATTER) kept off it.
+
+    libjpeg prints its warnings from C on file descriptor 2, which no OpenCV setting reaches, so the
+    descriptor is pointed at a temporary file during the decode and what else was written there
+    meanwhile (another thread's log) is written back after it. One decode at a time does this, so
+    that each puts back the descriptor it found: overlapping, the second put back the first's file.
+    Costs about 0.02 ms a decode (dup, temporary file); a 12 MP JPEG takes 70-85 ms to decode.
+    """
+    with _STDERR_CAPTURE, tempfile.TemporaryFile() as captured:
+        saved = os.dup(2)
+        os.dup2(captured.fileno(), 2)
+        try:
+            return cv2.imdecode(buf, flags)
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            captured.seek(0)
+            rest = _DECODER_CHATTER.sub(b"", captured.read())
+            while rest:
+                rest = rest[os.write(2, rest):]
+
+
+def _decode_as_stored(buf: np.ndarray, with_alpha: bool) -> np.ndarray | None:
+    """Encoded image `buf` (uint8) decoded as (H, W, 3) BGR of 8 or 16 bits, its pixels as stored
+    (a TIFF's excepted, see decode_image), `with_alpha` shown over white; None when OpenCV cannot.
+
+    Turned by the caller, not by OpenCV: which formats OpenCV turns depends on its version and the
+    mode read (never with alpha), and the camera must be turned as the pixels were.
+    """
+    if with_alpha:
+        image = _imdecode(buf, cv2.IMREAD_UNCHANGED)
+        if image is not None and image.ndim == 3 and image.shape[2] == 4:
+            return on_white(image)
+    # ANYDEPTH: 16 bits as they are, for to_8bit (IMREAD_COLOR keeps their top 8)
+    return _imdecode(buf, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH | cv2.IMREAD_IGNORE_ORIENTATION)
+
+
+def turned(image: np.ndarray, orientation: int, undo: bool = False) -> np.ndarray:
+    """`image` (H, W[, C]) as stored, turned as EXIF `orientation` (1-8, `exif_orientation`) says to
+    be shown; with `undo`, `image` as shown turned back to as stored."""
+    if undo:
+        orientation = {6: 8, 8: 6}.get(orientation, orientation)  # the others undo themselves
+    turn = _TURNS.get(orientation)
+    return turn(image) if turn else image
 
 
 def read_file(path: str | Path) -> bytes:

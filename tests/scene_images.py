@@ -6,6 +6,7 @@ pipeline.synth renders realistic rooms but takes seconds per scene; these take m
 from __future__ import annotations
 
 import io
+import json
 import struct
 import zlib
 
@@ -14,8 +15,10 @@ import numpy as np
 from PIL import Image
 
 from app.workspace import SAMPLE_SCENES
+from pipeline.camera import Camera, load_camera
 from pipeline.library import Library, LibrarySign
 from tools.render_library import render_sign
+from chessboards import pixel_rays
 
 SIZE = (640, 480)  # (w, h) px
 
@@ -167,3 +170,35 @@ def sign_seen_from(library: Library, sign_id: str, position_m: tuple[float, floa
     corners = (in_camera @ K.T)[:, :2] / in_camera[:, 2:]
     gray = sign_on_wall(sign, corners, seed)
     return cv2.imencode(".jpg", cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR), [cv2.IMWRITE_JPEG_QUALITY, 92])[1].tobytes()
+
+
+# The sample scenes' camera with its principal point 60 px right of and 30 px below the centre, behind a lens
+# with tangential distortion: a camera file every term of which a turned photo changes.
+OFF_CENTRE = Camera(np.array([[554.2562584220408, 0, 380], [0, 554.2562584220408, 270], [0, 0, 1]]),
+                    np.array([-0.08, 0.02, 0.003, -0.002, 0.0]), 640, 480, "off-centre lens")
+TURNED_SCENE = "scene_002.jpg"  # security_compound, its pose in the scenes' truth.json
+
+
+def turned_photos(*orientations: int) -> dict[int, bytes]:
+    """JPEGs of the sample scene TURNED_SCENE as the OFF_CENTRE camera takes it, by EXIF orientation: their
+    pixels are stored alike, as the sensor gave them, and the orientation turns them to be shown, as a phone
+    held each way writes them (a camera file describes the pixels as stored)."""
+    ideal = load_camera(SAMPLE_SCENES / "camera.yaml")  # the renders' pinhole camera
+    rays = pixel_rays(OFF_CENTRE.K, OFF_CENTRE.dist, (OFF_CENTRE.width, OFF_CENTRE.height))
+    source = (rays @ ideal.K.T)[..., :2].astype(np.float32)  # where each of the lens's pixels looks in the render
+    seen = cv2.remap(cv2.imread(str(SAMPLE_SCENES / TURNED_SCENE)), source[..., 0], source[..., 1], cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)
+    photos = {}
+    for orientation in orientations:
+        exif = Image.Exif()
+        exif[0x0112] = orientation
+        out = io.BytesIO()
+        Image.fromarray(seen[..., ::-1]).save(out, "JPEG", exif=exif.tobytes(), quality=95)
+        photos[orientation] = out.getvalue()
+    return photos
+
+
+def turned_scene_position() -> np.ndarray:
+    """(3,) m: where the camera stood for TURNED_SCENE, in the sign frame (−Rᵀt of its truth)."""
+    truth = json.loads((SAMPLE_SCENES / "truth.json").read_text())["images"][TURNED_SCENE]
+    return -np.array(truth["R"]).T @ np.array(truth["t"])

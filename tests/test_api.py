@@ -25,8 +25,9 @@ from pipeline.verify import CHECK_WIDTH
 from pipeline.synth import synthetic_camera
 from pipeline.camera import load_camera, ros_camera_yaml
 from faults import fail_segmentation
-from scene_images import (DECOYS, HEIC_START, big_photo, decoy_image, empty_photo, has, plaque_of, png_bomb,
-                          scrambled_scene, sign_photo, tiny_photo, with_focal_exif)
+from scene_images import (DECOYS, HEIC_START, OFF_CENTRE, big_photo, decoy_image, empty_photo, has, plaque_of,
+                          png_bomb, scrambled_scene, sign_photo, tiny_photo, turned_photos, turned_scene_position,
+                          with_focal_exif)
 from serving import (MISFIT_CAMERA, REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve,
                      stop_serve, upload, wait_done)
 
@@ -794,6 +795,26 @@ def test_a_camera_that_fits_no_image_held_is_kept_with_a_warning(tmp_path):
         assert c.get("/api/camera").json()["warnings"] == [
             "the camera does not fit 1 of the 3 images held: this 480x640 px image is the camera's 640x480 px turned "
             "on its side: rotate the photo back, or calibrate the camera held this way"]
+
+
+def test_the_camera_turns_with_each_photos_exif_orientation(tmp_path):
+    """The camera set describes the pixels as the camera stored them, which a photo's EXIF orientation turns: the
+    pose of a photo upside down (3) was 8 cm off, and one turned a quarter (6, 8) failed as on its side."""
+    photos = turned_photos(1, 3, 6, 8)
+    with running(create_app(config(tmp_path / "state"))) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        r = c.put("/api/camera", files={"file": ("lens.yaml", ros_camera_yaml(OFF_CENTRE), "application/x-yaml")})
+        assert r.status_code == 200, r.text
+        ids = [i["id"] for i in upload(c, *[(f"turned_{o}.jpg", p, None) for o, p in photos.items()]).json()["images"]]
+        wait_done(c)
+        assert c.get("/api/camera").json()["warnings"] == []  # every photo fits, as turned
+        for orientation, image_id in zip(photos, ids):
+            detail = c.get(f"/api/images/{image_id}").json()
+            position = detail["result"]["pose"]["camera_position"]
+            assert np.linalg.norm(position - turned_scene_position()) < 0.005, (orientation, position)
+            assert (detail["camera"]["width"], "turned" in detail["camera"]["source"]) == \
+                ((480, True) if orientation in (6, 8) else (640, orientation != 1))
+        once = c.post("/api/recognize", files={"file": ("turned_8.jpg", photos[8], "image/jpeg")}).json()
+        assert np.linalg.norm(once["pose"]["camera_position"] - turned_scene_position()) < 0.005
 
 
 def test_assumed_field_of_view_for_photos_without_camera_or_exif(client):

@@ -6,6 +6,7 @@ import threading
 import cv2
 import numpy as np
 import pytest
+from PIL import Image
 
 import pipeline.calibrate as calib
 from app.cli import main
@@ -296,6 +297,36 @@ def test_cli_calibrate_o_dash_writes_the_camera_file_on_stdout(rendered, tmp_pat
     (tmp_path / "piped.yaml").write_text(out)  # as `signpose calibrate ... -o - > piped.yaml` leaves it
     assert abs(load_camera(tmp_path / "piped.yaml").K[0, 0] / K_TRUE[0, 0] - 1) < 0.01
     assert "overall RMS" in err and "wrote" not in err and not (tmp_path / "-").exists()
+
+
+def test_cli_calibrate_reads_the_renders_saved_as_jpeg(rendered, tmp_path, capsys):
+    """Their grey 128 beyond the board, a corner of which was taken for libjpeg's fill of missing data: every
+    photo was refused as a damaged JPEG and no camera came out."""
+    paths = []
+    for i, image in enumerate(rendered[0][:6]):
+        paths.append(str(tmp_path / f"board{i:02d}.jpg"))
+        cv2.imwrite(paths[-1], image, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    out = tmp_path / "cam.yaml"
+    assert main(["calibrate", *paths, "--board", "9x6", "--square", "0.03", "-o", str(out)]) == 0
+    assert "damaged" not in capsys.readouterr().out
+    assert abs(load_camera(out).K[0, 0] / K_TRUE[0, 0] - 1) < 0.01
+
+
+def test_cli_calibrate_reads_photos_as_the_camera_stored_them(rendered, tmp_path, capsys):
+    """A phone held upright stores its sensor's landscape pixels and an EXIF orientation that turns them: read
+    turned, those photos were portrait, another size than the others, and a camera file of them would describe
+    no pixels as stored, which is what recognize turns with each photo."""
+    paths = []
+    for i, image in enumerate(rendered[0]):
+        exif = Image.Exif()
+        exif[0x0112] = (1, 6, 8)[i % 3]
+        paths.append(str(tmp_path / f"board{i:02d}.png"))
+        Image.fromarray(image).save(paths[-1], exif=exif.tobytes())
+    out = tmp_path / "cam.yaml"
+    assert main(["calibrate", *paths, "--board", "9x6", "--square", "0.03", "-o", str(out)]) == 0
+    capsys.readouterr()
+    cam = load_camera(out)
+    assert (cam.width, cam.height) == SIZE and np.abs(cam.K - K_TRUE).max() < 2.0
 
 
 @pytest.mark.skipif(CORES < 2, reason="one core: no second search to run beside the first")

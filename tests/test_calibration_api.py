@@ -318,8 +318,9 @@ def test_run_needs_no_body_as_a_curl_user_calls_it(client, photos):
 
 def test_bad_input_gets_a_clear_4xx_and_changes_nothing(client, photos):
     before = client.get("/api/calibration").json()
-    assert_error(add(client, [photos[0], ("notes.png", b"these are not pixels")]), 422, "notes.png",
-                 "not an image")
+    assert_error(add(client, [photos[0], ("notes.png", b"these are not pixels"), ("cut.png", photos[1][1][:3000])]),
+                 422, "2 of the 3 files cannot be used, so none was added: (1) notes.png: not an image",
+                 "(2) cut.png: damaged or truncated PNG")
     assert_error(client.post("/api/calibration/images", files={"files": ("empty.png", b"", "image/png")}), 422,
                  "empty")
     for bad, words in (({"cols": 2}, ("at least 3x3", "inner corners")), ({"rows": 0}, ("inner corners",)),

@@ -19,15 +19,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from PIL import Image
 
 from app.cli import build_parser, main
 from app.workspace import WorkspaceConfig
-from pipeline.camera import assumed_camera
+from pipeline.camera import assumed_camera, save_camera
 from pipeline.library import load_library
 from pipeline.recognize import recognize
 from pipeline.settings import preset
 from faults import fail_first_segmentation
-from scene_images import png_bomb
+from scene_images import OFF_CENTRE, TURNED_SCENE, png_bomb, turned_photos, turned_scene_position
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "sample_images" / "scenes"
@@ -147,6 +148,21 @@ def test_a_truncated_image_gets_signposes_line_and_not_opencvs_warning(tmp_path)
         result = signpose(*args)
         out = result.stdout
         assert "cut.png" in out and "damaged or truncated PNG file" in out and "WARN" not in result.stderr, result.stderr
+
+
+def test_decoders_say_nothing_on_the_terminal_of_an_image_signpose_refuses(tmp_path):
+    """libjpeg's "Corrupt JPEG data: premature end of data segment" and OpenCV's "[ERROR:0@1.6] ... imdecode_" of a
+    float TIFF were printed among the table's rows; each image has signpose's own line."""
+    photo = bytearray((SCENES / "scene_002.jpg").read_bytes())
+    photo[5000:25000] = bytes(20000)  # zeros over its data: libjpeg runs out and warns
+    (tmp_path / "zeroed.jpg").write_bytes(photo)
+    Image.fromarray(np.full((48, 64), 0.5, np.float32)).save(tmp_path / "float.tiff")  # OpenCV fails, and logs it
+    result = signpose("recognize", tmp_path / "zeroed.jpg", tmp_path / "float.tiff", SCENES / "scene_002.jpg",
+                      "--camera", SCENES / "camera.yaml")
+    rows = result.stdout.splitlines()
+    assert [row.split()[0] for row in rows] == ["image", "zeroed.jpg", "float.tiff", "scene_002.jpg"], rows
+    assert "damaged JPEG file" in rows[1] and "float32 samples" in rows[2]
+    assert result.stderr == "2 of 3 image(s) could not be used\n"
 
 
 def test_a_damaged_jpeg_is_told_apart_from_a_file_that_is_no_image(tmp_path):
@@ -313,8 +329,6 @@ def test_the_table_gives_the_plaque_fallbacks_answer_as_the_json_does():
 
 
 def test_exif_focal_length_is_used_without_a_camera_file(tmp_path):
-    from PIL import Image
-
     src = SCENES / json.loads((SCENES / "truth.json").read_text())["camera"]
     assert src.exists()
     scene = next(n for n, t in json.loads((SCENES / "truth.json").read_text())["images"].items() if t["label"])
@@ -327,8 +341,6 @@ def test_exif_focal_length_is_used_without_a_camera_file(tmp_path):
 
 
 def test_an_implausible_exif_focal_length_is_said_where_the_field_of_view_is_assumed(tmp_path):
-    from PIL import Image
-
     scene = SCENES / "scene_002.jpg"  # a sign: the pose, and so the note on it, is there
     for focal_35mm in (0, 65535):  # what cameras write when they do not know it
         exif = Image.Exif()
@@ -635,6 +647,43 @@ def test_an_image_the_camera_cannot_be_scaled_to_is_that_images_error(tmp_path):
     assert objs[0]["error"].startswith("this 480x640 px image is the camera's 640x480 px turned on its side")
     assert objs[1]["label"] == "chief_of_security"
     assert "1 of 2 image(s) could not be used" in result.stderr
+
+
+def write_turned_photos(folder: Path) -> dict[int, Path]:
+    """turned_photos of every orientation (1-8) written into `folder`, with OFF_CENTRE as its camera.yaml."""
+    folder.mkdir(exist_ok=True)
+    save_camera(OFF_CENTRE, folder / "camera.yaml")
+    paths = {o: folder / f"turned_{o}.jpg" for o in range(1, 9)}
+    for orientation, photo in turned_photos(*paths).items():
+        paths[orientation].write_bytes(photo)
+    return paths
+
+
+def test_a_camera_file_turns_with_the_photos_exif_orientation(tmp_path):
+    """A camera file describes the pixels as the camera stored them; a photo is read turned as its EXIF orientation
+    says. The camera stayed as it was: upside down (3), its principal point 60 px off centre put the camera 8 cm
+    from where it stood, with no warning, and a quarter turn (6, 8) was refused as a photo turned on its side."""
+    paths = write_turned_photos(tmp_path)
+    result = signpose("recognize", *paths.values(), "--camera", tmp_path / "camera.yaml", "--json")
+    answers = {o: json.loads(line) for o, line in zip(paths, result.stdout.splitlines())}
+    for orientation in (1, 3, 6, 8):
+        position = answers[orientation]["pose"]["camera_position"]
+        assert np.linalg.norm(position - turned_scene_position()) < 0.005, (orientation, position)
+    for orientation in (2, 4, 5, 7):  # no camera sees a mirror image
+        assert "mirrored" in answers[orientation]["error"], answers[orientation]
+
+
+def test_evaluate_turns_the_datasets_camera_with_each_photos_exif_orientation(tmp_path):
+    """As `recognize --camera` does: the dataset's camera.yaml describes the pixels as stored."""
+    paths = write_turned_photos(tmp_path / "turned")
+    truth = json.loads((SCENES / "truth.json").read_text())["images"][TURNED_SCENE]
+    (tmp_path / "turned" / "truth.json").write_text(json.dumps(
+        {"images": {paths[o].name: {"label": truth["label"], "R": truth["R"], "t": truth["t"]} for o in (1, 3, 6, 8)}}))
+    for o in (2, 4, 5, 7):
+        paths[o].unlink()
+    report = json.loads(signpose("evaluate", tmp_path / "turned", "--workers", 1, "--json").stdout)
+    errors = [image["position_error_m"] for image in report["images"]]
+    assert len(errors) == 4 and max(errors) < 0.005, report["images"]
 
 
 def test_option_defaults_are_read_from_the_workspace_config(monkeypatch):

@@ -11,7 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.exif import LensExif, decode_with_exif, exif_camera, focal_px, read_lens_exif
+from pipeline.camera import Camera, CameraError
+from pipeline.exif import LensExif, decode_with_exif, exif_camera, focal_px, read_lens_exif, turned_camera
 
 FOCAL, FOCAL_35, PLANE_X, PLANE_UNIT, PIXEL_X, PIXEL_Y = 0x920A, 0xA405, 0xA20E, 0xA210, 0xA002, 0xA003
 SHORT, LONG, RATIONAL = 3, 4, 5
@@ -195,3 +196,59 @@ def test_a_png_or_webp_without_exif_has_none():
     webp = cv2.imencode(".webp", np.zeros((8, 8, 3), np.uint8))[1].tobytes()
     for data in (png, webp, png[:20], webp[:14]):
         assert read_lens_exif(data) is None
+
+
+# EXIF orientation -> (rotation taking the camera frame of the pixels as stored to that of the photo as shown,
+# and the stored pixel (x, y) -> shown pixel (x, y) for a W x H image)
+TURNS = {3: (np.diag([-1.0, -1, 1]), lambda x, y, w, h: (w - 1 - x, h - 1 - y)),
+         6: (np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]]), lambda x, y, w, h: (h - 1 - y, x)),
+         8: (np.array([[0.0, 1, 0], [-1, 0, 0], [0, 0, 1]]), lambda x, y, w, h: (y, w - 1 - x))}
+
+
+@pytest.mark.parametrize("orientation", TURNS)
+@pytest.mark.parametrize("terms", [4, 5, 8, 12, 14])
+@pytest.mark.parametrize("sized", [True, False])
+def test_a_turned_camera_sees_what_the_stored_one_saw_turned(orientation, terms, sized):
+    """Every distortion model OpenCV has: points the camera saw, turned with the photo, are where the turned
+    camera puts them, and undistorted there they give the stored camera's rays turned (the tangential and
+    thin-prism terms change sign or swap; a tilted sensor's only under a half turn)."""
+    rotation, pixel = TURNS[orientation]
+    rng = np.random.default_rng(terms)
+    dist = rng.normal(0, 0.01, terms)
+    dist[0] = -0.1
+    if terms == 14 and orientation != 3:
+        dist[12:] = 0
+    w, h = 640, 480
+    camera = Camera(np.array([[520.0, 0, 380], [0, 510, 260], [0, 0, 1]]), dist, *((w, h) if sized else (None, None)))
+    shown = (h, w) if orientation != 3 else (w, h)
+    turned = turned_camera(camera, orientation, *shown)
+    assert (turned.width, turned.height) == (shown if sized else (None, None))
+    points = np.column_stack([rng.uniform(-1, 1, 50), rng.uniform(-0.7, 0.7, 50), rng.uniform(2, 4, 50)])
+    stored = cv2.projectPoints(points, np.zeros(3), np.zeros(3), camera.K, camera.dist)[0].reshape(-1, 2)
+    expected = np.column_stack(pixel(stored[:, 0], stored[:, 1], w, h))
+    seen = cv2.projectPoints(points @ rotation.T, np.zeros(3), np.zeros(3), turned.K, turned.dist)[0].reshape(-1, 2)
+    assert np.abs(seen - expected).max() < 1e-9
+    undistort = getattr(cv2, "undistortPointsIter", cv2.undistortPoints)  # 4.x names the overload with criteria
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
+    rays = undistort(stored[:, None], camera.K, camera.dist, R=None, P=None, criteria=criteria).reshape(-1, 2)
+    turned_rays = undistort(expected[:, None], turned.K, turned.dist, R=None, P=None, criteria=criteria)
+    assert np.abs(turned_rays.reshape(-1, 2) - rays @ rotation[:2, :2].T).max() < 1e-9
+
+
+def test_what_no_turned_camera_can_be_is_refused_with_why():
+    camera = Camera(np.array([[520.0, 0, 320], [0, 510, 240], [0, 0, 1]]), np.zeros(5), 640, 480, "file:lens.yaml")
+    assert turned_camera(camera, 1, 640, 480) is camera
+    for orientation in (2, 4, 5, 7):
+        with pytest.raises(CameraError, match=f"EXIF orientation {orientation} shows it mirrored"):
+            turned_camera(camera, orientation, 640, 480)
+    skewed = Camera(camera.K + [[0, 2, 0], [0, 0, 0], [0, 0, 0]], camera.dist, 640, 480)
+    assert turned_camera(skewed, 3, 640, 480).K[0, 1] == 2  # a half turn keeps it
+    with pytest.raises(CameraError, match="skew s=2 cannot be turned"):
+        turned_camera(skewed, 6, 480, 640)
+    tilted = Camera(camera.K, np.r_[np.zeros(12), 0.01, 0], 640, 480)
+    with pytest.raises(CameraError, match="tilted-sensor"):
+        turned_camera(tilted, 8, 480, 640)
+    # in the camera's words, with how the photo's pixels are stored: a camera for another aspect
+    with pytest.raises(CameraError, match=r"another aspect than the 640x480 px .*\(a camera file describes the pixels "
+                                          r"as the camera stored them: 600x480 px in this photo, shown 480x600"):
+        turned_camera(camera, 6, 480, 600)

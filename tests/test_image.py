@@ -4,15 +4,18 @@ import io
 import os
 import re
 import socket
+import subprocess
+import sys
 import threading
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
-from PIL import Image
+from PIL import Image, ImageOps
 
-from pipeline.image import ImageError, decode_image, read_file
+from pipeline.image import ImageError, decode_image, exif_orientation, read_file
+from chessboards import render_boards
 from scene_images import HEIC_START, scrambled_scene
 
 # Black text on a transparent ground, as sign artwork is often drawn: the ground's colour
@@ -226,13 +229,157 @@ def test_camera_data_of_any_depth_in_16_bits_keeps_its_levels(bits):
     assert image.dtype == np.uint8 and np.array_equal(image, scene)
 
 
-@pytest.mark.parametrize("start, stop", [(5000, 15000), (5000, 25000), (3000, 4000)])
-def test_a_jpeg_with_zeros_over_its_image_data_is_refused(start, stop):
+SCENE_002 = Path(__file__).parents[1] / "sample_images" / "scenes" / "scene_002.jpg"
+
+
+def zeroed(data: bytes, start: int, stop: int) -> bytes:
+    """`data` with zeros over bytes `start` to `stop`, as a failing card or copy leaves it."""
+    return data[:start] + bytes(stop - start) + data[stop:]
+
+
+def cut_with_end(jpeg: bytes) -> bytes:
+    """`jpeg` cut in the middle of its image data and ended there with an end-of-image marker, as a repair tool
+    leaves it: its structure is sound and libjpeg runs out of data."""
+    where = entropy_data(jpeg)
+    return jpeg[:(where.start + where.stop) // 2] + b"\xff\xd9"
+
+
+def with_orientation(jpeg: bytes, orientation: int) -> bytes:
+    """`jpeg`, its data as it is, with an EXIF APP1 giving `orientation` after its start of image."""
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    app1 = exif.tobytes()  # "Exif\0\0" and the TIFF block
+    return jpeg[:2] + b"\xff\xe1" + (len(app1) + 2).to_bytes(2, "big") + app1 + jpeg[2:]
+
+
+ZEROED_JPEGS = {  # name: (bytes, the share of the picture drawn grey, in the message)
+    "zeros_mid.jpg": (zeroed(SCENE_002.read_bytes(), 5000, 15000), "23"),
+    "zeros_to_end.jpg": (zeroed(SCENE_002.read_bytes(), 5000, 25000), "62"),
+    "zeros_early.jpg": (zeroed(SCENE_002.read_bytes(), 3000, 4000), "2.8"),
+    # the tester's: 98 bytes, the last two MCUs grey (their first column blended with the MCU before)
+    "zeros_small.jpg": (zeroed(SCENE_002.read_bytes(), 1209, 1307), "0.17"),
+    "cut_eoi_added.jpg": (SCENE_002.read_bytes()[:12960] + b"\xff\xd9", "61"),
+    # turned when shown: libjpeg fills in the order the pixels are stored
+    "zeros_turned.jpg": (with_orientation(zeroed(SCENE_002.read_bytes(), 5000, 25000), 6), "62"),
+    "gray_8x8_mcus.jpg": (cut_with_end(photo_jpeg(mode="L", quality=95)), None),
+    "444_8x8_mcus.jpg": (cut_with_end(photo_jpeg(quality=95, subsampling=0)), None),
+    "422_16x8_mcus.jpg": (cut_with_end(photo_jpeg(quality=95, subsampling=1)), None),
+}
+
+
+@pytest.mark.parametrize("name", ZEROED_JPEGS)
+def test_a_jpeg_with_zeros_over_its_image_data_is_refused(name):
     """Zeros (a failing card or copy) make no marker, so the structure stayed sound; libjpeg ran out
     of data and drew the rest grey, and the photo was answered "no sign" (the tester's 10 kB)."""
-    data = bytearray((Path(__file__).parents[1] / "sample_images" / "scenes" / "scene_002.jpg").read_bytes())
-    data[start:stop] = bytes(stop - start)
-    assert cv2.imdecode(np.frombuffer(bytes(data), np.uint8), cv2.IMREAD_COLOR) is not None
-    with pytest.raises(ImageError, match=r"zeroed\.jpg: damaged JPEG file \(its image data runs out before its last "
-                                         r"block, which is drawn flat grey \(128\)"):
-        decode_image(bytes(data), "zeroed.jpg")
+    data, share = ZEROED_JPEGS[name]
+    assert cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) is not None
+    with pytest.raises(ImageError, match=rf"{re.escape(name)}: damaged JPEG file \(its image data runs out before its "
+                                         rf"end, and the last {share or '[0-9.]+'} % of its picture is drawn flat grey "
+                                         r"\(128\), as libjpeg draws missing data\); copy or export it again"):
+        decode_image(data, name)
+
+
+def grey_where(image: np.ndarray, *boxes: tuple[slice, slice]) -> np.ndarray:
+    """`image` with each (rows, columns) box flat grey 128."""
+    image = image.copy()
+    for box in boxes:
+        image[box] = 128
+    return image
+
+
+SCENE = cv2.imread(str(SCENE_002))
+GREY_PICTURES = {  # exactly 128 where libjpeg's fill would be, but of their own: what each is, (H, W[, 3]) uint8
+    "letterbox.jpg": grey_where(SCENE, np.s_[:64], np.s_[-64:]),
+    "pillarbox.jpg": grey_where(SCENE, np.s_[:, :80], np.s_[:, -80:]),
+    "right_band.jpg": grey_where(SCENE, np.s_[:, -96:]),
+    "corner_patch.jpg": grey_where(SCENE, np.s_[-100:, -120:]),
+    "corner_block.jpg": grey_where(SCENE, np.s_[:8, :8]),
+    **{f"chessboard_{i}.jpg": board for i, board in enumerate(render_boards(3)[0])},  # borderValue 128 around
+}
+
+
+@pytest.mark.parametrize("encoder", ["opencv", "pillow_444"])
+@pytest.mark.parametrize("name", GREY_PICTURES)
+def test_a_sound_jpeg_flat_grey_128_in_places_is_read(name, encoder):
+    """A corner of 8 x 8 px exactly grey 128 was taken for libjpeg's fill: letterboxed and pillarboxed photos, and
+    the project's own chessboard renders saved as JPEG, were refused as damaged (calibrate found no photo)."""
+    picture = GREY_PICTURES[name]
+    if encoder == "opencv":
+        data = cv2.imencode(".jpg", picture, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
+    else:
+        data = encode(Image.fromarray(picture[..., ::-1] if picture.ndim == 3 else picture), "JPEG", quality=95,
+                      subsampling=0)
+    assert decode_image(data, name).shape[:2] == picture.shape[:2]
+    assert decode_image(with_orientation(data, 6), name).shape[:2] == picture.shape[1::-1]
+
+
+def test_a_jpeg_flat_grey_128_all_over_says_so():
+    data = cv2.imencode(".jpg", np.full((480, 640, 3), 128, np.uint8))[1].tobytes()
+    with pytest.raises(ImageError, match=r"^grey\.jpg: the picture is flat grey \(128\) all over, which is what libjpeg "
+                                         r"draws for a JPEG whose image data is missing: copy or export it again \(a "
+                                         r"blank grey picture has nothing to recognise\)$"):
+        decode_image(data, "grey.jpg")
+
+
+# 40 x 60 px RGB, a white square top left and a red bar top right: no turn or mirror leaves it as it is.
+PICTURE = np.zeros((40, 60, 3), np.uint8)
+PICTURE[:10, :10] = 255
+PICTURE[:5, 50:] = (255, 0, 0)
+
+
+def oriented(fmt: str, mode: str, orientation: int) -> bytes:
+    """PICTURE, as its pixels are stored, saved by Pillow as `fmt` in `mode` with EXIF `orientation`."""
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    image = Image.fromarray(PICTURE).convert(mode)
+    if fmt == "TIFF":  # the orientation is the TIFF's own tag
+        return encode(image, fmt, exif=exif)
+    lossless = {"WEBP": {"lossless": True}, "JPEG": {"quality": 100, "subsampling": 0}}.get(fmt, {})  # near enough
+    return encode(image, fmt, exif=exif.tobytes(), **lossless)
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+@pytest.mark.parametrize("fmt, mode", [("JPEG", "RGB"), ("PNG", "RGB"), ("PNG", "RGBA"), ("WEBP", "RGBA"),
+                                       ("TIFF", "RGB")])
+def test_every_format_is_turned_as_its_exif_orientation_says(fmt, mode, orientation):
+    """A PNG or WebP with alpha was decoded as stored whatever its orientation (OpenCV turns none it reads with
+    alpha), and which formats OpenCV turns depends on its version: the camera must be turned as the pixels were."""
+    data = oriented(fmt, mode, orientation)
+    # Pillow turns a TIFF as it loads it, and the others when asked
+    shown = np.asarray(ImageOps.exif_transpose(Image.open(io.BytesIO(data))).convert("RGB"))[..., ::-1]
+    assert exif_orientation(data) == orientation
+    for image, expected in ((decode_image(data), shown), (decode_image(data, as_stored=True), PICTURE[..., ::-1])):
+        assert image.shape == expected.shape and np.abs(image.astype(int) - expected).max() <= 8
+
+
+def test_decoders_chatter_is_kept_off_stderr_and_other_threads_writes_are_not(capfd):
+    """libjpeg warns from C on file descriptor 2 of an image signpose refuses in its own words. Decodes on four
+    threads, while a fifth writes its own lines on stderr: each of those lines arrives, none of libjpeg's, and
+    stderr is left where it was."""
+    damaged = ZEROED_JPEGS["zeros_mid.jpg"][0]
+    assert b"Corrupt JPEG data" in decoder_output(damaged)  # what is kept off
+
+    def decode_all() -> None:
+        for _ in range(20):
+            with pytest.raises(ImageError):
+                decode_image(damaged, "zeros_mid.jpg")
+            decode_image(SOUND_JPEGS["baseline.jpg"])
+
+    def write_lines() -> None:
+        for i in range(200):
+            os.write(2, f"line {i} of another thread\n".encode())
+
+    threads = [threading.Thread(target=decode_all) for _ in range(4)] + [threading.Thread(target=write_lines)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    os.write(2, b"after\n")
+    err = capfd.readouterr().err
+    assert sorted(err.splitlines()) == sorted([f"line {i} of another thread" for i in range(200)] + ["after"])
+
+
+def decoder_output(data: bytes) -> bytes:
+    """What OpenCV's decoders print on file descriptor 2 decoding `data`, in a process of their own."""
+    code = "import sys, numpy, cv2; cv2.imdecode(numpy.frombuffer(sys.stdin.buffer.read(), numpy.uint8), 1)"
+    return subprocess.run([sys.executable, "-c", code], input=data, capture_output=True).stderr
