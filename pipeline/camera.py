@@ -259,7 +259,8 @@ class Camera:
         sx, sy = width / self.width, height / self.height
         warnings = [f"image is {width}x{height} px but the camera was calibrated at {self.width}x{self.height}; "
                     f"intrinsics scaled by {sx:.5g} x {sy:.5g}"]
-        K = np.diag([sx, sy, 1.0]) @ self.K
+        # Pixel centres at whole pixels, as cv2.resize places them: c -> (c + 0.5) s - 0.5.
+        K = np.diag([sx, sy, 1.0]) @ self.K + np.array([[0, 0, 0.5 * (sx - 1)], [0, 0, 0.5 * (sy - 1)], [0, 0, 0]])
         try:
             return Camera(K, self.dist, width, height, self.source), warnings
         except CameraError as exc:

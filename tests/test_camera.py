@@ -575,6 +575,13 @@ def test_missing_file_and_scaling():
     assert cam.is_assumed and abs(cam.K[0, 0] - 554.256) < 1e-3
     scaled, warnings = cam.for_image(1280, 960)
     assert scaled.K[0, 0] == pytest.approx(2 * cam.K[0, 0]) and warnings[0].endswith("intrinsics scaled by 2 x 2")
+    # the image resized as cv2.resize does moves a pixel centre u to (u + 0.5) s - 0.5 (0.25 px from u s at s 0.5)
+    points = np.array([[0.3, -0.2, 2.0], [-0.5, 0.4, 3.0]])
+    for size in ((1280, 960), (320, 240)):
+        s = size[0] / 640
+        seen = cv2.projectPoints(points, np.zeros(3), np.zeros(3), cam.K, None)[0].reshape(-1, 2)
+        resized = cv2.projectPoints(points, np.zeros(3), np.zeros(3), cam.for_image(*size)[0].K, None)[0].reshape(-1, 2)
+        assert np.abs(resized - ((seen + 0.5) * s - 0.5)).max() < 1e-9
     # a scale near 1 is not rounded to 1, which would say nothing was scaled
     assert cam.for_image(641, 481)[1][0].endswith("intrinsics scaled by 1.0016 x 1.0021")
 
@@ -702,7 +709,7 @@ def test_the_principal_point_is_held_to_a_calibrations_bounds_where_one_comes_in
                                                     "of the 640x480 px image: a calibration puts it within")):
         camera_from_json({"fx": 500, "fy": 500, "cx": 320, "cy": -1, "width": 640, "height": 480})
     crop = Camera(intrinsics(500, 500, cx=320, cy=-1), np.zeros(5), 640, 480)
-    assert crop.for_image(320, 240)[0].K[1, 2] == -0.5
+    assert crop.for_image(320, 240)[0].K[1, 2] == -0.75  # (-1 + 0.5) / 2 - 0.5
 
 
 CORNER_JSON = {"fx": 1108.5, "fy": 1108.5, "cx": 640, "cy": 480}  # a 1280 x 960 calibration without its size
@@ -731,7 +738,7 @@ def test_a_camera_without_size_whose_principal_point_lies_outside_the_image_cann
     assert phone.for_image(4032, 3024) == (phone, [])
     # what the error says to do works
     sized = camera_from_json({"fx": 3000, "fy": 3000, "cx": 2016, "cy": 1512, "width": 4032, "height": 3024})
-    assert sized.for_image(640, 480)[0].K[0, 2] == 320
+    assert sized.for_image(640, 480)[0].K[0, 2] == pytest.approx((2016 + 0.5) * 640 / 4032 - 0.5)
     # a crop's own size named: no image size twice the principal point has this image's aspect
     with pytest.raises(CameraError, match="made for another resolution: give it that resolution's width and height"):
         camera_from_json({"fx": 554, "fy": 554, "cx": 800, "cy": 240}).for_image(640, 480)
