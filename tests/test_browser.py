@@ -1017,6 +1017,44 @@ def test_the_charts_set_their_value_from_the_keyboard(page, api):
     page.unroute("**/api/sweep?*")
 
 
+def test_a_chart_key_never_moves_the_setting_the_other_way(page, api):
+    """With the threshold at 0.75 and a sweep over 0.3–0.6, → on the sweep chart set it to 0.6: the
+    value was clamped to the chart. From beyond the chart the key toward it goes to its nearest end,
+    the key away from it (and Home or End that way) leaves the value, and the slider's ends stretch to
+    the value, which its ARIA attributes say."""
+    image_id = uploaded_scene(api)
+    open_detail(page, image_id)
+    page.route("**/api/sweep?*", lambda route: route.fulfill(json=sweep_answer("threshold", 0.3, 0.6, 7, [5] * 7)))
+    page.click("#run-sweep")
+    chart = page.locator("#sweep")
+    chart.wait_for()
+
+    def aria() -> list[str]:
+        return [chart.get_attribute(f"aria-value{k}") for k in ("min", "max", "now", "text")]
+
+    assert aria() == ["0.3", "0.75", "0.75", "0.75, beyond the chart's 0.30–0.60"]
+    chart.focus()
+    for key in ("ArrowRight", "Shift+ArrowRight", "End"):
+        page.keyboard.press(key)
+        assert page.input_value("#set-threshold") == "0.75", key
+    page.keyboard.press("ArrowLeft")
+    harness.wait_setting(page, api, {"threshold": 0.6})
+    page.wait_for_function("() => document.querySelector('#sweep').ariaValueMax === '0.6'")
+    assert aria() == ["0.3", "0.6", "0.6", "0.60"]
+
+    harness.set_settings(page, api, {"threshold": 0.2})
+    page.wait_for_function("() => document.querySelector('#sweep').ariaValueMin === '0.2'")
+    assert aria() == ["0.2", "0.6", "0.2", "0.20, beyond the chart's 0.30–0.60"]
+    chart.focus()
+    for key in ("ArrowLeft", "Home"):
+        page.keyboard.press(key)
+        assert page.input_value("#set-threshold") == "0.2", key
+    page.keyboard.press("Shift+ArrowRight")
+    harness.wait_setting(page, api, {"threshold": 0.3})
+    assert page.get_attribute("#detail", "data-id") == image_id, "a chart's key stepped to another image"
+    page.unroute("**/api/sweep?*")
+
+
 def test_sweep_bounds_follow_the_swept_setting(page, api):
     open_detail(page, uploaded_scene(api))
     entry = next(e for e in api.get("/api/settings/schema").json() if e["name"] == "max_features")
