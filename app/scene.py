@@ -540,6 +540,8 @@ class SceneHandle:
         if event.kind == "settings":
             self.panel.show(event.payload["settings"], event.payload["version"])
             return
+        if event.kind == "calibration":   # nothing drawn depends on it: a board search would redraw a photo at a time
+            return
         if event.kind == "results":
             self._progress = event.payload
         elif event.kind == "library":

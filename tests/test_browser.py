@@ -1549,6 +1549,44 @@ def test_a_photo_of_another_size_is_flagged_before_any_run(page, api, tmp_path, 
     assert not runs and page.locator(".toast.error").count() == 0
 
 
+def test_an_open_camera_dialog_follows_the_calibration_changed_elsewhere(page, browser, base, api, no_camera):
+    """Another person removed the photo of another size: an open Camera dialog kept saying the sizes
+    differ, with "run" disabled, until it was closed and opened again. It follows every change made
+    elsewhere: photos added and removed, a run, a new board and its search."""
+    images, _ = render_boards(4)
+    images.insert(1, cv2.resize(images[1], (800, 600)))
+    files = [("files", (f"elsewhere{i}.png", cv2.imencode(".png", im)[1].tobytes(), "image/png"))
+             for i, im in enumerate(images)]
+    page.click("#camera-open")
+    page.locator("#calib-summary", has_text="No photos yet.").wait_for()
+    other = harness.open_page(browser, base)   # another person's page
+    try:
+        other.click("#camera-open")
+        api.post("/api/calibration/images", files=files).raise_for_status()
+        for screen in (page, other):
+            screen.locator("#calib-sizes").wait_for()
+            assert screen.is_disabled("#calib-run")
+        odd = other.locator("#calib-views .view-card.othersize")
+        odd.hover()  # the × shows on the card under the pointer
+        odd.locator("button.remove").click()
+        page.wait_for_selector("#calib-sizes", state="detached")
+        page.locator("#calib-summary", has_text="4 photos, the 9×6 board found in 4: run the calibration").wait_for()
+        assert page.is_enabled("#calib-run")
+        rms = api.post("/api/calibration/run").json()["result"]["rms_px"]
+        page.locator("#calib-rms", has_text=f"{rms:.3f} px from 4 of 4 photos").wait_for()
+        board = api.get("/api/calibration").json()["board"]
+        try:
+            other.fill("#board-cols", "7")
+            other.dispatch_event("#board-cols", "change")
+            page.locator("#calib-search", has_text=f"for the 7×{board['rows']} board").wait_for()
+            page.locator("#calib-summary", has_text=f"4 photos, the 7×{board['rows']} board found in 0").wait_for()
+            assert page.input_value("#board-cols") == "7"
+        finally:
+            api.put("/api/calibration/board", json=board).raise_for_status()
+    finally:
+        harness.close_page(other)
+
+
 def test_assumed_field_of_view_and_typed_intrinsics(page, api, no_camera):
     image_id = uploaded_scene(api)
     open_detail(page, image_id)
