@@ -6,7 +6,7 @@ import { approximateNote, KIND_LABELS } from "./camera.js";
 import { drawHistogram, drawSweep, valueAt } from "./charts.js";
 import { fillExpected, refreshImages, showStatus } from "./gallery.js";
 import { setSetting, settingText, settingValue, stepOf } from "./settings.js";
-import { state, on, select, signName } from "./store.js";
+import { emit, state, on, select, signName } from "./store.js";
 import { $, el, fill, fmt, plural, report, toast } from "./ui.js";
 
 let detail = null;          // GET /api/images/{id} of the shown image
@@ -238,6 +238,7 @@ function render() {
   renderScores();
   renderPose();
   renderMatches();
+  emit("detail", detail.id);
 }
 
 async function load(id) {

@@ -258,6 +258,38 @@ def test_phone_width_stacks_the_panels(page):
     page.click("#library-close")
 
 
+def choose_card(page, index: int) -> float:
+    """Click the gallery's card `index` (scrolled to first) and wait for its detail; the detail's top then,
+    px from the top of the window."""
+    chosen = page.locator(".card").nth(index)
+    chosen.scroll_into_view_if_needed()
+    image_id = chosen.get_attribute("data-id")
+    chosen.click()
+    page.wait_for_function("id => !document.querySelector('#detail').hidden"
+                           " && document.querySelector('#detail').dataset.id === id", arg=image_id)
+    return page.evaluate("() => document.querySelector('#detail').getBoundingClientRect().top")
+
+
+def test_choosing_an_image_on_a_phone_brings_its_detail_into_view(page):
+    """On a phone (390×844) the panels stack in one column and the detail view lies under the whole
+    gallery, 929 px down: tapping a card seemed to do nothing. Choosing a card scrolls the page to the
+    detail, also when none was open; wider, it still scrolls only the gallery, not the page."""
+    page.set_viewport_size({"width": 390, "height": 844})
+    page.wait_for_selector("#detail:not([hidden])")   # the first image opens by itself, and nothing scrolls
+    assert page.evaluate("() => scrollY") == 0
+    assert choose_card(page, 9) == pytest.approx(0, abs=1)
+    page.evaluate("() => scrollTo(0, 0)")
+    assert choose_card(page, 9) == pytest.approx(0, abs=1), "the card of the image shown"
+    page.click("#detail-close")
+    page.evaluate("() => scrollTo(0, 0)")
+    assert choose_card(page, 9) == pytest.approx(0, abs=1), "the card of the image closed"
+
+    page.set_viewport_size({"width": 1024, "height": 700})
+    page.evaluate("() => scrollTo(0, 0)")
+    choose_card(page, 9)
+    assert page.evaluate("() => scrollY") == 0
+
+
 # The top bar's parts that stick out of the window, are cut off by a box holding them, are cut short
 # (…) or break over two lines.
 TOP_BAR_CUT = """() => [...document.querySelectorAll(
