@@ -80,6 +80,8 @@ LABEL_SEPARATOR = "   "
 # A shared label lists at most this many texts; one for more says how many and the first and last:
 # 43 names, a list as tall as the view, covered the cameras they named.
 MAX_TEXTS_LISTED = 6
+# How long a clicked camera's name shows in the clicking viewer.
+CLICKED_NOTE_S = 6.0
 # Canvas sizes whose device px per CSS px are kept (`SceneHandle.set_canvas_scale`): a window being
 # resized reports many.
 MAX_CANVAS_SIZES = 64
@@ -718,7 +720,9 @@ class SceneHandle:
         self._mark_stale()
 
     def view_from(self, image_id: str, client: viser.ClientHandle) -> None:
-        """Move `client`'s viewport to the estimated camera of `image_id`, looking along its optical axis."""
+        """Move `client`'s viewport to the estimated camera of `image_id`, looking along its optical axis,
+        and name it there: among cameras sharing a label (or counted in one), nothing else says which
+        frustum was clicked."""
         with self._lock:
             nodes = self.cameras.get(image_id)
             if nodes is None:
@@ -726,6 +730,7 @@ class SceneHandle:
             if self.world.value != nodes.sign:
                 self.world.value = nodes.sign
             position, wxyz = np.asarray(nodes.frustum.position), np.asarray(nodes.frustum.wxyz)
+            text = nodes.text
         axes = tf.SO3(wxyz).as_matrix()
         forward = axes[:, 2]
         # Orbit around where the optical axis meets the sign plane (z = 0); a camera facing away
@@ -736,6 +741,8 @@ class SceneHandle:
             client.camera.position = position
             client.camera.look_at = position + depth * forward
             client.camera.up_direction = -axes[:, 1]
+        client.add_notification(text, "the view from this camera (Reset View goes back)",
+                                auto_close_seconds=CLICKED_NOTE_S)
 
     # ---- drawing
 

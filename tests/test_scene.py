@@ -538,8 +538,10 @@ def test_upload_button_adds_an_image(scene):
         workspace.remove_image(record.id)
 
 
-def test_view_from_puts_the_client_at_the_camera(scene):
-    """Clicking a frustum calls view_from with the clicking client; a stand-in records what it is told."""
+def test_view_from_puts_the_client_at_the_camera_and_names_it(scene):
+    """Clicking a frustum calls view_from with the clicking client; a stand-in records what it is told.
+    Nothing said which camera was clicked, among cameras sharing a label or counted in one: the
+    client is told its name."""
     handle, _ = scene
 
     class Camera:
@@ -547,9 +549,13 @@ def test_view_from_puts_the_client_at_the_camera(scene):
 
     class Client:
         camera = Camera()
+        notes = []
 
         def atomic(self):
             return contextlib.nullcontext()
+
+        def add_notification(self, title, body, **options):
+            self.notes.append((title, options))
 
     other = next(s for s in handle.signs if s != handle.world.value)
     image_id, nodes = next((k, n) for k, n in handle.cameras.items() if n.sign == other)
@@ -562,6 +568,9 @@ def test_view_from_puts_the_client_at_the_camera(scene):
     direction = client.camera.look_at - client.camera.position
     np.testing.assert_allclose(direction / np.linalg.norm(direction), axes[:, 2], atol=1e-9)
     np.testing.assert_allclose(client.camera.up_direction, -axes[:, 1])
+    name = next(r.name for r in handle.workspace.images() if r.id == image_id)
+    [(title, options)] = client.notes
+    assert title.split(" · ")[0] == name and options["auto_close_seconds"] > 0
 
 
 def test_close_stops_following(scene):
