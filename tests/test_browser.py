@@ -1297,6 +1297,39 @@ def test_twenty_camera_labels_in_the_3d_view_do_not_overlap(page, api, browser, 
             api.delete(f"/api/images/{image_id}").raise_for_status()
 
 
+# Where in the 3D view's page (CSS px) each camera of the world shown stands, by image id: its apex.
+CAMERA_SPOTS = """() => {
+    const m = window.__viserMutable, tree = window.__viserSceneTree.getState(), canvas = m.canvas.getBoundingClientRect();
+    return Object.keys(tree).filter((name) => /\\/cameras\\/[^/]+$/.test(name) && tree[name].effectiveVisibility)
+        .map((name) => { const at = m.nodeRefFromName[name].getWorldPosition(m.camera.position.clone()).project(m.camera);
+                         return [name.split("/").pop(), canvas.left + (at.x + 1) / 2 * canvas.width,
+                                 canvas.top + (1 - at.y) / 2 * canvas.height]; });
+}"""
+
+
+def test_clicking_a_camera_in_the_3d_view_names_it(browser, base, api):
+    """Cameras sharing a label, or counted in one, could not be told apart, and clicking one moved the
+    view to it without saying which it was: it is named there."""
+    viewer = browser.new_page(viewport={"width": 1280, "height": 900})
+    try:
+        viewer.goto(f"{base}/viser/")
+        viewer.get_by_text("Connected", exact=True).wait_for(timeout=30_000)
+        spots = viewer.wait_for_function(f"() => {{ const s = ({CAMERA_SPOTS})(); return s.length && s; }}",
+                                         timeout=30_000).json_value()
+        names = {image["name"] for image in api.get("/api/images").json()["images"]}
+        note = viewer.locator(".mantine-Notification-body").filter(has_text="the view from this camera")
+        # a frustum is drawn forward of its apex: a click on the apex itself may miss it
+        for (_, x, y), (dx, dy) in ((spot, shift) for spot in spots[:5] for shift in ((0, 0), (4, 4), (-4, 4), (0, 8))):
+            viewer.mouse.click(x + dx, y + dy)
+            viewer.wait_for_timeout(1_500)   # the server's answer to a click
+            if note.count():
+                break
+        title = note.first.locator(".mantine-Notification-title").inner_text()
+        assert title.split(" · ")[0] in names, title
+    finally:
+        viewer.close()
+
+
 def test_viser_scene_reconnects_after_a_server_restart(browser, tmp_path):
     port = harness.free_port()   # the same address and state, as a person restarting `signpose serve` has
     with harness.serve(tmp_path / "state", tmp_path / "before.log", port=port) as url:
