@@ -4,7 +4,9 @@ to take the photos).
 
 One session per server, shared by everyone using it, like the Workspace. It lives in memory only:
 the photos are a means to a camera, and the camera, once applied, is kept by the Workspace.
-Detection and fitting run in the caller's thread (a request worker, off the event loop).
+Detection and fitting run in the caller's thread (a request worker, off the event loop). Every change
+is published (`CalibrationSession(publish=...)`), so that a client showing the session sees what
+another one did.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import secrets
 import threading
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -150,6 +153,10 @@ class BoardSearch:
     done: int
     total: int
 
+    def to_json(self) -> dict:
+        """{"cols", "rows", "done", "total"}, as the API says it."""
+        return {"cols": self.board[0], "rows": self.board[1], "done": self.done, "total": self.total}
+
 
 def read_gray(name: str, data: bytes, max_pixels: int) -> np.ndarray:
     """An uploaded photo as (H, W) uint8 gray, its pixels as the camera stored them; ImageError /
@@ -164,11 +171,19 @@ def read_gray(name: str, data: bytes, max_pixels: int) -> np.ndarray:
 class CalibrationSession:
     """Thread-safe holder of one CalibrationState. Readers take `state` (never torn); every change
     is serialised by one lock, except the board search of new photos, which runs outside it so
-    that uploads sent side by side use every core."""
+    that uploads sent side by side use every core.
 
-    def __init__(self, max_pixels: int, max_photos: int = MAX_PHOTOS) -> None:
+    `publish(payload)` is called on every change of the state or of a board search under way, with
+    {"revision", "search": BoardSearch.to_json() | None}: the server sends it to every client as the
+    `calibration` event. It is called under the lock, so that changes are published in the order
+    made: it must only pass the payload on, never call the session.
+    """
+
+    def __init__(self, max_pixels: int, max_photos: int = MAX_PHOTOS,
+                 publish: Callable[[dict], None] = lambda payload: None) -> None:
         self.max_pixels = max_pixels
         self.max_photos = max_photos
+        self._publish = publish
         self._lock = threading.Lock()
         self._state = CalibrationState()
         self._search: BoardSearch | None = None
@@ -190,7 +205,19 @@ class CalibrationSession:
         """
         changes = {"result": None, "unfitted": None, "recipe": None, **changes}
         self._state = dataclasses.replace(self._state, revision=self._state.revision + 1, **changes)
+        self._published()
         return self._state
+
+    def _published(self) -> None:
+        """Publish the revision and the board search now (the caller holds the lock)."""
+        search = self._search
+        self._publish({"revision": self._state.revision, "search": None if search is None else search.to_json()})
+
+    def _searching(self, search: BoardSearch | None) -> None:
+        """Say how far the board search has come (None: it is over), to requests and to `publish`: the
+        request that asked for it is answered only once it is over."""
+        self._search = search
+        self._published()
 
     def _check_room(self, adding: int) -> None:
         held = len(self._state.photos)
@@ -249,14 +276,14 @@ class CalibrationSession:
 
         searched: list[CalibrationPhoto] = []
         try:
-            self._search = BoardSearch(board, 0, len(photos))
+            self._searching(BoardSearch(board, 0, len(photos)))
             with ThreadPoolExecutor(CORES) as pool:
                 for photo in pool.map(search, photos):
                     searched.append(photo)
-                    self._search = BoardSearch(board, len(searched), len(photos))
+                    self._searching(BoardSearch(board, len(searched), len(photos)))
             return tuple(searched)
         finally:
-            self._search = None
+            self._searching(None)
 
     def remove(self, photo_id: str) -> CalibrationState:
         """Forget one photo; KeyError when there is none with `photo_id`. The photos left are fitted

@@ -77,6 +77,11 @@ LABEL_NARROW = set(".,:;!|'ijlI ")
 LABEL_GAP_PX = 2.0
 # Between the texts a shared label lists on one line.
 LABEL_SEPARATOR = "   "
+# A shared label lists at most this many texts; one for more says how many and the first and last:
+# 43 names, a list as tall as the view, covered the cameras they named.
+MAX_TEXTS_LISTED = 6
+# How long a clicked camera's name shows in the clicking viewer.
+CLICKED_NOTE_S = 6.0
 # Canvas sizes whose device px per CSS px are kept (`SceneHandle.set_canvas_scale`): a window being
 # resized reports many.
 MAX_CANVAS_SIZES = 64
@@ -257,43 +262,67 @@ class SharedLabel:
         return self.beyond(view) == 0
 
 
+# Where a label may be written from, as (camera, anchor) in the order tried; a camera's own as viser
+# writes it, rightward and down from it, else leftward, or up from it, or centred on it, to stay inside
+# the view. A group's from its camera highest, lowest or in the middle on the screen, as a camera's.
+OVER = (("top", "top-left"), ("top", "top-right"), ("bottom", "bottom-left"), ("bottom", "bottom-right"),
+        ("middle", "center-left"), ("middle", "center-right"), ("top", "top-center"), ("bottom", "bottom-center"),
+        ("middle", "center-center"))
+# A group's beside its cameras, covering none of them, where it fits (written down from the highest, the
+# list ran over the others): left of the leftmost, above the highest, right of the rightmost, below the
+# lowest. Left first: a camera's own label runs rightward, and viser's own page has its control panel
+# over the right of the view.
+BESIDE = (("left", "center-right"), ("top", "bottom-left"), ("top", "bottom-right"), ("top", "bottom-center"),
+          ("right", "center-left"), ("bottom", "top-left"), ("bottom", "top-right"), ("bottom", "top-center"))
+
+
+def label_texts(texts: list[str]) -> list[str]:
+    """What a label of cameras whose own texts are `texts` may say, in the order tried: every text, one
+    a line, then more a line (in the 3D strip under the images, some 300 px high, twenty names one a line
+    ran past its bottom); for more than MAX_TEXTS_LISTED, how many and the first and last text, on one
+    line or three."""
+    if len(texts) > MAX_TEXTS_LISTED:
+        count, first, last = f"{len(texts)} cameras:", texts[0], texts[-1]
+        return [f"{count} {first} ... {last}", f"{count}\n{first} ...\n{last}"]
+    return ["\n".join(LABEL_SEPARATOR.join(texts[i:i + per_line]) for i in range(0, len(texts), per_line))
+            for per_line in range(1, len(texts) + 1)]
+
+
+def group_roles(group: list[int], view: View | None) -> dict[str, int]:
+    """The cameras of `group` (indices) highest ("top"), lowest, in the middle, leftmost and rightmost on
+    `view`'s screen (its first camera for each when there is no view or none of them is in front of it)."""
+    px = {i: view.px[i] for i in group if np.isfinite(view.px[i]).all()} if view else {}
+    if not px:
+        return dict.fromkeys(("top", "middle", "bottom", "left", "right"), group[0])
+    by_y = sorted(px, key=lambda i: px[i][1])
+    return {"top": by_y[0], "middle": by_y[len(by_y) // 2], "bottom": by_y[-1],
+            "left": min(px, key=lambda i: px[i][0]), "right": max(px, key=lambda i: px[i][0])}
+
+
 def shared_label(group: list[int], texts: list[str], views: list[View]) -> SharedLabel:
-    """The label of `group` (indices into `texts`, each camera's own text; `labels_apart`' views):
-    its texts one a line, written rightward and down from its camera highest on the first viewer's
-    screen, so that the list runs down past the others; else, to be drawn whole on every viewer's
-    screen, leftward, or up from the lowest camera, or centred on the middle one (three dozen names
-    in the page's 3D column), or several texts a line (in the 3D strip under the images, some 300 px
-    high, twenty names one a line ran past its bottom). When none is drawn whole, the one that
-    reaches least past the edges."""
-    names = [texts[i] for i in group]
-    top = middle = bottom = group[0]
-    if views:
-        y = {i: views[0].px[i, 1] for i in group if np.isfinite(views[0].px[i, 1])}
-        if y:
-            order = sorted(y, key=y.get)
-            top, middle, bottom = order[0], order[len(order) // 2], order[-1]
+    """The label of `group` (indices into `texts`, each camera's own text; `labels_apart`' views),
+    saying what `label_texts` gives from where `BESIDE` and `OVER` say, its cameras placed on the first
+    viewer's screen: the first drawn whole on every viewer's screen, trying every text beside a group's
+    cameras before any over them; when none is drawn whole, the one that reaches least past the edges."""
+    roles = group_roles(group, views[0] if views else None)
     best, least = None, math.inf
-    for per_line in range(1, len(names) + 1):
-        text = "\n".join(LABEL_SEPARATOR.join(names[i:i + per_line]) for i in range(0, len(names), per_line))
-        for at, anchor in ((top, "top-left"), (top, "top-right"), (bottom, "bottom-left"), (bottom, "bottom-right"),
-                           (middle, "center-left"), (middle, "center-right"), (top, "top-center"),
-                           (bottom, "bottom-center"), (middle, "center-center")):
-            label = SharedLabel(at, group, text, anchor)
-            beyond = sum(label.beyond(view) for view in views)
-            if beyond == 0:
-                return label
-            if beyond < least:
-                best, least = label, beyond
-        if views and label_size_px(text)[0] > max(view.width for view in views):
-            break   # more a line would only be wider still
+    for places in ((BESIDE, OVER) if len(group) > 1 else (OVER,)):
+        for text in label_texts([texts[i] for i in group]):
+            for role, anchor in places:
+                label = SharedLabel(roles[role], group, text, anchor)
+                beyond = sum(label.beyond(view) for view in views)
+                if beyond == 0:
+                    return label
+                if beyond < least:
+                    best, least = label, beyond
     return best
 
 
 def labels_apart(groups: list[list[int]], texts: list[str], views: list[View]) -> list[SharedLabel]:
     """The labels of cameras whose own label texts are `texts`, `groups` of them (indices, as
     `label_groups` gives them) sharing one, merged until no two overlap on any of the viewers'
-    screens (`views`, where each camera is seen: `View`): a label lists its group's texts, written
-    from one of its cameras (`shared_label`). In order of their first camera."""
+    screens (`views`, where each camera is seen: `View`): a label lists its group's texts, or counts
+    them, written from one of its cameras (`shared_label`). In order of their first camera."""
     while True:
         labels = [shared_label(group, texts, views) for group in groups]
         b = np.asarray([[label.box(view) for view in views] for label in labels], float).reshape(
@@ -540,6 +569,8 @@ class SceneHandle:
         if event.kind == "settings":
             self.panel.show(event.payload["settings"], event.payload["version"])
             return
+        if event.kind == "calibration":   # nothing drawn depends on it: a board search would redraw a photo at a time
+            return
         if event.kind == "results":
             self._progress = event.payload
         elif event.kind == "library":
@@ -689,7 +720,9 @@ class SceneHandle:
         self._mark_stale()
 
     def view_from(self, image_id: str, client: viser.ClientHandle) -> None:
-        """Move `client`'s viewport to the estimated camera of `image_id`, looking along its optical axis."""
+        """Move `client`'s viewport to the estimated camera of `image_id`, looking along its optical axis,
+        and name it there: among cameras sharing a label (or counted in one), nothing else says which
+        frustum was clicked."""
         with self._lock:
             nodes = self.cameras.get(image_id)
             if nodes is None:
@@ -697,6 +730,7 @@ class SceneHandle:
             if self.world.value != nodes.sign:
                 self.world.value = nodes.sign
             position, wxyz = np.asarray(nodes.frustum.position), np.asarray(nodes.frustum.wxyz)
+            text = nodes.text
         axes = tf.SO3(wxyz).as_matrix()
         forward = axes[:, 2]
         # Orbit around where the optical axis meets the sign plane (z = 0); a camera facing away
@@ -707,6 +741,8 @@ class SceneHandle:
             client.camera.position = position
             client.camera.look_at = position + depth * forward
             client.camera.up_direction = -axes[:, 1]
+        client.add_notification(text, "the view from this camera (Reset View goes back)",
+                                auto_close_seconds=CLICKED_NOTE_S)
 
     # ---- drawing
 
@@ -758,8 +794,8 @@ class SceneHandle:
         another (the same photo uploaded twice, a burst). In the world shown, the groups whose labels
         would overlap on a viewer's screen share one too: a dozen cameras seen from a few metres in
         the page's narrow 3D column printed their names over each other. One camera's label lists
-        every name (`shared_label`); the others' are hidden. The caller holds the lock; `shown` are
-        the cameras drawn."""
+        every name, or counts them, beside the group (`shared_label`); the others' are hidden. The caller
+        holds the lock; `shown` are the cameras drawn."""
         by_sign: dict[str, list[tuple[ImageRecord, Recognition]]] = {}
         for record, rec in shown:
             by_sign.setdefault(rec.label, []).append((record, rec))

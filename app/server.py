@@ -447,7 +447,8 @@ def health(workspace: WorkspaceDep) -> Health:
 
 @api.get("/events", response_class=EventSourceResponse, tags=["server"])
 async def events(workspace: WorkspaceDep) -> AsyncIterable[ServerSentEvent]:
-    """Server-sent events: `settings`, `results`, `library`, `camera`, `images` (payloads in the contract).
+    """Server-sent events: `settings`, `results`, `library`, `camera`, `images`, `calibration` (payloads in
+    the contract).
 
     Starts with the current `settings` and `results`. Events of one kind that arrive faster
     than they are sent collapse into the newest.
@@ -805,8 +806,7 @@ def calibration_out(calibration: CalibrationSession, state: CalibrationState) ->
                           max_square_m=MAX_SQUARE_M, views=views,
                           hint=state.few_boards_advice,
                           board=BoardSpec(cols=state.board[0], rows=state.board[1], square_m=state.square_m),
-                          search=None if search is None else BoardSearchOut(
-                              cols=search.board[0], rows=search.board[1], done=search.done, total=search.total),
+                          search=None if search is None else BoardSearchOut(**search.to_json()),
                           result=result, unfitted=state.unfitted, size_mismatch=state.size_mismatch)
 
 
@@ -954,7 +954,8 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
                          summary="Recognise known planar signs and recover the camera pose; tune every step.")
     app.state.workspace = workspace
     app.state.scene = None   # until the lifespan attaches it
-    app.state.calibration = CalibrationSession(workspace.config.max_pixels)
+    app.state.calibration = CalibrationSession(workspace.config.max_pixels,
+                                               publish=lambda payload: workspace.publish("calibration", payload))
     # The last added runs first: headers on every answer, then access, then the body limit.
     app.add_middleware(UploadLimit, max_bytes=workspace.config.max_upload_bytes)
     app.add_middleware(AccessGuard, token=token)

@@ -58,7 +58,7 @@ PHOTOS_KEPT = 2
 # The memory freed by deletions and finished work goes back to the system this long after (by
 # then the requests that deleted images have let go of them), once for a burst.
 TRIM_DELAY_S = 1.0
-EVENT_KINDS = ("settings", "results", "library", "camera", "images")
+EVENT_KINDS = ("settings", "results", "library", "camera", "images", "calibration")
 # An image held keeps its gray (1 byte a pixel) and its result's segmentation labels (1), and
 # its stage cache may keep CACHE_BYTES_PER_PIXEL more as the cache counts them (a segmentation
 # counts 2: its labels and the gray it shares with the image) plus CACHE_MIN_BYTES for features
@@ -542,7 +542,7 @@ class Workspace:
             for record in records:
                 self.state.remove_image(record.file)
             raise
-        self._emit("images", {"ids": [r.id for r in self.images()]})
+        self.publish("images", {"ids": [r.id for r in self.images()]})
         return records
 
     def photo(self, record: ImageRecord) -> np.ndarray:
@@ -610,7 +610,7 @@ class Workspace:
             record = self._records[image_id]
             record.expected = self.check_expected(expected)
             self.state.save_images([r.stored() for r in self._records.values()])
-        self._emit("images", {"ids": [r.id for r in self.images()]})
+        self.publish("images", {"ids": [r.id for r in self.images()]})
         return record
 
     def remove_image(self, image_id: str) -> None:
@@ -635,7 +635,7 @@ class Workspace:
             for record in records:
                 self._photos.pop(record.id, None)
         self._trim_soon()
-        self._emit("images", {"ids": [r.id for r in self.images()]})
+        self.publish("images", {"ids": [r.id for r in self.images()]})
         return len(records)
 
     def image_path(self, record: ImageRecord) -> Path:
@@ -674,7 +674,7 @@ class Workspace:
             snap = self._change(settings=settings)
         with self._disk_lock:
             self.state.save_settings(self.settings)
-        self._emit("settings", {"version": snap.settings_version, "settings": settings.to_dict()})
+        self.publish("settings", {"version": snap.settings_version, "settings": settings.to_dict()})
         self._request_rerun()
         return settings
 
@@ -700,7 +700,7 @@ class Workspace:
 
     def _camera_changed(self) -> None:
         snap = self._snap
-        self._emit("camera", {"camera": snap.camera.to_json() if snap.camera is not None else None,
+        self.publish("camera", {"camera": snap.camera.to_json() if snap.camera is not None else None,
                               "assumed_hfov_deg": snap.assumed_hfov_deg})
         self._request_rerun()
 
@@ -735,7 +735,7 @@ class Workspace:
             # PNG whatever was uploaded: lossless, and what GET /api/library/{id}/image promises.
             self.state.write_library_file(sign.image_file, cv2.imencode(".png", image)[1].tobytes())
             self._set_library([*self.library.signs, sign])
-        self._emit("library", {"ids": self.library.ids})
+        self.publish("library", {"ids": self.library.ids})
         self._request_rerun()
         return sign
 
@@ -747,7 +747,7 @@ class Workspace:
                 raise Conflict("cannot delete the library's last sign; add another sign first")
             self._set_library([s for s in self.library.signs if s.id != sign_id])
             self.state.remove_library_file(sign.image_file)
-        self._emit("library", {"ids": self.library.ids})
+        self.publish("library", {"ids": self.library.ids})
         self._request_rerun()
 
     def sign_path(self, sign_id: str) -> Path:
@@ -769,7 +769,9 @@ class Workspace:
 
         return unsubscribe
 
-    def _emit(self, kind: str, payload: dict) -> None:
+    def publish(self, kind: str, payload: dict) -> None:
+        """Send `Event(kind, payload)` to every subscriber: the workspace's own changes, and those of the
+        calibration session beside it (app/calibration.py), which clients follow on the same stream."""
         with self._lock:
             subscribers = list(self._subscribers)
         for callback in subscribers:
@@ -810,7 +812,7 @@ class Workspace:
             with self._lock:
                 self._in_flight -= 1
                 self._idle.notify_all()
-            self._emit("results", self.progress())
+            self.publish("results", self.progress())
             self._trim_soon()
 
     def _process(self, record: ImageRecord, snap: Snapshot) -> None:
@@ -864,7 +866,7 @@ class Workspace:
                 with self._lock:
                     self._batch_running = False
                     self._idle.notify_all()
-                self._emit("results", self.progress())
+                self.publish("results", self.progress())
                 self._trim_soon()
 
     def _trim_soon(self) -> None:
@@ -890,7 +892,7 @@ class Workspace:
         futures = [self._pool.submit(self._process, record, snap) for record in records]
         for future in as_completed(futures):
             future.result()
-            self._emit("results", self.progress())
+            self.publish("results", self.progress())
 
     # ---- one-off runs
 

@@ -47,6 +47,7 @@ async function resync() {
   try {
     applySettings(await get("/api/settings"), true);
     refreshImages();
+    emit("calibration", null);   // an open Camera dialog shows the calibration again
     loadHealth();   // a restarted server may have another memory limit
   } catch (err) {
     report(err);
@@ -76,6 +77,7 @@ function listen() {
   source.addEventListener("images", handle(refreshImages));
   source.addEventListener("library", handle(() => loadLibrary().then(refreshImages, report)));
   source.addEventListener("camera", handle(() => emit("camera")));
+  source.addEventListener("calibration", handle((change) => emit("calibration", change)));
 }
 
 /** The image a `#image=<id>` link names, or null. */

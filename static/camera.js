@@ -15,8 +15,6 @@ export const KIND_LABELS = {
 };
 const THUMB_SIDE = 320;
 const PREVIEW_SIDE = 1280;
-// How often the dialog asks how far a search for a new board size has come (some 10 s for 18 photos).
-const SEARCH_POLL_MS = 300;
 
 let camera = null;        // GET /api/camera
 let calib = null;         // GET /api/calibration, the newest revision seen
@@ -24,7 +22,6 @@ let selected = null;      // id of the calibration photo in the preview
 let picked = false;       // `selected` was clicked, not chosen for the person
 let previewMode = "corners";
 let hfovHeld = false;     // the slider is under the pointer: server answers must not yank it
-let searchPoll = null;    // timer of the next look at a board search under way
 
 /** "fx 520.1 fy 515.0 cx 318.0 cy 243.0 px @ 640×480" */
 const intrinsicsText = (cam) => `fx ${fmt(cam.fx, 1)} fy ${fmt(cam.fy, 1)} cx ${fmt(cam.cx, 1)} `
@@ -163,18 +160,6 @@ function show(body) {
   if (calib && body.revision < calib.revision) return;
   calib = body;
   renderCalibration();
-  if (calib.search) followSearch();
-}
-
-/** Look at the calibration again in SEARCH_POLL_MS while the dialog is open: the answer to a new
- *  board size comes only once every photo has been searched, and until then only GET says how far
- *  it has come. `show` keeps looking while the answers say a search is under way. */
-function followSearch() {
-  clearTimeout(searchPoll);
-  searchPoll = setTimeout(() => {
-    searchPoll = null;
-    if ($("#camera-dialog").open) loadCalibration();
-  }, SEARCH_POLL_MS);
 }
 
 async function loadCalibration() {
@@ -359,10 +344,11 @@ function bindCalibration() {
       loadCalibration();
       return;
     }
+    // A new corner count searches every photo again before this answer comes: meanwhile `calibration`
+    // events say how far it has come.
     change("PUT", "/api/calibration/board", {
       cols: Number($("#board-cols").value), rows: Number($("#board-rows").value), square_m: Number(square) / 1000,
     });
-    followSearch();   // a new corner count searches every photo again before this answer comes
   };
   for (const id of ["#board-cols", "#board-rows", "#board-square"]) $(id).addEventListener("change", putBoard);
   $("#calib-run").onclick = () => run(false);
@@ -475,6 +461,9 @@ export function initCamera() {
   $("#camera-close").onclick = () => dialog.close();
   for (const button of document.querySelectorAll("#camera-tabs button")) button.onclick = () => showTab(button.value);
   on("camera", loadCamera);
+  // The calibration is one for everyone using the server: an open dialog shows what another page
+  // changed (a photo removed, a run, a new board), and how far a board search has come.
+  on("calibration", () => dialog.open && loadCalibration());
   // The load below counts the images the page knows of (none yet); it cannot wait for the first
   // images event, which never comes when GET /api/images fails.
   let imageCount = state.images.length;

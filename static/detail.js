@@ -6,7 +6,7 @@ import { approximateNote, KIND_LABELS } from "./camera.js";
 import { drawHistogram, drawSweep, valueAt } from "./charts.js";
 import { fillExpected, refreshImages, showStatus } from "./gallery.js";
 import { setSetting, settingText, settingValue, stepOf } from "./settings.js";
-import { state, on, select, signName } from "./store.js";
+import { emit, state, on, select, signName } from "./store.js";
 import { $, el, fill, fmt, plural, report, toast } from "./ui.js";
 
 let detail = null;          // GET /api/images/{id} of the shown image
@@ -238,6 +238,7 @@ function render() {
   renderScores();
   renderPose();
   renderMatches();
+  emit("detail", detail.id);
 }
 
 async function load(id) {
@@ -562,28 +563,44 @@ const sweepScale = () => sweep && {
 // A focused chart's keys: steps of the setting each takes it by (ten with Shift), as a slider's do.
 const STEP_KEYS = { ArrowLeft: -1, ArrowDown: -1, ArrowRight: 1, ArrowUp: 1 };
 
-/** The value the key of keydown `e` takes the setting of `scale` to, within what the chart shows; null
- *  for a key a chart does not take. Arrows step on from the value the form holds, not yet answered. */
-function keyedValue(e, { name, lo, hi }) {
+/** The ends of the slider a chart over `scale` is, with the setting at `now`: the chart's, stretched
+ *  to `now` when it lies beyond them (a sweep over part of the setting's range), as a slider's value
+ *  is never outside its range. */
+function sliderEnds({ lo, hi }, now) {
+  return typeof now === "number" ? [Math.min(lo, now), Math.max(hi, now)] : [lo, hi];
+}
+
+/** The value the key of keydown `e` takes the setting of `scale` to; null for a key a chart does not
+ *  take. Arrows step on from the value the form holds, not yet answered, within the chart; from a
+ *  value beyond it, the key toward it goes to its nearest end and the key away from it keeps the value
+ *  (clamped to the chart, → from above a sweep lowered the setting). Home and End go to the slider's ends. */
+function keyedValue(e, scale) {
   if (e.altKey || e.ctrlKey || e.metaKey) return null;
-  if (e.key === "Home") return lo;
-  if (e.key === "End") return hi;
+  const now = settingValue(scale.name);
+  const [min, max] = sliderEnds(scale, now);
+  if (e.key === "Home") return min;
+  if (e.key === "End") return max;
   const direction = STEP_KEYS[e.key];
   if (!direction) return null;
-  const entry = state.schema.find((x) => x.name === name);
-  const now = settingValue(name) ?? lo;   // a setting off (null) starts from the chart's low end
-  return Math.min(hi, Math.max(lo, now + direction * (e.shiftKey ? 10 : 1) * stepOf(entry)));
+  const entry = state.schema.find((x) => x.name === scale.name);
+  const from = now ?? scale.lo;   // a setting off (null) starts from the chart's low end
+  const to = Math.min(scale.hi, Math.max(scale.lo, from + direction * (e.shiftKey ? 10 : 1) * stepOf(entry)));
+  return direction * (to - from) < 0 ? from : to;
 }
 
 /** Say on `canvas`, a chart drawn over `scale`, what it does and the value it marks now (a slider's
- *  ARIA attributes), so that a keyboard or screen reader user finds it as a control. */
-function describeChart(canvas, { name, lo, hi, what }) {
+ *  ARIA attributes, over `sliderEnds`), so that a keyboard or screen reader user finds it as a control. */
+function describeChart(canvas, scale) {
+  const { name, lo, hi, what } = scale;
   const now = state.settings[name];
-  const text = now === null || now === undefined ? "off" : settingText(name, now);
+  const off = now === null || now === undefined;
+  const beyond = !off && (now < lo || now > hi) ? `, beyond the chart's ${settingText(name, lo)}–${settingText(name, hi)}` : "";
+  const text = (off ? "off" : settingText(name, now)) + beyond;
   canvas.setAttribute("aria-label", `${what}: click, or press ← → (with Shift, ten steps), Home or End, `
     + `to set ${name}; now ${text}`);
-  canvas.setAttribute("aria-valuemin", lo);
-  canvas.setAttribute("aria-valuemax", hi);
+  const [min, max] = sliderEnds(scale, now);
+  canvas.setAttribute("aria-valuemin", min);
+  canvas.setAttribute("aria-valuemax", max);
   canvas.setAttribute("aria-valuetext", text);
   if (typeof now === "number") canvas.setAttribute("aria-valuenow", now);
   else canvas.removeAttribute("aria-valuenow");
@@ -601,8 +618,8 @@ function bindChart(canvas, scale) {
     const s = scale();
     const value = s && keyedValue(e, s);
     if (value === null || value === undefined) return;
-    e.preventDefault();   // nor does the panel scroll
-    setSetting(s.name, value);
+    e.preventDefault();   // nor does the panel scroll, nor the detail step to another image
+    if (value !== settingValue(s.name)) setSetting(s.name, value);
   });
 }
 

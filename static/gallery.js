@@ -53,6 +53,27 @@ export function fillExpected(select, value = select.value) {
 // ---- gallery
 
 const cards = new Map();   // id -> {card, parts}
+// style.css's one column (phones): the page scrolls, not the panels, and the detail is under every card.
+const ONE_COLUMN = window.matchMedia("(max-width: 760px)");
+let bringing = null;   // the image chosen from its card in one column, whose detail is to be brought into view
+
+/** Choose the image of a card. In one column the detail view lies under the whole gallery, out of
+ *  sight (929 px down on a 390×844 phone), and a tap seemed to do nothing: the page scrolls to the
+ *  detail once it shows the image (scrolled to before, the new image's detail drawn over the old one
+ *  left its top off the screen). Wider, the detail is read beside or under the gallery in its own
+ *  panel and only the gallery scrolls (`reveal`). */
+function choose(id) {
+  const detail = $("#detail"), shown = !detail.hidden && detail.dataset.id === id;
+  bringing = ONE_COLUMN.matches ? id : null;
+  select(id);
+  if (shown) bringDetail(id);   // nothing is drawn again
+}
+
+function bringDetail(id) {
+  if (id !== bringing) return;
+  bringing = null;
+  $("#detail").scrollIntoView();
+}
 
 function makeCard(img) {
   const parts = {
@@ -72,8 +93,8 @@ function makeCard(img) {
   }, "×");
   const card = el("div.card", {
     tabIndex: 0, role: "button", dataset: { id: img.id },
-    onclick: () => select(img.id),
-    onkeydown: (e) => { if (e.key === "Enter" || e.key === " ") { e.preventDefault(); select(img.id); } },
+    onclick: () => choose(img.id),
+    onkeydown: (e) => { if (e.key === "Enter" || e.key === " ") { e.preventDefault(); choose(img.id); } },
   }, el("div.thumb-box", {}, parts.thumb, parts.badge), parts.name, parts.label, parts.stats, remove);
   return { card, parts };
 }
@@ -183,6 +204,7 @@ export function initGallery() {
   fillExpected($("#expected"));
   on("library", () => fillExpected($("#expected")));
   on("images", renderGallery);
+  on("detail", bringDetail);
   on("select", () => {
     for (const [id, { card }] of cards) card.classList.toggle("selected", id === state.selected);
     const card = cards.get(state.selected)?.card;

@@ -13,7 +13,7 @@ export const state = {
 
 const bus = new EventTarget();
 
-/** Events: settings, library, images, select, camera. */
+/** Events: settings, library, images, select, camera, calibration, detail (an image's detail drawn). */
 export function emit(name, detail) {
   bus.dispatchEvent(new CustomEvent(name, { detail }));
 }

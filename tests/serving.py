@@ -90,6 +90,21 @@ def wait_idle(client, timeout: float = TIMEOUT_S) -> dict:
     raise TimeoutError(f"images still being processed after {timeout} s")
 
 
+def iter_events(stream: httpx.Response, timeout: float = TIMEOUT_S):
+    """(kind, JSON payload) of each server-sent event on `stream` (GET /api/events, streamed), as they
+    come; TimeoutError when none comes for `timeout` s once asked for. The server's keep-alive pings
+    (every 15 s) keep the stream from timing out: an event that never came would be waited for forever."""
+    kind, asked = None, time.monotonic()
+    for line in stream.iter_lines():
+        if line.startswith("event:"):
+            kind = line.split(":", 1)[1].strip()
+        elif line.startswith("data:"):
+            yield kind, json.loads(line.split(":", 1)[1])
+            asked = time.monotonic()
+        elif time.monotonic() - asked > timeout:
+            raise TimeoutError(f"no server-sent event for {timeout:.0f} s")
+
+
 def wait_done(client) -> list[dict]:
     """The image summaries once no re-run is running or pending."""
     return wait_idle(client)["images"]

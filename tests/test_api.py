@@ -28,8 +28,8 @@ from faults import fail_segmentation
 from scene_images import (DECOYS, HEIC_START, OFF_CENTRE, big_photo, decoy_image, empty_photo, has, plaque_of,
                           png_bomb, scrambled_scene, sign_photo, tiny_photo, turned_photos, turned_scene_position,
                           with_focal_exif)
-from serving import (MISFIT_CAMERA, REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve,
-                     stop_serve, upload, wait_done)
+from serving import (MISFIT_CAMERA, REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, iter_events, running,
+                     start_serve, stop_serve, upload, wait_done)
 
 LIBRARY = load_library(SAMPLE_LIBRARY)
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -102,15 +102,6 @@ def test_events_stream_starts_with_the_state_and_follows_changes(client, base_ur
         version = client.put("/api/settings", json={"min_margin": 6}).json()["version"]
         assert any(k == "settings" and p["version"] == version for k, p in events)
     client.put("/api/settings", json={"min_margin": 5})
-
-
-def iter_events(stream):
-    kind = None
-    for line in stream.iter_lines():
-        if line.startswith("event:"):
-            kind = line.split(":", 1)[1].strip()
-        elif line.startswith("data:"):
-            yield kind, json.loads(line.split(":", 1)[1])
 
 
 # Raw bodies: NaN and Infinity are what Python's json reads and writes for non-finite floats.

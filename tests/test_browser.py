@@ -258,6 +258,38 @@ def test_phone_width_stacks_the_panels(page):
     page.click("#library-close")
 
 
+def choose_card(page, index: int) -> float:
+    """Click the gallery's card `index` (scrolled to first) and wait for its detail; the detail's top then,
+    px from the top of the window."""
+    chosen = page.locator(".card").nth(index)
+    chosen.scroll_into_view_if_needed()
+    image_id = chosen.get_attribute("data-id")
+    chosen.click()
+    page.wait_for_function("id => !document.querySelector('#detail').hidden"
+                           " && document.querySelector('#detail').dataset.id === id", arg=image_id)
+    return page.evaluate("() => document.querySelector('#detail').getBoundingClientRect().top")
+
+
+def test_choosing_an_image_on_a_phone_brings_its_detail_into_view(page):
+    """On a phone (390×844) the panels stack in one column and the detail view lies under the whole
+    gallery, 929 px down: tapping a card seemed to do nothing. Choosing a card scrolls the page to the
+    detail, also when none was open; wider, it still scrolls only the gallery, not the page."""
+    page.set_viewport_size({"width": 390, "height": 844})
+    page.wait_for_selector("#detail:not([hidden])")   # the first image opens by itself, and nothing scrolls
+    assert page.evaluate("() => scrollY") == 0
+    assert choose_card(page, 9) == pytest.approx(0, abs=1)
+    page.evaluate("() => scrollTo(0, 0)")
+    assert choose_card(page, 9) == pytest.approx(0, abs=1), "the card of the image shown"
+    page.click("#detail-close")
+    page.evaluate("() => scrollTo(0, 0)")
+    assert choose_card(page, 9) == pytest.approx(0, abs=1), "the card of the image closed"
+
+    page.set_viewport_size({"width": 1024, "height": 700})
+    page.evaluate("() => scrollTo(0, 0)")
+    choose_card(page, 9)
+    assert page.evaluate("() => scrollY") == 0
+
+
 # The top bar's parts that stick out of the window, are cut off by a box holding them, are cut short
 # (…) or break over two lines.
 TOP_BAR_CUT = """() => [...document.querySelectorAll(
@@ -1017,6 +1049,44 @@ def test_the_charts_set_their_value_from_the_keyboard(page, api):
     page.unroute("**/api/sweep?*")
 
 
+def test_a_chart_key_never_moves_the_setting_the_other_way(page, api):
+    """With the threshold at 0.75 and a sweep over 0.3–0.6, → on the sweep chart set it to 0.6: the
+    value was clamped to the chart. From beyond the chart the key toward it goes to its nearest end,
+    the key away from it (and Home or End that way) leaves the value, and the slider's ends stretch to
+    the value, which its ARIA attributes say."""
+    image_id = uploaded_scene(api)
+    open_detail(page, image_id)
+    page.route("**/api/sweep?*", lambda route: route.fulfill(json=sweep_answer("threshold", 0.3, 0.6, 7, [5] * 7)))
+    page.click("#run-sweep")
+    chart = page.locator("#sweep")
+    chart.wait_for()
+
+    def aria() -> list[str]:
+        return [chart.get_attribute(f"aria-value{k}") for k in ("min", "max", "now", "text")]
+
+    assert aria() == ["0.3", "0.75", "0.75", "0.75, beyond the chart's 0.30–0.60"]
+    chart.focus()
+    for key in ("ArrowRight", "Shift+ArrowRight", "End"):
+        page.keyboard.press(key)
+        assert page.input_value("#set-threshold") == "0.75", key
+    page.keyboard.press("ArrowLeft")
+    harness.wait_setting(page, api, {"threshold": 0.6})
+    page.wait_for_function("() => document.querySelector('#sweep').ariaValueMax === '0.6'")
+    assert aria() == ["0.3", "0.6", "0.6", "0.60"]
+
+    harness.set_settings(page, api, {"threshold": 0.2})
+    page.wait_for_function("() => document.querySelector('#sweep').ariaValueMin === '0.2'")
+    assert aria() == ["0.2", "0.6", "0.2", "0.20, beyond the chart's 0.30–0.60"]
+    chart.focus()
+    for key in ("ArrowLeft", "Home"):
+        page.keyboard.press(key)
+        assert page.input_value("#set-threshold") == "0.2", key
+    page.keyboard.press("Shift+ArrowRight")
+    harness.wait_setting(page, api, {"threshold": 0.3})
+    assert page.get_attribute("#detail", "data-id") == image_id, "a chart's key stepped to another image"
+    page.unroute("**/api/sweep?*")
+
+
 def test_sweep_bounds_follow_the_swept_setting(page, api):
     open_detail(page, uploaded_scene(api))
     entry = next(e for e in api.get("/api/settings/schema").json() if e["name"] == "max_features")
@@ -1119,7 +1189,8 @@ def test_viser_scene_connects_and_shares_the_settings(page, api):
 
 # The camera labels viser draws in the 3D view (on its canvas, not in the page): where each visible
 # one is, as its client places it (client/src/label: the corner its anchor names at its camera,
-# 12 px type on a background a fifth of a line larger), in the view's CSS px; and the world shown.
+# 12 px type on a background a fifth of a line larger), in the view's CSS px; the world shown and how
+# many cameras it has (a label each, shown or not).
 LABEL_BOXES = """() => {
     const m = window.__viserMutable, tree = window.__viserSceneTree.getState();
     const canvas = m.canvas.getBoundingClientRect();
@@ -1142,38 +1213,55 @@ LABEL_BOXES = """() => {
             return { lines, left, top, right: left + width, bottom: top + height };
         });
     const world = Object.keys(tree).find((name) => /^\\/signs\\/[^/]+$/.test(name) && tree[name].effectiveVisibility);
-    return { labels, world: world?.split("/")[2], width: canvas.width, height: canvas.height };
+    const cameras = Object.entries(tree).filter(([name, n]) => n?.message?.type === "LabelMessage"
+        && name.startsWith(`${world}/cameras/`)).length;
+    return { labels, world: world?.split("/")[2], cameras, width: canvas.width, height: canvas.height };
 }"""
 
+# A label of more cameras than it lists (app/scene.py, label_texts): how many, the first and last name.
+COUNTED = re.compile(r"(\d+) cameras:\s(\S+) \.\.\.\s(\S+)")
 
-def labels_laid_out(page, names: list[str], timeout: float = 30) -> tuple[list[str], list, list]:
-    """The names the 3D view's camera labels list, the pairs of labels that overlap and the labels
-    reaching past the view's edges, once every one of `names` is listed and no label
-    overlaps or reaches past (or `timeout` s have passed: the labels are laid out again as the view
-    is framed, on the server's redraw thread)."""
+
+def cameras_said(lines: list[str]) -> tuple[int, list[str]]:
+    """How many cameras a 3D view's label of `lines` stands for, and the names it shows: those it lists,
+    or the first and last of those it counts."""
+    counted = COUNTED.fullmatch("\n".join(lines))
+    if counted:
+        return int(counted[1]), [counted[2], counted[3]]
+    names = [name for line in lines for name in line.split(LABEL_SEPARATOR)]
+    return len(names), names
+
+
+def labels_laid_out(page, cameras: int, timeout: float = 30) -> tuple[list[tuple[int, list[str]]], list, list]:
+    """What the 3D view's camera labels say (`cameras_said`), the pairs of labels that overlap and the
+    labels reaching past the view's edges, once the world shown has `cameras` and its labels stand for
+    them all, none overlapping or reaching past (or `timeout` s have passed: the labels are laid out
+    again as the view is framed, on the server's redraw thread)."""
     frame = viser_frame(page)
     deadline = time.monotonic() + timeout
     while True:
         shown = frame.evaluate(LABEL_BOXES)
         boxes = shown["labels"]
-        listed = [name for box in boxes for line in box["lines"] for name in line.split(LABEL_SEPARATOR)]
+        said = [cameras_said(box["lines"]) for box in boxes]
         overlaps = [(a["lines"][0], b["lines"][0]) for i, a in enumerate(boxes) for b in boxes[:i]
                     if a["left"] < b["right"] and b["left"] < a["right"] and a["top"] < b["bottom"]
                     and b["top"] < a["bottom"]]
         outside = [(b["lines"], [round(b[k]) for k in ("left", "top", "right", "bottom")], shown["width"], shown["height"])
                    for b in boxes if b["left"] < 0 or b["top"] < 0 or b["right"] > shown["width"]
                    or b["bottom"] > shown["height"]]
-        if set(names) <= set(listed) and not overlaps and not outside or time.monotonic() > deadline:
-            return listed, overlaps, outside
+        if (shown["cameras"] == sum(n for n, _ in said) == cameras and not overlaps and not outside
+                or time.monotonic() > deadline):
+            return said, overlaps, outside
         time.sleep(0.3)
 
 
 def test_twenty_camera_labels_in_the_3d_view_do_not_overlap(page, api, browser, base):
     """Thirteen cameras and more printed their names over each other in the page's narrow 3D column,
     and in the strip under the images (1280 px wide and less): labels that would overlap share one,
-    a name a line, or several to fit above the strip's bottom; none runs off the view. So on a
-    screen of two device pixels to the CSS px, where viser reports its canvas in device pixels and
-    draws the labels at their size in CSS px: they were laid out at half their size and overlapped."""
+    a name a line, or several to fit above the strip's bottom, or a count of them; none runs off the
+    view. So on a screen of two device pixels to the CSS px, where viser reports its canvas in device
+    pixels and draws the labels at their size in CSS px: they were laid out at half their size and
+    overlapped."""
     frame = viser_frame(page)
     world = frame.wait_for_function(f"() => ({LABEL_BOXES})().world", timeout=30_000).json_value()
     library = load_library(SAMPLE_LIBRARY)
@@ -1187,22 +1275,59 @@ def test_twenty_camera_labels_in_the_3d_view_do_not_overlap(page, api, browser, 
     try:
         harness.wait_server_idle(api)
         assert [api.get(f"/api/images/{i}").json()["label"] for i in ids] == [world] * len(ids)
+        # the cameras drawn in the world shown: the images recognised as its sign, with a pose
+        cameras = sum(api.get(f"/api/images/{i['id']}").json()["result"]["pose"] is not None
+                      for i in api.get("/api/images").json()["images"] if i["label"] == world)
         sharp = harness.open_page(browser, base, device_scale_factor=2)
         try:
             for screen in (page, sharp):
                 for size in ({"width": 1600, "height": 1000}, {"width": 1280, "height": 800}):   # the column, the strip
                     screen.set_viewport_size(size)
-                    listed, overlaps, outside = labels_laid_out(screen, names)
+                    said, overlaps, outside = labels_laid_out(screen, cameras)
                     where = (screen.evaluate("devicePixelRatio"), size)
-                    assert set(names) <= set(listed), (where, sorted(set(names) - set(listed)))
+                    assert sum(n for n, _ in said) == cameras, (where, said)
                     assert not overlaps, (where, overlaps)
                     assert not outside, (where, outside)
-                    assert len(listed) == len(set(listed)), "a name is listed twice"
+                    shown = [name for _, listed in said for name in listed]
+                    assert len(shown) == len(set(shown)), "a name is shown twice"
         finally:
             harness.close_page(sharp)
     finally:
         for image_id in ids:
             api.delete(f"/api/images/{image_id}").raise_for_status()
+
+
+# Where in the 3D view's page (CSS px) each camera of the world shown stands, by image id: its apex.
+CAMERA_SPOTS = """() => {
+    const m = window.__viserMutable, tree = window.__viserSceneTree.getState(), canvas = m.canvas.getBoundingClientRect();
+    return Object.keys(tree).filter((name) => /\\/cameras\\/[^/]+$/.test(name) && tree[name].effectiveVisibility)
+        .map((name) => { const at = m.nodeRefFromName[name].getWorldPosition(m.camera.position.clone()).project(m.camera);
+                         return [name.split("/").pop(), canvas.left + (at.x + 1) / 2 * canvas.width,
+                                 canvas.top + (1 - at.y) / 2 * canvas.height]; });
+}"""
+
+
+def test_clicking_a_camera_in_the_3d_view_names_it(browser, base, api):
+    """Cameras sharing a label, or counted in one, could not be told apart, and clicking one moved the
+    view to it without saying which it was: it is named there."""
+    viewer = browser.new_page(viewport={"width": 1280, "height": 900})
+    try:
+        viewer.goto(f"{base}/viser/")
+        viewer.get_by_text("Connected", exact=True).wait_for(timeout=30_000)
+        spots = viewer.wait_for_function(f"() => {{ const s = ({CAMERA_SPOTS})(); return s.length && s; }}",
+                                         timeout=30_000).json_value()
+        names = {image["name"] for image in api.get("/api/images").json()["images"]}
+        note = viewer.locator(".mantine-Notification-body").filter(has_text="the view from this camera")
+        # a frustum is drawn forward of its apex: a click on the apex itself may miss it
+        for (_, x, y), (dx, dy) in ((spot, shift) for spot in spots[:5] for shift in ((0, 0), (4, 4), (-4, 4), (0, 8))):
+            viewer.mouse.click(x + dx, y + dy)
+            viewer.wait_for_timeout(1_500)   # the server's answer to a click
+            if note.count():
+                break
+        title = note.first.locator(".mantine-Notification-title").inner_text()
+        assert title.split(" · ")[0] in names, title
+    finally:
+        viewer.close()
 
 
 def test_viser_scene_reconnects_after_a_server_restart(browser, tmp_path):
@@ -1509,6 +1634,44 @@ def test_a_photo_of_another_size_is_flagged_before_any_run(page, api, tmp_path, 
     assert page.is_disabled("#calib-run")
     page.wait_for_timeout(1000)  # the batch is in: a fit would have been asked for by now
     assert not runs and page.locator(".toast.error").count() == 0
+
+
+def test_an_open_camera_dialog_follows_the_calibration_changed_elsewhere(page, browser, base, api, no_camera):
+    """Another person removed the photo of another size: an open Camera dialog kept saying the sizes
+    differ, with "run" disabled, until it was closed and opened again. It follows every change made
+    elsewhere: photos added and removed, a run, a new board and its search."""
+    images, _ = render_boards(4)
+    images.insert(1, cv2.resize(images[1], (800, 600)))
+    files = [("files", (f"elsewhere{i}.png", cv2.imencode(".png", im)[1].tobytes(), "image/png"))
+             for i, im in enumerate(images)]
+    page.click("#camera-open")
+    page.locator("#calib-summary", has_text="No photos yet.").wait_for()
+    other = harness.open_page(browser, base)   # another person's page
+    try:
+        other.click("#camera-open")
+        api.post("/api/calibration/images", files=files).raise_for_status()
+        for screen in (page, other):
+            screen.locator("#calib-sizes").wait_for()
+            assert screen.is_disabled("#calib-run")
+        odd = other.locator("#calib-views .view-card.othersize")
+        odd.hover()  # the × shows on the card under the pointer
+        odd.locator("button.remove").click()
+        page.wait_for_selector("#calib-sizes", state="detached")
+        page.locator("#calib-summary", has_text="4 photos, the 9×6 board found in 4: run the calibration").wait_for()
+        assert page.is_enabled("#calib-run")
+        rms = api.post("/api/calibration/run").json()["result"]["rms_px"]
+        page.locator("#calib-rms", has_text=f"{rms:.3f} px from 4 of 4 photos").wait_for()
+        board = api.get("/api/calibration").json()["board"]
+        try:
+            other.fill("#board-cols", "7")
+            other.dispatch_event("#board-cols", "change")
+            page.locator("#calib-search", has_text=f"for the 7×{board['rows']} board").wait_for()
+            page.locator("#calib-summary", has_text=f"4 photos, the 7×{board['rows']} board found in 0").wait_for()
+            assert page.input_value("#board-cols") == "7"
+        finally:
+            api.put("/api/calibration/board", json=board).raise_for_status()
+    finally:
+        harness.close_page(other)
 
 
 def test_assumed_field_of_view_and_typed_intrinsics(page, api, no_camera):

@@ -21,7 +21,7 @@ from pipeline.camera import load_camera
 from pipeline.evaluate import CORES
 from pipeline.library import SAMPLE_LIBRARY, load_library
 from scene_images import sign_photo
-from serving import TIMEOUT_S, assert_error, running, upload, wait_done
+from serving import TIMEOUT_S, assert_error, iter_events, running, upload, wait_done
 
 N_PHOTOS = 12
 BOARD_SPEC = {"cols": BOARD[0], "rows": BOARD[1], "square_m": SQUARE_M}
@@ -280,6 +280,34 @@ def test_the_search_for_a_new_board_size_says_how_far_it_has_come(client, base_u
     assert done == sorted(done) and len(set(done)) > 1 and max(done) <= N_PHOTOS
     after = client.get("/api/calibration").json()
     assert after["search"] is None and after["board"]["cols"] == 7 and not any(v["found"] for v in after["views"])
+
+
+def test_every_change_is_sent_to_every_client_as_a_calibration_event(client, base_url, photos):
+    """The calibration is one for everyone using the server, and an open Camera dialog kept showing
+    a photo another person had removed: no event said the calibration had changed. Every change is a
+    `calibration` event with its revision, and a board search says how far it has come."""
+    with httpx.Client(base_url=base_url, timeout=TIMEOUT_S) as listener, \
+            listener.stream("GET", "/api/events") as stream:
+        sent = (payload for kind, payload in iter_events(stream) if kind == "calibration")
+
+        def sent_until(revision: int) -> list[dict]:
+            """The calibration events up to the one of `revision` (events of a kind may collapse into the newest)."""
+            seen = [next(sent)]
+            while seen[-1]["revision"] < revision:
+                seen.append(next(sent))
+            assert seen[-1] == {"revision": revision, "search": None}
+            return seen
+
+        revision = add(client, photos[:4]).json()["revision"]
+        sent_until(revision)
+        sent_until(client.post("/api/calibration/run").json()["revision"])
+        one = client.get("/api/calibration").json()["views"][0]["id"]
+        assert client.delete(f"/api/calibration/views/{one}").status_code == 204
+        sent_until(client.get("/api/calibration").json()["revision"])
+        revision = client.put("/api/calibration/board", json=BOARD_SPEC | {"cols": 7, "rows": 5}).json()["revision"]
+        searches = [event["search"] for event in sent_until(revision) if event["search"]]
+        assert searches and {(s["cols"], s["rows"], s["total"]) for s in searches} == {(7, 5, 3)}
+        sent_until(client.delete("/api/calibration").json()["revision"])
 
 
 @pytest.mark.skipif(CORES < 2, reason="one core: no second search to run beside the first")
