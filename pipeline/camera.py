@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 import yaml
 
+from .image import resize_map
 from .jsonfile import EMPTY_FILE
 
 ASSUMED_HFOV_DEG = 60.0
@@ -259,8 +260,7 @@ class Camera:
         sx, sy = width / self.width, height / self.height
         warnings = [f"image is {width}x{height} px but the camera was calibrated at {self.width}x{self.height}; "
                     f"intrinsics scaled by {sx:.5g} x {sy:.5g}"]
-        # Pixel centres at whole pixels, as cv2.resize places them: c -> (c + 0.5) s - 0.5.
-        K = np.diag([sx, sy, 1.0]) @ self.K + np.array([[0, 0, 0.5 * (sx - 1)], [0, 0, 0.5 * (sy - 1)], [0, 0, 0]])
+        K = resize_map(sx, sy) @ self.K
         try:
             return Camera(K, self.dist, width, height, self.source), warnings
         except CameraError as exc:

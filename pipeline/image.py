@@ -351,6 +351,12 @@ def exif_orientation(data: bytes) -> int:
     return int(value) if value in ORIENTATIONS else 1
 
 
+def resize_map(fx: float, fy: float) -> np.ndarray:
+    """(3, 3) map of px in an image to px in it resized `fx` times across and `fy` times down by
+    cv2.resize, which keeps pixel centres at whole px: u -> (u + 0.5) f - 0.5."""
+    return np.array([[fx, 0, 0.5 * fx - 0.5], [0, fy, 0.5 * fy - 0.5], [0, 0, 1]])
+
+
 def to_8bit(image: np.ndarray) -> np.ndarray:
     """A uint8 or uint16 image -> uint8, 16 bits shifted down by as many bits as its largest value
     has beyond 8: 10- and 12-bit camera data stored in 16 bits (values up to 1023 or 4095) keeps

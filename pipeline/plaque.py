@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from .camera import Camera
+from .image import resize_map
 from .library import Library, LibrarySign
 from .pose import distort_pixels, ideal_patch, undistort_pixels
 from .segment import Blob, expand_box
@@ -176,10 +177,9 @@ def shrunk_view(gray: np.ndarray, f: float, camera: Camera | None) -> tuple[np.n
     h, w = gray.shape
     small = cv2.resize(gray, (max(1, round(w * f)), max(1, round(h * f))), interpolation=cv2.INTER_AREA)
     fx, fy = small.shape[1] / w, small.shape[0] / h
-    to_small = np.array([[fx, 0, 0.5 * fx - 0.5], [0, fy, 0.5 * fy - 0.5], [0, 0, 1]])
-    # Without an image size: the bounds a camera file is held to (its principal point near the
-    # centre of its image) are not this copy's to meet; the half pixel moved a camera allowed to the
-    # image's edge out of it, and recognition failed.
+    to_small = resize_map(fx, fy)
+    # Without an image size: it takes this copy only, never scaled to another size; a calibration's
+    # bounds (principal_point_problem) are not its to meet.
     lens = None if camera is None else Camera(to_small @ camera.K, camera.dist, source=camera.source)
     return small, to_small, lens
 

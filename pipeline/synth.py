@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from pipeline.camera import Camera, assumed_camera, save_camera
+from pipeline.image import resize_map
 from pipeline.library import Library, LibrarySign
 
 CATEGORIES = ("easy", "hard", "negative")
@@ -830,8 +831,7 @@ def _composite(albedo: np.ndarray, emission: np.ndarray, hits: _Hits, decal: _De
     if sx < 0.8 or sy < 0.8:
         w_s, h_s = max(2, round(w_img * sx)), max(2, round(h_img * sy))
         img = cv2.resize(img, (w_s, h_s), interpolation=cv2.INTER_AREA)
-        fx, fy = w_img / w_s, h_img / h_s  # resized pixel x' samples original x = (x' + 0.5)·fx - 0.5
-        H = H @ np.array([[fx, 0, 0.5 * fx - 0.5], [0, fy, 0.5 * fy - 0.5], [0, 0, 1]])
+        H = H @ resize_map(w_img / w_s, h_img / h_s)  # the resized picture's px -> the original's
     H_roi = np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1]]) @ H
     size = (int(x1 - x0), int(y1 - y0))
     # Zero borders make the warped picture premultiplied by its coverage: anti-aliased edges.
