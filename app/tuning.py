@@ -12,7 +12,7 @@ import numpy as np
 
 from pipeline.image import to_gray
 from pipeline.recognize import Recognition
-from pipeline.segment import Box, normalize_gray, normalize_levels
+from pipeline.segment import Box, normalize_levels
 
 HISTOGRAM_BINS = 256
 # The paper measured the sign at 0.8 and thresholded at 0.75: just below the sign's white.
@@ -72,7 +72,8 @@ def suggest_threshold(image: np.ndarray, normalization: str, inside: np.ndarray,
     sign comes out as one blob separate from the wall.
     """
     gray8 = to_gray(image)
-    gray = normalize_gray(gray8, normalization)
+    levels = normalize_levels(gray8, normalization)
+    gray = levels[gray8]  # normalize_gray's, with the levels the histogram needs
     values = gray[inside]
     white = float(np.median(values[values >= np.median(values)]))
     ys, xs = np.nonzero(inside)
@@ -94,21 +95,22 @@ def suggest_threshold(image: np.ndarray, normalization: str, inside: np.ndarray,
         white_level=round(white, 4),
         background_level=None if background is None else round(background, 4),
         suggested_threshold=round(float(np.clip(suggested, 0.0, 1.0)), 2),
-        histogram=level_histogram(gray8, normalization, inside).tolist(), rect=rect, source=source,
+        histogram=level_histogram(gray8[inside], levels).tolist(), rect=rect, source=source,
         warning=warning,
     )
 
 
-def level_histogram(gray: np.ndarray, normalization: str, inside: np.ndarray) -> np.ndarray:
-    """(HISTOGRAM_BINS,) int64 counts over [0, 1] of the normalised levels of the (H, W) uint8 `gray`
-    inside the (H, W) bool mask, each uint8 level's pixels spread evenly over the span of
-    normalised values it stands for (half-way to its neighbours'), and summing to the pixels inside.
+def level_histogram(pixels: np.ndarray, levels: np.ndarray) -> np.ndarray:
+    """(HISTOGRAM_BINS,) int64 counts over [0, 1] of the uint8 `pixels` (any shape) normalised by
+    `levels` ((256,) float: what each uint8 level becomes, `normalize_levels`), each level's pixels
+    spread evenly over the span of normalised values it stands for (half-way to its neighbours'),
+    and summing to the pixels.
 
     Binned as they are, the 62 levels of a dim photo stretched over 256 bins left three bins in four
     empty: a comb that hid the histogram's shape.
     """
-    counts = np.bincount(gray[inside], minlength=256)
-    levels = normalize_levels(gray, normalization).astype(np.float64)
+    counts = np.bincount(pixels.ravel(), minlength=256)
+    levels = levels.astype(np.float64)
     bounds = np.concatenate([[levels[0]], (levels[:-1] + levels[1:]) / 2, [levels[-1]]])
     below = np.interp(np.linspace(0.0, 1.0, HISTOGRAM_BINS + 1)[1:-1], bounds, np.concatenate([[0], np.cumsum(counts)]))
     return np.diff(np.concatenate([[0], np.round(below), [counts.sum()]])).astype(np.int64)

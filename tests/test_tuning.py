@@ -7,6 +7,7 @@ import pytest
 
 from app.tuning import band_centre, level_histogram, rect_mask, suggest_threshold, sweep_values, working_band
 from pipeline.image import read_image, to_gray
+from pipeline.segment import normalize_levels
 
 SCENE = Path(__file__).resolve().parent.parent / "sample_images" / "scenes" / "scene_000.jpg"
 
@@ -46,7 +47,7 @@ def test_the_histogram_of_a_dim_photo_stretched_by_minmax_has_no_comb():
     bins between its darkest and brightest came out empty."""
     dim = (60 + 0.55 * to_gray(read_image(SCENE))).astype(np.uint8)
     inside = rect_mask((0, 0, dim.shape[1], dim.shape[0]), dim.shape[1], dim.shape[0])
-    histogram = level_histogram(dim, "minmax", inside)
+    histogram = level_histogram(dim[inside], normalize_levels(dim, "minmax"))
     assert histogram.sum() == dim.size
     occupied = histogram[np.flatnonzero(histogram)[0]:np.flatnonzero(histogram)[-1] + 1]
     assert (occupied == 0).sum() < 0.05 * occupied.size
