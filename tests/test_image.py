@@ -379,6 +379,73 @@ def test_decoders_chatter_is_kept_off_stderr_and_other_threads_writes_are_not(ca
     assert sorted(err.splitlines()) == sorted([f"line {i} of another thread" for i in range(200)] + ["after"])
 
 
+
+def test_decodes_run_at_once_each_keeping_its_chatter_off_stderr(monkeypatch, capfd):
+    """Decodes took a process-wide lock for as long as they ran, to point file descriptor 2 away and back: a
+    server's batch decoded one photo at a time whatever its cores. Two decodes that each finish only once the
+    other has begun both finish, and what they print on descriptor 2 stays off it."""
+    both = threading.Barrier(2, timeout=5)
+    imdecode = cv2.imdecode
+
+    def meeting_decode(buf: np.ndarray, flags: int) -> np.ndarray | None:
+        os.write(2, b"Corrupt JPEG data: premature end of data segment\n")
+        both.wait()
+        return imdecode(buf, flags)
+
+    monkeypatch.setattr(cv2, "imdecode", meeting_decode)
+    shapes = []
+    threads = [threading.Thread(target=lambda: shapes.append(decode_image(SOUND_JPEGS["baseline.jpg"]).shape))
+               for _ in range(2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert len(shapes) == 2
+    os.write(2, b"after\n")
+    assert capfd.readouterr().err == "after\n"
+
+
+def test_lines_written_while_decodes_overlap_arrive_as_each_decode_ends(monkeypatch, capfd):
+    """Descriptor 2 points at the capture for as long as any decode runs, which on a busy server's threads may
+    be for a whole batch: another thread's lines written meanwhile arrive as each decode ends (a line cut short,
+    once it is whole or the last decode ends), not only after the last."""
+    running, release = threading.Event(), threading.Event()
+    imdecode = cv2.imdecode
+
+    def held_decode(buf: np.ndarray, flags: int) -> np.ndarray | None:
+        if threading.current_thread().name == "held":
+            running.set()
+            release.wait(5)
+        return imdecode(buf, flags)
+
+    monkeypatch.setattr(cv2, "imdecode", held_decode)
+    held = threading.Thread(target=decode_image, args=(SOUND_JPEGS["baseline.jpg"],), name="held")
+    held.start()
+    assert running.wait(5)
+    os.write(2, b"a line of another thread\nand half a")
+    decode_image(SOUND_JPEGS["baseline.jpg"])  # begins and ends while the held one runs
+    assert capfd.readouterr().err == "a line of another thread\n"
+    release.set()
+    held.join()
+    assert capfd.readouterr().err == "and half a"
+
+
+def test_decodes_work_with_file_descriptor_2_closed():
+    """A process started with its standard descriptors closed (a daemon's `<&- 2>&-`) failed every decode:
+    duplicating descriptor 2, to point it back after the decode, raised EBADF. It decodes, refusing in its own
+    words what it refuses, and what the decoders print goes nowhere."""
+    code = ("import os; os.close(0); os.close(2)\n"
+            "from pipeline.image import ImageError, decode_image\n"
+            f"data = open({str(SCENE_002)!r}, 'rb').read()\n"
+            "print(decode_image(data).shape)\n"
+            "try:\n"
+            "    decode_image(data[:5000] + bytes(10000) + data[15000:], 'zeroed.jpg')\n"
+            "except ImageError as error:\n"
+            "    print(error)\n")
+    run = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).parents[1], capture_output=True, text=True)
+    assert run.returncode == 0 and run.stdout.startswith("(480, 640, 3)\nzeroed.jpg: damaged JPEG file"), run
+
+
 def decoder_output(data: bytes) -> bytes:
     """What OpenCV's decoders print on file descriptor 2 decoding `data`, in a process of their own."""
     code = "import sys, numpy, cv2; cv2.imdecode(numpy.frombuffer(sys.stdin.buffer.read(), numpy.uint8), 1)"
