@@ -17,6 +17,7 @@ import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -103,22 +104,29 @@ class CalibrationState:
             return None
         return too_few_boards_advice(self.board, self.found, len(self.photos))
 
+    @cached_property
+    def _sizes(self) -> tuple[tuple[BoardView, ...], list[int], tuple[int, int] | None]:
+        """(the photos' views, the indices of those with the board, the size (width, height) px most of
+        those share, `reference_size`, or None without any): what `size_mismatch` and `other_sizes`,
+        both in every response, measure against, worked out once per state (which never changes)."""
+        views = tuple(p.view for p in self.photos)
+        found = [i for i, v in enumerate(views) if v.found]
+        return views, found, reference_size(views, found) if found else None
+
     @property
     def size_mismatch(self) -> str | None:
         """Why the photos with the board cannot be calibrated together (which are which other size than
         most, and what to do), as the run refuses; None when they are all one size."""
-        views = tuple(p.view for p in self.photos)
-        found = [i for i, v in enumerate(views) if v.found]
-        return size_mismatch(views, found, reference_size(views, found)) if found else None
+        views, found, size = self._sizes
+        return size_mismatch(views, found, size) if size else None
 
     @property
     def other_sizes(self) -> dict[str, str]:
         """{photo id: "640x480, the others 1280x960"} for each photo with the board of another size than
         most (`size_mismatch` says what to do), shown on its card before any run: such photos were
         marked "found", and the summary said to run the calibration, which every run refused."""
-        views = tuple(p.view for p in self.photos)
-        return {self.photos[i].id: note
-                for i, note in other_sizes(views, [i for i, v in enumerate(views) if v.found]).items()}
+        views, found, size = self._sizes
+        return {self.photos[i].id: note for i, note in other_sizes(views, found, size).items()} if size else {}
 
     @property
     def why_no_result(self) -> str:

@@ -273,13 +273,11 @@ def reference_size(views: tuple[BoardView, ...], found: list[int]) -> tuple[int,
     return tuple(Counter(tuple(views[i].image_size) for i in found).most_common(1)[0][0])
 
 
-def other_sizes(views: tuple[BoardView, ...], found: list[int]) -> dict[int, str]:
-    """The `found` views of another size than `reference_size`, each with its size and theirs:
-    {index: "640x480, the others 1280x960"} ("most 1280x960" when a third size is among them).
-    Such views make `calibrate` refuse (`size_mismatch`); {} when all are one size."""
-    if not found:
-        return {}
-    w, h = reference_size(views, found)
+def other_sizes(views: tuple[BoardView, ...], found: list[int], size: tuple[int, int]) -> dict[int, str]:
+    """The `found` views of another size than `size` (width, height) px, their `reference_size`, each
+    with its size and theirs: {index: "640x480, the others 1280x960"} ("most 1280x960" when a third
+    size is among them). Such views make `calibrate` refuse (`size_mismatch`); {} when all are `size`."""
+    w, h = size
     odd = [i for i in found if tuple(views[i].image_size) != (w, h)]
     others = "the others" if len({tuple(views[i].image_size) for i in odd}) == 1 else "most"
     return {i: f"{views[i].image_size[0]}x{views[i].image_size[1]}, {others} {w}x{h}" for i in odd}

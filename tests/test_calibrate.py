@@ -12,7 +12,7 @@ import pipeline.calibrate as calib
 from app.cli import main
 from chessboards import BOARD, DIST_TRUE, K_TRUE, SIZE, SQUARE_M, board_poses, projected_corners, render_boards
 from pipeline.calibrate import (BoardView, CalibrationError, calibrate, chessboard_image, drop_outliers,
-                                find_board, format_report, other_sizes, parse_board,
+                                find_board, format_report, other_sizes, parse_board, reference_size,
                                 too_few_boards_advice)
 from pipeline.camera import Camera, load_camera, save_camera
 from pipeline.evaluate import CORES
@@ -244,9 +244,13 @@ def test_photos_of_another_size_are_named_against_the_size_most_share():
     corners = views[0].corners
     half, tall = BoardView("half.png", (320, 240), corners / 2), BoardView("tall.png", (480, 640), corners)
     missed = BoardView("missed.png", (100, 100), None)  # no board: no run is refused over it
-    assert other_sizes((half, *views, missed), [0, 1, 2, 3]) == {0: "320x240, the others 640x480"}
-    assert other_sizes((half, *views, tall), [0, 1, 2, 3, 4]) == {0: "320x240, most 640x480", 4: "480x640, most 640x480"}
-    assert other_sizes(tuple(views), [0, 1, 2]) == {} and other_sizes((missed,), []) == {}
+
+    def odd(views: tuple[BoardView, ...], found: list[int]) -> dict[int, str]:
+        return other_sizes(views, found, reference_size(views, found))
+
+    assert odd((half, *views, missed), [0, 1, 2, 3]) == {0: "320x240, the others 640x480"}
+    assert odd((half, *views, tall), [0, 1, 2, 3, 4]) == {0: "320x240, most 640x480", 4: "480x640, most 640x480"}
+    assert odd(tuple(views), [0, 1, 2]) == {}
 
 
 def test_a_fit_no_camera_could_have_is_a_calibration_error(monkeypatch):

@@ -16,7 +16,8 @@ from app import calibration
 from app.server import create_app
 from app.workspace import WorkspaceConfig
 from chessboards import BOARD, K_TRUE, SIZE, SQUARE_M, render_boards, shaky_board
-from pipeline.calibrate import find_board
+import pipeline.calibrate
+from pipeline.calibrate import find_board, reference_size
 from pipeline.camera import load_camera
 from pipeline.evaluate import CORES
 from pipeline.library import SAMPLE_LIBRARY, load_library
@@ -223,6 +224,22 @@ def test_a_photo_dropped_as_an_outlier_is_shown_dropped_while_the_photos_left_gi
     state = client.post("/api/calibration/run", json={}).json()
     assert state["result"]["used"] == 3 and not any(v["excluded"] for v in state["views"])
 
+
+def test_the_size_most_photos_share_is_worked_out_once_a_state(client, photos, monkeypatch):
+    """Which photos are of another size than most and why they cannot be fitted together are both in every
+    response, and each worked out anew the size most photos share, twice a response. A state never changes:
+    once for the response to the change that made it and every one after."""
+    counted = []
+
+    def counting_reference_size(views: tuple, found: list[int]) -> tuple[int, int]:
+        counted.append(len(found))
+        return reference_size(views, found)
+
+    for module in (calibration, pipeline.calibrate):  # where the session's properties and other_sizes look it up
+        monkeypatch.setattr(module, "reference_size", counting_reference_size)
+    assert add(client, photos[:3]).json()["size_mismatch"] is None
+    assert all(v["other_size"] is None for v in client.get("/api/calibration").json()["views"])
+    assert counted == [3]
 
 def test_photos_of_another_size_than_most_are_flagged_before_any_run(client, photos):
     """A photo of another size was listed "found", and the page said to run the calibration, which
