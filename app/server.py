@@ -23,7 +23,7 @@ import socket
 import tempfile
 import threading
 import tomllib
-from collections.abc import AsyncIterable, Callable
+from collections.abc import AsyncIterable, Awaitable, Callable
 from importlib import metadata
 from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
@@ -33,6 +33,7 @@ import viser
 from fastapi import APIRouter, Depends, FastAPI, File, Form, HTTPException, Query, Request, Response, UploadFile, status
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse
+from fastapi.routing import APIRoute
 from fastapi.sse import EventSourceResponse, ServerSentEvent
 from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
@@ -420,10 +421,9 @@ def _error_handler(code: int):
 
 
 def _problem(error: dict) -> str:
-    """One pydantic or FastAPI validation error as `where: what`, without the input."""
-    if error["type"] == "json_invalid":  # FastAPI's is located at ("body", character); pydantic's error says where
-        at = f" at character {error['loc'][1]}" if len(error["loc"]) == 2 else ""
-        return f"the body is not valid JSON: {error['ctx']['error']}{at}"
+    """One pydantic validation error as `where: what`, without the input."""
+    if error["type"] == "json_invalid":  # pydantic's own parse of a body (PUT /api/camera): its error says where
+        return f"the body is not valid JSON: {error['ctx']['error']}"
     return f"{'.'.join(map(str, error['loc']))}: {error['msg']}"
 
 
@@ -434,7 +434,33 @@ async def _validation_error_handler(request: Request, exc: RequestValidationErro
                         status_code=status.HTTP_422_UNPROCESSABLE_CONTENT)
 
 
-api = APIRouter(prefix="/api")
+class JsonBodyRequest(Request):
+    """A request whose JSON body is read as signpose reads every JSON document (`parse_json`), with
+    422 saying what is wrong: FastAPI read it with json.loads and answered what that cannot hold (nested
+    some thousand levels deep, a whole number of thousands of digits) or bytes that are not UTF-8 with
+    400 "There was an error parsing the body"."""
+
+    async def json(self) -> Any:
+        if not hasattr(self, "_json"):
+            try:
+                self._json = parse_json(await self.body())
+            except JsonError as exc:  # FastAPI passes an HTTPException raised here on as it is
+                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"the body is {exc}") from None
+        return self._json
+
+
+class JsonBodyRoute(APIRoute):
+    """An API route whose body FastAPI reads from a `JsonBodyRequest`."""
+
+    def get_route_handler(self) -> Callable[[Request], Awaitable[Response]]:
+        handler = super().get_route_handler()
+
+        async def read_through(request: Request) -> Response:
+            return await handler(JsonBodyRequest(request.scope, request.receive))
+        return read_through
+
+
+api = APIRouter(prefix="/api", route_class=JsonBodyRoute)
 NUMERIC_SETTINGS = [f["name"] for f in settings_schema() if f["type"] in ("int", "float")]
 INTEGER_SETTINGS = {f["name"] for f in settings_schema() if f["type"] == "int"}
 

@@ -34,7 +34,7 @@ def parse_json(data: bytes) -> object:
         raise JsonError(f"JSON with a whole number of over {sys.get_int_max_str_digits()} digits, which no value of "
                         "signpose's has") from None
     except RecursionError:
-        raise JsonError("JSON nested too deep to read (hundreds of levels), where no file of signpose's is more "
+        raise JsonError("JSON nested too deep to read (hundreds of levels), where nothing signpose reads is more "
                         "than a few levels deep") from None
 
 

@@ -114,7 +114,7 @@ def test_events_stream_starts_with_the_state_and_follows_changes(client, base_ur
      "finite"),
     ("PUT", "/api/camera/assumed", '{"hfov_deg": [NaN]}', "body.hfov_deg", "number"),
     ("POST", "/api/calibration/run", '{"drop_outliers": Infinity}', "body.drop_outliers", "boolean"),
-    ("PUT", "/api/settings", "not json", "the body is not valid JSON", "character 0"),
+    ("PUT", "/api/settings", "not json", "the body is not valid JSON", "line 1 column 1 (char 0)"),
     ("PUT", "/api/camera", '{"fx": 1,', "the body is not valid JSON", "line 1 column 9"),
     ("PUT", "/api/camera", '{"fx": "a", "fy": 600, "cx": 320, "cy": 240}', "body.fx", "number"),
     ("GET", "/api/sweep?steps=many", None, "query.steps", "integer"),

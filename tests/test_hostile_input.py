@@ -280,6 +280,29 @@ def test_bad_settings_change_nothing(client, body):
     assert client.get("/api/settings").json() == before
 
 
+DEEP = 100_000  # levels of nesting, far past what Python's json reads (its stack: some thousand)
+UNREADABLE_JSON = {  # body: what the answer says
+    b"[" * DEEP + b"]" * DEEP: "the body is JSON nested too deep to read (hundreds of levels)",
+    b'{"a": ' * DEEP + b"1" + b"}" * DEEP: "the body is JSON nested too deep to read (hundreds of levels)",
+    b'{"threshold": ' + b"1" * 5000 + b"}": "the body is JSON with a whole number of over 4300 digits",
+    b'{"name": "\xff"}': "the body is not valid JSON: 'utf-8' codec can't decode byte 0xff",
+}
+
+
+def test_json_bodies_python_cannot_read_are_a_422_saying_why_on_every_route(client):
+    """FastAPI answered a JSON body that json.loads cannot hold (nested deeper than its stack, a whole number
+    of thousands of digits) or that is not UTF-8 with 400 "There was an error parsing the body", on every
+    route whose body it reads; the server goes on serving (`client`)."""
+    paths = client.get("/openapi.json").json()["paths"]
+    routes = [(method, path.replace("{image_id}", "0" * 12)) for path, methods in paths.items()
+              for method, operation in methods.items()
+              if list(operation.get("requestBody", {}).get("content", {})) == ["application/json"]]
+    assert len(routes) >= 7, routes
+    for method, path in routes:
+        for body, words in UNREADABLE_JSON.items():
+            r = client.request(method, path, content=body, headers={"content-type": "application/json"})
+            assert_error(r, 422, words)
+
 CAMERA_FILES = {
     "zero_focal.yaml": (b"camera_matrix: {rows: 3, cols: 3, data: [0, 0, 320, 0, 0, 240, 0, 0, 1]}\n", "positive"),
     "negative_focal.json": (b'{"fx": -600, "fy": 600, "cx": 320, "cy": 240}', "positive"),
