@@ -27,6 +27,7 @@ import multiprocessing.connection
 import os
 import pickle
 import queue
+import reprlib
 import signal
 import threading
 import traceback
@@ -197,6 +198,15 @@ def _matrix(value, shape: tuple[int, ...], what: str) -> np.ndarray | None:
     return array
 
 
+def _is_file(path: Path) -> bool:
+    """Whether `path` is a file; False, not OSError, for a name longer than the file system allows (its
+    message would quote it whole)."""
+    try:
+        return path.is_file()
+    except OSError:
+        return False
+
+
 def _load_truth(root: Path) -> tuple[list[Sample], Path | None]:
     truth_path = root / "truth.json"
     truth = read_json(truth_path, DatasetError)
@@ -206,15 +216,15 @@ def _load_truth(root: Path) -> tuple[list[Sample], Path | None]:
                            "with at least one image")
     samples = []
     for name, entry in images.items():
-        where = f"{truth_path} image {name!r}"
+        where = f"{truth_path} image {reprlib.repr(name)}"
         if not isinstance(entry, dict) or "label" not in entry:
             raise DatasetError(f'{where}: each image needs an object with "label" (a sign id or null)')
         label = entry["label"]
         if label is not None and not isinstance(label, str):
-            raise DatasetError(f"{where}: label must be a sign id or null; got {label!r}")
+            raise DatasetError(f"{where}: label must be a sign id or null; got {reprlib.repr(label)}")
         path = root / name
-        if not path.is_file():
-            raise DatasetError(f"{where}: file {path} not found")
+        if not _is_file(path):
+            raise DatasetError(f"{where}: file not found in {root}")
         samples.append(Sample(
             path, label, entry.get("category"),
             _matrix(entry.get("R"), (3, 3), f"{where}: R"), _matrix(entry.get("t"), (3,), f"{where}: t"),
@@ -517,7 +527,7 @@ def check_labels(datasets: Sequence[Dataset], library: Library) -> None:
     """DatasetError naming the labels of `datasets` that are no sign of `library`."""
     unknown = sorted({s.label for d in datasets for s in d.samples if s.label is not None} - set(library.ids))
     if unknown:
-        raise DatasetError(f"label(s) {', '.join(unknown)} are not in the library ({', '.join(library.ids)})")
+        raise DatasetError(f"label(s) {reprlib.repr(unknown)[1:-1]} are not in the library ({', '.join(library.ids)})")
 
 
 def measure(datasets: Sequence[Dataset], library: Library, settings: Settings, camera: Camera | None = None,

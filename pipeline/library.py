@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import re
+import reprlib
 from collections.abc import Callable, Hashable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -151,19 +152,22 @@ def validate_sign_entry(entry: dict, where: str) -> dict:
     sign_id = entry["id"]
     if not isinstance(sign_id, str) or not ID_PATTERN.match(sign_id):
         raise LibraryError(
-            f"{where}: id {sign_id!r} must be 1-64 characters of a-z, 0-9, _ or -, starting with a letter or digit"
+            f"{where}: id {reprlib.repr(sign_id)} must be 1-64 characters of a-z, 0-9, _ or -, starting with a letter "
+            "or digit"
         )
     if sign_id == NO_SIGN:
         raise LibraryError(f"{where}: id {NO_SIGN!r} is reserved for images without a sign; choose another id")
     image = entry["image"]
-    if not isinstance(image, str) or Path(image).name != image or image.startswith("."):
-        raise LibraryError(f"{where}: image {image!r} must be a plain file name inside the library folder")
+    # No file system has names of more than 255 characters (NAME_MAX); reading one, the error would quote it whole.
+    if not isinstance(image, str) or Path(image).name != image or image.startswith(".") or len(image) > 255:
+        raise LibraryError(f"{where}: image {reprlib.repr(image)} must be a plain file name (at most 255 characters) "
+                           "inside the library folder")
     for key in ("width_m", "height_m"):
         value = entry.get(key)
         if value is None and key == "height_m":
             continue
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
-            raise LibraryError(f"{where}: {key} must be a positive number of metres; got {value!r}")
+            raise LibraryError(f"{where}: {key} must be a positive number of metres; got {reprlib.repr(value)}")
         check_size_m(key, float(value), where)
     return entry
 

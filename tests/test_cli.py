@@ -435,7 +435,7 @@ def test_synth_refuses_a_folder_with_older_scenes_it_would_leave_unlisted(tmp_pa
     (("synth", "--n", 2, "{tmp}/file"), "cannot write into {tmp}/file: File exists"),
     (("evaluate", ROOT / "sample_images" / "datasets" / "set3", "--workers", "two"), "--workers: 'two'"),
     (("evaluate", "{tmp}/file"), "file is not a folder"),
-    (("evaluate", "{tmp}/labelled"), "label(s) bogus are not in the library"),
+    (("evaluate", "{tmp}/labelled"), "label(s) 'bogus' are not in the library"),
     (("evaluate", "{tmp}/labelled", "{tmp}/../{tmp.name}/labelled"), "a dataset folder is given twice"),
 ])
 def test_bad_synth_and_evaluate_arguments_are_one_clear_line(tmp_path, args, message):

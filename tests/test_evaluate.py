@@ -18,8 +18,8 @@ import pytest
 import pipeline.evaluate as evaluate_module
 import pipeline.recognize as recognize_module
 from app.workspace import check_image_header
-from pipeline.evaluate import (Dataset, DatasetError, ImageResult, Sample, evaluate, format_table, load_dataset,
-                               summarize, text_columns)
+from pipeline.evaluate import (Dataset, DatasetError, ImageResult, Sample, check_labels, evaluate, format_table,
+                               load_dataset, summarize, text_columns)
 from pipeline.library import load_library
 from pipeline.settings import preset
 from faults import fail_first_segmentation
@@ -66,6 +66,32 @@ def test_rejects_bad_truth(tmp_path, truth, message):
     with pytest.raises(DatasetError, match=message):
         load_dataset(tmp_path)
 
+
+HUGE = "x" * 1_000_000
+
+
+@pytest.mark.parametrize("images, words", [
+    ({HUGE: 5}, "image 'xxxxxxxxxxxx...xxxxxxxxxxxxx': each image needs an object"),
+    ({HUGE: {"label": None}}, "image 'xxxxxxxxxxxx...xxxxxxxxxxxxx': file not found in "),  # was OSError, name whole
+    ({"a.jpg": {"label": list(range(10_000))}}, "label must be a sign id or null; got [0, 1, 2, 3, 4, 5, ...]"),
+])
+def test_a_truth_file_error_quotes_a_huge_value_shortened(tmp_path, images, words):
+    """truth.json's values were quoted whole, a megabyte file name in every error about its image; a name too long
+    for the file system was an OSError naming it."""
+    cv2.imwrite(str(tmp_path / "a.jpg"), np.zeros((8, 8, 3), np.uint8))
+    (tmp_path / "truth.json").write_text(json.dumps({"images": images}))
+    with pytest.raises(DatasetError) as refused:
+        load_dataset(tmp_path)
+    assert words in str(refused.value) and len(str(refused.value)) < 300
+
+
+def test_unknown_labels_are_quoted_shortened(tmp_path, library):
+    cv2.imwrite(str(tmp_path / "a.jpg"), np.zeros((8, 8, 3), np.uint8))
+    (tmp_path / "truth.json").write_text(json.dumps({"images": {"a.jpg": {"label": HUGE}}}))
+    with pytest.raises(DatasetError) as refused:
+        check_labels([load_dataset(tmp_path)], library)
+    assert str(refused.value).startswith("label(s) 'xxxxxxxxxxxx...xxxxxxxxxxxxx' are not in the library (")
+    assert len(str(refused.value)) < 300
 
 def test_rejects_empty_folder_and_unknown_labels(tmp_path, library):
     with pytest.raises(DatasetError, match="no truth.json"):

@@ -41,6 +41,26 @@ def test_sizes_of_indoor_signs_are_taken(width_m):
     assert validate_sign_entry(entry(width_m=width_m), "sign #0")["width_m"] == width_m
 
 
+HUGE = "x" * 1_000_000
+
+
+@pytest.mark.parametrize("fields, words", [
+    ({"id": HUGE}, "id 'xxxxxxxxxxxx...xxxxxxxxxxxxx' must be 1-64 characters"),
+    ({"id": list(range(10_000))}, "id [0, 1, 2, 3, 4, 5, ...] must be 1-64 characters"),
+    ({"image": HUGE}, "image 'xxxxxxxxxxxx...xxxxxxxxxxxxx' must be a plain file name (at most 255 characters)"),
+    ({"image": "x" * 256 + ".png"}, "must be a plain file name (at most 255 characters)"),
+    ({"width_m": list(range(10_000))}, "width_m must be a positive number of metres; got [0, 1, 2, 3, 4, 5, ...]"),
+    ({"width_m": 0.3, "height_m": HUGE}, "height_m must be a positive number of metres; got 'xxxxxxxxxxxx...xxxxx"),
+])
+def test_a_library_file_error_quotes_a_huge_value_shortened(tmp_path, fields, words):
+    """library.json's values were quoted whole: a megabyte id, or a file name no file system holds (as the
+    error reading it named it), was a megabyte error line."""
+    (tmp_path / "library.json").write_text(json.dumps({"signs": [{"id": "a", "image": "a.png", "width_m": 0.3,
+                                                                  **fields}]}))
+    with pytest.raises(LibraryError) as refused:
+        load_library(tmp_path)
+    assert words in str(refused.value) and len(str(refused.value)) < 300
+
 def test_a_library_file_with_a_size_in_centimetres_is_refused(tmp_path):
     shutil.copytree(SAMPLE_LIBRARY, tmp_path / "library")
     meta = tmp_path / "library" / "library.json"
