@@ -184,7 +184,11 @@ class CalibrationSession:
     `publish(payload)` is called on every change of the state or of a board search under way, with
     {"revision", "search": BoardSearch.to_json() | None}: the server sends it to every client as the
     `calibration` event. It is called under the lock, so that changes are published in the order
-    made: it must only pass the payload on, never call the session.
+    made: it must only pass the payload on, never call the session nor wait on what may. The
+    server's (Workspace.publish) holds the workspace's lock only to copy its subscriber list, never
+    takes this one, and its subscribers only hand the event to the event loop
+    (call_soon_threadsafe): it cannot deadlock, nor hold this lock longer than the workspace holds
+    its own (writing its index or library), where fits and board searches hold it for seconds.
     """
 
     def __init__(self, max_pixels: int, max_photos: int = MAX_PHOTOS,
