@@ -903,13 +903,14 @@ def get_calibration_yaml(calibration: CalibrationDep) -> Response:
 
 
 @api.put("/scene/canvas", status_code=status.HTTP_204_NO_CONTENT, tags=["scene"], dependencies=[JSON_BODY])
-def put_scene_canvas(canvas: CanvasScaleIn, request: Request) -> None:
-    """How many device px a 3D view's canvas of this size (as viser reports it) has to the CSS px:
+def put_scene_canvas(canvas: CanvasScaleIn, request: Request, viewer: Annotated[int, Query(
+        ge=0, description="the viser client whose canvas this is: viser's page is told its id")]) -> None:
+    """How many device px a 3D viewer's canvas (of this size as viser reports it) has to the CSS px:
     viser's client reports its canvas in device px but draws the camera labels at a size in CSS px,
     and the scene lays them out in CSS px. viser's page sends this (static/viser-canvas.js)."""
     scene = request.app.state.scene
     if scene is not None:
-        scene.set_canvas_scale(canvas.width, canvas.height, canvas.px_per_css_px)
+        scene.set_canvas_width(viewer, canvas.width / canvas.px_per_css_px)
 
 
 def _attach_scene(server: viser.ViserServer, workspace: Workspace):

@@ -871,16 +871,19 @@ def test_viser_client_is_served_and_its_websocket_relayed(client, base_url):
 
 def test_the_3d_views_page_tells_the_server_its_canvas_scale(client):
     """viser's client reports its canvas in device px and draws the camera labels at a size in CSS
-    px: its page gets our script, which says how many device px its canvas has to the CSS px."""
+    px: its page gets our script, which says how many device px its canvas has to the CSS px, naming
+    its viewer (the viser client) as the server named it."""
     page = client.get("/viser/").text
     assert "<title>Viser</title>" in page and page.count(CANVAS_SCRIPT) == 1
     assert "setInterval" in client.get("/viser-canvas.js").text
     canvas = {"width": 892, "height": 1800, "px_per_css_px": 2.0}
-    assert client.put("/api/scene/canvas", json=canvas).status_code == 204
+    assert client.put("/api/scene/canvas?viewer=0", json=canvas).status_code == 204
     for bad in ({"width": 0}, {"height": 1e6}, {"px_per_css_px": 0}, {"px_per_css_px": "2"}):
-        r = client.put("/api/scene/canvas", json=canvas | bad)
+        r = client.put("/api/scene/canvas?viewer=0", json=canvas | bad)
         assert r.status_code == 422, (bad, r.text)
-    assert client.put("/api/scene/canvas", content=json.dumps(canvas)).status_code == 415
+    for viewer in ("", "?viewer=-1", "?viewer=a"):
+        assert client.put(f"/api/scene/canvas{viewer}", json=canvas).status_code == 422, viewer
+    assert client.put("/api/scene/canvas?viewer=0", content=json.dumps(canvas)).status_code == 415
 
 
 def test_remove_every_image_at_once(tmp_path):

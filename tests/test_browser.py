@@ -1297,6 +1297,49 @@ def test_twenty_camera_labels_in_the_3d_view_do_not_overlap(page, api, browser, 
             api.delete(f"/api/images/{image_id}").raise_for_status()
 
 
+def viser_viewer(browser, base: str, width: int, height: int, scale: float):
+    """viser's page in a tab of its own (the page's pop-out), `width` × `height` CSS px on a screen of
+    `scale` device px to the CSS px, once it has told the server its canvas' scale."""
+    viewer = browser.new_page(viewport={"width": width, "height": height}, device_scale_factor=scale)
+    with viewer.expect_response(re.compile(r"/api/scene/canvas\?viewer=\d+$"), timeout=30_000):
+        viewer.goto(f"{base}/viser/")
+    return viewer
+
+
+def settled_view(viewer, timeout: float = 30) -> list[float]:
+    """Where `viewer`'s camera is once it has stayed a second in one place: the server frames a viewer
+    as its camera's reports and its canvas' scale come in."""
+    last, since, deadline = None, time.monotonic(), time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        now = viewer.evaluate("() => window.__viserMutable.camera.position.toArray()")
+        if last is None or not np.allclose(now, last, atol=1e-4):
+            last, since = now, time.monotonic()
+        elif time.monotonic() - since > 1:
+            return now
+        viewer.wait_for_timeout(100)
+    raise AssertionError(f"the view never stayed in one place: last at {last}")
+
+
+def test_each_3d_viewer_is_framed_at_its_own_scale(browser, base):
+    """The scale viewers' pages said (device px to the CSS px) was kept by their canvas' size in device
+    px, the same for a view 400×800 CSS px on a screen of two device px to the CSS px and one 800×1600
+    on a screen of one: the one said last held for both, and the wider view, framed with room for its
+    labels at half their size there, was framed again as the narrower one. Each is framed at its own
+    scale, as a view of its size in CSS px on a screen of one is."""
+    wide = viser_viewer(browser, base, 800, 1600, 1)
+    viewers = [wide]
+    try:
+        alone = settled_view(wide)
+        viewers += [viser_viewer(browser, base, 400, 800, 2), viser_viewer(browser, base, 400, 800, 1)]
+        sharp, plain = (settled_view(v) for v in viewers[1:])
+        assert np.allclose(sharp, plain, atol=1e-3), (sharp, plain)
+        assert not np.allclose(alone, plain, atol=1e-2)   # framed otherwise: the two scales are told apart
+        assert np.allclose(settled_view(wide), alone, atol=1e-3)
+    finally:
+        for viewer in viewers:
+            viewer.close()
+
+
 # Where in the 3D view's page (CSS px) each camera of the world shown stands, by image id: its apex.
 CAMERA_SPOTS = """() => {
     const m = window.__viserMutable, tree = window.__viserSceneTree.getState(), canvas = m.canvas.getBoundingClientRect();
