@@ -770,6 +770,18 @@ async def put_camera(request: Request, workspace: WorkspaceDep) -> CameraOut:
     return await run_in_threadpool(camera_out, workspace)
 
 
+@api.get("/camera/file", tags=["camera"], responses={404: {"description": "no camera is set"}})
+def get_camera_file(workspace: WorkspaceDep) -> dict[str, Any]:
+    """The camera in use as a JSON camera file gives it, which PUT /api/camera takes back as it is:
+    a camera of part of its sensor as the whole sensor's intrinsics and size with its `roi` and
+    `binning_x`, `binning_y`, where GET /api/camera gives those of the images."""
+    camera = workspace.snapshot.camera
+    if camera is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            "no camera is set: each image uses its EXIF focal length, else the assumed field of view")
+    return camera.file_json()
+
+
 @api.delete("/camera", response_model=CameraOut, tags=["camera"])
 def delete_camera(workspace: WorkspaceDep) -> CameraOut:
     """Forget the camera: per image, its EXIF focal length if it has one, else the assumed field of view."""

@@ -1754,7 +1754,7 @@ def test_typed_intrinsics_say_where_their_distortion_comes_from(page, api, no_ca
                                  "width": 640, "height": 480}).raise_for_status()
     page.wait_for_function("() => document.querySelector('#camera-info').textContent.includes('typed in')")
     page.click("#camera-open")
-    page.click('#camera-tabs button[value="typed"]')
+    open_typed_tab(page)
     assert page.input_value("#typed-dist") == "-0.2 0.05 0 0 0"
     origin = page.locator("#typed-dist-origin")
     assert origin.inner_text().startswith("distortion from the camera in use (typed in)")
@@ -1770,6 +1770,52 @@ def test_typed_intrinsics_say_where_their_distortion_comes_from(page, api, no_ca
     page.locator(".toast.info", has_text="typed intrinsics applied").wait_for()
     camera = api.get("/api/camera").json()["camera"]
     assert camera["fx"] == 900 and not any(camera["dist"])
+
+
+def open_typed_tab(page) -> None:
+    """Show the open Camera dialog's typed intrinsics, once filled in (the camera in use comes from the server)."""
+    page.click('#camera-tabs button[value="typed"]')
+    page.wait_for_function("() => document.querySelector('#typed-fx').value !== ''")
+
+
+# A 1280x960 sensor's calibration, its left half read out 640x480 from (0, 240) and binned 2x2: its images are
+# 320x240 px. As a camera file (and PUT /api/camera) gives it, and the form's fields for it.
+SENSOR = {"fx": 554.0, "fy": 554.0, "cx": 640.0, "cy": 480.0, "width": 1280, "height": 960, "dist": [-0.1, 0.01, 0, 0, 0]}
+WINDOW = {"roi": {"x_offset": 0, "y_offset": 240, "width": 640, "height": 480}, "binning_x": 2, "binning_y": 2}
+WINDOW_FIELDS = {"#typed-fx": "554", "#typed-fy": "554", "#typed-cx": "640", "#typed-cy": "480", "#typed-width": "1280",
+                 "#typed-height": "960", "#typed-dist": "-0.1 0.01 0 0 0", "#typed-roi-x_offset": "0",
+                 "#typed-roi-y_offset": "240", "#typed-roi-width": "640", "#typed-roi-height": "480",
+                 "#typed-binning_x": "2", "#typed-binning_y": "2"}
+
+
+def test_typed_intrinsics_of_part_of_a_sensor_as_camera_files_give_them(page, api, no_camera):
+    """The typed intrinsics could not say that the images are part of the sensor their matrix is for
+    (ROS's roi and binning, which camera files and PUT /api/camera take), and a camera loaded with
+    them was filled in as its images' intrinsics: applied again from the form, it lost its roi. The
+    form has them, filled in as the camera's file gives them, and applied unchanged they give the
+    same camera."""
+    api.put("/api/camera", json=SENSOR | WINDOW).raise_for_status()
+    given = api.get("/api/camera/file").json()
+    page.click("#camera-open")
+    open_typed_tab(page)
+    assert page.evaluate("() => document.querySelector('#typed-window').open")
+    assert {field: page.input_value(field) for field in WINDOW_FIELDS} == WINDOW_FIELDS
+    page.click("#typed-form button[type=submit]")
+    page.locator(".toast.info", has_text="typed intrinsics applied").wait_for()
+    assert api.get("/api/camera/file").json() == given | {"source": "json"}
+    assert {k: api.get("/api/camera").json()["camera"][k] for k in ("width", "height", "cx")} == {
+        "width": 320, "height": 240, "cx": 319.75}
+
+    # Given in part, the roi is said to be so, and nothing is sent.
+    page.fill("#typed-roi-y_offset", "")
+    page.click("#typed-form button[type=submit]")
+    page.locator(".toast.error", has_text="roi: give its x offset, y offset, width and height").wait_for()
+    # Without one, the whole sensor binned 2×2: images of 640×480 px.
+    for k in WINDOW["roi"]:
+        page.fill(f"#typed-roi-{k}", "")
+    page.click("#typed-form button[type=submit]")
+    page.wait_for_function("() => document.querySelector('#camera-info').textContent.includes('@ 640×480')")
+    assert api.get("/api/camera/file").json()["roi"] == {"x_offset": 0, "y_offset": 0, "width": 1280, "height": 960}
 
 
 def test_camera_file_upload_refusal_and_reset(page, api, tmp_path, no_camera):
