@@ -290,6 +290,44 @@ def test_choosing_an_image_on_a_phone_brings_its_detail_into_view(page):
     assert page.evaluate("() => scrollY") == 0
 
 
+PHONE = {"width": 360, "height": 640}
+
+
+def detail_brought(page, image_id: str) -> None:
+    """Until the detail shows `image_id` with its top at the top of the window."""
+    page.wait_for_function("""id => { const d = document.querySelector('#detail');
+        return !d.hidden && d.dataset.id === id && Math.abs(d.getBoundingClientRect().top) < 1; }""",
+                           arg=image_id, timeout=10_000)
+
+
+def test_every_way_of_choosing_an_image_on_a_phone_brings_its_detail_into_view(page, browser, base):
+    """On a phone (360×640) only a card tapped scrolled the page to the image's detail, under the whole
+    gallery: ← →, the detail's ‹ › and a #image= link, followed or opened, left the page where it was,
+    the detail out of sight below or its top above the window."""
+    page.set_viewport_size(PHONE)
+    page.wait_for_selector("#detail:not([hidden])")   # the first image, opened by itself: nothing scrolls
+    assert page.evaluate("() => scrollY") == 0
+    ids = page.eval_on_selector_all(".card", "cards => cards.map((c) => c.dataset.id)")
+    page.keyboard.press("ArrowRight")
+    detail_brought(page, ids[1])
+    page.evaluate("() => scrollBy(0, -200)")   # the detail's head in sight, lower down
+    page.click("#prev")
+    detail_brought(page, ids[0])
+    page.evaluate("() => scrollBy(0, 800)")   # reading further down the detail
+    page.keyboard.press("ArrowRight")
+    detail_brought(page, ids[1])
+    page.evaluate("() => scrollTo(0, 0)")
+    page.evaluate("id => { location.hash = `#image=${id}`; }", ids[2])
+    detail_brought(page, ids[2])
+
+    linked = browser.new_page(viewport=PHONE)
+    try:
+        linked.goto(f"{base}/#image={ids[3]}")
+        detail_brought(linked, ids[3])
+    finally:
+        linked.close()
+
+
 # The top bar's parts that stick out of the window, are cut off by a box holding them, are cut short
 # (…) or break over two lines.
 TOP_BAR_CUT = """() => [...document.querySelectorAll(
