@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 import viser
 import viser.transforms as tf
+from viser._messages import RunJavascriptMessage
 
 from app.workspace import Event, ImageRecord, Outcome, Workspace, is_correct, status_of
 from pipeline.library import Library, LibrarySign
@@ -82,9 +83,6 @@ LABEL_SEPARATOR = "   "
 MAX_TEXTS_LISTED = 6
 # How long a clicked camera's name shows in the clicking viewer.
 CLICKED_NOTE_S = 6.0
-# Canvas sizes whose device px per CSS px are kept (`SceneHandle.set_canvas_scale`): a window being
-# resized reports many.
-MAX_CANVAS_SIZES = 64
 
 
 # --------------------------------------------------------------------------- geometry
@@ -504,9 +502,9 @@ class SceneHandle:
     # it), so it follows the cameras drawn; None while it has not been framed on cameras.
     _framed: dict[int, tuple[np.ndarray, np.ndarray] | None] = field(default_factory=dict, repr=False)
     _progress: dict[str, Any] = field(default_factory=dict, repr=False)
-    # Device px to the CSS px by canvas size (width, height) in device px as viewers report it
-    # (`set_canvas_scale`); viser draws labels at a size in CSS px. Sizes not heard of: 1.
-    _px_per_css_px: dict[tuple[int, int], float] = field(default_factory=dict, repr=False)
+    # By client id, the CSS px width of the viewer's canvas as its page last said (`set_canvas_width`):
+    # viser reports canvases in device px and draws labels at a size in CSS px.
+    _css_width: dict[int, float] = field(default_factory=dict, repr=False)
     _shown: list[tuple[ImageRecord, Recognition]] = field(default_factory=list, repr=False)
     _lock: threading.RLock = field(default_factory=threading.RLock, repr=False)
     # Set when the scene is stale (`_mark_stale`) or closed; `_stale_all` says whether more than the
@@ -662,7 +660,7 @@ class SceneHandle:
         width of the widest label either side: a camera at the edge has its label beside it."""
         camera = client.camera
         with self._lock:
-            css_width = camera.image_width / self._px_per_css_px_of(camera)
+            css_width = camera.image_width / self._px_per_css_px_of(client)
             # at least a quarter of the width: labels wider than that cannot be helped by zooming out
             room = max(0.25, 1.0 - 2.0 * self._label_px() / css_width)
             view = self._overview(camera.fov, min(camera.aspect * room, 1.0))
@@ -696,24 +694,26 @@ class SceneHandle:
     def _on_disconnect(self, client: viser.ClientHandle) -> None:
         with self._lock:
             self._framed.pop(client.client_id, None)
+            self._css_width.pop(client.client_id, None)
 
-    def set_canvas_scale(self, width_px: int, height_px: int, px_per_css_px: float) -> None:
-        """Note that a viewer's canvas reported as `width_px` × `height_px` device px is drawn at
-        `px_per_css_px` device px to the CSS px (its page says so: viser does not); the viewers are
-        framed, and their labels laid out, again."""
+    def set_canvas_width(self, client_id: int, css_px: float) -> None:
+        """Note that viewer `client_id`'s canvas is `css_px` CSS px wide (its page says so: viser
+        does not); it is framed, and the labels laid out, again. Kept by viewer, not by the canvas'
+        size in device px: two screens' canvases of one size can be of two sizes in CSS px (a phone
+        of 2 device px to the CSS px beside a laptop of 1), and a window zoomed keeps its device px."""
         with self._lock:
-            sizes = self._px_per_css_px
-            if sizes.get((width_px, height_px)) == px_per_css_px:
-                return
-            sizes.pop((width_px, height_px), None)   # the newest last, the oldest first to go
-            sizes[width_px, height_px] = px_per_css_px
-            while len(sizes) > MAX_CANVAS_SIZES:
-                del sizes[next(iter(sizes))]
+            if client_id not in self.server.get_clients() or self._css_width.get(client_id) == css_px:
+                return   # gone, so never to be forgotten on disconnect; or nothing new
+            self._css_width[client_id] = css_px
         self._mark_stale()
 
-    def _px_per_css_px_of(self, camera: viser.CameraHandle) -> float:
-        """Device px to the CSS px of the canvas `camera` reports. The caller holds the lock."""
-        return self._px_per_css_px.get((camera.image_width, camera.image_height), 1.0)
+    def _px_per_css_px_of(self, client: viser.ClientHandle) -> float:
+        """Device px to the CSS px of `client`'s canvas: the device px its camera last reported over the
+        CSS px its page last said, as viser lowers its resolution without a camera report (its page's
+        device px may be newer than the camera's; its CSS px stay). 1 until its page has said. The
+        caller holds the lock."""
+        css_px = self._css_width.get(client.client_id)
+        return 1.0 if css_px is None else client.camera.image_width / css_px
 
     def _on_frustum_width(self, _event: viser.GuiEvent) -> None:
         self._stale_geometry = True
@@ -805,7 +805,7 @@ class SceneHandle:
             texts = [_camera_text(*camera) for camera in cameras]
             for node, text in zip(nodes, texts):
                 node.text = text
-            views = [View.of(c.camera, positions, self._px_per_css_px_of(c.camera)) for c in self._viewers()
+            views = [View.of(c.camera, positions, self._px_per_css_px_of(c)) for c in self._viewers()
                      ] if sign == self.world.value else []
             for label in labels_apart(label_groups(list(positions), self.frustum_width.value), texts, views):
                 if nodes[label.at].label.text != label.text:
@@ -930,6 +930,15 @@ def status_markdown(statuses: list[str], outcomes: list[Outcome], progress: dict
     return " · ".join(parts)
 
 
+def name_viewer(client: viser.ClientHandle) -> None:
+    """Tell `client`'s page the id of its viewer, which viser's client is not told: the page's
+    canvas script (static/viser-canvas.js) names it when it says its canvas' size in CSS px, which
+    is the viewer's own (`SceneHandle.set_canvas_width`)."""
+    # viser has no public call to run a script in one client; its plotly support sends this message.
+    client._websock_connection.queue_message(
+        RunJavascriptMessage(source=f"window.signposeViewer = {{ id: {int(client.client_id)} }};"))
+
+
 def attach(server: viser.ViserServer, workspace: Workspace) -> SceneHandle:
     """Add the sign/camera scene and the tuning GUI to `server` and keep both in step with `workspace`."""
     server.scene.set_up_direction("-y")  # y runs down the sign
@@ -955,6 +964,7 @@ def attach(server: viser.ViserServer, workspace: Workspace) -> SceneHandle:
     frustum_width.on_update(scene._on_frustum_width)
     upload.on_upload(scene._on_upload)
     server.on_client_connect(scene._on_connect)
+    server.on_client_connect(name_viewer)
     server.on_client_disconnect(scene._on_disconnect)
     scene._start()
     return scene

@@ -796,6 +796,18 @@ async def put_camera(request: Request, workspace: WorkspaceDep) -> CameraOut:
     return await run_in_threadpool(camera_out, workspace)
 
 
+@api.get("/camera/file", tags=["camera"], responses={404: {"description": "no camera is set"}})
+def get_camera_file(workspace: WorkspaceDep) -> dict[str, Any]:
+    """The camera in use as a JSON camera file gives it, which PUT /api/camera takes back as it is:
+    a camera of part of its sensor as the whole sensor's intrinsics and size with its `roi` and
+    `binning_x`, `binning_y`, where GET /api/camera gives those of the images."""
+    camera = workspace.snapshot.camera
+    if camera is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            "no camera is set: each image uses its EXIF focal length, else the assumed field of view")
+    return camera.file_json()
+
+
 @api.delete("/camera", response_model=CameraOut, tags=["camera"])
 def delete_camera(workspace: WorkspaceDep) -> CameraOut:
     """Forget the camera: per image, its EXIF focal length if it has one, else the assumed field of view."""
@@ -929,13 +941,14 @@ def get_calibration_yaml(calibration: CalibrationDep) -> Response:
 
 
 @api.put("/scene/canvas", status_code=status.HTTP_204_NO_CONTENT, tags=["scene"], dependencies=[JSON_BODY])
-def put_scene_canvas(canvas: CanvasScaleIn, request: Request) -> None:
-    """How many device px a 3D view's canvas of this size (as viser reports it) has to the CSS px:
+def put_scene_canvas(canvas: CanvasScaleIn, request: Request, viewer: Annotated[int, Query(
+        ge=0, description="the viser client whose canvas this is: viser's page is told its id")]) -> None:
+    """How many device px a 3D viewer's canvas (of this size as viser reports it) has to the CSS px:
     viser's client reports its canvas in device px but draws the camera labels at a size in CSS px,
     and the scene lays them out in CSS px. viser's page sends this (static/viser-canvas.js)."""
     scene = request.app.state.scene
     if scene is not None:
-        scene.set_canvas_scale(canvas.width, canvas.height, canvas.px_per_css_px)
+        scene.set_canvas_width(viewer, canvas.width / canvas.px_per_css_px)
 
 
 def _attach_scene(server: viser.ViserServer, workspace: Workspace):

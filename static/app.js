@@ -3,7 +3,7 @@
 import { get } from "./api.js";
 import { initCamera } from "./camera.js";
 import { initDetail } from "./detail.js";
-import { initGallery, refreshImages } from "./gallery.js";
+import { choose, initGallery, refreshImages } from "./gallery.js";
 import { initLibrary, loadLibrary } from "./library.js";
 import { initScene, reloadScene } from "./scene.js";
 import { apply as applySettings, initSettings } from "./settings.js";
@@ -107,10 +107,13 @@ async function main() {
     // Open an image as soon as there is one, so the stages are visible without a click.
     if (!autoOpen || !images.length) return;
     autoOpen = false;
-    if (!state.selected) select((images.find((i) => i.id === wanted) ?? images[0]).id);
+    if (state.selected) return;
+    // The image a link names is brought into view as one chosen; the first is only opened.
+    if (images.some((i) => i.id === wanted)) choose(wanted);
+    else select(images[0].id);
   });
   // A link followed in this tab, or the hash edited, changes only the hash: show what it names.
-  window.addEventListener("hashchange", () => select(linkedImage()));
+  window.addEventListener("hashchange", () => choose(linkedImage()));
   refreshImages();
   listen();
 }

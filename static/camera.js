@@ -374,6 +374,10 @@ function bindCalibration() {
 // ---- the dialog: intrinsics typed in
 
 const TYPED = ["fx", "fy", "cx", "cy", "width", "height"];
+// ROS's roi and binning, as camera files and PUT /api/camera name them: the images are that part of
+// the sensor whose intrinsics and size TYPED then are.
+const ROI = ["x_offset", "y_offset", "width", "height"];
+const BINNING = ["binning_x", "binning_y"];
 
 // Distortion belongs to the lens it was calibrated with: filled in with the rest of a camera, it
 // says where it came from until it is typed over or cleared, and warns once the other fields are
@@ -390,22 +394,45 @@ function showDistOrigin(changed = false) {
     : `distortion from ${distFrom}`;
 }
 
-function fillTyped() {
-  const result = calib?.result?.camera;
-  const cam = result ?? camera?.camera;
-  const img = sizedImage();
+/** Fill the form in with `cam` (a camera file's keys: fx … height, dist, and roi and binning for part
+ *  of a sensor). */
+function putTyped(cam) {
   // Rounded: a thousandth of a pixel, six significant digits of distortion, are beyond any calibration.
-  const put = (values, dist) => {
-    for (const k of TYPED) $(`#typed-${k}`).value = values[k] === null ? "" : Number(values[k].toFixed(3));
-    $("#typed-dist").value = dist.map((d) => Number(d.toPrecision(6))).join(" ");
-  };
-  if (cam) put(cam, cam.dist);
-  else if (img) {   // the assumed camera of the first image
+  for (const k of TYPED) $(`#typed-${k}`).value = cam[k] === null ? "" : Number(cam[k].toFixed(3));
+  $("#typed-dist").value = cam.dist.map((d) => Number(d.toPrecision(6))).join(" ");
+  for (const k of ROI) $(`#typed-roi-${k}`).value = cam.roi?.[k] ?? "";
+  for (const k of BINNING) $(`#typed-${k}`).value = cam[k] ?? "";
+  $("#typed-window").open = Boolean(cam.roi);
+}
+
+async function fillTyped() {
+  const result = calib?.result?.camera;
+  const inUse = camera?.camera;
+  const img = sizedImage();
+  if (result) putTyped(result);
+  else if (inUse) {
+    // As its file gives it: GET /api/camera has the intrinsics of the images, not the sensor's with its roi.
+    try {
+      putTyped(await get("/api/camera/file"));
+    } catch (err) {
+      report(err);
+      return;
+    }
+  } else if (img) {   // the assumed camera of the first image
     const f = focalPx(img.width, camera.assumed_hfov_deg);
-    put({ fx: f, fy: f, cx: img.width / 2, cy: img.height / 2, width: img.width, height: img.height }, []);
+    putTyped({ fx: f, fy: f, cx: img.width / 2, cy: img.height / 2, width: img.width, height: img.height, dist: [] });
   }
+  const cam = result ?? inUse;
   distFrom = cam?.dist.length ? (result ? "the calibration result" : `the camera in use (${sourceText(cam)})`) : null;
   showDistOrigin();
+}
+
+/** The roi and binning typed, as PUT /api/camera takes them; null for a roi given in part. */
+function typedWindow(value) {
+  const roi = Object.fromEntries(ROI.map((k) => [k, value(`roi-${k}`)]));
+  const given = ROI.filter((k) => roi[k] !== null).length;
+  if (given && given < ROI.length) return null;
+  return { ...(given ? { roi } : {}), ...Object.fromEntries(BINNING.map((k) => [k, value(k)])) };
 }
 
 function bindDistOrigin() {
@@ -430,8 +457,13 @@ function bindTyped() {
       return;
     }
     const value = (k) => ($(`#typed-${k}`).value === "" ? null : Number($(`#typed-${k}`).value));
+    const part = typedWindow(value);
+    if (!part) {
+      toast("roi: give its x offset, y offset, width and height, in px of the whole sensor, or none of them", "error");
+      return;
+    }
     const body = Object.fromEntries(TYPED.map((k) => [k, value(k)]));
-    const applied = await setCamera(api("PUT", "/api/camera", { ...body, dist }),
+    const applied = await setCamera(api("PUT", "/api/camera", { ...body, dist, ...part }),
       "typed intrinsics applied: every image is being re-run with them");
     if (applied) { distFrom = null; showDistOrigin(); }   // it is the camera in use now
   });

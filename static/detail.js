@@ -4,7 +4,7 @@
 import { api, failureOf, get } from "./api.js";
 import { approximateNote, KIND_LABELS } from "./camera.js";
 import { drawHistogram, drawSweep, valueAt } from "./charts.js";
-import { fillExpected, refreshImages, showStatus } from "./gallery.js";
+import { choose, fillExpected, refreshImages, showStatus } from "./gallery.js";
 import { setSetting, settingText, settingValue, stepOf } from "./settings.js";
 import { emit, state, on, select, signName } from "./store.js";
 import { $, el, fill, fmt, plural, report, toast } from "./ui.js";
@@ -628,7 +628,7 @@ function bindChart(canvas, scale) {
 function step(delta) {
   const ids = state.images.map((i) => i.id);
   const next = ids[(ids.indexOf(state.selected) + delta + ids.length) % ids.length];
-  if (next) select(next);
+  if (next) choose(next);
 }
 
 export function initDetail() {

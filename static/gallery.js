@@ -55,14 +55,15 @@ export function fillExpected(select, value = select.value) {
 const cards = new Map();   // id -> {card, parts}
 // style.css's one column (phones): the page scrolls, not the panels, and the detail is under every card.
 const ONE_COLUMN = window.matchMedia("(max-width: 760px)");
-let bringing = null;   // the image chosen from its card in one column, whose detail is to be brought into view
+let bringing = null;   // the image chosen in one column, whose detail is to be brought into view
 
-/** Choose the image of a card. In one column the detail view lies under the whole gallery, out of
- *  sight (929 px down on a 390×844 phone), and a tap seemed to do nothing: the page scrolls to the
+/** Show image `id` (null: none) as the person chose it: its card, ← →, ‹ ›, a #image= link; not an
+ *  image opened for them. In one column the detail view lies under the whole gallery, out of sight
+ *  (929 px down on a 390×844 phone), and a choice seemed to do nothing: the page scrolls to the
  *  detail once it shows the image (scrolled to before, the new image's detail drawn over the old one
  *  left its top off the screen). Wider, the detail is read beside or under the gallery in its own
  *  panel and only the gallery scrolls (`reveal`). */
-function choose(id) {
+export function choose(id) {
   const detail = $("#detail"), shown = !detail.hidden && detail.dataset.id === id;
   bringing = ONE_COLUMN.matches ? id : null;
   select(id);

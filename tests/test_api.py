@@ -84,7 +84,8 @@ def test_health_docs_and_every_contract_path_in_openapi(client):
                  "/api/settings/preset/{name}", "/api/settings/export", "/api/settings/import", "/api/library",
                  "/api/library/{sign_id}/image", "/api/library/{sign_id}", "/api/images", "/api/images/{image_id}",
                  "/api/images/{image_id}/file", "/api/images/{image_id}/stages/{stage}", "/api/recognize",
-                 "/api/calibrate/threshold", "/api/sweep", "/api/camera", "/api/camera/assumed", "/api/events",
+                 "/api/calibrate/threshold", "/api/sweep", "/api/camera", "/api/camera/file", "/api/camera/assumed",
+                 "/api/events",
                  "/api/calibration", "/api/calibration/images", "/api/calibration/board", "/api/calibration/run",
                  "/api/calibration/views/{view_id}/image", "/api/calibration/views/{view_id}",
                  "/api/calibration/apply", "/api/calibration/camera.yaml"):
@@ -655,6 +656,7 @@ def test_camera_json_file_errors_and_reset(client):
     assert_error(client.put("/api/camera", json={"fx": 600}), 422, "fy")
     assert_error(client.put("/api/camera", content=b"fx=600", headers={"content-type": "text/plain"}), 415, "JSON")
     assert client.delete("/api/camera").json() == NO_CAMERA
+    assert_error(client.get("/api/camera/file"), 404, "no camera is set")
 
 
 @pytest.mark.parametrize("body", [
@@ -717,6 +719,12 @@ def test_a_camera_of_part_of_its_sensor_is_taken_and_kept_as_its_file_gives_it(t
         r = c.put("/api/camera", **request_args)
         assert r.status_code == 200, r.text
         assert {k: r.json()["camera"][k] for k in WINDOWED} == WINDOWED and r.json()["warnings"] == []
+        # GET /api/camera/file gives it as its file does, which PUT takes back as it is
+        file = c.get("/api/camera/file").json()
+        assert file == SENSOR | WINDOW | {"dist": [0.0] * 5, "source": file["source"]}
+        again = c.put("/api/camera", json=file)
+        assert again.json()["camera"] == r.json()["camera"] | {"source": "json", "kind": "typed"}
+        assert c.get("/api/camera/file").json() == file | {"source": "json"}
     kept = load_camera(tmp_path / "state" / "camera.json")
     assert {k: kept.to_json()[k] for k in WINDOWED} == WINDOWED
     assert kept.file_json()["roi"] == WINDOW["roi"] and kept.file_json()["cx"] == 640
@@ -871,16 +879,19 @@ def test_viser_client_is_served_and_its_websocket_relayed(client, base_url):
 
 def test_the_3d_views_page_tells_the_server_its_canvas_scale(client):
     """viser's client reports its canvas in device px and draws the camera labels at a size in CSS
-    px: its page gets our script, which says how many device px its canvas has to the CSS px."""
+    px: its page gets our script, which says how many device px its canvas has to the CSS px, naming
+    its viewer (the viser client) as the server named it."""
     page = client.get("/viser/").text
     assert "<title>Viser</title>" in page and page.count(CANVAS_SCRIPT) == 1
     assert "setInterval" in client.get("/viser-canvas.js").text
     canvas = {"width": 892, "height": 1800, "px_per_css_px": 2.0}
-    assert client.put("/api/scene/canvas", json=canvas).status_code == 204
+    assert client.put("/api/scene/canvas?viewer=0", json=canvas).status_code == 204
     for bad in ({"width": 0}, {"height": 1e6}, {"px_per_css_px": 0}, {"px_per_css_px": "2"}):
-        r = client.put("/api/scene/canvas", json=canvas | bad)
+        r = client.put("/api/scene/canvas?viewer=0", json=canvas | bad)
         assert r.status_code == 422, (bad, r.text)
-    assert client.put("/api/scene/canvas", content=json.dumps(canvas)).status_code == 415
+    for viewer in ("", "?viewer=-1", "?viewer=a"):
+        assert client.put(f"/api/scene/canvas{viewer}", json=canvas).status_code == 422, viewer
+    assert client.put("/api/scene/canvas?viewer=0", content=json.dumps(canvas)).status_code == 415
 
 
 def test_remove_every_image_at_once(tmp_path):

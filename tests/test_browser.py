@@ -290,6 +290,44 @@ def test_choosing_an_image_on_a_phone_brings_its_detail_into_view(page):
     assert page.evaluate("() => scrollY") == 0
 
 
+PHONE = {"width": 360, "height": 640}
+
+
+def detail_brought(page, image_id: str) -> None:
+    """Until the detail shows `image_id` with its top at the top of the window."""
+    page.wait_for_function("""id => { const d = document.querySelector('#detail');
+        return !d.hidden && d.dataset.id === id && Math.abs(d.getBoundingClientRect().top) < 1; }""",
+                           arg=image_id, timeout=10_000)
+
+
+def test_every_way_of_choosing_an_image_on_a_phone_brings_its_detail_into_view(page, browser, base):
+    """On a phone (360×640) only a card tapped scrolled the page to the image's detail, under the whole
+    gallery: ← →, the detail's ‹ › and a #image= link, followed or opened, left the page where it was,
+    the detail out of sight below or its top above the window."""
+    page.set_viewport_size(PHONE)
+    page.wait_for_selector("#detail:not([hidden])")   # the first image, opened by itself: nothing scrolls
+    assert page.evaluate("() => scrollY") == 0
+    ids = page.eval_on_selector_all(".card", "cards => cards.map((c) => c.dataset.id)")
+    page.keyboard.press("ArrowRight")
+    detail_brought(page, ids[1])
+    page.evaluate("() => scrollBy(0, -200)")   # the detail's head in sight, lower down
+    page.click("#prev")
+    detail_brought(page, ids[0])
+    page.evaluate("() => scrollBy(0, 800)")   # reading further down the detail
+    page.keyboard.press("ArrowRight")
+    detail_brought(page, ids[1])
+    page.evaluate("() => scrollTo(0, 0)")
+    page.evaluate("id => { location.hash = `#image=${id}`; }", ids[2])
+    detail_brought(page, ids[2])
+
+    linked = browser.new_page(viewport=PHONE)
+    try:
+        linked.goto(f"{base}/#image={ids[3]}")
+        detail_brought(linked, ids[3])
+    finally:
+        linked.close()
+
+
 # The top bar's parts that stick out of the window, are cut off by a box holding them, are cut short
 # (…) or break over two lines.
 TOP_BAR_CUT = """() => [...document.querySelectorAll(
@@ -1297,35 +1335,98 @@ def test_twenty_camera_labels_in_the_3d_view_do_not_overlap(page, api, browser, 
             api.delete(f"/api/images/{image_id}").raise_for_status()
 
 
-# Where in the 3D view's page (CSS px) each camera of the world shown stands, by image id: its apex.
-CAMERA_SPOTS = """() => {
+def viser_viewer(browser, base: str, width: int, height: int, scale: float):
+    """viser's page in a tab of its own (the page's pop-out), `width` × `height` CSS px on a screen of
+    `scale` device px to the CSS px, once it has told the server its canvas' scale."""
+    viewer = browser.new_page(viewport={"width": width, "height": height}, device_scale_factor=scale)
+    with viewer.expect_response(re.compile(r"/api/scene/canvas\?viewer=\d+$"), timeout=30_000):
+        viewer.goto(f"{base}/viser/")
+    return viewer
+
+
+def settled_view(viewer, timeout: float = 30) -> list[float]:
+    """Where `viewer`'s camera is once it has stayed a second in one place: the server frames a viewer
+    as its camera's reports and its canvas' scale come in."""
+    last, since, deadline = None, time.monotonic(), time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        now = viewer.evaluate("() => window.__viserMutable.camera.position.toArray()")
+        if last is None or not np.allclose(now, last, atol=1e-4):
+            last, since = now, time.monotonic()
+        elif time.monotonic() - since > 1:
+            return now
+        viewer.wait_for_timeout(100)
+    raise AssertionError(f"the view never stayed in one place: last at {last}")
+
+
+def test_each_3d_viewer_is_framed_at_its_own_scale(browser, base):
+    """The scale viewers' pages said (device px to the CSS px) was kept by their canvas' size in device
+    px, the same for a view 400×800 CSS px on a screen of two device px to the CSS px and one 800×1600
+    on a screen of one: the one said last held for both, and the wider view, framed with room for its
+    labels at half their size there, was framed again as the narrower one. Each is framed at its own
+    scale, as a view of its size in CSS px on a screen of one is."""
+    wide = viser_viewer(browser, base, 800, 1600, 1)
+    viewers = [wide]
+    try:
+        alone = settled_view(wide)
+        viewers += [viser_viewer(browser, base, 400, 800, 2), viser_viewer(browser, base, 400, 800, 1)]
+        sharp, plain = (settled_view(v) for v in viewers[1:])
+        assert np.allclose(sharp, plain, atol=1e-3), (sharp, plain)
+        assert not np.allclose(alone, plain, atol=1e-2)   # framed otherwise: the two scales are told apart
+        assert np.allclose(settled_view(wide), alone, atol=1e-3)
+    finally:
+        for viewer in viewers:
+            viewer.close()
+
+
+# A camera of the world shown that a click in the 3D view's page lands on, or null while there is none
+# (the photos still loading): the centre of its photo (the frustum's textured plane), in CSS px, where
+# nothing of the page covers the canvas (viser's panel) and no other camera's frustum is drawn, which
+# could be nearer; its image id.
+CLEAR_CAMERA = """() => {
     const m = window.__viserMutable, tree = window.__viserSceneTree.getState(), canvas = m.canvas.getBoundingClientRect();
-    return Object.keys(tree).filter((name) => /\\/cameras\\/[^/]+$/.test(name) && tree[name].effectiveVisibility)
-        .map((name) => { const at = m.nodeRefFromName[name].getWorldPosition(m.camera.position.clone()).project(m.camera);
-                         return [name.split("/").pop(), canvas.left + (at.x + 1) / 2 * canvas.width,
-                                 canvas.top + (1 - at.y) / 2 * canvas.height]; });
+    const onPage = (v) => { const p = v.project(m.camera);
+                            return [canvas.left + (p.x + 1) / 2 * canvas.width, canvas.top + (1 - p.y) / 2 * canvas.height]; };
+    const cameras = Object.keys(tree).filter((name) => /\\/cameras\\/[^/]+$/.test(name) && tree[name].effectiveVisibility)
+        .flatMap((name) => {
+            const node = m.nodeRefFromName[name];
+            let photo = null;
+            node.traverse((o) => { if (o.isMesh && o.geometry.type === "PlaneGeometry" && o.material.map) photo ??= o; });
+            if (!photo) return [];
+            photo.geometry.computeBoundingBox();
+            const { min, max } = photo.geometry.boundingBox;
+            const drawn = [[min.x, min.y], [max.x, min.y], [max.x, max.y], [min.x, max.y]]
+                .map(([x, y]) => onPage(photo.localToWorld(min.clone().set(x, y, 0))))
+                .concat([onPage(node.getWorldPosition(min.clone()))]);
+            const xs = drawn.map(([x]) => x), ys = drawn.map(([, y]) => y);
+            return [{ id: name.split("/").pop(), at: onPage(photo.getWorldPosition(min.clone())),
+                      box: [Math.min(...xs), Math.min(...ys), Math.max(...xs), Math.max(...ys)] }];
+        });
+    const within = ([x, y], [left, top, right, bottom]) => left <= x && x <= right && top <= y && y <= bottom;
+    return cameras.find((c) => document.elementFromPoint(...c.at) === m.canvas
+                        && cameras.every((other) => other === c || !within(c.at, other.box))) ?? null;
 }"""
 
 
 def test_clicking_a_camera_in_the_3d_view_names_it(browser, base, api):
     """Cameras sharing a label, or counted in one, could not be told apart, and clicking one moved the
-    view to it without saying which it was: it is named there."""
+    view to it without saying which it was: it is named there. Clicked on its photo, once the pointer
+    over it shows it clickable (viser finds what is under the pointer by casting a ray, on the CPU),
+    and the view has stopped moving: clicks around its apex, by a line of the frustum, missed it at
+    times."""
     viewer = browser.new_page(viewport={"width": 1280, "height": 900})
     try:
         viewer.goto(f"{base}/viser/")
         viewer.get_by_text("Connected", exact=True).wait_for(timeout=30_000)
-        spots = viewer.wait_for_function(f"() => {{ const s = ({CAMERA_SPOTS})(); return s.length && s; }}",
-                                         timeout=30_000).json_value()
-        names = {image["name"] for image in api.get("/api/images").json()["images"]}
-        note = viewer.locator(".mantine-Notification-body").filter(has_text="the view from this camera")
-        # a frustum is drawn forward of its apex: a click on the apex itself may miss it
-        for (_, x, y), (dx, dy) in ((spot, shift) for spot in spots[:5] for shift in ((0, 0), (4, 4), (-4, 4), (0, 8))):
-            viewer.mouse.click(x + dx, y + dy)
-            viewer.wait_for_timeout(1_500)   # the server's answer to a click
-            if note.count():
-                break
-        title = note.first.locator(".mantine-Notification-title").inner_text()
-        assert title.split(" · ")[0] in names, title
+        viewer.wait_for_function(CLEAR_CAMERA, timeout=30_000)
+        settled_view(viewer)
+        camera = viewer.evaluate(CLEAR_CAMERA)
+        viewer.mouse.move(*camera["at"])
+        viewer.wait_for_function("() => window.__viserMutable.canvas.style.cursor === 'pointer'", timeout=10_000)
+        viewer.mouse.click(*camera["at"])
+        note = viewer.locator(".mantine-Notification-root").filter(has_text="the view from this camera")
+        note.wait_for(timeout=10_000)
+        name = api.get(f"/api/images/{camera['id']}").json()["name"]
+        assert note.locator(".mantine-Notification-title").inner_text().split(" · ")[0] == name
     finally:
         viewer.close()
 
@@ -1711,7 +1812,7 @@ def test_typed_intrinsics_say_where_their_distortion_comes_from(page, api, no_ca
                                  "width": 640, "height": 480}).raise_for_status()
     page.wait_for_function("() => document.querySelector('#camera-info').textContent.includes('typed in')")
     page.click("#camera-open")
-    page.click('#camera-tabs button[value="typed"]')
+    open_typed_tab(page)
     assert page.input_value("#typed-dist") == "-0.2 0.05 0 0 0"
     origin = page.locator("#typed-dist-origin")
     assert origin.inner_text().startswith("distortion from the camera in use (typed in)")
@@ -1727,6 +1828,52 @@ def test_typed_intrinsics_say_where_their_distortion_comes_from(page, api, no_ca
     page.locator(".toast.info", has_text="typed intrinsics applied").wait_for()
     camera = api.get("/api/camera").json()["camera"]
     assert camera["fx"] == 900 and not any(camera["dist"])
+
+
+def open_typed_tab(page) -> None:
+    """Show the open Camera dialog's typed intrinsics, once filled in (the camera in use comes from the server)."""
+    page.click('#camera-tabs button[value="typed"]')
+    page.wait_for_function("() => document.querySelector('#typed-fx').value !== ''")
+
+
+# A 1280x960 sensor's calibration, its left half read out 640x480 from (0, 240) and binned 2x2: its images are
+# 320x240 px. As a camera file (and PUT /api/camera) gives it, and the form's fields for it.
+SENSOR = {"fx": 554.0, "fy": 554.0, "cx": 640.0, "cy": 480.0, "width": 1280, "height": 960, "dist": [-0.1, 0.01, 0, 0, 0]}
+WINDOW = {"roi": {"x_offset": 0, "y_offset": 240, "width": 640, "height": 480}, "binning_x": 2, "binning_y": 2}
+WINDOW_FIELDS = {"#typed-fx": "554", "#typed-fy": "554", "#typed-cx": "640", "#typed-cy": "480", "#typed-width": "1280",
+                 "#typed-height": "960", "#typed-dist": "-0.1 0.01 0 0 0", "#typed-roi-x_offset": "0",
+                 "#typed-roi-y_offset": "240", "#typed-roi-width": "640", "#typed-roi-height": "480",
+                 "#typed-binning_x": "2", "#typed-binning_y": "2"}
+
+
+def test_typed_intrinsics_of_part_of_a_sensor_as_camera_files_give_them(page, api, no_camera):
+    """The typed intrinsics could not say that the images are part of the sensor their matrix is for
+    (ROS's roi and binning, which camera files and PUT /api/camera take), and a camera loaded with
+    them was filled in as its images' intrinsics: applied again from the form, it lost its roi. The
+    form has them, filled in as the camera's file gives them, and applied unchanged they give the
+    same camera."""
+    api.put("/api/camera", json=SENSOR | WINDOW).raise_for_status()
+    given = api.get("/api/camera/file").json()
+    page.click("#camera-open")
+    open_typed_tab(page)
+    assert page.evaluate("() => document.querySelector('#typed-window').open")
+    assert {field: page.input_value(field) for field in WINDOW_FIELDS} == WINDOW_FIELDS
+    page.click("#typed-form button[type=submit]")
+    page.locator(".toast.info", has_text="typed intrinsics applied").wait_for()
+    assert api.get("/api/camera/file").json() == given | {"source": "json"}
+    assert {k: api.get("/api/camera").json()["camera"][k] for k in ("width", "height", "cx")} == {
+        "width": 320, "height": 240, "cx": 319.75}
+
+    # Given in part, the roi is said to be so, and nothing is sent.
+    page.fill("#typed-roi-y_offset", "")
+    page.click("#typed-form button[type=submit]")
+    page.locator(".toast.error", has_text="roi: give its x offset, y offset, width and height").wait_for()
+    # Without one, the whole sensor binned 2×2: images of 640×480 px.
+    for k in WINDOW["roi"]:
+        page.fill(f"#typed-roi-{k}", "")
+    page.click("#typed-form button[type=submit]")
+    page.wait_for_function("() => document.querySelector('#camera-info').textContent.includes('@ 640×480')")
+    assert api.get("/api/camera/file").json()["roi"] == {"x_offset": 0, "y_offset": 0, "width": 1280, "height": 960}
 
 
 def test_camera_file_upload_refusal_and_reset(page, api, tmp_path, no_camera):

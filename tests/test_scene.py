@@ -428,19 +428,41 @@ def test_labels_are_laid_out_in_css_px_on_a_screen_of_two_device_px_to_one():
         labels_apart(groups, names, [column]))
 
 
-def test_a_canvas_scale_heard_of_frames_and_lays_out_its_viewer_in_css_px(scene, monkeypatch):
-    """A viewer on a screen of two device px to the CSS px, told apart by its canvas' size in device
-    px, is framed with room for its labels at their size there: the room a canvas half its size on
-    a screen of one has."""
+def test_a_canvas_width_heard_of_frames_and_lays_out_its_viewer_in_css_px(scene, monkeypatch):
+    """A viewer on a screen of two device px to the CSS px is framed with room for its labels at their
+    size there, once its page has said its canvas' width in CSS px: the room a canvas half its size
+    on a screen of one has. Another viewer's canvas of the same size in device px, on a screen of
+    one, keeps its own: kept by canvas size, the scale said last held for both."""
     handle, _ = scene
     start = handle.server.initial_camera
-    plain, sharp = Viewer(1, 0.5, start), Viewer(2, 0.5, start, height_px=2 * 870)
-    handle.frame_for(plain)
-    handle.frame_for(sharp)
+    plain, sharp, wide = Viewer(1, 0.5, start), Viewer(2, 0.5, start, height_px=2 * 870), \
+        Viewer(3, 0.5, start, height_px=2 * 870)
+    monkeypatch.setattr(handle.server, "get_clients", lambda: {2: sharp, 3: wide})
+    for viewer in (plain, sharp, wide):
+        handle.frame_for(viewer)
     assert _widest(handle, sharp.camera) > _widest(handle, plain.camera) + 0.5   # labels half their size
-    monkeypatch.setattr(handle.server, "get_clients", lambda: {2: sharp})
-    handle.set_canvas_scale(sharp.camera.image_width, sharp.camera.image_height, 2.0)
+    framed_wide = wide.camera.position
+    handle.set_canvas_width(3, wide.camera.image_width)
+    handle.set_canvas_width(2, sharp.camera.image_width / 2)
     wait_for(lambda: np.allclose(sharp.camera.position, plain.camera.position))
+    assert np.array_equal(wide.camera.position, framed_wide)
+
+
+def test_a_viewers_canvas_width_is_its_own_until_it_leaves(scene, monkeypatch):
+    """Its device px to the CSS px follow the device px its camera reports (fewer while viser lowers
+    its resolution, in the same CSS px); a viewer that left, or one never connected, keeps none."""
+    handle, _ = scene
+    viewer = Viewer(2, 0.5, handle.server.initial_camera, height_px=2 * 870)
+    clients = {2: viewer}
+    monkeypatch.setattr(handle.server, "get_clients", lambda: clients)
+    handle.set_canvas_width(2, viewer.camera.image_width / 2)
+    handle.set_canvas_width(5, 400.0)   # not connected
+    assert handle._px_per_css_px_of(viewer) == 2.0
+    viewer.camera.image_width = round(0.75 * viewer.camera.image_width)
+    assert handle._px_per_css_px_of(viewer) == pytest.approx(1.5, abs=0.01)
+    handle._on_disconnect(viewer)
+    clients.clear()
+    assert handle._css_width == {}
 
 
 def _said(label, names: list[str]) -> bool:
