@@ -113,6 +113,8 @@ class TextCheckOut(BaseModel):
     strips: list[float | None] = Field(description="correlation in each of 6 strips across the sign, left to "
                                                    "right on it; null: mostly outside the image")
     weakest: float | None
+    continued: list[str] = Field(description="sides ('left', 'right', 'above', 'below') beyond which the plaque "
+                                             "and its text go on: a plaque of the sign's words and more")
 
 
 class TurnedDownOut(BaseModel):

@@ -369,8 +369,8 @@ def draw_text(gray: np.ndarray, recognition: Recognition, library: Library) -> n
     turned down: above, the photo read at the library sign's template pixels through the final H
     (the patch the check correlates); below, the template; each strip outlined on both and its
     correlation between them, green when it reaches the result's `min_text_correlation`, red when
-    not, UNSEEN and so labelled when it lies mostly outside the photo. FigureError when there is
-    no check to draw."""
+    not, UNSEEN and so labelled when it lies mostly outside the photo; in red at the foot, the
+    sides beyond which the plaque and its text go on. FigureError when there is no check to draw."""
     sign_id, H, check, what = _checked(recognition, library)
     sign = library[sign_id]
     template = text_template(library, sign.id)
@@ -386,7 +386,11 @@ def draw_text(gray: np.ndarray, recognition: Recognition, library: Library) -> n
               for c, x0, x1, color in zip(check.strips, edges[:-1], edges[1:], colors)]
     head = _text_band(width, [(what, 0, width, WHITE)])
     foot = _text_band(width, [(f"library sign {sign.id}: strips pass at {minimum:g} or more", 0, width, WHITE)])
-    return np.vstack([head, photo, _text_band(width, values), library_sign, foot])
+    bands = [head, photo, _text_band(width, values), library_sign, foot]
+    if check.continued:
+        sides = " and ".join(check.continued)
+        bands.append(_text_band(width, [(f"the plaque and its text go on beyond its {sides} side", 0, width, RED)]))
+    return np.vstack(bands)
 
 
 def stage_figure(stage: str, image: np.ndarray, recognition: Recognition, library: Library,

@@ -140,8 +140,11 @@ class Refined:
         if self.text.weakest is None:
             return (f"none of {self.sign.id}'s text is in the image (each of its {len(self.text.strips)} strips lies "
                     "mostly outside it): a plaque of other words would read the same")
-        return (f"its text differs from {self.sign.id}'s (weakest strip correlation {self.text.weakest:.2f} < "
-                f"{min_correlation:g}): another sign sharing some of its words, or a homography that is off")
+        if self.text.weakest < min_correlation:
+            return (f"its text differs from {self.sign.id}'s (weakest strip correlation {self.text.weakest:.2f} < "
+                    f"{min_correlation:g}): another sign sharing some of its words, or a homography that is off")
+        return (f"the plaque and its text go on beyond {self.sign.id}'s {' and '.join(self.text.continued)} "
+                f"side: a plaque of {self.sign.id}'s words and more")
 
 
 @dataclass(frozen=True, eq=False)

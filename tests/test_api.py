@@ -297,6 +297,16 @@ def test_text_check_figure_or_why_there_is_none(client):
     assert not result["recognized"] and result["turned_down"][0]["text_check"]["weakest"] < 0.7
     r = client.get(f"/api/images/{decoy_id}/stages/text")
     assert r.status_code == 200 and has(cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR), RED)
+    # A plaque of a sign's words and more: every strip passes, and the foot says, in red, where it goes on.
+    more = cv2.imencode(".png", decoy_image("مجمع أمني جديد", 0))[1].tobytes()
+    more_id = upload(client, ("more.png", more, None)).json()["images"][0]["id"]
+    wait_done(client)
+    check = client.get(f"/api/images/{more_id}").json()["result"]["turned_down"][0]["text_check"]
+    assert check["weakest"] > 0.9 and check["continued"] == ["left"], check
+    figure = cv2.imdecode(np.frombuffer(client.get(f"/api/images/{more_id}/stages/text").content, np.uint8),
+                          cv2.IMREAD_COLOR)
+    assert has(figure, GREEN) and has(figure[-figure.shape[0] // 8:], RED), "no red line at the foot"
+    client.delete(f"/api/images/{more_id}")
     before = client.get("/api/settings").json()["settings"]["min_text_correlation"]
     client.put("/api/settings", json={"min_text_correlation": 0})  # as the paper preset has it
     wait_done(client)

@@ -165,6 +165,28 @@ def test_a_plaque_of_other_words_sharing_one_with_a_sign_is_not_read_as_that_sig
         assert rec.label == sign.id and rec.text_check.weakest > 0.9, (sign.id, rec.text_check)
 
 
+def test_a_plaque_of_a_signs_words_and_more_is_not_read_as_that_sign(library):
+    """A plaque holding a sign's words and another (a tester's مجمع أمني جديد) matched the sign in
+    every strip, the extra word lying beyond the sign's outline where the strips do not look: it was
+    answered as the sign. Beyond its sides the plaque's paper and its text now say they go on; the
+    sign itself, and the sign beside a plaque of another word, are still read."""
+    words = {"مجمع أمني جديد": "left", "جديد مجمع أمني": "right", "مجمع أمني\nجديد": "below"}
+    for k, (text, side) in enumerate(words.items()):
+        rec = recognize(decoy_image(text, k), library, preset("default"))
+        assert rec.label is None and rec.pose is None, (text, rec.label)
+        first = rec.turned_down[0]
+        assert first.sign == "security_compound" and first.text.weakest > 0.9, (text, first)  # every strip matches
+        assert first.text.continued == (side,), (text, first.text)
+        assert rec.to_json("x")["turned_down"][0]["text_check"]["continued"] == [side]
+        reason = next(s.reason for a in rec.attempts for s in a.scores if s.sign == "security_compound" and s.reason)
+        assert reason.startswith(f"the plaque and its text go on beyond security_compound's {side} side"), reason
+    sign = library["security_compound"]
+    beside = render_plaque(plaque_of("جديد"), PLAQUE_AT - (200, 0), shaded_wall(0), 0.92)
+    image = like_a_camera(render_plaque(sign, PLAQUE_AT + (40, 0), beside, 0.92), 0.7, 0)
+    rec = recognize(image, library, preset("default"))
+    assert rec.label == sign.id and rec.text_check.continued == (), rec.text_check
+
+
 def test_the_search_goes_on_past_a_plaque_of_other_words_to_the_sign(library):
     """A larger plaque of other words is searched first (the largest blob); turned down, the
     search goes on and finds the sign beside it."""
@@ -195,9 +217,10 @@ def test_a_sign_wider_than_twice_the_frame_is_answered(library):
 
 
 def test_a_sign_read_from_part_of_its_text_says_so(library):
-    """A plaque cut by the frame is judged on the text in view: مكتب رئيس القسم with only رئيس in
-    the image reads as رئيس الأمن, as the sign itself cut there does. Both were answered with no
-    word of it; the answer now says how much of the text it rests on."""
+    """A plaque cut by the frame is judged on the text in view: the sign cut there was answered
+    with no word of it; the answer now says how much of the text it rests on. مكتب رئيس القسم with
+    only رئيس in the image read as رئيس الأمن too, until the check looked beyond the sign's sides:
+    مكتب goes on at its right."""
     def seen_from(x0: float, plaque) -> object:
         at = np.array([[x0, 150], [x0 + 500, 160], [x0 + 496, 360], [x0 + 4, 350]], float)
         return recognize(like_a_camera(render_plaque(plaque, at, shaded_wall(3), 0.92), 0.7, 3), library,
@@ -207,11 +230,14 @@ def test_a_sign_read_from_part_of_its_text_says_so(library):
     partial = "of the 6 strips of chief_of_security's text are in the image"
     whole = seen_from(100, sign)
     assert whole.label == sign.id and not any(partial in w for w in whole.warnings), whole.warnings
-    for plaque in (sign, plaque_of("مكتب رئيس القسم")):
-        rec = seen_from(-200, plaque)
-        seen = rec.text_check.seen
-        assert rec.label == sign.id and 3 <= seen <= 4, rec.text_check
-        assert f"only {seen} {partial}" in " ".join(rec.warnings), rec.warnings
+    rec = seen_from(-200, sign)
+    seen = rec.text_check.seen
+    assert rec.label == sign.id and 3 <= seen <= 4 and not rec.text_check.continued, rec.text_check
+    assert f"only {seen} {partial}" in " ".join(rec.warnings), rec.warnings
+    rec = seen_from(-200, plaque_of("مكتب رئيس القسم"))
+    assert rec.label is None and rec.turned_down[0].text.continued == ("right",), rec.turned_down
+    reason = next(s.reason for s in rec.scores if s.sign == sign.id)
+    assert "go on beyond chief_of_security's right side" in reason, rec.scores
 
 
 def test_a_plaque_cut_across_its_text_is_checked_on_the_text_in_view(library):
