@@ -20,7 +20,7 @@ import numpy as np
 import yaml
 
 from .image import resize_map
-from .jsonfile import EMPTY_FILE
+from .jsonfile import EMPTY_FILE, key_given_twice
 
 ASSUMED_HFOV_DEG = 60.0
 # Fields of view one may assume: rectilinear lenses from a long telephoto to an ultra-wide.
@@ -128,7 +128,8 @@ class _CameraYamlLoader(yaml.SafeLoader):
     *name` merges), as a camera file has no use for them and they let a few hundred bytes stand for
     billions of values (a 421-byte file of nested aliases took 19 s and 3 GB to read); values nested
     more than MAX_NESTING deep, which PyYAML's recursion would take past Python's stack; more than
-    MAX_YAML_NODES values; and whole numbers too long for Python to read (a ValueError's traceback).
+    MAX_YAML_NODES values; whole numbers too long for Python to read (a ValueError's traceback); and a
+    key given twice in one mapping, of which PyYAML keeps the last without a word.
     Documents are composed one at a time: those after the first are not read."""
 
     def __init__(self, stream: str) -> None:
@@ -161,6 +162,20 @@ class _CameraYamlLoader(yaml.SafeLoader):
             mark = node.start_mark
             raise CameraError(f"line {mark.line + 1}, column {mark.column + 1}: a whole number of {len(node.value)} "
                               "characters, which no camera value has") from None
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        """The mapping `node` as a dict; CameraError saying where a key is given twice."""
+        keys = set()
+        # The keys as written, before flattening adds those of a `<<` merge, which the ones written override.
+        for key_node, _ in node.value:
+            # Other keys are merges, or lists and mappings, which PyYAML refuses as unhashable.
+            if isinstance(key_node, yaml.ScalarNode) and key_node.tag != "tag:yaml.org,2002:merge":
+                key = self.construct_object(key_node)
+                if key in keys:
+                    mark = key_node.start_mark
+                    raise CameraError(f"line {mark.line + 1}, column {mark.column + 1}: {key_given_twice(key)}")
+                keys.add(key)
+        return super().construct_mapping(node, deep)
 
 
 _CameraYamlLoader.add_constructor("tag:yaml.org,2002:int", _CameraYamlLoader.construct_yaml_int)
@@ -748,12 +763,23 @@ def _filestorage_value(node: cv2.FileNode, depth: int = 1) -> object:
     if node.isSeq():
         return [_filestorage_value(node.at(i), depth + 1) for i in range(node.size())]
     if node.isMap():
+        keys = _filestorage_keys(node)  # an OpenCV matrix's too: its rows or data given twice
         try:
             return node.mat()
         except cv2.error:  # a mapping that is no matrix, or a matrix with data that are not numbers: its
             # fields, which _matrix reads as ROS's {rows, cols, data} and names what is wrong in them
-            return {k: _filestorage_value(node.getNode(k), depth + 1) for k in node.keys()}
+            return {k: _filestorage_value(node.getNode(k), depth + 1) for k in keys}
     return None
+
+
+def _filestorage_keys(node: cv2.FileNode) -> tuple[str, ...]:
+    """The keys of the FileStorage mapping `node`; CameraError for a key given twice, of which OpenCV reads
+    the first without a word."""
+    keys = node.keys()
+    twice = next((key for i, key in enumerate(keys) if key in keys[:i]), None)
+    if twice is not None:
+        raise CameraError(key_given_twice(twice))
+    return keys
 
 
 def _xml_declaration_first(text: str) -> str:
@@ -801,7 +827,7 @@ def _filestorage_fields(text: str, syntax: str) -> dict:
         raise exc.__cause__ from None
     try:
         root = fs.root()
-        return {k: _filestorage_value(root.getNode(k)) for k in root.keys()}
+        return {k: _filestorage_value(root.getNode(k)) for k in _filestorage_keys(root)}
     finally:
         fs.release()
 

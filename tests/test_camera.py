@@ -498,6 +498,24 @@ def assert_one_line_error(p: Path, text: str, message: str) -> None:
 
 
 # `kalibr_calibrate_cameras --models pinhole-radtan` for one camera: camchain.yaml
+@pytest.mark.parametrize("text, message", [
+    (ROS + "image_width: 1280\n", "line 7, column 1: the key 'image_width' is given twice"),
+    (ROS.replace("rows: 3, cols: 3", "rows: 3, rows: 3"), "line 4, column 26: the key 'rows' is given twice"),
+    ('{"fx": 500, "fy": 500, "cx": 320, "cy": 240, "fx": 550}', "line 1, column 46: the key 'fx' is given twice"),
+    (OPENCV_FS + "image_width: 1280\n", "the key 'image_width' is given twice"),
+    (OPENCV_FS.replace("   cols: 3\n", "   cols: 3\n   rows: 3\n"), "the key 'rows' is given twice"),
+    (OPENCV_XML.replace("<image_height>", "<image_width>1280</image_width>\n<image_height>"),
+     "the key 'image_width' is given twice"),
+], ids=["ros", "ros nested", "json", "opencv yaml", "opencv matrix", "opencv xml"])
+def test_a_key_given_twice_is_refused_naming_it(tmp_path, text, message):
+    """PyYAML read the last of the two, OpenCV the first: a value pasted below the old one was used or not,
+    without a word."""
+    p = tmp_path / "cam.yaml"
+    p.write_text(text)
+    with pytest.raises(CameraError, match=re.escape(f"{p}: {message} in one object: keep the one meant")):
+        load_camera(p)
+
+
 KALIBR = """cam0:
   cam_overlaps: []
   camera_model: pinhole
