@@ -689,6 +689,10 @@ def _sensor_window(fields: dict, sensor: Camera) -> SensorWindow | None:
         if not isinstance(roi, dict) or set(roi) - {"do_rectify"} != set(ROI_KEYS):
             raise CameraError(f"roi must be x_offset, y_offset, width and height, in px of the full, unbinned sensor "
                               f"(ROS's CameraInfo.roi); got {reprlib.repr(roi)}")
+        null = next((key for key in ROI_KEYS if roi[key] is None), None)
+        if null is not None:  # ROS's "all of the sensor" is all zeros; nulls are values lost on the way
+            raise CameraError(f"roi.{null} is null: give the roi as whole numbers of px (all zeros for the whole "
+                              "sensor), or leave the roi out")
         roi = tuple(_whole(roi[key], f"roi.{key}") for key in ROI_KEYS)
     if roi is None or not any(roi):  # ROS's all-zero roi is the whole sensor
         if binning == (1, 1):

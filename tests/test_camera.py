@@ -983,6 +983,10 @@ def test_do_rectify_does_not_change_the_raw_images_camera(tmp_path):
     ((320, 240, 640, 480), (0, 0), None, "roi and binning are in px of the full, unbinned sensor: give its "
                                          "image_width and image_height"),
     ((-5, 0, 640, 480), (0, 0), (1280, 960), "roi.x_offset must be a whole number of px from 0 to 2**31 - 1; got -5"),
+    # read as the whole sensor (ROS's all zeros), and one null among numbers was a TypeError's traceback
+    ((None, None, None, None), (0, 0), (1280, 960), "roi.x_offset is null: give the roi as whole numbers of px (all "
+                                                    "zeros for the whole sensor), or leave the roi out"),
+    ((0, 0, 640, None), (0, 0), (1280, 960), "roi.height is null"),
 ])
 def test_a_roi_or_binning_the_sensor_cannot_have_is_refused(roi, binning, size, message):
     data = {"K": synthetic_camera((1280, 960)).K.tolist(), "binning_x": binning[0], "binning_y": binning[1],
