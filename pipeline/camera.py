@@ -258,13 +258,16 @@ class Camera:
 
         Returns the camera and warnings for people (empty when the size matches). CameraError when
         the image's aspect differs from the calibration's by more than MAX_ASPECT_CHANGE: a photo
-        turned on its side, cropped or re-framed, whose intrinsics no scaling gives.
+        turned on its side, cropped or re-framed, whose intrinsics no scaling gives; and for a camera of
+        part of a sensor (`window`) at any other size than its own.
         """
         if self.width is None or self.height is None:
             return self, self._check_unsized_fit(width, height)
         change = size_change((self.width, self.height), (width, height))
         if change == "same":
             return self, []
+        if self.window is not None:
+            raise CameraError(self.window.misfit(width, height))
         if change == "turned":  # a portrait phone photo
             raise CameraError(f"this {width}x{height} px image is the camera's {self.width}x{self.height} px turned "
                               "on its side: rotate the photo back, or calibrate the camera held this way")
@@ -347,6 +350,24 @@ class SensorWindow:
         (x, y, w, h), (bx, by) = self.roi, self.binning
         to_image = np.array([[1 / bx, 0, (0.5 - x) / bx - 0.5], [0, 1 / by, (0.5 - y) / by - 0.5], [0, 0, 1]])
         return Camera(to_image @ self.sensor.K, self.sensor.dist, w // bx, h // by, self.sensor.source, self)
+
+    def misfit(self, width: int, height: int) -> str:
+        """Why an image of `width` x `height` px, another size than this window's images, cannot be taken
+        with its camera, and what to do. Scaling it would be wrong: the whole sensor's image scaled to
+        the window's intrinsics put the principal point thousands of px off, and the pose metres off."""
+        (x, y, w, h), (bx, by) = self.roi, self.binning
+        sensor = (self.sensor.width, self.sensor.height)
+        given = ([f"roi {w}x{h} px at ({x}, {y})"] if (x, y, w, h) != (0, 0, *sensor) else []) + (
+            [f"binning {bx}x{by}"] if (bx, by) != (1, 1) else [])
+        keys = " and ".join(part.split()[0] for part in given)
+        if size_change(sensor, (width, height)) in ("same", "scaled"):
+            advice = f"for images of the whole sensor (at any resolution), leave the {keys} out of the file"
+        else:
+            advice = f"give it images as read out with that {keys}, or a camera file for {width}x{height} px images"
+        verb = "make" if len(given) > 1 else "makes"
+        return (f"this {width}x{height} px image is not the size of the images the camera file describes: its "
+                f"{' and '.join(given)} of the {sensor[0]}x{sensor[1]} px sensor {verb} them {w // bx}x{h // by} px, "
+                f"and its intrinsics are for that size only; {advice}")
 
 
 def _field_of_view_deg(f: float, c: float, side: float | None) -> float:

@@ -964,6 +964,34 @@ def test_part_of_the_sensor_gives_the_pose_and_corners_the_whole_sensor_does(tmp
     assert np.linalg.norm(rec.pose.camera_position - truth) < 0.005
 
 
+@pytest.mark.parametrize("roi, binning, size, message", [
+    ((10, 0, 400, 300), (0, 0), (1280, 960), "its roi 400x300 px at (10, 0) of the 1280x960 px sensor makes them "
+                                             "400x300 px, and its intrinsics are for that size only; for images of the "
+                                             "whole sensor (at any resolution), leave the roi out of the file"),
+    ((1200, 900, 80, 60), (0, 0), (640, 480), "makes them 80x60 px, and its intrinsics are for that size only; for "
+                                              "images of the whole sensor (at any resolution), leave the roi out"),
+    ((0, 0, 0, 0), (2, 0), (640, 480), "its binning 2x1 of the 1280x960 px sensor makes them 640x960 px, and its "
+                                       "intrinsics are for that size only; for images of the whole sensor (at any "
+                                       "resolution), leave the binning out of the file"),
+    ((0, 0, 1280, 960), (2, 2), (300, 400), "its binning 2x2 of the 1280x960 px sensor makes them 640x480 px, and its "
+                                            "intrinsics are for that size only; give it images as read out with that "
+                                            "binning, or a camera file for 300x400 px images"),
+    ((10, 0, 400, 300), (2, 2), (400, 300), "its roi 400x300 px at (10, 0) and binning 2x2 of the 1280x960 px sensor "
+                                            "make them 200x150 px"),
+], ids=["whole sensor", "corner roi, sensor scaled", "binning across only", "binned, turned", "roi binned"])
+def test_the_camera_of_part_of_a_sensor_takes_only_images_of_its_size(roi, binning, size, message):
+    """The whole sensor's 1280x960 image was taken with a 400x300 roi's camera scaled by 3.2 ("calibrated at
+    400x300", which the file does not say), its principal point at 2085 px, outside the image, and the sign
+    7.8 m away, not 2.3 m; an 80x60 roi's, scaled by 16, put it 40 m away."""
+    data = {"fx": 1100, "fy": 1096, "cx": 661.3, "cy": 472.7, "width": 1280, "height": 960, "binning_x": binning[0],
+            "binning_y": binning[1], "roi": dict(zip(("x_offset", "y_offset", "width", "height"), roi))}
+    camera = camera_from_json(data)
+    with pytest.raises(CameraError, match=re.escape(f"this {size[0]}x{size[1]} px image is not the size of the images "
+                                                    "the camera file describes: ")) as info:
+        camera.for_image(*size)
+    assert message in str(info.value)
+
+
 def test_do_rectify_does_not_change_the_raw_images_camera(tmp_path):
     """do_rectify asks consumers for a rectified roi; the image given is still the raw roi."""
     K = synthetic_camera((1280, 960)).K
