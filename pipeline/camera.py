@@ -502,19 +502,28 @@ def check_hfov(hfov_deg: float) -> float:
     return float(hfov_deg)
 
 
-def assumed_camera(width: int, height: int, hfov_deg: float = ASSUMED_HFOV_DEG, note: str | None = None) -> Camera:
-    """A distortion-free camera with square pixels, centred principal point and `hfov_deg` horizontal FOV.
+def assumed_camera(width: int, height: int, hfov_deg: float = ASSUMED_HFOV_DEG, note: str | None = None,
+                   sideways: bool = False) -> Camera:
+    """A distortion-free camera for `width` x `height` px images, with square pixels, centred principal point
+    and `hfov_deg` horizontal FOV: across the sensor's width, which is the image's height when it is shown
+    `sideways` (a photo its EXIF orientation turns a quarter turn), so that however it was held the
+    camera is the same.
 
     `note`, said in brackets after the field of view in `source` (and so wherever the assumption is
     reported): why nothing better was had, e.g. the EXIF focal length that was refused.
     """
-    f = (width / 2) / math.tan(math.radians(hfov_deg) / 2)
+    across, down = (height, width) if sideways else (width, height)
+    f = (across / 2) / math.tan(math.radians(hfov_deg) / 2)
     # A strip far taller than wide (1 x 4000 px) would see more than a pinhole camera can down its
     # height, and the camera's own check refused it, blaming focal lengths in mm.
     tallest = MAX_FOV_DEG - 1
-    if (height / 2) / f > math.tan(math.radians(tallest) / 2):
-        f = (height / 2) / math.tan(math.radians(tallest) / 2)
-        note = ", ".join(filter(None, (note, f"narrower, as the image is {tallest:g}° tall")))
+    if (down / 2) / f > math.tan(math.radians(tallest) / 2):
+        f = (down / 2) / math.tan(math.radians(tallest) / 2)
+        side = "wide" if sideways else "tall"
+        note = ", ".join(filter(None, (note, f"narrower, as the image is {tallest:g}° {side}")))
+    if sideways:
+        note = ", ".join(filter(None, ("across the photo's height, the sensor's width, as its EXIF orientation shows "
+                                       "it on its side", note)))
     K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]])
     source = f"assumed {hfov_deg:g}° horizontal field of view" + (f" ({note})" if note else "")
     return Camera(K, np.zeros(5), width, height, source)
