@@ -387,15 +387,11 @@ def read_upload(file: FormFile, unnamed: str = "upload") -> tuple[str, bytes]:
     return display_name(file.filename or unnamed), file.file.read()
 
 
-def camera_file_fields(body: bytes) -> dict | None:
-    """The JSON object `body` when it has none of fx, fy, cx, cy: a camera file's keys (`K`,
-    `camera_matrix`, ...), as scripts holding OpenCV's or ROS's JSON send them; None for anything
-    else, which is read as `CameraModel`."""
-    try:
-        data = parse_json(body)
-    except JsonError:  # said as CameraModel's error: where in the body, and why
-        return None
-    return data if isinstance(data, dict) and not data.keys() & {"fx", "fy", "cx", "cy"} else None
+def is_camera_file(data: object) -> bool:
+    """Whether the JSON document `data` is an object with none of fx, fy, cx, cy: a camera file's keys (`K`,
+    `camera_matrix`, ...), as scripts holding OpenCV's or ROS's JSON send them; anything else is read as
+    `CameraModel`."""
+    return isinstance(data, dict) and not data.keys() & {"fx", "fy", "cx", "cy"}
 
 
 def camera_from_upload(name: str, data: bytes) -> Camera:
@@ -422,8 +418,6 @@ def _error_handler(code: int):
 
 def _problem(error: dict) -> str:
     """One pydantic validation error as `where: what`, without the input."""
-    if error["type"] == "json_invalid":  # pydantic's own parse of a body (PUT /api/camera): its error says where
-        return f"the body is not valid JSON: {error['ctx']['error']}"
     return f"{'.'.join(map(str, error['loc']))}: {error['msg']}"
 
 
@@ -780,14 +774,15 @@ async def put_camera(request: Request, workspace: WorkspaceDep) -> CameraOut:
             name, data = await run_in_threadpool(read_upload, the_file(form), "camera")
         camera = await run_in_threadpool(camera_from_upload, name, data)
     elif content_type.startswith("application/json"):
-        body = await request.body()
+        # Read as every route reads its body (JsonBodyRequest), not by pydantic's parser, which takes the
+        # last of a key given twice without a word.
+        data = await request.json()
         try:
-            camera = camera_from_json(CameraModel.model_validate_json(body).model_dump(), source="json")
+            camera = camera_from_json(CameraModel.model_validate(data).model_dump(), source="json")
         except ValidationError as exc:
-            fields = camera_file_fields(body)
-            if fields is None:  # located in the body, as FastAPI locates the errors of the bodies it parses
+            if not is_camera_file(data):  # located in the body, as FastAPI locates the errors of the bodies it parses
                 raise RequestValidationError([{**e, "loc": ("body", *e["loc"])} for e in exc.errors()]) from None
-            camera = camera_from_json(fields, source="json")
+            camera = camera_from_json(data, source="json")
     else:
         raise HTTPException(status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
                             "send JSON intrinsics {fx, fy, cx, cy, dist, width, height} "

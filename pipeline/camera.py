@@ -20,7 +20,7 @@ import numpy as np
 import yaml
 
 from .image import resize_map
-from .jsonfile import EMPTY_FILE
+from .jsonfile import EMPTY_FILE, key_given_twice
 
 ASSUMED_HFOV_DEG = 60.0
 # Fields of view one may assume: rectilinear lenses from a long telephoto to an ultra-wide.
@@ -128,7 +128,8 @@ class _CameraYamlLoader(yaml.SafeLoader):
     *name` merges), as a camera file has no use for them and they let a few hundred bytes stand for
     billions of values (a 421-byte file of nested aliases took 19 s and 3 GB to read); values nested
     more than MAX_NESTING deep, which PyYAML's recursion would take past Python's stack; more than
-    MAX_YAML_NODES values; and whole numbers too long for Python to read (a ValueError's traceback).
+    MAX_YAML_NODES values; whole numbers too long for Python to read (a ValueError's traceback); and a
+    key given twice in one mapping, of which PyYAML keeps the last without a word.
     Documents are composed one at a time: those after the first are not read."""
 
     def __init__(self, stream: str) -> None:
@@ -161,6 +162,20 @@ class _CameraYamlLoader(yaml.SafeLoader):
             mark = node.start_mark
             raise CameraError(f"line {mark.line + 1}, column {mark.column + 1}: a whole number of {len(node.value)} "
                               "characters, which no camera value has") from None
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        """The mapping `node` as a dict; CameraError saying where a key is given twice."""
+        keys = set()
+        # The keys as written, before flattening adds those of a `<<` merge, which the ones written override.
+        for key_node, _ in node.value:
+            # Other keys are merges, or lists and mappings, which PyYAML refuses as unhashable.
+            if isinstance(key_node, yaml.ScalarNode) and key_node.tag != "tag:yaml.org,2002:merge":
+                key = self.construct_object(key_node)
+                if key in keys:
+                    mark = key_node.start_mark
+                    raise CameraError(f"line {mark.line + 1}, column {mark.column + 1}: {key_given_twice(key)}")
+                keys.add(key)
+        return super().construct_mapping(node, deep)
 
 
 _CameraYamlLoader.add_constructor("tag:yaml.org,2002:int", _CameraYamlLoader.construct_yaml_int)
@@ -243,13 +258,16 @@ class Camera:
 
         Returns the camera and warnings for people (empty when the size matches). CameraError when
         the image's aspect differs from the calibration's by more than MAX_ASPECT_CHANGE: a photo
-        turned on its side, cropped or re-framed, whose intrinsics no scaling gives.
+        turned on its side, cropped or re-framed, whose intrinsics no scaling gives; and for a camera of
+        part of a sensor (`window`) at any other size than its own.
         """
         if self.width is None or self.height is None:
             return self, self._check_unsized_fit(width, height)
         change = size_change((self.width, self.height), (width, height))
         if change == "same":
             return self, []
+        if self.window is not None:
+            raise CameraError(self.window.misfit(width, height))
         if change == "turned":  # a portrait phone photo
             raise CameraError(f"this {width}x{height} px image is the camera's {self.width}x{self.height} px turned "
                               "on its side: rotate the photo back, or calibrate the camera held this way")
@@ -332,6 +350,24 @@ class SensorWindow:
         (x, y, w, h), (bx, by) = self.roi, self.binning
         to_image = np.array([[1 / bx, 0, (0.5 - x) / bx - 0.5], [0, 1 / by, (0.5 - y) / by - 0.5], [0, 0, 1]])
         return Camera(to_image @ self.sensor.K, self.sensor.dist, w // bx, h // by, self.sensor.source, self)
+
+    def misfit(self, width: int, height: int) -> str:
+        """Why an image of `width` x `height` px, another size than this window's images, cannot be taken
+        with its camera, and what to do. Scaling it would be wrong: the whole sensor's image scaled to
+        the window's intrinsics put the principal point thousands of px off, and the pose metres off."""
+        (x, y, w, h), (bx, by) = self.roi, self.binning
+        sensor = (self.sensor.width, self.sensor.height)
+        given = ([f"roi {w}x{h} px at ({x}, {y})"] if (x, y, w, h) != (0, 0, *sensor) else []) + (
+            [f"binning {bx}x{by}"] if (bx, by) != (1, 1) else [])
+        keys = " and ".join(part.split()[0] for part in given)
+        if size_change(sensor, (width, height)) in ("same", "scaled"):
+            advice = f"for images of the whole sensor (at any resolution), leave the {keys} out of the file"
+        else:
+            advice = f"give it images as read out with that {keys}, or a camera file for {width}x{height} px images"
+        verb = "make" if len(given) > 1 else "makes"
+        return (f"this {width}x{height} px image is not the size of the images the camera file describes: its "
+                f"{' and '.join(given)} of the {sensor[0]}x{sensor[1]} px sensor {verb} them {w // bx}x{h // by} px, "
+                f"and its intrinsics are for that size only; {advice}")
 
 
 def _field_of_view_deg(f: float, c: float, side: float | None) -> float:
@@ -466,19 +502,28 @@ def check_hfov(hfov_deg: float) -> float:
     return float(hfov_deg)
 
 
-def assumed_camera(width: int, height: int, hfov_deg: float = ASSUMED_HFOV_DEG, note: str | None = None) -> Camera:
-    """A distortion-free camera with square pixels, centred principal point and `hfov_deg` horizontal FOV.
+def assumed_camera(width: int, height: int, hfov_deg: float = ASSUMED_HFOV_DEG, note: str | None = None,
+                   sideways: bool = False) -> Camera:
+    """A distortion-free camera for `width` x `height` px images, with square pixels, centred principal point
+    and `hfov_deg` horizontal FOV: across the sensor's width, which is the image's height when it is shown
+    `sideways` (a photo its EXIF orientation turns a quarter turn), so that however it was held the
+    camera is the same.
 
     `note`, said in brackets after the field of view in `source` (and so wherever the assumption is
     reported): why nothing better was had, e.g. the EXIF focal length that was refused.
     """
-    f = (width / 2) / math.tan(math.radians(hfov_deg) / 2)
+    across, down = (height, width) if sideways else (width, height)
+    f = (across / 2) / math.tan(math.radians(hfov_deg) / 2)
     # A strip far taller than wide (1 x 4000 px) would see more than a pinhole camera can down its
     # height, and the camera's own check refused it, blaming focal lengths in mm.
     tallest = MAX_FOV_DEG - 1
-    if (height / 2) / f > math.tan(math.radians(tallest) / 2):
-        f = (height / 2) / math.tan(math.radians(tallest) / 2)
-        note = ", ".join(filter(None, (note, f"narrower, as the image is {tallest:g}° tall")))
+    if (down / 2) / f > math.tan(math.radians(tallest) / 2):
+        f = (down / 2) / math.tan(math.radians(tallest) / 2)
+        side = "wide" if sideways else "tall"
+        note = ", ".join(filter(None, (note, f"narrower, as the image is {tallest:g}° {side}")))
+    if sideways:
+        note = ", ".join(filter(None, ("across the photo's height, the sensor's width, as its EXIF orientation shows "
+                                       "it on its side", note)))
     K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]])
     source = f"assumed {hfov_deg:g}° horizontal field of view" + (f" ({note})" if note else "")
     return Camera(K, np.zeros(5), width, height, source)
@@ -674,6 +719,10 @@ def _sensor_window(fields: dict, sensor: Camera) -> SensorWindow | None:
         if not isinstance(roi, dict) or set(roi) - {"do_rectify"} != set(ROI_KEYS):
             raise CameraError(f"roi must be x_offset, y_offset, width and height, in px of the full, unbinned sensor "
                               f"(ROS's CameraInfo.roi); got {reprlib.repr(roi)}")
+        null = next((key for key in ROI_KEYS if roi[key] is None), None)
+        if null is not None:  # ROS's "all of the sensor" is all zeros; nulls are values lost on the way
+            raise CameraError(f"roi.{null} is null: give the roi as whole numbers of px (all zeros for the whole "
+                              "sensor), or leave the roi out")
         roi = tuple(_whole(roi[key], f"roi.{key}") for key in ROI_KEYS)
     if roi is None or not any(roi):  # ROS's all-zero roi is the whole sensor
         if binning == (1, 1):
@@ -748,12 +797,23 @@ def _filestorage_value(node: cv2.FileNode, depth: int = 1) -> object:
     if node.isSeq():
         return [_filestorage_value(node.at(i), depth + 1) for i in range(node.size())]
     if node.isMap():
+        keys = _filestorage_keys(node)  # an OpenCV matrix's too: its rows or data given twice
         try:
             return node.mat()
         except cv2.error:  # a mapping that is no matrix, or a matrix with data that are not numbers: its
             # fields, which _matrix reads as ROS's {rows, cols, data} and names what is wrong in them
-            return {k: _filestorage_value(node.getNode(k), depth + 1) for k in node.keys()}
+            return {k: _filestorage_value(node.getNode(k), depth + 1) for k in keys}
     return None
+
+
+def _filestorage_keys(node: cv2.FileNode) -> tuple[str, ...]:
+    """The keys of the FileStorage mapping `node`; CameraError for a key given twice, of which OpenCV reads
+    the first without a word."""
+    keys = node.keys()
+    twice = next((key for i, key in enumerate(keys) if key in keys[:i]), None)
+    if twice is not None:
+        raise CameraError(key_given_twice(twice))
+    return keys
 
 
 def _xml_declaration_first(text: str) -> str:
@@ -801,7 +861,7 @@ def _filestorage_fields(text: str, syntax: str) -> dict:
         raise exc.__cause__ from None
     try:
         root = fs.root()
-        return {k: _filestorage_value(root.getNode(k)) for k in root.keys()}
+        return {k: _filestorage_value(root.getNode(k)) for k in _filestorage_keys(root)}
     finally:
         fs.release()
 

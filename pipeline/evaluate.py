@@ -43,8 +43,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .camera import Camera, CameraError, load_camera
-from .exif import turned_camera
+from .camera import ASSUMED_HFOV_DEG, Camera, CameraError, load_camera
+from .exif import ExifCamera
 from .features import library_features
 from .image import ImageError, decode_image, exif_orientation, read_file
 from .jsonfile import read_json
@@ -295,7 +295,7 @@ def summarize(results: Sequence[ImageResult]) -> Summary:
     )
 
 
-Job = tuple[str, Sample, Camera | None]  # dataset name, sample, camera (None: the pipeline's assumed one)
+Job = tuple[str, Sample, Camera | None]  # dataset name, sample, camera (None: an assumed field of view)
 # Called with an image file's bytes and name before they are decoded; raises ImageError to refuse
 # the image, e.g. when its header claims more pixels than memory allows (a decompression bomb).
 ImageCheck = Callable[[bytes, str], object]
@@ -309,8 +309,10 @@ def _measure(job: Job, library: Library, settings: Settings, check_image: ImageC
         if check_image is not None:
             check_image(data, str(sample.path))
         image = decode_image(data, str(sample.path))
-        if camera is not None:  # it describes the pixels as stored, which the EXIF orientation turned
-            camera = turned_camera(camera, exif_orientation(data), image.shape[1], image.shape[0])
+        # The dataset's camera describes the pixels as stored, and the assumed field of view spans the sensor as it
+        # stored them: either is turned as the photo's EXIF orientation turned it.
+        orientation = ExifCamera(orientation=exif_orientation(data))
+        camera = orientation.camera_for(camera, image.shape[1], image.shape[0], ASSUMED_HFOV_DEG)
         rec = run_pipeline(str(sample.path), image, library, settings, camera)
     # CameraError: the camera cannot be turned or scaled to this image; PipelineError: a failure inside the pipeline
     except (ImageError, CameraError, PipelineError) as exc:
@@ -537,7 +539,8 @@ def measure(datasets: Sequence[Dataset], library: Library, settings: Settings, c
     stop after their image.
 
     `camera`, when given, is used for every dataset; otherwise each dataset's own camera file,
-    and without one the pipeline's assumed camera.
+    and without one a 60° horizontal field of view across the sensor as it stored each photo
+    (`ExifCamera.camera_for`).
     `workers`: processes sharing the images (default `CORES`, every core), each on one OpenCV thread,
     which is what the per-image times then measure; 1 runs them in this process.
     `check_image(data, name)`, when given, sees each file's bytes before decoding and may refuse the

@@ -140,11 +140,12 @@ class ExifCamera(NamedTuple):
     def camera_for(self, camera: Camera | None, width: int, height: int, hfov_deg: float) -> Camera:
         """The intrinsics the photo, decoded to `width` x `height` px, is recognised with: `camera` (a camera
         file's) turned as the photo was (`turned_camera`); without one the EXIF's camera, else one of `hfov_deg`
-        horizontal field of view (saying so when the EXIF records a focal length that was refused).
+        horizontal field of view across the sensor as it stored the photo, as a focal length for the camera
+        however it was held (saying so when the EXIF records a focal length that was refused).
         CameraError when `camera` cannot be turned, or does not fit the photo as stored."""
         if camera is not None:
             return turned_camera(camera, self.orientation, width, height)
-        return self.camera or assumed_camera(width, height, hfov_deg, self.ignored)
+        return self.camera or assumed_camera(width, height, hfov_deg, self.ignored, self.orientation in _SIDEWAYS)
 
 
 # The EXIF orientations that turn a photo, and how: the 2x2 matrix A taking a point's (x, y) in the
@@ -153,6 +154,15 @@ _TURNS = {3: (np.array([[-1, 0], [0, -1]]), "a half turn"),
           6: (np.array([[0, -1], [1, 0]]), "a quarter turn clockwise"),
           8: (np.array([[0, 1], [-1, 0]]), "a quarter turn anticlockwise")}
 _MIRRORS = {2: "left to right", 4: "top to bottom", 5: "across its diagonal", 7: "across its other diagonal"}
+# The EXIF orientations that show a photo on its side, its width the sensor's height: the quarter turns
+# and the mirrors across a diagonal.
+_SIDEWAYS = (5, 6, 7, 8)
+
+
+def stored_size(orientation: int, width: int, height: int) -> tuple[int, int]:
+    """(width, height) px of the pixels as the camera stored them, of a photo of EXIF `orientation`
+    shown `width` x `height` px."""
+    return (height, width) if orientation in _SIDEWAYS else (width, height)
 
 
 def turned_camera(camera: Camera, orientation: int, width: int, height: int) -> Camera:
@@ -178,7 +188,7 @@ def turned_camera(camera: Camera, orientation: int, width: int, height: int) -> 
         return camera
     A, words = _TURNS[orientation]
     quarter = A[0, 0] == 0
-    stored = (height, width) if quarter else (width, height)
+    stored = stored_size(orientation, width, height)
     try:
         camera.for_image(*stored)
     except CameraError as exc:
@@ -214,12 +224,14 @@ def exif_camera(data: bytes, width: int, height: int) -> ExifCamera:
     `width`, `height` are of the image as decoded (after EXIF orientation, which the result keeps
     for a camera file's intrinsics: `ExifCamera.camera_for`). `source` names the EXIF fields used,
     e.g. "EXIF focal length 4.2 mm (35 mm equiv 26 mm)". Centred with square pixels, the camera is
-    the same however the photo was turned.
+    the same however the photo was turned: its focal length is held to PLAUSIBLE_HFOV_DEG across the
+    sensor's width, as the pixels are stored.
     """
     lens, orientation = read_lens_exif(data), exif_orientation(data)
-    f = focal_px(lens, width, height) if lens is not None else None
+    stored = stored_size(orientation, width, height)
+    f = focal_px(lens, *stored) if lens is not None else None
     if f is None:
-        return ExifCamera(None, ignored_focal(lens, width, height) if lens is not None else None, orientation)
+        return ExifCamera(None, ignored_focal(lens, *stored) if lens is not None else None, orientation)
     parts = [f"focal length {lens.focal_mm:.3g} mm"] if lens.focal_mm else []
     if lens.focal_35mm:
         parts.append(f"35 mm equiv {lens.focal_35mm:.3g} mm")

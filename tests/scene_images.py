@@ -188,14 +188,17 @@ def turned_photos(*orientations: int) -> dict[int, bytes]:
     source = (rays @ ideal.K.T)[..., :2].astype(np.float32)  # where each of the lens's pixels looks in the render
     seen = cv2.remap(cv2.imread(str(SAMPLE_SCENES / TURNED_SCENE)), source[..., 0], source[..., 1], cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_REPLICATE)
-    photos = {}
-    for orientation in orientations:
-        exif = Image.Exif()
-        exif[0x0112] = orientation
-        out = io.BytesIO()
-        Image.fromarray(seen[..., ::-1]).save(out, "JPEG", exif=exif.tobytes(), quality=95)
-        photos[orientation] = out.getvalue()
-    return photos
+    out = io.BytesIO()
+    Image.fromarray(seen[..., ::-1]).save(out, "JPEG", quality=95)
+    return {orientation: with_orientation(out.getvalue(), orientation) for orientation in orientations}
+
+
+def with_orientation(jpeg: bytes, orientation: int) -> bytes:
+    """`jpeg`, its data as it is, with an EXIF APP1 giving `orientation` after its start of image."""
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    app1 = exif.tobytes()  # "Exif\0\0" and the TIFF block
+    return jpeg[:2] + b"\xff\xe1" + (len(app1) + 2).to_bytes(2, "big") + app1 + jpeg[2:]
 
 
 def turned_scene_position() -> np.ndarray:

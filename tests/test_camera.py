@@ -498,6 +498,24 @@ def assert_one_line_error(p: Path, text: str, message: str) -> None:
 
 
 # `kalibr_calibrate_cameras --models pinhole-radtan` for one camera: camchain.yaml
+@pytest.mark.parametrize("text, message", [
+    (ROS + "image_width: 1280\n", "line 7, column 1: the key 'image_width' is given twice"),
+    (ROS.replace("rows: 3, cols: 3", "rows: 3, rows: 3"), "line 4, column 26: the key 'rows' is given twice"),
+    ('{"fx": 500, "fy": 500, "cx": 320, "cy": 240, "fx": 550}', "line 1, column 46: the key 'fx' is given twice"),
+    (OPENCV_FS + "image_width: 1280\n", "the key 'image_width' is given twice"),
+    (OPENCV_FS.replace("   cols: 3\n", "   cols: 3\n   rows: 3\n"), "the key 'rows' is given twice"),
+    (OPENCV_XML.replace("<image_height>", "<image_width>1280</image_width>\n<image_height>"),
+     "the key 'image_width' is given twice"),
+], ids=["ros", "ros nested", "json", "opencv yaml", "opencv matrix", "opencv xml"])
+def test_a_key_given_twice_is_refused_naming_it(tmp_path, text, message):
+    """PyYAML read the last of the two, OpenCV the first: a value pasted below the old one was used or not,
+    without a word."""
+    p = tmp_path / "cam.yaml"
+    p.write_text(text)
+    with pytest.raises(CameraError, match=re.escape(f"{p}: {message} in one object: keep the one meant")):
+        load_camera(p)
+
+
 KALIBR = """cam0:
   cam_overlaps: []
   camera_model: pinhole
@@ -946,6 +964,34 @@ def test_part_of_the_sensor_gives_the_pose_and_corners_the_whole_sensor_does(tmp
     assert np.linalg.norm(rec.pose.camera_position - truth) < 0.005
 
 
+@pytest.mark.parametrize("roi, binning, size, message", [
+    ((10, 0, 400, 300), (0, 0), (1280, 960), "its roi 400x300 px at (10, 0) of the 1280x960 px sensor makes them "
+                                             "400x300 px, and its intrinsics are for that size only; for images of the "
+                                             "whole sensor (at any resolution), leave the roi out of the file"),
+    ((1200, 900, 80, 60), (0, 0), (640, 480), "makes them 80x60 px, and its intrinsics are for that size only; for "
+                                              "images of the whole sensor (at any resolution), leave the roi out"),
+    ((0, 0, 0, 0), (2, 0), (640, 480), "its binning 2x1 of the 1280x960 px sensor makes them 640x960 px, and its "
+                                       "intrinsics are for that size only; for images of the whole sensor (at any "
+                                       "resolution), leave the binning out of the file"),
+    ((0, 0, 1280, 960), (2, 2), (300, 400), "its binning 2x2 of the 1280x960 px sensor makes them 640x480 px, and its "
+                                            "intrinsics are for that size only; give it images as read out with that "
+                                            "binning, or a camera file for 300x400 px images"),
+    ((10, 0, 400, 300), (2, 2), (400, 300), "its roi 400x300 px at (10, 0) and binning 2x2 of the 1280x960 px sensor "
+                                            "make them 200x150 px"),
+], ids=["whole sensor", "corner roi, sensor scaled", "binning across only", "binned, turned", "roi binned"])
+def test_the_camera_of_part_of_a_sensor_takes_only_images_of_its_size(roi, binning, size, message):
+    """The whole sensor's 1280x960 image was taken with a 400x300 roi's camera scaled by 3.2 ("calibrated at
+    400x300", which the file does not say), its principal point at 2085 px, outside the image, and the sign
+    7.8 m away, not 2.3 m; an 80x60 roi's, scaled by 16, put it 40 m away."""
+    data = {"fx": 1100, "fy": 1096, "cx": 661.3, "cy": 472.7, "width": 1280, "height": 960, "binning_x": binning[0],
+            "binning_y": binning[1], "roi": dict(zip(("x_offset", "y_offset", "width", "height"), roi))}
+    camera = camera_from_json(data)
+    with pytest.raises(CameraError, match=re.escape(f"this {size[0]}x{size[1]} px image is not the size of the images "
+                                                    "the camera file describes: ")) as info:
+        camera.for_image(*size)
+    assert message in str(info.value)
+
+
 def test_do_rectify_does_not_change_the_raw_images_camera(tmp_path):
     """do_rectify asks consumers for a rectified roi; the image given is still the raw roi."""
     K = synthetic_camera((1280, 960)).K
@@ -965,6 +1011,10 @@ def test_do_rectify_does_not_change_the_raw_images_camera(tmp_path):
     ((320, 240, 640, 480), (0, 0), None, "roi and binning are in px of the full, unbinned sensor: give its "
                                          "image_width and image_height"),
     ((-5, 0, 640, 480), (0, 0), (1280, 960), "roi.x_offset must be a whole number of px from 0 to 2**31 - 1; got -5"),
+    # read as the whole sensor (ROS's all zeros), and one null among numbers was a TypeError's traceback
+    ((None, None, None, None), (0, 0), (1280, 960), "roi.x_offset is null: give the roi as whole numbers of px (all "
+                                                    "zeros for the whole sensor), or leave the roi out"),
+    ((0, 0, 640, None), (0, 0), (1280, 960), "roi.height is null"),
 ])
 def test_a_roi_or_binning_the_sensor_cannot_have_is_refused(roi, binning, size, message):
     data = {"K": synthetic_camera((1280, 960)).K.tolist(), "binning_x": binning[0], "binning_y": binning[1],

@@ -23,9 +23,11 @@ from pipeline.evaluate import (Dataset, DatasetError, ImageResult, Sample, check
 from pipeline.library import load_library
 from pipeline.settings import preset
 from faults import fail_first_segmentation
-from scene_images import png_bomb
+from scene_images import TURNED_SCENE, png_bomb, with_orientation
 
-SET3 = Path(__file__).resolve().parent.parent / "sample_images" / "datasets" / "set3"
+SCENES = Path(__file__).resolve().parent.parent / "sample_images" / "scenes"
+
+SET3 = SCENES.parent / "datasets" / "set3"
 
 
 @pytest.fixture(scope="module")
@@ -285,3 +287,18 @@ def test_a_failure_inside_the_pipeline_is_that_images_error(monkeypatch, library
     errors = [r for r in report.results if r.error is not None]
     assert len(errors) == 1 and "pipeline failed on" in errors[0].error and "simulated defect" in errors[0].error
     assert sum(r.correct for r in report.results) == len(dataset.samples) - 1
+
+
+def test_without_a_camera_the_assumed_field_of_view_spans_the_sensor_however_the_photo_was_turned(tmp_path, library):
+    """A sample scene, taken with a 60° camera, tagged with each EXIF orientation that turns it: shown on its side
+    (6, 8), the assumed 60° spanned its height as shown instead of the sensor's width, and put the camera 0.38 m
+    off."""
+    truth = json.loads((SCENES / "truth.json").read_text())["images"][TURNED_SCENE]
+    scene = (SCENES / TURNED_SCENE).read_bytes()
+    for orientation in (1, 3, 6, 8):
+        (tmp_path / f"{orientation}.jpg").write_bytes(with_orientation(scene, orientation))
+    (tmp_path / "truth.json").write_text(json.dumps({"images": {f"{o}.jpg": {
+        "label": truth["label"], "R": truth["R"], "t": truth["t"]} for o in (1, 3, 6, 8)}}))
+    report = evaluate([load_dataset(tmp_path)], library, preset("default"), workers=1)
+    errors = [result.position_error_m for result in report.results]
+    assert len(errors) == 4 and max(errors) < 0.005, errors

@@ -11,8 +11,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.camera import Camera, CameraError
-from pipeline.exif import LensExif, decode_with_exif, exif_camera, focal_px, read_lens_exif, turned_camera
+from pipeline.camera import Camera, CameraError, assumed_camera
+from pipeline.exif import (ExifCamera, LensExif, decode_with_exif, exif_camera, focal_px, read_lens_exif,
+                           turned_camera)
 
 FOCAL, FOCAL_35, PLANE_X, PLANE_UNIT, PIXEL_X, PIXEL_Y = 0x920A, 0xA405, 0xA20E, 0xA210, 0xA002, 0xA003
 SHORT, LONG, RATIONAL = 3, 4, 5
@@ -252,3 +253,37 @@ def test_what_no_turned_camera_can_be_is_refused_with_why():
     with pytest.raises(CameraError, match=r"another aspect than the 640x480 px .*\(a camera file describes the pixels "
                                           r"as the camera stored them: 600x480 px in this photo, shown 480x600"):
         turned_camera(camera, 6, 480, 600)
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_the_assumed_field_of_view_spans_the_sensor_however_the_photo_was_turned(orientation):
+    """A photo the camera stored 640x480 and its EXIF orientation shows on its side (5-8) had the 60° across its
+    480 px: a focal length 3/4 of the same photo's upright, and poses 25-36 cm off at 1-1.8 m."""
+    sideways = orientation >= 5
+    shown = (480, 640) if sideways else (640, 480)
+    camera = ExifCamera(orientation=orientation).camera_for(None, *shown, 60.0)
+    f = assumed_camera(640, 480, 60.0).K[0, 0]
+    assert camera.K.tolist() == [[f, 0, shown[0] / 2], [0, f, shown[1] / 2], [0, 0, 1]]
+    assert ("across the photo's height, the sensor's width" in camera.source) == sideways
+
+
+def exif_photo(orientation: int, focal_35mm: int) -> bytes:
+    """A small JPEG whose EXIF gives `orientation` and a 35 mm-equivalent focal length, as Pillow writes them."""
+    from PIL import ExifTags, Image
+
+    exif = Image.Exif()
+    exif[ExifTags.Base.Orientation] = orientation
+    exif.get_ifd(ExifTags.IFD.Exif)[ExifTags.Base.FocalLengthIn35mmFilm] = focal_35mm
+    buf = io.BytesIO()
+    Image.new("RGB", (40, 30)).save(buf, "JPEG", exif=exif)
+    return buf.getvalue()
+
+
+def test_an_exif_focal_length_is_held_to_a_field_of_view_across_the_sensor_however_the_photo_was_turned():
+    """360 mm equivalent is 5.5° across a 4000x3000 sensor's width, a camera's, but 4.1° across its height: shown on
+    its side, the photo's field of view was taken across its height, and the focal length refused as implausible."""
+    upright = exif_camera(exif_photo(1, 360), 4000, 3000).camera
+    sideways = exif_camera(exif_photo(6, 360), 3000, 4000).camera
+    assert upright is not None and sideways is not None
+    assert sideways.K[0, 0] == upright.K[0, 0] == pytest.approx(360 * 5000 / math.hypot(36, 24))
+    assert exif_camera(exif_photo(6, 500), 3000, 4000).ignored.endswith("of 500 mm is implausible and was ignored")

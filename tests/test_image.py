@@ -16,7 +16,7 @@ from PIL import Image, ImageOps
 
 from pipeline.image import ImageError, decode_image, exif_orientation, read_file
 from chessboards import render_boards
-from scene_images import HEIC_START, scrambled_scene
+from scene_images import HEIC_START, scrambled_scene, with_orientation
 
 # Black text on a transparent ground, as sign artwork is often drawn: the ground's colour
 # values are black too (what many tools store under alpha 0).
@@ -242,14 +242,6 @@ def cut_with_end(jpeg: bytes) -> bytes:
     leaves it: its structure is sound and libjpeg runs out of data."""
     where = entropy_data(jpeg)
     return jpeg[:(where.start + where.stop) // 2] + b"\xff\xd9"
-
-
-def with_orientation(jpeg: bytes, orientation: int) -> bytes:
-    """`jpeg`, its data as it is, with an EXIF APP1 giving `orientation` after its start of image."""
-    exif = Image.Exif()
-    exif[0x0112] = orientation
-    app1 = exif.tobytes()  # "Exif\0\0" and the TIFF block
-    return jpeg[:2] + b"\xff\xe1" + (len(app1) + 2).to_bytes(2, "big") + app1 + jpeg[2:]
 
 
 ZEROED_JPEGS = {  # name: (bytes, the share of the picture drawn grey, in the message)

@@ -25,8 +25,12 @@ LOADERS = [  # (file name, loader given the folder, its error)
                                               (b"[" * 100_000 + b"]" * 100_000, "is JSON nested too deep to read"),
                                               # a ValueError's traceback: Python reads no int of 4301 digits
                                               (b'{"a": ' + b"1" * 5000 + b"}",
-                                               "is JSON with a whole number of over 4300 digits")],
-                         ids=["cut short", "not UTF-8", "empty", "blank", "nested deep", "long number"])
+                                               "is JSON with a whole number of over 4300 digits"),
+                                              # read as the last one without a word
+                                              (b'{"a": [{"threshold": 0.7, "threshold": 0.8}]}',
+                                               "is JSON in which the key 'threshold' is given twice in one object: "
+                                               "keep the one meant")],
+                         ids=["cut short", "not UTF-8", "empty", "blank", "nested deep", "long number", "key twice"])
 @pytest.mark.parametrize("name, load, error", LOADERS, ids=[n for n, _, _ in LOADERS])
 def test_bad_json_is_the_loaders_error_naming_the_file(tmp_path, name, load, error, content, message):
     (tmp_path / name).write_bytes(content)
