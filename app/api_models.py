@@ -115,6 +115,7 @@ class TextCheckOut(BaseModel):
     weakest: float | None
     continued: list[str] = Field(description="sides ('left', 'right', 'above', 'below') beyond which the plaque "
                                              "and its text go on: a plaque of the sign's words and more")
+    washed_out: list[int] = Field(description="strips (0-5, left to right) not judged as glare washed their ink out")
 
 
 class TurnedDownOut(BaseModel):

@@ -369,8 +369,9 @@ def draw_text(gray: np.ndarray, recognition: Recognition, library: Library) -> n
     turned down: above, the photo read at the library sign's template pixels through the final H
     (the patch the check correlates); below, the template; each strip outlined on both and its
     correlation between them, green when it reaches the result's `min_text_correlation`, red when
-    not, UNSEEN and so labelled when it lies mostly outside the photo; in red at the foot, the
-    sides beyond which the plaque and its text go on. FigureError when there is no check to draw."""
+    not, UNSEEN and so labelled when it lies mostly outside the photo or glare washed it out; in
+    red at the foot, the sides beyond which the plaque and its text go on. FigureError when there
+    is no check to draw."""
     sign_id, H, check, what = _checked(recognition, library)
     sign = library[sign_id]
     template = text_template(library, sign.id)
@@ -382,8 +383,8 @@ def draw_text(gray: np.ndarray, recognition: Recognition, library: Library) -> n
                         template, colors)
     library_sign = _text_panel(_stretched(template.image, template.rows, np.ones_like(read.seen)), template, colors)
     width, edges = photo.shape[1], [int(c) * TEXT_BLOCK_PX for c in template.columns]
-    values = [("unseen" if c is None else f"{c:.3f}", x0, x1, color)
-              for c, x0, x1, color in zip(check.strips, edges[:-1], edges[1:], colors)]
+    values = [("washed out" if i in check.washed else "unseen" if c is None else f"{c:.3f}", x0, x1, color)
+              for i, (c, x0, x1, color) in enumerate(zip(check.strips, edges[:-1], edges[1:], colors))]
     head = _text_band(width, [(what, 0, width, WHITE)])
     foot = _text_band(width, [(f"library sign {sign.id}: strips pass at {minimum:g} or more", 0, width, WHITE)])
     bands = [head, photo, _text_band(width, values), library_sign, foot]

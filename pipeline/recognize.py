@@ -138,8 +138,9 @@ class Refined:
         if self.text is None or self.text.passes(min_correlation):
             return None
         if self.text.weakest is None:
-            return (f"none of {self.sign.id}'s text is in the image (each of its {len(self.text.strips)} strips lies "
-                    "mostly outside it): a plaque of other words would read the same")
+            where = ("lies mostly outside it or is washed out by glare" if self.text.washed else "lies mostly outside it")
+            return (f"none of {self.sign.id}'s text can be read in the image (each of its {len(self.text.strips)} "
+                    f"strips {where}): a plaque of other words would read the same")
         if self.text.weakest < min_correlation:
             return (f"its text differs from {self.sign.id}'s (weakest strip correlation {self.text.weakest:.2f} < "
                     f"{min_correlation:g}): another sign sharing some of its words, or a homography that is off")
@@ -626,10 +627,11 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
                                                  refined.sign, refined.text)
         warnings += refined.notes
         if text is not None and text.seen < len(text.strips):
-            # The check cannot tell the sign from a plaque sharing the words seen: "مكتب رئيس القسم"
-            # with only رئيس in the image reads as رئيس الأمن.
-            warnings.append(f"only {text.seen} of the {len(text.strips)} strips of {sign.id}'s text are in the image: "
-                            "a plaque sharing the words seen would read the same; check the rest of it")
+            # The check cannot tell the sign from a plaque sharing the words seen: a cut look-alike
+            # whose other words are out of the image reads as the sign.
+            washed = f" ({len(text.washed)} washed out by glare)" if text.washed else ""
+            warnings.append(f"only {text.seen} of the {len(text.strips)} strips of {sign.id}'s text could be read"
+                            f"{washed}: a plaque sharing the words read would read the same; check the rest of it")
         measured_by = ("outline" if outline is not None else
                        "features" if ecc is None and not no_feature_winner(chosen) else "dense")
         corner_sigma = CORNER_SIGMA_PX[measured_by]

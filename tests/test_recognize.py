@@ -187,6 +187,22 @@ def test_a_plaque_of_a_signs_words_and_more_is_not_read_as_that_sign(library):
     assert rec.label == sign.id and rec.text_check.continued == (), rec.text_check
 
 
+def test_a_sign_with_a_word_washed_out_by_glare_is_read_on_the_rest(library):
+    """Glare saturating the camera over one word leaves no trace of its letters: those strips
+    correlated 0.0-0.4 and a tester's sample scenes so lit were all turned down. They are now not
+    judged, as strips outside the image are not, and the answer says so."""
+    yy, xx = np.mgrid[:480, :640]
+    glare = 500 * np.exp(-((xx - 265) ** 2 + (yy - 222) ** 2) / (2 * 28.0**2))  # over the sign's left word
+    for k, sign_id in enumerate(("security_compound", "chief_of_security")):
+        lit = render_plaque(library[sign_id], PLAQUE_AT, shaded_wall(1), 0.92) + glare
+        rec = recognize(like_a_camera(np.clip(lit, 0, 255).astype(np.uint8), 0.7, k), library, preset("default"))
+        washed = rec.text_check.washed if rec.text_check else None
+        assert rec.label == sign_id and washed and washed[0] == 0, (sign_id, rec.text_check, rec.turned_down)
+        assert all(rec.text_check.strips[i] is None for i in washed)
+        assert rec.to_json("x")["text_check"]["washed_out"] == list(washed)
+        assert f"({len(washed)} washed out by glare)" in " ".join(rec.warnings), rec.warnings
+
+
 def test_the_search_goes_on_past_a_plaque_of_other_words_to_the_sign(library):
     """A larger plaque of other words is searched first (the largest blob); turned down, the
     search goes on and finds the sign beside it."""
@@ -227,7 +243,7 @@ def test_a_sign_read_from_part_of_its_text_says_so(library):
                          preset("default"))
 
     sign = library["chief_of_security"]
-    partial = "of the 6 strips of chief_of_security's text are in the image"
+    partial = "of the 6 strips of chief_of_security's text could be read"
     whole = seen_from(100, sign)
     assert whole.label == sign.id and not any(partial in w for w in whole.warnings), whole.warnings
     rec = seen_from(-200, sign)
