@@ -116,8 +116,12 @@ function renderStages() {
   } else {
     const weakest = check.weakest;
     const whose = r.text_check ? "" : ` · turned down: ${turnedDown.source} read as ${turnedDown.sign}`;
-    textCheck.set(stageUrl("text"), typeof weakest !== "number" ? TEXT_TITLE
-      : `${TEXT_TITLE}${whose} · weakest strip ${weakest.toFixed(3)} (a strip passes at ≥ ${bar})`);
+    // Every strip may pass and the winner still be turned down: the plaque holds more words.
+    const beyond = check.continued?.length
+      ? ` · the plaque and its text go on beyond its ${check.continued.join(" and ")} side` : "";
+    const washed = check.washed_out?.length ? ` · ${check.washed_out.length} strip(s) washed out by glare` : "";
+    textCheck.set(stageUrl("text"), typeof weakest !== "number" ? `${TEXT_TITLE}${whose}${washed}`
+      : `${TEXT_TITLE}${whose} · weakest strip ${weakest.toFixed(3)} (a strip passes at ≥ ${bar})${washed}${beyond}`);
   }
   renderBox();
 }

@@ -152,6 +152,17 @@ def test_detail_shows_the_text_check_legibly_or_why_not(page, api):
     assert f"turned down: {first['source']} read as {first['sign']}" in caption, caption
     assert f"weakest strip {first['text_check']['weakest']:.3f}" in caption
     api.delete(f"/api/images/{decoy_id}")
+    # A plaque of a sign's words and more passes in every strip: the caption says why it was turned down.
+    more = cv2.imencode(".png", decoy_image("مجمع أمني جديد", 0))[1].tobytes()
+    r = api.post("/api/images", files={"files": ("more.png", more, "image/png")})
+    r.raise_for_status()
+    harness.wait_server_idle(api)
+    more_id = r.json()["images"][0]["id"]
+    open_detail(page, more_id)
+    harness.stage_images_loaded(page, "#stages .text-stage img")
+    caption = figure.locator("figcaption").inner_text()
+    assert "the plaque and its text go on beyond its left side" in caption, caption
+    api.delete(f"/api/images/{more_id}")
     open_detail(page, image_id)
 
     harness.set_settings(page, api, {"min_text_correlation": 0})
