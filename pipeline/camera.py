@@ -10,6 +10,7 @@ import codecs
 import math
 import re
 import reprlib
+from collections import Counter
 from dataclasses import dataclass, field
 from numbers import Integral, Real
 from pathlib import Path
@@ -810,7 +811,7 @@ def _filestorage_keys(node: cv2.FileNode) -> tuple[str, ...]:
     """The keys of the FileStorage mapping `node`; CameraError for a key given twice, of which OpenCV reads
     the first without a word."""
     keys = node.keys()
-    twice = next((key for i, key in enumerate(keys) if key in keys[:i]), None)
+    twice = next((key for key, count in Counter(keys).items() if count > 1), None)
     if twice is not None:
         raise CameraError(key_given_twice(twice))
     return keys
