@@ -50,10 +50,14 @@ _STANDALONE = frozenset([0x01, *range(0xD0, 0xD8)])
 # coefficients a band and some bits at a time.
 _SOF = frozenset([0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF])
 _PROGRESSIVE = frozenset([0xC2, 0xCA])
+# Frames whose scans are Huffman coded (baseline, extended, progressive DCT): libjpeg decodes each
+# from its data alone, to its last MCU. An arithmetic coder leaves out the zero bytes the decoder
+# pads a scan with past its end, so filler there might change a scan's last decisions.
+_HUFFMAN = frozenset([0xC0, 0xC1, 0xC2])
 _ALL_COEFFICIENTS = (1 << 64) - 1  # a bit for each of a block's 64 coefficients, in zigzag order
 _GARBLED = ": decoded, part of the picture would be grey or garbled"
 # Entropy-coded data without 0xFF (no marker, no stuffing), which libjpeg decodes as blocks of
-# varied levels, not flat grey: `grey_fill` adds it after each scan to see if libjpeg ran short.
+# varied levels, not flat grey: `missing_data` adds it after each scan to see if libjpeg ran short.
 _FILLER = bytes(range(0xFF)) * 2
 # EXIF orientations, and how each turns the pixels as stored into those shown (1, as stored, is not here):
 # 3 a half turn, 6 and 8 a quarter turn clockwise and anticlockwise, 2 and 4 mirrored left-right and
@@ -301,27 +305,26 @@ def _scan_end(data: bytes, pos: int, restart_interval: int) -> tuple[int, str | 
     return -1, "it ends inside its image data: cut short"
 
 
-def grey_fill(data: bytes, image: np.ndarray, scan_ends: list[int]) -> str | None:
+def missing_data(data: bytes, image: np.ndarray, scan_ends: list[int]) -> str | None:
     """Why JPEG `data`, decoded as `image` ((H, W, 3) BGR with its pixels as stored), is unusable
-    for libjpeg's fill for missing image data, or None; `scan_ends`: where its scans' entropy-coded
+    for the image data libjpeg ran out of, or None; `scan_ends`: where its scans' entropy-coded
     data ends (`jpeg_structure`).
 
     Zeros written over image data (a card or copy failing), which make no marker, leave the marker
-    structure sound, and so does a cut with an end-of-image marker added. libjpeg decodes MCUs in
-    raster order; once the data runs out it draws every one left flat grey 128, to the last. So a
-    picture that ends in a run of flat grey MCUs (`_flat_end`) has lost its data there, or is grey
-    of its own (a letterbox, a render's background, a last block of 128). Decoded again with filler
-    after each scan's data, the one has the filler drawn where libjpeg was short of data; the other
-    is the same to the last pixel, as libjpeg has decoded every MCU before it reaches the filler.
-    Costs a second decode, of pictures ending flat grey only. Of 3754 sound JPEGs on disk (scenes,
-    real photos, chessboard renders, grey borders and bands in 11 encodings) none is refused; the
-    rule before, which took grey for the picture's own only where it began the picture or reached
-    up from the run, refused 24 (a last block of 128, a grey band at the bottom, a letterbox thinner
-    at the top than an MCU, a blank picture). Of 3108 damaged copies of 518 of them (zeroed,
-    overwritten, cut with an end marker added, bytes flipped) it refuses the same 2813, and of 972
-    copies of the 162 with flat grey 128 of their own, 611 where that rule refused 215.
+    structure sound, and so does a cut with an end-of-image marker added; libjpeg decodes as far as
+    the data goes and says so only on stderr. Decoded again with filler after each scan's data, a
+    JPEG whose data ran short has the filler drawn where data was missing; one whose data did not
+    is the same to the last pixel, as libjpeg decodes every MCU of a scan before the filler. That
+    costs a second decode, made only where data may have run out: libjpeg decodes MCUs in raster
+    order, and once the data runs out it draws every one left flat grey 128, to the last, so a
+    picture that ends in a run of flat grey MCUs (`_flat_end`), be the grey missing data or its own
+    (a letterbox, a render's background, a last block of 128). An arithmetic-coded JPEG (neither
+    Pillow nor OpenCV writes one) cannot be decoded again so (`_HUFFMAN`): it is read as it decodes.
     """
-    share = _flat_end(image, jpeg_mcu(data))
+    sof, frame = _jpeg_frame(data)
+    if sof not in _HUFFMAN:
+        return None
+    share = _flat_end(image, jpeg_mcu(frame))
     if not share:
         return None
     bounds = [0, *scan_ends, len(data)]
@@ -353,16 +356,18 @@ def _flat_end(image: np.ndarray, mcu: tuple[int, int]) -> float:
     return (blocks.size - (not_flat[-1] + 1 if not_flat.size else 0)) / blocks.size
 
 
-def jpeg_mcu(jpeg: bytes) -> tuple[int, int]:
-    """(height, width) px of the MCU, the unit a JPEG is decoded in, from its frame header: 8 x 8 for one
-    component (gray), else 8 times the largest vertical and horizontal sampling factors (16 x 16 for the
-    usual 4:2:0). 8 x 8 when the header says nothing usable."""
-    for marker, payload in _jpeg_segments(jpeg):
-        if marker in _SOF:
-            factors = payload[7:6 + 3 * payload[5]:3] if len(payload) > 5 and payload[5] > 1 else b""
-            if factors:  # per component: its id, then H in the high and V in the low nibble, then its table
-                return 8 * max(f & 15 for f in factors), 8 * max(f >> 4 for f in factors)
-            return 8, 8
+def _jpeg_frame(jpeg: bytes) -> tuple[int, bytes]:
+    """(start of frame marker, payload) of a JPEG's frame header: (0, b"") when none comes before its first scan."""
+    return next(((marker, payload) for marker, payload in _jpeg_segments(jpeg) if marker in _SOF), (0, b""))
+
+
+def jpeg_mcu(frame: bytes) -> tuple[int, int]:
+    """(height, width) px of the MCU, the unit a JPEG is decoded in, from its frame header's payload
+    (`_jpeg_frame`): 8 x 8 for one component (gray), else 8 times the largest vertical and horizontal
+    sampling factors (16 x 16 for the usual 4:2:0). 8 x 8 when the header says nothing usable."""
+    factors = frame[7:6 + 3 * frame[5]:3] if len(frame) > 5 and frame[5] > 1 else b""
+    if factors:  # per component: its id, then H in the high and V in the low nibble, then its table
+        return 8 * max(f & 15 for f in factors), 8 * max(f >> 4 for f in factors)
     return 8, 8
 
 
@@ -515,7 +520,7 @@ def decode_image(data: bytes, name: str = "image", as_stored: bool = False) -> n
     Turned as its EXIF orientation says (`exif_orientation`), as it is shown; with `as_stored`,
     its pixels as the camera stored them, which is what a camera file describes. 16-bit images
     are scaled to 8 bits (`to_8bit`), transparent pixels (PNG, WebP) shown over white, gray
-    expanded. A JPEG whose data is damaged is refused (`jpeg_structure`, `grey_fill`), as one that
+    expanded. A JPEG whose data is damaged is refused (`jpeg_structure`, `missing_data`), as one that
     cannot be decoded is.
     """
     if not data:
@@ -532,9 +537,9 @@ def decode_image(data: bytes, name: str = "image", as_stored: bool = False) -> n
     if image is None or image.dtype not in (np.uint8, np.uint16):
         raise unreadable(data, name)
     # As stored: libjpeg fills missing data in the order it decodes, before any EXIF orientation turns it.
-    fill = grey_fill(data, image, scan_ends) if kind == "JPEG" else None
-    if fill:
-        raise ImageError(f"{name}: {fill}")
+    missing = missing_data(data, image, scan_ends) if kind == "JPEG" else None
+    if missing:
+        raise ImageError(f"{name}: {missing}")
     image, orientation = to_8bit(image), exif_orientation(data)
     if kind == "TIFF":  # libtiff turns it as its orientation says, whatever OpenCV is asked
         return turned(image, orientation, undo=True) if as_stored else image

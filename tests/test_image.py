@@ -1,5 +1,6 @@
 """Decoding input images: transparency shown over white, and errors that say what is wrong."""
 
+import base64
 import io
 import os
 import re
@@ -337,6 +338,24 @@ GREY_PICTURES = {  # exactly 128 where libjpeg's fill would be, but of their own
     "all_grey.jpg": grey_where(SCENE, np.s_[:]),
     **{f"chessboard_{i}.jpg": board for i, board in enumerate(render_boards(3)[0])},  # borderValue 128 around
 }
+
+
+# Arithmetic-coded (SOF9), as `jpegtran -arithmetic` writes it and neither Pillow nor OpenCV can: scene_002 in gray at
+# 128 x 96 px, its bottom half flat grey 128.
+ARITHMETIC_GREY_BAND = base64.b64decode(
+    "/9j/4AAQSkZJRgABAQAAAQABAAD/2wBDABsSFBcUERsXFhceHBsgKEIrKCUlKFE6PTBCYFVlZF9VXVtqeJmBanGQc1tdhbWGkJ6jq62rZ4C8yb"
+    "qmx5moq6T/yQALCABgAIABAREA/8wABgAQEAX/2gAIAQEAAD8A/SYS6jLfx8XGqAwQOg0gqE11PT5ySBH63ru6LpyyeHKtqnS3U2gt0qa3SoAj"
+    "zB3TT/W5G9uCxC/EnpvPICxQHHhV7d0jcd9E2p4l3j1E/IVKi74I/WOuNzX6qf8ALBzy2H7GSn3b2OooNJzXHeoFtzObkQk4Y5YD9RIqGgmyOk"
+    "bgemXRBYDFQazogaVUdM4RfF4r5uuLjsyM9XFvXsZpcfdo9xjf4hBcVSerF+BEtJJi1dvJ6oAHyjxEFWzYzBSZXRPX3OxfKQvi38Y2BCk/tVBE"
+    "4tbUB5BgWiSiUss+McGscBxfog6S6UNHbCjirOqhJZq3zKFFY2oy9JHEef0Df1uNk+vbkaRq+GHoJbfRDE1RJi1x5Ub/AHlOzuH5MIE420FL/w"
+    "AXyzUAEy0cdl65dwMx6tKKMY1wBXNm5ZxFx5jexi6uSkklPHL44NMh2GXtgMDO9YqR53hKZIP8srANvW0T+1JUePWlFc52WDogN6CktspEm3Th"
+    "jf8AGF7/2Q==")
+
+
+def test_a_sound_arithmetic_coded_jpeg_ending_flat_grey_is_read():
+    """An arithmetic decoder reads past a scan's end, counting on zero bytes there its encoder leaves out: decoded
+    again with filler after its data, to see if libjpeg had run short, its last MCUs changed and it was refused."""
+    assert decode_image(ARITHMETIC_GREY_BAND, "arithmetic.jpg").shape == (96, 128, 3)
 
 
 @pytest.mark.parametrize("encoder", ["opencv", "pillow_444"])
