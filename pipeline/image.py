@@ -45,7 +45,20 @@ _MARKER = re.compile(rb"\xff([\x01-\xfe])")
 # (SOS) or the end of the image (EOI). 0x01 (TEM) and 0xD0..0xD7 (RSTn) stand alone, without a length.
 _AFTER_SCAN = frozenset([0xC4, 0xCC, 0xDB, 0xDD, 0xDC, 0xFE, 0xDA, 0xD9, *range(0xE0, 0xF0)])
 _STANDALONE = frozenset([0x01, *range(0xD0, 0xD8)])
+# Start of frame markers, which give the components and their sampling factors (not DHT 0xC4, JPG 0xC8, DAC
+# 0xCC); of them the progressive ones (Huffman and arithmetic coded), whose scans code each component's
+# coefficients a band and some bits at a time.
+_SOF = frozenset([0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF])
+_PROGRESSIVE = frozenset([0xC2, 0xCA])
+# Frames whose scans are Huffman coded (baseline, extended, progressive DCT): libjpeg decodes each
+# from its data alone, to its last MCU. An arithmetic coder leaves out the zero bytes the decoder
+# pads a scan with past its end, so filler there might change a scan's last decisions.
+_HUFFMAN = frozenset([0xC0, 0xC1, 0xC2])
+_ALL_COEFFICIENTS = (1 << 64) - 1  # a bit for each of a block's 64 coefficients, in zigzag order
 _GARBLED = ": decoded, part of the picture would be grey or garbled"
+# Entropy-coded data without 0xFF (no marker, no stuffing), which libjpeg decodes as blocks of
+# varied levels, not flat grey: `missing_data` adds it after each scan to see if libjpeg ran short.
+_FILLER = bytes(range(0xFF)) * 2
 # EXIF orientations, and how each turns the pixels as stored into those shown (1, as stored, is not here):
 # 3 a half turn, 6 and 8 a quarter turn clockwise and anticlockwise, 2 and 4 mirrored left-right and
 # top-bottom, 5 and 7 mirrored across the main and the other diagonal.
@@ -193,8 +206,9 @@ def unreadable(data: bytes, name: str) -> ImageError:
                       "be read); copy or export it again")
 
 
-def jpeg_damage(data: bytes) -> str | None:
-    """Why JPEG `data` is damaged, read from its marker structure, or None when that is sound.
+def jpeg_structure(data: bytes) -> tuple[str | None, list[int]]:
+    """(why JPEG `data` is damaged, read from its marker structure, or None when that is sound;
+    where each of its scans' entropy-coded data ends, at the marker after it, as far as read).
 
     libjpeg, which OpenCV decodes with, carries on through corrupt image data, drawing the rest of
     the picture grey or garbled, and says so only on stderr: OpenCV gives no way to hear it. So the
@@ -204,35 +218,73 @@ def jpeg_damage(data: bytes) -> str | None:
     that may follow a scan. Damage that writes a 0xFF or overwrites a stuffed 0x00 or a restart
     marker breaks this (large damage nearly always does); damage that does neither cannot be seen
     without decoding. Stray bytes between the segments before the first scan are skipped, as
-    libjpeg skips them: the picture is whole. Takes about 0.3 ms per MB: 1.6 ms for a 4.7 MB
+    libjpeg skips them: the picture is whole. At the end of the image its scans must have coded the
+    whole picture (`_unfinished`). Takes about 0.3 ms per MB: 1.6 ms for a 4.7 MB
     12-megapixel photo, which OpenCV decodes in 85 ms.
     """
-    pos, restart_interval, scanned = 2, 0, False
+    pos, restart_interval, frame, scans, ends = 2, 0, None, [], []
     while True:
         found = _MARKER.search(data, pos)
         if found is None:
-            return _cut_short(scanned)
+            return _cut_short(bool(scans)), ends
         start, marker = found.start(), found.group(1)[0]
         # After the first scan each segment begins where the one before ends (fill 0xFFs aside):
         # landing elsewhere, the last segment's length was damaged or a false marker was read.
-        if scanned and data.count(b"\xff", pos, start) != start - pos:
-            return f"its data is corrupt (seen at byte {pos}){_GARBLED}"
+        if scans and data.count(b"\xff", pos, start) != start - pos:
+            return f"its data is corrupt (seen at byte {pos}){_GARBLED}", ends
         if marker == 0xD9:
-            return None
-        if marker in _STANDALONE or (scanned and marker not in _AFTER_SCAN):
-            return f"its data is corrupt (seen at byte {start}){_GARBLED}"
+            return _unfinished(*frame, scans) if frame else None, ends
+        if marker in _STANDALONE or (scans and marker not in _AFTER_SCAN):
+            return f"its data is corrupt (seen at byte {start}){_GARBLED}", ends
         marker_end = found.end()
         if marker_end + 2 > len(data):
-            return _cut_short(scanned)
+            return _cut_short(bool(scans)), ends
         (length,) = struct.unpack_from(">H", data, marker_end)
         pos = marker_end + length
+        if marker in _SOF:
+            frame = marker, data[marker_end + 2:pos]
         if marker == 0xDD and length >= 4:  # DRI: restart markers come every that many MCUs (0: none)
             (restart_interval,) = struct.unpack_from(">H", data, marker_end + 2)
         if marker == 0xDA:
-            scanned = True
+            scans.append(data[marker_end + 2:pos])
             pos, damage = _scan_end(data, pos, restart_interval)
             if damage:
-                return damage
+                return damage, ends
+            ends.append(pos)
+
+
+def _unfinished(sof: int, frame: bytes, scans: list[bytes]) -> str | None:
+    """Why the scans of a JPEG (the payloads of its SOS segments) leave its picture unfinished, or None:
+    `sof` is its start of frame marker and `frame` that segment's payload.
+
+    Cut short at the end of a scan (or anywhere in a scan but the last), with an end-of-image marker
+    added or zeros written over the rest, a JPEG's structure is sound and libjpeg decodes the scans
+    it has without a word. A sequential JPEG codes each component whole; a progressive one codes the
+    coefficients of each component in bands (Ss..Se of 0..63) from their top bits down to the last
+    (Al = 0), and without its last scans the picture comes out blurred or coarse (PSNR 26 dB at 15 %
+    of a photo, 41 dB at 60 %), not grey. The standard lets a progressive file stop short on purpose,
+    but no encoder's script does (libjpeg's, which Pillow and OpenCV use, for colour, gray and CMYK;
+    mozjpeg's, which splits bands its own way): stopping short, it was cut.
+    """
+    components = frame[6:6 + 3 * frame[5]:3] if len(frame) > 5 else b""
+    coded = dict.fromkeys(components, 0)  # component id -> coefficients coded to their last bit
+    for scan in scans:
+        n = scan[0] if scan else 0
+        if len(scan) < 4 + 2 * n:  # too short to name its components and band: libjpeg refuses it
+            continue
+        first, last, approximation = scan[1 + 2 * n:4 + 2 * n]
+        if sof not in _PROGRESSIVE:
+            band = _ALL_COEFFICIENTS  # a sequential scan codes its components whole
+        elif first <= last and approximation & 15 == 0:  # Al, the bit it codes down to, is the last
+            band = (1 << last + 1) - (1 << first)
+        else:
+            band = 0
+        for component in scan[1:1 + 2 * n:2]:
+            if component in coded:
+                coded[component] |= band
+    if all(done & _ALL_COEFFICIENTS == _ALL_COEFFICIENTS for done in coded.values()):
+        return None
+    return "its scans stop before its picture is complete: cut short, or the rest overwritten"
 
 
 def _cut_short(scanned: bool) -> str:
@@ -253,24 +305,42 @@ def _scan_end(data: bytes, pos: int, restart_interval: int) -> tuple[int, str | 
     return -1, "it ends inside its image data: cut short"
 
 
-def grey_fill(image: np.ndarray, mcu: tuple[int, int]) -> str | None:
-    """Why a decoded JPEG, (H, W, 3) BGR uint8 with its pixels as stored, is unusable for libjpeg's
-    fill for missing image data, or None.
+def missing_data(data: bytes, image: np.ndarray, scan_ends: list[int]) -> str | None:
+    """Why JPEG `data`, decoded as `image` ((H, W, 3) BGR with its pixels as stored), is unusable
+    for the image data libjpeg ran out of, or None; `scan_ends`: where its scans' entropy-coded
+    data ends (`jpeg_structure`).
 
-    Zeros written over image data (a card or copy failing) leave the marker structure `jpeg_damage`
-    reads sound, as 0x00 bytes make no marker. libjpeg decodes MCUs (`mcu`: their (height, width)
-    px, `jpeg_mcu`) in raster order; once the data runs out it draws every one left flat grey 128,
-    to the last. So the picture ends, in that order, in a run of flat MCUs, checked but for each
-    one's first row and column, which chroma upsampling blends with the MCUs above and left. A
-    picture with flat grey 128 of its own may end so too (a letterbox, a render's background): it
-    is not damaged by this rule when its first MCU is flat as well (a border all round), or when
-    the MCU above the run's first is (a flat area reaching up, where the fill begins at an MCU).
-    A picture flat 128 all over is unusable either way. Of 3447 sound JPEGs (benchmark, sample and
-    test scenes, real photos, chessboard renders) none is refused but one flat grey all over (a
-    corner of 8 x 8 px flat 128, the rule before, refused 35); of 2880 copies of 480 of them,
-    zeroed, cut or flipped, it refuses the 2595 that rule did, and what libjpeg garbles without a
-    grey end (146) it cannot tell.
+    Zeros written over image data (a card or copy failing), which make no marker, leave the marker
+    structure sound, and so does a cut with an end-of-image marker added; libjpeg decodes as far as
+    the data goes and says so only on stderr. Decoded again with filler after each scan's data, a
+    JPEG whose data ran short has the filler drawn where data was missing; one whose data did not
+    is the same to the last pixel, as libjpeg decodes every MCU of a scan before the filler. That
+    costs a second decode, made only where data may have run out: libjpeg decodes MCUs in raster
+    order, and once the data runs out it draws every one left flat grey 128, to the last, so a
+    picture that ends in a run of flat grey MCUs (`_flat_end`), be the grey missing data or its own
+    (a letterbox, a render's background, a last block of 128). An arithmetic-coded JPEG (neither
+    Pillow nor OpenCV writes one) cannot be decoded again so (`_HUFFMAN`): it is read as it decodes.
     """
+    sof, frame = _jpeg_frame(data)
+    if sof not in _HUFFMAN:
+        return None
+    share = _flat_end(image, jpeg_mcu(frame))
+    if not share:
+        return None
+    bounds = [0, *scan_ends, len(data)]
+    probe = _FILLER.join(data[begin:end] for begin, end in zip(bounds, bounds[1:]))
+    if np.array_equal(_decode_as_stored(np.frombuffer(probe, np.uint8), False), image):
+        return None
+    percent = np.format_float_positional(100 * share, precision=2, fractional=False, trim="-")  # 100, not 1e+02
+    return (f"damaged JPEG file (its image data runs out before its end, and the last {percent} % of its picture is "
+            "drawn flat grey (128), as libjpeg draws missing data); copy or export it again")
+
+
+def _flat_end(image: np.ndarray, mcu: tuple[int, int]) -> float:
+    """The share of the MCUs of a decoded JPEG `image` (H, W, 3), in the raster order libjpeg
+    decodes them, in the run of flat grey 128 that ends it: 0 when its last MCU is not flat.
+    `mcu`: their (height, width) px (`jpeg_mcu`). Each is checked but for its first row and column,
+    which chroma upsampling blends with the MCUs above and left."""
     mh, mw = mcu
     h, w = image.shape[:2]
     rows, cols = -(-h // mh), -(-w // mw)
@@ -282,32 +352,22 @@ def grey_fill(image: np.ndarray, mcu: tuple[int, int]) -> str | None:
     flat[:h, :w] = (image == 128).all(axis=2)
     flat |= skip_y[:, None] | skip_x[None, :]
     blocks = flat.reshape(rows, mh, cols, mw).all(axis=(1, 3)).ravel()
-    if blocks.all():
-        return ("the picture is flat grey (128) all over, which is what libjpeg draws for a JPEG whose image data is "
-                "missing: copy or export it again (a blank grey picture has nothing to recognise)")
-    start = int(np.flatnonzero(~blocks)[-1]) + 1  # the first MCU of the flat run that ends the picture
-    if start == blocks.size or blocks[0] or (start >= cols and blocks[start - cols]):
-        return None
-    return (f"damaged JPEG file (its image data runs out before its end, and the last "
-            f"{100 * (blocks.size - start) / blocks.size:.2g} % of its picture is drawn flat grey (128), as libjpeg "
-            "draws missing data); copy or export it again (a picture that really ends in flat grey 128: save it as "
-            "PNG)")
+    not_flat = np.flatnonzero(~blocks)
+    return (blocks.size - (not_flat[-1] + 1 if not_flat.size else 0)) / blocks.size
 
 
-# Start of frame markers, which give the components' sampling factors (not DHT 0xC4, JPG 0xC8, DAC 0xCC).
-_SOF = frozenset([0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF])
+def _jpeg_frame(jpeg: bytes) -> tuple[int, bytes]:
+    """(start of frame marker, payload) of a JPEG's frame header: (0, b"") when none comes before its first scan."""
+    return next(((marker, payload) for marker, payload in _jpeg_segments(jpeg) if marker in _SOF), (0, b""))
 
 
-def jpeg_mcu(jpeg: bytes) -> tuple[int, int]:
-    """(height, width) px of the MCU, the unit a JPEG is decoded in, from its frame header: 8 x 8 for one
-    component (gray), else 8 times the largest vertical and horizontal sampling factors (16 x 16 for the
-    usual 4:2:0). 8 x 8 when the header says nothing usable."""
-    for marker, payload in _jpeg_segments(jpeg):
-        if marker in _SOF:
-            factors = payload[7:6 + 3 * payload[5]:3] if len(payload) > 5 and payload[5] > 1 else b""
-            if factors:  # per component: its id, then H in the high and V in the low nibble, then its table
-                return 8 * max(f & 15 for f in factors), 8 * max(f >> 4 for f in factors)
-            return 8, 8
+def jpeg_mcu(frame: bytes) -> tuple[int, int]:
+    """(height, width) px of the MCU, the unit a JPEG is decoded in, from its frame header's payload
+    (`_jpeg_frame`): 8 x 8 for one component (gray), else 8 times the largest vertical and horizontal
+    sampling factors (16 x 16 for the usual 4:2:0). 8 x 8 when the header says nothing usable."""
+    factors = frame[7:6 + 3 * frame[5]:3] if len(frame) > 5 and frame[5] > 1 else b""
+    if factors:  # per component: its id, then H in the high and V in the low nibble, then its table
+        return 8 * max(f & 15 for f in factors), 8 * max(f >> 4 for f in factors)
     return 8, 8
 
 
@@ -460,14 +520,14 @@ def decode_image(data: bytes, name: str = "image", as_stored: bool = False) -> n
     Turned as its EXIF orientation says (`exif_orientation`), as it is shown; with `as_stored`,
     its pixels as the camera stored them, which is what a camera file describes. 16-bit images
     are scaled to 8 bits (`to_8bit`), transparent pixels (PNG, WebP) shown over white, gray
-    expanded. A JPEG whose data is damaged is refused (`jpeg_damage`, `grey_fill`), as one that
+    expanded. A JPEG whose data is damaged is refused (`jpeg_structure`, `missing_data`), as one that
     cannot be decoded is.
     """
     if not data:
         raise ImageError(f"{name}: file is empty")
     kind = image_format(data)
     # Before decoding: libjpeg would decode damage as grey or garbled pixels, warning only on stderr.
-    damage = jpeg_damage(data) if kind == "JPEG" else None
+    damage, scan_ends = jpeg_structure(data) if kind == "JPEG" else (None, [])
     if damage:
         raise ImageError(f"{name}: damaged or truncated JPEG file ({damage}); copy or export it again")
     try:
@@ -477,9 +537,9 @@ def decode_image(data: bytes, name: str = "image", as_stored: bool = False) -> n
     if image is None or image.dtype not in (np.uint8, np.uint16):
         raise unreadable(data, name)
     # As stored: libjpeg fills missing data in the order it decodes, before any EXIF orientation turns it.
-    fill = grey_fill(image, jpeg_mcu(data)) if kind == "JPEG" else None
-    if fill:
-        raise ImageError(f"{name}: {fill}")
+    missing = missing_data(data, image, scan_ends) if kind == "JPEG" else None
+    if missing:
+        raise ImageError(f"{name}: {missing}")
     image, orientation = to_8bit(image), exif_orientation(data)
     if kind == "TIFF":  # libtiff turns it as its orientation says, whatever OpenCV is asked
         return turned(image, orientation, undo=True) if as_stored else image
