@@ -100,6 +100,8 @@ SOUND_JPEGS = {
     "progressive_cmyk.jpg": photo_jpeg(mode="CMYK", progressive=True),
     "progressive_opencv.jpg": cv2.imencode(".jpg", cv2.imdecode(np.frombuffer(photo_jpeg(), np.uint8), cv2.IMREAD_COLOR),
                                            [cv2.IMWRITE_JPEG_PROGRESSIVE, 1])[1].tobytes(),
+    "progressive_restarts.jpg": cv2.imencode(".jpg", cv2.imdecode(np.frombuffer(photo_jpeg(), np.uint8), cv2.IMREAD_COLOR),
+                                             [cv2.IMWRITE_JPEG_PROGRESSIVE, 1, cv2.IMWRITE_JPEG_RST_INTERVAL, 2])[1].tobytes(),
     "optimized_444.jpg": photo_jpeg(quality=95, subsampling=0, optimize=True),
     "gray.jpg": photo_jpeg(mode="L"),
     "cmyk.jpg": photo_jpeg(mode="CMYK"),
@@ -251,21 +253,41 @@ def stopped_short(jpeg: bytes) -> dict[str, bytes]:
             **{f"zeros_after_{i + 1}": zeroed(jpeg, end, len(jpeg) - 2) for i, end in enumerate(ends)}}
 
 
-STOPPED_SHORT = {f"{name[:-4]}_{how}.jpg": data for name in ["progressive.jpg", "progressive_gray.jpg",
-                                                             "progressive_opencv.jpg"]
-                 for how, data in stopped_short(SOUND_JPEGS[name]).items()}
+def halfway_into_last_scan(jpeg: bytes) -> int:
+    """Where `jpeg`'s last scan is half through its entropy-coded data."""
+    last = entropy_data(jpeg, -1)
+    return (last.start + last.stop) // 2
 
 
-@pytest.mark.parametrize("name", STOPPED_SHORT)
-def test_a_progressive_jpeg_whose_scans_stop_short_is_refused(name):
-    """libjpeg decodes the scans there are, blurred or coarse, without a word: the tester's photo saved
-    progressive and cut at 15 % (an end-of-image marker added, or zeros over the rest) was read at 26 dB
-    and answered "no sign", at 25 % its pose was 7 mm off. Baseline files cut so were refused."""
-    data = STOPPED_SHORT[name]
+PROGRESSIVE_SCENE_002 = encode(Image.open(SCENE_002), "JPEG", quality=92, progressive=True)
+STOPPED = "its scans stop before its picture is complete: cut short, or the rest overwritten"
+RAN_OUT = "its image data runs out inside a scan: decoded, part of the picture is blurred or garbled"
+SHORT_OF_DATA = {  # name: (bytes, why it is refused)
+    **{f"{name[:-4]}_{how}.jpg": (data, STOPPED) for name in ["progressive.jpg", "progressive_gray.jpg",
+                                                              "progressive_opencv.jpg"]
+       for how, data in stopped_short(SOUND_JPEGS[name]).items()},
+    # every scan there, the last one short of its data
+    **{f"{name[:-4]}_cut_in_last_scan.jpg": (SOUND_JPEGS[name][:halfway_into_last_scan(SOUND_JPEGS[name])]
+                                             + b"\xff\xd9", RAN_OUT)
+       for name in ["progressive.jpg", "progressive_gray.jpg", "progressive_opencv.jpg"]},
+    "progressive_zeros_in_last_scan.jpg": (zeroed(SOUND_JPEGS["progressive.jpg"],
+                                                  halfway_into_last_scan(SOUND_JPEGS["progressive.jpg"]),
+                                                  len(SOUND_JPEGS["progressive.jpg"]) - 2), RAN_OUT),
+    # the tester's photo cut at 97 % of its file: all but 3 % of its last scan there
+    "scene_002_cut_at_97.jpg": (PROGRESSIVE_SCENE_002[:len(PROGRESSIVE_SCENE_002) * 97 // 100] + b"\xff\xd9",
+                                RAN_OUT),
+}
+
+
+@pytest.mark.parametrize("name", SHORT_OF_DATA)
+def test_a_progressive_jpeg_short_of_data_is_refused(name):
+    """libjpeg decodes the scans and data there are, blurred or coarse, not grey, and says so only on stderr: the
+    tester's photo saved progressive and cut at 15 % (an end-of-image marker added, or zeros over the rest) was
+    read at 26 dB and answered "no sign", at 25 % its pose was 7 mm off. Baseline files cut so were refused."""
+    data, why = SHORT_OF_DATA[name]
     assert cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) is not None
-    with pytest.raises(ImageError, match=rf"^{re.escape(name)}: damaged or truncated JPEG file \(its scans stop before "
-                                         r"its picture is complete: cut short, or the rest overwritten\); copy or "
-                                         r"export it again$"):
+    with pytest.raises(ImageError, match=rf"^{re.escape(name)}: damaged or truncated JPEG file \({re.escape(why)}\); "
+                                         r"copy or export it again$"):
         decode_image(data, name)
 
 
