@@ -206,9 +206,10 @@ def unreadable(data: bytes, name: str) -> ImageError:
                       "be read); copy or export it again")
 
 
-def jpeg_structure(data: bytes) -> tuple[str | None, list[int]]:
-    """(why JPEG `data` is damaged, read from its marker structure, or None when that is sound;
-    where each of its scans' entropy-coded data ends, at the marker after it, as far as read).
+def jpeg_structure(data: bytes) -> tuple[str | None, tuple[int, bytes], list[int]]:
+    """(why JPEG `data` is damaged, read from its marker structure, or None when that is sound; its
+    start of frame marker and that segment's payload, (0, b"") when none was read; where each of
+    its scans' entropy-coded data ends, at the marker after it, as far as read).
 
     libjpeg, which OpenCV decodes with, carries on through corrupt image data, drawing the rest of
     the picture grey or garbled, and says so only on stderr: OpenCV gives no way to hear it. So the
@@ -222,23 +223,23 @@ def jpeg_structure(data: bytes) -> tuple[str | None, list[int]]:
     whole picture (`_unfinished`). Takes about 0.3 ms per MB: 1.6 ms for a 4.7 MB
     12-megapixel photo, which OpenCV decodes in 85 ms.
     """
-    pos, restart_interval, frame, scans, ends = 2, 0, None, [], []
+    pos, restart_interval, frame, scans, ends = 2, 0, (0, b""), [], []
     while True:
         found = _MARKER.search(data, pos)
         if found is None:
-            return _cut_short(bool(scans)), ends
+            return _cut_short(bool(scans)), frame, ends
         start, marker = found.start(), found.group(1)[0]
         # After the first scan each segment begins where the one before ends (fill 0xFFs aside):
         # landing elsewhere, the last segment's length was damaged or a false marker was read.
         if scans and data.count(b"\xff", pos, start) != start - pos:
-            return f"its data is corrupt (seen at byte {pos}){_GARBLED}", ends
+            return f"its data is corrupt (seen at byte {pos}){_GARBLED}", frame, ends
         if marker == 0xD9:
-            return _unfinished(*frame, scans) if frame else None, ends
+            return _unfinished(*frame, scans) if frame[0] else None, frame, ends
         if marker in _STANDALONE or (scans and marker not in _AFTER_SCAN):
-            return f"its data is corrupt (seen at byte {start}){_GARBLED}", ends
+            return f"its data is corrupt (seen at byte {start}){_GARBLED}", frame, ends
         marker_end = found.end()
         if marker_end + 2 > len(data):
-            return _cut_short(bool(scans)), ends
+            return _cut_short(bool(scans)), frame, ends
         (length,) = struct.unpack_from(">H", data, marker_end)
         pos = marker_end + length
         if marker in _SOF:
@@ -249,7 +250,7 @@ def jpeg_structure(data: bytes) -> tuple[str | None, list[int]]:
             scans.append(data[marker_end + 2:pos])
             pos, damage = _scan_end(data, pos, restart_interval)
             if damage:
-                return damage, ends
+                return damage, frame, ends
             ends.append(pos)
 
 
@@ -305,10 +306,10 @@ def _scan_end(data: bytes, pos: int, restart_interval: int) -> tuple[int, str | 
     return -1, "it ends inside its image data: cut short"
 
 
-def missing_data(data: bytes, image: np.ndarray, scan_ends: list[int]) -> str | None:
+def missing_data(data: bytes, image: np.ndarray, frame: tuple[int, bytes], scan_ends: list[int]) -> str | None:
     """Why JPEG `data`, decoded as `image` ((H, W, 3) BGR with its pixels as stored), is unusable
-    for the image data libjpeg ran out of, or None; `scan_ends`: where its scans' entropy-coded
-    data ends (`jpeg_structure`).
+    for the image data libjpeg ran out of, or None; `frame` (its start of frame marker and payload)
+    and `scan_ends` (where its scans' entropy-coded data ends) as `jpeg_structure` read them.
 
     Zeros written over image data (a card or copy failing), which make no marker, leave the marker
     structure sound, and so does a cut with an end-of-image marker added; libjpeg decodes as far as
@@ -320,8 +321,8 @@ def missing_data(data: bytes, image: np.ndarray, scan_ends: list[int]) -> str | 
     last: it is decoded again when its picture ends in a run of flat grey MCUs (`_flat_end`), be
     the grey missing data or its own (a letterbox, a render's background, a last block of 128). A
     progressive JPEG's later scans refine what its first drew, and one that runs short leaves no
-    grey: it is decoded again always (170 ms more for a 12 MP photo, which takes 170 ms to decode,
-    90 ms saved baseline). An arithmetic-coded JPEG (neither Pillow nor OpenCV writes one) cannot
+    grey: it is decoded again always (170 ms more for a 12 MP photo, which decodes in 170 ms
+    progressive, 90 ms baseline). An arithmetic-coded JPEG (neither Pillow nor OpenCV writes one) cannot
     be decoded again so (`_HUFFMAN`): it is read as it decodes. Of 3754 sound JPEGs on disk
     (scenes, real photos, chessboard renders, grey borders and bands in 11 encodings) and 518 of
     them saved progressive none is refused; the rule before, which took grey for the picture's own
@@ -331,10 +332,10 @@ def missing_data(data: bytes, image: np.ndarray, scan_ends: list[int]) -> str | 
     the 2813 of 3108 of those 518 that rule did, 611 of 972 of the 162 with grey 128 of their own
     (that rule 215), and 1088 of 3108 of the 518 saved progressive (1085 more for their structure).
     """
-    sof, frame = _jpeg_frame(data)
+    sof, payload = frame
     if sof not in _HUFFMAN:
         return None
-    share = _flat_end(image, jpeg_mcu(frame))
+    share = _flat_end(image, jpeg_mcu(payload))
     if not share and sof not in _PROGRESSIVE:
         return None
     bounds = [0, *scan_ends, len(data)]
@@ -369,14 +370,9 @@ def _flat_end(image: np.ndarray, mcu: tuple[int, int]) -> float:
     return (blocks.size - (not_flat[-1] + 1 if not_flat.size else 0)) / blocks.size
 
 
-def _jpeg_frame(jpeg: bytes) -> tuple[int, bytes]:
-    """(start of frame marker, payload) of a JPEG's frame header: (0, b"") when none comes before its first scan."""
-    return next(((marker, payload) for marker, payload in _jpeg_segments(jpeg) if marker in _SOF), (0, b""))
-
-
 def jpeg_mcu(frame: bytes) -> tuple[int, int]:
     """(height, width) px of the MCU, the unit a JPEG is decoded in, from its frame header's payload
-    (`_jpeg_frame`): 8 x 8 for one component (gray), else 8 times the largest vertical and horizontal
+    (`jpeg_structure`): 8 x 8 for one component (gray), else 8 times the largest vertical and horizontal
     sampling factors (16 x 16 for the usual 4:2:0). 8 x 8 when the header says nothing usable."""
     factors = frame[7:6 + 3 * frame[5]:3] if len(frame) > 5 and frame[5] > 1 else b""
     if factors:  # per component: its id, then H in the high and V in the low nibble, then its table
@@ -540,7 +536,7 @@ def decode_image(data: bytes, name: str = "image", as_stored: bool = False) -> n
         raise ImageError(f"{name}: file is empty")
     kind = image_format(data)
     # Before decoding: libjpeg would decode damage as grey or garbled pixels, warning only on stderr.
-    damage, scan_ends = jpeg_structure(data) if kind == "JPEG" else (None, [])
+    damage, frame, scan_ends = jpeg_structure(data) if kind == "JPEG" else (None, (0, b""), [])
     if damage:
         raise ImageError(f"{name}: damaged or truncated JPEG file ({damage}); copy or export it again")
     try:
@@ -550,7 +546,7 @@ def decode_image(data: bytes, name: str = "image", as_stored: bool = False) -> n
     if image is None or image.dtype not in (np.uint8, np.uint16):
         raise unreadable(data, name)
     # As stored: libjpeg fills missing data in the order it decodes, before any EXIF orientation turns it.
-    missing = missing_data(data, image, scan_ends) if kind == "JPEG" else None
+    missing = missing_data(data, image, frame, scan_ends) if kind == "JPEG" else None
     if missing:
         raise ImageError(f"{name}: {missing}")
     image, orientation = to_8bit(image), exif_orientation(data)
