@@ -127,7 +127,8 @@ class TextTemplate:
 
     For the look beyond its sides: `content` (top, bottom, left, right), the box of its content
     (template px, ends excluded); `paper` and `ink` (h, w) bool, its pixels at its background's level
-    and those nearer its content's extreme than its background; `around` (1, H W, 2), the centres
+    and those nearer its content's extreme than its background; `dark_ink`, whether its ink is
+    darker than its paper (glare can wash out only such ink); `around` (1, H W, 2), the centres
     (library px) of the pixels of the template grown by `reach` px, the content's height, on every
     side (H = h + 2 reach, W = w + 2 reach); None when the content comes within MIN_MARGIN px of an
     edge (a photo used as a landmark): nothing then shows where such a sign ends."""
@@ -139,6 +140,7 @@ class TextTemplate:
     content: tuple[int, int, int, int]
     paper: np.ndarray
     ink: np.ndarray
+    dark_ink: bool
     reach: int
     around: np.ndarray | None
 
@@ -162,9 +164,11 @@ def _template(sign: LibrarySign) -> TextTemplate:
     rows = (max(0, top - margin), min(size[1], bottom + margin))
     reach = bottom - top
     bordered = min(top, left, size[1] - bottom, size[0] - right) >= MIN_MARGIN
+    paper, ink = away < 0.1 * span, away > 0.5 * span
+    dark_ink = bool(paper.any() and ink.any() and image[ink].mean() < image[paper].mean())
     return TextTemplate(image, rows, np.linspace(left, right, STRIPS + 1).round().astype(int),
-                        _centres(size, (w, h), 0), (top, bottom, left, right), away < 0.1 * span,
-                        away > 0.5 * span, reach, _centres(size, (w, h), reach) if bordered else None)
+                        _centres(size, (w, h), 0), (top, bottom, left, right), paper, ink, dark_ink, reach,
+                        _centres(size, (w, h), reach) if bordered else None)
 
 
 def _centres(size: tuple[int, int], sign_size: tuple[int, int], reach: int) -> np.ndarray:
@@ -274,8 +278,7 @@ def compare_text(rectified: Rectified, template: TextTemplate) -> TextCheck:
 def _washed_out(rectified: Rectified, template: TextTemplate) -> np.ndarray:
     """(S,) bool: the strips at least MAX_WASHED of whose ink seen reads saturated; none for a sign
     whose ink is lighter than its background (saturated ink is then what it looks like)."""
-    if (not template.ink.any() or not template.paper.any()
-            or template.image[template.ink].mean() >= template.image[template.paper].mean()):
+    if not template.dark_ink:
         return np.zeros(len(template.columns) - 1, bool)
     top, bottom = template.rows
     ink = template.ink[top:bottom] & rectified.seen[top:bottom]
