@@ -286,12 +286,15 @@ def _washed_out(rectified: Rectified, template: TextTemplate) -> np.ndarray:
     return clipped >= MAX_WASHED * np.maximum(_strip_sums(ink, template.columns), 1)
 
 
-def _fraction(values: np.ndarray, seen: np.ndarray) -> float | None:
-    """The fraction of `values` (bool) True among the pixels `seen` (bool, same shape), None when
-    fewer than MIN_VISIBLE are seen (or there are no pixels: a sign with no margin rows)."""
-    if seen.size == 0 or seen.mean() < MIN_VISIBLE:
+def _fraction(values: np.ndarray, seen: np.ndarray, regions: list[tuple[slice, slice]]) -> float | None:
+    """The fraction of `values` (bool) True among the pixels `seen` (bool, same shape) in the union
+    of the disjoint `regions` (row and column slices), None when fewer than MIN_VISIBLE of its
+    pixels are seen (or it has none: a sign with no margin rows)."""
+    size = sum(seen[r].size for r in regions)
+    n_seen = sum(int(np.count_nonzero(seen[r])) for r in regions)
+    if size == 0 or n_seen / size < MIN_VISIBLE:
         return None
-    return float((values & seen).sum() / seen.sum())
+    return sum(int(np.count_nonzero(values[r] & seen[r])) for r in regions) / n_seen
 
 
 def continued_sides(around: Rectified, template: TextTemplate) -> tuple[str, ...]:
@@ -321,16 +324,19 @@ def continued_sides(around: Rectified, template: TextTemplate) -> tuple[str, ...
     ink = (patch - paper_level) / contrast > 0.5
     top, bottom, left, right = (v + r for v in template.content)
     e = max(1, round(r / 2))
-    margin_rows, margin_columns = np.r_[r:top, bottom:r + h], np.r_[r:left, right:r + w]
-    margin = {"left": np.ix_(margin_rows, np.r_[r - e:r]), "right": np.ix_(margin_rows, np.r_[r + w:r + w + e]),
-              "above": np.ix_(np.r_[r - e:r], margin_columns), "below": np.ix_(np.r_[r + h:r + h + e], margin_columns)}
-    thirds = [np.s_[c[0]:c[-1] + 1] for c in np.array_split(np.r_[left:right], 3)]
-    band = {"left": [np.s_[top:bottom, left - r:left]], "right": [np.s_[top:bottom, right:right + r]],
-            "above": [np.s_[top - r:top, c] for c in thirds], "below": [np.s_[bottom:bottom + r, c] for c in thirds]}
+    # Each region is one or two boxes, read in place through slices.
+    margin_rows, margin_columns = (slice(r, top), slice(bottom, r + h)), (slice(r, left), slice(right, r + w))
+    margin = {"left": [(rows, slice(r - e, r)) for rows in margin_rows],
+              "right": [(rows, slice(r + w, r + w + e)) for rows in margin_rows],
+              "above": [(slice(r - e, r), columns) for columns in margin_columns],
+              "below": [(slice(r + h, r + h + e), columns) for columns in margin_columns]}
+    thirds = [slice(c[0], c[-1] + 1) for c in np.array_split(np.arange(left, right), 3)]
+    band = {"left": [(slice(top, bottom), slice(left - r, left))], "right": [(slice(top, bottom), slice(right, right + r))],
+            "above": [(slice(top - r, top), c) for c in thirds], "below": [(slice(bottom, bottom + r), c) for c in thirds]}
     continued = []
     for side in SIDES:
-        plaque = _fraction(paper[margin[side]], seen[margin[side]])
-        inked = [f for b in band[side] if (f := _fraction(ink[b], seen[b])) is not None]
+        plaque = _fraction(paper, seen, margin[side])
+        inked = [f for b in band[side] if (f := _fraction(ink, seen, [b])) is not None]
         if plaque is not None and plaque >= CONTINUED_PAPER and max(inked, default=0.0) >= CONTINUED_INK:
             continued.append(side)
     return tuple(continued)
