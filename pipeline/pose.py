@@ -416,7 +416,7 @@ def _correspondences(H: np.ndarray, src_px: np.ndarray, dst_px: np.ndarray,
 
 def estimate_pose(H: np.ndarray, src_px: np.ndarray, dst_px: np.ndarray, sign: LibrarySign, camera: Camera,
                   method: str = "ippe_lm", ambiguity_ratio: float = 0.8,
-                  corner_sigma_px: float = 0.0) -> Pose:
+                  corner_sigma_px: float = 0.0, with_covariance: bool = True) -> Pose:
     """Camera pose relative to `sign` from its homography and inlier matches.
 
     H (3, 3): library px -> image px. src_px (N, 2): library px of the inliers; dst_px (N, 2):
@@ -432,6 +432,8 @@ def estimate_pose(H: np.ndarray, src_px: np.ndarray, dst_px: np.ndarray, sign: L
     errors of `corner_sigma_px` at the corners, which the residuals cannot show (`with_corner_floor`;
     0: the fit's own alone; `recognize` passes CORNER_SIGMA_PX by how the points were measured);
     for "paper", whose pose does not minimise reprojection error, it is an approximation.
+    `with_covariance` False leaves it None, for a caller that measures it from other points
+    (`recognize`, from a refined outline's edge points, as the grid fitted then is exact by construction).
 
     Raises PoseError when the points or H admit no pose.
     """
@@ -465,5 +467,5 @@ def estimate_pose(H: np.ndarray, src_px: np.ndarray, dst_px: np.ndarray, sign: L
         ambiguous=_ambiguous(best, other, obj, solution_errors, ambiguity_ratio, sign, camera, corner_sigma_px),
         solution_errors=solution_errors,
         covariance=with_corner_floor(_covariance(residuals, jacobian) if measured else None, R, t, sign, camera,
-                                     corner_sigma_px),
+                                     corner_sigma_px) if with_covariance else None,
     )

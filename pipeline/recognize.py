@@ -636,7 +636,8 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
                        "features" if ecc is None and not no_feature_winner(chosen) else "dense")
         corner_sigma = CORNER_SIGMA_PX[measured_by]
         try:
-            pose = estimate_pose(H, src, dst, sign, camera, settings.pose_method, settings.ambiguity_ratio, corner_sigma)
+            pose = estimate_pose(H, src, dst, sign, camera, settings.pose_method, settings.ambiguity_ratio, corner_sigma,
+                                 with_covariance=outline is None)
             if outline is not None:
                 # the grid fitted is exact by construction: the fit and the noise show in the edge points
                 rmse, covariance = outline_fit(pose.R, pose.t, outline, sign, camera)
