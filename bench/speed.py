@@ -53,11 +53,13 @@ MIN_MATCH_COUNT = 10  # the tutorial's: fewer inliers is "no sign"
 
 @dataclass(frozen=True)
 class Outcome:
-    """One configuration on one image: its answer, rotation (3, 3) or None, and ms per stage plus "total"."""
+    """One configuration on one image: its answer, rotation (3, 3) or None, ms per stage plus
+    "total", and how many regions it ran SIFT on (the naive reference: the full frame, 1)."""
 
     label: str | None
     R: np.ndarray | None
     timing_ms: dict[str, float]
+    regions: int = 1
 
 
 def naive_recognize(image: np.ndarray, library: Library, camera: Camera) -> Outcome:
@@ -112,7 +114,8 @@ def runner(name: str) -> Callable[[np.ndarray, Library, Camera], tuple[Outcome, 
     def run(image: np.ndarray, library: Library, camera: Camera) -> tuple[Outcome, tuple | None]:
         rec = recognize(image, library, settings, camera)
         region = rec.attempt.region if rec.attempt is not None else None
-        return Outcome(rec.label, rec.pose.R if rec.pose is not None else None, rec.timing_ms), region
+        return (Outcome(rec.label, rec.pose.R if rec.pose is not None else None, rec.timing_ms, len(rec.attempts)),
+                region)
     return run
 
 
@@ -317,7 +320,21 @@ def default_lines(dataset: Dataset, outcomes: dict[str, list[Outcome]], floors: 
             f"floor, SIFT alone on the crop default chose: median {np.median(floors):.1f} ms; default / floor: "
             f"median per image {np.median(default / floors):.2f}, ratio of medians "
             f"{np.median(default) / np.median(floors):.2f}; every SIFT pass the search made / floor (what "
-            f"default / floor would be were every other stage free): median per image {np.median(sift / floors):.2f}"]
+            f"default / floor would be were every other stage free): median per image {np.median(sift / floors):.2f}",
+            one_region_line(outcomes["default"], floors)]
+
+
+def one_region_line(outcomes: list[Outcome], floors: np.ndarray) -> str:
+    """Where the time of the images answered from the one region searched goes, beside their floor:
+    the median per image of each stage, the floor and what is left besides them."""
+    one = [(o, f) for o, f in zip(outcomes, floors) if o.regions == 1 and o.label is not None]
+    if not one:
+        return "no image was answered from one region"
+    stages = {s: np.median([o.timing_ms[s] for o, _ in one]) for s in STAGES}
+    total = np.median([o.timing_ms["total"] for o, _ in one])
+    return (f"the {len(one)} images answered from one region, median per image: total {total:.2f} ms, floor "
+            f"{np.median([f for _, f in one]):.2f}, " + ", ".join(f"{s} {v:.2f}" for s, v in stages.items())
+            + f"; default / floor {np.median([o.timing_ms['total'] / f for o, f in one]):.2f}")
 
 
 def machine() -> str:
