@@ -137,8 +137,8 @@ class Settings:
     # Pose
     refine: str = _choice("auto", REFINE_METHODS, "Pose",
                           "ecc: align the sign densely to refine H; auto: only when the winner has few inliers "
-                          "(there it beats the points; with many it is slightly worse); the plaque fallback "
-                          "always refines")
+                          "(there it beats the points; with many it is slightly worse), and with many only to look "
+                          "again for outline edges missed; the plaque fallback always refines")
     refine_outline: bool = _flag(True, "Pose",
                                  "Refine the winner's homography from the plaque's four straight edges (needs a "
                                  "library image cropped to the sign's edges); falls back to refine when an edge "
