@@ -697,11 +697,17 @@ def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.nd
     # 31 inliers had one 20 px off, its pose 14.6 mm off, against 2.4 mm outlined when turned.
     if wanted or (use_outline and settings.refine != "none"):
         refined = refine_ecc(gray, sign, H, camera)
+        problem = "did not converge"
         if refined is not None and refined[1] >= MIN_ECC:
             ideal_H = refined[0]
             # Under distortion no H is exact: keep the one through the corners, as the outline does.
             dense_H = (sign_to_quad(sign, distort_pixels(sign_corners(sign, ideal_H), camera))
                        if camera.has_distortion else ideal_H)
+            # ECC can settle on a warp no view of a sign gives: a look-alike cut by the frame was
+            # drawn to a corner 1500 px beyond a 640 px frame, its pose 68 px RMSE off its points.
+            _, implausible = quad_problem(dense_H, sign, gray.shape[1], gray.shape[0])
+            problem = None if implausible is None else f"gave an implausible sign ({implausible})"
+        if problem is None:
             if use_outline:
                 outline, why = refine_outline(gray, sign, dense_H, settings.seed, camera)
                 if outline is not None:
@@ -711,7 +717,7 @@ def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.nd
             if wanted:
                 H, (src, dst), ecc = dense_H, seen_grid(ideal_H, sign, camera), refined[1]
         else:
-            warnings.append("dense refinement did not converge; H and pose come from the matches alone")
+            warnings.append(f"dense refinement {problem}; H and pose come from the matches alone")
     if why is not None:
         warnings.append(f"plaque outline not used: {why}")
     return H, src, dst, ecc, None

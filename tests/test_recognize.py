@@ -153,6 +153,26 @@ def test_an_outline_the_features_h_misses_is_looked_for_again_from_ecc_whatever_
     assert any(w.startswith("plaque outline not used: side 2:") for w in points.warnings), points.warnings
 
 
+def test_a_dense_alignment_no_view_of_the_sign_gives_is_not_used(library):
+    """ECC settled on a look-alike cut by the frame with one corner 1500 px beyond a 640 px frame
+    (correlation above MIN_ECC): the winner kept that H, and its pose was 68 px RMSE off its own
+    points. A dense H failing the quad checks the feature H passed leaves the feature H in place."""
+    name = "scene_005.jpg"
+    image, camera = read_image(SCENES / name), load_camera(SCENES / "camera.yaml")
+    settings = preset("default").replace(refine="ecc", refine_outline=False)
+    features = recognize(image, library, settings.replace(refine="none"), camera)
+    sign = library[features.label]
+    corners = features.corners.copy()
+    corners[1] += (1500, -170)  # the top-right corner pulled far beyond the frame's right edge
+    absurd = cv2.getPerspectiveTransform(sign.corners_px.astype(np.float32), corners.astype(np.float32))
+    with mock.patch.object(recognize_module, "refine_ecc", return_value=(absurd, 0.95)) as ecc:
+        rec = recognize(image, library, settings, camera)
+    assert ecc.call_count == 1 and rec.label == TRUTH[name]["label"] == features.label
+    assert rec.ecc is None and np.allclose(rec.H, features.H), rec.warnings
+    assert any(w.startswith("dense refinement gave an implausible sign (absurd scale") for w in rec.warnings), rec.warnings
+    assert rec.pose.reprojection_rmse_px == pytest.approx(features.pose.reprojection_rmse_px)
+
+
 def test_far_signs_report_their_tilt_error_in_the_covariance_or_as_ambiguous(library):
     """A sign 50-100 px wide barely fixes its tilt: a tenth of a pixel at the corners is degrees.
     Its poses were 7-11° off with a reported 1σ of 1-2° (up to 10σ) and not called ambiguous,
