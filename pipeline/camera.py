@@ -687,14 +687,15 @@ def _camera_from_fields(fields: dict, source: str, kind: str) -> Camera:
     the keys MATRIX_KEYS .. MODEL_KEYS. CameraError naming the key as the file writes it."""
     _refuse_unknown_distortion(fields)
     found = _one_of(fields, DISTORTION_KEYS, "the distortion")
-    model = fields.get("distortion_model")
-    if found is None and isinstance(model, str) and model.lower() in OPENCV_DISTORTION_MODELS:
-        # A lens calibrated with distortion whose coefficients were lost on the way: read as none, the
-        # pose moved 0.25 m at 1.7 m without a word.
-        raise CameraError(f"distortion_model {model} names a lens with distortion, but the file gives no "
-                          f"coefficients (under {', '.join(DISTORTION_KEYS)}): add them, or set distortion_model "
-                          "to none for a lens without distortion")
     dist = np.zeros(0) if found is None else _matrix(found[1], found[0], None, None, MOST_DISTORTION_VALUES).ravel()
+    model = fields.get("distortion_model")
+    if not dist.size and isinstance(model, str) and model.lower() in OPENCV_DISTORTION_MODELS:
+        # A lens calibrated with distortion whose coefficients were lost on the way (the key, or its
+        # values): read as none, the pose moved 0.25 m at 1.7 m without a word.
+        missing = f"({found[0]} is empty)" if found else f"(under {', '.join(DISTORTION_KEYS)})"
+        raise CameraError(f"distortion_model {model} names a lens with distortion, but the file gives no "
+                          f"coefficients {missing}: add them, or set distortion_model to none for a lens without "
+                          "distortion")
     problem = _model_problem(fields, dist)
     if problem:
         raise CameraError(problem)

@@ -208,6 +208,20 @@ def test_an_unset_distortion_model_without_coefficients_is_no_distortion(tmp_pat
         load_camera(p)
 
 
+@pytest.mark.parametrize("model", ["plumb_bob", "rational_polynomial", "radtan"])
+@pytest.mark.parametrize("empty", ["D: []", "distortion_coefficients: {rows: 1, cols: 0, data: []}"])
+def test_a_distortion_model_with_an_empty_coefficient_list_is_refused(tmp_path, model, empty):
+    """`D: []` under plumb_bob was read as no distortion, where the same file without D is refused."""
+    key = empty.split(":")[0]
+    text = ROS_MATRIX.format(rows=3, data=K_DATA) + f"distortion_model: {model}\n{empty}\n"
+    assert_one_line_error(tmp_path / "cam.yaml", text, f"distortion_model {model} names a lens with distortion, but "
+                                                       f"the file gives no coefficients ({key} is empty): add them")
+    # No model, or one naming none, with an empty list: a lens without distortion, as without the list.
+    for unnamed in ("", "distortion_model: none\n", "distortion_model: ''\n"):
+        (tmp_path / "none.yaml").write_text(ROS_MATRIX.format(rows=3, data=K_DATA) + unnamed + empty + "\n")
+        assert not load_camera(tmp_path / "none.yaml").has_distortion
+
+
 def test_save_round_trip(tmp_path):
     cam = Camera(np.array([[600.0, 0, 330], [0, 601, 250], [0, 0, 1]]), np.array([0.1, -0.2, 0.001, 0.002, 0.05]),
                  640, 480, "test")
