@@ -186,6 +186,10 @@ _CameraYamlLoader.add_constructor("tag:yaml.org,2002:int", _CameraYamlLoader.con
 # YAML 1.1 reads a number with an exponent but no dot or no sign in it (5.54e2, 1e3) as text, where JSON and
 # YAML 1.2 read a number: it is one here too, so that text (a quoted "554") can be refused as no number.
 _CameraYamlLoader.add_implicit_resolver("tag:yaml.org,2002:float", DECIMAL_NUMBER, list("-+0123456789."))
+# Python's json writes non-finite floats as NaN and Infinity, and PUT /api/camera's JSON reads them so: read
+# as those numbers here too (then refused as not finite), so that a JSON file says what that body says.
+_CameraYamlLoader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(r"^(?:NaN|[-+]?Infinity)$"),
+                                        list("N-+I"))
 
 
 NESTED_TOO_DEEP = f"values nested more than {MAX_NESTING} levels deep, which no camera file's are"
