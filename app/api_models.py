@@ -167,9 +167,10 @@ class RoiModel(BaseModel):
 
 
 class CameraModel(PinholeModel):
-    """PUT /api/camera's JSON: intrinsics for images of width x height px, or, with `roi` or binning, those
-    of the whole sensor (full resolution, unbinned) with the part of it the images are, as ROS's
-    CameraInfo gives them."""
+    """PUT /api/camera's JSON, as its OpenAPI schema: intrinsics for images of width x height px, or, with `roi`
+    or binning, those of the whole sensor (full resolution, unbinned) with the part of it the images are, as
+    ROS's CameraInfo gives them. The body is read by pipeline.camera.camera_from_json, as a camera file of the
+    same content is (its other keys too), not validated by this model, which would drop what it has not."""
 
     roi: RoiModel | None = Field(None, description="the part of the sensor the images are (x_offset, y_offset, "
                                                    "width, height px of the full sensor); all zeros: all of it")

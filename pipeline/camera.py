@@ -95,6 +95,9 @@ NO_DISTORTION_MODELS = ("", "none")
 # (_model_problem): ROS's and Kalibr's `distortion_model`, Kalibr's `camera_model` (its
 # projection), and the 0 or 1 OpenCV's calibration sample writes as `fisheye_model`.
 MODEL_KEYS = ("distortion_model", "camera_model", "fisheye_model")
+# A number as JSON and YAML 1.2 write one (554, -0.2, 5.54e2, .5): read as a number from YAML's plain text,
+# and named as what to write without quotes when a camera file gives it as text ("554").
+DECIMAL_NUMBER = re.compile(r"^[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?$")
 # A camera of a Kalibr camchain: cam0, cam1, ...
 KALIBR_CAMERA = re.compile(r"cam\d+")
 # ROS's CameraInfo.roi: the part of the sensor read out, in px of the full, unbinned sensor (its
@@ -180,6 +183,13 @@ class _CameraYamlLoader(yaml.SafeLoader):
 
 
 _CameraYamlLoader.add_constructor("tag:yaml.org,2002:int", _CameraYamlLoader.construct_yaml_int)
+# YAML 1.1 reads a number with an exponent but no dot or no sign in it (5.54e2, 1e3) as text, where JSON and
+# YAML 1.2 read a number: it is one here too, so that text (a quoted "554") can be refused as no number.
+_CameraYamlLoader.add_implicit_resolver("tag:yaml.org,2002:float", DECIMAL_NUMBER, list("-+0123456789."))
+# Python's json writes non-finite floats as NaN and Infinity, and PUT /api/camera's JSON reads them so: read
+# as those numbers here too (then refused as not finite), so that a JSON file says what that body says.
+_CameraYamlLoader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(r"^(?:NaN|[-+]?Infinity)$"),
+                                        list("N-+I"))
 
 
 NESTED_TOO_DEEP = f"values nested more than {MAX_NESTING} levels deep, which no camera file's are"
@@ -539,16 +549,24 @@ def camera_from_json(data: dict, source: str = "json") -> Camera:
 
 
 def _number(value: object, name: str) -> float:
-    """`value` as a float; CameraError naming the field `name` unless it is a number.
-
-    Numeric text counts: YAML 1.1 reads an exponent without a dot and sign (`1e3`) as a string.
-    """
-    if isinstance(value, (str, Real)) and not isinstance(value, bool):
+    """`value` as a float; CameraError naming the field `name` unless it is a number. Not text: a file's
+    "554" was read as 554 where PUT /api/camera refused it, and README says a value not a number is refused."""
+    if isinstance(value, Real) and not isinstance(value, bool):
         try:
             return float(value)
-        except (ValueError, OverflowError):  # text that is no number; an integer past the float range
+        except OverflowError:  # an integer past the float range
             pass
-    raise CameraError(f"{name} must be a number; got {reprlib.repr(value)}")
+    raise _not_number_error(value, name, "a number")
+
+
+def _not_number_error(value: object, name: str, what: str) -> CameraError:
+    """The error for the value of `name`, which is not `what` ("a number", "a whole number"): a null
+    and a number written as text (in quotes) are said to be."""
+    if value is None:
+        return CameraError(f"{name} is null: give it {what}")
+    if isinstance(value, str) and DECIMAL_NUMBER.match(value.strip()):
+        return CameraError(f"{name} must be {what}, not text: write {value.strip()} without quotes")
+    return CameraError(f"{name} must be {what}; got {reprlib.repr(value)}")
 
 
 def _numbers(value: object, name: str, most: int) -> np.ndarray:
@@ -583,7 +601,7 @@ def _opt_int(value: object, name: str) -> int | None:
         return None
     whole = isinstance(value, Integral) or (isinstance(value, Real) and float(value).is_integer())
     if isinstance(value, bool) or not whole:
-        raise CameraError(f"{name} must be a whole number; got {reprlib.repr(value)}")
+        raise _not_number_error(value, name, "a whole number")
     return int(value)
 
 
@@ -608,6 +626,12 @@ def _one_of(fields: dict, keys: tuple[str, ...], what: str) -> tuple[str, object
     if len(given) > 1:
         raise CameraError(f"{what} is given twice, as {' and '.join(given)}: keep the one meant")
     return (given[0], fields[given[0]]) if given else None
+
+
+def _null_key(fields: dict, keys: tuple[str, ...]) -> str | None:
+    """The first of `keys` that `fields` give as null, None when none is: a value lost on the way, which
+    _one_of takes as not given, and whose error must say it is there but null."""
+    return next((k for k in keys if k in fields and fields[k] is None), None)
 
 
 def _refuse_unknown_distortion(fields: dict) -> None:
@@ -654,6 +678,9 @@ def _camera_matrix(fields: dict, kind: str) -> np.ndarray:
     """The 3x3 camera matrix `fields` give (MATRIX_KEYS, Kalibr's intrinsics, or fx, fy, cx, cy);
     CameraError naming the key, or saying that this `kind` of file has none."""
     found = _one_of(fields, (*MATRIX_KEYS, "intrinsics", "fx"), "the camera matrix")
+    null = _null_key(fields, (*MATRIX_KEYS, "intrinsics", "fx"))
+    if found is None and null is not None:
+        raise CameraError(f"{null} is null: give it {'a number' if null == 'fx' else 'the camera matrix'}, in px")
     if found is None:
         raise CameraError(f"expected camera_matrix (ROS camera_info file), k (ROS 2 camera_info message, as "
                           f"`ros2 topic echo --once` prints it), K, cameraMatrix, intrinsics (Kalibr) or fx, fy, cx, "
@@ -687,14 +714,15 @@ def _camera_from_fields(fields: dict, source: str, kind: str) -> Camera:
     the keys MATRIX_KEYS .. MODEL_KEYS. CameraError naming the key as the file writes it."""
     _refuse_unknown_distortion(fields)
     found = _one_of(fields, DISTORTION_KEYS, "the distortion")
-    model = fields.get("distortion_model")
-    if found is None and isinstance(model, str) and model.lower() in OPENCV_DISTORTION_MODELS:
-        # A lens calibrated with distortion whose coefficients were lost on the way: read as none, the
-        # pose moved 0.25 m at 1.7 m without a word.
-        raise CameraError(f"distortion_model {model} names a lens with distortion, but the file gives no "
-                          f"coefficients (under {', '.join(DISTORTION_KEYS)}): add them, or set distortion_model "
-                          "to none for a lens without distortion")
     dist = np.zeros(0) if found is None else _matrix(found[1], found[0], None, None, MOST_DISTORTION_VALUES).ravel()
+    model = fields.get("distortion_model")
+    if not dist.size and isinstance(model, str) and model.lower() in OPENCV_DISTORTION_MODELS:
+        # A lens calibrated with distortion whose coefficients were lost on the way (the key, or its
+        # values): read as none, the pose moved 0.25 m at 1.7 m without a word.
+        missing = f"({found[0]} is empty)" if found else f"(under {', '.join(DISTORTION_KEYS)})"
+        raise CameraError(f"distortion_model {model} names a lens with distortion, but the file gives no "
+                          f"coefficients {missing}: add them, or set distortion_model to none for a lens without "
+                          "distortion")
     problem = _model_problem(fields, dist)
     if problem:
         raise CameraError(problem)
@@ -757,6 +785,11 @@ def _image_size(fields: dict) -> tuple[int | None, int | None]:
     resolution [width, height]), None for one not given; CameraError naming the key."""
     width, height = (_one_of(fields, keys, f"the image {what}")
                      for keys, what in ((WIDTH_KEYS, "width"), (HEIGHT_KEYS, "height")))
+    # Both null is no size (GET /api/camera/file writes a camera without one so); one alone is a size half lost.
+    one_alone = (width is None) != (height is None)
+    null = _null_key(fields, WIDTH_KEYS if width is None else HEIGHT_KEYS) if one_alone else None
+    if null is not None:
+        raise CameraError(f"{null} is null: give it a number, or leave out both the image width and height")
     resolution = fields.get("resolution")
     if resolution is None:
         return tuple(None if f is None else _opt_int(f[1], f[0]) for f in (width, height))

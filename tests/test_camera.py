@@ -208,6 +208,20 @@ def test_an_unset_distortion_model_without_coefficients_is_no_distortion(tmp_pat
         load_camera(p)
 
 
+@pytest.mark.parametrize("model", ["plumb_bob", "rational_polynomial", "radtan"])
+@pytest.mark.parametrize("empty", ["D: []", "distortion_coefficients: {rows: 1, cols: 0, data: []}"])
+def test_a_distortion_model_with_an_empty_coefficient_list_is_refused(tmp_path, model, empty):
+    """`D: []` under plumb_bob was read as no distortion, where the same file without D is refused."""
+    key = empty.split(":")[0]
+    text = ROS_MATRIX.format(rows=3, data=K_DATA) + f"distortion_model: {model}\n{empty}\n"
+    assert_one_line_error(tmp_path / "cam.yaml", text, f"distortion_model {model} names a lens with distortion, but "
+                                                       f"the file gives no coefficients ({key} is empty): add them")
+    # No model, or one naming none, with an empty list: a lens without distortion, as without the list.
+    for unnamed in ("", "distortion_model: none\n", "distortion_model: ''\n"):
+        (tmp_path / "none.yaml").write_text(ROS_MATRIX.format(rows=3, data=K_DATA) + unnamed + empty + "\n")
+        assert not load_camera(tmp_path / "none.yaml").has_distortion
+
+
 def test_save_round_trip(tmp_path):
     cam = Camera(np.array([[600.0, 0, 330], [0, 601, 250], [0, 0, 1]]), np.array([0.1, -0.2, 0.001, 0.002, 0.05]),
                  640, 480, "test")
@@ -276,7 +290,6 @@ K_DATA = "[554, 0, 320, 0, 554, 240, 0, 0, 1]"
     (ROS_MATRIX.format(rows=3, data=K_DATA) + "distortion_coefficients: {rows: 1, cols: 5, data: [0, x, 0, 0, 0]}\n",
      "distortion_coefficients.data must be a number; got 'x'"),
     (ROS_MATRIX.format(rows=3, data=K_DATA) + "image_width: wide\n", "image_width must be a whole number; got 'wide'"),
-    ('{"fx": 554, "fy": 554, "cx": 320, "cy": null}', "cy must be a number; got None"),
     ('{"fx": 1%s, "fy": 554, "cx": 320, "cy": 240}' % ("0" * 400), "fx must be a number; got 1000"),
     ('{"fx": 554, "fy": 554, "cx": 320, "cy": 240, "dist": [0, "x", 0, 0]}', "dist must be a number; got 'x'"),
     ('{"fx": 554, "fy": 554, "cx": 320, "cy": 240, "height": "tall"}', "height must be a whole number; got 'tall'"),
@@ -579,11 +592,52 @@ def test_a_camera_file_with_the_image_width_or_height_alone_is_refused(tmp_path,
                                "px the intrinsics are for (scaling them to other image sizes needs both), or neither")
 
 
-def test_numeric_text_is_a_number(tmp_path):
-    """YAML 1.1 reads 5.54e2 (an exponent without a sign) as a string; the camera means a number."""
+def test_a_number_with_an_exponent_is_a_number(tmp_path):
+    """YAML 1.1 reads 5.54e2 (an exponent without a sign) as a string; written without quotes, it is a number."""
     p = tmp_path / "c.yaml"
-    p.write_text(ROS_MATRIX.format(rows=3, data="[5.54e2, 0, 320, 0, 5.54e2, 240, 0, 0, 1]"))
-    assert load_camera(p).K[0, 0] == 554
+    p.write_text(ROS_MATRIX.format(rows=3, data="[5.54e2, 0, 3.2E+2, 0, 5.54e2, 24e1, 0, 0, 1e0]"))
+    assert load_camera(p).K.tolist() == [[554, 0, 320], [0, 554, 240], [0, 0, 1]]
+    p.write_text('{"fx": 5.54e2, "fy": 554, "cx": 3.2e2, "cy": 240, "dist": [-1e-1, 0, 0, 0]}')
+    assert load_camera(p).K[0, 0] == 554 and load_camera(p).dist[0] == -0.1
+
+
+@pytest.mark.parametrize("text, message", [
+    ('{"fx": "554", "fy": 554, "cx": 320, "cy": 240}', "fx must be a number, not text: write 554 without quotes"),
+    ('{"fx": 554, "fy": 554, "cx": 320, "cy": 240, "dist": [-0.1, "0.02", 0, 0]}',
+     "dist must be a number, not text: write 0.02 without quotes"),
+    ('{"fx": 554, "fy": 554, "cx": 320, "cy": 240, "width": "640", "height": 480}',
+     "width must be a whole number, not text: write 640 without quotes"),
+    ('K: ["554", 0, 320, 0, 554, 240, 0, 0, 1]\n', "K must be a number, not text: write 554 without quotes"),
+    ("K: [554, 0, 320, 0, 554, 240, 0, 0, '1e0']\n", "K must be a number, not text: write 1e0 without quotes"),
+    (OPENCV_MATRIX.format(fields='image_width: "640"\nimage_height: 480\n', fx="554."),
+     "image_width must be a whole number, not text: write 640 without quotes"),
+], ids=["json fx", "json dist", "json width", "yaml K", "yaml exponent", "opencv width"])
+def test_a_number_written_as_text_is_refused_naming_the_key(tmp_path, text, message):
+    """`{"fx": "554"}` was read as 554 from a file, where PUT /api/camera refused it: a value that is not a number
+    is refused, and one typed in quotes is said to be."""
+    assert_one_line_error(tmp_path / "quoted.yaml", text, message)
+
+
+@pytest.mark.parametrize("text, message", [
+    ('{"fx": null, "fy": 554, "cx": 320, "cy": 240}', "fx is null: give it a number"),
+    ('{"fx": 554, "fy": 554, "cx": 320, "cy": null}', "cy is null: give it a number"),
+    ('{"K": null, "width": 640, "height": 480}', "K is null: give it the camera matrix"),
+    ('{"fx": 554, "fy": 554, "cx": 320, "cy": 240, "width": null, "height": 480}',
+     "width is null: give it a number, or leave out both the image width and height"),
+    (ROS_MATRIX.format(rows=3, data=K_DATA) + "image_width: 640\nimage_height:\n",
+     "image_height is null: give it a number, or leave out both the image width and height"),
+], ids=["fx", "cy", "K", "width", "yaml height"])
+def test_a_null_value_is_said_to_be_null(tmp_path, text, message):
+    """A null fx was "this file has none" of fx, fy, cx, cy, and a null width "the image height is given without the
+    image width"."""
+    assert_one_line_error(tmp_path / "null.yaml", text, message)
+
+
+def test_a_null_image_size_is_no_image_size(tmp_path):
+    """GET /api/camera/file gives a camera without an image size with width and height null."""
+    p = tmp_path / "unsized.json"
+    p.write_text('{"fx": 554, "fy": 554, "cx": 320, "cy": 240, "width": null, "height": null}')
+    assert (load_camera(p).width, load_camera(p).height) == (None, None)
 
 
 def test_missing_file_and_scaling():
