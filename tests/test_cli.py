@@ -447,6 +447,18 @@ def test_bad_synth_and_evaluate_arguments_are_one_clear_line(tmp_path, args, mes
     assert message.format(tmp=tmp_path) in result.stderr and "Traceback" not in result.stderr
 
 
+def test_evaluate_refuses_a_dataset_whose_named_camera_is_missing(tmp_path):
+    """It was ignored: the table came out, the poses measured under an assumed 60° field of view."""
+    shutil.copy(SCENES / "scene_000.jpg", tmp_path)
+    (tmp_path / "truth.json").write_text(json.dumps(
+        {"camera": "cam_missing.yaml", "images": {"scene_000.jpg": {"label": "security_compound"}}}))
+    result = signpose("evaluate", tmp_path, "--workers", 1)
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr == (f'signpose evaluate: error: {tmp_path / "truth.json"}: the "camera" file '
+                             f"'cam_missing.yaml' is not a file in {tmp_path}; put the camera file there, "
+                             'or remove "camera" from truth.json\n')
+
+
 @pytest.mark.parametrize("args, message", [
     (("recognize", "{tmp}/missing.jpg", "--camera", "{tmp}"), "--camera: '{tmp}' is a folder, not a file"),
     (("recognize", "{tmp}/missing.jpg", "--settings", "{tmp}"), "--settings: '{tmp}' is a folder, not a file"),
