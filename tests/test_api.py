@@ -211,6 +211,20 @@ def test_library_list_image_add_and_delete(client):
     assert [s["id"] for s in client.get("/api/library").json()] == LIBRARY.ids
 
 
+def test_the_state_library_with_a_sign_added_is_a_library_as_read_elsewhere(tmp_path):
+    """library.json refuses unknown keys: what the server writes beside the signs (where they came from, the
+    signs added) must not be one, or `signpose recognize --library <state>/library` would refuse it."""
+    workspace = Workspace(config(tmp_path / "state"))
+    with running(create_app(workspace)) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as client:
+        photo = sign_photo(LIBRARY, "security_compound")
+        r = client.post("/api/library", files={"file": ("d.jpg", photo, "image/jpeg")},
+                        data={"id": "door_plate", "width_m": "0.4", "height_m": "0.3"})
+        assert r.status_code == 201, r.text
+    written = json.loads((workspace.state.library_dir / "library.json").read_text(encoding="utf-8"))
+    assert written["added"] == ["door_plate"]
+    assert load_library(workspace.state.library_dir).ids == [*LIBRARY.ids, "door_plate"]
+
+
 def test_a_sign_drawn_on_a_transparent_ground_is_a_sign_on_white(client):
     """Artwork exported with a transparent ground was refused as blank: alpha dropped, black on black."""
     sign = plaque_of(DECOYS[0])

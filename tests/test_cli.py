@@ -291,6 +291,7 @@ def test_whole_numbers_written_as_floats_in_a_settings_file_work(tmp_path):
 @pytest.mark.parametrize("sign_id, message", [
     ("../x", "id '../x' must be 1-64 characters"),
     ("none", "id 'none' is reserved for images without a sign"),  # else "truth none, answer none" was wrong
+    ('a", "heigth_m": "0.5', "sign #0: unknown key(s) 'heigth_m': correct or remove them"),  # was dropped unsaid
 ])
 def test_bad_library_is_a_clear_error(tmp_path, sign_id, message):
     (tmp_path / "library.json").write_text(f'{{"signs": [{{"id": "{sign_id}", "image": "a.png", "width_m": 0.6}}]}}')
