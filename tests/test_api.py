@@ -706,7 +706,11 @@ def test_camera_json_may_be_a_camera_files_keys(client, body):
     ("/api/camera", {"dist": [-0.1, "0.02"]}, "body.dist.1", "not text"),
     ("/api/camera", {"width": "640", "height": 480}, "body.width", "not text"),
     ("/api/camera/assumed", {"hfov_deg": "75"}, "body.hfov_deg", "not text"),
-    ("/api/calibration/board", {"cols": "9", "rows": 6, "square_m": 0.025}, "body.cols", "not text"),
+    # the example was always 500
+    ("/api/calibration/board", {"cols": "9", "rows": 6, "square_m": 0.025}, "body.cols", 'not text: write 9, not "9"'),
+    ("/api/calibration/board", {"cols": 9, "rows": 6, "square_m": "2.5e-2"}, "body.square_m",
+     'not text: write 2.5e-2, not "2.5e-2"'),
+    ("/api/camera/assumed", {"hfov_deg": "wide"}, "body.hfov_deg", "not text: write a number without quotes"),
 ])
 def test_camera_numbers_must_be_json_numbers_not_text(client, path, body, where, what):
     typed = {"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640, "height": 480}
