@@ -711,6 +711,16 @@ def calibrate_threshold(body: CalibrateIn, workspace: WorkspaceDep) -> tuning.Th
     return tuning.suggest_threshold(record.gray, workspace.settings.normalization, inside, source)
 
 
+def check_sweep_ends(settings: Settings, param: str, ends: dict[str, tuple[float, float]]) -> None:
+    """422 naming the end ("lo" or "hi", as given, and the value the sweep runs for it) that `param` cannot take
+    beside `settings`: the error was the first value out of range, often one between them that nobody typed."""
+    for end, (given, value) in ends.items():
+        try:
+            settings.replace(**{param: value})
+        except SettingsError as exc:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{end} ({given:g}): {exc}") from None
+
+
 @api.get("/sweep", response_model=SweepOut, tags=["tuning"])
 async def sweep(workspace: WorkspaceDep,
           param: Annotated[str, Query(description=f"a numeric setting: {', '.join(NUMERIC_SETTINGS)}")] = "threshold",
@@ -722,12 +732,13 @@ async def sweep(workspace: WorkspaceDep,
                             f"cannot sweep {param!r}; choose a numeric setting: {', '.join(NUMERIC_SETTINGS)}")
     if not lo < hi:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"lo ({lo}) must be below hi ({hi})")
+    values = tuning.sweep_values(lo, hi, steps, param in INTEGER_SETTINGS)
+    check_sweep_ends(workspace.settings, param, {"lo": (lo, values[0]), "hi": (hi, values[-1])})
     labelled = [r for r in workspace.images() if r.expected is not None]
     if not labelled:
         raise HTTPException(status.HTTP_409_CONFLICT,
                             "no labelled images to sweep over: give images an expected label "
                             "(when uploading, or PATCH /api/images/{id})")
-    values = tuning.sweep_values(lo, hi, steps, param in INTEGER_SETTINGS)
     runs = await within_time_limit(workspace, f"the sweep of {param} over {len(labelled)} images",
                                    lambda stop: workspace.sweep(param, values, labelled, stop))
     correct, min_margin, by_plaque, failed = [], [], [], []

@@ -616,7 +616,10 @@ def test_sweep_finds_the_working_band(client):
     assert tester["values"] == list(range(4, 31, 2)) and all(type(v) is int for v in tester["values"])
     assert_error(client.get("/api/sweep", params={"param": "detector"}), 422, "numeric setting", "threshold")
     assert_error(client.get("/api/sweep", params={"lo": 0.9, "hi": 0.3}), 422, "below")
-    assert_error(client.get("/api/sweep", params={"lo": 0.5, "hi": 1.5}), 422, "threshold", "between")
+    # a value between them was named, 1.15 for hi=2, or 1.0625 for hi=1.5
+    for ends, words in (({"lo": 0.3, "hi": 2}, "hi (2): threshold must be between 0.0 and 1.0; got 2.0"),
+                        ({"lo": -0.5, "hi": 0.5}, "lo (-0.5): threshold must be between 0.0 and 1.0; got -0.5")):
+        assert client.get("/api/sweep", params={"param": "threshold", **ends}).json() == {"detail": words}
     assert client.get("/api/sweep", params={"steps": 1}).status_code == 422
     for image_id in ids:
         client.delete(f"/api/images/{image_id}")
