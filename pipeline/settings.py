@@ -157,6 +157,11 @@ class Settings:
             raise SettingsError(
                 f"high_threshold ({self.high_threshold}) must be above threshold ({self.threshold}), or null"
             )
+        # A crop below min_crop_size is upscaled to it, and one above max_crop_size downscaled: both at once say
+        # nothing of the size detection runs at.
+        if 0 < self.max_crop_size < self.min_crop_size:
+            raise SettingsError(f"min_crop_size ({self.min_crop_size}) must be at most max_crop_size "
+                                f"({self.max_crop_size}), or max_crop_size 0 (never downscale)")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

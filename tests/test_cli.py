@@ -740,3 +740,12 @@ def test_recognize_help_gives_the_assumed_field_of_views_range():
     result = signpose("recognize", "--help")
     assert result.returncode == 0
     assert "horizontal field of view, 10 to 140 degrees, assumed for" in " ".join(result.stdout.split())
+
+
+def test_a_settings_file_with_min_crop_size_above_max_crop_size_is_refused(tmp_path):
+    path = tmp_path / "settings.json"
+    path.write_text('{"min_crop_size": 500, "max_crop_size": 160}')
+    result = signpose("recognize", SCENES / "scene_002.jpg", "--settings", path)
+    assert result.returncode == 2 and result.stdout == ""
+    assert "min_crop_size (500) must be at most max_crop_size (160), or max_crop_size 0 (never downscale)" in \
+        result.stderr and len(result.stderr.splitlines()) == 1
