@@ -711,14 +711,25 @@ def calibrate_threshold(body: CalibrateIn, workspace: WorkspaceDep) -> tuning.Th
     return tuning.suggest_threshold(record.gray, workspace.settings.normalization, inside, source)
 
 
-def check_sweep_ends(settings: Settings, param: str, ends: dict[str, tuple[float, float]]) -> None:
-    """422 naming the end ("lo" or "hi", as given, and the value the sweep runs for it) that `param` cannot take
-    beside `settings`: the error was the first value out of range, often one between them that nobody typed."""
-    for end, (given, value) in ends.items():
-        try:
-            settings.replace(**{param: value})
-        except SettingsError as exc:
-            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{end} ({given:g}): {exc}") from None
+def taken_sweep_values(settings: Settings, param: str, lo: float, hi: float, values: list[float]) -> list[float]:
+    """The `values` of a sweep of `param` from `lo` to `hi` that `param` can take beside `settings`.
+
+    An end it cannot take is a 422 naming it as given: the error was the first value refused, often one between
+    them that nobody typed. Values between the ends that contradict another setting are left out: a max_crop_size
+    swept up from 0 (never downscale) passes sizes below min_crop_size, which it cannot take."""
+    for end, given, value in (("lo", lo, values[0]), ("hi", hi, values[-1])):
+        if (error := refusal(settings, param, value)) is not None:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{end} ({given:g}): {error}")
+    return [value for value in values if refusal(settings, param, value) is None]
+
+
+def refusal(settings: Settings, param: str, value: float) -> SettingsError | None:
+    """Why `settings` with `param` set to `value` are invalid; None when they are not."""
+    try:
+        settings.replace(**{param: value})
+    except SettingsError as exc:
+        return exc
+    return None
 
 
 @api.get("/sweep", response_model=SweepOut, tags=["tuning"])
@@ -732,8 +743,8 @@ async def sweep(workspace: WorkspaceDep,
                             f"cannot sweep {param!r}; choose a numeric setting: {', '.join(NUMERIC_SETTINGS)}")
     if not lo < hi:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"lo ({lo}) must be below hi ({hi})")
-    values = tuning.sweep_values(lo, hi, steps, param in INTEGER_SETTINGS)
-    check_sweep_ends(workspace.settings, param, {"lo": (lo, values[0]), "hi": (hi, values[-1])})
+    values = taken_sweep_values(workspace.settings, param, lo, hi, tuning.sweep_values(lo, hi, steps,
+                                                                                      param in INTEGER_SETTINGS))
     labelled = [r for r in workspace.images() if r.expected is not None]
     if not labelled:
         raise HTTPException(status.HTTP_409_CONFLICT,
