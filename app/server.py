@@ -49,7 +49,8 @@ from pipeline.exif import turned_camera
 from pipeline.image import ImageError
 from pipeline.jsonfile import JsonError, parse_json
 from pipeline.library import ID_PATTERN, LibraryError
-from pipeline.settings import PRESETS, Settings, SettingsError, file_settings, settings_schema
+from pipeline.settings import (PRESETS, Settings, SettingsError, check_setting, file_settings,
+                               settings_schema)
 
 from . import figures, tuning
 from .api_models import (
@@ -714,13 +715,19 @@ def calibrate_threshold(body: CalibrateIn, workspace: WorkspaceDep) -> tuning.Th
 def taken_sweep_values(settings: Settings, param: str, lo: float, hi: float, values: list[float]) -> list[float]:
     """The `values` of a sweep of `param` from `lo` to `hi` that `param` can take beside `settings`.
 
-    An end it cannot take is a 422 naming it as given: the error was the first value refused, often one between
-    them that nobody typed. Values between the ends that contradict another setting are left out: a max_crop_size
-    swept up from 0 (never downscale) passes sizes below min_crop_size, which it cannot take."""
+    An end out of the setting's own range is a 422 naming it as given: the error was the first value refused,
+    often one between them that nobody typed. Values that contradict another setting are left out (a
+    max_crop_size swept up from 0, never downscale, passes sizes below min_crop_size); a 422 when that is all."""
     for end, given, value in (("lo", lo, values[0]), ("hi", hi, values[-1])):
-        if (error := refusal(settings, param, value)) is not None:
-            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{end} ({given:g}): {error}")
-    return [value for value in values if refusal(settings, param, value) is None]
+        try:
+            check_setting(param, value)
+        except SettingsError as exc:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{end} ({given:g}): {exc}") from None
+    taken = [value for value in values if refusal(settings, param, value) is None]
+    if not taken:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"no value of {param} from lo ({lo:g}) to hi "
+                            f"({hi:g}) goes with the other settings: {refusal(settings, param, values[0])}")
+    return taken
 
 
 def refusal(settings: Settings, param: str, value: float) -> SettingsError | None:

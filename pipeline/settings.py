@@ -183,6 +183,12 @@ class Settings:
         return cls(**merged)
 
 
+def check_setting(name: str, value: Any) -> Any:
+    """`value` as setting `name` holds it, checked on its own, not against the other settings; SettingsError if
+    invalid (KeyError for no setting)."""
+    return _check_field({f.name: f for f in dataclasses.fields(Settings)}[name], value)
+
+
 def _is_int_field(f: dataclasses.Field) -> bool:
     """Whether the setting `f` takes whole numbers (bool is an int subclass, but a flag)."""
     return isinstance(f.default, int) and not isinstance(f.default, bool)

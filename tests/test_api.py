@@ -620,9 +620,14 @@ def test_sweep_finds_the_working_band(client):
     for ends, words in (({"lo": 0.3, "hi": 2}, "hi (2): threshold must be between 0.0 and 1.0; got 2.0"),
                         ({"lo": -0.5, "hi": 0.5}, "lo (-0.5): threshold must be between 0.0 and 1.0; got -0.5")):
         assert client.get("/api/sweep", params={"param": "threshold", **ends}).json() == {"detail": words}
-    # sizes between that min_crop_size (128) refuses are left out: 0 is never downscale
+    # sizes min_crop_size (128) and max_crop_size (160) refuse are left out: 0 is never downscale
     crops = client.get("/api/sweep", params={"param": "max_crop_size", "lo": 0, "hi": 240, "steps": 4})
     assert crops.status_code == 200 and crops.json()["values"] == [0, 160, 240], crops.text
+    crops = client.get("/api/sweep", params={"param": "min_crop_size", "lo": 0, "hi": 240, "steps": 4})
+    assert crops.status_code == 200 and crops.json()["values"] == [0, 80, 160], crops.text
+    assert_error(client.get("/api/sweep", params={"param": "min_crop_size", "lo": 200, "hi": 240, "steps": 2}), 422,
+                 "no value of min_crop_size from lo (200) to hi (240) goes with the other settings: min_crop_size "
+                 "(200) must be at most max_crop_size (160)")
     assert client.get("/api/sweep", params={"steps": 1}).status_code == 422
     for image_id in ids:
         client.delete(f"/api/images/{image_id}")
