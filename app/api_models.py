@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, BeforeValidator, Field
@@ -11,13 +12,25 @@ from pipeline.library import LibrarySign
 from pipeline.settings import Settings
 
 
+# Text that is a JSON number as written, short enough to quote back in an error.
+QUOTED_NUMBER = re.compile(r"-?(0|[1-9][0-9]*)(\.[0-9]+)?([eE][+-]?[0-9]+)?")
+
+
 def json_number(value: Any) -> Any:
     """`value` unless it is text or true/false: pydantic's lax mode would read "500" as 500 and true as
     1, so a client quoting its numbers, or sending a checkbox's state, would go unnoticed."""
     if isinstance(value, (str, bool)):
         raise PydanticCustomError("number_type", "Input should be a number, not {what}",
-                                  {"what": 'text: write 500, not "500"' if isinstance(value, str) else "true or false"})
+                                  {"what": _unquoted(value) if isinstance(value, str) else "true or false"})
     return value
+
+
+def _unquoted(text: str) -> str:
+    """How to write the number quoted as `text`: that number without its quotes ("9": write 9, not "9"), or any
+    number when it is none."""
+    if len(text) <= 32 and QUOTED_NUMBER.fullmatch(text):
+        return f'text: write {text}, not "{text}"'
+    return "text: write a number without quotes"
 
 
 # Numbers in request bodies: JSON numbers only (a whole number may be written 640.0).

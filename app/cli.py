@@ -22,7 +22,7 @@ from tqdm import tqdm
 
 from app.entry import STOP_SIGNALS, Interrupted, interrupted, stopping_on_signals
 from app.workspace import HELD_BYTES_PER_PIXEL, WorkspaceConfig, check_image_header, decode_upload, held_bytes
-from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, check_hfov, load_camera
+from pipeline.camera import ASSUMED_HFOV_DEG, ASSUMED_HFOV_RANGE_DEG, Camera, CameraError, check_hfov, load_camera
 from pipeline.evaluate import CORES, keep_freed_memory, pad_to
 from pipeline.image import ImageError, read_file
 from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
@@ -405,8 +405,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_max_megapixels(p)
     p.add_argument("--json", action="store_true", help="one JSON object per image per line")
     p.add_argument("--assumed-fov", type=field_of_view, default=ASSUMED_HFOV_DEG, metavar="DEG",
-                   help="horizontal field of view assumed for an image without --camera or a usable EXIF focal "
-                        "length, as the page's assumed FOV (default %(default)g)")
+                   help="horizontal field of view, {:g} to {:g} degrees, assumed for an image without --camera or "
+                        "a usable EXIF focal length, as the page's assumed FOV (default %(default)g)"
+                        .format(*ASSUMED_HFOV_RANGE_DEG))
     p.set_defaults(func=cmd_recognize)
 
     p = sub.add_parser("synth", help="render synthetic scenes with ground truth")

@@ -48,7 +48,8 @@ from pipeline.exif import turned_camera
 from pipeline.image import ImageError
 from pipeline.jsonfile import JsonError, parse_json
 from pipeline.library import ID_PATTERN, LibraryError
-from pipeline.settings import PRESETS, Settings, SettingsError, file_settings, settings_schema
+from pipeline.settings import (PRESETS, Settings, SettingsError, check_setting, file_settings,
+                               settings_schema)
 
 from . import figures, tuning
 from .api_models import (
@@ -703,6 +704,33 @@ def calibrate_threshold(body: CalibrateIn, workspace: WorkspaceDep) -> tuning.Th
     return tuning.suggest_threshold(record.gray, workspace.settings.normalization, inside, source)
 
 
+def taken_sweep_values(settings: Settings, param: str, lo: float, hi: float, values: list[float]) -> list[float]:
+    """The `values` of a sweep of `param` from `lo` to `hi` that `param` can take beside `settings`.
+
+    An end out of the setting's own range is a 422 naming it as given: the error was the first value refused,
+    often one between them that nobody typed. Values that contradict another setting are left out (a
+    max_crop_size swept up from 0, never downscale, passes sizes below min_crop_size); a 422 when that is all."""
+    for end, given, value in (("lo", lo, values[0]), ("hi", hi, values[-1])):
+        try:
+            check_setting(param, value)
+        except SettingsError as exc:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{end} ({given:g}): {exc}") from None
+    taken = [value for value in values if refusal(settings, param, value) is None]
+    if not taken:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"no value of {param} from lo ({lo:g}) to hi "
+                            f"({hi:g}) goes with the other settings: {refusal(settings, param, values[0])}")
+    return taken
+
+
+def refusal(settings: Settings, param: str, value: float) -> SettingsError | None:
+    """Why `settings` with `param` set to `value` are invalid; None when they are not."""
+    try:
+        settings.replace(**{param: value})
+    except SettingsError as exc:
+        return exc
+    return None
+
+
 @api.get("/sweep", response_model=SweepOut, tags=["tuning"])
 async def sweep(workspace: WorkspaceDep,
           param: Annotated[str, Query(description=f"a numeric setting: {', '.join(NUMERIC_SETTINGS)}")] = "threshold",
@@ -714,12 +742,13 @@ async def sweep(workspace: WorkspaceDep,
                             f"cannot sweep {param!r}; choose a numeric setting: {', '.join(NUMERIC_SETTINGS)}")
     if not lo < hi:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"lo ({lo}) must be below hi ({hi})")
+    values = taken_sweep_values(workspace.settings, param, lo, hi, tuning.sweep_values(lo, hi, steps,
+                                                                                      param in INTEGER_SETTINGS))
     labelled = [r for r in workspace.images() if r.expected is not None]
     if not labelled:
         raise HTTPException(status.HTTP_409_CONFLICT,
                             "no labelled images to sweep over: give images an expected label "
                             "(when uploading, or PATCH /api/images/{id})")
-    values = tuning.sweep_values(lo, hi, steps, param in INTEGER_SETTINGS)
     runs = await within_time_limit(workspace, f"the sweep of {param} over {len(labelled)} images",
                                    lambda stop: workspace.sweep(param, values, labelled, stop))
     correct, min_margin, by_plaque, failed = [], [], [], []

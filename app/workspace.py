@@ -20,6 +20,7 @@ import mimetypes
 import os
 import re
 import secrets
+import struct
 import threading
 import time
 import warnings
@@ -310,14 +311,38 @@ def check_image_header(data: bytes, name: str, max_pixels: int) -> ImageHeader:
                 width, height = im.size
                 media_type = im.get_format_mimetype() or "application/octet-stream"
     except Image.DecompressionBombError:  # past Pillow's own ceiling, which a higher max_pixels cannot lift
-        limit = min(max_pixels, 2 * Image.MAX_IMAGE_PIXELS)
-        raise ImageTooLarge(f"{name}: the image has more than {limit / 1e6:g} megapixels; downscale it") from None
+        raise _too_large(name, *_claimed_size(data, name), max_pixels) from None
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError):  # a header cut short, or no image
         raise unreadable(data, name) from None
     if width * height > max_pixels:
-        raise ImageTooLarge(f"{name}: {width}x{height} px is {width * height / 1e6:.1f} megapixels, more than "
-                            f"the limit of {max_pixels / 1e6:g}; downscale it, or raise --max-megapixels")
+        raise _too_large(name, width, height, max_pixels)
     return ImageHeader(media_type, width, height)
+
+
+def _too_large(name: str, width: int, height: int, max_pixels: int) -> ImageTooLarge:
+    """The error for image `name` of `width` x `height` px, more than `max_pixels` px or Pillow's ceiling (twice
+    Image.MAX_IMAGE_PIXELS, which it refuses to open): its size, and whether a higher --max-megapixels would let it
+    through."""
+    pixels, ceiling = width * height, 2 * Image.MAX_IMAGE_PIXELS
+    size = f"{name}: {width}x{height} px is {pixels / 1e6:.1f} megapixels, more than the"
+    if pixels > ceiling:
+        return ImageTooLarge(f"{size} {ceiling / 1e6:.0f} that can be read at any --max-megapixels; downscale it")
+    return ImageTooLarge(f"{size} limit of {max_pixels / 1e6:g}; downscale it, or raise --max-megapixels")
+
+
+def _claimed_size(data: bytes, name: str) -> tuple[int, int]:
+    """The size (px) the header of image `data` claims, where Image.open refused it past Pillow's ceiling without
+    saying it: read by the first format that accepts its first bytes, as Image.open reads it, without the ceiling."""
+    Image.init()
+    for factory, accept in (Image.OPEN[f] for f in Image.ID):
+        accepted = accept is None or accept(data[:16])
+        if accepted and not isinstance(accepted, str):  # a str is Pillow's warning that it cannot read this kind
+            try:
+                with factory(io.BytesIO(data), name) as image:
+                    return image.size
+            except (SyntaxError, IndexError, TypeError, struct.error):  # not this format, as Image.open takes it
+                continue
+    raise unreadable(data, name)
 
 
 def decode_upload(data: bytes, name: str, max_pixels: int) -> tuple[np.ndarray, str, ExifCamera]:

@@ -231,8 +231,22 @@ def _load_truth(root: Path) -> tuple[list[Sample], Path | None]:
             _matrix(entry.get("H"), (3, 3), f"{where}: H"), _matrix(entry.get("corners"), (4, 2), f"{where}: corners"),
             entry.get("params") or {},
         ))
-    camera = truth.get("camera")
-    return samples, None if camera is None else root / camera
+    return samples, _named_camera(root, truth_path, truth.get("camera"))
+
+
+def _named_camera(root: Path, truth_path: Path, name) -> Path | None:
+    """The camera file truth.json's "camera" names, relative to `root`; None when it names none. A named file
+    that is missing is refused, as a missing image is: ignoring it measured the poses under an assumed field of
+    view without a word."""
+    if name is None:
+        return None
+    if not isinstance(name, str):
+        raise DatasetError(f'{truth_path}: "camera" must be a camera file name; got {reprlib.repr(name)}')
+    path = root / name
+    if not _is_file(path):
+        raise DatasetError(f'{truth_path}: the "camera" file {reprlib.repr(name)} is not a file in {root}; '
+                           'put the camera file there, or remove "camera" from truth.json')
+    return path
 
 
 def _load_folders(root: Path) -> list[Sample]:

@@ -58,6 +58,11 @@ SIGN_SIZE_RANGE_M = (0.02, 10.0)
 # outline differs) and EXIT 7 against EXIT 8 (0.87, 18 in 20).
 MAX_LIKENESS = 0.85
 LIKENESS_SIZE = 60  # px, each side of the square both images are squeezed to
+# The keys library.json may hold, of a sign and at its top (beside "signs", what the server's state records of where
+# its library came from: app/state.py library_meta). Others are refused: a typo such as "heigth_m" was dropped
+# without a word, the height then taken from the image's aspect.
+SIGN_KEYS = ("id", "name", "text", "image", "width_m", "height_m")
+LIBRARY_KEYS = ("signs", "copied_from", "fingerprint", "added")
 LIKENESS_CELLS = (6, 2)  # columns and rows of the cells compared, each LIKENESS_SIZE / 6 x LIKENESS_SIZE / 2 px
 LIKENESS_SHADING_SIGMA = 8.0  # px at LIKENESS_SIZE: wider than strokes, narrower than the light across a sign
 # A cell with less than this fraction of the mean cell's detail in both images is blank in both:
@@ -146,6 +151,7 @@ def validate_sign_entry(entry: dict, where: str) -> dict:
     """Check one `library.json` entry; returns it with sizes as floats."""
     if not isinstance(entry, dict):
         raise LibraryError(f"{where}: each sign must be an object")
+    _refuse_unknown_keys(entry, SIGN_KEYS, where)
     missing = [k for k in ("id", "image", "width_m") if k not in entry]
     if missing:
         raise LibraryError(f"{where}: missing {', '.join(missing)}")
@@ -170,6 +176,14 @@ def validate_sign_entry(entry: dict, where: str) -> dict:
             raise LibraryError(f"{where}: {key} must be a positive number of metres; got {reprlib.repr(value)}")
         check_size_m(key, float(value), where)
     return entry
+
+
+def _refuse_unknown_keys(data: dict, known: tuple[str, ...], where: str) -> None:
+    """LibraryError naming the keys of `data` (a library.json object, at `where`) that are not `known`."""
+    unknown = [key for key in data if key not in known]
+    if unknown:
+        raise LibraryError(f"{where}: unknown key(s) {reprlib.repr(unknown)[1:-1]}: correct or remove them; the keys "
+                           f"read are {', '.join(known)}")
 
 
 def check_size_m(key: str, value: float, where: str) -> None:
@@ -276,6 +290,7 @@ def load_library(root: str | Path = SAMPLE_LIBRARY) -> Library:
     entries = meta.get("signs") if isinstance(meta, dict) else None
     if not isinstance(entries, list) or not entries:
         raise LibraryError(f'{meta_path} must hold {{"signs": [...]}} with at least one sign')
+    _refuse_unknown_keys(meta, LIBRARY_KEYS, str(meta_path))
     signs: list[LibrarySign] = []
     for i, entry in enumerate(entries):
         where = f"{meta_path} sign #{i}"

@@ -157,6 +157,11 @@ class Settings:
             raise SettingsError(
                 f"high_threshold ({self.high_threshold}) must be above threshold ({self.threshold}), or null"
             )
+        # A crop below min_crop_size is upscaled to it, and one above max_crop_size downscaled: both at once say
+        # nothing of the size detection runs at.
+        if 0 < self.max_crop_size < self.min_crop_size:
+            raise SettingsError(f"min_crop_size ({self.min_crop_size}) must be at most max_crop_size "
+                                f"({self.max_crop_size}), or max_crop_size 0 (never downscale)")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -176,6 +181,12 @@ class Settings:
             raise SettingsError(f"unknown setting(s): {reprlib.repr(unknown)[1:-1]}; known: {', '.join(sorted(known))}")
         merged = {**(base or cls()).to_dict(), **data}
         return cls(**merged)
+
+
+def check_setting(name: str, value: Any) -> Any:
+    """`value` as setting `name` holds it, checked on its own, not against the other settings; SettingsError if
+    invalid (KeyError for no setting)."""
+    return _check_field({f.name: f for f in dataclasses.fields(Settings)}[name], value)
 
 
 def _is_int_field(f: dataclasses.Field) -> bool:

@@ -210,6 +210,20 @@ def test_library_list_image_add_and_delete(client):
     assert [s["id"] for s in client.get("/api/library").json()] == LIBRARY.ids
 
 
+def test_the_state_library_with_a_sign_added_is_a_library_as_read_elsewhere(tmp_path):
+    """library.json refuses unknown keys: what the server writes beside the signs (where they came from, the
+    signs added) must not be one, or `signpose recognize --library <state>/library` would refuse it."""
+    workspace = Workspace(config(tmp_path / "state"))
+    with running(create_app(workspace)) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as client:
+        photo = sign_photo(LIBRARY, "security_compound")
+        r = client.post("/api/library", files={"file": ("d.jpg", photo, "image/jpeg")},
+                        data={"id": "door_plate", "width_m": "0.4", "height_m": "0.3"})
+        assert r.status_code == 201, r.text
+    written = json.loads((workspace.state.library_dir / "library.json").read_text(encoding="utf-8"))
+    assert written["added"] == ["door_plate"]
+    assert load_library(workspace.state.library_dir).ids == [*LIBRARY.ids, "door_plate"]
+
+
 def test_a_sign_drawn_on_a_transparent_ground_is_a_sign_on_white(client):
     """Artwork exported with a transparent ground was refused as blank: alpha dropped, black on black."""
     sign = plaque_of(DECOYS[0])
@@ -358,7 +372,7 @@ def test_input_figure_shows_every_label_and_the_answer(client, scene, sign, by_p
     ("scrambled.jpg", scrambled_scene(), None, 422, ("scrambled.jpg: damaged or truncated JPEG", "data is corrupt")),
     ("IMG_0001.HEIC", HEIC_START, None, 422, ("IMG_0001.HEIC: HEIC/HEIF images are not supported", "Most Compatible")),
     ("bomb.png", png_bomb(1500, 1000), None, 413, ("bomb.png", "1500x1000", "megapixels")),
-    ("huge_bomb.png", png_bomb(), None, 413, ("megapixels",)),
+    ("huge_bomb.png", png_bomb(), None, 413, ("huge_bomb.png: 20000x20000 px is 400.0 megapixels", "--max-megapixels")),
     ("x.jpg", sign_photo(LIBRARY, "security_compound"), "no_such_sign", 422, ("no_such_sign", "security_compound")),
 ])
 def test_bad_uploads_get_a_clear_4xx_and_nothing_is_kept(client, name, data, expected, code, words):
@@ -601,7 +615,18 @@ def test_sweep_finds_the_working_band(client):
     assert tester["values"] == list(range(4, 31, 2)) and all(type(v) is int for v in tester["values"])
     assert_error(client.get("/api/sweep", params={"param": "detector"}), 422, "numeric setting", "threshold")
     assert_error(client.get("/api/sweep", params={"lo": 0.9, "hi": 0.3}), 422, "below")
-    assert_error(client.get("/api/sweep", params={"lo": 0.5, "hi": 1.5}), 422, "threshold", "between")
+    # a value between them was named, 1.15 for hi=2, or 1.0625 for hi=1.5
+    for ends, words in (({"lo": 0.3, "hi": 2}, "hi (2): threshold must be between 0.0 and 1.0; got 2.0"),
+                        ({"lo": -0.5, "hi": 0.5}, "lo (-0.5): threshold must be between 0.0 and 1.0; got -0.5")):
+        assert client.get("/api/sweep", params={"param": "threshold", **ends}).json() == {"detail": words}
+    # sizes min_crop_size (128) and max_crop_size (160) refuse are left out: 0 is never downscale
+    crops = client.get("/api/sweep", params={"param": "max_crop_size", "lo": 0, "hi": 240, "steps": 4})
+    assert crops.status_code == 200 and crops.json()["values"] == [0, 160, 240], crops.text
+    crops = client.get("/api/sweep", params={"param": "min_crop_size", "lo": 0, "hi": 240, "steps": 4})
+    assert crops.status_code == 200 and crops.json()["values"] == [0, 80, 160], crops.text
+    assert_error(client.get("/api/sweep", params={"param": "min_crop_size", "lo": 200, "hi": 240, "steps": 2}), 422,
+                 "no value of min_crop_size from lo (200) to hi (240) goes with the other settings: min_crop_size "
+                 "(200) must be at most max_crop_size (160)")
     assert client.get("/api/sweep", params={"steps": 1}).status_code == 422
     for image_id in ids:
         client.delete(f"/api/images/{image_id}")
@@ -735,9 +760,14 @@ def test_camera_json_is_read_as_the_same_camera_file(client, body, message):
     ("/api/camera", {"dist": [-0.1, "0.02"]}, "dist must be a number, not text: write 0.02 without quotes"),
     ("/api/camera", {"width": "640", "height": 480},
      "width must be a whole number, not text: write 640 without quotes"),
-    ("/api/camera/assumed", {"hfov_deg": "75"}, "body.hfov_deg: Input should be a number, not text"),
+    ("/api/camera/assumed", {"hfov_deg": "75"}, 'body.hfov_deg: Input should be a number, not text: write 75, not "75"'),
+    # the example was always 500, whatever was sent
     ("/api/calibration/board", {"cols": "9", "rows": 6, "square_m": 0.025},
-     "body.cols: Input should be a number, not text"),
+     'body.cols: Input should be a number, not text: write 9, not "9"'),
+    ("/api/calibration/board", {"cols": 9, "rows": 6, "square_m": "2.5e-2"},
+     'body.square_m: Input should be a number, not text: write 2.5e-2, not "2.5e-2"'),
+    ("/api/camera/assumed", {"hfov_deg": "wide"},
+     "body.hfov_deg: Input should be a number, not text: write a number without quotes"),
 ])
 def test_camera_numbers_must_be_json_numbers_not_text(client, path, body, message):
     typed = {"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640, "height": 480}

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import threading
 import time
+from pathlib import Path
 from concurrent.futures import ThreadPoolExecutor
 
 import cv2
@@ -430,3 +431,14 @@ def test_the_answer_names_the_photo_it_added_whatever_its_name(client, photos):
     assert [v["name"] for v in second["views"]] == ["IMG_0001.png", "IMG_0001.png"]
     assert_error(client.post("/api/calibration/images", files={"files": photos[6]}, data={"batch": "b", "position": "-1"}),
                  422, "position")
+
+
+def test_readme_names_every_field_the_calibration_answer_has(client, photos):
+    """README listed photos "(found, error, ...)" where the answer has `views`, each with `error_px` and an
+    unlisted `tilt_deg`."""
+    assert add(client, photos).status_code == 201
+    answer = client.post("/api/calibration/run").json()
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    row = next(line for line in readme.splitlines() if line.startswith("| `GET /api/calibration`"))
+    fields = {*answer, *answer["views"][0], *answer["result"]}
+    assert [f for f in sorted(fields) if f"`{f}`" not in row] == []

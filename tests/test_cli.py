@@ -120,7 +120,10 @@ def test_images_over_the_pixel_limit_are_refused_from_their_header(tmp_path):
     result = signpose("recognize", huge, good, "--json")
     assert result.returncode == 1
     refused, recognised = map(json.loads, result.stdout.splitlines())
-    assert refused["image"] == str(huge) and "more than 40 megapixels" in refused["error"]
+    # past Pillow's ceiling, it said neither the size nor what --max-megapixels can do
+    assert refused["image"] == str(huge) and refused["error"] == (
+        f"{huge}: 20000x20000 px is 400.0 megapixels, more than the 179 that can be read at any --max-megapixels; "
+        "downscale it")
     check_schema(recognised)
     table = signpose("recognize", good, "--max-megapixels", 0.2)
     assert table.returncode == 1 and "640x480 px is 0.3 megapixels, more than the limit of 0.2" in table.stdout
@@ -291,6 +294,7 @@ def test_whole_numbers_written_as_floats_in_a_settings_file_work(tmp_path):
 @pytest.mark.parametrize("sign_id, message", [
     ("../x", "id '../x' must be 1-64 characters"),
     ("none", "id 'none' is reserved for images without a sign"),  # else "truth none, answer none" was wrong
+    ('a", "heigth_m": "0.5', "sign #0: unknown key(s) 'heigth_m': correct or remove them"),  # was dropped unsaid
 ])
 def test_bad_library_is_a_clear_error(tmp_path, sign_id, message):
     (tmp_path / "library.json").write_text(f'{{"signs": [{{"id": "{sign_id}", "image": "a.png", "width_m": 0.6}}]}}')
@@ -445,6 +449,18 @@ def test_bad_synth_and_evaluate_arguments_are_one_clear_line(tmp_path, args, mes
     result = signpose(*(str(a).format(tmp=tmp_path) for a in args))
     assert result.returncode == 2
     assert message.format(tmp=tmp_path) in result.stderr and "Traceback" not in result.stderr
+
+
+def test_evaluate_refuses_a_dataset_whose_named_camera_is_missing(tmp_path):
+    """It was ignored: the table came out, the poses measured under an assumed 60° field of view."""
+    shutil.copy(SCENES / "scene_000.jpg", tmp_path)
+    (tmp_path / "truth.json").write_text(json.dumps(
+        {"camera": "cam_missing.yaml", "images": {"scene_000.jpg": {"label": "security_compound"}}}))
+    result = signpose("evaluate", tmp_path, "--workers", 1)
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr == (f'signpose evaluate: error: {tmp_path / "truth.json"}: the "camera" file '
+                             f"'cam_missing.yaml' is not a file in {tmp_path}; put the camera file there, "
+                             'or remove "camera" from truth.json\n')
 
 
 @pytest.mark.parametrize("args, message", [
@@ -716,3 +732,20 @@ def test_every_argument_of_every_command_says_what_it_is_in_help():
     bare = [f"{name} {action.dest}" for name, command in commands.items() for action in command._actions
             if not action.help]
     assert bare == []
+
+
+def test_recognize_help_gives_the_assumed_field_of_views_range():
+    """README gave --assumed-fov's 10-140 and `recognize --help` did not: a value out of it was the first a user
+    heard of it."""
+    result = signpose("recognize", "--help")
+    assert result.returncode == 0
+    assert "horizontal field of view, 10 to 140 degrees, assumed for" in " ".join(result.stdout.split())
+
+
+def test_a_settings_file_with_min_crop_size_above_max_crop_size_is_refused(tmp_path):
+    path = tmp_path / "settings.json"
+    path.write_text('{"min_crop_size": 500, "max_crop_size": 160}')
+    result = signpose("recognize", SCENES / "scene_002.jpg", "--settings", path)
+    assert result.returncode == 2 and result.stdout == ""
+    assert "min_crop_size (500) must be at most max_crop_size (160), or max_crop_size 0 (never downscale)" in \
+        result.stderr and len(result.stderr.splitlines()) == 1

@@ -61,6 +61,10 @@ def test_loads_label_folders(tmp_path):
     ({"images": {"missing.jpg": {"label": None}}}, "not found"),
     ({"images": {"a.jpg": {"label": 3}}}, "label must be"),
     ({"images": {"a.jpg": {"label": "x", "R": [[1, 0], [0, 1]]}}}, "R must be 3x3"),
+    # A named camera that was missing was ignored: the poses were measured under an assumed field of view.
+    ({"camera": "cam_missing.yaml", "images": {"a.jpg": {"label": None}}}, "'cam_missing.yaml' is not a file in "),
+    ({"camera": ".", "images": {"a.jpg": {"label": None}}}, "the \"camera\" file '.' is not a file in "),
+    ({"camera": 5, "images": {"a.jpg": {"label": None}}}, "\"camera\" must be a camera file name; got 5"),
 ])
 def test_rejects_bad_truth(tmp_path, truth, message):
     cv2.imwrite(str(tmp_path / "a.jpg"), np.zeros((8, 8, 3), np.uint8))

@@ -71,6 +71,26 @@ def test_a_library_file_with_a_size_in_centimetres_is_refused(tmp_path):
         load_library(tmp_path / "library")
 
 
+@pytest.mark.parametrize("change, words", [
+    (lambda meta: meta["signs"][1].update(heigth_m=0.5),
+     " sign #1: unknown key(s) 'heigth_m': correct or remove them; the keys read are id, name, text, "
+     "image, width_m, height_m"),
+    (lambda meta: meta.update(sign=[]),
+     ": unknown key(s) 'sign': correct or remove them; the keys read are signs, copied_from, "
+     "fingerprint, added"),
+])
+def test_a_library_file_with_an_unknown_key_is_refused_naming_it(tmp_path, change, words):
+    """A typo such as "heigth_m" was dropped without a word, and the height taken from the image's aspect."""
+    shutil.copytree(SAMPLE_LIBRARY, tmp_path / "library")
+    path = tmp_path / "library" / "library.json"
+    meta = json.loads(path.read_text(encoding="utf-8"))
+    change(meta)
+    path.write_text(json.dumps(meta), encoding="utf-8")
+    with pytest.raises(LibraryError) as refused:
+        load_library(tmp_path / "library")
+    assert str(refused.value) == f"{path}{words}"
+
+
 def test_a_library_file_listing_a_copy_of_a_sign_is_refused_naming_both(tmp_path):
     """The page refused a copy of a sign under another id; library.json took it, and neither copy
     was recognised again (their margin over each other is nil)."""

@@ -25,10 +25,19 @@ def test_paper_preset_is_the_published_method():
     ({"thresold": 0.5}, "unknown setting"),
     ({"threshold": 0.8, "high_threshold": 0.7}, "above threshold"),
     ({"candidates": None}, "null"),
+    # taken, though every crop was then both upscaled to 500 px and downscaled to 160
+    ({"min_crop_size": 500, "max_crop_size": 160}, r"^min_crop_size \(500\) must be at most max_crop_size \(160\), "
+                                                   r"or max_crop_size 0 \(never downscale\)$"),
 ])
 def test_invalid_values_are_clear_errors(changes, message):
     with pytest.raises(SettingsError, match=message):
         Settings().replace(**changes)
+
+
+@pytest.mark.parametrize("changes", [{"min_crop_size": 500, "max_crop_size": 0}, {"min_crop_size": 160,
+                                                                                   "max_crop_size": 160}])
+def test_a_min_crop_size_up_to_max_crop_size_or_with_no_max_is_taken(changes):
+    assert Settings().replace(**changes).min_crop_size == changes["min_crop_size"]
 
 
 @pytest.mark.parametrize("changes, message", [
