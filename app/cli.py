@@ -15,7 +15,7 @@ from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import closing, contextmanager, suppress
 from pathlib import Path
-from typing import TextIO
+from typing import NoReturn, TextIO
 
 import cv2
 from tqdm import tqdm
@@ -395,8 +395,17 @@ def output_path(text: str) -> str:
     return text
 
 
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse's parser, whose errors are one line, as every other error of the CLI: argparse printed
+    the command's usage (3 to 5 lines) above it, which `--help` gives."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="signpose", description=__doc__.splitlines()[0])
+    # sub-commands' parsers are made of the same class
+    parser = ArgumentParser(prog="signpose", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("recognize", help="recognise signs and estimate camera pose in images")
