@@ -566,7 +566,9 @@ def _not_number_error(value: object, name: str, what: str) -> CameraError:
         return CameraError(f"{name} is null: give it {what}")
     if isinstance(value, str) and DECIMAL_NUMBER.match(value.strip()):
         return CameraError(f"{name} must be {what}, not text: write {value.strip()} without quotes")
-    return CameraError(f"{name} must be {what}; got {reprlib.repr(value)}")
+    # true and false as JSON and YAML write them, not as Python does
+    shown = str(value).lower() if isinstance(value, bool) else reprlib.repr(value)
+    return CameraError(f"{name} must be {what}; got {shown}")
 
 
 def _numbers(value: object, name: str, most: int) -> np.ndarray:

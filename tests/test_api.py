@@ -756,7 +756,7 @@ def test_camera_json_is_read_as_the_same_camera_file(client, body, message):
 @pytest.mark.parametrize("path, body, message", [
     # PUT /api/camera's body is read as a camera file is (test_camera_json_is_read_as_the_same_camera_file)
     ("/api/camera", {"fx": "500"}, "fx must be a number, not text: write 500 without quotes"),
-    ("/api/camera", {"cy": True}, "cy must be a number; got True"),
+    ("/api/camera", {"cy": True}, "cy must be a number; got true"),
     ("/api/camera", {"dist": [-0.1, "0.02"]}, "dist must be a number, not text: write 0.02 without quotes"),
     ("/api/camera", {"width": "640", "height": 480},
      "width must be a whole number, not text: write 640 without quotes"),

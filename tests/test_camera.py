@@ -283,7 +283,7 @@ K_DATA = "[554, 0, 320, 0, 554, 240, 0, 0, 1]"
     (ROS_MATRIX.format(rows=3, data="[abc, 0, 320, 0, 554, 240, 0, 0, 1]"),
      "camera_matrix.data must be a number; got 'abc'"),
     (ROS_MATRIX.format(rows=3, data="[true, 0, 320, 0, 554, 240, 0, 0, 1]"),
-     "camera_matrix.data must be a number; got True"),
+     "camera_matrix.data must be a number; got true"),
     (ROS_MATRIX.format(rows=3, data="[[554, 0, 320], [0, 554], 240, 0, 0, 1]"), "camera_matrix.data must be a number"),
     (ROS_MATRIX.format(rows="three", data=K_DATA), "camera_matrix.rows must be a whole number; got 'three'"),
     ("camera_matrix: [[554, 0, 320], [0, 554, x], [0, 0, 1]]\n", "camera_matrix must be a number; got 'x'"),
