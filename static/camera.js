@@ -82,17 +82,22 @@ function renderCamera() {
     : "in use: none (EXIF or assumed field of view)";
 }
 
+// The toasts of the camera's warnings: a camera set or reset since, here or elsewhere, or images
+// added or removed make them stale, and left up they piled up beside the new ones, none saying which
+// camera or how many images it was about.
+let cameraWarnings = [];
+
 /** Shows the camera the server answers `request` with, and `done` as a toast with the server's
- *  warnings (images held the camera does not fit, which it keeps all the same); errors as toasts.
- *  Whether the server took the camera. */
+ *  warnings (images held the camera does not fit, which it keeps all the same); warnings still up
+ *  are replaced by the camera's as it now is. Errors as toasts. Whether the server took the camera. */
 async function setCamera(request, done) {
   try {
     camera = await request;
     renderCamera();
-    if (done) {
-      toast(done, "info");
-      for (const warning of camera.warnings) toast(warning, "warn");
-    }
+    if (done) toast(done, "info");
+    const shown = Boolean(done) || cameraWarnings.some((box) => box.isConnected);
+    for (const box of cameraWarnings) box.remove();
+    cameraWarnings = shown ? camera.warnings.map((warning) => toast(warning, "warn")) : [];
     return true;
   } catch (err) {
     report(err);
@@ -120,7 +125,8 @@ function bindSidebar() {
     await setCamera(api("PUT", "/api/camera", form), `camera ${file.files[0].name} loaded`);
     file.value = "";
   };
-  $("#camera-reset").onclick = () => setCamera(api("DELETE", "/api/camera"));
+  $("#camera-reset").onclick = () => setCamera(api("DELETE", "/api/camera"),
+    "camera reset: each image takes its EXIF focal length, else the assumed field of view");
   const range = $("#hfov"), num = $("#hfov-num");
   const change = (value) => {
     const hfov = Number(value);

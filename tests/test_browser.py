@@ -1918,6 +1918,15 @@ def test_a_camera_that_fits_no_image_says_so(page, api, tmp_path, no_camera):
     # A toast like the others: the inline warnings' style (.warnings li, span.warn) is not for it.
     box = "e => { const s = getComputedStyle(e); return [s.borderLeftWidth, s.padding, s.fontSize]; }"
     assert page.eval_on_selector(".toast.warn", box) == page.eval_on_selector(".toast.info", box)
+    # The same camera set again, then reset: each warning was left up beside the next camera's, and after a
+    # reset too, though no camera was then in use to misfit.
+    page.eval_on_selector(".toast.warn", "e => { e.dataset.earlier = 'yes'; }")
+    page.set_input_files("#camera-file", str(misfit))
+    page.wait_for_function("() => !document.querySelector('.toast.warn[data-earlier]') "
+                           "&& document.querySelectorAll('.toast.warn').length === 1")
+    page.click("#camera-reset")
+    page.locator(".toast.info", has_text="camera reset").wait_for()
+    page.wait_for_function("() => !document.querySelector('.toast.warn')")
 
 
 def test_a_failed_image_says_why_without_figures(page, api, no_camera):
