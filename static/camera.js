@@ -87,17 +87,28 @@ function renderCamera() {
 // camera or how many images it was about.
 let cameraWarnings = [];
 
-/** Shows the camera the server answers `request` with, and `done` as a toast with the server's
- *  warnings (images held the camera does not fit, which it keeps all the same); warnings still up
- *  are replaced by the camera's as it now is. Errors as toasts. Whether the server took the camera. */
+/** The camera's warnings (images held it does not fit, which the server keeps it for all the same)
+ *  as toasts: for a camera the user has just set or reset (`fresh`) in place of those up; else those
+ *  up that the camera still says are kept and the others replaced by what it says now (none come
+ *  back once dismissed). */
+function showCameraWarnings(fresh) {
+  const up = cameraWarnings.filter((box) => box.isConnected);
+  if (!fresh && !up.length) return;
+  const text = (box) => box.querySelector(".toast-msg").textContent;
+  const kept = fresh ? [] : up.filter((box) => camera.warnings.includes(text(box)));
+  for (const box of up) if (!kept.includes(box)) box.remove();
+  const said = kept.map(text);
+  cameraWarnings = [...kept, ...camera.warnings.filter((w) => !said.includes(w)).map((w) => toast(w, "warn"))];
+}
+
+/** Shows the camera the server answers `request` with, `done` as a toast, and its warnings
+ *  (`showCameraWarnings`); errors as toasts. Whether the server took the camera. */
 async function setCamera(request, done) {
   try {
     camera = await request;
     renderCamera();
     if (done) toast(done, "info");
-    const shown = Boolean(done) || cameraWarnings.some((box) => box.isConnected);
-    for (const box of cameraWarnings) box.remove();
-    cameraWarnings = shown ? camera.warnings.map((warning) => toast(warning, "warn")) : [];
+    showCameraWarnings(Boolean(done));
     return true;
   } catch (err) {
     report(err);
