@@ -103,6 +103,13 @@ class QuadCandidate:
         return max(self.ncc.values())
 
 
+def read_quad(gray: np.ndarray, labels: np.ndarray, blob: Blob, library: Library) -> QuadCandidate | None:
+    """`blob` (its pixels labelled `blob.label` in `labels`, (H, W) like `gray`) read as a plaque
+    against every library sign; None when its outline is no quadrilateral."""
+    corners = blob_quad(labels, blob)
+    return None if corners is None else QuadCandidate(blob, corners, *plaque_correlations(gray, corners, library))
+
+
 def ranked_quads(gray: np.ndarray, segmentation: Segmentation, library: Library,
                  settings: Settings, shrink: int = 1) -> list[QuadCandidate]:
     """Every quadrilateral candidate at `LEVELS` (cut at 1/`shrink` resolution) and at the

@@ -16,7 +16,9 @@ from pipeline.image import read_image, resize_map
 from pipeline.library import load_library
 from pipeline.pose import rotation_error_deg
 import pipeline.recognize as recognize_module
-from pipeline.recognize import AUTO_ECC_MAX_INLIERS, StageCache, decide, recognize, score_sign
+from pipeline.plaque_search import QuadCandidate
+from pipeline.recognize import AUTO_ECC_MAX_INLIERS, StageCache, candidate_regions, decide, recognize, score_sign
+from pipeline.segment import Blob, Segmentation
 from pipeline.settings import preset
 from scene_images import DECOYS, PLAQUE_AT, decoy_image, like_a_camera, plaque_of, render_plaque, shaded_wall, sign_on_wall
 
@@ -100,11 +102,36 @@ def test_a_sign_below_the_threshold_is_searched_in_its_plaque_crop_before_the_fu
     image = _lit_scene(library, sign_id)
     rec = recognize(image, library, preset("default"))
     assert rec.label == sign_id
-    assert [a.source for a in rec.attempts] == ["blob 1", "plaque 1"]
+    # the lamp, blob 1, is a quad that reads as none of the signs: it waits until after the plaques
+    assert [a.source for a in rec.attempts] == ["plaque 1"]
     x0, y0, x1, y1 = rec.attempt.region
     assert x0 <= 330 and y0 <= 250 and x1 >= 600 and y1 >= 370 and (x1 - x0) * (y1 - y0) < 0.3 * 640 * 480
     without = recognize(image, library, preset("default").replace(plaque_candidates=0))
     assert without.label == sign_id and without.attempt.source == "full frame"
+
+
+def _quad(x0: int, y0: int, x1: int, y1: int, ncc: float) -> QuadCandidate:
+    corners = np.float64([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+    return QuadCandidate(Blob(1, (x1 - x0) * (y1 - y0), (x0, y0, x1, y1)), corners, {"a": ncc}, {"a": 0})
+
+
+@pytest.mark.parametrize("blob_ncc, order", [
+    (0.9, ["blob 1", "plaque 1", "blob 2", "full frame"]),  # blob 1 may be the sign: it goes first, as in the paper
+    (None, ["blob 1", "plaque 1", "blob 2", "full frame"]),  # no quad (a sign cut by the frame, say): first too
+    (0.2, ["plaque 1", "blob 1", "blob 2", "full frame"]),  # a plaque of other words: after the plaques
+])
+def test_the_largest_blob_waits_after_the_plaques_only_when_it_reads_as_another_plaque(blob_ncc, order):
+    crops = [(0, 0, 100, 50), (300, 300, 400, 350)]
+    blobs = [Blob(i + 1, 5000, crop) for i, crop in enumerate(crops)]
+    segmentation = Segmentation(np.zeros((480, 640), np.uint8), "minmax", np.zeros((480, 640), np.uint8), blobs, crops)
+    settings = preset("default").replace(crop_margin=0.0)
+    first = None if blob_ncc is None else _quad(*crops[0], blob_ncc)
+    regions = candidate_regions(segmentation, settings, 640, 480, lambda shrink: [_quad(100, 200, 300, 260, 0.8)],
+                                lambda: first)
+    assert [source for _, source in regions] == order
+    without_plaques = settings.replace(plaque_candidates=0)
+    assert [source for _, source in candidate_regions(segmentation, without_plaques, 640, 480, lambda shrink: [],
+                                                      lambda: first)] == ["blob 1", "blob 2", "full frame"]
 
 
 def test_a_pose_from_the_outline_reports_the_edges_residual_not_the_grids(library):
