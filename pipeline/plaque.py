@@ -59,14 +59,23 @@ class PlaqueMatch:
         return self.ncc[self.sign] if self.sign is not None else None
 
 
-def blob_quad(labels: np.ndarray, blob: Blob) -> np.ndarray | None:
-    """The 4 corners (4, 2) of a blob's convex outline, ordered TL, TR, BR, BL, or None if not a quad."""
+def blob_boundary(labels: np.ndarray, blob: Blob) -> np.ndarray | None:
+    """The outer boundary of a blob (its pixels labelled `blob.label` in `labels`): (K, 1, 2) int32
+    px from its bbox's top-left, every boundary pixel listed; None if it has no pixel."""
     x0, y0, x1, y1 = blob.bbox
     mask = (labels[y0:y1, x0:x1] == blob.label).astype(np.uint8)
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    if not contours:
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    return max(contours, key=cv2.contourArea) if contours else None
+
+
+def blob_quad(labels: np.ndarray, blob: Blob, boundary: np.ndarray | None = None) -> np.ndarray | None:
+    """The 4 corners (4, 2) of a blob's convex outline, ordered TL, TR, BR, BL, or None if not a
+    quad; from its `blob_boundary`, found here unless given."""
+    x0, y0 = blob.bbox[:2]
+    boundary = blob_boundary(labels, blob) if boundary is None else boundary
+    if boundary is None:
         return None
-    hull = cv2.convexHull(max(contours, key=cv2.contourArea))
+    hull = cv2.convexHull(boundary)
     perimeter = cv2.arcLength(hull, True)
     for eps in (0.02, 0.04, 0.06):
         quad = cv2.approxPolyDP(hull, eps * perimeter, True)

@@ -24,7 +24,7 @@ from .match import Matches, match_library
 from .outline import Outline, outline_fit, refine_outline
 from .plaque import (PlaqueMatch, grid_correspondences, match_plaque, project, refine_ecc, seen_grid, sign_corners,
                      sign_to_quad)
-from .plaque_search import (MIN_NCC, SAME_PLAQUE_IOU, QuadCandidate, confirm_plaque, ranked_quads, read_quad,
+from .plaque_search import (MIN_NCC, SAME_PLAQUE_IOU, QuadCandidate, confirm_plaque, ranked_quads, reads_as_no_sign,
                            search_plaques)
 from .pose import CORNER_SIGMA_PX, Pose, PoseError, distort_pixels, estimate_pose, with_corner_floor
 from .segment import Box, Segmentation, box_iou, expand_box, segment
@@ -448,7 +448,7 @@ def search_region(gray: np.ndarray, region: Box, source: str, library: Library, 
 
 def candidate_regions(segmentation: Segmentation | None, settings: Settings, width: int, height: int,
                       quads: Callable[[int], list[QuadCandidate]],
-                      first_blob: Callable[[], QuadCandidate | None]) -> Iterator[tuple[Box, str]]:
+                      first_is_no_sign: Callable[[], bool]) -> Iterator[tuple[Box, str]]:
     """(region, source) pairs in the order they are searched, made as the search asks for them.
 
     The largest blob's crop (the paper's); then the crops of up to `settings.plaque_candidates`
@@ -461,9 +461,9 @@ def candidate_regions(segmentation: Segmentation | None, settings: Settings, wid
     smaller blob), and one crop costs a fraction of the full frame. `quads(shrink)` is called,
     with the lower levels at half resolution, only when the largest blob has failed.
 
-    With plaque candidates, the largest blob waits until after them when `first_blob()` (it
-    read as a plaque) is a quadrilateral correlating below MIN_NCC with every sign: a plaque
-    of other words, which searching first only costs the time of a crop.
+    With plaque candidates, the largest blob waits until after them when `first_is_no_sign()`
+    (`reads_as_no_sign`: a lamp, a white door, a plaque of other words), since searching it
+    first only costs the time of a crop.
     """
     full = (0, 0, width, height)
     searched: list[Box] = []
@@ -476,8 +476,8 @@ def candidate_regions(segmentation: Segmentation | None, settings: Settings, wid
 
     crops = segmentation.crops if segmentation is not None else []
     with_plaques = segmentation is not None and settings.plaque_candidates > 0
-    other_plaque = with_plaques and bool(crops) and (quad := first_blob()) is not None and quad.best_ncc < MIN_NCC
-    if crops and not other_plaque and fresh(crops[0]):
+    no_sign = with_plaques and bool(crops) and first_is_no_sign()
+    if crops and not no_sign and fresh(crops[0]):
         yield crops[0], "blob 1"
     if with_plaques:
         plaques = 0
@@ -487,7 +487,7 @@ def candidate_regions(segmentation: Segmentation | None, settings: Settings, wid
             if fresh(crop := expand_box(quad.blob.bbox, settings.crop_margin, width, height)):
                 plaques += 1
                 yield crop, f"plaque {plaques}"
-    if other_plaque and fresh(crops[0]):
+    if no_sign and fresh(crops[0]):
         yield crops[0], "blob 1"
     for i, crop in enumerate(crops[1:], 2):
         if fresh(crop):
@@ -568,9 +568,9 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     def quads(shrink: int) -> list[QuadCandidate]:
         return segment_stage(("quads", shrink), lambda: ranked_quads(gray, segmentation, library, settings, shrink))
 
-    def first_blob() -> QuadCandidate | None:
-        return segment_stage(("blob 1 quad",),
-                             lambda: read_quad(gray, segmentation.labels, segmentation.blobs[0], library))
+    def first_is_no_sign() -> bool:
+        return segment_stage(("blob 1 no sign",),
+                             lambda: reads_as_no_sign(gray, segmentation.labels, segmentation.blobs[0], library))
 
     def refined_winner(attempt: Attempt | None, plaque: PlaqueMatch | None) -> Refined:
         """The winner of `attempt` (else of `plaque`) refined, with its text checked."""
@@ -605,7 +605,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     refined = None
     # A winner whose text is not its sign's is turned down, and the search goes on: the sign may
     # be elsewhere in the image.
-    for region, source in candidate_regions(segmentation, settings, width, height, quads, first_blob):
+    for region, source in candidate_regions(segmentation, settings, width, height, quads, first_is_no_sign):
         attempt = search_region(gray, region, source, library, settings, timing, cache, reused)
         attempts.append(attempt)
         if attempt.winner is not None:

@@ -8,11 +8,11 @@ import pytest
 
 from pipeline.image import read_image
 from pipeline.library import Library, load_library
-from pipeline.plaque_search import ranked_quads, required_correlation, search_plaques
+from pipeline.plaque_search import ranked_quads, reads_as_no_sign, required_correlation, search_plaques
 from pipeline.recognize import recognize
 from pipeline.segment import segment
 from pipeline.settings import preset
-from scene_images import like_a_camera, render_plaque
+from scene_images import PLAQUE_AT, like_a_camera, render_plaque, shaded_wall, sign_on_wall
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_images"
 CORNERS = np.array([[230.0, 250.0], [380.0, 243.0], [383.0, 305.0], [228.0, 309.0]])
@@ -104,3 +104,23 @@ def test_fallback_with_one_sign_loaded_reads_only_that_sign(library):
     ministry = Library(library.root, [library["ministry_of_torture"]])
     found = recognize(read_image(SAMPLES / "datasets" / "set2" / "scene_007.jpg"), ministry, preset("default"))
     assert found.label == "ministry_of_torture" and found.by_plaque
+
+
+@pytest.mark.parametrize("what", ["lamp", "door", "room number", "sign"])
+def test_a_lamp_a_door_and_a_plaque_of_other_words_read_as_no_sign_and_a_sign_does_not(library, what):
+    """The largest white blob is searched after the plaques when it reads as no sign."""
+    gray = sign_on_wall(library["ministry_of_torture"], PLAQUE_AT, 1)
+    if what == "lamp":
+        cv2.ellipse(gray, (320, 50), (250, 40), 0, 0, 360, 255, -1)  # larger than the sign, round and blank
+    elif what == "door":
+        gray[120:470, 480:620] = 250
+        gray[300:310, 490:510] = 60  # a handle, at the door's edge: no hole
+    elif what == "room number":  # a plaque with text (holes), but no sign's
+        gray = shaded_wall(0).astype(np.uint8)
+        gray[180:260, 220:420] = 235
+        cv2.putText(gray, "12", (235, 245), cv2.FONT_HERSHEY_SIMPLEX, 1.5, 30, 3)
+    gray = like_a_camera(gray, 0.7, 0)
+    segmentation = segment(gray, preset("default"))
+    largest = segmentation.blobs[0]
+    assert (largest.bbox[1] < 100) == (what == "lamp") and (largest.bbox[0] >= 480) == (what == "door")
+    assert reads_as_no_sign(gray, segmentation.labels, largest, library) == (what != "sign")

@@ -110,28 +110,22 @@ def test_a_sign_below_the_threshold_is_searched_in_its_plaque_crop_before_the_fu
     assert without.label == sign_id and without.attempt.source == "full frame"
 
 
-def _quad(x0: int, y0: int, x1: int, y1: int, ncc: float) -> QuadCandidate:
-    corners = np.float64([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
-    return QuadCandidate(Blob(1, (x1 - x0) * (y1 - y0), (x0, y0, x1, y1)), corners, {"a": ncc}, {"a": 0})
-
-
-@pytest.mark.parametrize("blob_ncc, order", [
-    (0.9, ["blob 1", "plaque 1", "blob 2", "full frame"]),  # blob 1 may be the sign: it goes first, as in the paper
-    (None, ["blob 1", "plaque 1", "blob 2", "full frame"]),  # no quad (a sign cut by the frame, say): first too
-    (0.2, ["plaque 1", "blob 1", "blob 2", "full frame"]),  # a plaque of other words: after the plaques
+@pytest.mark.parametrize("no_sign, order", [
+    (False, ["blob 1", "plaque 1", "blob 2", "full frame"]),  # blob 1 may be the sign: first, as in the paper
+    (True, ["plaque 1", "blob 1", "blob 2", "full frame"]),  # a lamp or a plaque of other words: after the plaques
 ])
-def test_the_largest_blob_waits_after_the_plaques_only_when_it_reads_as_another_plaque(blob_ncc, order):
+def test_the_largest_blob_waits_after_the_plaques_only_when_it_reads_as_no_sign(no_sign, order):
     crops = [(0, 0, 100, 50), (300, 300, 400, 350)]
-    blobs = [Blob(i + 1, 5000, crop) for i, crop in enumerate(crops)]
-    segmentation = Segmentation(np.zeros((480, 640), np.uint8), "minmax", np.zeros((480, 640), np.uint8), blobs, crops)
+    segmentation = Segmentation(np.zeros((480, 640), np.uint8), "minmax", np.zeros((480, 640), np.uint8),
+                                [Blob(i + 1, 5000, crop) for i, crop in enumerate(crops)], crops)
     settings = preset("default").replace(crop_margin=0.0)
-    first = None if blob_ncc is None else _quad(*crops[0], blob_ncc)
-    regions = candidate_regions(segmentation, settings, 640, 480, lambda shrink: [_quad(100, 200, 300, 260, 0.8)],
-                                lambda: first)
+    plaque = QuadCandidate(Blob(1, 12000, (100, 200, 300, 260)), np.float64([[100, 200], [300, 200], [300, 260],
+                                                                              [100, 260]]), {"a": 0.8}, {"a": 0})
+    regions = candidate_regions(segmentation, settings, 640, 480, lambda shrink: [plaque], lambda: no_sign)
     assert [source for _, source in regions] == order
     without_plaques = settings.replace(plaque_candidates=0)
     assert [source for _, source in candidate_regions(segmentation, without_plaques, 640, 480, lambda shrink: [],
-                                                      lambda: first)] == ["blob 1", "blob 2", "full frame"]
+                                                      lambda: no_sign)] == ["blob 1", "blob 2", "full frame"]
 
 
 def test_a_pose_from_the_outline_reports_the_edges_residual_not_the_grids(library):
