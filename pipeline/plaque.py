@@ -61,10 +61,11 @@ class PlaqueMatch:
 
 def blob_boundary(labels: np.ndarray, blob: Blob) -> np.ndarray | None:
     """The outer boundary of a blob (its pixels labelled `blob.label` in `labels`): (K, 1, 2) int32
-    px from its bbox's top-left, every boundary pixel listed; None if it has no pixel."""
+    px from its bbox's top-left, the ends of its straight runs (cv2.CHAIN_APPROX_SIMPLE); None if
+    it has no pixel."""
     x0, y0, x1, y1 = blob.bbox
     mask = (labels[y0:y1, x0:x1] == blob.label).astype(np.uint8)
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     return max(contours, key=cv2.contourArea) if contours else None
 
 

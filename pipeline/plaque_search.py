@@ -109,8 +109,11 @@ def holes_fraction(boundary: np.ndarray, area: int) -> float:
     """The pixels inside a blob's outer `boundary` (`blob_boundary`) that are not among its `area`
     px, over that area: its holes, which the dark text inside a white plaque makes. By Pick's
     theorem the pixels a boundary through their centres encloses are its polygon's area plus half
-    the pixels on it, plus one."""
-    return max(0.0, cv2.contourArea(boundary) + len(boundary) / 2 + 1 - area) / max(area, 1)
+    the pixels on it, plus one; a run between two of its points holds as many pixels as its longer
+    coordinate step."""
+    pts = boundary.reshape(-1, 2)
+    on_boundary = int(np.abs(np.roll(pts, -1, axis=0) - pts).max(axis=1).sum())
+    return max(0.0, cv2.contourArea(boundary) + on_boundary / 2 + 1 - area) / max(area, 1)
 
 
 def reads_as_no_sign(gray: np.ndarray, labels: np.ndarray, blob: Blob, library: Library) -> bool:
