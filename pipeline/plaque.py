@@ -154,7 +154,7 @@ def rectify(gray: np.ndarray, corners: np.ndarray, size: tuple[int, int]) -> np.
 
     The corners are the patch's outer pixel edges, so its pixels' centres sample the plaque as
     cv2.resize samples the library templates, and the patch turned by quarter turns is the
-    plaque rectified from its corners in the other cyclic orders (`rolled_patches`)."""
+    plaque rectified from its corners in the other cyclic orders (`turned_templates`)."""
     w, h = size
     target = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]], np.float32)
     M = cv2.getPerspectiveTransform(target, corners.astype(np.float32))
@@ -256,29 +256,36 @@ def bounding_box(pts: np.ndarray) -> tuple[int, int, int, int]:
     return int(x0), int(y0), int(x1), int(y1)
 
 
-def rolled_patches(gray: np.ndarray, corners: np.ndarray, size: tuple[int, int]) -> list[np.ndarray]:
-    """The plaque inside `corners` (4, 2) image px `rectify`-ed to `size` (w, h) and `standardized`,
-    from its corners in each cyclic order k = 0..3 (k: np.roll(corners, -k, axis=0)): two warps,
-    the upright and the sideways one, and their quarter turns, instead of four warps (a fifth of
-    the plaque ranking's time)."""
-    w, h = size
-    upright = standardized(rectify(gray, corners, (w, h)))
-    sideways = upright if w == h else standardized(rectify(gray, corners, (h, w)))
-    return [upright, np.rot90(sideways, 1), np.rot90(upright, 2), np.rot90(sideways, -1)]
+def turned_templates(library: Library) -> dict[str, np.ndarray]:
+    """Each sign's `library_templates` template (h, w) turned back by each cyclic corner order:
+    (4, h w) float32, row k the template turned k quarter turns clockwise and flattened; cached on
+    the library.
+
+    The plaque read from its corners in order k (np.roll(corners, -k, axis=0)) is the upright
+    patch (k even) or the sideways one (k odd) turned k quarter turns counter-clockwise, so its
+    correlation with the template is row k dotted with that patch flattened: two warps, no
+    turned copies of them (a plaque read for each sign in each order took three times as long)."""
+    templates = library_templates(library)
+    return library.per_sign("plaque_templates_turned",
+                            lambda sign: np.stack([np.rot90(templates[sign.id], -k).ravel() for k in range(4)]))
 
 
 def plaque_correlations(gray: np.ndarray, corners: np.ndarray,
                         library: Library) -> tuple[dict[str, float], dict[str, int]]:
     """Each sign's best correlation with the plaque inside `corners` (4, 2) image px, over its
     four cyclic corner orders (a plaque seen upright, sideways or upside down), and that order."""
-    templates = library_templates(library)
+    turned = turned_templates(library)
     scores, rolls = {}, {}
-    patches: dict[tuple[int, int], list[np.ndarray]] = {}  # signs of one aspect share their patches
+    patches: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}  # signs of one aspect share them
     for sign in library.signs:
         size = compare_size(sign)
         if size not in patches:
-            patches[size] = rolled_patches(gray, corners, size)
-        by_roll = [float(np.vdot(patch, templates[sign.id])) for patch in patches[size]]
+            w, h = size
+            upright = standardized(rectify(gray, corners, (w, h))).ravel()
+            patches[size] = upright, upright if w == h else standardized(rectify(gray, corners, (h, w))).ravel()
+        upright, sideways = patches[size]
+        by_roll = np.empty(4)
+        by_roll[0::2], by_roll[1::2] = turned[sign.id][0::2] @ upright, turned[sign.id][1::2] @ sideways
         rolls[sign.id] = int(np.argmax(by_roll))
         scores[sign.id] = float(by_roll[rolls[sign.id]])
     return scores, rolls
