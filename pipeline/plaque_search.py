@@ -130,7 +130,7 @@ def reads_as_no_sign(gray: np.ndarray, labels: np.ndarray, blob: Blob, library: 
     if boundary is None or holes_fraction(boundary, blob.area) < MIN_TEXT_HOLES:
         return True
     corners = blob_quad(labels, blob, boundary)
-    return corners is not None and max(plaque_correlations(gray, corners, library)[0].values()) < MIN_NCC
+    return corners is not None and max(plaque_correlations(gray, corners, library)[0].values(), default=-1.0) < MIN_NCC
 
 
 def ranked_quads(gray: np.ndarray, segmentation: Segmentation, library: Library,

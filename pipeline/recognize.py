@@ -459,7 +459,8 @@ def candidate_regions(segmentation: Segmentation | None, settings: Settings, wid
     is, and it may also have pushed the sign below the threshold: on the synthetic scenes the
     sign was then the best-correlating quad in 40 of 60 scenes (13 of the 14 whose sign was a
     smaller blob), and one crop costs a fraction of the full frame. `quads(shrink)` is called,
-    with the lower levels at half resolution, only when the largest blob has failed.
+    with the lower levels at half resolution, only once the largest blob has failed or been put
+    after the plaques.
 
     With plaque candidates, the largest blob waits until after them when `first_is_no_sign()`
     (`reads_as_no_sign`: a lamp, a white door, a plaque of other words), since searching it

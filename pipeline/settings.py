@@ -68,7 +68,9 @@ class Settings:
     plaque_candidates: int = _num(2, 0, 10, "Segmentation",
                                   "Then search this many plaque-shaped regions found at lower gray levels, best "
                                   "correlation with a sign first (one crop instead of the full frame when a lamp "
-                                  "pushed the sign below the threshold)", step=1)
+                                  "pushed the sign below the threshold); with any, a largest blob that reads as "
+                                  "no sign (no text in it, or a plaque of other words) is searched after them",
+                                  step=1)
     full_frame_fallback: bool = _flag(True, "Segmentation",
                                       "Search the full frame when no candidate blob yields a sign")
 

@@ -188,8 +188,9 @@ def text_template(library: Library, sign_id: str) -> TextTemplate:
 class Rectified:
     """An image read at a `TextTemplate`'s pixels through a homography: `raw` (h, w) uint8, the
     image's gray levels read (its edge repeated where a pixel's centre falls outside it, 0 when
-    all do); `patch` (h, w) float32, `raw` blurred as the template is; `seen` (h, w) bool, True
-    where the centre falls inside the image."""
+    every pixel of the grid read does, which for `rectify_text` is the grid around the text);
+    `patch` (h, w) float32, `raw` blurred as the template is; `seen` (h, w) bool, True where the
+    centre falls inside the image."""
 
     raw: np.ndarray
     patch: np.ndarray
@@ -225,7 +226,7 @@ def _strip_correlations(a: np.ndarray, b: np.ndarray, columns: np.ndarray, use: 
 def rectify_text(gray: np.ndarray, sign: LibrarySign, template: TextTemplate, H: np.ndarray,
                  camera: Camera | None = None) -> Rectified:
     """The (H, W) uint8 image read at each pixel of `sign`'s `template` through H (library px ->
-    image px): the patch `check_text` correlates. Under `camera`'s lens distortion H is taken as
+    image px), as a `Rectified`: the patch `check_text` correlates. Under `camera`'s lens distortion H is taken as
     exact at the corners (as refinement leaves it) and the sign is read along the curves the lens
     makes of it. A template with an `around` grid is read as the middle of `rectify_around`'s
     patch, as `check_text` reads it."""

@@ -114,7 +114,7 @@ def test_a_lamp_a_door_and_a_plaque_of_other_words_read_as_no_sign_and_a_sign_do
         cv2.ellipse(gray, (320, 50), (250, 40), 0, 0, 360, 255, -1)  # larger than the sign, round and blank
     elif what == "door":
         gray[120:470, 480:620] = 250
-        gray[300:310, 490:510] = 60  # a handle, at the door's edge: no hole
+        gray[300:310, 480:500] = 60  # a handle, notching the door's edge: no hole
     elif what == "room number":  # a plaque with text (holes), but no sign's
         gray = shaded_wall(0).astype(np.uint8)
         gray[180:260, 220:420] = 235

@@ -102,7 +102,7 @@ def test_a_sign_below_the_threshold_is_searched_in_its_plaque_crop_before_the_fu
     image = _lit_scene(library, sign_id)
     rec = recognize(image, library, preset("default"))
     assert rec.label == sign_id
-    # the lamp, blob 1, is a quad that reads as none of the signs: it waits until after the plaques
+    # the door, blob 1, shows no text (no holes): it waits until after the plaques
     assert [a.source for a in rec.attempts] == ["plaque 1"]
     x0, y0, x1, y1 = rec.attempt.region
     assert x0 <= 330 and y0 <= 250 and x1 >= 600 and y1 >= 370 and (x1 - x0) * (y1 - y0) < 0.3 * 640 * 480
