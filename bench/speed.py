@@ -144,7 +144,8 @@ def measure(dataset: Dataset, library: Library, rounds: int) -> tuple[dict[str, 
     A round runs each configuration over all the images in turn, as `signpose evaluate` or the
     server runs one, so each runs with the caches its own work leaves (run back to back on each
     image, the default preset ran with those the naive reference had just filled); the
-    configurations take turns within a round, so that load hits them alike. Per image and
+    configurations take turns within a round, each round started by the next of them, so that
+    load hits them alike. Per image and
     configuration the fastest round is kept, since noise only adds, and likewise its floor.
     """
     runs = {name: runner(name) for name in CONFIGS}
@@ -155,8 +156,9 @@ def measure(dataset: Dataset, library: Library, rounds: int) -> tuple[dict[str, 
     floors = [np.inf] * n
     size = f"{dataset.camera.width}x{dataset.camera.height}"
     with tqdm(total=rounds * len(CONFIGS) * n, desc=f"{size}, {rounds} rounds", unit="run") as bar:
-        for _ in range(rounds):
-            for name, run in runs.items():
+        for r in range(rounds):
+            for name in CONFIGS[r % len(CONFIGS):] + CONFIGS[:r % len(CONFIGS)]:
+                run = runs[name]
                 for i, sample in enumerate(dataset.samples):
                     image = read_image(sample.path)
                     outcome, region = run(image, library, dataset.camera)
