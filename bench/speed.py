@@ -3,10 +3,9 @@
 The same N synthetic scenes (pipeline.synth, fixed seed, easy / hard / negative mix) at
 640x480 and at 1280x960 (the same seed gives the same scenes at either size). Each configuration
 runs over all the images in turn, taking turns with the others, --rounds times; per image the
-fastest run of each is kept (`measure`). Per
-configuration: median and p90 ms per image, the mean of each stage, the peak memory of a
-fresh process, accuracy by category beside it, and the median over images of naive time /
-configuration time. Then: SIFT alone on the crop the default preset chose (the floor the
+fastest run of each is kept (`measure`). Per configuration: median and p90 ms per image, the
+mean of each stage, the peak memory of a fresh process, accuracy by category beside it, and the
+median over images of naive time / configuration time. Then: SIFT alone on the crop the default preset chose (the floor the
 pipeline cannot go below), a RANSAC and a ratio slider change re-run on the loaded images with
 their StageCaches, evaluate's wall time on 2 worker processes against 1, and a full re-run of
 every image in `signpose serve`'s Workspace on one pipeline worker per core against one.
@@ -145,8 +144,8 @@ def measure(dataset: Dataset, library: Library, rounds: int) -> tuple[dict[str, 
     server runs one, so each runs with the caches its own work leaves (run back to back on each
     image, the default preset ran with those the naive reference had just filled); the
     configurations take turns within a round, each round started by the next of them, so that
-    load hits them alike. Per image and
-    configuration the fastest round is kept, since noise only adds, and likewise its floor.
+    load hits them alike. Per image and configuration the fastest round is kept, since noise
+    only adds, and likewise its floor.
     """
     runs = {name: runner(name) for name in CONFIGS}
     for run in runs.values():  # library features, imports and first-call costs out of the figures
