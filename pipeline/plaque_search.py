@@ -16,6 +16,7 @@ dense alignment can, except on the smallest plaques, which must align better
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import cv2
@@ -43,7 +44,7 @@ MAX_ALIGNED = 4
 FULL_TRUST_PX = 60.0
 # Quads wider than this (px) are aligned on a shrunk copy of their neighbourhood.
 MAX_ALIGN_WIDTH = 240.0
-# A blob with less than this fraction of its area in holes shows no text (see `reads_as_no_sign`).
+# A blob with less than this fraction of its area in holes shows no text (see `BlobReading.no_sign`).
 MIN_TEXT_HOLES = 0.01
 
 
@@ -116,29 +117,46 @@ def holes_fraction(boundary: np.ndarray, area: int) -> float:
     return max(0.0, cv2.contourArea(boundary) + on_boundary / 2 + 1 - area) / max(area, 1)
 
 
-def reads_as_no_sign(gray: np.ndarray, labels: np.ndarray, blob: Blob, library: Library) -> bool:
-    """Whether `blob` (its pixels labelled `blob.label` in `labels`, (H, W) like `gray`) is no sign's
-    plaque by its look: it shows no text (under MIN_TEXT_HOLES of its area in holes: a lamp, a
-    white door), or its outline is a quadrilateral that correlates below MIN_NCC with every
-    library sign (a plaque of other words).
+@dataclass(frozen=True, eq=False)
+class BlobReading:
+    """A blob read for its look (`read_blob`): `holes`, the fraction of its area in holes
+    (`holes_fraction`), and `quad`, the blob read as a plaque, None when it shows no text
+    (under MIN_TEXT_HOLES in holes: not read further) or its outline is no quadrilateral."""
 
-    Of the largest blobs of the 538 bench and sample scenes, the 257 found to be a sign had at
-    least 0.021 of their area in holes (then 0.061), and 7 were quads correlating under MIN_NCC
-    (a sign seen obliquely or blurred: searched after the plaques, still found); of the 239 that
-    were no sign, 58 had under 0.01 in holes and 50 more were quads correlating under MIN_NCC."""
+    holes: float
+    quad: QuadCandidate | None
+
+    @property
+    def no_sign(self) -> bool:
+        """Whether the blob is no sign's plaque by its look: it shows no text (a lamp, a white door),
+        or it is a quadrilateral that correlates below MIN_NCC with every library sign (a plaque of
+        other words).
+
+        Of the largest blobs of the 538 bench and sample scenes, the 257 found to be a sign had at
+        least 0.021 of their area in holes (then 0.061), and 7 were quads correlating under MIN_NCC
+        (a sign seen obliquely or blurred: searched after the plaques, still found); of the 239 that
+        were no sign, 58 had under 0.01 in holes and 50 more were quads correlating under MIN_NCC."""
+        return self.holes < MIN_TEXT_HOLES or (self.quad is not None and self.quad.best_ncc < MIN_NCC)
+
+
+def read_blob(gray: np.ndarray, labels: np.ndarray, blob: Blob, library: Library) -> BlobReading:
+    """`blob` (its pixels labelled `blob.label` in `labels`, (H, W) like `gray`) read for its look."""
     boundary = blob_boundary(labels, blob)
-    if boundary is None or holes_fraction(boundary, blob.area) < MIN_TEXT_HOLES:
-        return True
-    corners = blob_quad(labels, blob, boundary)
-    return corners is not None and max(plaque_correlations(gray, corners, library)[0].values(), default=-1.0) < MIN_NCC
+    holes = 0.0 if boundary is None else holes_fraction(boundary, blob.area)
+    corners = None if holes < MIN_TEXT_HOLES else blob_quad(labels, blob, boundary)
+    return BlobReading(holes, None if corners is None else
+                       QuadCandidate(blob, corners, *plaque_correlations(gray, corners, library)))
 
 
 def ranked_quads(gray: np.ndarray, segmentation: Segmentation, library: Library,
-                 settings: Settings, shrink: int = 1) -> list[QuadCandidate]:
+                 settings: Settings, shrink: int = 1, read: Sequence[QuadCandidate] = ()) -> list[QuadCandidate]:
     """Every quadrilateral candidate at `LEVELS` (cut at 1/`shrink` resolution) and at the
-    segmentation threshold, read as a plaque against every library sign, best correlation first."""
+    segmentation threshold, read as a plaque against every library sign, best correlation first.
+    A candidate among `read` (the same blob and corners, read already: `read_blob`) is not read again."""
     levels = tuple(sorted({*LEVELS, settings.threshold}, reverse=True))
-    found = [QuadCandidate(blob, corners, *plaque_correlations(gray, corners, library))
+    known = {(quad.blob, quad.corners.tobytes()): quad for quad in read}
+    found = [known.get((blob, corners.tobytes())) or QuadCandidate(blob, corners, *plaque_correlations(gray, corners,
+                                                                                                      library))
              for blob, corners in candidate_quads(segmentation.source, segmentation.normalization, levels,
                                                  segmentation, settings.threshold, shrink)]
     return sorted(found, key=lambda q: -q.best_ncc)

@@ -24,7 +24,7 @@ from .match import Matches, match_library
 from .outline import Outline, outline_fit, refine_outline
 from .plaque import (PlaqueMatch, grid_correspondences, match_plaque, project, refine_ecc, seen_grid, sign_corners,
                      sign_to_quad)
-from .plaque_search import (MIN_NCC, SAME_PLAQUE_IOU, QuadCandidate, confirm_plaque, ranked_quads, reads_as_no_sign,
+from .plaque_search import (MIN_NCC, SAME_PLAQUE_IOU, QuadCandidate, confirm_plaque, ranked_quads, read_blob,
                            search_plaques)
 from .pose import CORNER_SIGMA_PX, Pose, PoseError, distort_pixels, estimate_pose, with_corner_floor
 from .segment import Box, Segmentation, box_iou, expand_box, segment
@@ -448,7 +448,7 @@ def search_region(gray: np.ndarray, region: Box, source: str, library: Library, 
 
 def candidate_regions(segmentation: Segmentation | None, settings: Settings, width: int, height: int,
                       quads: Callable[[int], list[QuadCandidate]],
-                      first_is_no_sign: Callable[[], bool]) -> Iterator[tuple[Box, str]]:
+                      first_is_no_sign: bool) -> Iterator[tuple[Box, str]]:
     """(region, source) pairs in the order they are searched, made as the search asks for them.
 
     The largest blob's crop (the paper's); then the crops of up to `settings.plaque_candidates`
@@ -462,8 +462,8 @@ def candidate_regions(segmentation: Segmentation | None, settings: Settings, wid
     with the lower levels at half resolution, only once the largest blob has failed or been put
     after the plaques.
 
-    With plaque candidates, the largest blob waits until after them when `first_is_no_sign()`
-    (`reads_as_no_sign`: a lamp, a white door, a plaque of other words), since searching it
+    With plaque candidates, the largest blob waits until after them when `first_is_no_sign`
+    (`BlobReading.no_sign`: a lamp, a white door, a plaque of other words), since searching it
     first only costs the time of a crop.
     """
     full = (0, 0, width, height)
@@ -477,7 +477,7 @@ def candidate_regions(segmentation: Segmentation | None, settings: Settings, wid
 
     crops = segmentation.crops if segmentation is not None else []
     with_plaques = segmentation is not None and settings.plaque_candidates > 0
-    no_sign = with_plaques and bool(crops) and first_is_no_sign()
+    no_sign = with_plaques and bool(crops) and first_is_no_sign
     if crops and not no_sign and fresh(crops[0]):
         yield crops[0], "blob 1"
     if with_plaques:
@@ -566,12 +566,15 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         timing["segment"] += (time.perf_counter() - t0) * 1e3
         return found
 
-    def quads(shrink: int) -> list[QuadCandidate]:
-        return segment_stage(("quads", shrink), lambda: ranked_quads(gray, segmentation, library, settings, shrink))
+    # The largest blob read for its look, which decides where it is searched (`candidate_regions`).
+    first = (segment_stage(("blob 1 reading",), lambda: read_blob(gray, segmentation.labels, segmentation.blobs[0],
+                                                                  library))
+             if settings.plaque_candidates and segmentation is not None and segmentation.blobs else None)
 
-    def first_is_no_sign() -> bool:
-        return segment_stage(("blob 1 no sign",),
-                             lambda: reads_as_no_sign(gray, segmentation.labels, segmentation.blobs[0], library))
+    def quads(shrink: int) -> list[QuadCandidate]:
+        read = (first.quad,) if first is not None and first.quad is not None else ()
+        return segment_stage(("quads", shrink),
+                             lambda: ranked_quads(gray, segmentation, library, settings, shrink, read))
 
     def refined_winner(attempt: Attempt | None, plaque: PlaqueMatch | None) -> Refined:
         """The winner of `attempt` (else of `plaque`) refined, with its text checked."""
@@ -606,7 +609,8 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     refined = None
     # A winner whose text is not its sign's is turned down, and the search goes on: the sign may
     # be elsewhere in the image.
-    for region, source in candidate_regions(segmentation, settings, width, height, quads, first_is_no_sign):
+    for region, source in candidate_regions(segmentation, settings, width, height, quads,
+                                            first is not None and first.no_sign):
         attempt = search_region(gray, region, source, library, settings, timing, cache, reused)
         attempts.append(attempt)
         if attempt.winner is not None:

@@ -1,14 +1,16 @@
 """Plaque search: a dim, blurred sign that neither features nor the plaque fallback find."""
 
 from pathlib import Path
+from unittest import mock
 
 import cv2
 import numpy as np
 import pytest
 
 from pipeline.image import read_image
+import pipeline.plaque_search as plaque_search
 from pipeline.library import Library, load_library
-from pipeline.plaque_search import ranked_quads, reads_as_no_sign, required_correlation, search_plaques
+from pipeline.plaque_search import ranked_quads, read_blob, required_correlation, search_plaques
 from pipeline.recognize import recognize
 from pipeline.segment import segment
 from pipeline.settings import preset
@@ -123,4 +125,18 @@ def test_a_lamp_a_door_and_a_plaque_of_other_words_read_as_no_sign_and_a_sign_do
     segmentation = segment(gray, preset("default"))
     largest = segmentation.blobs[0]
     assert (largest.bbox[1] < 100) == (what == "lamp") and (largest.bbox[0] >= 480) == (what == "door")
-    assert reads_as_no_sign(gray, segmentation.labels, largest, library) == (what != "sign")
+    assert read_blob(gray, segmentation.labels, largest, library).no_sign == (what != "sign")
+
+
+def test_the_plaque_ranking_does_not_read_again_a_blob_read_already(library):
+    gray = like_a_camera(sign_on_wall(library["chief_of_security"], PLAQUE_AT, 1), 0.7, 0)
+    settings = preset("default")
+    segmentation = segment(gray, settings)
+    first = read_blob(gray, segmentation.labels, segmentation.blobs[0], library)
+    assert first.quad is not None and not first.no_sign
+    fresh = ranked_quads(gray, segmentation, library, settings, 2)
+    with mock.patch.object(plaque_search, "plaque_correlations", wraps=plaque_search.plaque_correlations) as read:
+        again = ranked_quads(gray, segmentation, library, settings, 2, (first.quad,))
+    assert read.call_count == len(fresh) - 1 and any(quad is first.quad for quad in again)
+    assert [(q.blob, q.corners.tolist(), q.ncc, q.rolls) for q in again] == \
+        [(q.blob, q.corners.tolist(), q.ncc, q.rolls) for q in fresh]
