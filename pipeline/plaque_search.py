@@ -103,7 +103,8 @@ class QuadCandidate:
 
     @property
     def best_ncc(self) -> float:
-        return max(self.ncc.values())
+        """The highest correlation with any sign; -1, the lowest there is, with no sign to read."""
+        return max(self.ncc.values(), default=-1.0)
 
 
 def holes_fraction(boundary: np.ndarray, area: int) -> float:
