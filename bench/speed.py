@@ -5,7 +5,7 @@ The same N synthetic scenes (pipeline.synth, fixed seed, easy / hard / negative 
 runs over all the images in turn, taking turns with the others, --rounds times; per image the
 fastest run of each is kept (`measure`). Per configuration: median and p90 ms per image, the
 mean of each stage, the peak memory of a fresh process, accuracy by category beside it, and the
-median over images of naive time / configuration time. Then: SIFT alone on the crop the default preset chose (the floor the
+median over images of naive time / configuration time. Then: SIFT alone on the crop each preset chose (the floor the
 pipeline cannot go below), a RANSAC and a ratio slider change re-run on the loaded images with
 their StageCaches, evaluate's wall time on 2 worker processes against 1, and a full re-run of
 every image in `signpose serve`'s Workspace on one pipeline worker per core against one.
@@ -48,6 +48,7 @@ from pipeline.synth import CATEGORIES, generate_dataset
 
 SIZES = ((640, 480), (1280, 960))
 CONFIGS = ("naive", "paper", "default")
+PRESETS = CONFIGS[1:]  # the configurations with a floor: SIFT on the crop they chose
 MIN_MATCH_COUNT = 10  # the tutorial's: fewer inliers is "no sign"
 
 
@@ -137,8 +138,9 @@ def floor_ms(gray: np.ndarray, settings: Settings, region: tuple | None) -> floa
     return (time.perf_counter() - t0) * 1e3
 
 
-def measure(dataset: Dataset, library: Library, rounds: int) -> tuple[dict[str, list[Outcome]], list[float]]:
-    """Every configuration on every image, `rounds` times, and the floor of each default run.
+def measure(dataset: Dataset, library: Library,
+            rounds: int) -> tuple[dict[str, list[Outcome]], dict[str, list[float]]]:
+    """Every configuration on every image, `rounds` times, and the floor of each preset's run.
 
     A round runs each configuration over all the images in turn, as `signpose evaluate` or the
     server runs one, so each runs with the caches its own work leaves (run back to back on each
@@ -150,9 +152,9 @@ def measure(dataset: Dataset, library: Library, rounds: int) -> tuple[dict[str, 
     runs = {name: runner(name) for name in CONFIGS}
     for run in runs.values():  # library features, imports and first-call costs out of the figures
         run(read_image(dataset.samples[0].path), library, dataset.camera)
-    n, default = len(dataset.samples), preset("default")
+    n = len(dataset.samples)
     outcomes: dict[str, list[Outcome | None]] = {name: [None] * n for name in CONFIGS}
-    floors = [np.inf] * n
+    floors = {name: [np.nan] * n for name in PRESETS}  # nan: no region searched (paper, no blob), no floor
     size = f"{dataset.camera.width}x{dataset.camera.height}"
     with tqdm(total=rounds * len(CONFIGS) * n, desc=f"{size}, {rounds} rounds", unit="run") as bar:
         for r in range(rounds):
@@ -164,8 +166,8 @@ def measure(dataset: Dataset, library: Library, rounds: int) -> tuple[dict[str, 
                     best = outcomes[name][i]
                     if best is None or outcome.timing_ms["total"] < best.timing_ms["total"]:
                         outcomes[name][i] = outcome
-                    if name == "default":
-                        floors[i] = min(floors[i], floor_ms(to_gray(image), default, region))
+                    if name in floors and region is not None:
+                        floors[name][i] = np.fmin(floors[name][i], floor_ms(to_gray(image), preset(name), region))
                     bar.update()
     return outcomes, floors
 
@@ -323,21 +325,29 @@ def table(dataset: Dataset, outcomes: dict[str, list[Outcome]], memory: dict[str
     return lines
 
 
-def default_lines(dataset: Dataset, outcomes: dict[str, list[Outcome]], floors: list[float]) -> list[str]:
-    """The default preset against the naive reference by category, and against its floor."""
-    default = np.array([o.timing_ms["total"] for o in outcomes["default"]])
-    ratio = np.array([o.timing_ms["total"] for o in outcomes["naive"]]) / default
+def default_lines(dataset: Dataset, outcomes: dict[str, list[Outcome]], floors: dict[str, list[float]]) -> list[str]:
+    """The default preset against the naive reference by category, and each preset against its floor."""
+    ratio = np.array([naive.timing_ms["total"] / default.timing_ms["total"]
+                      for naive, default in zip(outcomes["naive"], outcomes["default"])])
     category = np.array([s.category for s in dataset.samples])
-    floors = np.array(floors)
-    sift = np.array([o.timing_ms["features"] for o in outcomes["default"]])
     return ["default vs naive, median per image by category: "
             + ", ".join(f"{c} {np.median(ratio[category == c]):.1f}x" for c in CATEGORIES if np.any(category == c))
             + f"; at least 8x on {np.mean(ratio >= 8):.0%} of images",
-            f"floor, SIFT alone on the crop default chose: median {np.median(floors):.1f} ms; default / floor: "
-            f"median per image {np.median(default / floors):.2f}, ratio of medians "
-            f"{np.median(default) / np.median(floors):.2f}; every SIFT pass the search made / floor (what "
-            f"default / floor would be were every other stage free): median per image {np.median(sift / floors):.2f}",
-            one_region_line(outcomes["default"], floors)]
+            *(floor_line(name, outcomes[name], floors[name]) for name in PRESETS),
+            one_region_line(outcomes["default"], np.array(floors["default"]))]
+
+
+def floor_line(name: str, outcomes: list[Outcome], floors: list[float]) -> str:
+    """A preset against its floor, SIFT alone on the crop it chose, over the images it searched a region of."""
+    floors = np.array(floors)
+    searched = ~np.isnan(floors)
+    total = np.array([o.timing_ms["total"] for o in outcomes])[searched]
+    sift = np.array([o.timing_ms["features"] for o in outcomes])[searched]
+    floors = floors[searched]
+    return (f"{name}: floor, SIFT alone on the crop it chose ({searched.sum()} images): median {np.median(floors):.1f} "
+            f"ms; {name} / floor: median per image {np.median(total / floors):.2f}, ratio of medians "
+            f"{np.median(total) / np.median(floors):.2f}; every SIFT pass the search made / floor (what {name} / "
+            f"floor would be were every other stage free): median per image {np.median(sift / floors):.2f}")
 
 
 def one_region_line(outcomes: list[Outcome], floors: np.ndarray) -> str:
