@@ -13,6 +13,7 @@ let detail = null;          // GET /api/images/{id} of the shown image
 let shownKey = "";          // keyOf(shown image): reload only when the result can differ
 let loadToken = 0;          // drops responses that arrive after a newer request
 let calib = null;           // POST /api/calibrate/threshold answer for the shown image
+let calibToken = 0;         // drops measurements of a box or result replaced while they ran
 let sweep = null;           // GET /api/sweep answer plus the settings it ran under
 let sweeping = false;
 const boxes = new Map();    // image id -> calibration box [x0, y0, x1, y1] in image px
@@ -292,20 +293,25 @@ function renderBox() {
 async function calibrate() {
   const id = detail.id;
   const rect = boxes.get(id) ?? null;
+  const token = ++calibToken;
+  let measured;
   // Without a box the server measures the detected sign, else the blob the answer came from
   // (tuning.sign_region): it would refuse an image with no result, or one with neither.
   if (!rect && !detail.result?.corners && !detail.attempts.some((a) => a.source.startsWith("blob "))) {
-    calib = { error: NOTHING_TO_MEASURE };
+    measured = { error: NOTHING_TO_MEASURE };
   } else {
     try {
-      calib = await api("POST", "/api/calibrate/threshold", { image_id: id, rect });
+      measured = await api("POST", "/api/calibrate/threshold", { image_id: id, rect });
     } catch (err) {
       // Shown beside the histogram, where the person is looking. Without a box the server refuses
       // (422) an image with no region to measure, in an API user's words.
-      calib = { error: !rect && err.status === 422 ? NOTHING_TO_MEASURE : err.message };
+      measured = { error: !rect && err.status === 422 ? NOTHING_TO_MEASURE : err.message };
     }
   }
-  if (detail?.id === id) renderCalib();
+  // A reply to a box since replaced (a second drag, a reload of the result) may come last.
+  if (token !== calibToken || detail?.id !== id) return;
+  calib = measured;
+  renderCalib();
 }
 
 function renderCalib() {

@@ -918,6 +918,33 @@ def test_a_box_typed_is_measured_as_a_dragged_one(page, api):
     assert not page.is_visible("#drag-rect")
 
 
+def test_a_measurement_of_a_replaced_box_is_not_shown_when_it_comes_last(page, api):
+    """Two boxes typed one after the other, the first one's measurement answered last: the page
+    showed it, beside the second box's size, and put the first box back in the field."""
+    image_id = uploaded_scene(api)
+    open_detail(page, image_id)
+    page.wait_for_selector("#histogram:not([hidden])")
+    held = []
+    page.route("**/api/calibrate/threshold", lambda route: held.append(route) if len(held) < 2 else route.continue_())
+    for n, box in enumerate(("100, 80, 300, 200", "120, 90, 320, 250"), 1):
+        page.fill("#calib-box", box)
+        page.press("#calib-box", "Enter")
+        while len(held) < n:
+            page.wait_for_timeout(20)
+    held[1].continue_()
+    page.locator("#calib-result", has_text="your box 200×160 px").wait_for()
+    with page.expect_response("**/api/calibrate/threshold") as first:
+        held[0].continue_()
+    first.value.finished()
+    page.wait_for_timeout(300)  # the page's own handling of the reply, which shows nothing new
+    page.unroute("**/api/calibrate/threshold")
+    assert "your box 200×160 px" in page.inner_text("#calib-result")
+    assert page.input_value("#calib-box") == "120, 90, 320, 250"
+    expected = api.post("/api/calibrate/threshold", json={"image_id": image_id, "rect": [120, 90, 320, 250]}).json()
+    assert float(page.inner_text("#calib-result b.suggested")) == pytest.approx(expected["suggested_threshold"],
+                                                                               abs=1e-3)
+
+
 def test_sweep_of_an_integer_setting_shows_whole_numbers(page, api):
     open_detail(page, uploaded_scene(api))
     page.select_option("#sweep-param", "min_matches")
