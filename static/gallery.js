@@ -154,10 +154,17 @@ function renderCounts() {
       el(`span.count.status-${s}`, { title: STATUS[s].title }, el("i.dot"), `${counts[s]} ${STATUS[s].text}`)));
 }
 
+let imagesToken = 0;   // drops a list answered after a newer one (refreshes 250 ms apart can cross)
+
+/** The server's images, shown unless a newer list was asked for meanwhile. */
 async function loadImages() {
-  const body = await get("/api/images");
-  state.images = body.images;
-  emit("images", state.images);
+  const token = ++imagesToken;
+  const { images } = await get("/api/images");
+  if (token === imagesToken) {
+    state.images = images;
+    emit("images", state.images);
+  }
+  return images;
 }
 
 export const refreshImages = throttle(() => loadImages().catch(report), 250);
@@ -176,8 +183,7 @@ async function removeAll() {
   try {
     await enqueue.stop();   // the ones being sent land first, so the delete takes them too
     const { removed } = await api("DELETE", "/api/images");
-    await loadImages();
-    const left = state.images.length;   // uploaded from elsewhere after the delete
+    const left = (await loadImages()).length;   // uploaded from elsewhere after the delete
     const kept = left ? `; ${left} added since ${left === 1 ? "is" : "are"} still there` : "";
     toast(`removed ${plural(removed, "image")}${kept}`, left ? "warn" : "info");
   } catch (err) {

@@ -491,6 +491,45 @@ def answer_in_reverse(page, route_url: str, picker: str, files: list[Path], list
     page.unroute(route_url)
 
 
+def test_an_image_list_answered_after_a_newer_one_is_not_shown(page, api):
+    """Lists asked for 250 ms apart can be answered out of order: the older, answered last, put an
+    image's earlier state back in the gallery until the next change."""
+    image_id = uploaded_scene(api)
+    card = f'.card[data-id="{image_id}"]'
+    page.locator(f'{card}[data-status="correct"]').wait_for()
+    page.wait_for_timeout(500)   # lists asked for by the upload's events answered, so the first held is ours
+    other = next(s["id"] for s in api.get("/api/library").json() if s["id"] != LABEL)
+    lists = []   # (route, the server's answer when it was asked) of each list the page asks for
+
+    def hold(route):
+        if route.request.method != "GET":
+            route.continue_()
+        elif len(lists) == 1:
+            lists.append((route, None))
+            route.continue_()   # the newer list, answered at once
+        else:   # the first, answered below, and any after the newer, which would mend the gallery
+            lists.append((route, route.fetch()))
+
+    page.route("**/api/images", hold)
+    try:
+        api.patch(f"/api/images/{image_id}", json={"expected": other}).raise_for_status()
+        while not lists:
+            page.wait_for_timeout(20)
+        api.patch(f"/api/images/{image_id}", json={"expected": None}).raise_for_status()
+        page.locator(f'{card}[data-status="recognized"]').wait_for()
+        route, older = lists[0]
+        assert next(i for i in older.json()["images"] if i["id"] == image_id)["status"] == "wrong"
+        with page.expect_response("**/api/images"):
+            route.fulfill(response=older)
+        page.wait_for_timeout(300)  # the page's own handling of the answer, which shows nothing new
+        assert page.get_attribute(card, "data-status") == "recognized"
+    finally:
+        page.unroute("**/api/images")
+        for route, answer in lists[2:]:
+            route.fulfill(response=answer)
+        api.patch(f"/api/images/{image_id}", json={"expected": LABEL}).raise_for_status()
+
+
 def test_images_keep_the_order_they_were_chosen_in(page, api, tmp_path):
     """Sent three at a time, they were listed as they landed: b02, b01, b00, here and after a reload."""
     files = [tmp_path / f"order-{i}-{SCENE}" for i in range(3)]
