@@ -22,6 +22,9 @@ let selected = null;      // id of the calibration photo in the preview
 let picked = false;       // `selected` was clicked, not chosen for the person
 let previewMode = "corners";
 let hfovHeld = false;     // the slider is under the pointer: server answers must not yank it
+let hfovTyped = false;    // a number typed in its field and not yet applied: server answers must not overwrite it
+let cameraToken = 0;      // drops a camera answered after a newer request was sent
+let reconnected = false;  // the event stream came back: the next calibration is shown whatever its revision
 
 /** "fx 520.1 fy 515.0 cx 318.0 cy 243.0 px @ 640×480" */
 const intrinsicsText = (cam) => `fx ${fmt(cam.fx, 1)} fy ${fmt(cam.fy, 1)} cx ${fmt(cam.cx, 1)} `
@@ -75,7 +78,7 @@ function renderCamera() {
   $("#assumed-fov").hidden = Boolean(cam);
   if (!hfovHeld) {
     $("#hfov").value = hfov;
-    $("#hfov-num").value = hfov;
+    if (!hfovTyped) $("#hfov-num").value = hfov;
     renderHfovNote(hfov);
   }
   $("#dialog-camera").textContent = cam ? `in use: ${about.join(" · ")}`
@@ -87,28 +90,36 @@ function renderCamera() {
 // camera or how many images it was about.
 let cameraWarnings = [];
 
-/** The camera's warnings (images held it does not fit, which the server keeps it for all the same)
+/** A camera's `warnings` (images held it does not fit, which the server keeps it for all the same)
  *  as toasts: for a camera the user has just set or reset (`fresh`) in place of those up; else those
  *  up that the camera still says are kept and the others replaced by what it says now (none come
  *  back once dismissed). */
-function showCameraWarnings(fresh) {
+function showCameraWarnings(warnings, fresh) {
   const up = cameraWarnings.filter((box) => box.isConnected);
   if (!fresh && !up.length) return;
   const text = (box) => box.querySelector(".toast-msg").textContent;
-  const kept = fresh ? [] : up.filter((box) => camera.warnings.includes(text(box)));
+  const kept = fresh ? [] : up.filter((box) => warnings.includes(text(box)));
   for (const box of up) if (!kept.includes(box)) box.remove();
   const said = kept.map(text);
-  cameraWarnings = [...kept, ...camera.warnings.filter((w) => !said.includes(w)).map((w) => toast(w, "warn"))];
+  cameraWarnings = [...kept, ...warnings.filter((w) => !said.includes(w)).map((w) => toast(w, "warn"))];
 }
 
-/** Shows the camera the server answers `request` with, `done` as a toast, and its warnings
- *  (`showCameraWarnings`); errors as toasts. Whether the server took the camera. */
+/** Shows the camera the server answers `request` with unless a newer request's answer is due,
+ *  `done` as a toast, and its warnings (`showCameraWarnings`); errors as toasts. Whether the server
+ *  took the camera. */
 async function setCamera(request, done) {
+  const token = ++cameraToken;
   try {
-    camera = await request;
-    renderCamera();
+    const body = await request;
     if (done) toast(done, "info");
-    showCameraWarnings(Boolean(done));
+    const newest = token === cameraToken;
+    if (newest) {
+      camera = body;
+      renderCamera();
+    }
+    // A camera just set says what it misfits even when a newer answer is due (the server's event
+    // about it asks for the camera again, and that answer only keeps warnings up).
+    if (newest || done) showCameraWarnings(body.warnings, Boolean(done));
     return true;
   } catch (err) {
     report(err);
@@ -119,12 +130,16 @@ async function setCamera(request, done) {
 const loadCamera = () => setCamera(get("/api/camera"));
 
 const putHfov = debounce(async (hfov) => {
+  const token = ++cameraToken;
+  let body = null;
   try {
-    camera = await api("PUT", "/api/camera/assumed", { hfov_deg: hfov }, { keepalive: true });
+    body = await api("PUT", "/api/camera/assumed", { hfov_deg: hfov }, { keepalive: true });
   } catch (err) {
     report(err);
     hfovHeld = false;   // show the server's value again
   }
+  if (token !== cameraToken) return;   // a newer answer is due, and shows the camera
+  if (body) camera = body;
   renderCamera();
 }, 200);
 
@@ -148,7 +163,13 @@ function bindSidebar() {
   range.addEventListener("pointerdown", () => { hfovHeld = true; });
   window.addEventListener("pointerup", () => { hfovHeld = false; });
   range.addEventListener("input", () => change(range.value));
+  num.addEventListener("input", () => { hfovTyped = true; });
+  num.addEventListener("focusout", () => {
+    hfovTyped = false;
+    num.value = range.value;   // left unchanged after typing (no change event): the value in use again
+  });
   num.addEventListener("change", () => {
+    hfovTyped = false;
     const [lo, hi] = [Number(num.min), Number(num.max)];
     // Said, not clamped: 200 quietly becoming 140 is a value nobody chose.
     if (num.value === "" || Number(num.value) < lo || Number(num.value) > hi) {
@@ -174,7 +195,8 @@ const figureUrl = (id, overlay, side) => {
 
 /** Show a calibration state unless a newer one has been shown already (answers may cross). */
 function show(body) {
-  if (calib && body.revision < calib.revision) return;
+  if (calib && !reconnected && body.revision < calib.revision) return;
+  reconnected = false;
   calib = body;
   renderCalibration();
 }
@@ -512,7 +534,11 @@ export function initCamera() {
   on("camera", loadCamera);
   // The calibration is one for everyone using the server: an open dialog shows what another page
   // changed (a photo removed, a run, a new board), and how far a board search has come.
-  on("calibration", () => dialog.open && loadCalibration());
+  on("calibration", (change) => {
+    // null: the event stream is back, maybe from a restarted server, whose revisions start again at 0.
+    if (change === null) reconnected = true;
+    if (dialog.open) loadCalibration();
+  });
   // The load below counts the images the page knows of (none yet); it cannot wait for the first
   // images event, which never comes when GET /api/images fails.
   let imageCount = state.images.length;

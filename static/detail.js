@@ -251,9 +251,12 @@ async function load(id) {
   try {
     const body = await get(`/api/images/${encodeURIComponent(id)}`);
     if (token !== loadToken) return;
+    // Another image's measurement is not shown under this one while its own is measured.
+    if (body.id !== detail?.id) calib = null;
     detail = body;
     shownKey = keyOf(body);
     render();
+    renderCalib();
     calibrate();   // the detected sign's region moves with the result
   } catch (err) {
     if (token !== loadToken) return;
@@ -269,6 +272,9 @@ async function load(id) {
 const keyOf = (img) => `${img.id}:${img.result_version}:${img.status}`;
 
 function close() {
+  // A detail or measurement on its way when the view was closed would otherwise open it again.
+  ++loadToken;
+  ++calibToken;
   detail = null;
   calib = null;
   shownKey = "";
@@ -472,7 +478,9 @@ async function runSweep(again = null) {
   button.disabled = true;
   button.textContent = "sweeping…";
   try {
-    sweep = { ...(await get(`/api/sweep?${query}`)), key: sweepKey(state.settings, param) };
+    // The settings it ran under are those of when it was sent: a change while it runs is one since.
+    const key = sweepKey(state.settings, param);
+    sweep = { ...(await get(`/api/sweep?${query}`)), key };
     renderSweep();
   } catch (err) {
     report(err);

@@ -151,7 +151,9 @@ const push = debounce(async () => {
     apply(await api("PUT", "/api/settings", changes, { keepalive: true }));
   } catch (err) {
     // The server kept its settings: show them again instead of the rejected values, and say so.
-    const kept = await get("/api/settings").catch(() => null);
+    const read = await get("/api/settings").catch(() => null);
+    // Read before a later change of this page's landed, it would put that change's controls back.
+    const kept = read && read.version < state.version ? { version: state.version, settings: state.settings } : read;
     apply(kept, true);
     report(kept ? new Error(`${err.message}; the server keeps ${names.map((n) => `${n} ${kept.settings[n] ?? "off"}`)
       .join(", ")}`) : err);

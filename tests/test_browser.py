@@ -82,12 +82,12 @@ def sign_name(api, sign_id: str) -> str:
     return next(s["name"] for s in api.get("/api/library").json() if s["id"] == sign_id)
 
 
-def uploaded_scene(api) -> str:
-    """The id of an uploaded copy of SCENE (uploading it through the API when no test has)."""
+def uploaded_scene(api, name: str = f"upload-{SCENE}") -> str:
+    """The id of a copy of SCENE uploaded as `name` (uploading it through the API when no test has)."""
     for img in api.get("/api/images").json()["images"]:
-        if img["name"] == f"upload-{SCENE}":
+        if img["name"] == name:
             return img["id"]
-    files = {"files": (f"upload-{SCENE}", (harness.SCENES / SCENE).read_bytes(), "image/jpeg")}
+    files = {"files": (name, (harness.SCENES / SCENE).read_bytes(), "image/jpeg")}
     r = api.post("/api/images", files=files, data={"expected": LABEL})
     r.raise_for_status()
     harness.wait_server_idle(api)
@@ -524,9 +524,9 @@ def test_an_image_list_answered_after_a_newer_one_is_not_shown(page, api):
         page.wait_for_timeout(300)  # the page's own handling of the answer, which shows nothing new
         assert page.get_attribute(card, "data-status") == "recognized"
     finally:
-        page.unroute("**/api/images")
         for route, answer in lists[2:]:
             route.fulfill(response=answer)
+        page.unroute("**/api/images")
         api.patch(f"/api/images/{image_id}", json={"expected": LABEL}).raise_for_status()
 
 
@@ -839,6 +839,40 @@ def test_a_refused_upload_shows_its_whole_reason(page, tmp_path):
     assert box["x"] + box["width"] <= dismiss["x"] and box["height"] > 20   # wrapped within its row
 
 
+def test_settings_read_back_after_a_refusal_do_not_undo_a_later_change(page, api):
+    """After a refused value the page reads the server's settings back and shows them over every
+    control; read before a change made just after had landed, they put that change back."""
+    default = api.get("/api/settings").json()["settings"]
+    asked = []   # (route, the server's answer when it was asked) of each GET /api/settings
+
+    def hold(route):
+        if route.request.method == "GET":
+            asked.append((route, route.fetch()))
+        else:
+            route.continue_()
+
+    page.route("**/api/settings", hold)
+    try:
+        page.fill("#set-threshold", "2")
+        page.press("#set-threshold", "Enter")
+        while not asked:
+            page.wait_for_timeout(20)
+        with page.expect_response(lambda r: r.request.method == "PUT" and r.url.endswith("/api/settings")) as put:
+            page.fill("#set-ratio", "0.7")
+            page.press("#set-ratio", "Enter")
+        assert put.value.ok
+        route, older = asked[0]
+        assert older.json()["settings"]["ratio"] == default["ratio"] != 0.7
+        route.fulfill(response=older)
+        page.locator(".toast.error .toast-msg", has_text=f"the server keeps threshold {default['threshold']}").wait_for()
+        assert page.input_value("#set-ratio") == "0.7"
+        assert float(page.input_value("#set-threshold")) == default["threshold"]
+    finally:
+        for route, answer in asked[1:]:
+            route.fulfill(response=answer)
+        page.unroute("**/api/settings")
+
+
 def test_typed_settings_out_of_range_are_refused_and_said(page, api):
     default = api.get("/api/settings").json()["settings"]
     for name, typed, reason in (("threshold", "2", "threshold must be between 0.0 and 1.0; got 2"),
@@ -982,6 +1016,59 @@ def test_a_measurement_of_a_replaced_box_is_not_shown_when_it_comes_last(page, a
     expected = api.post("/api/calibrate/threshold", json={"image_id": image_id, "rect": [120, 90, 320, 250]}).json()
     assert float(page.inner_text("#calib-result b.suggested")) == pytest.approx(expected["suggested_threshold"],
                                                                                abs=1e-3)
+
+
+def test_a_detail_closed_while_it_loads_stays_closed(page, api):
+    """Escape pressed before an image's detail had come: it came, and opened a view that no key
+    or button could close, with no card selected."""
+    image_id = uploaded_scene(api)
+    held = []
+    page.route(f"**/api/images/{image_id}", lambda route: held.append(route))
+    page.click(f'.card[data-id="{image_id}"]')
+    while not held:
+        page.wait_for_timeout(20)
+    page.keyboard.press("Escape")
+    with page.expect_response(f"**/api/images/{image_id}"):
+        held[0].continue_()
+    page.wait_for_timeout(300)  # the page's own handling of the answer, which shows nothing new
+    page.unroute(f"**/api/images/{image_id}")
+    assert page.is_hidden("#detail") and page.is_visible("#detail-empty")
+
+
+def test_an_image_opened_shows_no_measurement_of_the_one_before(page, api):
+    """Stepping to another image kept the last one's histogram, box and suggested threshold (its
+    apply button setting it) on show until the new image's own measurement came."""
+    first, second = uploaded_scene(api), uploaded_scene(api, f"upload-again-{SCENE}")
+    open_detail(page, first)
+    page.wait_for_selector("#histogram:not([hidden])")
+    held = []
+    page.route("**/api/calibrate/threshold", lambda route: held.append(route))
+    open_detail(page, second)
+    while not held:
+        page.wait_for_timeout(20)
+    assert page.is_hidden("#histogram")
+    assert page.inner_text("#calib-result") == "" and page.input_value("#calib-box") == ""
+    held[0].continue_()
+    page.wait_for_selector("#histogram:not([hidden])")
+    page.unroute("**/api/calibrate/threshold")
+    assert "suggested" in page.inner_text("#calib-result")
+
+
+def test_a_setting_changed_while_a_sweep_runs_is_said_when_it_ends(page, api):
+    """The sweep runs under the settings of when it was asked for; one changed while it ran was
+    taken as its own, so its chart was offered as it is, without "run again"."""
+    open_detail(page, uploaded_scene(api))
+    held = []
+    page.route("**/api/sweep?*", lambda route: held.append(route))
+    page.select_option("#sweep-param", "threshold")
+    page.click("#run-sweep")
+    while not held:
+        page.wait_for_timeout(20)
+    api.put("/api/settings", json={"ratio": 0.7}).raise_for_status()
+    page.wait_for_function("() => document.querySelector('#set-ratio').value === '0.7'")
+    held[0].fulfill(json=sweep_answer("threshold", 0.0, 1.0, 13, [5] * 13))
+    page.locator("#sweep-info", has_text="other settings changed since: run again").wait_for()
+    page.unroute("**/api/sweep?*")
 
 
 def test_sweep_of_an_integer_setting_shows_whole_numbers(page, api):
@@ -1850,6 +1937,51 @@ def test_an_open_camera_dialog_follows_the_calibration_changed_elsewhere(page, b
             api.put("/api/calibration/board", json=board).raise_for_status()
     finally:
         harness.close_page(other)
+
+
+def test_a_camera_answered_after_a_newer_field_of_view_is_not_shown(page, api, no_camera):
+    """Another client's change (65°) made the page ask for the camera; answered after the page's
+    own field of view (75°), it put 65° back in the sidebar, which the server no longer held."""
+    page.wait_for_function("() => document.querySelector('#hfov-num').value === '60'")
+    asked = []   # (route, the server's answer when it was asked) of each GET /api/camera
+
+    def hold(route):
+        if route.request.method == "GET":
+            asked.append((route, route.fetch()))   # answered below, the first one last
+        else:
+            route.continue_()
+
+    page.route("**/api/camera", hold)
+    try:
+        api.put("/api/camera/assumed", json={"hfov_deg": 65}).raise_for_status()
+        while not asked:
+            page.wait_for_timeout(20)
+        with page.expect_response(lambda r: r.request.method == "PUT" and r.url.endswith("/api/camera/assumed")):
+            page.fill("#hfov-num", "75")
+            page.dispatch_event("#hfov-num", "change")
+        route, older = asked[0]
+        assert older.json()["assumed_hfov_deg"] == 65
+        with page.expect_response("**/api/camera"):
+            route.fulfill(response=older)
+        page.wait_for_timeout(300)  # the page's own handling of the answer, which shows nothing new
+        assert page.input_value("#hfov-num") == "75" and page.input_value("#hfov") == "75"
+    finally:
+        for route, answer in asked[1:]:
+            route.fulfill(response=answer)
+        page.unroute("**/api/camera")
+    assert api.get("/api/camera").json()["assumed_hfov_deg"] == 75
+
+
+def test_a_field_of_view_being_typed_is_not_overwritten_by_another_clients(page, api, no_camera):
+    """Another client's field of view, landing while one was being typed, replaced the typed digits."""
+    page.wait_for_function("() => document.querySelector('#hfov-num').value === '60'")
+    page.fill("#hfov-num", "72")
+    with page.expect_response(lambda r: r.request.method == "GET" and r.url.endswith("/api/camera")):
+        api.put("/api/camera/assumed", json={"hfov_deg": 65}).raise_for_status()
+    page.wait_for_function("() => document.querySelector('#hfov').value === '65'")
+    assert page.input_value("#hfov-num") == "72"
+    page.press("#hfov-num", "Enter")
+    wait_kept(lambda: api.get("/api/camera").json()["assumed_hfov_deg"], 72)
 
 
 def test_assumed_field_of_view_and_typed_intrinsics(page, api, no_camera):
