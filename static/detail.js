@@ -268,8 +268,9 @@ async function load(id) {
   }
 }
 
-// The label and inliers come with the result version; the status also follows the expected label.
-const keyOf = (img) => `${img.id}:${img.result_version}:${img.status}`;
+// The label and inliers come with the result version; the expected label is its own (one wrong
+// label for another leaves the status as it was).
+const keyOf = (img) => `${img.id}:${img.result_version}:${img.status}:${img.expected}`;
 
 function close() {
   // A detail or measurement on its way when the view was closed would otherwise open it again.
@@ -674,13 +675,19 @@ export function initDetail() {
     else if (e.key === "ArrowRight") step(1);
     else if (e.key === "Escape") select(null);
   });
-  $("#detail-expected").onchange = async (e) => {
-    try {
-      await api("PATCH", `/api/images/${detail.id}`, { expected: e.target.value || null });
-    } catch (err) {
-      report(err);
-    }
-    refreshImages();
+  // Labels chosen in quick succession (arrow keys on the select) go one after the other: sent at
+  // once, the server could take them in either order and keep an earlier one than the select shows.
+  let labelling = Promise.resolve();
+  $("#detail-expected").onchange = (e) => {
+    const id = detail.id, expected = e.target.value || null;
+    labelling = labelling.then(async () => {
+      try {
+        await api("PATCH", `/api/images/${id}`, { expected });
+      } catch (err) {
+        report(err);
+      }
+      refreshImages();
+    });
   };
   on("select", (id) => (id ? load(id) : close()));
   buildMatchRows();

@@ -1018,6 +1018,51 @@ def test_a_measurement_of_a_replaced_box_is_not_shown_when_it_comes_last(page, a
                                                                                abs=1e-3)
 
 
+def test_a_label_changed_elsewhere_shows_in_the_open_detail(page, api):
+    """One wrong label changed for another by another client left the image's status as it was,
+    and the open detail view kept the old label."""
+    image_id = uploaded_scene(api)
+    first, second = [s["id"] for s in api.get("/api/library").json() if s["id"] != LABEL][:2]
+    try:
+        api.patch(f"/api/images/{image_id}", json={"expected": first}).raise_for_status()
+        open_detail(page, image_id)
+        page.wait_for_function("v => document.querySelector('#detail-expected').value === v", arg=first)
+        api.patch(f"/api/images/{image_id}", json={"expected": second}).raise_for_status()
+        page.wait_for_function("v => document.querySelector('#detail-expected').value === v", arg=second)
+    finally:
+        api.patch(f"/api/images/{image_id}", json={"expected": LABEL}).raise_for_status()
+
+
+def test_labels_chosen_in_quick_succession_end_on_the_last(page, api):
+    """Arrow keys on the expected-label select send a label a step: sent at once, they could be
+    taken in either order, and the server kept an earlier label than the select showed."""
+    image_id = uploaded_scene(api)
+    open_detail(page, image_id)
+    first, last = [s["id"] for s in api.get("/api/library").json() if s["id"] != LABEL][:2]
+    url = f"**/api/images/{image_id}"
+    held = []
+    page.route(url, lambda route: held.append(route) if route.request.method == "PATCH" else route.continue_())
+    try:
+        page.select_option("#detail-expected", first)
+        while not held:
+            page.wait_for_timeout(20)
+        page.select_option("#detail-expected", last)
+        page.wait_for_timeout(300)   # the second label sent by now, were it sent at once
+        answered = 0
+        deadline = time.monotonic() + 30
+        while api.get(f"/api/images/{image_id}").json()["expected"] != last or answered < len(held):
+            assert time.monotonic() < deadline, "the last label chosen never reached the server"
+            for route in reversed(held[answered:]):   # the later first, as crossing requests can be taken
+                with page.expect_response(lambda r: r.request.method == "PATCH"):
+                    route.continue_()
+            answered = len(held)
+            page.wait_for_timeout(50)
+        page.wait_for_function("v => document.querySelector('#detail-expected').value === v", arg=last)
+    finally:
+        page.unroute(url)
+        api.patch(f"/api/images/{image_id}", json={"expected": LABEL}).raise_for_status()
+
+
 def test_a_detail_closed_while_it_loads_stays_closed(page, api):
     """Escape pressed before an image's detail had come: it came, and opened a view that no key
     or button could close, with no card selected."""
