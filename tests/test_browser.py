@@ -8,6 +8,7 @@ import json
 import math
 import re
 import time
+from contextlib import contextmanager
 from pathlib import Path
 from urllib.parse import parse_qs, urlparse
 
@@ -491,6 +492,33 @@ def answer_in_reverse(page, route_url: str, picker: str, files: list[Path], list
     page.unroute(route_url)
 
 
+@contextmanager
+def answered_late(page, url: str, at_once: int | None = None):
+    """The page's GETs of `url` held, each with the server's answer of when it was asked, so that
+    a test can answer the first after later ones: yields the list of (route, answer) in the order
+    asked; the `at_once`-th (from 0) goes on at once instead (answer None). The first is the test's
+    to answer; any after it still held get their answers before the route goes."""
+    asked = []
+
+    def hold(route):
+        if route.request.method != "GET":
+            route.continue_()
+        elif len(asked) == at_once:
+            asked.append((route, None))
+            route.continue_()
+        else:
+            asked.append((route, route.fetch()))
+
+    page.route(url, hold)
+    try:
+        yield asked
+    finally:
+        for route, answer in asked[1:]:
+            if answer is not None:
+                route.fulfill(response=answer)
+        page.unroute(url)
+
+
 def test_an_image_list_answered_after_a_newer_one_is_not_shown(page, api):
     """Lists asked for 250 ms apart can be answered out of order: the older, answered last, put an
     image's earlier state back in the gallery until the next change."""
@@ -499,34 +527,21 @@ def test_an_image_list_answered_after_a_newer_one_is_not_shown(page, api):
     page.locator(f'{card}[data-status="correct"]').wait_for()
     page.wait_for_timeout(500)   # lists asked for by the upload's events answered, so the first held is ours
     other = next(s["id"] for s in api.get("/api/library").json() if s["id"] != LABEL)
-    lists = []   # (route, the server's answer when it was asked) of each list the page asks for
-
-    def hold(route):
-        if route.request.method != "GET":
-            route.continue_()
-        elif len(lists) == 1:
-            lists.append((route, None))
-            route.continue_()   # the newer list, answered at once
-        else:   # the first, answered below, and any after the newer, which would mend the gallery
-            lists.append((route, route.fetch()))
-
-    page.route("**/api/images", hold)
     try:
-        api.patch(f"/api/images/{image_id}", json={"expected": other}).raise_for_status()
-        while not lists:
-            page.wait_for_timeout(20)
-        api.patch(f"/api/images/{image_id}", json={"expected": None}).raise_for_status()
-        page.locator(f'{card}[data-status="recognized"]').wait_for()
-        route, older = lists[0]
-        assert next(i for i in older.json()["images"] if i["id"] == image_id)["status"] == "wrong"
-        with page.expect_response("**/api/images"):
-            route.fulfill(response=older)
-        page.wait_for_timeout(300)  # the page's own handling of the answer, which shows nothing new
-        assert page.get_attribute(card, "data-status") == "recognized"
+        # The newer list answered at once; any after it, which would mend the gallery, held.
+        with answered_late(page, "**/api/images", at_once=1) as lists:
+            api.patch(f"/api/images/{image_id}", json={"expected": other}).raise_for_status()
+            while not lists:
+                page.wait_for_timeout(20)
+            api.patch(f"/api/images/{image_id}", json={"expected": None}).raise_for_status()
+            page.locator(f'{card}[data-status="recognized"]').wait_for()
+            route, older = lists[0]
+            assert next(i for i in older.json()["images"] if i["id"] == image_id)["status"] == "wrong"
+            with page.expect_response("**/api/images"):
+                route.fulfill(response=older)
+            page.wait_for_timeout(300)  # the page's own handling of the answer, which shows nothing new
+            assert page.get_attribute(card, "data-status") == "recognized"
     finally:
-        for route, answer in lists[2:]:
-            route.fulfill(response=answer)
-        page.unroute("**/api/images")
         api.patch(f"/api/images/{image_id}", json={"expected": LABEL}).raise_for_status()
 
 
@@ -843,16 +858,7 @@ def test_settings_read_back_after_a_refusal_do_not_undo_a_later_change(page, api
     """After a refused value the page reads the server's settings back and shows them over every
     control; read before a change made just after had landed, they put that change back."""
     default = api.get("/api/settings").json()["settings"]
-    asked = []   # (route, the server's answer when it was asked) of each GET /api/settings
-
-    def hold(route):
-        if route.request.method == "GET":
-            asked.append((route, route.fetch()))
-        else:
-            route.continue_()
-
-    page.route("**/api/settings", hold)
-    try:
+    with answered_late(page, "**/api/settings") as asked:
         page.fill("#set-threshold", "2")
         page.press("#set-threshold", "Enter")
         while not asked:
@@ -867,10 +873,6 @@ def test_settings_read_back_after_a_refusal_do_not_undo_a_later_change(page, api
         page.locator(".toast.error .toast-msg", has_text=f"the server keeps threshold {default['threshold']}").wait_for()
         assert page.input_value("#set-ratio") == "0.7"
         assert float(page.input_value("#set-threshold")) == default["threshold"]
-    finally:
-        for route, answer in asked[1:]:
-            route.fulfill(response=answer)
-        page.unroute("**/api/settings")
 
 
 def test_typed_settings_out_of_range_are_refused_and_said(page, api):
@@ -1988,16 +1990,7 @@ def test_a_camera_answered_after_a_newer_field_of_view_is_not_shown(page, api, n
     """Another client's change (65°) made the page ask for the camera; answered after the page's
     own field of view (75°), it put 65° back in the sidebar, which the server no longer held."""
     page.wait_for_function("() => document.querySelector('#hfov-num').value === '60'")
-    asked = []   # (route, the server's answer when it was asked) of each GET /api/camera
-
-    def hold(route):
-        if route.request.method == "GET":
-            asked.append((route, route.fetch()))   # answered below, the first one last
-        else:
-            route.continue_()
-
-    page.route("**/api/camera", hold)
-    try:
+    with answered_late(page, "**/api/camera") as asked:
         api.put("/api/camera/assumed", json={"hfov_deg": 65}).raise_for_status()
         while not asked:
             page.wait_for_timeout(20)
@@ -2010,10 +2003,6 @@ def test_a_camera_answered_after_a_newer_field_of_view_is_not_shown(page, api, n
             route.fulfill(response=older)
         page.wait_for_timeout(300)  # the page's own handling of the answer, which shows nothing new
         assert page.input_value("#hfov-num") == "75" and page.input_value("#hfov") == "75"
-    finally:
-        for route, answer in asked[1:]:
-            route.fulfill(response=answer)
-        page.unroute("**/api/camera")
     assert api.get("/api/camera").json()["assumed_hfov_deg"] == 75
 
 
