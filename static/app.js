@@ -26,9 +26,13 @@ function showMemory({ memory_held_bytes: held, memory_limit_bytes: limit }) {
   $("#memory").textContent = `memory ${memoryText(held)} of ${memoryText(limit)}`;
 }
 
+let healthToken = 0;   // drops a figure answered after a newer one (images held change in bursts)
+
 async function loadHealth() {
+  const token = ++healthToken;
   try {
-    showMemory(await get("/api/health"));
+    const health = await get("/api/health");
+    if (token === healthToken) showMemory(health);
   } catch (err) {
     report(err);
   }

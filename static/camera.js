@@ -24,6 +24,7 @@ let previewMode = "corners";
 let hfovHeld = false;     // the slider is under the pointer: server answers must not yank it
 let hfovTyped = false;    // a number typed in its field and not yet applied: server answers must not overwrite it
 let cameraToken = 0;      // drops a camera answered after a newer request was sent
+let calibrationToken = 0; // drops a calibration GET answered after a newer one
 let reconnected = false;  // the event stream came back: the next calibration is shown whatever its revision
 
 /** "fx 520.1 fy 515.0 cx 318.0 cy 243.0 px @ 640×480" */
@@ -202,8 +203,11 @@ function show(body) {
 }
 
 async function loadCalibration() {
+  const token = ++calibrationToken;
   try {
-    show(await get("/api/calibration"));
+    const body = await get("/api/calibration");
+    // A board search's progress keeps the revision: of its answers, the newest request's is shown.
+    if (token === calibrationToken) show(body);
   } catch (err) {
     report(err);
   }

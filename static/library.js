@@ -10,9 +10,13 @@ const SIGN_FIELDS = ["id", "name", "text", "width_m", "height_m"];   // POST /ap
 
 let picked = null;   // {url, width, height} of the image chosen for a new sign
 let idTyped = false; // the person typed the new sign's id: an image chosen after keeps it
+let libraryToken = 0; // drops a list answered after a newer one (a sign added, then one removed)
 
 export async function loadLibrary() {
-  state.library = await get("/api/library");
+  const token = ++libraryToken;
+  const library = await get("/api/library");
+  if (token !== libraryToken) return;
+  state.library = library;
   emit("library", state.library);
 }
 
@@ -125,12 +129,16 @@ async function addSign(event) {
   if (lacking) { toast(lacking, "error"); return; }
   const button = $("#sign-add");
   button.disabled = true;
+  const sent = $("#sign-file").files[0];
   try {
     const sign = await api("POST", "/api/library", signForm());
     toast(`sign ${sign.name} added: every image is being re-run with it`, "info");
-    $("#sign-form").reset();
-    idTyped = false;
-    showPicked();
+    // A next sign's image chosen while this one was sent is kept, with what was typed for it.
+    if ($("#sign-file").files[0] === sent) {
+      $("#sign-form").reset();
+      idTyped = false;
+      showPicked();
+    }
     await loadLibrary();
   } catch (err) {
     report(err);   // the server's reason: a bad id, a size, an image that does not fit its size, …

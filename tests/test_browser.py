@@ -1742,6 +1742,51 @@ def test_the_new_signs_id_follows_the_image_chosen_unless_typed(page, api, exit_
     page.keyboard.press("Escape")
 
 
+def test_a_next_signs_image_chosen_while_one_is_added_is_kept(page, api, exit_sign):
+    """The form was cleared when the server took a sign, and with it a next sign's image and id
+    chosen while the first was being sent."""
+    next_image = exit_sign.with_name("IMG_4031.png")
+    next_image.write_bytes(exit_sign.read_bytes())
+    page.click("#library-open")
+    page.set_input_files("#sign-file", str(exit_sign))
+    page.fill("#sign-width_m", "0.5")
+    held = []
+    page.route("**/api/library", lambda route: held.append(route) if route.request.method == "POST" else route.continue_())
+    try:
+        page.click("#sign-add")
+        while not held:
+            page.wait_for_timeout(20)
+        page.set_input_files("#sign-file", str(next_image))
+        with page.expect_response(lambda r: r.request.method == "POST" and r.url.endswith("/api/library")):
+            held[0].continue_()
+    finally:
+        page.unroute("**/api/library")
+    page.locator('.sign[data-id="exit_sign"]').wait_for()
+    assert page.input_value("#sign-id") == "img_4031" and page.input_value("#sign-width_m") == "0.5"
+    assert page.is_visible("#sign-preview")
+    page.keyboard.press("Escape")
+
+
+def test_a_library_answered_after_a_newer_one_is_not_shown(page, api, exit_sign):
+    """A sign added, then removed by another client: the list asked for after the add, answered
+    last, showed the removed sign as still there."""
+    fields = {"id": "exit_sign", "name": "Exit 7", "width_m": "0.5"}
+    with answered_late(page, "**/api/library", at_once=1) as asked:
+        api.post("/api/library", data=fields, files={"file": (exit_sign.name, exit_sign.read_bytes(), "image/png")}
+                 ).raise_for_status()
+        while not asked:
+            page.wait_for_timeout(20)
+        with page.expect_response("**/api/library"):
+            api.delete("/api/library/exit_sign").raise_for_status()
+        route, older = asked[0]
+        assert "exit_sign" in [s["id"] for s in older.json()]
+        with page.expect_response("**/api/library"):
+            route.fulfill(response=older)
+        page.wait_for_timeout(300)  # the page's own handling of the answer, which shows nothing new
+        assert "Exit 7" not in page.inner_text("#library-info")
+        assert page.locator('#expected option[value="exit_sign"]').count() == 0
+
+
 def test_an_image_named_in_arabic_gets_an_id_and_every_refused_add_says_why(page, api, tmp_path):
     """An image named مخرج.png got an empty id, and *add* then did nothing but show the browser's
     required-field bubble; a copy of a sign already there was taken, and neither was recognised again."""
