@@ -270,7 +270,7 @@ def _outline_shrunk(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, seed: in
     Read again at full resolution from there, the edges were no more precise on sharp
     synthetic 3200 x 2400 scenes (rotation median 0.057 against 0.058 degrees, shrunk to 320 px)
     and far less on soft ones (the sample scenes enlarged 5x: 0.093 against 0.061, up to 0.31)."""
-    small, to_small, lens = shrunk_view(gray, f, camera)
+    small, to_small, lens = shrunk_view(gray, f, camera, around=sign_corners(sign, H))
     outline, why = _outline(small, sign, to_small @ H, seed, lens)
     if outline is None:
         return None, f"{why}, in the image shrunk to {f:.2g}x"
