@@ -54,6 +54,26 @@ def test_search_finds_the_sign_the_fallback_misses(library, sign_id):
     assert np.linalg.norm(found.corners - CORNERS, axis=1).mean() < 1.0
 
 
+def test_a_large_photo_is_searched_at_a_bounded_resolution(library):
+    """The lower levels of a 12 MP photo were cut at full resolution: 39 ms of connected components
+    each. Cut where its longer side is MAX_CUT_SIDE, the same scene enlarged 4x finds its sign as
+    the scene does."""
+    photo = cv2.resize(scene(library["chief_of_security"], exit_plaque=(420, 330)), None, fx=4, fy=4,
+                       interpolation=cv2.INTER_CUBIC)
+    cut = []
+    label_components = plaque_search.label_components
+
+    def spy(mask):
+        cut.append(max(mask.shape))
+        return label_components(mask)
+
+    with mock.patch.object(plaque_search, "label_components", spy):
+        found = recognize(photo, library, preset("default").replace(plaque_candidates=0))
+    assert found.label == "chief_of_security" and found.by_plaque
+    assert np.linalg.norm(found.corners - (4 * CORNERS + 1.5), axis=1).mean() < 4.0  # 1 px at 640 x 480
+    assert cut and max(cut) == plaque_search.MAX_CUT_SIDE
+
+
 def search(image: np.ndarray, library: Library, settings, accept=None):
     """`search_plaques` over the image's `ranked_quads`, accepting with `accept` (default: `settings`)."""
     quads = ranked_quads(image, segment(image, settings), library, settings)
