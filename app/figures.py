@@ -211,8 +211,12 @@ def draw_blob(image: np.ndarray, recognition: Recognition) -> np.ndarray:
     chosen = chosen_blob(recognition)
     colors = [GREEN if i == chosen else ORANGE for i in range(len(seg.blobs))]
     for blob, color in zip(seg.blobs, colors):
-        pixels = seg.labels == blob.label
-        img[pixels] = (0.5 * image[pixels] + 0.5 * np.array(color)).astype(np.uint8)
+        # Within the blob's box, in OpenCV: over all of a 12 MP photo the figure took 270 ms.
+        x0, y0, x1, y1 = blob.bbox
+        pixels = cv2.compare(seg.labels[y0:y1, x0:x1], blob.label, cv2.CMP_EQ)
+        photo = image[y0:y1, x0:x1]
+        tinted = cv2.addWeighted(photo, 0.5, np.full_like(photo, color), 0.5, 0)
+        cv2.copyTo(tinted, pixels, img[y0:y1, x0:x1])
     img, k = _enlarged(img)  # tinted first, at the labels' resolution
     for i, (blob, crop, color) in enumerate(zip(seg.blobs, seg.crops, colors)):
         _box(img, tuple(k * v for v in crop), color, f"blob {i + 1}: {blob.area} px")

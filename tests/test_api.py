@@ -16,11 +16,13 @@ import pytest
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
-from app.figures import GREEN, RED, TEXT_BLOCK_PX, UNSEEN
+from app.figures import DIM, GREEN, RED, TEXT_BLOCK_PX, UNSEEN, stage_figure
 from app.server import create_app
 from app.viser_proxy import CANVAS_SCRIPT
 from app.workspace import Workspace, WorkspaceConfig
 from pipeline.library import SAMPLE_LIBRARY, load_library
+from pipeline.recognize import recognize
+from pipeline.settings import preset
 from pipeline.verify import CHECK_WIDTH
 from pipeline.synth import synthetic_camera
 from pipeline.camera import load_camera, ros_camera_yaml
@@ -292,6 +294,23 @@ def test_stage_figures(client):
     assert_error(client.get(f"/api/images/{image_id}/stages/matches?sign=nope"), 404, "not in the library")
     assert_error(client.get(f"/api/images/{image_id}/stages/sift"), 422, "input")
     client.delete(f"/api/images/{image_id}")
+
+
+def test_the_blob_figure_tints_the_chosen_blob_and_dims_the_rest():
+    """The chosen blob half photo, half green; every other pixel the photo dimmed (boxes and their
+    labels aside)."""
+    photo = cv2.imread(str(REPO / "sample_images" / "scenes" / "scene_004.jpg"))
+    rec = recognize(photo, load_library(), preset("default"))
+    assert rec.attempt.source == "blob 1"
+    figure = stage_figure("blob", photo, rec, load_library()).astype(float)
+    inner = cv2.erode((rec.segmentation.labels == 1).astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    away = rec.segmentation.labels == 0
+    for x0, y0, x1, y1 in rec.segmentation.crops:
+        away[max(0, y0 - 8):y1 + 8, max(0, x0 - 8):x1 + 8] = False  # each crop's box
+        away[max(0, y0 - 40):y0 + 8] = False  # and its label, moved along to fit the image
+    assert inner.sum() > 1000 and away.sum() > 100_000
+    assert np.abs(figure[inner] - (0.5 * photo[inner] + 0.5 * np.array(GREEN))).max() <= 1
+    assert np.abs(figure[away] - DIM * photo[away]).max() <= 1
 
 
 def test_text_check_figure_or_why_there_is_none(client):
