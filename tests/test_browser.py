@@ -1657,6 +1657,26 @@ def test_viser_scene_reconnects_after_a_server_restart(browser, tmp_path):
     harness.close_page(page)
 
 
+def test_an_open_camera_dialog_shows_a_restarted_servers_calibration(browser, tmp_path):
+    """A restarted server counts its calibration's revisions from 0 again: an open Camera dialog
+    took its answers for older than the photos it showed, and kept showing photos the server no
+    longer held (they live in memory only)."""
+    port = harness.free_port()
+    photos = [("files", (f"board{i}.png", cv2.imencode(".png", im)[1].tobytes(), "image/png"))
+              for i, im in enumerate(render_boards(2)[0])]
+    with harness.serve(tmp_path / "state", tmp_path / "before.log", port=port) as url:
+        page = harness.open_page(browser, url)
+        page.click("#camera-open")
+        httpx.post(f"{url}/api/calibration/images", files=photos, timeout=60).raise_for_status()
+        page.locator("#calib-views .view-card").nth(1).wait_for()
+    page.wait_for_selector("#live.off")
+    with harness.serve(tmp_path / "state", tmp_path / "after.log", port=port):
+        page.wait_for_selector("#live.on", timeout=30_000)
+        page.locator("#calib-summary", has_text="No photos yet.").wait_for()
+        assert page.locator("#calib-views .view-card").count() == 0
+    harness.close_page(page)
+
+
 # ---------------------------------------------------------------- library
 
 @pytest.fixture
