@@ -16,8 +16,9 @@ dense alignment can, except on the smallest plaques, which must align better
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
+from itertools import chain
 
 import cv2
 import numpy as np
@@ -25,7 +26,7 @@ import numpy as np
 from .library import Library
 from .plaque import (PlaqueMatch, blob_boundary, blob_quad, bounding_box, plaque_correlations, quad_width, refine_ecc,
                      sign_corners, sign_to_quad)
-from .segment import (Blob, Segmentation, box_iou, component_blob, expand_box, label_components, normalize_levels,
+from .segment import (Blob, Box, Segmentation, box_iou, component_blob, expand_box, label_components, normalize_levels,
                       threshold_mask)
 from .settings import Settings
 
@@ -40,6 +41,9 @@ SAME_PLAQUE_IOU = 0.7
 # Only candidates correlating this well with some sign before alignment are aligned, at most MAX_ALIGNED.
 MIN_NCC = 0.45
 MAX_ALIGNED = 4
+# A candidate correlating this well is searched as soon as its level is cut (`plaque_order`);
+# plaques of other words reach 0.69.
+STRONG_NCC = 0.8
 # Plaques smaller than this squared (px²) must align better than settings.min_plaque_ecc; see required_correlation.
 FULL_TRUST_PX = 60.0
 # Quads wider than this (px) are aligned on a shrunk copy of their neighbourhood.
@@ -52,12 +56,18 @@ MIN_TEXT_HOLES = 0.01
 MAX_CUT_SIDE = 1280
 
 
-def candidate_quads(gray: np.ndarray, normalization: str, levels: tuple[float, ...],
+def quad_levels(settings: Settings) -> tuple[float, ...]:
+    """The normalised gray levels the plaque search cuts the image at, brightest first: LEVELS and
+    the segmentation threshold."""
+    return tuple(sorted({*LEVELS, settings.threshold}, reverse=True))
+
+
+def candidate_quads(gray: np.ndarray, normalization: str, level: float,
                     segmentation: Segmentation | None = None, threshold: float | None = None,
-                    shrink: int = 1) -> list[tuple[Blob, np.ndarray]]:
+                    shrink: int = 1, taken: Sequence[Box] = ()) -> list[tuple[Blob, np.ndarray]]:
     """(blob, corners (4, 2) image px TL, TR, BR, BL) of every quadrilateral component of plausible
-    size of the (H, W) uint8 image, normalised as `normalize_gray` does, cut at each level, one
-    per plaque (the first level's).
+    size of the (H, W) uint8 image, normalised as `normalize_gray` does, cut at `level`, one per
+    plaque and none of the plaques whose boxes are `taken` (cut at brighter levels).
 
     At `threshold`, the cut `segmentation` made, only its candidate blobs are taken, as they are.
     Other levels are cut at 1/`shrink` of the resolution, or of MAX_CUT_SIDE px when the image is
@@ -66,32 +76,31 @@ def candidate_quads(gray: np.ndarray, normalization: str, levels: tuple[float, .
     """
     h, w = gray.shape
     lo, hi = MIN_AREA_FRACTION * h * w, MAX_AREA_FRACTION * h * w
-    factor = shrink * max(1.0, max(h, w) / MAX_CUT_SIDE)
-    small = gray if factor == 1 else cv2.resize(gray, (max(1, int(w / factor)), max(1, int(h / factor))),
-                                                 interpolation=cv2.INTER_AREA)
-    shrunk = np.array([w / small.shape[1], h / small.shape[0]])
-    # the levels of the full image, so each cut means what it means at full resolution
-    normalized = normalize_levels(gray, normalization)
+    if segmentation is not None and level == threshold:
+        labels, blobs, f = segmentation.labels, [b for b in segmentation.blobs if lo <= b.area <= hi], np.ones(2)
+    else:
+        factor = shrink * max(1.0, max(h, w) / MAX_CUT_SIDE)
+        small = gray if factor == 1 else cv2.resize(gray, (max(1, int(w / factor)), max(1, int(h / factor))),
+                                                     interpolation=cv2.INTER_AREA)
+        f = np.array([w / small.shape[1], h / small.shape[0]])
+        # the levels of the full image, so each cut means what it means at full resolution
+        mask = cv2.LUT(small, threshold_mask(normalize_levels(gray, normalization), level, None))
+        labels, stats = label_components(mask)
+        areas = stats[1:, cv2.CC_STAT_AREA] * f.prod()
+        blobs = [component_blob(stats, int(i + 1)) for i in np.flatnonzero((areas >= lo) & (areas <= hi))]
     found: list[tuple[Blob, np.ndarray]] = []
-    for level in levels:
-        if segmentation is not None and level == threshold:
-            labels, blobs, f = segmentation.labels, [b for b in segmentation.blobs if lo <= b.area <= hi], np.ones(2)
-        else:
-            mask = cv2.LUT(small, threshold_mask(normalized, level, None))
-            f = shrunk
-            labels, stats = label_components(mask)
-            areas = stats[1:, cv2.CC_STAT_AREA] * f.prod()
-            blobs = [component_blob(stats, int(i + 1)) for i in np.flatnonzero((areas >= lo) & (areas <= hi))]
-        for blob in blobs:
-            # shrunk px -> image px: boxes outward to whole pixels, corners with pixel centres
-            # aligned as cv2.resize does
-            x0, y0, x1, y1 = blob.bbox
-            box = (int(x0 * f[0]), int(y0 * f[1]), int(np.ceil(x1 * f[0])), int(np.ceil(y1 * f[1])))
-            if any(box_iou(box, other.bbox) > SAME_PLAQUE_IOU for other, _ in found):
-                continue
-            quad = blob_quad(labels, blob)
-            if quad is not None:
-                found.append((Blob(blob.label, round(blob.area * f.prod()), box), (quad + 0.5) * f - 0.5))
+    boxes = list(taken)
+    for blob in blobs:
+        # shrunk px -> image px: boxes outward to whole pixels, corners with pixel centres
+        # aligned as cv2.resize does
+        x0, y0, x1, y1 = blob.bbox
+        box = (int(x0 * f[0]), int(y0 * f[1]), int(np.ceil(x1 * f[0])), int(np.ceil(y1 * f[1])))
+        if any(box_iou(box, other) > SAME_PLAQUE_IOU for other in boxes):
+            continue
+        quad = blob_quad(labels, blob)
+        if quad is not None:
+            found.append((Blob(blob.label, round(blob.area * f.prod()), box), (quad + 0.5) * f - 0.5))
+            boxes.append(box)
     return found
 
 
@@ -154,18 +163,53 @@ def read_blob(gray: np.ndarray, labels: np.ndarray, blob: Blob, library: Library
                        QuadCandidate(blob, corners, *plaque_correlations(gray, corners, library)))
 
 
-def ranked_quads(gray: np.ndarray, segmentation: Segmentation, library: Library,
-                 settings: Settings, shrink: int = 1, read: Sequence[QuadCandidate] = ()) -> list[QuadCandidate]:
-    """Every quadrilateral candidate at `LEVELS` (cut at 1/`shrink` resolution) and at the
-    segmentation threshold, read as a plaque against every library sign, best correlation first.
-    A candidate among `read` (the same blob and corners, read already: `read_blob`) is not read again."""
-    levels = tuple(sorted({*LEVELS, settings.threshold}, reverse=True))
+def level_quads(gray: np.ndarray, segmentation: Segmentation, library: Library, settings: Settings,
+                shrink: int, level: float, taken: Sequence[QuadCandidate] = (),
+                read: Sequence[QuadCandidate] = ()) -> list[QuadCandidate]:
+    """The quadrilateral candidates cut at `level` (`candidate_quads`, at 1/`shrink` resolution
+    but at the segmentation threshold), other than the plaques `taken` at brighter levels, read as
+    plaques against every library sign. A candidate among `read` (the same blob and corners, read
+    already: `read_blob`) is not read again."""
     known = {(quad.blob, quad.corners.tobytes()): quad for quad in read}
-    found = [known.get((blob, corners.tobytes())) or QuadCandidate(blob, corners, *plaque_correlations(gray, corners,
-                                                                                                      library))
-             for blob, corners in candidate_quads(segmentation.source, segmentation.normalization, levels,
-                                                 segmentation, settings.threshold, shrink)]
-    return sorted(found, key=lambda q: -q.best_ncc)
+    return [known.get((blob, corners.tobytes())) or QuadCandidate(blob, corners, *plaque_correlations(gray, corners,
+                                                                                                       library))
+            for blob, corners in candidate_quads(segmentation.source, segmentation.normalization, level, segmentation,
+                                                 settings.threshold, shrink, [q.blob.bbox for q in taken])]
+
+
+def cut_levels(cut: Callable[[float, Sequence[QuadCandidate]], list[QuadCandidate]],
+               levels: Sequence[float]) -> Iterator[list[QuadCandidate]]:
+    """The quads `cut(level, taken)` gives at each of `levels` in turn, `taken` being those of the
+    levels before (`level_quads`), one level's list at a time as they are asked for."""
+    found: list[QuadCandidate] = []
+    for level in levels:
+        quads = cut(level, tuple(found))
+        found += quads
+        yield quads
+
+
+def best_first(quads: Iterable[QuadCandidate]) -> list[QuadCandidate]:
+    return sorted(quads, key=lambda q: -q.best_ncc)
+
+
+def ranked(levels: Iterable[list[QuadCandidate]]) -> list[QuadCandidate]:
+    """The quads of every level (`cut_levels`), best correlation first."""
+    return best_first(chain.from_iterable(levels))
+
+
+def plaque_order(levels: Iterable[list[QuadCandidate]]) -> Iterator[QuadCandidate]:
+    """The quads of `levels` (`cut_levels`, brightest level first) in the order their crops are
+    searched: after each level is cut, its quads correlating STRONG_NCC or more with a sign, best
+    first; then all the others, best first. A strong quad is searched before the darker levels are
+    cut (about 1 ms each at 640 x 480): of the 35 bench scenes at 640 x 480 answered from the first
+    plaque crop, 31 correlated at least 0.8, and 28 of those were answered with 1 (5 scenes), 2 (15)
+    or 3 (8) of the 4 levels cut instead of all 4. On the 726 bench, accuracy and sample scenes no answer
+    or pose changed."""
+    rest: list[QuadCandidate] = []
+    for quads in levels:
+        yield from best_first(q for q in quads if q.best_ncc >= STRONG_NCC)
+        rest += [q for q in quads if q.best_ncc < STRONG_NCC]
+    yield from best_first(rest)
 
 
 def _aligned(gray: np.ndarray, corners: np.ndarray, roll: int, sign) -> tuple[np.ndarray | None, float]:
@@ -223,7 +267,7 @@ def confirm_plaque(gray: np.ndarray, match: PlaqueMatch, library: Library, min_e
 
 def search_plaques(gray: np.ndarray, quads: list[QuadCandidate], library: Library,
                    settings: Settings) -> tuple[PlaqueMatch, float] | None:
-    """(plaque, its aligned correlation) of the first of the `ranked_quads` that reads as a
+    """(plaque, its aligned correlation) of the first of the `quads` (`ranked`) that reads as a
     library sign, or None.
 
     Candidates are tried best correlation first. A candidate is accepted for its best-correlating

@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections import OrderedDict
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,8 +24,8 @@ from .match import Matches, match_library
 from .outline import Outline, outline_fit, refine_outline
 from .plaque import (PlaqueMatch, grid_correspondences, match_plaque, project, refine_ecc, seen_grid, sign_corners,
                      sign_to_quad)
-from .plaque_search import (MIN_NCC, SAME_PLAQUE_IOU, QuadCandidate, confirm_plaque, ranked_quads, read_blob,
-                           search_plaques)
+from .plaque_search import (MIN_NCC, SAME_PLAQUE_IOU, QuadCandidate, confirm_plaque, cut_levels, level_quads,
+                           plaque_order, quad_levels, ranked, read_blob, search_plaques)
 from .pose import CORNER_SIGMA_PX, Pose, PoseError, distort_pixels, estimate_pose, with_corner_floor
 from .segment import Box, Segmentation, box_iou, expand_box, segment
 from .settings import Settings
@@ -447,20 +447,22 @@ def search_region(gray: np.ndarray, region: Box, source: str, library: Library, 
 
 
 def candidate_regions(segmentation: Segmentation | None, settings: Settings, width: int, height: int,
-                      quads: Callable[[int], list[QuadCandidate]],
+                      quads: Callable[[int], Iterator[list[QuadCandidate]]],
                       first_is_no_sign: bool) -> Iterator[tuple[Box, str]]:
     """(region, source) pairs in the order they are searched, made as the search asks for them.
 
     The largest blob's crop (the paper's); then the crops of up to `settings.plaque_candidates`
-    of the `quads` (plaque-shaped regions at the threshold and lower gray levels, best
-    correlation with a sign first) that correlate at least MIN_NCC; then the other candidate
-    blobs' crops, largest first; then the full frame. A crop about the same as one searched
-    already is skipped. When the largest blob is not the sign, a lamp or a white door usually
-    is, and it may also have pushed the sign below the threshold: on the synthetic scenes the
-    sign was then the best-correlating quad in 40 of 60 scenes (13 of the 14 whose sign was a
-    smaller blob), and one crop costs a fraction of the full frame. `quads(shrink)` is called,
-    with the lower levels at half resolution, only once the largest blob has failed or been put
-    after the plaques.
+    of the `quads` (plaque-shaped regions at the threshold and lower gray levels, in
+    `plaque_order`: best correlation with a sign first, but one correlating strongly as soon as
+    its level is cut) that correlate at least MIN_NCC; then the other candidate blobs' crops,
+    largest first; then the full frame. A crop about the same as one searched already is
+    skipped. When the largest blob is not the sign, a lamp or a white door usually is, and it may
+    also have pushed the sign below the threshold: on the synthetic scenes the sign was then the
+    best-correlating quad in 40 of 60 scenes (13 of the 14 whose sign was a smaller blob), and
+    one crop costs a fraction of the full frame. `quads(shrink)`, the quads level by level
+    (`cut_levels`), is called, with the lower levels at half resolution, only once the largest
+    blob has failed or been put after the plaques, and a level is cut only when the search gets
+    to it.
 
     With plaque candidates, the largest blob waits until after them when `first_is_no_sign`
     (`BlobReading.no_sign`: a lamp, a white door, a plaque of other words), since searching it
@@ -482,7 +484,7 @@ def candidate_regions(segmentation: Segmentation | None, settings: Settings, wid
         yield crops[0], "blob 1"
     if with_plaques:
         plaques = 0
-        for quad in quads(2):
+        for quad in plaque_order(quads(2)):
             if quad.best_ncc < MIN_NCC or plaques == settings.plaque_candidates:
                 break
             if fresh(crop := expand_box(quad.blob.bbox, settings.crop_margin, width, height)):
@@ -571,10 +573,14 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
                                                                   library))
              if settings.plaque_candidates and segmentation is not None and segmentation.blobs else None)
 
-    def quads(shrink: int) -> list[QuadCandidate]:
+    def quads(shrink: int) -> Iterator[list[QuadCandidate]]:
         read = (first.quad,) if first is not None and first.quad is not None else ()
-        return segment_stage(("quads", shrink),
-                             lambda: ranked_quads(gray, segmentation, library, settings, shrink, read))
+
+        def cut(level: float, taken: Sequence[QuadCandidate]) -> list[QuadCandidate]:
+            return segment_stage(("quads", shrink, level),
+                                 lambda: level_quads(gray, segmentation, library, settings, shrink, level, taken, read))
+
+        return cut_levels(cut, quad_levels(settings))
 
     def refined_winner(attempt: Attempt | None, plaque: PlaqueMatch | None) -> Refined:
         """The winner of `attempt` (else of `plaque`) refined, with its text checked."""
@@ -681,12 +687,12 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
 
 
 def find_plaque(gray: np.ndarray, segmentation: Segmentation, library: Library, settings: Settings,
-                quads: Callable[[int], list[QuadCandidate]]) -> tuple[PlaqueMatch | None, list[str]]:
+                quads: Callable[[int], Iterator[list[QuadCandidate]]]) -> tuple[PlaqueMatch | None, list[str]]:
     """The plaque fallback: the candidate blobs read as plaques, then (`settings.plaque_search`)
     the search among the `quads` at lower gray levels. Returns (the plaque or None, warnings to report)."""
     plaque = read_plaques(gray, segmentation, library, settings)
     if (plaque is None or plaque.sign is None) and settings.plaque_search:
-        found = search_plaques(gray, quads(1), library, settings)
+        found = search_plaques(gray, ranked(quads(1)), library, settings)
         if found is not None:
             return found[0], [f"plaque found by the search at lower gray levels (aligned correlation {found[1]:.2f})"]
     return plaque, []

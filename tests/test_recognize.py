@@ -121,10 +121,10 @@ def test_the_largest_blob_waits_after_the_plaques_only_when_it_reads_as_no_sign(
     settings = preset("default").replace(crop_margin=0.0)
     plaque = QuadCandidate(Blob(1, 12000, (100, 200, 300, 260)), np.float64([[100, 200], [300, 200], [300, 260],
                                                                               [100, 260]]), {"a": 0.8}, {"a": 0})
-    regions = candidate_regions(segmentation, settings, 640, 480, lambda shrink: [plaque], no_sign)
+    regions = candidate_regions(segmentation, settings, 640, 480, lambda shrink: iter([[plaque]]), no_sign)
     assert [source for _, source in regions] == order
     without_plaques = settings.replace(plaque_candidates=0)
-    assert [source for _, source in candidate_regions(segmentation, without_plaques, 640, 480, lambda shrink: [],
+    assert [source for _, source in candidate_regions(segmentation, without_plaques, 640, 480, lambda shrink: iter([]),
                                                       no_sign)] == ["blob 1", "blob 2", "full frame"]
 
 
