@@ -62,30 +62,47 @@ def quad_levels(settings: Settings) -> tuple[float, ...]:
     return tuple(sorted({*LEVELS, settings.threshold}, reverse=True))
 
 
-def candidate_quads(gray: np.ndarray, normalization: str, level: float,
-                    segmentation: Segmentation | None = None, threshold: float | None = None,
-                    shrink: int = 1, taken: Sequence[Box] = ()) -> list[tuple[Blob, np.ndarray]]:
+@dataclass(frozen=True, eq=False)
+class CutImage:
+    """What the plaque search cuts at levels other than the segmentation threshold (`cut_image`):
+    `small`, the (h, w) uint8 image shrunk; `scale` (2,), image px per px of `small` across and
+    down; `levels` (256,) float32, what `normalize_gray` maps each uint8 level of the full image to,
+    so that each cut means what it means at full resolution."""
+
+    small: np.ndarray = field(repr=False)
+    scale: np.ndarray
+    levels: np.ndarray = field(repr=False)
+
+
+def cut_image(gray: np.ndarray, normalization: str, shrink: int) -> CutImage:
+    """The (H, W) uint8 image as the plaque search cuts it: shrunk `shrink` times, and further when
+    its longer side is still above MAX_CUT_SIDE px, where connected components with their
+    statistics cost 1/shrink² (at 2, plaques under about 70 px across at 640 x 480 are lost more
+    often)."""
+    h, w = gray.shape
+    factor = shrink * max(1.0, max(h, w) / MAX_CUT_SIDE)
+    small = gray if factor == 1 else cv2.resize(gray, (max(1, int(w / factor)), max(1, int(h / factor))),
+                                                 interpolation=cv2.INTER_AREA)
+    return CutImage(small, np.array([w / small.shape[1], h / small.shape[0]]), normalize_levels(gray, normalization))
+
+
+def candidate_quads(segmentation: Segmentation, threshold: float, level: float, image: Callable[[], CutImage],
+                    taken: Sequence[Box] = ()) -> list[tuple[Blob, np.ndarray]]:
     """(blob, corners (4, 2) image px TL, TR, BR, BL) of every quadrilateral component of plausible
-    size of the (H, W) uint8 image, normalised as `normalize_gray` does, cut at `level`, one per
-    plaque and none of the plaques whose boxes are `taken` (cut at brighter levels).
+    size of the segmented image cut at normalised `level`, one per plaque and none of the plaques
+    whose boxes are `taken` (cut at brighter levels).
 
     At `threshold`, the cut `segmentation` made, only its candidate blobs are taken, as they are.
-    Other levels are cut at 1/`shrink` of the resolution, or of MAX_CUT_SIDE px when the image is
-    larger, where connected components with their statistics cost 1/shrink² (at 2, plaques under
-    about 70 px across at 640 x 480 are lost more often).
+    Other levels are cut in `image()` (`cut_image`), asked for only then.
     """
-    h, w = gray.shape
+    h, w = segmentation.source.shape
     lo, hi = MIN_AREA_FRACTION * h * w, MAX_AREA_FRACTION * h * w
-    if segmentation is not None and level == threshold:
+    if level == threshold:
         labels, blobs, f = segmentation.labels, [b for b in segmentation.blobs if lo <= b.area <= hi], np.ones(2)
     else:
-        factor = shrink * max(1.0, max(h, w) / MAX_CUT_SIDE)
-        small = gray if factor == 1 else cv2.resize(gray, (max(1, int(w / factor)), max(1, int(h / factor))),
-                                                     interpolation=cv2.INTER_AREA)
-        f = np.array([w / small.shape[1], h / small.shape[0]])
-        # the levels of the full image, so each cut means what it means at full resolution
-        mask = cv2.LUT(small, threshold_mask(normalize_levels(gray, normalization), level, None))
-        labels, stats = label_components(mask)
+        cut = image()
+        f = cut.scale
+        labels, stats = label_components(cv2.LUT(cut.small, threshold_mask(cut.levels, level, None)))
         areas = stats[1:, cv2.CC_STAT_AREA] * f.prod()
         blobs = [component_blob(stats, int(i + 1)) for i in np.flatnonzero((areas >= lo) & (areas <= hi))]
     found: list[tuple[Blob, np.ndarray]] = []
@@ -164,17 +181,17 @@ def read_blob(gray: np.ndarray, labels: np.ndarray, blob: Blob, library: Library
 
 
 def level_quads(gray: np.ndarray, segmentation: Segmentation, library: Library, settings: Settings,
-                shrink: int, level: float, taken: Sequence[QuadCandidate] = (),
+                image: Callable[[], CutImage], level: float, taken: Sequence[QuadCandidate] = (),
                 read: Sequence[QuadCandidate] = ()) -> list[QuadCandidate]:
-    """The quadrilateral candidates cut at `level` (`candidate_quads`, at 1/`shrink` resolution
-    but at the segmentation threshold), other than the plaques `taken` at brighter levels, read as
-    plaques against every library sign. A candidate among `read` (the same blob and corners, read
-    already: `read_blob`) is not read again."""
+    """The quadrilateral candidates cut at `level` (`candidate_quads`, in `image()` but at the
+    segmentation threshold), other than the plaques `taken` at brighter levels, read as plaques
+    against every library sign. A candidate among `read` (the same blob and corners, read already:
+    `read_blob`) is not read again."""
     known = {(quad.blob, quad.corners.tobytes()): quad for quad in read}
     return [known.get((blob, corners.tobytes())) or QuadCandidate(blob, corners, *plaque_correlations(gray, corners,
                                                                                                        library))
-            for blob, corners in candidate_quads(segmentation.source, segmentation.normalization, level, segmentation,
-                                                 settings.threshold, shrink, [q.blob.bbox for q in taken])]
+            for blob, corners in candidate_quads(segmentation, settings.threshold, level, image,
+                                                 [q.blob.bbox for q in taken])]
 
 
 def cut_levels(cut: Callable[[float, Sequence[QuadCandidate]], list[QuadCandidate]],

@@ -8,6 +8,7 @@ homography and a margin over the runner-up. "No sign" is a first-class answer.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Iterator, Sequence
@@ -24,8 +25,8 @@ from .match import Matches, match_library
 from .outline import Outline, outline_fit, refine_outline
 from .plaque import (PlaqueMatch, grid_correspondences, match_plaque, project, refine_ecc, seen_grid, sign_corners,
                      sign_to_quad)
-from .plaque_search import (MIN_NCC, SAME_PLAQUE_IOU, QuadCandidate, confirm_plaque, cut_levels, level_quads,
-                           plaque_order, quad_levels, ranked, read_blob, search_plaques)
+from .plaque_search import (MIN_NCC, SAME_PLAQUE_IOU, QuadCandidate, confirm_plaque, cut_image, cut_levels,
+                           level_quads, plaque_order, quad_levels, ranked, read_blob, search_plaques)
 from .pose import CORNER_SIGMA_PX, Pose, PoseError, distort_pixels, estimate_pose, with_corner_floor
 from .segment import Box, Segmentation, box_iou, expand_box, segment
 from .settings import Settings
@@ -575,10 +576,12 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
 
     def quads(shrink: int) -> Iterator[list[QuadCandidate]]:
         read = (first.quad,) if first is not None and first.quad is not None else ()
+        # made once, when the first level not in the cache needs it
+        image = functools.cache(lambda: cut_image(segmentation.source, segmentation.normalization, shrink))
 
         def cut(level: float, taken: Sequence[QuadCandidate]) -> list[QuadCandidate]:
             return segment_stage(("quads", shrink, level),
-                                 lambda: level_quads(gray, segmentation, library, settings, shrink, level, taken, read))
+                                 lambda: level_quads(gray, segmentation, library, settings, image, level, taken, read))
 
         return cut_levels(cut, quad_levels(settings))
 

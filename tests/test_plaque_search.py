@@ -12,8 +12,8 @@ from pipeline.image import read_image
 import pipeline.plaque_search as plaque_search
 import pipeline.recognize as recognize_module
 from pipeline.library import Library, load_library
-from pipeline.plaque_search import (cut_levels, level_quads, quad_levels, ranked, read_blob, required_correlation,
-                                   search_plaques)
+from pipeline.plaque_search import (cut_image, cut_levels, level_quads, quad_levels, ranked, read_blob,
+                                   required_correlation, search_plaques)
 from pipeline.recognize import recognize
 from pipeline.segment import segment
 from pipeline.settings import preset
@@ -97,7 +97,8 @@ def test_a_plaque_correlating_strongly_is_searched_before_darker_levels_are_cut(
 
 def ranked_quads(gray, segmentation, library, settings, shrink=1, read=()):
     """Every quad the search cuts, best correlation first, as the plaque fallback searches them."""
-    return ranked(cut_levels(partial(level_quads, gray, segmentation, library, settings, shrink, read=read),
+    image = cut_image(segmentation.source, segmentation.normalization, shrink)
+    return ranked(cut_levels(partial(level_quads, gray, segmentation, library, settings, lambda: image, read=read),
                              quad_levels(settings)))
 
 
