@@ -50,8 +50,8 @@ FULL_TRUST_PX = 60.0
 MAX_ALIGN_WIDTH = 240.0
 # A blob with less than this fraction of its area in holes shows no text (see `BlobReading.no_sign`).
 MIN_TEXT_HOLES = 0.01
-# Other levels than the threshold are cut in the image shrunk to at most this longer side (px)
-# before any further `shrink`: candidates are sized by the frame, and on a 12 MP photo each
+# Levels other than the threshold are cut in the image brought to at most this longer side (px)
+# before any `shrink` (`cut_image`): candidates are sized by the frame, and on a 12 MP photo each
 # level's connected components took 39 ms at full resolution.
 MAX_CUT_SIDE = 1280
 
@@ -75,10 +75,9 @@ class CutImage:
 
 
 def cut_image(gray: np.ndarray, normalization: str, shrink: int) -> CutImage:
-    """The (H, W) uint8 image as the plaque search cuts it: shrunk `shrink` times, and further when
-    its longer side is still above MAX_CUT_SIDE px, where connected components with their
-    statistics cost 1/shrink² (at 2, plaques under about 70 px across at 640 x 480 are lost more
-    often)."""
+    """The (H, W) uint8 image as the plaque search cuts it: brought to at most MAX_CUT_SIDE px on
+    its longer side, then shrunk `shrink` times, where connected components with their statistics
+    cost 1/shrink² (at 2, plaques under about 70 px across at 640 x 480 are lost more often)."""
     h, w = gray.shape
     factor = shrink * max(1.0, max(h, w) / MAX_CUT_SIDE)
     small = gray if factor == 1 else cv2.resize(gray, (max(1, int(w / factor)), max(1, int(h / factor))),
@@ -219,9 +218,9 @@ def plaque_order(levels: Iterable[list[QuadCandidate]]) -> Iterator[QuadCandidat
     searched: after each level is cut, its quads correlating STRONG_NCC or more with a sign, best
     first; then all the others, best first. A strong quad is searched before the darker levels are
     cut (about 1 ms each at 640 x 480): of the 35 bench scenes at 640 x 480 answered from the first
-    plaque crop, 31 correlated at least 0.8, and 28 of those were answered with 1 (5 scenes), 2 (15)
-    or 3 (8) of the 4 levels cut instead of all 4. On the 726 bench, accuracy and sample scenes no answer
-    or pose changed."""
+    plaque crop, 31 correlated at least 0.8, and 28 of those were answered with 1 (5 scenes), 2
+    (15) or 3 (8) of the 4 levels cut instead of all 4. On the 726 bench, accuracy and sample
+    scenes no answer or pose changed."""
     rest: list[QuadCandidate] = []
     for quads in levels:
         yield from best_first(q for q in quads if q.best_ncc >= STRONG_NCC)
