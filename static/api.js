@@ -44,6 +44,18 @@ export async function api(method, url, body, options = {}) {
 
 export const get = (url) => api("GET", url);
 
+/** A GET of `url` to call as often as needed, resolving to {body, newest}: `newest` is false for an
+ *  answer that came after a later call was made (answers can cross, the later one landing first),
+ *  which is then not to be shown over the later one's. */
+export function latestGet(url) {
+  let calls = 0;
+  return async () => {
+    const call = ++calls;
+    const body = await get(url);
+    return { body, newest: call === calls };
+  };
+}
+
 /** POST multipart `form` with upload progress (fetch cannot report it); resolves to the JSON body. */
 export function upload(url, form, onProgress) {
   return new Promise((resolve, reject) => {

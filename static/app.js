@@ -1,6 +1,6 @@
 // Entry point: load the initial state, wire the views, and follow the server's event stream.
 
-import { get } from "./api.js";
+import { get, latestGet } from "./api.js";
 import { initCamera } from "./camera.js";
 import { initDetail } from "./detail.js";
 import { choose, initGallery, refreshImages } from "./gallery.js";
@@ -26,13 +26,12 @@ function showMemory({ memory_held_bytes: held, memory_limit_bytes: limit }) {
   $("#memory").textContent = `memory ${memoryText(held)} of ${memoryText(limit)}`;
 }
 
-let healthToken = 0;   // drops a figure answered after a newer one (images held change in bursts)
+const getHealth = latestGet("/api/health");   // images held change in bursts: the figures can cross
 
 async function loadHealth() {
-  const token = ++healthToken;
   try {
-    const health = await get("/api/health");
-    if (token === healthToken) showMemory(health);
+    const { body, newest } = await getHealth();
+    if (newest) showMemory(body);
   } catch (err) {
     report(err);
   }

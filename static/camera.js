@@ -2,7 +2,7 @@
 // assumed field of view while no camera is set) and the Camera dialog, which calibrates from
 // chessboard photos (/api/calibration) or takes intrinsics typed in.
 
-import { api, get } from "./api.js";
+import { api, get, latestGet } from "./api.js";
 import { barAt, drawViewErrors } from "./charts.js";
 import { on, state } from "./store.js";
 import { $, el, fill, fmt, debounce, download, plural, report, showModal, toast } from "./ui.js";
@@ -24,7 +24,6 @@ let previewMode = "corners";
 let hfovHeld = false;     // the slider is under the pointer: server answers must not yank it
 let hfovTyped = false;    // a number typed in its field and not yet applied: server answers must not overwrite it
 let cameraToken = 0;      // drops a camera answered after a newer request was sent
-let calibrationToken = 0; // drops a calibration GET answered after a newer one
 let reconnected = false;  // the event stream came back: the next calibration is shown whatever its revision
 
 /** "fx 520.1 fy 515.0 cx 318.0 cy 243.0 px @ 640×480" */
@@ -202,12 +201,13 @@ function show(body) {
   renderCalibration();
 }
 
+// A board search's progress keeps the revision: of its answers, the newest request's is shown.
+const getCalibration = latestGet("/api/calibration");
+
 async function loadCalibration() {
-  const token = ++calibrationToken;
   try {
-    const body = await get("/api/calibration");
-    // A board search's progress keeps the revision: of its answers, the newest request's is shown.
-    if (token === calibrationToken) show(body);
+    const { body, newest } = await getCalibration();
+    if (newest) show(body);
   } catch (err) {
     report(err);
   }

@@ -1,6 +1,6 @@
 // Image uploads (with a progress bar per file) and the image gallery.
 
-import { api, get } from "./api.js";
+import { api, latestGet } from "./api.js";
 import { state, emit, on, select, signName } from "./store.js";
 import { $, el, fill, plural, report, throttle, toast } from "./ui.js";
 import { dropTarget, filesForm, uploadQueue } from "./uploads.js";
@@ -154,17 +154,16 @@ function renderCounts() {
       el(`span.count.status-${s}`, { title: STATUS[s].title }, el("i.dot"), `${counts[s]} ${STATUS[s].text}`)));
 }
 
-let imagesToken = 0;   // drops a list answered after a newer one (refreshes 250 ms apart can cross)
+const getImages = latestGet("/api/images");   // refreshes 250 ms apart can cross
 
 /** The server's images, shown unless a newer list was asked for meanwhile. */
 async function loadImages() {
-  const token = ++imagesToken;
-  const { images } = await get("/api/images");
-  if (token === imagesToken) {
-    state.images = images;
+  const { body, newest } = await getImages();
+  if (newest) {
+    state.images = body.images;
     emit("images", state.images);
   }
-  return images;
+  return body.images;
 }
 
 export const refreshImages = throttle(() => loadImages().catch(report), 250);

@@ -1,7 +1,7 @@
 // The sign library (/api/library): its summary in the settings panel, and the Library dialog,
 // which lists the signs (image, name, text, physical size), adds one from an image and removes one.
 
-import { api, get } from "./api.js";
+import { api, latestGet } from "./api.js";
 import { emit, on, state } from "./store.js";
 import { $, el, fill, plural, report, showModal, toast } from "./ui.js";
 import { dropTarget } from "./uploads.js";
@@ -10,13 +10,12 @@ const SIGN_FIELDS = ["id", "name", "text", "width_m", "height_m"];   // POST /ap
 
 let picked = null;   // {url, width, height} of the image chosen for a new sign
 let idTyped = false; // the person typed the new sign's id: an image chosen after keeps it
-let libraryToken = 0; // drops a list answered after a newer one (a sign added, then one removed)
+const getLibrary = latestGet("/api/library");   // a sign added, then one removed: the lists can cross
 
 export async function loadLibrary() {
-  const token = ++libraryToken;
-  const library = await get("/api/library");
-  if (token !== libraryToken) return;
-  state.library = library;
+  const { body, newest } = await getLibrary();
+  if (!newest) return;
+  state.library = body;
   emit("library", state.library);
 }
 
