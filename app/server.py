@@ -1041,11 +1041,17 @@ def bind(host: str, port: int) -> socket.socket:
     return sock
 
 
+# Seconds an idle connection is kept open: longer than clients keep one for reuse (httpx 5 s,
+# uvicorn's own default too), since at equal times a request sent as the server closed it was reset.
+KEEP_ALIVE_S = 30
+
+
 def serve(app: FastAPI, sock: socket.socket) -> None:
     """Run `app` on the bound `sock` with one uvicorn worker until Ctrl+C or SIGTERM."""
     import uvicorn
 
-    config = uvicorn.Config(app, workers=1, log_level="warning", timeout_graceful_shutdown=2)
+    config = uvicorn.Config(app, workers=1, log_level="warning", timeout_graceful_shutdown=2,
+                            timeout_keep_alive=KEEP_ALIVE_S)
     try:
         uvicorn.Server(config).run(sockets=[sock])
     except KeyboardInterrupt:  # uvicorn re-raises the Ctrl+C it handled; the shutdown is already done

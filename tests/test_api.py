@@ -5,8 +5,10 @@ from __future__ import annotations
 import json
 import math
 import re
+import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import cv2
@@ -1042,6 +1044,26 @@ def test_state_survives_a_restart(tmp_path):
         (image,) = wait_done(c)
         assert (image["id"], image["name"], image["status"]) == (image_id, "chief.jpg", "correct")
         assert c.get(f"/api/images/{image_id}/file").content == photo
+
+
+def test_serve_keeps_an_idle_connection_longer_than_clients_reuse_one(tmp_path):
+    """httpx reuses an idle connection for 5 s, and uvicorn closed it after 5 s: a request sent as the
+    server closed it was reset (a browser test's teardown did, once in a CI run). Idle for 6 s, the
+    connection still answers."""
+    proc, url = start_serve(tmp_path / "state")
+    try:
+        host, port = url.removeprefix("http://").rstrip("/").split(":")
+        request = f"GET /api/health HTTP/1.1\r\nHost: {host}\r\n\r\n".encode()
+        with socket.create_connection((host, int(port)), timeout=TIMEOUT_S) as sock:
+            for pause in (0, 6):
+                time.sleep(pause)
+                sock.sendall(request)
+                response = b""
+                while b'"status":"ok"' not in response and (data := sock.recv(65536)):
+                    response += data
+                assert response.startswith(b"HTTP/1.1 200") and b'"status":"ok"' in response, pause
+    finally:
+        stop_serve(proc)
 
 
 def test_serve_command_prints_its_url_stops_on_ctrl_c_and_refuses_a_taken_port(tmp_path):
