@@ -205,15 +205,16 @@ def shrunk_view(gray: np.ndarray, f: float, camera: Camera | None,
     return small, to_small, lens
 
 
-def refine_ecc(gray: np.ndarray, sign: LibrarySign, H: np.ndarray,
-               camera: Camera | None = None) -> tuple[np.ndarray, float] | None:
-    """`_refine_ecc`, for a sign wider than MAX_DIRECT_WIDTH_PX in the image shrunk to make it
-    SHRUNK_WIDTH_PX wide (`shrunk_view`), its H mapped back to the image's px."""
+def refine_ecc(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, camera: Camera | None = None,
+               max_width: float = MAX_DIRECT_WIDTH_PX,
+               shrunk_width: float = SHRUNK_WIDTH_PX) -> tuple[np.ndarray, float] | None:
+    """`_refine_ecc`, for a sign wider than `max_width` px in the image shrunk to make it
+    `shrunk_width` px wide (`shrunk_view`), its H mapped back to the image's px."""
     corners = sign_corners(sign, H)
     width = quad_width(corners)
-    if width <= MAX_DIRECT_WIDTH_PX:
+    if width <= max_width:
         return _refine_ecc(gray, sign, H, camera)
-    small, to_small, lens = shrunk_view(gray, SHRUNK_WIDTH_PX / width, camera, around=corners)
+    small, to_small, lens = shrunk_view(gray, shrunk_width / width, camera, around=corners)
     refined = _refine_ecc(small, sign, to_small @ H, lens)
     if refined is None:
         return None

@@ -24,9 +24,8 @@ import cv2
 import numpy as np
 
 from .library import Library
-from .plaque import (PlaqueMatch, blob_boundary, blob_quad, bounding_box, plaque_correlations, quad_width, refine_ecc,
-                     sign_corners, sign_to_quad)
-from .segment import (Blob, Box, Segmentation, box_iou, component_blob, expand_box, label_components, normalize_levels,
+from .plaque import PlaqueMatch, blob_boundary, blob_quad, plaque_correlations, refine_ecc, sign_corners, sign_to_quad
+from .segment import (Blob, Box, Segmentation, box_iou, component_blob, label_components, normalize_levels,
                       threshold_mask)
 from .settings import Settings
 
@@ -235,21 +234,9 @@ def _aligned(gray: np.ndarray, corners: np.ndarray, roll: int, sign) -> tuple[np
     the verdict needs no more, and ECC's cost grows with the area (the final H is refined again
     at full resolution by the caller).
     """
-    corners = np.roll(corners, -roll, axis=0).astype(np.float64)
-    f = min(1.0, MAX_ALIGN_WIDTH / quad_width(corners))
-    # image px -> shrunk neighbourhood px (pixel centres aligned as cv2.resize does)
-    x0, y0, x1, y1 = expand_box(bounding_box(corners), 0.5, gray.shape[1], gray.shape[0])
-    to_small = np.array([[f, 0, (0.5 - x0) * f - 0.5], [0, f, (0.5 - y0) * f - 0.5], [0, 0, 1]])
-    patch = gray[y0:y1, x0:x1]
-    if f < 1.0:
-        patch = cv2.resize(patch, (max(1, round((x1 - x0) * f)), max(1, round((y1 - y0) * f))),
-                           interpolation=cv2.INTER_AREA)
-    small = cv2.perspectiveTransform(corners[None], to_small)[0]
-    refined = refine_ecc(patch, sign, sign_to_quad(sign, small))
-    if refined is None:
-        return None, -1.0
-    H = np.linalg.inv(to_small) @ refined[0]
-    return H / H[2, 2], refined[1]
+    H = sign_to_quad(sign, np.roll(corners, -roll, axis=0).astype(np.float64))
+    refined = refine_ecc(gray, sign, H, max_width=MAX_ALIGN_WIDTH, shrunk_width=MAX_ALIGN_WIDTH)
+    return (None, -1.0) if refined is None else refined
 
 
 def required_correlation(corners: np.ndarray, min_ecc: float) -> float:
