@@ -47,8 +47,9 @@ from pipeline.settings import Settings, preset
 from pipeline.synth import CATEGORIES, generate_dataset
 
 SIZES = ((640, 480), (1280, 960))
-CONFIGS = ("naive", "paper", "default")
-PRESETS = CONFIGS[1:]  # the configurations with a floor: SIFT on the crop they chose
+# name -> the settings it runs the pipeline with; the naive reference (None) runs its own code.
+CONFIGS: dict[str, Settings | None] = {"naive": None, "paper": preset("paper"), "default": preset("default")}
+PRESETS = ("paper", "default")  # the configurations with a floor: SIFT on the crop they chose
 MIN_MATCH_COUNT = 10  # the tutorial's: fewer inliers is "no sign"
 
 
@@ -106,11 +107,11 @@ def naive_recognize(image: np.ndarray, library: Library, camera: Camera) -> Outc
     return Outcome(sign.id, cv2.Rodrigues(rvec)[0], timing)
 
 
-def runner(name: str) -> Callable[[np.ndarray, Library, Camera], tuple[Outcome, tuple | None]]:
-    """(image -> (Outcome, region the answer came from or None)) for a configuration in CONFIGS."""
-    if name == "naive":
+def runner(settings: Settings | None) -> Callable[[np.ndarray, Library, Camera], tuple[Outcome, tuple | None]]:
+    """(image -> (Outcome, region the answer came from or None)) for the pipeline with `settings`,
+    or for the naive reference (None)."""
+    if settings is None:
         return lambda image, library, camera: (naive_recognize(image, library, camera), None)
-    settings = preset(name)
 
     def run(image: np.ndarray, library: Library, camera: Camera) -> tuple[Outcome, tuple | None]:
         rec = recognize(image, library, settings, camera)
@@ -138,9 +139,10 @@ def floor_ms(gray: np.ndarray, settings: Settings, region: tuple | None) -> floa
     return (time.perf_counter() - t0) * 1e3
 
 
-def measure(dataset: Dataset, library: Library,
-            rounds: int) -> tuple[dict[str, list[Outcome]], dict[str, list[float]]]:
-    """Every configuration on every image, `rounds` times, and the floor of each preset's run.
+def measure(dataset: Dataset, library: Library, rounds: int,
+            configs: dict[str, Settings | None] = CONFIGS) -> tuple[dict[str, list[Outcome]], dict[str, list[float]]]:
+    """Every configuration (`CONFIGS`) on every image, `rounds` times, and the floor of each
+    pipeline configuration's run.
 
     A round runs each configuration over all the images in turn, as `signpose evaluate` or the
     server runs one, so each runs with the caches its own work leaves (run back to back on each
@@ -149,16 +151,18 @@ def measure(dataset: Dataset, library: Library,
     load hits them alike. Per image and configuration the fastest round is kept, since noise
     only adds, and likewise its floor.
     """
-    runs = {name: runner(name) for name in CONFIGS}
+    runs = {name: runner(settings) for name, settings in configs.items()}
     for run in runs.values():  # library features, imports and first-call costs out of the figures
         run(read_image(dataset.samples[0].path), library, dataset.camera)
     n = len(dataset.samples)
-    outcomes: dict[str, list[Outcome | None]] = {name: [None] * n for name in CONFIGS}
-    floors = {name: [np.nan] * n for name in PRESETS}  # nan: no region searched (paper, no blob), no floor
+    outcomes: dict[str, list[Outcome | None]] = {name: [None] * n for name in configs}
+    # nan: no region searched (paper, no blob), no floor
+    floors = {name: [np.nan] * n for name, settings in configs.items() if settings is not None}
     size = f"{dataset.camera.width}x{dataset.camera.height}"
-    with tqdm(total=rounds * len(CONFIGS) * n, desc=f"{size}, {rounds} rounds", unit="run") as bar:
+    names = list(configs)
+    with tqdm(total=rounds * len(names) * n, desc=f"{size}, {rounds} rounds", unit="run") as bar:
         for r in range(rounds):
-            for name in CONFIGS[r % len(CONFIGS):] + CONFIGS[:r % len(CONFIGS)]:
+            for name in names[r % len(names):] + names[:r % len(names)]:
                 run = runs[name]
                 for i, sample in enumerate(dataset.samples):
                     image = read_image(sample.path)
@@ -167,7 +171,7 @@ def measure(dataset: Dataset, library: Library,
                     if best is None or outcome.timing_ms["total"] < best.timing_ms["total"]:
                         outcomes[name][i] = outcome
                     if name in floors and region is not None:
-                        floors[name][i] = np.fmin(floors[name][i], floor_ms(to_gray(image), preset(name), region))
+                        floors[name][i] = np.fmin(floors[name][i], floor_ms(to_gray(image), configs[name], region))
                     bar.update()
     return outcomes, floors
 
@@ -183,7 +187,7 @@ def _peak_rss_mb(name: str, paths: list[Path], camera: Camera) -> float:
 
     Linux: writing 5 to /proc/self/clear_refs resets the peak (VmHWM) to the current RSS.
     """
-    library, run = load_library(), runner(name)
+    library, run = load_library(), runner(CONFIGS[name])
     run(read_image(paths[0]), library, camera)
     images = [read_image(p) for p in paths]
     Path("/proc/self/clear_refs").write_text("5")
@@ -298,12 +302,12 @@ def server_speedup(dataset: Dataset, repeats: int) -> str:
             + ", ".join(f"{name} {seconds:.2f} s" for name, seconds in best.items()) + f"; {one / many:.2f}x")
 
 
-def _percent(outcomes: list[Outcome], dataset: Dataset, category: str) -> str:
+def identified_percent(outcomes: list[Outcome], dataset: Dataset, category: str) -> str:
     hits = [o.label == s.label for o, s in zip(outcomes, dataset.samples) if s.category == category]
     return f"{100 * sum(hits) / len(hits):.0f}%" if hits else "-"
 
 
-def _rotation(outcomes: list[Outcome], dataset: Dataset) -> str:
+def rotation_median(outcomes: list[Outcome], dataset: Dataset) -> str:
     errors = [rotation_error_deg(s.R, o.R) for o, s in zip(outcomes, dataset.samples)
               if s.label is not None and o.label == s.label and o.R is not None]
     return f"{statistics.median(errors):.2f}" if errors else "-"
@@ -318,10 +322,10 @@ def table(dataset: Dataset, outcomes: dict[str, list[Outcome]], memory: dict[str
     for name, runs in outcomes.items():
         total = np.array([o.timing_ms["total"] for o in runs])
         stages = "".join(f"{np.mean([o.timing_ms[s] for o in runs]):>9.1f}" for s in STAGES)
-        accuracy = "".join(f"{_percent(runs, dataset, c):>9}" for c in CATEGORIES)
+        accuracy = "".join(f"{identified_percent(runs, dataset, c):>9}" for c in CATEGORIES)
         lines.append(f"{name:<8}{np.median(total):>8.1f}{np.percentile(total, 90):>8.1f}"
                      f"{np.median(naive / total):>8.1f}x |{stages} |{memory[name]:>8.1f} |{accuracy}"
-                     f"{_rotation(runs, dataset):>9}")
+                     f"{rotation_median(runs, dataset):>9}")
     return lines
 
 
@@ -369,20 +373,32 @@ def machine() -> str:
     return f"{os.cpu_count()} cores, {model}, OpenCV {cv2.__version__}, {cv2.getNumThreads()} OpenCV threads"
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def positive_int(text: str) -> int:
+    """argparse type: an integer of at least 1."""
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def scene_parser(doc: str) -> argparse.ArgumentParser:
+    """A parser with the options every `measure` run takes: --n, --seed, --data and --rounds."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--n", type=int, default=200, help="scenes per size (default 200)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--data", type=Path, default=Path(tempfile.gettempdir()) / "signpose-speed",
                         help="folder the scenes are rendered into and re-used from")
-    parser.add_argument("--rounds", type=int, default=3,
+    parser.add_argument("--rounds", type=positive_int, default=3,
                         help="runs of each configuration on each image, the fastest kept (default 3)")
+    return parser
+
+
+def main() -> None:
+    parser = scene_parser(__doc__)
     parser.add_argument("--memory-images", type=int, default=20, help="images per peak-memory run (default 20)")
     parser.add_argument("--quick", action="store_true",
                         help="640x480 only, at most 50 scenes, 5 images per memory run, evaluate once")
     args = parser.parse_args()
-    if args.rounds < 1:
-        parser.error(f"--rounds must be at least 1, got {args.rounds}")
     n, sizes, memory_images, repeats = args.n, SIZES, args.memory_images, 2
     if args.quick:
         n, sizes, memory_images, repeats = min(n, 50), SIZES[:1], 5, 1
