@@ -128,6 +128,16 @@ def set_settings(page, api, changes: dict) -> None:
     wait_setting(page, api, changes)
 
 
+def wait_until(page, condition, what: str, timeout: float = 30) -> None:
+    """Let the page run until `condition()` holds (Playwright calls route and dialog handlers only
+    while the test waits on it); fail saying `what` did not happen after `timeout` s."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{what} did not happen within {timeout:g} s")
+        page.wait_for_timeout(20)
+
+
 def wait_server_idle(api, timeout: float = 120) -> int:
     """Until every image has a result for the current settings; returns that settings version.
 

@@ -481,8 +481,7 @@ def answer_in_reverse(page, route_url: str, picker: str, files: list[Path], list
     held = []
     page.route(route_url, lambda route: held.append(route) if route.request.method == "POST" else route.continue_())
     page.set_input_files(picker, [str(f) for f in files])
-    while len(held) < len(files):
-        page.wait_for_timeout(20)
+    harness.wait_until(page, lambda: len(held) >= len(files), "the page sending every upload")
     for f in reversed(files):
         next(r for r in held if f.name.encode() in r.request.post_data_buffer).continue_()
         deadline = time.monotonic() + 60
@@ -531,8 +530,7 @@ def test_an_image_list_answered_after_a_newer_one_is_not_shown(page, api):
         # The newer list answered at once; any after it, which would mend the gallery, held.
         with answered_late(page, "**/api/images", at_once=1) as lists:
             api.patch(f"/api/images/{image_id}", json={"expected": other}).raise_for_status()
-            while not lists:
-                page.wait_for_timeout(20)
+            harness.wait_until(page, lambda: lists, "the page asking for the image list again")
             api.patch(f"/api/images/{image_id}", json={"expected": None}).raise_for_status()
             page.locator(f'{card}[data-status="recognized"]').wait_for()
             route, older = lists[0]
@@ -582,15 +580,13 @@ def test_remove_all_during_uploads_stops_them_and_says_what_is_left(browser, tmp
 
         page.route("**/api/images", hold)
         page.set_input_files("#file-picker", [str(f) for f in files])
-        while len(held) < 3:
-            page.wait_for_timeout(20)
+        harness.wait_until(page, lambda: len(held) >= 3, "the page sending 3 uploads")
         shown = len(api.get("/api/images").json()["images"])   # the sample scenes
         page.wait_for_function("n => document.querySelectorAll('.card').length === n", arg=shown)
         asked = []
         page.once("dialog", lambda dialog: (asked.append(dialog.message), dialog.accept()))
         page.click("#clear-images")
-        while not asked:
-            page.wait_for_timeout(20)
+        harness.wait_until(page, lambda: asked, "the confirm dialog")
         assert asked == [f"Remove all {shown} images and the 12 uploads still to go?"]
         page.locator("#uploads .batch", has_text="9 stopped").wait_for()   # the queued ones, at once
         for route in held:   # the three in flight land, and go with the rest
@@ -718,8 +714,8 @@ def test_a_fast_drag_never_shows_an_older_value_while_its_last_change_is_on_its_
                      range.value = v; range.dispatchEvent(new Event('input')); }"""
     for n, value in enumerate((0.58, 0.61), 1):
         page.evaluate(drag, value)
-        while len(held) < n:   # sent once the form's debounce has passed
-            page.wait_for_timeout(20)
+        # sent once the form's debounce has passed
+        harness.wait_until(page, lambda: len(held) >= n, "the page sending the threshold")
     with page.expect_response(lambda r: r.request.method == "PUT" and "/api/settings" in r.url):
         held[0].continue_()   # 0.58 answered; 0.61 still on its way
     # Another client's change: an event after the answer to 0.58, with the server still on 0.58.
@@ -861,8 +857,7 @@ def test_settings_read_back_after_a_refusal_do_not_undo_a_later_change(page, api
     with answered_late(page, "**/api/settings") as asked:
         page.fill("#set-threshold", "2")
         page.press("#set-threshold", "Enter")
-        while not asked:
-            page.wait_for_timeout(20)
+        harness.wait_until(page, lambda: asked, "the confirm dialog")
         with page.expect_response(lambda r: r.request.method == "PUT" and r.url.endswith("/api/settings")) as put:
             page.fill("#set-ratio", "0.7")
             page.press("#set-ratio", "Enter")
@@ -1004,8 +999,7 @@ def test_a_measurement_of_a_replaced_box_is_not_shown_when_it_comes_last(page, a
     for n, box in enumerate(("100, 80, 300, 200", "120, 90, 320, 250"), 1):
         page.fill("#calib-box", box)
         page.press("#calib-box", "Enter")
-        while len(held) < n:
-            page.wait_for_timeout(20)
+        harness.wait_until(page, lambda: len(held) >= n, "the page sending the box")
     held[1].continue_()
     page.locator("#calib-result", has_text="your box 200×160 px").wait_for()
     with page.expect_response("**/api/calibrate/threshold") as first:
@@ -1046,8 +1040,7 @@ def test_labels_chosen_in_quick_succession_end_on_the_last(page, api):
     page.route(url, lambda route: held.append(route) if route.request.method == "PATCH" else route.continue_())
     try:
         page.select_option("#detail-expected", first)
-        while not held:
-            page.wait_for_timeout(20)
+        harness.wait_until(page, lambda: held, "the page sending the expected sign")
         page.select_option("#detail-expected", last)
         page.wait_for_timeout(300)   # the second label sent by now, were it sent at once
         answered = 0
@@ -1072,8 +1065,7 @@ def test_a_detail_closed_while_it_loads_stays_closed(page, api):
     held = []
     page.route(f"**/api/images/{image_id}", lambda route: held.append(route))
     page.click(f'.card[data-id="{image_id}"]')
-    while not held:
-        page.wait_for_timeout(20)
+    harness.wait_until(page, lambda: held, "the page asking for the image")
     page.keyboard.press("Escape")
     with page.expect_response(f"**/api/images/{image_id}"):
         held[0].continue_()
@@ -1091,8 +1083,7 @@ def test_an_image_opened_shows_no_measurement_of_the_one_before(page, api):
     held = []
     page.route("**/api/calibrate/threshold", lambda route: held.append(route))
     open_detail(page, second)
-    while not held:
-        page.wait_for_timeout(20)
+    harness.wait_until(page, lambda: held, "the page asking for the image")
     assert page.is_hidden("#histogram")
     assert page.inner_text("#calib-result") == "" and page.input_value("#calib-box") == ""
     held[0].continue_()
@@ -1109,8 +1100,7 @@ def test_a_setting_changed_while_a_sweep_runs_is_said_when_it_ends(page, api):
     page.route("**/api/sweep?*", lambda route: held.append(route))
     page.select_option("#sweep-param", "threshold")
     page.click("#run-sweep")
-    while not held:
-        page.wait_for_timeout(20)
+    harness.wait_until(page, lambda: held, "the page starting the sweep")
     api.put("/api/settings", json={"ratio": 0.7}).raise_for_status()
     page.wait_for_function("() => document.querySelector('#set-ratio').value === '0.7'")
     held[0].fulfill(json=sweep_answer("threshold", 0.0, 1.0, 13, [5] * 13))
@@ -1774,8 +1764,7 @@ def test_a_next_signs_image_chosen_while_one_is_added_is_kept(page, api, exit_si
     page.route("**/api/library", lambda route: held.append(route) if route.request.method == "POST" else route.continue_())
     try:
         page.click("#sign-add")
-        while not held:
-            page.wait_for_timeout(20)
+        harness.wait_until(page, lambda: held, "the page sending the sign")
         page.set_input_files("#sign-file", str(next_image))
         with page.expect_response(lambda r: r.request.method == "POST" and r.url.endswith("/api/library")):
             held[0].continue_()
@@ -1794,8 +1783,7 @@ def test_a_library_answered_after_a_newer_one_is_not_shown(page, api, exit_sign)
     with answered_late(page, "**/api/library", at_once=1) as asked:
         api.post("/api/library", data=fields, files={"file": (exit_sign.name, exit_sign.read_bytes(), "image/png")}
                  ).raise_for_status()
-        while not asked:
-            page.wait_for_timeout(20)
+        harness.wait_until(page, lambda: asked, "the confirm dialog")
         with page.expect_response("**/api/library"):
             api.delete("/api/library/exit_sign").raise_for_status()
         route, older = asked[0]
@@ -2057,8 +2045,7 @@ def test_a_camera_answered_after_a_newer_field_of_view_is_not_shown(page, api, n
     page.wait_for_function("() => document.querySelector('#hfov-num').value === '60'")
     with answered_late(page, "**/api/camera") as asked:
         api.put("/api/camera/assumed", json={"hfov_deg": 65}).raise_for_status()
-        while not asked:
-            page.wait_for_timeout(20)
+        harness.wait_until(page, lambda: asked, "the confirm dialog")
         with page.expect_response(lambda r: r.request.method == "PUT" and r.url.endswith("/api/camera/assumed")):
             page.fill("#hfov-num", "75")
             page.dispatch_event("#hfov-num", "change")
