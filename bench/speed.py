@@ -141,8 +141,8 @@ def floor_ms(gray: np.ndarray, settings: Settings, region: tuple | None) -> floa
 
 def measure(dataset: Dataset, library: Library, rounds: int,
             configs: dict[str, Settings | None] = CONFIGS) -> tuple[dict[str, list[Outcome]], dict[str, list[float]]]:
-    """Every configuration (`CONFIGS`) on every image, `rounds` times, and the floor of each
-    pipeline configuration's run.
+    """Every configuration in `configs` (name -> settings, None for the naive reference) on every
+    image, `rounds` times, and the floor of each pipeline configuration's run.
 
     A round runs each configuration over all the images in turn, as `signpose evaluate` or the
     server runs one, so each runs with the caches its own work leaves (run back to back on each
@@ -384,7 +384,7 @@ def positive_int(text: str) -> int:
 def scene_parser(doc: str) -> argparse.ArgumentParser:
     """A parser with the options every `measure` run takes: --n, --seed, --data and --rounds."""
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
-    parser.add_argument("--n", type=int, default=200, help="scenes per size (default 200)")
+    parser.add_argument("--n", type=positive_int, default=200, help="scenes per size (default 200)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--data", type=Path, default=Path(tempfile.gettempdir()) / "signpose-speed",
                         help="folder the scenes are rendered into and re-used from")
