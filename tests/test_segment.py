@@ -2,7 +2,7 @@ import numpy as np
 
 import pytest
 
-from pipeline.segment import expand_box, normalize_gray, segment, threshold_mask
+from pipeline.segment import expand_box, label_components, normalize_gray, segment, threshold_mask
 from pipeline.settings import Settings
 
 
@@ -53,3 +53,21 @@ def test_mask_is_the_threshold_of_the_normalised_gray(normalization, threshold, 
     seg = segment(img, Settings(normalization=normalization, threshold=threshold, high_threshold=high_threshold))
     expected = threshold_mask(normalize_gray(img, normalization), threshold, high_threshold)
     assert np.array_equal(seg.mask, expected)
+
+
+def test_components_beyond_uint16_are_all_labelled():
+    # isolated pixels on every other row and column: 80 x 120 x 8 = 76800 components, more than
+    # uint16 labels hold
+    mask = np.zeros((480, 640), np.uint8)
+    mask[::2, ::2] = 255
+    labels, stats = label_components(mask)
+    assert len(stats) == 76801 and labels.max() == 76800
+    assert (stats[1:, 4] == 1).all()
+    assert labels[478, 638] == 76800 and labels[1, 1] == 0
+
+
+def test_few_components_keep_their_stats():
+    labels, stats = label_components(segment(scene_with_plaques(), Settings(threshold=0.6)).mask)
+    assert labels.dtype == np.uint16
+    assert sorted(stats[1:, 4]) == [4800 - 16 * 80, 21000]
+    assert labels[25, 15] != labels[105, 185] and labels[0, 0] == 0
