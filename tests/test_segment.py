@@ -56,7 +56,7 @@ def test_mask_is_the_threshold_of_the_normalised_gray(normalization, threshold, 
 
 
 def test_components_beyond_uint16_are_all_labelled():
-    # isolated pixels on every other row and column: 80 x 120 x 8 = 76800 components, more than
+    # isolated pixels on every other row and column: 240 x 320 = 76800 components, more than
     # uint16 labels hold
     mask = np.zeros((480, 640), np.uint8)
     mask[::2, ::2] = 255
