@@ -8,8 +8,8 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, BeforeValidator, Field
 from pydantic_core import PydanticCustomError
 
-from pipeline.library import LibrarySign
-from pipeline.settings import Settings
+from signpose.pipeline.library import LibrarySign
+from signpose.pipeline.settings import Settings
 
 
 # Text that is a JSON number as written, short enough to quote back in an error.

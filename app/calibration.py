@@ -21,12 +21,12 @@ from functools import cached_property
 
 import numpy as np
 
-from pipeline.calibrate import (MIN_VIEWS, BoardView, Calibration, CalibrationError, calibrate,
+from signpose.pipeline.calibrate import (MIN_VIEWS, BoardView, Calibration, CalibrationError, calibrate,
                                 check_board, check_square, drop_outliers, find_board, other_sizes, outlier_advice,
                                 reference_size, size_mismatch, too_few_boards_advice)
-from pipeline.camera import Camera
-from pipeline.evaluate import CORES
-from pipeline.image import ImageError, decode_image, to_gray
+from signpose.pipeline.camera import Camera
+from signpose.pipeline.evaluate import CORES
+from signpose.pipeline.image import ImageError, decode_image, to_gray
 
 from .figures import fit
 from .workspace import Conflict, Slot, check_image_header, read_each, refused_together, slot_for

@@ -20,14 +20,14 @@ from typing import NoReturn, TextIO
 import cv2
 from tqdm import tqdm
 
-from app.entry import STOP_SIGNALS, Interrupted, interrupted, stopping_on_signals
-from app.workspace import HELD_BYTES_PER_PIXEL, WorkspaceConfig, check_image_header, decode_upload, held_bytes
-from pipeline.camera import ASSUMED_HFOV_DEG, ASSUMED_HFOV_RANGE_DEG, Camera, CameraError, check_hfov, load_camera
-from pipeline.evaluate import CORES, keep_freed_memory, pad_to
-from pipeline.image import ImageError, read_file
-from pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
-from pipeline.recognize import PipelineError, Recognition, run_pipeline, why_no_feature_winner
-from pipeline.settings import PRESETS, Settings, SettingsError, load_settings, preset
+from signpose.app.entry import STOP_SIGNALS, Interrupted, interrupted, stopping_on_signals
+from signpose.app.workspace import HELD_BYTES_PER_PIXEL, WorkspaceConfig, check_image_header, decode_upload, held_bytes
+from signpose.pipeline.camera import ASSUMED_HFOV_DEG, ASSUMED_HFOV_RANGE_DEG, Camera, CameraError, check_hfov, load_camera
+from signpose.pipeline.evaluate import CORES, keep_freed_memory, pad_to
+from signpose.pipeline.image import ImageError, read_file
+from signpose.pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
+from signpose.pipeline.recognize import PipelineError, Recognition, run_pipeline, why_no_feature_winner
+from signpose.pipeline.settings import PRESETS, Settings, SettingsError, load_settings, preset
 
 EXIT_USAGE = 2
 EXIT_BROKEN_PIPE = 141  # the shell's 128 + SIGPIPE
@@ -169,7 +169,7 @@ def unusable_images(failed: int, total: int) -> int:
 
 
 def cmd_synth(args) -> int:
-    from pipeline.synth import SynthError, generate_dataset
+    from signpose.pipeline.synth import SynthError, generate_dataset
 
     written = 0
 
@@ -192,7 +192,7 @@ def cmd_synth(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from pipeline.evaluate import ImageResult, check_labels, format_table, load_dataset, measure, report_on
+    from signpose.pipeline.evaluate import ImageResult, check_labels, format_table, load_dataset, measure, report_on
 
     library, settings, camera = load_inputs(args)
     # This process measures images too (all of them on one worker): evaluating 200 scenes took 6.8 s without it
@@ -234,10 +234,10 @@ def cmd_evaluate(args) -> int:
 
 
 def cmd_calibrate(args) -> int:
-    from app.calibration import read_gray
-    from pipeline.calibrate import (BoardView, CalibrationError, calibrate, check_square, drop_outliers, find_board,
+    from signpose.app.calibration import read_gray
+    from signpose.pipeline.calibrate import (BoardView, CalibrationError, calibrate, check_square, drop_outliers, find_board,
                                     format_report, parse_board)
-    from pipeline.camera import ros_camera_yaml, save_camera
+    from signpose.pipeline.camera import ros_camera_yaml, save_camera
 
     try:  # before reading a single photo
         board, square = parse_board(args.board), check_square(args.square)
@@ -289,9 +289,9 @@ def cmd_calibrate(args) -> int:
 
 
 def cmd_serve(args) -> int:
-    from app.security import TOKEN_ENV, access_token
-    from app.server import bind, create_app, serve
-    from app.state import StateError
+    from signpose.app.security import TOKEN_ENV, access_token
+    from signpose.app.server import bind, create_app, serve
+    from signpose.app.state import StateError
 
     config = WorkspaceConfig(
         state_dir=Path(args.state_dir), library_dir=Path(args.library) if args.library else None,

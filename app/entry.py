@@ -62,7 +62,7 @@ def interrupted(command: str, exc: KeyboardInterrupt) -> int:
 def main() -> int:
     with stopping_on_signals():
         try:
-            from app.cli import main as cli_main
+            from signpose.app.cli import main as cli_main
 
             return cli_main()
         except KeyboardInterrupt as exc:  # while importing or parsing arguments: the command handles its own

@@ -9,13 +9,13 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from pipeline.calibrate import BoardView
-from pipeline.camera import Camera
-from pipeline.image import to_gray
-from pipeline.library import Library
-from pipeline.recognize import Attempt, Recognition, SignScore
-from pipeline.segment import Box, Segmentation, normalize_levels, segment
-from pipeline.verify import TextCheck, TextTemplate, rectify_text, text_template
+from signpose.pipeline.calibrate import BoardView
+from signpose.pipeline.camera import Camera
+from signpose.pipeline.image import to_gray
+from signpose.pipeline.library import Library
+from signpose.pipeline.recognize import Attempt, Recognition, SignScore
+from signpose.pipeline.segment import Box, Segmentation, normalize_levels, segment
+from signpose.pipeline.verify import TextCheck, TextTemplate, rectify_text, text_template
 
 STAGES = ("input", "gray", "mask", "blob", "crop", "matches", "inliers", "text")
 # The stages drawn on the colour photo; the others need only its gray.

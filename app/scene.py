@@ -32,11 +32,11 @@ import viser
 import viser.transforms as tf
 from viser._messages import RunJavascriptMessage
 
-from app.workspace import Event, ImageRecord, Outcome, Workspace, is_correct, status_of
-from pipeline.library import Library, LibrarySign
-from pipeline.pose import camera_position
-from pipeline.recognize import Recognition
-from pipeline.settings import Settings, SettingsError, settings_schema
+from signpose.app.workspace import Event, ImageRecord, Outcome, Workspace, is_correct, status_of
+from signpose.pipeline.library import Library, LibrarySign
+from signpose.pipeline.pose import camera_position
+from signpose.pipeline.recognize import Recognition
+from signpose.pipeline.settings import Settings, SettingsError, settings_schema
 
 log = logging.getLogger(__name__)
 

@@ -41,14 +41,14 @@ from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import FormData, Headers, UploadFile as FormFile
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from pipeline import shipped_folder
-from pipeline.calibrate import MAX_SQUARE_M, MIN_VIEWS, Calibration, CalibrationError
-from pipeline.camera import Camera, CameraError, camera_from_json, load_camera, ros_camera_yaml
-from pipeline.exif import turned_camera
-from pipeline.image import ImageError
-from pipeline.jsonfile import JsonError, parse_json
-from pipeline.library import ID_PATTERN, LibraryError
-from pipeline.settings import (PRESETS, Settings, SettingsError, check_setting, file_settings,
+from signpose.pipeline import shipped_folder
+from signpose.pipeline.calibrate import MAX_SQUARE_M, MIN_VIEWS, Calibration, CalibrationError
+from signpose.pipeline.camera import Camera, CameraError, camera_from_json, load_camera, ros_camera_yaml
+from signpose.pipeline.exif import turned_camera
+from signpose.pipeline.image import ImageError
+from signpose.pipeline.jsonfile import JsonError, parse_json
+from signpose.pipeline.library import ID_PATTERN, LibraryError
+from signpose.pipeline.settings import (PRESETS, Settings, SettingsError, check_setting, file_settings,
                                settings_schema)
 
 from . import figures, tuning
@@ -967,9 +967,9 @@ def put_scene_canvas(canvas: CanvasScaleIn, request: Request, viewer: Annotated[
 def _attach_scene(server: viser.ViserServer, workspace: Workspace):
     """The colleague-owned viser scene, when app/scene.py exists; its handle (with close()) or None."""
     try:
-        from app import scene
+        from signpose.app import scene
     except ModuleNotFoundError as exc:
-        if exc.name != "app.scene":
+        if exc.name != "signpose.app.scene":
             raise
         return None
     return scene.attach(server, workspace)

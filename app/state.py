@@ -46,10 +46,10 @@ from typing import Any, Callable, TypeVar
 
 import numpy as np
 
-from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, camera_from_json, check_hfov
-from pipeline.jsonfile import JsonError, parse_json
-from pipeline.library import Library, LibraryError, LibrarySign, alike_sign, load_library
-from pipeline.settings import Settings, SettingsError, load_settings
+from signpose.pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, camera_from_json, check_hfov
+from signpose.pipeline.jsonfile import JsonError, parse_json
+from signpose.pipeline.library import Library, LibraryError, LibrarySign, alike_sign, load_library
+from signpose.pipeline.settings import Settings, SettingsError, load_settings
 
 TMP_SUFFIX = ".tmp"
 LIBRARY_ASIDE = f".library.old{TMP_SUFFIX}"  # the state's library while its replacement is moved in

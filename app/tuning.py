@@ -10,9 +10,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from pipeline.image import to_gray
-from pipeline.recognize import Recognition
-from pipeline.segment import Box, normalize_levels
+from signpose.pipeline.image import to_gray
+from signpose.pipeline.recognize import Recognition
+from signpose.pipeline.segment import Box, normalize_levels
 
 HISTOGRAM_BINS = 256
 # The paper measured the sign at 0.8 and thresholded at 0.75: just below the sign's white.

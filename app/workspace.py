@@ -34,16 +34,16 @@ import cv2
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-from pipeline.camera import Camera, CameraError, check_hfov, load_camera
-from pipeline.evaluate import CORES, release_freed_memory
-from pipeline.exif import ExifCamera, decode_with_exif
-from pipeline.features import library_features
-from pipeline.image import ImageError, to_gray, unreadable
-from pipeline.jsonfile import parse_json
-from pipeline.library import (MAX_LIKENESS, NO_SIGN, SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, alike_sign,
+from signpose.pipeline.camera import Camera, CameraError, check_hfov, load_camera
+from signpose.pipeline.evaluate import CORES, release_freed_memory
+from signpose.pipeline.exif import ExifCamera, decode_with_exif
+from signpose.pipeline.features import library_features
+from signpose.pipeline.image import ImageError, to_gray, unreadable
+from signpose.pipeline.jsonfile import parse_json
+from signpose.pipeline.library import (MAX_LIKENESS, NO_SIGN, SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, alike_sign,
                               make_sign, validate_sign_entry)
-from pipeline.recognize import PipelineError, Recognition, StageCache, run_pipeline
-from pipeline.settings import PRESETS, Settings, load_settings
+from signpose.pipeline.recognize import PipelineError, Recognition, StageCache, run_pipeline
+from signpose.pipeline.settings import PRESETS, Settings, load_settings
 
 from .state import Replaced, StateDir, StoredImage
 

@@ -20,10 +20,10 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from pipeline.evaluate import ImageResult, Report, evaluate, load_dataset, summarize
-from pipeline.library import load_library
-from pipeline.settings import preset
-from pipeline.synth import HARD_MODES, generate_dataset
+from signpose.pipeline.evaluate import ImageResult, Report, evaluate, load_dataset, summarize
+from signpose.pipeline.library import load_library
+from signpose.pipeline.settings import preset
+from signpose.pipeline.synth import HARD_MODES, generate_dataset
 
 PRESETS = ("paper", "default")
 

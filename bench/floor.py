@@ -14,10 +14,10 @@ from __future__ import annotations
 
 import os
 
-from pipeline.evaluate import keep_freed_memory
-from pipeline.library import load_library
-from pipeline.settings import preset
-from pipeline.synth import CATEGORIES
+from signpose.pipeline.evaluate import keep_freed_memory
+from signpose.pipeline.library import load_library
+from signpose.pipeline.settings import preset
+from signpose.pipeline.synth import CATEGORIES
 
 from speed import SIZES, floor_line, identified_percent, machine, measure, rotation_median, scene_parser, scenes
 

@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 from serving import start_serve, stop_serve  # noqa: E402  (the tests' way of starting and stopping the real command)
 
-from app.security import is_loopback  # noqa: E402
+from signpose.app.security import is_loopback  # noqa: E402
 
 SCENES = ROOT / "sample_images" / "scenes"
 SETTINGS_EVERY_S = 0.5

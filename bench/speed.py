@@ -34,17 +34,17 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-import pipeline.recognize as recognize_module
-from app.workspace import Workspace, WorkspaceConfig
-from pipeline.camera import Camera
-from pipeline.evaluate import Dataset, evaluate, keep_freed_memory, load_dataset
-from pipeline.features import detect
-from pipeline.image import read_image, to_gray
-from pipeline.library import Library, load_library
-from pipeline.pose import rotation_error_deg
-from pipeline.recognize import STAGES, StageCache, recognize
-from pipeline.settings import Settings, preset
-from pipeline.synth import CATEGORIES, generate_dataset
+import signpose.pipeline.recognize as recognize_module
+from signpose.app.workspace import Workspace, WorkspaceConfig
+from signpose.pipeline.camera import Camera
+from signpose.pipeline.evaluate import Dataset, evaluate, keep_freed_memory, load_dataset
+from signpose.pipeline.features import detect
+from signpose.pipeline.image import read_image, to_gray
+from signpose.pipeline.library import Library, load_library
+from signpose.pipeline.pose import rotation_error_deg
+from signpose.pipeline.recognize import STAGES, StageCache, recognize
+from signpose.pipeline.settings import Settings, preset
+from signpose.pipeline.synth import CATEGORIES, generate_dataset
 
 SIZES = ((640, 480), (1280, 960))
 # name -> the settings it runs the pipeline with; the naive reference (None) runs its own code.

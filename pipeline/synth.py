@@ -28,9 +28,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline.camera import Camera, assumed_camera, save_camera
-from pipeline.image import resize_map
-from pipeline.library import Library, LibrarySign
+from signpose.pipeline.camera import Camera, assumed_camera, save_camera
+from signpose.pipeline.image import resize_map
+from signpose.pipeline.library import Library, LibrarySign
 
 CATEGORIES = ("easy", "hard", "negative")
 DEFAULT_WEIGHTS = {"easy": 0.5, "hard": 0.3, "negative": 0.2}

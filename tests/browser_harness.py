@@ -36,7 +36,7 @@ def serve(state_dir: Path, log_path: Path, timeout: float = 300, port: int | Non
     base = f"http://127.0.0.1:{port}"
     with open(log_path, "wb") as log:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "app.cli", "serve", "--port", str(port),
+            [sys.executable, "-m", "signpose.app.cli", "serve", "--port", str(port),
              "--state-dir", str(state_dir)],
             cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
         try:

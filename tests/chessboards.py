@@ -10,7 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from pipeline.calibrate import board_points, chessboard_image
+from signpose.pipeline.calibrate import board_points, chessboard_image
 
 SIZE = (640, 480)
 K_TRUE = np.array([[520.0, 0, 318.0], [0, 515.0, 243.0], [0, 0, 1]])

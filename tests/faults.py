@@ -2,8 +2,8 @@
 
 from collections.abc import Callable
 
-import pipeline.recognize as recognize_module
-from pipeline.settings import Settings
+import signpose.pipeline.recognize as recognize_module
+from signpose.pipeline.settings import Settings
 
 
 def fail_segmentation(monkeypatch, when: Callable[[int, Settings], bool]) -> None:

@@ -14,9 +14,9 @@ import cv2
 import numpy as np
 from PIL import Image
 
-from app.workspace import SAMPLE_SCENES
-from pipeline.camera import Camera, load_camera
-from pipeline.library import Library, LibrarySign
+from signpose.app.workspace import SAMPLE_SCENES
+from signpose.pipeline.camera import Camera, load_camera
+from signpose.pipeline.library import Library, LibrarySign
 from tools.render_library import render_sign
 from chessboards import pixel_rays
 

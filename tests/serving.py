@@ -18,8 +18,8 @@ import httpx
 import uvicorn
 import viser
 
-from app.server import bind
-from pipeline.library import SAMPLE_LIBRARY
+from signpose.app.server import bind
+from signpose.pipeline.library import SAMPLE_LIBRARY
 
 REPO = Path(__file__).resolve().parent.parent
 TIMEOUT_S = 30
@@ -56,7 +56,7 @@ def sample_library_copy(folder: Path) -> Path:
 def start_serve(state_dir: Path, *options: str, env: dict | None = None) -> tuple[subprocess.Popen, str]:
     """`signpose serve --port 0` on `state_dir` with the sample library copied beside it; the process
     and the address it printed (with ?token=... when it needs one)."""
-    command = [sys.executable, "-m", "app.cli", "serve", "--port", "0", "--state-dir", str(state_dir),
+    command = [sys.executable, "-m", "signpose.app.cli", "serve", "--port", "0", "--state-dir", str(state_dir),
                "--library", str(sample_library_copy(state_dir.parent)), *options]
     proc = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=None if env is None else {**os.environ, **env})

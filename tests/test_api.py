@@ -18,16 +18,16 @@ import pytest
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
-from app.figures import DIM, GREEN, RED, TEXT_BLOCK_PX, UNSEEN, stage_figure
-from app.server import create_app
-from app.viser_proxy import CANVAS_SCRIPT
-from app.workspace import Workspace, WorkspaceConfig
-from pipeline.library import SAMPLE_LIBRARY, load_library
-from pipeline.recognize import recognize
-from pipeline.settings import preset
-from pipeline.verify import CHECK_WIDTH
-from pipeline.synth import synthetic_camera
-from pipeline.camera import load_camera, ros_camera_yaml
+from signpose.app.figures import DIM, GREEN, RED, TEXT_BLOCK_PX, UNSEEN, stage_figure
+from signpose.app.server import create_app
+from signpose.app.viser_proxy import CANVAS_SCRIPT
+from signpose.app.workspace import Workspace, WorkspaceConfig
+from signpose.pipeline.library import SAMPLE_LIBRARY, load_library
+from signpose.pipeline.recognize import recognize
+from signpose.pipeline.settings import preset
+from signpose.pipeline.verify import CHECK_WIDTH
+from signpose.pipeline.synth import synthetic_camera
+from signpose.pipeline.camera import load_camera, ros_camera_yaml
 from faults import fail_segmentation
 from scene_images import (DECOYS, HEIC_START, OFF_CENTRE, big_photo, decoy_image, empty_photo, has, plaque_of,
                           png_bomb, scrambled_scene, sign_photo, tiny_photo, turned_photos, turned_scene_position,
@@ -1072,7 +1072,7 @@ def test_serve_command_prints_its_url_stops_on_ctrl_c_and_refuses_a_taken_port(t
         assert url.startswith("http://127.0.0.1:") and "token" not in url
         url = url.rstrip("/")
         assert httpx.get(url + "/api/health", timeout=TIMEOUT_S).json()["status"] == "ok"
-        taken = [sys.executable, "-m", "app.cli", "serve", "--port", url.rsplit(":", 1)[1],
+        taken = [sys.executable, "-m", "signpose.app.cli", "serve", "--port", url.rsplit(":", 1)[1],
                  "--state-dir", str(tmp_path / "other")]
         refused = subprocess.run(taken, cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
         assert refused.returncode == 2 and "cannot listen" in refused.stderr and "--port" in refused.stderr

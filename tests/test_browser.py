@@ -20,14 +20,14 @@ from PIL import Image
 
 import browser_harness as harness
 from chessboards import K_TRUE, render_boards, shaky_board
-from pipeline.exif import LensExif, focal_px
-from pipeline.image import NOT_AN_IMAGE
-from pipeline.library import SAMPLE_LIBRARY, load_library
-from pipeline.verify import CHECK_WIDTH
-from app import tuning
-from app.figures import TEXT_BLOCK_PX
-from app.scene import LABEL_SEPARATOR
-from app.workspace import memory_text
+from signpose.pipeline.exif import LensExif, focal_px
+from signpose.pipeline.image import NOT_AN_IMAGE
+from signpose.pipeline.library import SAMPLE_LIBRARY, load_library
+from signpose.pipeline.verify import CHECK_WIDTH
+from signpose.app import tuning
+from signpose.app.figures import TEXT_BLOCK_PX
+from signpose.app.scene import LABEL_SEPARATOR
+from signpose.app.workspace import memory_text
 from scene_images import DECOYS, decoy_image, sign_seen_from
 from serving import MISFIT_CAMERA
 

@@ -8,16 +8,16 @@ import numpy as np
 import pytest
 from PIL import Image
 
-import pipeline.calibrate as calib
-from app.cli import main
+import signpose.pipeline.calibrate as calib
+from signpose.app.cli import main
 from chessboards import BOARD, DIST_TRUE, K_TRUE, SIZE, SQUARE_M, board_poses, projected_corners, render_boards
-from pipeline.calibrate import (BoardView, CalibrationError, calibrate, chessboard_image, drop_outliers,
+from signpose.pipeline.calibrate import (BoardView, CalibrationError, calibrate, chessboard_image, drop_outliers,
                                 find_board, format_report, other_sizes, parse_board, reference_size,
                                 too_few_boards_advice)
-from pipeline.camera import Camera, load_camera, save_camera
-from pipeline.evaluate import CORES
-from pipeline.library import LibrarySign
-from pipeline.pose import estimate_pose, rotation_error_deg
+from signpose.pipeline.camera import Camera, load_camera, save_camera
+from signpose.pipeline.evaluate import CORES
+from signpose.pipeline.library import LibrarySign
+from signpose.pipeline.pose import estimate_pose, rotation_error_deg
 
 
 def projected_views(n: int, noise_px: float = 0.1, seed: int = 0) -> list[BoardView]:

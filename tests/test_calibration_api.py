@@ -13,15 +13,15 @@ import httpx
 import numpy as np
 import pytest
 
-from app import calibration
-from app.server import create_app
-from app.workspace import WorkspaceConfig
+from signpose.app import calibration
+from signpose.app.server import create_app
+from signpose.app.workspace import WorkspaceConfig
 from chessboards import BOARD, K_TRUE, SIZE, SQUARE_M, render_boards, shaky_board
-import pipeline.calibrate
-from pipeline.calibrate import find_board, reference_size
-from pipeline.camera import load_camera
-from pipeline.evaluate import CORES
-from pipeline.library import SAMPLE_LIBRARY, load_library
+import signpose.pipeline.calibrate as pipeline_calibrate
+from signpose.pipeline.calibrate import find_board, reference_size
+from signpose.pipeline.camera import load_camera
+from signpose.pipeline.evaluate import CORES
+from signpose.pipeline.library import SAMPLE_LIBRARY, load_library
 from scene_images import sign_photo
 from serving import TIMEOUT_S, assert_error, iter_events, running, upload, wait_done
 
@@ -236,7 +236,7 @@ def test_the_size_most_photos_share_is_worked_out_once_a_state(client, photos, m
         counted.append(len(found))
         return reference_size(views, found)
 
-    for module in (calibration, pipeline.calibrate):  # where the session's properties and other_sizes look it up
+    for module in (calibration, pipeline_calibrate):  # where the session's properties and other_sizes look it up
         monkeypatch.setattr(module, "reference_size", counting_reference_size)
     assert add(client, photos[:3]).json()["size_mismatch"] is None
     assert all(v["other_size"] is None for v in client.get("/api/calibration").json()["views"])

@@ -8,13 +8,13 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.camera import Camera, CameraError, assumed_camera, camera_from_json, load_camera, save_camera
-from pipeline.image import read_image
-from pipeline.library import SAMPLE_LIBRARY, load_library
-from pipeline.pose import camera_position
-from pipeline.recognize import recognize
-from pipeline.settings import preset
-from pipeline.synth import render_scene, synthetic_camera
+from signpose.pipeline.camera import Camera, CameraError, assumed_camera, camera_from_json, load_camera, save_camera
+from signpose.pipeline.image import read_image
+from signpose.pipeline.library import SAMPLE_LIBRARY, load_library
+from signpose.pipeline.pose import camera_position
+from signpose.pipeline.recognize import recognize
+from signpose.pipeline.settings import preset
+from signpose.pipeline.synth import render_scene, synthetic_camera
 
 ROS = """image_width: 640
 image_height: 480

@@ -21,12 +21,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from app.cli import build_parser, main
-from app.workspace import WorkspaceConfig
-from pipeline.camera import assumed_camera, save_camera
-from pipeline.library import load_library
-from pipeline.recognize import recognize
-from pipeline.settings import preset
+from signpose.app.cli import build_parser, main
+from signpose.app.workspace import WorkspaceConfig
+from signpose.pipeline.camera import assumed_camera, save_camera
+from signpose.pipeline.library import load_library
+from signpose.pipeline.recognize import recognize
+from signpose.pipeline.settings import preset
 from faults import fail_first_segmentation
 from scene_images import OFF_CENTRE, TURNED_SCENE, png_bomb, turned_photos, turned_scene_position
 
@@ -38,7 +38,7 @@ TIMING_KEYS = {"segment", "features", "match", "ransac", "pose", "total"}
 
 
 def signpose(*args, cwd=ROOT):
-    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], cwd=cwd, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "signpose.app.cli", *map(str, args)], cwd=cwd, capture_output=True,
                           text=True, timeout=300)
 
 
@@ -364,7 +364,7 @@ def on_a_terminal(*args: object, cwd=ROOT, stdout_too: bool = False) -> tuple[su
     piped, or on the terminal too when `stdout_too`) and the terminal's end to read from (`terminal_output`)."""
     terminal, stderr = pty.openpty()
     fcntl.ioctl(stderr, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))  # 24 x 100 (new ones are 0 x 0)
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", *map(str, args)], cwd=cwd,
+    proc = subprocess.Popen([sys.executable, "-m", "signpose.app.cli", *map(str, args)], cwd=cwd,
                             stdout=stderr if stdout_too else subprocess.PIPE, stderr=stderr, text=True,
                             start_new_session=True)
     os.close(stderr)
@@ -577,7 +577,7 @@ def test_evaluates_worker_ends_with_it_when_it_is_killed_outright(tmp_path):
 
 def test_sigterm_stops_recognize_between_whole_json_lines_and_says_how_many():
     images = sorted(SCENES.glob("*.jpg")) * 4
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "recognize", *images, "--json"], cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "signpose.app.cli", "recognize", *images, "--json"], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     first = proc.stdout.readline()
     # Sent while an image is being measured: in the microseconds after a line, whether it counts is a toss-up.
@@ -607,7 +607,7 @@ def test_recognize_json_draws_its_progress_bar_between_whole_lines():
 def test_recognize_refuses_a_named_pipe_without_waiting_for_a_writer(tmp_path):
     fifo = tmp_path / "photo.jpg"
     os.mkfifo(fifo)
-    result = subprocess.run([sys.executable, "-m", "app.cli", "recognize", fifo, SCENES / "scene_002.jpg", "--json"],
+    result = subprocess.run([sys.executable, "-m", "signpose.app.cli", "recognize", fifo, SCENES / "scene_002.jpg", "--json"],
                             cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert result.returncode == 1
     refused, recognised = map(json.loads, result.stdout.splitlines())
@@ -642,7 +642,7 @@ def test_a_signal_while_the_command_is_still_starting_is_one_line_and_128_plus_i
 
 def test_a_reader_that_stops_early_ends_the_output_quietly():
     # `signpose recognize ... --json | head -1`: the pipe closes while images are still coming.
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "recognize", *sorted(SCENES.glob("*.jpg")), "--json"],
+    proc = subprocess.Popen([sys.executable, "-m", "signpose.app.cli", "recognize", *sorted(SCENES.glob("*.jpg")), "--json"],
                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert json.loads(proc.stdout.readline())["image"].endswith(".jpg")
     proc.stdout.close()

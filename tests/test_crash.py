@@ -12,9 +12,9 @@ from pathlib import Path
 
 import httpx
 
-from app.state import TMP_SUFFIX, StateDir
-from pipeline.image import decode_image
-from pipeline.library import load_library
+from signpose.app.state import TMP_SUFFIX, StateDir
+from signpose.pipeline.image import decode_image
+from signpose.pipeline.library import load_library
 from scene_images import block_sign, tiny_photo
 from serving import TIMEOUT_S, start_serve, stop_serve
 

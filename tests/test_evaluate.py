@@ -15,13 +15,13 @@ import cv2
 import numpy as np
 import pytest
 
-import pipeline.evaluate as evaluate_module
-import pipeline.recognize as recognize_module
-from app.workspace import check_image_header
-from pipeline.evaluate import (Dataset, DatasetError, ImageResult, Sample, check_labels, evaluate, format_table,
+import signpose.pipeline.evaluate as evaluate_module
+import signpose.pipeline.recognize as recognize_module
+from signpose.app.workspace import check_image_header
+from signpose.pipeline.evaluate import (Dataset, DatasetError, ImageResult, Sample, check_labels, evaluate, format_table,
                                load_dataset, summarize, text_columns)
-from pipeline.library import load_library
-from pipeline.settings import preset
+from signpose.pipeline.library import load_library
+from signpose.pipeline.settings import preset
 from faults import fail_first_segmentation
 from scene_images import TURNED_SCENE, png_bomb, with_orientation
 

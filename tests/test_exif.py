@@ -11,8 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.camera import Camera, CameraError, assumed_camera
-from pipeline.exif import (ExifCamera, LensExif, decode_with_exif, exif_camera, focal_px, read_lens_exif,
+from signpose.pipeline.camera import Camera, CameraError, assumed_camera
+from signpose.pipeline.exif import (ExifCamera, LensExif, decode_with_exif, exif_camera, focal_px, read_lens_exif,
                            turned_camera)
 
 FOCAL, FOCAL_35, PLANE_X, PLANE_UNIT, PIXEL_X, PIXEL_Y = 0x920A, 0xA405, 0xA20E, 0xA210, 0xA002, 0xA003

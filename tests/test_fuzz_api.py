@@ -10,9 +10,9 @@ import schemathesis
 from hypothesis import HealthCheck, settings
 from schemathesis.checks import not_a_server_error
 
-from app.server import create_app
-from app.workspace import WorkspaceConfig
-from pipeline.library import SAMPLE_LIBRARY, load_library
+from signpose.app.server import create_app
+from signpose.app.workspace import WorkspaceConfig
+from signpose.pipeline.library import SAMPLE_LIBRARY, load_library
 from scene_images import sign_photo
 from serving import TIMEOUT_S, running, upload, wait_done
 

@@ -4,7 +4,7 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from pipeline.homography import (
+from signpose.pipeline.homography import (
     dlt_homographies,
     dlt_homography,
     estimate_homography,

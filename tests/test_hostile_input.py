@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-import app.workspace as workspace_module
-from app.figures import DIM, MIN_SIDE_PX, RED, STAGES
-from app.server import create_app
-from app.workspace import WorkspaceConfig
-from pipeline.library import SAMPLE_LIBRARY, load_library
+import signpose.app.workspace as workspace_module
+from signpose.app.figures import DIM, MIN_SIDE_PX, RED, STAGES
+from signpose.app.server import create_app
+from signpose.app.workspace import WorkspaceConfig
+from signpose.pipeline.library import SAMPLE_LIBRARY, load_library
 from scene_images import has, png_bomb, sign_photo
 from serving import TIMEOUT_S, assert_error, http_exchange, running, upload, wait_idle
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from PIL import Image, ImageOps
 
-from pipeline.image import ImageError, decode_image, exif_orientation, read_file
+from signpose.pipeline.image import ImageError, decode_image, exif_orientation, read_file
 from chessboards import render_boards
 from scene_images import HEIC_START, scrambled_scene, with_orientation
 
@@ -503,7 +503,7 @@ def test_decodes_work_with_file_descriptor_2_closed():
     duplicating descriptor 2, to point it back after the decode, raised EBADF. It decodes, refusing in its own
     words what it refuses, and what the decoders print goes nowhere."""
     code = ("import os; os.close(0); os.close(2)\n"
-            "from pipeline.image import ImageError, decode_image\n"
+            "from signpose.pipeline.image import ImageError, decode_image\n"
             f"data = open({str(SCENE_002)!r}, 'rb').read()\n"
             "print(decode_image(data).shape)\n"
             "try:\n"

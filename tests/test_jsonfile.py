@@ -4,9 +4,9 @@ import shutil
 
 import pytest
 
-from pipeline.evaluate import DatasetError, load_dataset
-from pipeline.library import SAMPLE_LIBRARY, LibraryError, load_library
-from pipeline.settings import SettingsError, load_settings
+from signpose.pipeline.evaluate import DatasetError, load_dataset
+from signpose.pipeline.library import SAMPLE_LIBRARY, LibraryError, load_library
+from signpose.pipeline.settings import SettingsError, load_settings
 
 BOM = b"\xef\xbb\xbf"  # UTF-8's byte-order mark, which Windows editors (Notepad, PowerShell) begin files with
 

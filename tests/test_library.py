@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.library import (MAX_LIKENESS, SAMPLE_LIBRARY, LibraryError, alike_sign, likeness, load_library,
+from signpose.pipeline.library import (MAX_LIKENESS, SAMPLE_LIBRARY, LibraryError, alike_sign, likeness, load_library,
                               validate_sign_entry)
 from scene_images import DECOYS, plaque_of
 

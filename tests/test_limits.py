@@ -13,12 +13,12 @@ import time
 import httpx
 import pytest
 
-import app.workspace as workspace_module
-import pipeline.recognize as recognize_module
-from app.cli import main
-from app.server import create_app
-from app.workspace import WorkspaceConfig
-from pipeline.library import SAMPLE_LIBRARY, load_library
+import signpose.app.workspace as workspace_module
+import signpose.pipeline.recognize as recognize_module
+from signpose.app.cli import main
+from signpose.app.server import create_app
+from signpose.app.workspace import WorkspaceConfig
+from signpose.pipeline.library import SAMPLE_LIBRARY, load_library
 from scene_images import sign_photo
 from serving import TIMEOUT_S, assert_error, running, upload, wait_done
 

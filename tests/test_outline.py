@@ -8,16 +8,16 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.camera import Camera, assumed_camera
-from pipeline.evaluate import load_dataset
-from pipeline.image import read_image
-from pipeline.library import load_library
-from pipeline.outline import outline_fit, refine_outline
-from pipeline.plaque import SHRUNK_WIDTH_PX, sign_corners
-from pipeline.pose import estimate_pose, homography_from_pose, rotation_error_deg, undistort_pixels
-from pipeline.recognize import StageCache, recognize
-from pipeline.settings import preset
-from pipeline.synth import render_scene, synthetic_camera
+from signpose.pipeline.camera import Camera, assumed_camera
+from signpose.pipeline.evaluate import load_dataset
+from signpose.pipeline.image import read_image
+from signpose.pipeline.library import load_library
+from signpose.pipeline.outline import outline_fit, refine_outline
+from signpose.pipeline.plaque import SHRUNK_WIDTH_PX, sign_corners
+from signpose.pipeline.pose import estimate_pose, homography_from_pose, rotation_error_deg, undistort_pixels
+from signpose.pipeline.recognize import StageCache, recognize
+from signpose.pipeline.settings import preset
+from signpose.pipeline.synth import render_scene, synthetic_camera
 from chessboards import pixel_rays
 from scene_images import like_a_camera, render_plaque
 

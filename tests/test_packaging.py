@@ -1,6 +1,5 @@
 """An installed copy (pip install ., not -e) has no source checkout to find the page and the samples
-in: they ship inside its packages. A tester's `pip install .` served a 500 page and refused to run
-without --library."""
+in: they ship inside its packages, all under the one import namespace `signpose`."""
 
 import json
 import os
@@ -40,11 +39,11 @@ def run_installed(lib: Path, args: list[str], cwd: Path) -> subprocess.Completed
 
 SERVE = """
 from pathlib import Path
-import app
+import signpose.app
 from fastapi.testclient import TestClient
-from app.server import create_app
-from app.workspace import WorkspaceConfig
-assert Path(app.__file__).is_relative_to({lib!r}), app.__file__  # not the checkout
+from signpose.app.server import create_app
+from signpose.app.workspace import WorkspaceConfig
+assert Path(signpose.app.__file__).is_relative_to({lib!r}), signpose.app.__file__  # not the checkout
 # the server answers requests addressed to a loopback host only
 with TestClient(create_app(WorkspaceConfig(state_dir=Path("state"))), base_url="http://127.0.0.1") as client:
     page, script = client.get("/"), client.get("/app.js")
@@ -60,7 +59,15 @@ def test_an_installed_copy_serves_the_page_with_the_sample_library_and_scenes(in
 
 
 def test_an_installed_copy_recognizes_with_the_sample_library_by_default(installed, tmp_path):
-    scene = installed / "pipeline" / "sample_images" / "scenes" / "scene_002.jpg"
-    result = run_installed(installed, ["-m", "app.cli", "recognize", str(scene), "--json"], tmp_path)
+    scene = installed / "signpose" / "pipeline" / "sample_images" / "scenes" / "scene_002.jpg"
+    result = run_installed(installed, ["-m", "signpose.app.cli", "recognize", str(scene), "--json"], tmp_path)
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout)["label"] == "security_compound"
+
+
+def test_an_installed_copy_has_one_namespace(installed, tmp_path):
+    """signpose owns `signpose` only: `app` and `pipeline` are other projects' names."""
+    assert sorted(p.name for p in installed.iterdir() if not p.name.endswith(".egg-info")) == ["signpose"]
+    probe = "import importlib.util as u; print([u.find_spec(n) is None for n in ('app', 'pipeline')])"
+    result = run_installed(installed, ["-c", probe], tmp_path)
+    assert result.stdout.strip() == "[True, True]", result.stdout + result.stderr

@@ -8,15 +8,15 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.image import read_image
-import pipeline.plaque_search as plaque_search
-import pipeline.recognize as recognize_module
-from pipeline.library import Library, load_library
-from pipeline.plaque_search import (cut_image, cut_levels, level_quads, quad_levels, ranked, read_blob,
+from signpose.pipeline.image import read_image
+import signpose.pipeline.plaque_search as plaque_search
+import signpose.pipeline.recognize as recognize_module
+from signpose.pipeline.library import Library, load_library
+from signpose.pipeline.plaque_search import (cut_image, cut_levels, level_quads, quad_levels, ranked, read_blob,
                                    required_correlation, search_plaques)
-from pipeline.recognize import recognize
-from pipeline.segment import segment
-from pipeline.settings import preset
+from signpose.pipeline.recognize import recognize
+from signpose.pipeline.segment import segment
+from signpose.pipeline.settings import preset
 from scene_images import PLAQUE_AT, like_a_camera, render_plaque, shaded_wall, sign_on_wall
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_images"

@@ -7,10 +7,10 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from pipeline.camera import Camera
-from pipeline.homography import dlt_homography
-from pipeline.library import LibrarySign
-from pipeline.pose import (
+from signpose.pipeline.camera import Camera
+from signpose.pipeline.homography import dlt_homography
+from signpose.pipeline.library import LibrarySign
+from signpose.pipeline.pose import (
     Pose,
     PoseError,
     _ippe_solutions,
@@ -23,7 +23,7 @@ from pipeline.pose import (
     quaternion_wxyz,
     rotation_error_deg,
 )
-from pipeline.settings import POSE_METHODS
+from signpose.pipeline.settings import POSE_METHODS
 
 SIGN = LibrarySign(id="s", name="s", text="", image_file="s.png", width_m=0.6, height_m=0.24,
                    image=np.zeros((320, 800), np.uint8))

@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.library import Library, make_sign
-from pipeline.recognize import recognize
-from pipeline.settings import preset
+from signpose.pipeline.library import Library, make_sign
+from signpose.pipeline.recognize import recognize
+from signpose.pipeline.settings import preset
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "homogr"
 SOLVABLE = ["adam", "boat", "city", "WhiteBoard", "BruggeSquare"]

@@ -9,17 +9,17 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.camera import Camera, load_camera
-from pipeline.features import library_features
-from pipeline.homography import normalize_scale
-from pipeline.image import read_image, resize_map
-from pipeline.library import load_library
-from pipeline.pose import rotation_error_deg
-import pipeline.recognize as recognize_module
-from pipeline.plaque_search import QuadCandidate
-from pipeline.recognize import AUTO_ECC_MAX_INLIERS, StageCache, candidate_regions, decide, recognize, score_sign
-from pipeline.segment import Blob, Segmentation
-from pipeline.settings import preset
+from signpose.pipeline.camera import Camera, load_camera
+from signpose.pipeline.features import library_features
+from signpose.pipeline.homography import normalize_scale
+from signpose.pipeline.image import read_image, resize_map
+from signpose.pipeline.library import load_library
+from signpose.pipeline.pose import rotation_error_deg
+import signpose.pipeline.recognize as recognize_module
+from signpose.pipeline.plaque_search import QuadCandidate
+from signpose.pipeline.recognize import AUTO_ECC_MAX_INLIERS, StageCache, candidate_regions, decide, recognize, score_sign
+from signpose.pipeline.segment import Blob, Segmentation
+from signpose.pipeline.settings import preset
 from scene_images import DECOYS, PLAQUE_AT, decoy_image, like_a_camera, plaque_of, render_plaque, shaded_wall, sign_on_wall
 
 SCENES = Path(__file__).resolve().parents[1] / "sample_images" / "scenes"

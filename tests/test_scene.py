@@ -14,13 +14,13 @@ import pytest
 import viser
 import viser.transforms as tf
 
-from app.scene import (INITIAL_VIEW_LOOK_AT_M, INITIAL_VIEW_POSITION_M, LABEL_GAP_PX, LABEL_SEPARATOR,
+from signpose.app.scene import (INITIAL_VIEW_LOOK_AT_M, INITIAL_VIEW_POSITION_M, LABEL_GAP_PX, LABEL_SEPARATOR,
                        MAX_TEXTS_LISTED, NO_WORLD, View, attach, camera_pose_in_sign, frustum_scale, frustum_shape,
                        image_plane_points, label_groups, label_size_px, labels_apart, matched_points, screen_px,
                        status_markdown)
-from app.workspace import SAMPLE_SCENES, Outcome, Workspace, WorkspaceConfig
-from pipeline.camera import assumed_camera
-from pipeline.settings import PRESETS, settings_schema
+from signpose.app.workspace import SAMPLE_SCENES, Outcome, Workspace, WorkspaceConfig
+from signpose.pipeline.camera import assumed_camera
+from signpose.pipeline.settings import PRESETS, settings_schema
 from scene_images import sign_photo
 
 IDLE_TIMEOUT_S = 30

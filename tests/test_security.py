@@ -8,9 +8,9 @@ import pytest
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
-from app.security import PAGE_CSP, TOKEN_COOKIE, VISER_CSP, access_token, is_loopback
-from app.server import create_app
-from app.workspace import Workspace, WorkspaceConfig
+from signpose.app.security import PAGE_CSP, TOKEN_COOKIE, VISER_CSP, access_token, is_loopback
+from signpose.app.server import create_app
+from signpose.app.workspace import Workspace, WorkspaceConfig
 from serving import TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve, stop_serve
 
 TOKEN = "team-token-for-tests"

@@ -2,8 +2,8 @@ import numpy as np
 
 import pytest
 
-from pipeline.segment import expand_box, label_components, normalize_gray, segment, threshold_mask
-from pipeline.settings import Settings
+from signpose.pipeline.segment import expand_box, label_components, normalize_gray, segment, threshold_mask
+from signpose.pipeline.settings import Settings
 
 
 def scene_with_plaques():

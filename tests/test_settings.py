@@ -3,7 +3,7 @@ import math
 
 import pytest
 
-from pipeline.settings import PRESETS, Settings, SettingsError, load_settings, preset, settings_schema
+from signpose.pipeline.settings import PRESETS, Settings, SettingsError, load_settings, preset, settings_schema
 
 
 def test_paper_preset_is_the_published_method():

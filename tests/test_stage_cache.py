@@ -1,6 +1,6 @@
 import numpy as np
 
-from pipeline.recognize import StageCache
+from signpose.pipeline.recognize import StageCache
 
 
 def test_cache_reuses_and_bounds_entries_and_bytes():

@@ -4,9 +4,9 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.camera import Camera, load_camera
-from pipeline.library import load_library
-from pipeline.synth import SynthError, generate_dataset, render_scene, synthetic_camera
+from signpose.pipeline.camera import Camera, load_camera
+from signpose.pipeline.library import load_library
+from signpose.pipeline.synth import SynthError, generate_dataset, render_scene, synthetic_camera
 
 SMALL = (320, 240)  # a quarter of the pixels: the same scenes, four times faster
 

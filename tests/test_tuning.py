@@ -5,9 +5,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.tuning import band_centre, level_histogram, rect_mask, suggest_threshold, sweep_values, working_band
-from pipeline.image import read_image, to_gray
-from pipeline.segment import normalize_levels
+from signpose.app.tuning import band_centre, level_histogram, rect_mask, suggest_threshold, sweep_values, working_band
+from signpose.pipeline.image import read_image, to_gray
+from signpose.pipeline.segment import normalize_levels
 
 SCENE = Path(__file__).resolve().parent.parent / "sample_images" / "scenes" / "scene_000.jpg"
 

@@ -7,12 +7,12 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.camera import Camera, load_camera
-from pipeline.image import read_image, to_gray
-from pipeline.library import load_library
-from pipeline.recognize import Refined, recognize
-from pipeline.settings import preset
-from pipeline.verify import check_text, compare_text, rectify_text, text_template
+from signpose.pipeline.camera import Camera, load_camera
+from signpose.pipeline.image import read_image, to_gray
+from signpose.pipeline.library import load_library
+from signpose.pipeline.recognize import Refined, recognize
+from signpose.pipeline.settings import preset
+from signpose.pipeline.verify import check_text, compare_text, rectify_text, text_template
 
 SCENES = Path(__file__).resolve().parents[1] / "sample_images" / "scenes"
 TRUTH = json.loads((SCENES / "truth.json").read_text())["images"]

@@ -18,15 +18,15 @@ import cv2
 import numpy as np
 import pytest
 
-import app.workspace as workspace_module
-import pipeline.recognize
-from app.state import LIBRARY_ASIDE, StateDir, StateError, atomic_write
-from app.workspace import NO_SIGN, SAMPLE_SCENES, Conflict, ImageTooLarge, Workspace, WorkspaceConfig
-from pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError
-from pipeline.evaluate import CORES
-from pipeline.image import ImageError, decode_image
-from pipeline.library import SAMPLE_LIBRARY, LibraryError, load_library
-from pipeline.settings import SettingsError
+import signpose.app.workspace as workspace_module
+import signpose.pipeline.recognize
+from signpose.app.state import LIBRARY_ASIDE, StateDir, StateError, atomic_write
+from signpose.app.workspace import NO_SIGN, SAMPLE_SCENES, Conflict, ImageTooLarge, Workspace, WorkspaceConfig
+from signpose.pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError
+from signpose.pipeline.evaluate import CORES
+from signpose.pipeline.image import ImageError, decode_image
+from signpose.pipeline.library import SAMPLE_LIBRARY, LibraryError, load_library
+from signpose.pipeline.settings import SettingsError
 from scene_images import big_photo, block_sign, empty_photo, png_bomb, sign_photo, with_focal_exif
 
 LIBRARY = load_library(SAMPLE_LIBRARY)
@@ -65,8 +65,8 @@ def counting(monkeypatch):
 
         monkeypatch.setattr(module, name, counted)
 
-    wrap(pipeline.recognize, "recognize")
-    wrap(pipeline.recognize, "detect")
+    wrap(signpose.pipeline.recognize, "recognize")
+    wrap(signpose.pipeline.recognize, "detect")
     return counts
 
 

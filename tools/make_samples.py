@@ -14,8 +14,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from pipeline.library import load_library
-from pipeline.synth import generate_dataset
+from signpose.pipeline.library import load_library
+from signpose.pipeline.synth import generate_dataset
 
 ROOT = Path(__file__).resolve().parent.parent / "sample_images"
 
