@@ -1,7 +1,7 @@
-"""The `signpose` console script (pyproject.toml): `app.cli.main`, with Ctrl-C, SIGTERM and SIGHUP handled from the
-first instant.
+"""The `signpose` console script (pyproject.toml): `signpose.app.cli.main`, with Ctrl-C, SIGTERM and SIGHUP handled
+from the first instant.
 
-Importing the CLI (numpy, OpenCV, FastAPI) takes about 0.3 s, before `app.cli.main` can catch
+Importing the CLI (numpy, OpenCV, FastAPI) takes about 0.3 s, before `signpose.app.cli.main` can catch
 anything; a Ctrl-C then would end in a traceback. This module imports nothing heavy, so the
 script reaches the `try` below at once.
 """

@@ -3,7 +3,7 @@
 Renders N scenes (default 300) from a fixed seed - easy, hard and negatives in
 `pipeline.synth.DEFAULT_WEIGHTS` proportions - runs both presets on them and prints accuracy by
 category and hard look, false positives on negatives, rotation / translation / corner errors and
-time per image. The README's figures come from:
+time per image. The figures in docs/benchmarks.md come from:
 
     python bench/accuracy.py [--n 300] [--seed 0] [--data DIR]
 

@@ -7,7 +7,7 @@ tagged with (GET /api/settings?version=N), fetch the original back and compare t
 in the list, delete it. One more user changes two settings every half second, so results are
 computed, superseded and re-run throughout. Prints requests served, p50 / p99 latency, 5xx
 count, lost uploads and results whose settings do not match their version's; exit status 1
-unless every one of the failure counts is 0. The README's figures come from:
+unless every one of the failure counts is 0. The figures in docs/benchmarks.md come from:
 
     python bench/load.py --clients 16 --seconds 60
 

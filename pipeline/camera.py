@@ -550,7 +550,7 @@ def camera_from_json(data: dict, source: str = "json") -> Camera:
 
 def _number(value: object, name: str) -> float:
     """`value` as a float; CameraError naming the field `name` unless it is a number. Not text: a file's
-    "554" was read as 554 where PUT /api/camera refused it, and README says a value not a number is refused."""
+    "554" is refused as PUT /api/camera's JSON is, and as docs/camera-files.md says."""
     if isinstance(value, Real) and not isinstance(value, bool):
         try:
             return float(value)

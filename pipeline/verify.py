@@ -12,9 +12,9 @@ Measured with STRIPS 6 at CHECK_WIDTH 128 px: the 14 of 18 plaques of other Arab
 library's font, on real photos, that features read as a library sign reached at most 0.64 with
 it; 643 true signs (568 with a pose within 5° on synthetic scenes at 640x480 and 1280x960 and
 the sample datasets, 75 pasted on real photos under glare, blur, noise and low light) at least
-0.85. Signs read with a pose 34° and 68° off reached 0.68 and 0.14. Later a tester's وزارة
-التعليم, which differs from وزارة التعذيب only in its last letters, reached 0.72 in that strip:
-`min_text_correlation` became 0.75 (right answers on 1684 test images reached at least 0.83).
+0.85. Signs read with a pose 34° and 68° off reached 0.68 and 0.14. وزارة التعليم, which
+differs from وزارة التعذيب only in its last letters, reaches 0.72 in that strip, hence the default
+`min_text_correlation` of 0.75 (right answers on 1684 test images reached at least 0.83).
 
 A plaque of a sign's words and more (مجمع أمني جديد) matches it in every strip: the extra word lies
 beyond the sign's outline, where the strips do not look. So the check also looks beyond each side
@@ -46,7 +46,7 @@ CHECK_WIDTH = 128  # px of the rectified sign: fine enough for the words' letter
 # in view), and 288 of plaques of other words pasted on real photos: at 0.5 every sign answered
 # right at 0.9 still was, correct answers with no strip seen went from 19 to 2, and wrong ones
 # from 12 to 11 (each warned that only part of the text is in view). A landmark partly in view
-# under other light is checked now too, and may be turned down (the WhiteBoard photo pair).
+# under other light is checked too, and may be turned down (the WhiteBoard photo pair).
 MIN_VISIBLE = 0.5
 # Content: template pixels at least this fraction of the template's range away from its background.
 CONTENT_CONTRAST = 0.25
@@ -73,10 +73,10 @@ MIN_MARGIN = 2
 # Glare that saturates the camera leaves no trace of the ink under it: a strip at least MAX_WASHED
 # of whose dark ink reads SATURATED or brighter (uint8 gray, before the blur) is washed out and not
 # judged, as a strip outside the image is not. Measured on 150 true signs pasted on real photos
-# under a highlight (30 saturating a letter or more) and a tester's 9 sample scenes under glare
-# washing out a word: 12 of 30 and 0 of 9 passed the check, 28 and 6 now (all 30 and 8 of 9 with
-# the check off); the 120 under milder glare passed before and still do. Leaving saturated pixels
-# out of the correlation, their strips counted, won 3 of the 30.
+# under a highlight (30 saturating a letter or more) and 9 sample scenes under glare washing out
+# a word: with washed-out strips judged, 12 of 30 and 0 of 9 pass the check; with them set aside,
+# 28 and 6 (all 30 and 8 of 9 with the check off); the 120 under milder glare pass either way.
+# Leaving saturated pixels out of the correlation, their strips counted, won only 3 of the 30.
 SATURATED = 250
 MAX_WASHED = 0.25
 
@@ -107,7 +107,7 @@ class TextCheck:
         text goes on beyond no side.
 
         With no strip seen (a sign cut by the frame across its text) nothing tells it from a plaque
-        of other words: رئيس الوزراء and وزارة التعليم cut so were answered as رئيس الأمن and وزارة
+        of other words: رئيس الوزراء and وزارة التعليم cut so would pass as رئيس الأمن and وزارة
         التعذيب. A plaque of the sign's words and more (مجمع أمني جديد) matches in every strip."""
         return self.weakest is not None and self.weakest >= min_correlation and not self.continued
 

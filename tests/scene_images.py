@@ -139,7 +139,7 @@ def big_photo(width: int, height: int, scene: str = "scene_002.jpg") -> bytes:
 
 
 def scrambled_scene() -> bytes:
-    """The tester's scrambled.jpg: sample scene_002 with every 37th byte inverted from byte 2000 on.
+    """scrambled.jpg: sample scene_002 with every 37th byte inverted from byte 2000 on, as a failing copy makes.
     OpenCV decodes it mostly grey, warning only on stderr."""
     data = (SAMPLE_SCENES / "scene_002.jpg").read_bytes()
     return bytes(b ^ 0xFF if i >= 2000 and i % 37 == 0 else b for i, b in enumerate(data))

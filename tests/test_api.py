@@ -478,8 +478,8 @@ def test_a_position_without_a_batch_is_refused(client, path, listing, listed, or
 
 
 def test_uploads_past_the_memory_limit_are_refused_saying_what_fits(tmp_path):
-    """A tester's server grew by 110 MB per 12 MP photo with no cap: the default --max-images 500
-    would have needed 55 GB. Each image held now counts 5 bytes a pixel plus 1 MB against a limit."""
+    """Without a memory cap a server could grow by 110 MB per 12 MP photo, and the default --max-images 500
+    would need 55 GB. Each image held counts 5 bytes a pixel plus 1 MB against a limit."""
     photo = big_photo(1000, 750)  # 0.75 megapixels: counted 4.75 MB
     cfg = WorkspaceConfig(state_dir=tmp_path / "state", load_samples=False, workers=2, max_memory_bytes=12_000_000)
     with running(create_app(cfg)) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
@@ -1102,8 +1102,8 @@ def serve_with(state_dir: Path, what: str, file: Path, put: dict | None = None) 
 ])
 def test_serve_camera_or_settings_keeps_what_the_state_held_that_differs_and_says_where(tmp_path, what, file_name,
                                                                                         data, put, kept_as):
-    """`serve --camera FILE` and `serve --settings FILE` used to overwrite, silently, a camera or settings set
-    in the page since the last start."""
+    """`serve --camera FILE` and `serve --settings FILE` replace a camera or settings set in the page since the
+    last start, and keep the one replaced where the log says, never overwriting it silently."""
     state, file = tmp_path / "state", tmp_path / file_name
     file.write_bytes(data)
     first, stderr = serve_with(state, what, file, put=put)
@@ -1160,8 +1160,8 @@ def test_serve_reads_its_library_folder_again_when_it_was_edited(tmp_path):
                                                    ("settings", "settings.json", b'{"ratio": 0.7}')],
                          ids=("camera", "settings"))
 def test_serve_camera_or_settings_replaces_a_damaged_state_file_and_keeps_it(tmp_path, what, file_name, data):
-    """A damaged camera.json or settings.json in the state used to stop `serve` even when --camera or
-    --settings gave the one to use instead."""
+    """A damaged camera.json or settings.json in the state does not stop `serve` when --camera or --settings
+    gives the one to use instead: it is moved aside, kept to mend by hand."""
     state, file = tmp_path / "state", tmp_path / file_name
     file.write_bytes(data)
     state.mkdir()

@@ -1158,7 +1158,7 @@ def test_sweep_starts_around_the_value_and_offers_a_centre_only_between_edges_it
 
     page.route("**/api/sweep?*", answer)
     info = page.locator("#sweep-info")
-    # The tester's sweep: only the first value works. Its edge lies between 4 and 87: a sweep there is offered.
+    # A sweep where only the first value works: its edge lies between 4 and 87, and a sweep there is offered.
     answers.append(sweep_answer("min_inliers", 4, 1000, 13, [5] + [4] * 12))
     page.fill("#sweep-hi", "1000")
     page.click("#run-sweep")

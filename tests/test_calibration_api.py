@@ -433,12 +433,12 @@ def test_the_answer_names_the_photo_it_added_whatever_its_name(client, photos):
                  422, "position")
 
 
-def test_readme_names_every_field_the_calibration_answer_has(client, photos):
-    """README listed photos "(found, error, ...)" where the answer has `views`, each with `error_px` and an
-    unlisted `tilt_deg`."""
+def test_api_doc_names_every_field_the_calibration_answer_has(client, photos):
+    """docs/api.md's row for GET /api/calibration names every field of the answer, of its views and of its
+    result (`views`, each with `error_px` and `tilt_deg`, not a summary such as "(found, error, ...)")."""
     assert add(client, photos).status_code == 201
     answer = client.post("/api/calibration/run").json()
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
-    row = next(line for line in readme.splitlines() if line.startswith("| `GET /api/calibration`"))
+    api_doc = (Path(__file__).resolve().parents[1] / "docs" / "api.md").read_text(encoding="utf-8")
+    row = next(line for line in api_doc.splitlines() if line.startswith("| `GET /api/calibration`"))
     fields = {*answer, *answer["views"][0], *answer["result"]}
     assert [f for f in sorted(fields) if f"`{f}`" not in row] == []

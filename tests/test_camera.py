@@ -688,7 +688,7 @@ def test_implausible_intrinsics_are_refused(K, size, message):
 @pytest.mark.parametrize("dist", [[1e308, 0, 0, 0], [50, 0, 0, 0, 0], [0, 0, 0, 0, -1e4], [-1e3, 0, 0, 0]])
 @pytest.mark.parametrize("size", [(640, 480), (None, None)])
 def test_distortion_no_lens_has_is_refused(dist, size):
-    """A typed 1e308 used to be applied and turned every image into an SVD error."""
+    """A typed 1e308 is refused: applied, it would turn every image into an SVD error."""
     with pytest.raises(CameraError, match="moves image points by more than 5x"):
         Camera(intrinsics(554, 554), np.array(dist, float), *size)
 

@@ -736,8 +736,8 @@ def test_every_argument_of_every_command_says_what_it_is_in_help():
 
 
 def test_recognize_help_gives_the_assumed_field_of_views_range():
-    """README gave --assumed-fov's 10-140 and `recognize --help` did not: a value out of it was the first a user
-    heard of it."""
+    """`recognize --help` gives --assumed-fov's range, 10-140, so that a value out of it is not the first a user
+    hears of it."""
     result = signpose("recognize", "--help")
     assert result.returncode == 0
     assert "horizontal field of view, 10 to 140 degrees, assumed for" in " ".join(result.stdout.split())

@@ -2,7 +2,8 @@
 every image that can, nothing written where a client names a path, and the server goes on serving.
 
 Complements test_api.py (empty, text-as-JPEG, truncated and bomb uploads, oversized bodies, the
-common bad settings and camera values) with the rest of the list in the reliability issue.
+common bad settings and camera values) with the rest: odd image formats, hostile names and ids, state
+changed under a running request.
 """
 
 from __future__ import annotations

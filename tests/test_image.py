@@ -148,7 +148,7 @@ DAMAGED_JPEGS = {
 @pytest.mark.parametrize("name", DAMAGED_JPEGS)
 def test_a_jpeg_with_damaged_image_data_is_refused_not_decoded_grey(name):
     """OpenCV decodes these (libjpeg fills what it cannot read with grey, or garbles it), warning
-    only on stderr: the tester's scrambled photo gave "no sign" without a word."""
+    only on stderr: a scrambled photo would be answered "no sign" without a word."""
     data = DAMAGED_JPEGS[name]
     assert cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) is not None
     with pytest.raises(ImageError) as info:
@@ -273,7 +273,7 @@ SHORT_OF_DATA = {  # name: (bytes, why it is refused)
     "progressive_zeros_in_last_scan.jpg": (zeroed(SOUND_JPEGS["progressive.jpg"],
                                                   halfway_into_last_scan(SOUND_JPEGS["progressive.jpg"]),
                                                   len(SOUND_JPEGS["progressive.jpg"]) - 2), RAN_OUT),
-    # the tester's photo cut at 97 % of its file: all but 3 % of its last scan there
+    # a photo cut at 97 % of its file: all but 3 % of its last scan there
     "scene_002_cut_at_97.jpg": (PROGRESSIVE_SCENE_002[:len(PROGRESSIVE_SCENE_002) * 97 // 100] + b"\xff\xd9",
                                 RAN_OUT),
 }
@@ -281,9 +281,9 @@ SHORT_OF_DATA = {  # name: (bytes, why it is refused)
 
 @pytest.mark.parametrize("name", SHORT_OF_DATA)
 def test_a_progressive_jpeg_short_of_data_is_refused(name):
-    """libjpeg decodes the scans and data there are, blurred or coarse, not grey, and says so only on stderr: the
-    tester's photo saved progressive and cut at 15 % (an end-of-image marker added, or zeros over the rest) was
-    read at 26 dB and answered "no sign", at 25 % its pose was 7 mm off. Baseline files cut so were refused."""
+    """libjpeg decodes the scans and data there are, blurred or coarse, not grey, and says so only on stderr: a
+    photo saved progressive and cut at 15 % (an end-of-image marker added, or zeros over the rest) reads at 26 dB
+    and would be answered "no sign", at 25 % its pose 7 mm off. Baseline files cut so are refused as well."""
     data, why = SHORT_OF_DATA[name]
     assert cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) is not None
     with pytest.raises(ImageError, match=rf"^{re.escape(name)}: damaged or truncated JPEG file \({re.escape(why)}\); "
@@ -312,7 +312,7 @@ ZEROED_JPEGS = {  # name: (bytes, the share of the picture drawn grey, in the me
     "zeros_mid.jpg": (zeroed(SCENE_002.read_bytes(), 5000, 15000), "23"),
     "zeros_to_end.jpg": (zeroed(SCENE_002.read_bytes(), 5000, 25000), "62"),
     "zeros_early.jpg": (zeroed(SCENE_002.read_bytes(), 3000, 4000), "2.8"),
-    # the tester's: 98 bytes, the last two MCUs grey (their first column blended with the MCU before)
+    # 98 bytes zeroed: the last two MCUs grey (their first column blended with the MCU before)
     "zeros_small.jpg": (zeroed(SCENE_002.read_bytes(), 1209, 1307), "0.17"),
     "cut_eoi_added.jpg": (SCENE_002.read_bytes()[:12960] + b"\xff\xd9", "61"),
     # turned when shown: libjpeg fills in the order the pixels are stored
@@ -329,8 +329,8 @@ ZEROED_JPEGS = {  # name: (bytes, the share of the picture drawn grey, in the me
 
 @pytest.mark.parametrize("name", ZEROED_JPEGS)
 def test_a_jpeg_with_zeros_over_its_image_data_is_refused(name):
-    """Zeros (a failing card or copy) make no marker, so the structure stayed sound; libjpeg ran out
-    of data and drew the rest grey, and the photo was answered "no sign" (the tester's 10 kB)."""
+    """Zeros (a failing card or copy) make no marker, so the structure stays sound; libjpeg runs out
+    of data and draws the rest grey, and the photo would be answered "no sign" (even 10 kB of zeros)."""
     data, share = ZEROED_JPEGS[name]
     assert cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) is not None
     with pytest.raises(ImageError, match=rf"{re.escape(name)}: damaged JPEG file \(its image data runs out before its "
@@ -345,7 +345,7 @@ GREY_PICTURES = {  # exactly 128 where libjpeg's fill would be, but of their own
     "right_band.jpg": grey_where(SCENE, np.s_[:, -96:]),
     "corner_patch.jpg": grey_where(SCENE, np.s_[-100:, -120:]),
     "corner_block.jpg": grey_where(SCENE, np.s_[:8, :8]),
-    # ending flat grey, as libjpeg draws missing data: the tester's, refused as damaged
+    # ending flat grey, as libjpeg draws missing data: refused as damaged
     "last_block.jpg": grey_where(SCENE, np.s_[-16:, -16:]),
     "bottom_band.jpg": grey_where(SCENE, np.s_[-80:]),
     "thin_top_wide_bottom.jpg": grey_where(SCENE, np.s_[:10], np.s_[-70:]),

@@ -1,5 +1,5 @@
 """pyflakes over the project's Python: an undefined name in a rarely taken error path is a
-crash on the day that path is taken, and an unused import is code nobody reads as dead."""
+crash whenever that path is first taken, and an unused import is code nobody reads as dead."""
 
 import re
 import subprocess

@@ -1,5 +1,5 @@
 """A short run of bench/load.py: 4 users uploading and reading results for 8 s while a fifth changes
-settings, against a real `signpose serve` on 127.0.0.1. The 60 s, 16-user figures are in the README."""
+settings, against a real `signpose serve` on 127.0.0.1. The 60 s, 16-user figures are in docs/benchmarks.md."""
 
 from __future__ import annotations
 

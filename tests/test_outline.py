@@ -146,9 +146,9 @@ def test_pose_under_lens_distortion_is_as_good_as_without():
 @pytest.mark.parametrize("name", ["scene_005.jpg", "scene_008.jpg", "scene_011.jpg"])
 def test_a_sign_hundreds_of_pixels_wide_is_outlined_too(name):
     """The sample scenes enlarged 4x, as a 12 MP photo shows a sign: features on a 160 px crop
-    put its corners 10-70 px off, beyond the edge search, and these fell back to ECC (0.8
-    degrees) or to the inliers alone (5.8 degrees). The outline is now found in the image
-    shrunk to the sign's usual size."""
+    put its corners 10-70 px off, beyond the edge search, where these would fall back to ECC (0.8
+    degrees) or to the inliers alone (5.8 degrees). The outline is found in the image shrunk to
+    the sign's usual size."""
     sample = next(s for s in SCENES.samples if s.path.name == name)
     photo = cv2.resize(read_image(sample.path), None, fx=4, fy=4, interpolation=cv2.INTER_CUBIC)
     rec = recognize(photo, load_library(), preset("default"), SCENES.camera)

@@ -293,7 +293,7 @@ def test_pose_round_trip_property(where, turn, method):
     position = distance * np.array([math.sin(a) * math.cos(b), math.sin(a) * math.sin(b), -math.cos(a)])
     R, t = look_at(position, *turn)
     pose = estimate_pose(homography_from_pose(R, t, K, SIGN), SRC, view(R, t), SIGN, CAMERA, method)
-    # test_round_trip holds the 1e-6 rad on its views; over random ones, exactly frontal
+    # test_round_trip holds 1e-6 rad on its views; over random ones, exactly frontal
     # views with a tiny roll lose a digit in IPPE's closed form (seen: 1.07e-6 rad), and the
     # camera position that much of the distance.
     assert np.radians(rotation_error_deg(pose.R, R)) < 1e-5

@@ -196,8 +196,8 @@ def test_a_dense_alignment_no_view_of_the_sign_gives_is_not_used(library):
 
 def test_far_signs_report_their_tilt_error_in_the_covariance_or_as_ambiguous(library):
     """A sign 50-100 px wide barely fixes its tilt: a tenth of a pixel at the corners is degrees.
-    Its poses were 7-11° off with a reported 1σ of 1-2° (up to 10σ) and not called ambiguous,
-    the covariance holding only what the residuals show, not the edges' shared shifts."""
+    Its poses can be 7-11° off; a covariance holding only what the residuals show, not the edges'
+    shared shifts, would give a 1σ of 1-2° (up to 10σ off) and not call them ambiguous."""
     camera = Camera(np.array([[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]]), np.zeros(5), 640, 480)
     sign = library["security_compound"]
     corners_m = sign.to_metric(sign.corners_px)
@@ -243,10 +243,10 @@ def test_a_plaque_of_other_words_sharing_one_with_a_sign_is_not_read_as_that_sig
 
 
 def test_a_plaque_of_a_signs_words_and_more_is_not_read_as_that_sign(library):
-    """A plaque holding a sign's words and another (a tester's مجمع أمني جديد) matched the sign in
-    every strip, the extra word lying beyond the sign's outline where the strips do not look: it was
-    answered as the sign. Beyond its sides the plaque's paper and its text now say they go on; the
-    sign itself, and the sign beside a plaque of another word, are still read."""
+    """A plaque holding a sign's words and another (مجمع أمني جديد) matches the sign in every strip,
+    the extra word lying beyond the sign's outline where the strips do not look. Beyond its sides the
+    plaque's paper and its text say they go on, so it is turned down; the sign itself, and the sign
+    beside a plaque of another word, are read."""
     words = {"مجمع أمني جديد": "left", "جديد مجمع أمني": "right", "مجمع أمني\nجديد": "below"}
     for k, (text, side) in enumerate(words.items()):
         rec = recognize(decoy_image(text, k), library, preset("default"))
@@ -266,7 +266,7 @@ def test_a_plaque_of_a_signs_words_and_more_is_not_read_as_that_sign(library):
 
 def test_a_sign_with_a_word_washed_out_by_glare_is_read_on_the_rest(library):
     """Glare saturating the camera over one word leaves no trace of its letters: those strips
-    correlated 0.0-0.4 and a tester's sample scenes so lit were all turned down. They are now not
+    correlate 0.0-0.4, and judged they would turn down every sample scene so lit. They are not
     judged, as strips outside the image are not, and the answer says so."""
     yy, xx = np.mgrid[:480, :640]
     glare = 500 * np.exp(-((xx - 265) ** 2 + (yy - 222) ** 2) / (2 * 28.0**2))  # over the sign's left word
@@ -310,10 +310,9 @@ def test_a_sign_wider_than_twice_the_frame_is_answered(library):
 
 
 def test_a_sign_read_from_part_of_its_text_says_so(library):
-    """A plaque cut by the frame is judged on the text in view: the sign cut there was answered
-    with no word of it; the answer now says how much of the text it rests on. مكتب رئيس القسم with
-    only رئيس in the image read as رئيس الأمن too, until the check looked beyond the sign's sides:
-    مكتب goes on at its right."""
+    """A plaque cut by the frame is judged on the text in view, and the answer says how much of the
+    text it rests on. مكتب رئيس القسم with only رئيس in the image would read as رئيس الأمن but for
+    the look beyond the sign's sides: مكتب goes on at its right."""
     def seen_from(x0: float, plaque) -> object:
         at = np.array([[x0, 150], [x0 + 500, 160], [x0 + 496, 360], [x0 + 4, 350]], float)
         return recognize(like_a_camera(render_plaque(plaque, at, shaded_wall(3), 0.92), 0.7, 3), library,

@@ -30,8 +30,8 @@ def test_a_float_setting_gets_the_middle_of_its_band_and_no_band_no_centre():
 
 
 def test_a_box_inside_the_sign_is_told_to_take_in_the_wall_and_no_setting_in_use_is_suggested():
-    """A tester dragged the box inside a sign, as 'drag a box on the sign' invites: the ring
-    around it is sign too, and the advice was to switch to the normalisation already in use."""
+    """A box dragged inside a sign, as 'drag a box on the sign' invites, has a ring around it that is
+    sign too: the advice says to take in the wall, and never to switch to the normalisation in use."""
     image = np.full((200, 300), 60, np.uint8)
     image[50:150, 50:250] = 230  # the plaque
     inside = rect_mask((90, 80, 210, 120), 300, 200)  # well inside it

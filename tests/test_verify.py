@@ -18,12 +18,12 @@ SCENES = Path(__file__).resolve().parents[1] / "sample_images" / "scenes"
 TRUTH = json.loads((SCENES / "truth.json").read_text())["images"]
 LIBRARY = load_library()
 
-# check_text's strips on CASES as the code before rectify_text and compare_text were split out of
-# it (commit e07a2cf) gave them, with OpenCV 5.0.0: the figure of the check reads the patch the
-# check correlates, and the split must not have moved a bit of it. "off the edge" is as the check
-# gives it since it leaves out the pixels it does not see (the strips a sign at the frame's edge
-# cut into had read zeros there). "shrunk" is as the check gives it since the text is read as the
-# middle of the patch around the sign (one read for both looks): the view shrunk starts elsewhere.
+# check_text's strips on CASES as a single function doing both the rectification and the
+# comparison gave them, with OpenCV 5.0.0: the figure of the check reads the patch the check
+# correlates through rectify_text and compare_text, and that must not move a bit of it. "off the
+# edge" leaves out the pixels the check does not see (reading zeros there would pull a strip at the
+# frame's edge down). "shrunk" reads the text as the middle of the patch around the sign (one read
+# for both looks): the view shrunk starts elsewhere.
 RECORDED_WITH = "5.0.0"
 RECORDED = {
     "truth": (0.9956228392878729, 0.9970184824001045, 0.9940534565227266, 0.9973310225689185, 0.9972194618481786,

@@ -89,9 +89,9 @@ def test_images_are_processed_and_tagged(make_workspace):
 
 
 def test_an_image_held_costs_two_bytes_a_pixel_and_is_still_drawn_in_colour(make_workspace):
-    """A tester's server grew by 110 MB per 12 MP photo held: the photo in colour (3 bytes a pixel),
-    its gray (1), and its result's mask (1) and int32 labels of every white component (4). The
-    pipeline reads only the gray, and the result needs only the candidate blobs' labels."""
+    """Holding a 12 MP photo's colour (3 bytes a pixel), gray (1), mask (1) and int32 labels of every
+    white component (4) would cost 110 MB. The pipeline reads only the gray, and the result needs
+    only the candidate blobs' labels."""
     ws = make_workspace()
     ws.add_image("warm-up.jpg", sign_photo(LIBRARY, "security_compound"), None)  # lazy imports, library features
     assert ws.wait_idle(IDLE_TIMEOUT_S)
@@ -134,9 +134,9 @@ def test_an_image_never_takes_more_memory_than_the_limit_counts_for_it(make_work
 
 
 def test_images_deleted_after_a_rerun_are_freed(make_workspace):
-    """A tester deleted 30 photos and the server's memory stayed: after a re-run (any settings,
-    camera or library change), the re-run thread kept the list of the images it had re-run while
-    it waited for the next change, so deleting them freed nothing."""
+    """After a re-run (any settings, camera or library change) the re-run thread waits for the next
+    change; it must not keep the list of the images it re-ran meanwhile, or deleting them would free
+    nothing."""
     ws = make_workspace()
     records = add_signs(ws)
     ws.update_settings({"ransac_threshold_px": 6.5})
@@ -159,10 +159,10 @@ def resident_bytes() -> int:
 @pytest.mark.skipif(not Path("/proc/self/statm").exists() or not hasattr(ctypes.CDLL(None), "malloc_trim"),
                     reason="needs Linux's /proc and glibc")
 def test_the_memory_of_deleted_images_goes_back_to_the_system(tmp_path):
-    """A tester deleted 30 photos and the server kept its 3.7 GB: glibc keeps image buffers freed
-    between others in the arena of the thread that used them, so they were neither given back nor
-    (in another thread) used again. Measured in a process of its own, as a server is: in this one,
-    what hundreds of tests before left on the heap can pin freed pages (54 of 195 MB once)."""
+    """glibc keeps image buffers freed between others in the arena of the thread that used them, neither
+    given back nor (in another thread) used again: untrimmed, 30 deleted photos kept a server at 3.7 GB,
+    so the workspace trims the heap soon after a deletion. Measured in a process of its own, as a server is:
+    in this one, what hundreds of tests before left on the heap can pin freed pages (54 of 195 MB once)."""
     context = multiprocessing.get_context("spawn")
     with context.Pool(1) as pool:
         held, kept = pool.apply(held_and_kept_after_deleting, (tmp_path / "state",))
