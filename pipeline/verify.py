@@ -56,12 +56,12 @@ SIDES = ("left", "right", "above", "below")
 # (see `continued_sides`). Measured on 420 plaques pasted in perspective on real photos and plain
 # walls: of 240 of a sign's words and another word beside or on a line above or below them
 # (the word's font as the sign's, or all fitted to the plaque), features read 234 as the sign and
-# 25 still are, every one with its extra line above or below (none with it beside); of 180 true
-# signs beside other words (a plaque of their own, or printed on the wall, 0.2-2 text heights
-# away), 179 were read and 176 still are: the 3 lost have the words printed on a wall of nearly the
-# plaque's shade, 0.2 text heights beyond its edge, much as a plaque of more words looks. On the
-# 1684 images the 0.75 default was measured on, no true sign was lost and wrong answers went from
-# 73 to 49 (cut look-alikes 61 to 41). Not adopted: margins read across the sign's whole width
+# with this look 25 are, every one with its extra line above or below (none with it beside); of 180
+# true signs beside other words (a plaque of their own, or printed on the wall, 0.2-2 text heights
+# away), 179 are read without it and 176 with it: the 3 lost have the words printed on a wall of
+# nearly the plaque's shade, 0.2 text heights beyond its edge, much as a plaque of more words looks.
+# On the 1684 images the 0.75 default was measured on, it loses no true sign and takes wrong
+# answers from 73 to 49 (cut look-alikes 61 to 41). Not adopted: margins read across the sign's whole width
 # above and below, and ink left out of them (more extra lines caught, 25 to 2, but 4 true signs
 # cut by the frame's top lost over clouds of the paper's level above a dark mountain).
 CONTINUED_PAPER = 0.75
