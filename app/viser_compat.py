@@ -8,9 +8,10 @@
   window only); `fold_sheet` clicks its handle in the page, found as viser 1.1 builds it.
 
 A viser release that changes either breaks only this module: `check_private_access()` (run by
-tests/test_viser_compat.py) then fails naming the viser version, and `run_script` logs the failure
-and does nothing, so the 3D view keeps working (its labels laid out as if its screen had one device
-px to the CSS px, its sheet open).
+tests/test_viser_compat.py) then fails naming the viser version, and `run_script` and `fold_sheet`
+log the failure and do nothing, so the 3D view keeps working, less fitted to its screen: without
+its id a viewer's page never says its canvas' size in CSS px, so its labels are laid out as if its
+screen had one device px to the CSS px and its panel is never folded.
 """
 
 from __future__ import annotations
