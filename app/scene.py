@@ -30,8 +30,8 @@ import cv2
 import numpy as np
 import viser
 import viser.transforms as tf
-from viser._messages import RunJavascriptMessage
 
+from signpose.app.viser_compat import SHEET_BELOW_PX, fold_sheet, run_script
 from signpose.app.workspace import Event, ImageRecord, Outcome, Workspace, is_correct, status_of
 from signpose.pipeline.library import Library, LibrarySign
 from signpose.pipeline.pose import camera_position
@@ -81,6 +81,12 @@ LABEL_SEPARATOR = "   "
 # A shared label lists at most this many texts; one for more says how many and the first and last:
 # 43 names, a list as tall as the view, covered the cameras they named.
 MAX_TEXTS_LISTED = 6
+# A viewer's canvas narrower or lower than this, in CSS px, starts with viser's control panel
+# folded: the panel, 320 px wide and as tall as its open folders, covers a third of a view of that
+# width or most of one of that height. So it is in the page (its 3D column is at most 28 % of the
+# screen wide, its strip under the images 360 px high); a larger view, the pop-out tab on a laptop's
+# screen and up, shows it as viser does.
+FOLD_PANEL_BELOW_PX = (960.0, 480.0)
 # How long a clicked camera's name shows in the clicking viewer.
 CLICKED_NOTE_S = 6.0
 
@@ -505,6 +511,8 @@ class SceneHandle:
     # By client id, the CSS px width of the viewer's canvas as its page last said (`set_canvas_width`):
     # viser reports canvases in device px and draws labels at a size in CSS px.
     _css_width: dict[int, float] = field(default_factory=dict, repr=False)
+    # The viewers whose control panel `fold_panel_in_small_view` has been asked about, by client id.
+    _panel_checked: set[int] = field(default_factory=set, repr=False)
     _shown: list[tuple[ImageRecord, Recognition]] = field(default_factory=list, repr=False)
     _lock: threading.RLock = field(default_factory=threading.RLock, repr=False)
     # Set when the scene is stale (`_mark_stale`) or closed; `_stale_all` says whether more than the
@@ -687,6 +695,7 @@ class SceneHandle:
                 self._framed.setdefault(client.client_id, None)
             if first:
                 self.frame_for(client)
+                self._fold_panel_once(client)
             self._mark_stale(labels_only=True)
 
         client.camera.on_update(on_camera)
@@ -695,6 +704,7 @@ class SceneHandle:
         with self._lock:
             self._framed.pop(client.client_id, None)
             self._css_width.pop(client.client_id, None)
+            self._panel_checked.discard(client.client_id)
 
     def set_canvas_width(self, client_id: int, css_px: float) -> None:
         """Note that viewer `client_id`'s canvas is `css_px` CSS px wide (its page says so: viser
@@ -702,10 +712,26 @@ class SceneHandle:
         size in device px: two screens' canvases of one size can be of two sizes in CSS px (a phone
         of 2 device px to the CSS px beside a laptop of 1), and a window zoomed keeps its device px."""
         with self._lock:
-            if client_id not in self.server.get_clients() or self._css_width.get(client_id) == css_px:
+            client = self.server.get_clients().get(client_id)
+            was = self._css_width.get(client_id)
+            if client is None or was == css_px:
                 return   # gone, so never to be forgotten on disconnect; or nothing new
             self._css_width[client_id] = css_px
+            if was is not None and (was < SHEET_BELOW_PX) != (css_px < SHEET_BELOW_PX):
+                self._panel_checked.discard(client_id)   # viser builds its panel anew, open
+        self._fold_panel_once(client)
         self._mark_stale()
+
+    def _fold_panel_once(self, client: viser.ClientHandle) -> None:
+        """`fold_panel_in_small_view` for `client` once both its canvas' size in CSS px and its
+        camera (the canvas' aspect) are known, whichever comes last; once a viewer, and again as
+        its view crosses viser's phone breakpoint, so a panel the person opened stays open."""
+        with self._lock:
+            css_width = self._css_width.get(client.client_id)
+            if css_width is None or client.client_id not in self._framed or client.client_id in self._panel_checked:
+                return
+            self._panel_checked.add(client.client_id)
+        fold_panel_in_small_view(client, css_width)
 
     def _px_per_css_px_of(self, client: viser.ClientHandle) -> float:
         """Device px to the CSS px of `client`'s canvas: the device px its camera last reported over the
@@ -934,9 +960,18 @@ def name_viewer(client: viser.ClientHandle) -> None:
     """Tell `client`'s page the id of its viewer, which viser's client is not told: the page's
     canvas script (static/viser-canvas.js) names it when it says its canvas' size in CSS px, which
     is the viewer's own (`SceneHandle.set_canvas_width`)."""
-    # viser has no public call to run a script in one client; its plotly support sends this message.
-    client._websock_connection.queue_message(
-        RunJavascriptMessage(source=f"window.signposeViewer = {{ id: {int(client.client_id)} }};"))
+    run_script(client, f"window.signposeViewer = {{ id: {int(client.client_id)} }};")
+
+
+def fold_panel_in_small_view(client: viser.ClientHandle, css_width: float) -> None:
+    """Fold viser's control panel for `client`, whose canvas is `css_width` CSS px wide, when it
+    would cover much of its view (`FOLD_PANEL_BELOW_PX`): in the page, the 3D column at the side and
+    the strip under the images. viser shows it as a sheet at the bottom of a view narrower than its
+    phone breakpoint, which no call of viser's folds (`fold_sheet`), else as a floating window."""
+    if css_width < SHEET_BELOW_PX:
+        fold_sheet(client)
+    elif css_width < FOLD_PANEL_BELOW_PX[0] or css_width / client.camera.aspect < FOLD_PANEL_BELOW_PX[1]:
+        client.gui.main_panel.minimize()
 
 
 def attach(server: viser.ViserServer, workspace: Workspace) -> SceneHandle:

@@ -5,7 +5,7 @@ import { initCamera } from "./camera.js";
 import { initDetail } from "./detail.js";
 import { choose, initGallery, refreshImages } from "./gallery.js";
 import { initLibrary, loadLibrary } from "./library.js";
-import { initScene, reloadScene } from "./scene.js";
+import { reloadScene } from "./scene.js";
 import { apply as applySettings, initSettings } from "./settings.js";
 import { emit, on, select, state } from "./store.js";
 import { $, report } from "./ui.js";
@@ -88,7 +88,6 @@ const linkedImage = () => new URLSearchParams(location.hash.slice(1)).get("image
 
 async function main() {
   window.addEventListener("unhandledrejection", (e) => report(e.reason));
-  initScene();   // first: the 3D view loads beside the page's own requests
   followTopbarHeight();
   const [health] = await Promise.all([get("/api/health"), loadLibrary()]);
   $("#app-version").textContent = `v${health.version}`;

@@ -1375,7 +1375,7 @@ def test_viser_controls_start_folded_in_the_page(page, width, opener):
     page.locator("#scene").scroll_into_view_if_needed()
     page.frame_locator("#scene").locator(opener).click()
     frame.wait_for_function(f"() => ({COVERED_SHARE})() > 0.2", timeout=10_000)
-    page.wait_for_timeout(1000)   # five of the page's looks for a panel to fold
+    page.wait_for_timeout(1000)   # five of the looks for a sheet to fold (app/viser_compat.py), and more
     assert frame.evaluate(COVERED_SHARE) > 0.2, "the controls the person opened were folded again"
 
 
@@ -1388,7 +1388,7 @@ def test_the_3d_view_takes_neither_the_focus_nor_the_scroll_as_it_loads(page):
     viser_frame(page)
     expand = page.frame_locator("#scene").locator('[aria-label="Expand panel"]')
     expand.wait_for()
-    page.wait_for_timeout(2500)   # viser opens its panel again as it connects, and the page folds it again
+    page.wait_for_timeout(2500)   # the server folds viser's panel once its view's size is known
     assert page.evaluate("() => [scrollY, document.activeElement.tagName]") == [0, "BODY"]
     assert page.locator(".topbar").bounding_box()["y"] == 0
 
@@ -1408,7 +1408,7 @@ def test_viser_scene_connects_and_shares_the_settings(page, api):
     scene = page.frame_locator("#scene")
     scene.locator("canvas").first.wait_for(timeout=30_000)
     scene.get_by_text("Connected", exact=True).wait_for(timeout=30_000)
-    scene.get_by_text("Connected", exact=True).click()   # the page folds viser's controls
+    scene.get_by_text("Connected", exact=True).click()   # the server folds viser's controls in the page
 
     # The same threshold in viser's Segmentation folder and in the page's form, both ways.
     scene.get_by_text("Segmentation", exact=True).click()

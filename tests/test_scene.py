@@ -18,6 +18,7 @@ from signpose.app.scene import (INITIAL_VIEW_LOOK_AT_M, INITIAL_VIEW_POSITION_M,
                        MAX_TEXTS_LISTED, NO_WORLD, View, attach, camera_pose_in_sign, frustum_scale, frustum_shape,
                        image_plane_points, label_groups, label_size_px, labels_apart, matched_points, screen_px,
                        status_markdown)
+from signpose.app.viser_compat import FOLD_SHEET_SCRIPT
 from signpose.app.workspace import SAMPLE_SCENES, Outcome, Workspace, WorkspaceConfig
 from signpose.pipeline.camera import assumed_camera
 from signpose.pipeline.settings import PRESETS, settings_schema
@@ -256,6 +257,11 @@ class Viewer:
                                               on_update=lambda _camera, callback: self._on_camera.append(callback)))()
         # half the canvas' width, in degrees
         self.across_deg = np.degrees(math.atan(math.tan(start.fov / 2) * min(aspect, 1.0)))
+        # how its control panel was folded: "window" for viser's minimise, "sheet" for a script run
+        self.folds: list[str] = []
+        self.gui = types.SimpleNamespace(main_panel=types.SimpleNamespace(minimize=lambda: self.folds.append("window")))
+        self._websock_connection = types.SimpleNamespace(queue_message=lambda message: self.folds.append(
+            "sheet" if message.source == FOLD_SHEET_SCRIPT else "script"))
 
     def atomic(self):
         return contextlib.nullcontext()
@@ -463,6 +469,31 @@ def test_a_viewers_canvas_width_is_its_own_until_it_leaves(scene, monkeypatch):
     handle._on_disconnect(viewer)
     clients.clear()
     assert handle._css_width == {}
+
+
+def test_a_viewers_panel_is_folded_once_its_view_is_known_and_again_across_the_phone_layout(scene, monkeypatch):
+    """viser's control panel covers much of a small view: folded once the viewer's canvas size in CSS
+    px and its camera are both known, whichever comes first, and not again, so a panel the person
+    opened stays open; but again as the view crosses viser's phone breakpoint, where viser builds
+    its panel anew, open (as a sheet or a window)."""
+    handle, _ = scene
+    strip = Viewer(2, 1200 / 360, handle.server.initial_camera, height_px=360)
+    column = Viewer(3, 400 / 800, handle.server.initial_camera, height_px=800)
+    monkeypatch.setattr(handle.server, "get_clients", lambda: {2: strip, 3: column})
+    handle._on_connect(strip)
+    handle._on_connect(column)
+    handle.set_canvas_width(2, 1200.0)
+    assert strip.folds == []   # its camera not yet reported
+    strip.report()
+    column.report()
+    assert column.folds == []   # its canvas' CSS px not yet said
+    handle.set_canvas_width(3, 400.0)
+    strip.report()
+    handle.set_canvas_width(3, 420.0)
+    assert (strip.folds, column.folds) == (["window"], ["sheet"])
+    handle.set_canvas_width(3, 700.0)   # the window widened past viser's phone layout
+    handle.set_canvas_width(3, 500.0)
+    assert column.folds == ["sheet", "window", "sheet"]
 
 
 def _said(label, names: list[str]) -> bool:
