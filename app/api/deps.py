@@ -74,7 +74,7 @@ CalibrationDep = Annotated[CalibrationSession, Depends(get_calibration)]
 
 
 def get_scene(request: Request) -> SceneHandle | None:
-    """The viser scene, None until the app's lifespan has attached it (and in an app run without one)."""
+    """The viser scene, None until the app's lifespan has attached it."""
     return request.app.state.scene
 
 
