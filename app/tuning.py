@@ -1,6 +1,7 @@
 """Helping a person choose settings: threshold calibration from a sign's gray levels, and sweeps.
 
 Gray levels are the pipeline's normalised gray in [0, 1] (`pipeline.segment.normalize_gray`).
+A request that cannot be answered as asked raises TuningError, which the server answers with 422.
 """
 
 from __future__ import annotations
@@ -13,6 +14,9 @@ import numpy as np
 from signpose.pipeline.image import to_gray
 from signpose.pipeline.recognize import Recognition
 from signpose.pipeline.segment import Box, normalize_levels
+from signpose.pipeline.settings import Settings, SettingsError, check_setting, settings_schema
+
+from .workspace import is_correct
 
 HISTOGRAM_BINS = 256
 # The paper measured the sign at 0.8 and thresholded at 0.75: just below the sign's white.
@@ -21,6 +25,15 @@ WHITE_MARGIN = 0.05
 RING_FRACTION = 0.15
 MIN_RING_PX = 4
 BACKGROUND_PERCENTILE = 90
+# The smallest box, px a side, whose gray levels say anything of a sign.
+MIN_BOX_PX = 2
+MAX_SWEEP_STEPS = 101
+NUMERIC_SETTINGS = [f["name"] for f in settings_schema() if f["type"] in ("int", "float")]
+INTEGER_SETTINGS = {f["name"] for f in settings_schema() if f["type"] == "int"}
+
+
+class TuningError(ValueError):
+    """A threshold or sweep request that cannot be answered as asked; the message says what to send."""
 
 
 @dataclass(frozen=True)
@@ -63,6 +76,27 @@ def rect_mask(rect: Box, width: int, height: int) -> np.ndarray:
     x0, y0, x1, y1 = rect
     mask[y0:y1, x0:x1] = True
     return mask
+
+
+def box_region(rect: Box, width: int, height: int) -> tuple[np.ndarray, str]:
+    """(H, W) bool mask of the box `rect` (x0, y0, x1, y1) px drawn on a `width` x `height` image,
+    cut to the image, and what it is; TuningError when less than MIN_BOX_PX a side of it is inside."""
+    x0, y0, x1, y1 = rect
+    x0, y0, x1, y1 = max(0, x0), max(0, y0), min(width, x1), min(height, y1)
+    if x1 - x0 < MIN_BOX_PX or y1 - y0 < MIN_BOX_PX:
+        raise TuningError(f"rect {list(rect)} does not cover at least {MIN_BOX_PX}x{MIN_BOX_PX} px of the "
+                          f"{width}x{height} image; give [x0, y0, x1, y1] in image pixels with x0 < x1 and y0 < y1")
+    return rect_mask((x0, y0, x1, y1), width, height), "rectangle"
+
+
+def found_region(recognition: Recognition, width: int, height: int, name: str) -> tuple[np.ndarray, str]:
+    """`sign_region` of the image `name`; TuningError, asking for a box, when the pipeline found nothing."""
+    region = sign_region(recognition, width, height)
+    if region is None:
+        # The page words this for its own users (static/detail.js): they drag a box.
+        raise TuningError(f"no sign or white blob was found in {name}; send rect [x0, y0, x1, y1] "
+                          "in image pixels around the sign, with some wall in it")
+    return region
 
 
 def suggest_threshold(image: np.ndarray, normalization: str, inside: np.ndarray, source: str) -> ThresholdSuggestion:
@@ -122,6 +156,81 @@ def sweep_values(lo: float, hi: float, steps: int, integer: bool) -> list[float]
     if integer:
         return sorted({int(round(v)) for v in values})
     return [round(float(v), 10) for v in values]
+
+
+def values_to_sweep(settings: Settings, param: str, lo: float, hi: float, steps: int) -> list[float]:
+    """The values of `param` that a sweep of `steps` values from `lo` to `hi` runs beside `settings`.
+
+    TuningError when `param` is no numeric setting or `lo` is not below `hi`; when an end is out of
+    the setting's own range, naming it as given (the first value refused was often one between them
+    that nobody typed); and when no value goes with the other settings. Values that contradict
+    another setting are left out (a max_crop_size swept up from 0, never downscale, passes sizes
+    below min_crop_size).
+    """
+    if param not in NUMERIC_SETTINGS:
+        raise TuningError(f"cannot sweep {param!r}; choose a numeric setting: {', '.join(NUMERIC_SETTINGS)}")
+    if not lo < hi:
+        raise TuningError(f"lo ({lo}) must be below hi ({hi})")
+    values = sweep_values(lo, hi, steps, param in INTEGER_SETTINGS)
+    for end, given, value in (("lo", lo, values[0]), ("hi", hi, values[-1])):
+        try:
+            check_setting(param, value)
+        except SettingsError as exc:
+            raise TuningError(f"{end} ({given:g}): {exc}") from None
+    taken = [value for value in values if refusal(settings, param, value) is None]
+    if not taken:
+        raise TuningError(f"no value of {param} from lo ({lo:g}) to hi ({hi:g}) goes with the other settings: "
+                          f"{refusal(settings, param, values[0])}")
+    return taken
+
+
+def refusal(settings: Settings, param: str, value: float) -> SettingsError | None:
+    """Why `settings` with `param` set to `value` are invalid; None when they are not."""
+    try:
+        settings.replace(**{param: value})
+    except SettingsError as exc:
+        return exc
+    return None
+
+
+@dataclass(frozen=True)
+class SweepTally:
+    """What a sweep says of the labelled images, per value swept (lists in the values' order).
+
+    correct: images recognised as labelled; failed: images the pipeline failed on (not correct);
+    by_plaque: of those correct, the ones the plaque fallback recognised; min_margin: the smallest
+    inlier margin among those correct by feature matches, None when there are none.
+    band: the longest run of values where every image is correct (`working_band`), None without
+    one; centre: its middle (`band_centre`).
+    """
+
+    correct: list[int]
+    min_margin: list[int | None]
+    by_plaque: list[int]
+    failed: list[int]
+    band: tuple[float, float] | None
+    centre: float | None
+
+
+def tally_sweep(values: list[float], expected: list[str | None], runs: list[list[Recognition | None]],
+                *, integer: bool) -> SweepTally:
+    """Count the `runs` of a sweep ([value index][image index], None where the image could not be
+    run) of images labelled `expected` (None, a label cleared since, is never correct), over the
+    `values` of a setting that takes whole numbers when `integer`."""
+    correct: list[int] = []
+    min_margin: list[int | None] = []
+    by_plaque: list[int] = []
+    failed: list[int] = []
+    for recs in runs:
+        good = [rec for label, rec in zip(expected, recs) if rec is not None and is_correct(label, rec)]
+        correct.append(len(good))
+        failed.append(sum(rec is None for rec in recs))
+        # The plaque fallback matches no features: its margin is no inlier margin.
+        min_margin.append(min((rec.margin for rec in good if rec.recognized and not rec.by_plaque), default=None))
+        by_plaque.append(sum(rec.by_plaque for rec in good))
+    band = working_band(values, [c == len(expected) for c in correct])
+    return SweepTally(correct=correct, min_margin=min_margin, by_plaque=by_plaque, failed=failed, band=band,
+                      centre=band_centre(values, band, integer))
 
 
 def working_band(values: list[float], all_correct: list[bool]) -> tuple[float, float] | None:

@@ -925,17 +925,25 @@ def load_camera(path: str | Path) -> Camera:
             data = file.read(MAX_CAMERA_FILE_BYTES + 1)
     except FileNotFoundError:
         raise CameraError(f"camera file not found: {path}") from None
+    return read_camera(data, str(path))
+
+
+def read_camera(data: bytes, name: str, source: str | None = None) -> Camera:
+    """The camera file `name` from its bytes `data`, read as `load_camera` reads a file (which sees
+    only the text, whatever `name`'s suffix): for a file that is not on disk, such as an upload.
+    `source` says where it came from (Camera.source), by default "file:<name>"; CameraError messages
+    name `name`."""
     if len(data) > MAX_CAMERA_FILE_BYTES:
-        raise CameraError(f"camera file {path} is over {MAX_CAMERA_FILE_BYTES // 1000} kB, which no camera file "
+        raise CameraError(f"camera file {name} is over {MAX_CAMERA_FILE_BYTES // 1000} kB, which no camera file "
                           "is: give one with the camera's matrix, distortion and image size")
     try:
         text = _camera_text(data)
     except ValueError:  # a UnicodeDecodeError, or a NUL character
-        raise CameraError(f"camera file {path} is not text (UTF-8, or UTF-16 with a byte-order mark)") from None
+        raise CameraError(f"camera file {name} is not text (UTF-8, or UTF-16 with a byte-order mark)") from None
     try:
-        return _parse_camera(text, path)
+        return _parse_camera(text, f"file:{name}" if source is None else source)
     except CameraError as exc:
-        raise CameraError(f"{path}: {exc}") from None
+        raise CameraError(f"{name}: {exc}") from None
 
 
 def _camera_text(data: bytes) -> str:
@@ -962,8 +970,9 @@ def _filestorage_syntax(text: str) -> str | None:
     return None
 
 
-def _parse_camera(text: str, path: Path) -> Camera:
-    """Camera from the `text` of the camera file `path`; CameraError messages leave the path to the caller."""
+def _parse_camera(text: str, source: str) -> Camera:
+    """Camera from the `text` of a camera file, `source` its Camera.source; CameraError messages leave
+    the file's name to the caller."""
     if not text.strip():
         raise CameraError(EMPTY_FILE)
     syntax = _filestorage_syntax(text)
@@ -972,7 +981,7 @@ def _parse_camera(text: str, path: Path) -> Camera:
             fields = _filestorage_fields(text, syntax)
         except cv2.error as exc:
             raise CameraError(f"not a readable OpenCV FileStorage {syntax} file ({_opencv_error(exc)})") from None
-        return _camera_from_fields(fields, f"file:{path}", f"OpenCV FileStorage {syntax} file")
+        return _camera_from_fields(fields, source, f"OpenCV FileStorage {syntax} file")
     try:
         # YAML is a superset of JSON. `ros2 topic echo` ends each message with "---", which starts
         # another (empty) document; without --once it prints one after the other: the first is used.
@@ -983,10 +992,10 @@ def _parse_camera(text: str, path: Path) -> Camera:
         raise CameraError("expected a mapping with camera_matrix or k (ROS camera_info) or fx, fy, cx, cy")
     kalibr = _kalibr_camera(data)
     if kalibr is None:
-        return _camera_from_fields(data, f"file:{path}", "YAML/JSON file")
+        return _camera_from_fields(data, source, "YAML/JSON file")
     name, fields = kalibr
     try:
-        return _camera_from_fields(fields, f"file:{path}", "Kalibr camera")
+        return _camera_from_fields(fields, source, "Kalibr camera")
     except CameraError as exc:  # the key is the camera's, as in the file
         raise CameraError(f"{name}: {exc}") from None
 

@@ -5,9 +5,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from signpose.app.tuning import band_centre, level_histogram, rect_mask, suggest_threshold, sweep_values, working_band
+from signpose.app.tuning import (TuningError, band_centre, box_region, level_histogram, rect_mask, suggest_threshold,
+                                 sweep_values, values_to_sweep, working_band)
 from signpose.pipeline.image import read_image, to_gray
 from signpose.pipeline.segment import normalize_levels
+from signpose.pipeline.settings import Settings
 
 SCENE = Path(__file__).resolve().parent.parent / "sample_images" / "scenes" / "scene_000.jpg"
 
@@ -56,3 +58,20 @@ def test_the_histogram_of_a_dim_photo_stretched_by_minmax_has_no_comb():
     centres = (np.arange(256) + 0.5) / 256
     assert np.average(centres, weights=histogram) == pytest.approx(values.mean(), abs=1 / 256)
     assert centres[np.searchsorted(np.cumsum(histogram), dim.size / 2)] == pytest.approx(np.median(values), abs=1 / 256)
+
+
+def test_a_box_is_cut_to_the_image_and_one_outside_it_is_refused_as_given():
+    inside, source = box_region((-20, 150, 50, 400), 300, 200)
+    assert source == "rectangle" and inside.shape == (200, 300)
+    assert np.array_equal(inside, rect_mask((0, 150, 50, 200), 300, 200))
+    with pytest.raises(TuningError, match=r"rect \[299, 0, 400, 10\] does not cover at least 2x2 px of the 300x200"):
+        box_region((299, 0, 400, 10), 300, 200)
+
+
+def test_a_sweep_leaves_out_values_the_other_settings_refuse_and_names_an_end_out_of_range():
+    settings = Settings(min_crop_size=128)
+    assert values_to_sweep(settings, "max_crop_size", 0, 240, 4) == [0, 160, 240]  # 80 < min_crop_size
+    with pytest.raises(TuningError, match=r"^hi \(7\): "):
+        values_to_sweep(settings, "threshold", 0.5, 7, 3)
+    with pytest.raises(TuningError, match="choose a numeric setting"):
+        values_to_sweep(settings, "detector", 0, 1, 3)

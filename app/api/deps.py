@@ -1,0 +1,182 @@
+"""What the API's routes share: the objects they work on (the workspace, an image, a sign, the
+calibration session, the 3D scene) as FastAPI dependencies, the checks of a request's body
+(its media type, its multipart fields), the route class that reads JSON bodies, and the time
+limit on pipeline work done for a request.
+
+The objects live on `app.state` (app/server.py's `create_app` puts them there); a route asks for
+one by its parameter type (`WorkspaceDep`, ...), never through a module global, so that every app
+built in one process (the tests build many) has its own.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Coroutine
+from typing import Annotated, Any, TypeVar
+
+import anyio
+from fastapi import Depends, Form, HTTPException, Request, Response, status
+from fastapi.routing import APIRoute
+from starlette.datastructures import FormData
+
+from signpose.pipeline.jsonfile import JsonError, parse_json
+from signpose.pipeline.library import ID_PATTERN
+
+from ..calibration import CalibrationSession
+from ..scene import SceneHandle
+from ..uploads import in_order, single_values, the_file, uploads
+from ..workspace import IMAGE_ID, ImageRecord, Workspace
+
+T = TypeVar("T")
+
+# ---------------------------------------------------------------- what routes work on
+
+
+def get_workspace(request: Request) -> Workspace:
+    return request.app.state.workspace
+
+
+WorkspaceDep = Annotated[Workspace, Depends(get_workspace)]
+
+
+def find_record(workspace: Workspace, image_id: str) -> ImageRecord:
+    """The image `image_id` of `workspace`; 404 saying where the ids are listed."""
+    try:
+        if IMAGE_ID.match(image_id):
+            return workspace.get(image_id)
+    except KeyError:
+        pass
+    raise HTTPException(status.HTTP_404_NOT_FOUND, f"no image with id {image_id!r}; GET /api/images lists them")
+
+
+def get_record(image_id: str, workspace: WorkspaceDep) -> ImageRecord:
+    return find_record(workspace, image_id)
+
+
+RecordDep = Annotated[ImageRecord, Depends(get_record)]
+
+
+def get_sign_id(sign_id: str, workspace: WorkspaceDep) -> str:
+    if not ID_PATTERN.match(sign_id) or sign_id not in workspace.library.ids:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"no sign {sign_id!r} in the library; known: {', '.join(workspace.library.ids)}")
+    return sign_id
+
+
+SignIdDep = Annotated[str, Depends(get_sign_id)]
+
+
+def get_calibration(request: Request) -> CalibrationSession:
+    return request.app.state.calibration
+
+
+CalibrationDep = Annotated[CalibrationSession, Depends(get_calibration)]
+
+
+def get_scene(request: Request) -> SceneHandle | None:
+    """The viser scene, None until the app's lifespan has attached it."""
+    return request.app.state.scene
+
+
+SceneDep = Annotated[SceneHandle | None, Depends(get_scene)]
+
+
+async def within_time_limit(workspace: Workspace, what: str, work: Callable[[threading.Event], T]) -> T:
+    """`work(stop)` in a worker thread; 503 once it runs past the request time limit.
+
+    A stuck pipeline call cannot be killed: the request is answered, the thread abandoned, and
+    `stop` set so that work able to end early (a sweep between runs) does.
+    """
+    limit = workspace.config.request_timeout_s
+    stop = threading.Event()
+    try:
+        with anyio.fail_after(limit):
+            return await anyio.to_thread.run_sync(work, stop, abandon_on_cancel=True)
+    except TimeoutError:
+        stop.set()
+        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
+                            f"{what} took longer than the {limit:g} s limit (signpose serve --request-timeout); "
+                            "try fewer images or steps, or lighter settings") from None
+
+
+# ---------------------------------------------------------------- request bodies
+
+
+class BodyType:
+    """A dependency: 415 unless the request body is `media_type`. Without it FastAPI would only
+    report the fields of a body it did not parse as missing, or the body as not a dictionary.
+    `optional`: no body at all (`curl -X POST URL`) is fine too, whatever Content-Type is named."""
+
+    def __init__(self, media_type: str, how: str, optional: bool = False) -> None:
+        self.media_type = media_type
+        self.how = how
+        self.optional = optional
+
+    def __call__(self, request: Request) -> None:
+        if self.optional and "transfer-encoding" not in request.headers and \
+                request.headers.get("content-length", "0") == "0":
+            return
+        content_type = request.headers.get("content-type", "")
+        if content_type.split(";", 1)[0].strip().lower() != self.media_type:
+            raise HTTPException(status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
+                                f"send {self.how}; got Content-Type {content_type or 'none'!r}")
+
+
+MULTIPART = Depends(BodyType("multipart/form-data", "the file(s) as multipart/form-data, as a browser form or "
+                                                    "curl -F does"))
+JSON_BODY = Depends(BodyType("application/json", "a JSON body with the header Content-Type: application/json"))
+OPTIONAL_JSON_BODY = Depends(BodyType("application/json", "no body, or a JSON body with the header "
+                                                          "Content-Type: application/json", optional=True))
+
+
+def form_check(check: Callable[[FormData], object]) -> Any:
+    """A dependency of multipart routes that runs `check` (raising HTTPException) on the form FastAPI
+    has already parsed (and will close), before FastAPI reads its fields its own way."""
+    async def dependency(request: Request) -> None:
+        check(await request.form())
+    return Depends(dependency)
+
+
+ONE_FILE = form_check(the_file)  # routes whose `file` parameter takes one upload
+FILES = form_check(lambda form: uploads(form, "files"))  # routes whose `files` parameter takes uploads
+IN_ORDER = form_check(in_order)  # routes that take `batch` and `position`
+
+
+def single(*fields: str) -> Any:
+    """A dependency of the multipart routes that read each of the text `fields` as one value (`single_values`)."""
+    return form_check(lambda form: single_values(form, fields))
+
+
+# The multipart fields of the routes that take a batch of uploads a request each (workspace.Slot).
+Batch = Annotated[str, Form(max_length=64, description="a name the client gives a batch of files it sends a "
+                                                       "request each, several at once: they are listed by "
+                                                       "`position`, whatever order they land in")]
+Position = Annotated[int, Form(ge=0, description="the place in `batch` of this request's first file; "
+                                                "only with `batch`")]
+
+
+class JsonBodyRequest(Request):
+    """A request whose JSON body is read as signpose reads every JSON document (`parse_json`), with
+    422 saying what is wrong: FastAPI read it with json.loads and answered what that cannot hold (nested
+    some thousand levels deep, a whole number of thousands of digits) or bytes that are not UTF-8 with
+    400 "There was an error parsing the body"."""
+
+    async def json(self) -> Any:
+        if not hasattr(self, "_json"):
+            try:
+                self._json = parse_json(await self.body())
+            except JsonError as exc:  # FastAPI passes an HTTPException raised here on as it is
+                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"the body is {exc}") from None
+        return self._json
+
+
+class JsonBodyRoute(APIRoute):
+    """An API route whose body FastAPI reads from a `JsonBodyRequest`; every router of the API uses it."""
+
+    def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
+        handler = super().get_route_handler()
+
+        async def read_through(request: Request) -> Response:
+            return await handler(JsonBodyRequest(request.scope, request.receive))
+        return read_through
+
