@@ -573,11 +573,11 @@ class Run:
                       wants_dense_refinement(settings.refine, attempt),
                       (camera.K.tobytes(), camera.dist.tobytes()) if camera.has_distortion else None)
             notes: list[str] = []  # refinement's warnings, cached with its result
-            refined, notes = self.stages.run("refine", lambda: (
+            (refined_H, refined_src, refined_dst, ecc, outline), notes = self.stages.run("refine", lambda: (
                 refine_winner(gray, sign, H, src, dst, settings, attempt, camera, notes), notes), inputs)
-            text = check_text(gray, self.library, sign.id, refined[0], camera) if settings.min_text_correlation > 0 \
-                else None
-        return Refined(*refined, sign, text, notes)
+            text = (check_text(gray, self.library, sign.id, refined_H, camera) if settings.min_text_correlation > 0
+                    else None)
+        return Refined(refined_H, refined_src, refined_dst, ecc, outline, sign, text, notes)
 
     def turn_down(self, refined: Refined, source: str) -> str | None:
         """Why `refined`, found in `source`, is turned down for its text (kept in `turned_down`), or None."""

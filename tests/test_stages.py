@@ -2,6 +2,7 @@
 cache hands back for the others is what computing them afresh under the changed settings gives."""
 
 import dataclasses
+import math
 from collections.abc import Callable, Hashable
 from pathlib import Path
 from typing import Any
@@ -63,10 +64,11 @@ def test_a_stage_key_holds_the_settings_of_the_cached_stages_it_reads():
         feeding_settings("ransac")  # run every time: no key
 
 
-def changed_value(f: dataclasses.Field) -> Any:
+def changed_value(f: dataclasses.Field[Any]) -> Any:
     """A valid value of setting `f` other than its default, far enough from it to change what the
     stages it feeds compute on the scenes."""
-    default, meta = f.default, f.metadata
+    default: Any = f.default
+    meta = f.metadata
     if f.name in CHANGES:
         return CHANGES[f.name]
     if "choices" in meta:
@@ -90,7 +92,7 @@ def same(a: Any, b: Any) -> bool:
         return isinstance(b, dict) and a.keys() == b.keys() and all(same(a[k], b[k]) for k in a)
     if hasattr(a, "__dict__"):
         return type(a) is type(b) and same(vars(a), vars(b))
-    return a == b or (a != a and b != b)  # NaN
+    return a == b or (isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b))
 
 
 class RecordingCache(StageCache):
@@ -98,10 +100,10 @@ class RecordingCache(StageCache):
     each lookup as (stage, inputs, found) in `calls` and each result in `results`; with `check_hits`,
     every result it hands back is compared with computing it afresh."""
 
-    def __init__(self, warm: dict[Hashable, Any] | None = None) -> None:
+    def __init__(self, warm: dict[tuple, Any] | None = None) -> None:
         super().__init__(max_entries=10**6, max_bytes=2**40)  # nothing dropped: a miss is a recomputation
-        self.calls: list[tuple[str, Hashable, bool]] = []
-        self.results: dict[Hashable, Any] = dict(warm or {})
+        self.calls: list[tuple[str, tuple, bool]] = []
+        self.results: dict[tuple, Any] = dict(warm or {})
         for key, value in self.results.items():
             super().get(key, lambda value=value: value)
         self.check_hits = False
@@ -110,6 +112,7 @@ class RecordingCache(StageCache):
     def get(self, key: Hashable, compute: Callable[[], Any]) -> Any:
         if self._afresh:  # a stage computed afresh computes the stages it reads afresh too
             return compute()
+        assert isinstance(key, tuple), key  # (stage, inputs, stage_key), as StageRunner.run makes it
         stage, inputs, _ = key
         found = key in self
         self.calls.append((stage, inputs, found))
