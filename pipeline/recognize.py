@@ -179,8 +179,8 @@ class Recognition:
     outline: the plaque outline that refined it instead (None when not refined so);
     text_check: how its text, rectified through H, correlates with the sign's (None: not checked).
     turned_down: the winners the text check turned down before it, in the order found.
-    timing_ms: milliseconds per stage of STAGES and in "total"; reused_stages: the stages, in
-    STAGES order, whose results came in whole or part from the caller's `StageCache`, so their
+    timing_ms: milliseconds per stage of `stages.STAGES` and in "total"; reused_stages: the stages,
+    in STAGES order, whose results came in whole or part from the caller's `StageCache`, so their
     times are a lookup's, not what the stage costs.
     """
 
@@ -465,15 +465,14 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     plaque = None
     if no_feature_winner(chosen) and settings.plaque_fallback and run.segmentation is not None:
         plaque, refined = run.plaque_fallback(chosen, warnings)
-    pose = run.pose(refined, not no_feature_winner(chosen), warnings) if refined is not None else None
+    pose = run.winner_pose(refined, not no_feature_winner(chosen), warnings) if refined is not None else None
     if pose is not None and approximate is not None:
         # Last, after what the run found: where the server's clients have always read it.
         warnings.append(approximate)
     timing = run.stages.timing
     timing["total"] = (time.perf_counter() - t_start) * 1e3
-    found = (refined.H, refined.ecc, refined.sign.corners_px, refined.outline, refined.text) if refined is not None \
-        else (None, None, None, None, None)
-    H, ecc, corners_px, outline, text = found
+    H, ecc, corners_px, outline, text = ((refined.H, refined.ecc, refined.sign.corners_px, refined.outline,
+                                          refined.text) if refined is not None else (None,) * 5)
     return Recognition((width, height), settings, camera, run.segmentation, attempts, chosen, plaque, H, ecc, pose,
                        timing, run.stages.reused_stages(), warnings, corners_px, outline, text, run.turned_down)
 
@@ -540,8 +539,8 @@ class Run:
         with self.stages.timed("features"):
             query = self.stages.run("features", lambda: detect(gray, settings, region), (region,))
             lib = library_features(library, settings)
-        matches = self.stages.run("match", lambda: match_library(
-            query.descriptors, [lib[sign.id].descriptors for sign in library.signs], settings.ratio, query.norm),
+        trains = [lib[sign.id].descriptors for sign in library.signs]
+        matches = self.stages.run("match", lambda: match_library(query.descriptors, trains, settings.ratio, query.norm),
                                   (region,))
         scores = score_signs(library, query, lib, matches, settings, (gray.shape[1], gray.shape[0]),
                              self.stages.timing)
@@ -549,8 +548,8 @@ class Run:
         return Attempt(region, source, query, scores, winner, margin)
 
     def quads(self, shrink: int) -> Iterator[list[QuadCandidate]]:
-        """The plaque-shaped regions level by level (`cut_levels`), the lower levels cut from the
-        image shrunk `shrink` times; the segmentation's."""
+        """The segmentation's plaque-shaped regions level by level (`cut_levels`), the levels other
+        than its threshold cut from the image shrunk `shrink` times."""
         segmentation = self.segmentation
         assert segmentation is not None, "quads are cut from a segmentation"
         read = (self.first.quad,) if self.first is not None and self.first.quad is not None else ()
@@ -572,9 +571,9 @@ class Run:
             inputs = (sign.id, H.tobytes(), src.tobytes(), dst.tobytes(),
                       wants_dense_refinement(settings.refine, attempt),
                       (camera.K.tobytes(), camera.dist.tobytes()) if camera.has_distortion else None)
-            notes: list[str] = []  # refinement's warnings, cached with its result
+            warned: list[str] = []  # what refining warns of when it runs, cached with its result
             (refined_H, refined_src, refined_dst, ecc, outline), notes = self.stages.run("refine", lambda: (
-                refine_winner(gray, sign, H, src, dst, settings, attempt, camera, notes), notes), inputs)
+                refine_winner(gray, sign, H, src, dst, settings, attempt, camera, warned), warned), inputs)
             text = (check_text(gray, self.library, sign.id, refined_H, camera) if settings.min_text_correlation > 0
                     else None)
         return Refined(refined_H, refined_src, refined_dst, ecc, outline, sign, text, notes)
@@ -606,7 +605,7 @@ class Run:
                         f"features did not decide ({why_no_feature_winner(chosen)})")
         return plaque, refined
 
-    def pose(self, refined: Refined, by_features: bool, warnings: list[str]) -> Pose | None:
+    def winner_pose(self, refined: Refined, by_features: bool, warnings: list[str]) -> Pose | None:
         """The camera pose from the `refined` winner (`by_features`: a feature match's, else the
         plaque fallback's), None when it cannot be estimated; adds the warnings to `warnings`."""
         H, src, dst, ecc, outline, sign, text = (refined.H, refined.src, refined.dst, refined.ecc, refined.outline,
