@@ -1,5 +1,9 @@
 """Each setting feeds the stages it declares: a change recomputes exactly those, and what the stage
-cache hands back for the others is what computing them afresh under the changed settings gives."""
+cache hands back for the others is what computing them afresh under the changed settings gives.
+
+Where a setting only decides whether a stage runs (plaque_fallback, segment_mode) or also changes
+the inputs of the stage it feeds (refine, and seed through RANSAC's winner), the changed run has no
+cached result of that stage to compare: its declaration is checked by the key alone."""
 
 import dataclasses
 import math
