@@ -42,8 +42,9 @@ from signpose.pipeline.features import detect
 from signpose.pipeline.image import read_image, to_gray
 from signpose.pipeline.library import Library, load_library
 from signpose.pipeline.pose import rotation_error_deg
-from signpose.pipeline.recognize import STAGES, StageCache, recognize
+from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import Settings, preset
+from signpose.pipeline.stages import STAGES, StageCache
 from signpose.pipeline.synth import CATEGORIES, generate_dataset
 
 SIZES = ((640, 480), (1280, 960))

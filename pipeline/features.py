@@ -14,6 +14,7 @@ import numpy as np
 from .library import Library, LibrarySign
 from .segment import Box
 from .settings import Settings
+from .stages import stage_key
 
 # Beyond this, upscaling invents no detail and only costs time.
 MAX_UPSCALE = 4.0
@@ -47,16 +48,6 @@ def create_detector(settings: Settings):
     if settings.detector == "orb":
         return cv2.ORB_create(nfeatures=settings.max_features)
     return cv2.SIFT_create(nfeatures=settings.max_features, contrastThreshold=settings.contrast_threshold)
-
-
-def detector_key(settings: Settings) -> tuple:
-    """The settings that change the detector itself (all that matters for library signs)."""
-    return settings.detector, settings.max_features, settings.contrast_threshold
-
-
-def feature_key(settings: Settings) -> tuple:
-    """The settings that change what `detect` returns for a given image region."""
-    return *detector_key(settings), settings.min_crop_size, settings.max_crop_size, settings.max_search_size
 
 
 def region_scale(long_side: int, settings: Settings, full_frame: bool = False) -> float:
@@ -108,4 +99,5 @@ def sign_features(sign: LibrarySign, settings: Settings) -> Features:
 
 def library_features(library: Library, settings: Settings) -> dict[str, Features]:
     """Features of every library sign, computed once per feature settings and cached on the library."""
-    return library.per_sign(("features", *detector_key(settings)), lambda sign: sign_features(sign, settings))
+    return library.per_sign(("features", *stage_key(settings, "library features")),
+                            lambda sign: sign_features(sign, settings))

@@ -10,14 +10,13 @@ from __future__ import annotations
 import dataclasses
 import functools
 import time
-from collections import OrderedDict
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .camera import Camera, CameraError, assumed_camera
-from .features import Features, detect, feature_key, library_features
+from .features import Features, detect, library_features
 from .homography import HomographyEstimate, estimate_homography
 from .image import to_gray
 from .library import Library, LibrarySign
@@ -25,14 +24,14 @@ from .match import Matches, match_library
 from .outline import Outline, outline_fit, refine_outline
 from .plaque import (PlaqueMatch, grid_correspondences, match_plaque, project, refine_ecc, seen_grid, sign_corners,
                      sign_to_quad)
-from .plaque_search import (MIN_NCC, SAME_PLAQUE_IOU, QuadCandidate, confirm_plaque, cut_image, cut_levels,
-                           level_quads, plaque_order, quad_levels, ranked, read_blob, search_plaques)
+from .plaque_search import (MIN_NCC, SAME_PLAQUE_IOU, BlobReading, QuadCandidate, confirm_plaque, cut_image,
+                           cut_levels, level_quads, plaque_order, quad_levels, ranked, read_blob, search_plaques)
 from .pose import CORNER_SIGMA_PX, Pose, PoseError, distort_pixels, estimate_pose, with_corner_floor
 from .segment import Box, Segmentation, box_iou, expand_box, segment
 from .settings import Settings
+from .stages import StageCache, StageRunner
 from .verify import TextCheck, check_text
 
-STAGES = ("segment", "features", "match", "ransac", "pose")
 # A sign seen from any usable viewpoint projects to a convex quad whose opposite sides differ
 # in length by far less than this factor; larger means a degenerate H fitted to a few points.
 MAX_SIDE_RATIO = 8.0
@@ -180,8 +179,8 @@ class Recognition:
     outline: the plaque outline that refined it instead (None when not refined so);
     text_check: how its text, rectified through H, correlates with the sign's (None: not checked).
     turned_down: the winners the text check turned down before it, in the order found.
-    timing_ms: milliseconds per stage of STAGES and in "total"; reused_stages: the stages, in
-    STAGES order, whose results came in whole or part from the caller's `StageCache`, so their
+    timing_ms: milliseconds per stage of `stages.STAGES` and in "total"; reused_stages: the stages,
+    in STAGES order, whose results came in whole or part from the caller's `StageCache`, so their
     times are a lookup's, not what the stage costs.
     """
 
@@ -289,68 +288,6 @@ def quad_problem(H: np.ndarray, sign: LibrarySign, width: int, height: int) -> t
     return corners, None
 
 
-def nbytes(value) -> int:
-    """Bytes held by the numpy arrays in a stage result (a dataclass, list or tuple of them)."""
-    if isinstance(value, np.ndarray):
-        return value.nbytes
-    if isinstance(value, (list, tuple)):
-        return sum(nbytes(v) for v in value)
-    if hasattr(value, "__dict__"):
-        return sum(nbytes(v) for v in vars(value).values())
-    return 0
-
-
-class StageCache:
-    """Results of earlier stages for one image, keyed by the settings each stage depends on.
-
-    Least recently used entries are dropped beyond `max_entries` or `max_bytes` of arrays, so a
-    slider sweep over many values cannot grow memory without bound (a segmentation of a 12 MP
-    photo alone holds about 100 MB).
-    """
-
-    def __init__(self, max_entries: int = 64, max_bytes: int = 64 * 2**20) -> None:
-        self.max_entries = max_entries
-        self.max_bytes = max_bytes
-        self._entries: OrderedDict[tuple, tuple[object, int]] = OrderedDict()
-        self._bytes = 0
-
-    def get(self, key: tuple, compute):
-        """The entry under `key`, computing and storing it first when absent."""
-        if key in self._entries:
-            self._entries.move_to_end(key)
-            return self._entries[key][0]
-        value = compute()
-        size = nbytes(value)
-        self._entries[key] = (value, size)
-        self._bytes += size
-        # The newest entry stays even when it alone exceeds the budget: it is the one in use.
-        while len(self._entries) > 1 and (len(self._entries) > self.max_entries or self._bytes > self.max_bytes):
-            self._bytes -= self._entries.popitem(last=False)[1][1]
-        return value
-
-    def __len__(self) -> int:
-        return len(self._entries)
-
-    def __contains__(self, key: tuple) -> bool:
-        return key in self._entries
-
-    @property
-    def bytes(self) -> int:
-        return self._bytes
-
-
-def cached(cache: StageCache | None, key: tuple, compute, stage: str | None, reused: set[str]):
-    """`compute()`, or its result under `key` in `cache`; adds `stage` (one of STAGES) to `reused`
-    when the result was there, so the stage's time is read as a cache lookup's, not a run's.
-    `stage` None: the result is a part of a stage whose main work runs every time, whose time
-    stays a run's."""
-    if cache is None:
-        return compute()
-    if key in cache and stage is not None:
-        reused.add(stage)
-    return cache.get(key, compute)
-
-
 def match_points(query: Features, train: Features, matches: Matches) -> tuple[np.ndarray, np.ndarray]:
     """(M, 2) float64 library px and (M, 2) float64 image px of the matched keypoints."""
     return train.xy[matches.train_idx].astype(np.float64), query.xy[matches.query_idx].astype(np.float64)
@@ -426,25 +363,6 @@ def decide(scores: list[SignScore], settings: Settings) -> tuple[int | None, int
         scores[best].reason = f"margin over the runner-up too small ({margin} < {settings.min_margin})"
         return None, margin
     return best, margin
-
-
-def search_region(gray: np.ndarray, region: Box, source: str, library: Library, settings: Settings,
-                  timing: dict[str, float], cache: StageCache | None, reused: set[str]) -> Attempt:
-    """Detect features in `region` and score every library sign against them (`cached` says what
-    `cache` and `reused` are for)."""
-    t0 = time.perf_counter()
-    query = cached(cache, ("features", *feature_key(settings), region), lambda: detect(gray, settings, region),
-                   "features", reused)
-    lib = library_features(library, settings)
-    t1 = time.perf_counter()
-    timing["features"] += (t1 - t0) * 1e3
-    trains = [lib[sign.id].descriptors for sign in library.signs]
-    matches = cached(cache, ("match", *feature_key(settings), region, settings.ratio),
-                     lambda: match_library(query.descriptors, trains, settings.ratio, query.norm), "match", reused)
-    timing["match"] += (time.perf_counter() - t1) * 1e3
-    scores = score_signs(library, query, lib, matches, settings, (gray.shape[1], gray.shape[0]), timing)
-    winner, margin = decide(scores, settings)
-    return Attempt(region, source, query, scores, winner, margin)
 
 
 def candidate_regions(segmentation: Segmentation | None, settings: Settings, width: int, height: int,
@@ -532,161 +450,193 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     whenever the library changes.
     """
     t_start = time.perf_counter()
-    timing = dict.fromkeys(STAGES, 0.0)
-    reused: set[str] = set()
-    warnings: list[str] = []
     gray = to_gray(image)
     height, width = gray.shape
-    # Why a pose from this camera is approximate: said only when there is a pose.
-    approximate = None
+    camera, warnings, approximate = image_camera(camera, width, height)
+    run = Run(gray, library, settings, camera, StageRunner(settings, cache))
+    if settings.segment_mode == "threshold":
+        run.segmentation = run.stages.run("segment", lambda: segment(gray, settings))
+        if not run.segmentation.blobs:
+            warnings.append("no white blob above the threshold")
+    attempts, refined = run.search_regions()
+    chosen = next((a for a in attempts if a.winner is not None), None)
+    if chosen is None and attempts:
+        chosen = max(attempts, key=lambda a: a.best_inliers)
+    plaque = None
+    if no_feature_winner(chosen) and settings.plaque_fallback and run.segmentation is not None:
+        plaque, refined = run.plaque_fallback(chosen, warnings)
+    pose = run.winner_pose(refined, not no_feature_winner(chosen), warnings) if refined is not None else None
+    if pose is not None and approximate is not None:
+        # Last, after what the run found: where the server's clients have always read it.
+        warnings.append(approximate)
+    timing = run.stages.timing
+    timing["total"] = (time.perf_counter() - t_start) * 1e3
+    H, ecc, corners_px, outline, text = ((refined.H, refined.ecc, refined.sign.corners_px, refined.outline,
+                                          refined.text) if refined is not None else (None,) * 5)
+    return Recognition((width, height), settings, camera, run.segmentation, attempts, chosen, plaque, H, ecc, pose,
+                       timing, run.stages.reused_stages(), warnings, corners_px, outline, text, run.turned_down)
+
+
+def image_camera(camera: Camera | None, width: int, height: int) -> tuple[Camera, list[str], str | None]:
+    """(the camera for a width x height px image, warnings of scaling it to the image, why a pose
+    from it is approximate or None): `camera` scaled, or without one a 60° field of view."""
     if camera is None:
         camera = assumed_camera(width, height)
-        approximate = f"no camera file: {camera.source}, so the pose is approximate"
-    else:
-        assumed_by_caller = camera.is_assumed  # e.g. the server's field of view
-        camera, scale_warnings = camera.for_image(width, height)
-        warnings += scale_warnings
-        if assumed_by_caller:
-            approximate = f"no camera set and no usable EXIF focal length: {camera.source}, so the pose is approximate"
-        elif camera.is_exif:
-            approximate = (f"no camera file: intrinsics from the {camera.source}, without distortion; "
-                           "the pose is approximate")
+        return camera, [], f"no camera file: {camera.source}, so the pose is approximate"
+    assumed_by_caller = camera.is_assumed  # e.g. the server's field of view
+    camera, warnings = camera.for_image(width, height)
+    approximate = None
+    if assumed_by_caller:
+        approximate = f"no camera set and no usable EXIF focal length: {camera.source}, so the pose is approximate"
+    elif camera.is_exif:
+        approximate = (f"no camera file: intrinsics from the {camera.source}, without distortion; "
+                       "the pose is approximate")
+    return camera, list(warnings), approximate
 
-    segmentation = None
-    if settings.segment_mode == "threshold":
-        t0 = time.perf_counter()
-        seg_key = ("segment", settings.normalization, settings.threshold, settings.high_threshold,
-                   settings.candidates, settings.crop_margin, settings.min_blob_area)
-        segmentation = cached(cache, seg_key, lambda: segment(gray, settings), "segment", reused)
-        timing["segment"] = (time.perf_counter() - t0) * 1e3
-        if not segmentation.blobs:
-            warnings.append("no white blob above the threshold")
 
-    def segment_stage(key: tuple, compute: Callable):
-        """`compute()` through the cache, timed as segmentation: readings of its regions as plaques."""
-        t0 = time.perf_counter()
-        found = cached(cache, (*key, *seg_key), compute, "segment", reused)
-        timing["segment"] += (time.perf_counter() - t0) * 1e3
-        return found
+@dataclass(eq=False)
+class Run:
+    """The steps of one `recognize` call, over what they all read: the (H, W) uint8 `gray` image,
+    the library, settings, the camera scaled to the image and the runner that times and caches
+    the stages; `segmentation` (None: `segment_mode` none), the largest blob's reading (`first`)
+    and the winners the text check turned down as they are found."""
 
-    # The largest blob read for its look, which decides where it is searched (`candidate_regions`).
-    first = (segment_stage(("blob 1 reading",), lambda: read_blob(gray, segmentation.labels, segmentation.blobs[0],
-                                                                  library))
-             if settings.plaque_candidates and segmentation is not None and segmentation.blobs else None)
+    gray: np.ndarray = field(repr=False)
+    library: Library
+    settings: Settings
+    camera: Camera
+    stages: StageRunner
+    segmentation: Segmentation | None = field(default=None, repr=False)
+    first: BlobReading | None = None
+    turned_down: list[TurnedDown] = field(default_factory=list)
 
-    def quads(shrink: int) -> Iterator[list[QuadCandidate]]:
-        read = (first.quad,) if first is not None and first.quad is not None else ()
+    def search_regions(self) -> tuple[list[Attempt], Refined | None]:
+        """The candidate regions searched in order until a winner passes the text check: (the
+        attempts, that winner refined or None). A winner whose text is not its sign's is turned
+        down and the search goes on: the sign may be elsewhere in the image."""
+        segmentation, settings = self.segmentation, self.settings
+        if settings.plaque_candidates and segmentation is not None and segmentation.blobs:
+            # The largest blob read for its look decides where it is searched (`candidate_regions`).
+            self.first = self.stages.run("first blob", lambda: read_blob(self.gray, segmentation.labels,
+                                                                         segmentation.blobs[0], self.library))
+        height, width = self.gray.shape
+        attempts: list[Attempt] = []
+        for region, source in candidate_regions(segmentation, settings, width, height, self.quads,
+                                                self.first is not None and self.first.no_sign):
+            attempt = self.search_region(region, source)
+            attempts.append(attempt)
+            if attempt.winner is not None:
+                refined = self.refined_winner(attempt, None)
+                why = self.turn_down(refined, source)
+                if why is None:
+                    return attempts, refined
+                attempt.scores[attempt.winner].reason, attempt.winner = why, None
+        return attempts, None
+
+    def search_region(self, region: Box, source: str) -> Attempt:
+        """Detect features in `region` and score every library sign against them."""
+        gray, library, settings = self.gray, self.library, self.settings
+        with self.stages.timed("features"):
+            query = self.stages.run("features", lambda: detect(gray, settings, region), (region,))
+            lib = library_features(library, settings)
+        trains = [lib[sign.id].descriptors for sign in library.signs]
+        matches = self.stages.run("match", lambda: match_library(query.descriptors, trains, settings.ratio, query.norm),
+                                  (region,))
+        scores = score_signs(library, query, lib, matches, settings, (gray.shape[1], gray.shape[0]),
+                             self.stages.timing)
+        winner, margin = decide(scores, settings)
+        return Attempt(region, source, query, scores, winner, margin)
+
+    def quads(self, shrink: int) -> Iterator[list[QuadCandidate]]:
+        """The segmentation's plaque-shaped regions level by level (`cut_levels`), the levels other
+        than its threshold cut from the image shrunk `shrink` times."""
+        segmentation = self.segmentation
+        assert segmentation is not None, "quads are cut from a segmentation"
+        read = (self.first.quad,) if self.first is not None and self.first.quad is not None else ()
         # made once, when the first level not in the cache needs it
         image = functools.cache(lambda: cut_image(segmentation.source, segmentation.normalization, shrink))
 
         def cut(level: float, taken: Sequence[QuadCandidate]) -> list[QuadCandidate]:
-            return segment_stage(("quads", shrink, level),
-                                 lambda: level_quads(gray, segmentation, library, settings, image, level, taken, read))
+            return self.stages.run("quads", lambda: level_quads(self.gray, segmentation, self.library, self.settings,
+                                                                image, level, taken, read), (shrink, level))
 
-        return cut_levels(cut, quad_levels(settings))
+        return cut_levels(cut, quad_levels(self.settings))
 
-    def refined_winner(attempt: Attempt | None, plaque: PlaqueMatch | None) -> Refined:
+    def refined_winner(self, attempt: Attempt | None, plaque: PlaqueMatch | None) -> Refined:
         """The winner of `attempt` (else of `plaque`) refined, with its text checked."""
-        t0 = time.perf_counter()
-        H, src, dst, sign = winner_homography(attempt, plaque, library)
-        # A RANSAC or decision change usually leaves the winner's H as it was: refine it once.
-        refine_key = ("refine", sign.id, H.tobytes(), src.tobytes(), dst.tobytes(), settings.refine,
-                      wants_dense_refinement(settings.refine, attempt), settings.refine_outline,
-                      settings.segment_mode, settings.seed,
+        gray, settings, camera = self.gray, self.settings, self.camera
+        with self.stages.timed("pose"):
+            H, src, dst, sign = winner_homography(attempt, plaque, self.library)
+            # A RANSAC or decision change usually leaves the winner's H as it was: refined once.
+            inputs = (sign.id, H.tobytes(), src.tobytes(), dst.tobytes(),
+                      wants_dense_refinement(settings.refine, attempt),
                       (camera.K.tobytes(), camera.dist.tobytes()) if camera.has_distortion else None)
+            warned: list[str] = []  # what refining warns of when it runs, cached with its result
+            (refined_H, refined_src, refined_dst, ecc, outline), notes = self.stages.run("refine", lambda: (
+                refine_winner(gray, sign, H, src, dst, settings, attempt, camera, warned), warned), inputs)
+            text = (check_text(gray, self.library, sign.id, refined_H, camera) if settings.min_text_correlation > 0
+                    else None)
+        return Refined(refined_H, refined_src, refined_dst, ecc, outline, sign, text, notes)
 
-        def refine() -> tuple:
-            notes: list[str] = []
-            return refine_winner(gray, sign, H, src, dst, settings, attempt, camera, notes), notes
-
-        # The pose itself is estimated every time: "pose" is not reported reused.
-        (H, src, dst, ecc, outline), notes = cached(cache, refine_key, refine, None, reused)
-        text = check_text(gray, library, sign.id, H, camera) if settings.min_text_correlation > 0 else None
-        timing["pose"] += (time.perf_counter() - t0) * 1e3
-        return Refined(H, src, dst, ecc, outline, sign, text, notes)
-
-    turned_down: list[TurnedDown] = []
-
-    def turn_down(refined: Refined, source: str) -> str | None:
+    def turn_down(self, refined: Refined, source: str) -> str | None:
         """Why `refined`, found in `source`, is turned down for its text (kept in `turned_down`), or None."""
-        why = refined.text_problem(settings.min_text_correlation)
-        if why is not None:
-            turned_down.append(TurnedDown(refined.sign.id, source, refined.H, refined.text))
+        why = refined.text_problem(self.settings.min_text_correlation)
+        if why is not None and refined.text is not None:
+            self.turned_down.append(TurnedDown(refined.sign.id, source, refined.H, refined.text))
         return why
 
-    attempts: list[Attempt] = []
-    refined = None
-    # A winner whose text is not its sign's is turned down, and the search goes on: the sign may
-    # be elsewhere in the image.
-    for region, source in candidate_regions(segmentation, settings, width, height, quads,
-                                            first is not None and first.no_sign):
-        attempt = search_region(gray, region, source, library, settings, timing, cache, reused)
-        attempts.append(attempt)
-        if attempt.winner is not None:
-            refined = refined_winner(attempt, None)
-            why = turn_down(refined, source)
-            if why is None:
-                break
-            attempt.scores[attempt.winner].reason, attempt.winner, refined = why, None, None
-    chosen = next((a for a in attempts if a.winner is not None), None)
-    if chosen is None and attempts:
-        chosen = max(attempts, key=lambda a: a.best_inliers)
-
-    plaque = None
-    if no_feature_winner(chosen) and settings.plaque_fallback and segmentation is not None:
-        t0, quads_ms = time.perf_counter(), timing["segment"]
-        plaque_key = ("plaque", *seg_key, settings.plaque_search, settings.min_plaque_ncc, settings.plaque_margin,
-                      settings.min_plaque_ecc, settings.plaque_ecc_margin)
-        plaque, notes = cached(cache, plaque_key, lambda: find_plaque(gray, segmentation, library, settings, quads),
-                               "match", reused)
+    def plaque_fallback(self, chosen: Attempt | None,
+                        warnings: list[str]) -> tuple[PlaqueMatch | None, Refined | None]:
+        """The plaque fallback, where features named no sign in `chosen`: (its plaque or None, the
+        plaque's sign refined, None without one or when the text check turned it down). Adds its
+        warnings to `warnings`."""
+        segmentation = self.segmentation
+        assert segmentation is not None, "the plaque fallback reads the segmentation's blobs"
+        plaque, notes = self.stages.run("plaque", lambda: find_plaque(self.gray, segmentation, self.library,
+                                                                      self.settings, self.quads))
         warnings += notes
-        quads_ms = timing["segment"] - quads_ms  # counted under segment already
-        timing["match"] += (time.perf_counter() - t0) * 1e3 - quads_ms
-        if plaque is not None and plaque.sign is not None:
-            refined = refined_winner(None, plaque)
-            why = turn_down(refined, "plaque fallback")
-            if why is not None:
-                plaque, refined = dataclasses.replace(plaque, sign=None, H=None, reason=why), None
-            else:
-                warnings.append(f"recognised by the plaque fallback (correlation {plaque.correlation:.2f}): "
-                                f"features did not decide ({why_no_feature_winner(chosen)})")
+        if plaque is None or plaque.sign is None:
+            return plaque, None
+        refined = self.refined_winner(None, plaque)
+        why = self.turn_down(refined, "plaque fallback")
+        if why is not None:
+            return dataclasses.replace(plaque, sign=None, H=None, reason=why), None
+        warnings.append(f"recognised by the plaque fallback (correlation {plaque.correlation:.2f}): "
+                        f"features did not decide ({why_no_feature_winner(chosen)})")
+        return plaque, refined
 
-    H, ecc, pose, sign, outline, text = None, None, None, None, None, None
-    if refined is not None:
-        t0 = time.perf_counter()
+    def winner_pose(self, refined: Refined, by_features: bool, warnings: list[str]) -> Pose | None:
+        """The camera pose from the `refined` winner (`by_features`: a feature match's, else the
+        plaque fallback's), None when it cannot be estimated; adds the warnings to `warnings`."""
         H, src, dst, ecc, outline, sign, text = (refined.H, refined.src, refined.dst, refined.ecc, refined.outline,
                                                  refined.sign, refined.text)
-        warnings += refined.notes
-        if text is not None and text.seen < len(text.strips):
-            # The check cannot tell the sign from a plaque sharing the words seen: a cut look-alike
-            # whose other words are out of the image reads as the sign.
-            washed = f" ({len(text.washed)} washed out by glare)" if text.washed else ""
-            warnings.append(f"only {text.seen} of the {len(text.strips)} strips of {sign.id}'s text could be read"
-                            f"{washed}: a plaque sharing the words read would read the same; check the rest of it")
-        measured_by = ("outline" if outline is not None else
-                       "features" if ecc is None and not no_feature_winner(chosen) else "dense")
-        corner_sigma = CORNER_SIGMA_PX[measured_by]
-        try:
-            pose = estimate_pose(H, src, dst, sign, camera, settings.pose_method, settings.ambiguity_ratio, corner_sigma,
-                                 with_covariance=outline is None)
-            if outline is not None:
-                # the grid fitted is exact by construction: the fit and the noise show in the edge points
-                rmse, covariance = outline_fit(pose.R, pose.t, outline, sign, camera)
-                pose = dataclasses.replace(pose, reprojection_rmse_px=rmse, covariance=with_corner_floor(
-                    covariance, pose.R, pose.t, sign, camera, corner_sigma))
-        except PoseError as exc:
-            warnings.append(f"no pose: {exc}")
-        timing["pose"] += (time.perf_counter() - t0) * 1e3
+        pose = None
+        with self.stages.timed("pose"):
+            warnings += refined.notes
+            if text is not None and text.seen < len(text.strips):
+                # The check cannot tell the sign from a plaque sharing the words seen: a cut look-alike
+                # whose other words are out of the image reads as the sign.
+                washed = f" ({len(text.washed)} washed out by glare)" if text.washed else ""
+                warnings.append(f"only {text.seen} of the {len(text.strips)} strips of {sign.id}'s text could be "
+                                f"read{washed}: a plaque sharing the words read would read the same; check the rest "
+                                "of it")
+            measured_by = ("outline" if outline is not None else
+                           "features" if ecc is None and by_features else "dense")
+            corner_sigma = CORNER_SIGMA_PX[measured_by]
+            try:
+                pose = estimate_pose(H, src, dst, sign, self.camera, self.settings.pose_method,
+                                     self.settings.ambiguity_ratio, corner_sigma, with_covariance=outline is None)
+                if outline is not None:
+                    # the grid fitted is exact by construction: the fit and the noise show in the edge points
+                    rmse, covariance = outline_fit(pose.R, pose.t, outline, sign, self.camera)
+                    pose = dataclasses.replace(pose, reprojection_rmse_px=rmse, covariance=with_corner_floor(
+                        covariance, pose.R, pose.t, sign, self.camera, corner_sigma))
+            except PoseError as exc:
+                warnings.append(f"no pose: {exc}")
         if pose is not None and pose.ambiguous:
             warnings.append("pose is ambiguous: a second pose, the planar solution flipped, fits the measurements "
                             "nearly as well (a small, far or near-frontal sign)")
-    if pose is not None and approximate is not None:
-        # Last, after what the run found: where the server's clients have always read it.
-        warnings.append(approximate)
-    timing["total"] = (time.perf_counter() - t_start) * 1e3
-    return Recognition((width, height), settings, camera, segmentation, attempts, chosen, plaque, H, ecc, pose,
-                       timing, sorted(reused, key=STAGES.index), warnings,
-                       sign.corners_px if sign is not None else None, outline, text, turned_down)
+        return pose
 
 
 def find_plaque(gray: np.ndarray, segmentation: Segmentation, library: Library, settings: Settings,

@@ -3,7 +3,9 @@
 The same `Settings` serves the CLI (`--settings FILE`, `--preset`), the HTTP API
 (`GET/PUT /api/settings`), the web form and the viser sliders: each field carries
 its group, range or choices and a one-line help text in its metadata, and
-`settings_schema()` exposes them so no front end keeps its own copy.
+`settings_schema()` exposes them so no front end keeps its own copy. The metadata
+also names the pipeline stages the field feeds ("stages", names of `stages.ALL_STAGES`),
+from which the stage cache keys are made; it is the pipeline's own, not in the schema.
 """
 
 from __future__ import annotations
@@ -23,19 +25,20 @@ class SettingsError(ValueError):
     """A settings value or file that cannot be used; the message says which and why."""
 
 
-def _num(default, lo, hi, group, help, step=None, nullable=False):
+def _num(default, lo, hi, group, help, step=None, nullable=False, *, stages: tuple[str, ...]):
     return field(
         default=default,
-        metadata={"group": group, "min": lo, "max": hi, "step": step, "help": help, "nullable": nullable},
+        metadata={"group": group, "min": lo, "max": hi, "step": step, "help": help, "nullable": nullable,
+                  "stages": stages},
     )
 
 
-def _choice(default, choices, group, help):
-    return field(default=default, metadata={"group": group, "choices": tuple(choices), "help": help})
+def _choice(default, choices, group, help, *, stages: tuple[str, ...]):
+    return field(default=default, metadata={"group": group, "choices": tuple(choices), "help": help, "stages": stages})
 
 
-def _flag(default, group, help):
-    return field(default=default, metadata={"group": group, "help": help})
+def _flag(default, group, help, *, stages: tuple[str, ...]):
+    return field(default=default, metadata={"group": group, "help": help, "stages": stages})
 
 
 SEGMENT_MODES = ("threshold", "none")
@@ -52,103 +55,126 @@ class Settings:
 
     # Segmentation
     segment_mode: str = _choice("threshold", SEGMENT_MODES, "Segmentation",
-                                "threshold: find bright plaques first; none: search the full frame")
+                                "threshold: find bright plaques first; none: search the full frame",
+                                stages=("segment", "refine"))
     normalization: str = _choice("minmax", NORMALIZATIONS, "Segmentation",
-                                 "Grayscale to [0,1]: scale divides by 255, minmax stretches min..max (the paper)")
+                                 "Grayscale to [0,1]: scale divides by 255, minmax stretches min..max (the paper)",
+                                 stages=("segment",))
     threshold: float = _num(0.75, 0.0, 1.0, "Segmentation",
-                            "Normalised gray level above which a pixel counts as white", step=0.01)
+                            "Normalised gray level above which a pixel counts as white", step=0.01,
+                            stages=("segment", "quads"))
     high_threshold: float | None = _num(None, 0.0, 1.0, "Segmentation",
                                         "Optional upper gate: pixels brighter than this are not sign (glare)",
-                                        step=0.01, nullable=True)
-    candidates: int = _num(3, 1, 10, "Segmentation", "How many of the largest white blobs to try, largest first", step=1)
+                                        step=0.01, nullable=True, stages=("segment",))
+    candidates: int = _num(3, 1, 10, "Segmentation", "How many of the largest white blobs to try, largest first",
+                           step=1, stages=("segment",))
     crop_margin: float = _num(0.15, 0.0, 1.0, "Segmentation",
-                              "Margin added around a blob's bounding box, as a fraction of its size", step=0.01)
+                              "Margin added around a blob's bounding box, as a fraction of its size", step=0.01,
+                              stages=("segment", "regions"))
     min_blob_area: float = _num(0.0005, 0.0, 0.5, "Segmentation",
-                                "Smallest blob worth trying, as a fraction of the image area", step=0.0001)
+                                "Smallest blob worth trying, as a fraction of the image area", step=0.0001,
+                                stages=("segment",))
     plaque_candidates: int = _num(2, 0, 10, "Segmentation",
                                   "Then search this many plaque-shaped regions found at lower gray levels, best "
                                   "correlation with a sign first (one crop instead of the full frame when a lamp "
                                   "pushed the sign below the threshold); with any, a largest blob that reads as "
                                   "no sign (no text in it, or a plaque of other words) is searched after them",
-                                  step=1)
+                                  step=1, stages=("regions",))
     full_frame_fallback: bool = _flag(True, "Segmentation",
-                                      "Search the full frame when no candidate blob yields a sign")
+                                      "Search the full frame when no candidate blob yields a sign", stages=("regions",))
 
     # Features
-    detector: str = _choice("sift", DETECTORS, "Features", "Local feature detector and descriptor")
-    max_features: int = _num(2000, 50, 20000, "Features", "Most keypoints kept per image (strongest first)", step=50)
+    detector: str = _choice("sift", DETECTORS, "Features", "Local feature detector and descriptor",
+                            stages=("library features", "features"))
+    max_features: int = _num(2000, 50, 20000, "Features", "Most keypoints kept per image (strongest first)", step=50,
+                             stages=("library features", "features"))
     min_crop_size: int = _num(128, 0, 2000, "Features",
                               "Crops whose longer side is below this many px are upscaled to it before detection",
-                              step=10)
+                              step=10, stages=("features",))
     max_crop_size: int = _num(160, 0, 8000, "Features",
                               "Crops (not the full frame) whose longer side is above this many px are downscaled "
-                              "to it before detection; 0: never", step=10)
+                              "to it before detection; 0: never", step=10, stages=("features",))
     max_search_size: int = _num(2048, 0, 20000, "Features",
                                 "Any region, the full frame included, whose longer side is above this many px is "
                                 "downscaled to it before detection (SIFT on a 12 MP frame took 2.8 GB and 8 s); "
-                                "0: never", step=64)
+                                "0: never", step=64, stages=("features",))
     contrast_threshold: float = _num(0.03, 0.001, 0.2, "Features",
-                                     "SIFT contrast threshold: lower finds more, weaker keypoints", step=0.001)
+                                     "SIFT contrast threshold: lower finds more, weaker keypoints", step=0.001,
+                                     stages=("library features", "features"))
 
     # Matching
     ratio: float = _num(0.75, 0.3, 1.0, "Matching",
-                        "Lowe's distance-ratio test: keep a match when best < ratio x second best", step=0.01)
+                        "Lowe's distance-ratio test: keep a match when best < ratio x second best", step=0.01,
+                        stages=("match",))
 
     # RANSAC
     ransac_method: str = _choice("own", RANSAC_METHODS, "RANSAC",
-                                 "own: the paper's fixed-iteration RANSAC on 4-point DLT; others: OpenCV backends")
-    ransac_iterations: int = _num(500, 1, 100000, "RANSAC", "Hypotheses drawn (own RANSAC: exactly this many)", step=1)
+                                 "own: the paper's fixed-iteration RANSAC on 4-point DLT; others: OpenCV backends",
+                                 stages=("ransac",))
+    ransac_iterations: int = _num(500, 1, 100000, "RANSAC", "Hypotheses drawn (own RANSAC: exactly this many)", step=1,
+                                  stages=("ransac",))
     ransac_threshold_px: float = _num(4.0, 0.1, 50.0, "RANSAC",
-                                      "Reprojection distance in image px under which a match is an inlier", step=0.1)
+                                      "Reprojection distance in image px under which a match is an inlier", step=0.1,
+                                      stages=("ransac",))
     ransac_confidence: float = _num(0.999, 0.5, 0.999999, "RANSAC",
                                     "Confidence for adaptive stopping (OpenCV backends, and own with ransac_adaptive)",
-                                    step=0.001)
+                                    step=0.001, stages=("ransac",))
     ransac_adaptive: bool = _flag(True, "RANSAC",
-                                  "Own RANSAC: stop before ransac_iterations once ransac_confidence is reached")
-    seed: int = _num(0, 0, 2**31 - 1, "RANSAC", "Random seed: the same seed gives the same answer", step=1)
+                                  "Own RANSAC: stop before ransac_iterations once ransac_confidence is reached",
+                                  stages=("ransac",))
+    seed: int = _num(0, 0, 2**31 - 1, "RANSAC", "Random seed: the same seed gives the same answer", step=1,
+                     stages=("ransac", "refine"))
 
     # Decision
-    min_matches: int = _num(8, 4, 1000, "Decision", "A sign with fewer ratio-test matches is rejected", step=1)
-    min_inliers: int = _num(10, 4, 1000, "Decision", "A sign with fewer RANSAC inliers is rejected", step=1)
+    min_matches: int = _num(8, 4, 1000, "Decision", "A sign with fewer ratio-test matches is rejected", step=1,
+                            stages=("ransac", "decide"))
+    min_inliers: int = _num(10, 4, 1000, "Decision", "A sign with fewer RANSAC inliers is rejected", step=1,
+                            stages=("decide",))
     min_margin: int = _num(5, 0, 1000, "Decision",
-                           "The winner needs this many more inliers than the runner-up", step=1)
+                           "The winner needs this many more inliers than the runner-up", step=1,
+                           stages=("ransac", "decide"))
     min_text_correlation: float = _num(0.75, 0.0, 1.0, "Decision",
                                        "The winner's text, rectified, must correlate with its sign's this much in "
                                        "each of 6 strips across it (turns down other signs sharing a word); "
-                                       "0: no check", step=0.01)
+                                       "0: no check", step=0.01, stages=("text check",))
 
     # Plaque fallback
     plaque_fallback: bool = _flag(True, "Plaque",
-                                  "When features fail, read white quad blobs as plaques: outline, correlation, ECC")
+                                  "When features fail, read white quad blobs as plaques: outline, correlation, ECC",
+                                  stages=("plaque",))
     min_plaque_ncc: float = _num(0.6, 0.0, 1.0, "Plaque",
                                  "Least correlation between a rectified blob and a library sign to accept it",
-                                 step=0.01)
+                                 step=0.01, stages=("plaque",))
     plaque_margin: float = _num(0.15, 0.0, 1.0, "Plaque",
-                                "The best sign's correlation must beat the runner-up's by this much", step=0.01)
+                                "The best sign's correlation must beat the runner-up's by this much", step=0.01,
+                                stages=("plaque",))
 
     plaque_search: bool = _flag(True, "Plaque",
                                 "When the plaque fallback finds nothing, look for quadrilateral plaques at lower gray "
-                                "levels too and accept one only after dense (ECC) alignment with a sign")
+                                "levels too and accept one only after dense (ECC) alignment with a sign",
+                                stages=("plaque",))
     min_plaque_ecc: float = _num(0.85, 0.0, 1.0, "Plaque",
                                  "Plaque fallback and search: least correlation after dense alignment to accept a "
-                                 "sign (plaques under 60 x 60 px need more)", step=0.01)
+                                 "sign (plaques under 60 x 60 px need more)", step=0.01, stages=("plaque",))
     plaque_ecc_margin: float = _num(0.1, 0.0, 1.0, "Plaque",
                                     "Plaque search: the sign's aligned correlation must beat the next sign's by this "
-                                    "much", step=0.01)
+                                    "much", step=0.01, stages=("plaque",))
 
     # Pose
     refine: str = _choice("auto", REFINE_METHODS, "Pose",
                           "ecc: align the sign densely to refine H; auto: only when the winner has few inliers "
                           "(there it beats the points; with many it is slightly worse), and with many only to look "
-                          "again for outline edges missed; the plaque fallback always refines")
+                          "again for outline edges missed; the plaque fallback always refines", stages=("refine",))
     refine_outline: bool = _flag(True, "Pose",
                                  "Refine the winner's homography from the plaque's four straight edges (needs a "
                                  "library image cropped to the sign's edges); falls back to refine when an edge "
-                                 "is not found; not used with segment_mode none")
+                                 "is not found; not used with segment_mode none", stages=("refine",))
     pose_method: str = _choice("ippe_lm", POSE_METHODS, "Pose",
-                               "paper: decompose H; ippe: planar PnP on all inliers; ippe_lm: ippe refined by LM")
+                               "paper: decompose H; ippe: planar PnP on all inliers; ippe_lm: ippe refined by LM",
+                               stages=("pose",))
     ambiguity_ratio: float = _num(0.8, 0.0, 1.0, "Pose",
-                                  "Flag ambiguous when best / second IPPE error exceeds this", step=0.01)
+                                  "Flag ambiguous when best / second IPPE error exceeds this", step=0.01,
+                                  stages=("pose",))
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -229,7 +255,7 @@ def settings_schema() -> list[dict[str, Any]]:
     """One entry per field: name, type, group, default, min/max/step or choices, help."""
     out = []
     for f in dataclasses.fields(Settings):
-        meta = dict(f.metadata)
+        meta = {k: v for k, v in f.metadata.items() if k != "stages"}
         if "choices" in meta:
             kind = "choice"
         elif isinstance(f.default, bool):
