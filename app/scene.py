@@ -32,7 +32,9 @@ import viser
 import viser.transforms as tf
 from viser._messages import RunJavascriptMessage
 
-from signpose.app.workspace import Event, ImageRecord, Outcome, Workspace, is_correct, status_of
+from signpose.app.events import Event
+from signpose.app.image_store import ImageRecord, Outcome, is_correct, status_of
+from signpose.app.workspace import Workspace
 from signpose.pipeline.library import Library, LibrarySign
 from signpose.pipeline.pose import camera_position
 from signpose.pipeline.recognize import Recognition

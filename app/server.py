@@ -983,7 +983,7 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
     requests addressed to a loopback host are answered.
     """
     owned = not isinstance(source, Workspace)
-    workspace = Workspace(source) if owned else source
+    workspace = Workspace.open(source) if owned else source
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
