@@ -257,7 +257,8 @@ def _too_large(name: str, width: int, height: int, max_pixels: int) -> ImageTooL
     """The error for image `name` of `width` x `height` px, more than `max_pixels` px or Pillow's ceiling (twice
     Image.MAX_IMAGE_PIXELS, which it refuses to open): its size, and whether a higher --max-megapixels would let it
     through."""
-    pixels, ceiling = width * height, 2 * Image.MAX_IMAGE_PIXELS
+    pixels = width * height
+    ceiling = 2 * (Image.MAX_IMAGE_PIXELS or pixels)  # None: Pillow has no ceiling
     size = f"{name}: {width}x{height} px is {pixels / 1e6:.1f} megapixels, more than the"
     if pixels > ceiling:
         return ImageTooLarge(f"{size} {ceiling / 1e6:.0f} that can be read at any --max-megapixels; downscale it")
@@ -358,7 +359,7 @@ class ImageStore:
         or `max_memory_bytes`.
         """
         checked = [(display_name(name), data, expected) for name, data, expected in uploads]
-        by_place, refused = dict(enumerate(checked)), {}
+        by_place, refused = dict(enumerate(checked)), dict[int, ImageError]()
         headers = read_each(by_place, lambda u: check_image_header(u[1], u[0], self.max_pixels), refused)
         sizes = [(by_place[place][0], header.width * header.height) for place, header in headers.items()]
         with self._lock:

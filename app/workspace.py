@@ -44,7 +44,7 @@ from .events import Event, EventBus
 from .image_store import (DEFAULT_MAX_MEMORY_BYTES, IMAGE_ID, Conflict, ImageRecord, ImageStore, ImageTooLarge,
                           Outcome, Slot, decode_gray, decode_upload, display_name, is_correct, status_of)
 from .rerun import Job, Rerunner
-from .settings_history import Snapshot, SettingsHistory
+from .settings_history import SettingsHistory, Snapshot
 from .state import Replaced, StateDir, StoredImage
 
 # The names app/server.py imports from here, besides those defined here.

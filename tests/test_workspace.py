@@ -18,15 +18,15 @@ import cv2
 import numpy as np
 import pytest
 
-import signpose.app.image_store as image_store
-import signpose.app.rerun as rerun
 import signpose.pipeline.recognize
+from signpose.app import image_store, rerun
 from signpose.app.state import LIBRARY_ASIDE, StateDir, StateError, atomic_write
-from signpose.app.workspace import NO_SIGN, SAMPLE_SCENES, Conflict, ImageTooLarge, Workspace, WorkspaceConfig
+from signpose.app.image_store import Conflict, ImageTooLarge
+from signpose.app.workspace import SAMPLE_SCENES, Workspace, WorkspaceConfig
 from signpose.pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError
 from signpose.pipeline.evaluate import CORES
 from signpose.pipeline.image import ImageError, decode_image
-from signpose.pipeline.library import SAMPLE_LIBRARY, LibraryError, load_library
+from signpose.pipeline.library import NO_SIGN, SAMPLE_LIBRARY, LibraryError, load_library
 from signpose.pipeline.settings import SettingsError
 from scene_images import big_photo, block_sign, empty_photo, png_bomb, sign_photo, with_focal_exif
 
