@@ -101,7 +101,6 @@ def say_kept(what: str, file: Path, replaced: Replaced | None) -> None:
                     option, file, replaced.kept, option, replaced.kept)
 
 
-
 def load_images(state: StateDir, stored: list[StoredImage], *, workers: int) -> list[ImageRecord]:
     """The records of the `stored` images, listed in their order, decoded on `workers` threads; a file
     damaged on disk is dropped (logged) rather than refusing to start."""
@@ -210,7 +209,7 @@ class Workspace:
         return self._history.settings_at(version)
 
     def settings_versions(self) -> range:
-        """The settings versions whose settings are kept: the last SETTINGS_HISTORY."""
+        """The settings versions whose settings are kept: the last `settings_history.SETTINGS_HISTORY`."""
         return self._history.versions()
 
     @property
