@@ -29,7 +29,7 @@ from signpose.pipeline.evaluate import CORES
 from signpose.pipeline.image import ImageError, decode_image, to_gray
 
 from .figures import fit
-from .workspace import Conflict, Slot, check_image_header, read_each, refused_together, slot_for
+from .image_store import Conflict, Slot, check_image_header, read_each, refused_together, slot_for
 
 # Figures of calibration photos are drawn from a copy this size: enough for a full-width preview.
 PREVIEW_MAX_SIDE = 1280

@@ -21,7 +21,8 @@ import cv2
 from tqdm import tqdm
 
 from signpose.app.entry import STOP_SIGNALS, Interrupted, interrupted, stopping_on_signals
-from signpose.app.workspace import HELD_BYTES_PER_PIXEL, WorkspaceConfig, check_image_header, decode_upload, held_bytes
+from signpose.app.image_store import HELD_BYTES_PER_PIXEL, check_image_header, decode_upload, held_bytes
+from signpose.app.workspace import WorkspaceConfig
 from signpose.pipeline.camera import ASSUMED_HFOV_DEG, ASSUMED_HFOV_RANGE_DEG, Camera, CameraError, check_hfov, load_camera
 from signpose.pipeline.evaluate import CORES, keep_freed_memory, pad_to
 from signpose.pipeline.image import ImageError, read_file
@@ -289,6 +290,7 @@ def cmd_calibrate(args) -> int:
 
 
 def cmd_serve(args) -> int:
+    from signpose.app.rerun import share_cores
     from signpose.app.security import TOKEN_ENV, access_token
     from signpose.app.server import bind, create_app, serve
     from signpose.app.state import StateError
@@ -305,6 +307,7 @@ def cmd_serve(args) -> int:
         sock = bind(args.host, args.port)
     except OSError as exc:
         raise CliError(f"cannot listen on {args.host}:{args.port} ({exc.strerror}); choose another --port") from None
+    share_cores(config.workers)  # process-wide, so here where the serving process starts
     try:
         app = create_app(config, token=token)
     except (StateError, SettingsError, CameraError, LibraryError) as exc:

@@ -14,7 +14,8 @@ from signpose.pipeline.exif import turned_camera
 from .api_models import (AttemptOut, BoardSearchOut, BoardSpec, CalibrationOut, CalibrationResult, CalibrationView,
                          CameraIntrinsics, CameraOut, ImageDetail, ImageSummary, SettingsOut)
 from .calibration import CalibrationSession, CalibrationState, calibrated_camera, page_outlier_advice
-from .workspace import ImageRecord, Outcome, Workspace, status_of
+from .image_store import ImageRecord, Outcome, status_of
+from .workspace import Workspace
 
 
 def result_of(record: ImageRecord) -> Outcome:

@@ -31,8 +31,10 @@ import numpy as np
 import viser
 import viser.transforms as tf
 
+from signpose.app.events import Event
+from signpose.app.image_store import ImageRecord, Outcome, is_correct, status_of
 from signpose.app.viser_compat import SHEET_BELOW_PX, fold_sheet, run_script
-from signpose.app.workspace import Event, ImageRecord, Outcome, Workspace, is_correct, status_of
+from signpose.app.workspace import Workspace
 from signpose.pipeline.library import Library, LibrarySign
 from signpose.pipeline.pose import camera_position
 from signpose.pipeline.recognize import Recognition

@@ -36,16 +36,18 @@ from signpose.pipeline.calibrate import CalibrationError
 from signpose.pipeline.camera import CameraError
 from signpose.pipeline.image import ImageError
 from signpose.pipeline.library import LibraryError
+from signpose.pipeline.recognize import PipelineError
 from signpose.pipeline.settings import SettingsError
 
 from . import api
 from .calibration import CalibrationSession
+from .image_store import Conflict, ImageTooLarge
 from .scene import attach as attach_scene
 from .security import DOCS_ASSETS, AccessGuard, SecurityHeaders
 from .tuning import TuningError
 from .uploads import UploadLimit
 from .viser_proxy import mount_viser
-from .workspace import Conflict, ImageTooLarge, PipelineError, Workspace, WorkspaceConfig
+from .workspace import Workspace, WorkspaceConfig
 
 STATIC_DIR = shipped_folder(Path(__file__).resolve().parent, "static")
 BACKLOG = 2048  # uvicorn's default
@@ -87,7 +89,7 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
     requests addressed to a loopback host are answered.
     """
     owned = not isinstance(source, Workspace)
-    workspace = source if isinstance(source, Workspace) else Workspace(source)
+    workspace = Workspace.open(source) if owned else source
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:

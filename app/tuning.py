@@ -16,7 +16,7 @@ from signpose.pipeline.recognize import Recognition
 from signpose.pipeline.segment import Box, normalize_levels
 from signpose.pipeline.settings import Settings, SettingsError, check_setting, settings_schema
 
-from .workspace import is_correct
+from .image_store import is_correct
 
 HISTOGRAM_BINS = 256
 # The paper measured the sign at 0.8 and thresholded at 0.75: just below the sign's white.

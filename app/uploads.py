@@ -15,7 +15,7 @@ from fastapi.responses import JSONResponse
 from starlette.datastructures import FormData, Headers, UploadFile
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from .workspace import display_name
+from .image_store import display_name
 
 
 class UploadLimit:

@@ -35,6 +35,7 @@ import numpy as np
 from tqdm import tqdm
 
 import signpose.pipeline.recognize as recognize_module
+from signpose.app.rerun import share_cores
 from signpose.app.workspace import Workspace, WorkspaceConfig
 from signpose.pipeline.camera import Camera
 from signpose.pipeline.evaluate import Dataset, evaluate, keep_freed_memory, load_dataset
@@ -276,14 +277,15 @@ def batch_speedup(dataset: Dataset, library: Library, repeats: int) -> str:
 def server_speedup(dataset: Dataset, repeats: int) -> str:
     """A full re-run of every loaded image in `signpose serve`'s Workspace (a features setting
     changed, so nothing is cached) on 1 pipeline worker on 1 core and on one worker per core
-    with the OpenCV threads the Workspace chooses."""
+    with the OpenCV threads `signpose serve` chooses (`share_cores`)."""
     uploads = [(s.path.name, s.path.read_bytes(), s.label) for s in dataset.samples]
     best = {}
     with tempfile.TemporaryDirectory() as tmp:
         for workers, name in ((1, "1 worker on 1 core"), (os.cpu_count() or 1, f"{os.cpu_count()} workers")):
             config = WorkspaceConfig(state_dir=Path(tmp) / name, load_samples=False, workers=workers,
                                      debounce_s=0.0)
-            workspace = Workspace(config)
+            threads = share_cores(workers)  # as `signpose serve` starts
+            workspace = Workspace.open(config)
             opencv_threads = 1 if workers == 1 else cv2.getNumThreads()
             try:
                 workspace.set_camera(dataset.camera)
@@ -298,6 +300,7 @@ def server_speedup(dataset: Dataset, repeats: int) -> str:
                 best |= best_times({name: (opencv_threads, rerun_all)}, repeats)
             finally:
                 workspace.close()
+                cv2.setNumThreads(threads)
     one, many = best.values()
     return (f"signpose serve, all {len(uploads)} images re-run after a features change, best of {repeats}: "
             + ", ".join(f"{name} {seconds:.2f} s" for name, seconds in best.items()) + f"; {one / many:.2f}x")

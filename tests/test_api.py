@@ -48,7 +48,7 @@ def config(state_dir: Path, **options) -> WorkspaceConfig:
 
 @pytest.fixture(scope="module")
 def base_url(tmp_path_factory):
-    workspace = Workspace(config(tmp_path_factory.mktemp("api") / "state"))
+    workspace = Workspace.open(config(tmp_path_factory.mktemp("api") / "state"))
     try:
         with running(create_app(workspace)) as url:
             yield url
@@ -217,7 +217,7 @@ def test_library_list_image_add_and_delete(client):
 def test_the_state_library_with_a_sign_added_is_a_library_as_read_elsewhere(tmp_path):
     """library.json refuses unknown keys: what the server writes beside the signs (where they came from, the
     signs added) must not be one, or `signpose recognize --library <state>/library` would refuse it."""
-    workspace = Workspace(config(tmp_path / "state"))
+    workspace = Workspace.open(config(tmp_path / "state"))
     with running(create_app(workspace)) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as client:
         photo = sign_photo(LIBRARY, "security_compound")
         r = client.post("/api/library", files={"file": ("d.jpg", photo, "image/jpeg")},

@@ -27,7 +27,7 @@ from signpose.pipeline.verify import CHECK_WIDTH
 from signpose.app import tuning
 from signpose.app.figures import TEXT_BLOCK_PX
 from signpose.app.scene import LABEL_SEPARATOR
-from signpose.app.workspace import memory_text
+from signpose.app.image_store import memory_text
 from scene_images import DECOYS, decoy_image, sign_seen_from
 from serving import MISFIT_CAMERA
 

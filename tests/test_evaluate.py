@@ -17,7 +17,7 @@ import pytest
 
 import signpose.pipeline.evaluate as evaluate_module
 import signpose.pipeline.recognize as recognize_module
-from signpose.app.workspace import check_image_header
+from signpose.app.image_store import check_image_header
 from signpose.pipeline.evaluate import (Dataset, DatasetError, ImageResult, Sample, check_labels, evaluate, format_table,
                                load_dataset, summarize, text_columns)
 from signpose.pipeline.library import load_library

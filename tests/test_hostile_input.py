@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-import signpose.app.workspace as workspace_module
+import signpose.app.image_store as image_store
 from signpose.app.figures import DIM, MIN_SIDE_PX, RED, STAGES
 from signpose.app.server import create_app
 from signpose.app.workspace import WorkspaceConfig
@@ -90,7 +90,7 @@ def raw_post(base_url: str, path: str, content_type: bytes, body: bytes) -> tupl
 
 def test_a_header_claiming_50000x50000_px_is_refused_before_decoding(client, monkeypatch):
     decoded = []
-    monkeypatch.setattr(workspace_module, "decode_with_exif", lambda *a: decoded.append(a) or pytest.fail("decoded"))
+    monkeypatch.setattr(image_store, "decode_with_exif", lambda *a: decoded.append(a) or pytest.fail("decoded"))
     bomb = png_bomb(50_000, 50_000)
     assert len(bomb) < 200
     assert_error(upload(client, ("bomb.png", bomb, None)), 413, "bomb.png", "megapixels", "downscale")

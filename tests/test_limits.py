@@ -13,7 +13,7 @@ import time
 import httpx
 import pytest
 
-import signpose.app.workspace as workspace_module
+import signpose.app.settings_history as settings_history
 import signpose.pipeline.recognize as recognize_module
 from signpose.app.cli import main
 from signpose.app.server import create_app
@@ -66,7 +66,7 @@ def test_serve_refuses_limits_that_are_not_positive(tmp_path, capsys, option, va
 
 
 def test_results_can_be_checked_against_the_settings_of_their_version(tmp_path, monkeypatch):
-    monkeypatch.setattr(workspace_module, "SETTINGS_HISTORY", 3)
+    monkeypatch.setattr(settings_history, "SETTINGS_HISTORY", 3)
     config = WorkspaceConfig(state_dir=tmp_path / "state", load_samples=False, workers=1)
     with running(create_app(config)) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
         image_id = upload(c, ("compound.jpg", sign_photo(LIBRARY, "security_compound"), None)) \

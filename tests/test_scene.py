@@ -40,7 +40,7 @@ def wait_for(condition, timeout: float = 10.0) -> None:
 @pytest.fixture(scope="module")
 def workspace(tmp_path_factory):
     """The sample scenes in a fresh Workspace with their camera file; loaded once, as that takes seconds."""
-    ws = Workspace(WorkspaceConfig(state_dir=tmp_path_factory.mktemp("scene") / "state",
+    ws = Workspace.open(WorkspaceConfig(state_dir=tmp_path_factory.mktemp("scene") / "state",
                                    camera_file=SAMPLE_SCENES / "camera.yaml", workers=2))
     assert ws.wait_idle(IDLE_TIMEOUT_S)
     yield ws

@@ -18,7 +18,7 @@ TOKEN = "team-token-for-tests"
 
 @pytest.fixture(scope="module")
 def workspace(tmp_path_factory):
-    ws = Workspace(WorkspaceConfig(state_dir=tmp_path_factory.mktemp("security") / "state", load_samples=False,
+    ws = Workspace.open(WorkspaceConfig(state_dir=tmp_path_factory.mktemp("security") / "state", load_samples=False,
                                    workers=1, max_upload_bytes=1_000_000))
     yield ws
     ws.close()

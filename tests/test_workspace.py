@@ -18,14 +18,15 @@ import cv2
 import numpy as np
 import pytest
 
-import signpose.app.workspace as workspace_module
 import signpose.pipeline.recognize
+from signpose.app import image_store, rerun
 from signpose.app.state import LIBRARY_ASIDE, StateDir, StateError, atomic_write
-from signpose.app.workspace import NO_SIGN, SAMPLE_SCENES, Conflict, ImageTooLarge, Workspace, WorkspaceConfig
+from signpose.app.image_store import Conflict, ImageTooLarge
+from signpose.app.workspace import SAMPLE_SCENES, Workspace, WorkspaceConfig
 from signpose.pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError
 from signpose.pipeline.evaluate import CORES
 from signpose.pipeline.image import ImageError, decode_image
-from signpose.pipeline.library import SAMPLE_LIBRARY, LibraryError, load_library
+from signpose.pipeline.library import NO_SIGN, SAMPLE_LIBRARY, LibraryError, load_library
 from signpose.pipeline.settings import SettingsError
 from scene_images import big_photo, block_sign, empty_photo, png_bomb, sign_photo, with_focal_exif
 
@@ -40,7 +41,7 @@ def make_workspace(tmp_path):
 
     def make(**options) -> Workspace:
         options = {"state_dir": tmp_path / "state", "load_samples": False, "workers": 2, **options}
-        ws = Workspace(WorkspaceConfig(**options))
+        ws = Workspace.open(WorkspaceConfig(**options))
         opened.append(ws)
         return ws
 
@@ -82,7 +83,7 @@ def test_images_are_processed_and_tagged(make_workspace):
     negative = ws.add_image("wall.jpg", empty_photo(), NO_SIGN)
     assert ws.wait_idle(IDLE_TIMEOUT_S)
     for record in [*records, negative]:
-        assert workspace_module.status_of(record.expected, record.outcome, ws.snapshot.generation) == "correct"
+        assert image_store.status_of(record.expected, record.outcome, ws.snapshot.generation) == "correct"
         assert record.settings_version == ws.settings_version == 1
     assert records[0].recognition.label == "security_compound"
     assert ws.progress() == {"version": 1, "running": False, "done": 3, "total": 3}
@@ -130,7 +131,7 @@ def test_an_image_never_takes_more_memory_than_the_limit_counts_for_it(make_work
         held = tracemalloc.get_traced_memory()[0] - before
     finally:
         tracemalloc.stop()
-    assert held <= workspace_module.held_bytes(width * height), f"{held / (width * height):.2f} bytes a pixel"
+    assert held <= image_store.held_bytes(width * height), f"{held / (width * height):.2f} bytes a pixel"
 
 
 def test_images_deleted_after_a_rerun_are_freed(make_workspace):
@@ -173,8 +174,8 @@ def test_the_memory_of_deleted_images_goes_back_to_the_system(tmp_path):
 def held_and_kept_after_deleting(state_dir: Path) -> tuple[int, int]:
     """(bytes of RSS four 4 MP photos took in a fresh Workspace, bytes still resident 5 s at most
     after they were removed)."""
-    workspace_module.TRIM_DELAY_S = 0.05
-    ws = Workspace(WorkspaceConfig(state_dir=state_dir, load_samples=False, workers=2))
+    rerun.TRIM_DELAY_S = 0.05
+    ws = Workspace.open(WorkspaceConfig(state_dir=state_dir, load_samples=False, workers=2))
     ws.add_image("warm-up.jpg", big_photo(2400, 1800), None)
     assert ws.wait_idle(IDLE_TIMEOUT_S)
     ws.remove_image(ws.images()[0].id)
@@ -345,7 +346,7 @@ def test_deleting_a_sign_reruns_the_results_that_named_it(make_workspace):
     ws.remove_sign("security_compound")
     assert ws.wait_idle(IDLE_TIMEOUT_S)
     assert record.recognition.label != "security_compound"
-    assert workspace_module.status_of(record.expected, record.outcome, ws.snapshot.generation) == "wrong"
+    assert image_store.status_of(record.expected, record.outcome, ws.snapshot.generation) == "wrong"
     assert not (ws.state.library_dir / LIBRARY["security_compound"].image_file).exists()
 
 
@@ -584,13 +585,15 @@ def test_a_fresh_state_starts_with_the_labelled_sample_scenes(make_workspace):
         assert record.expected == (truth[record.name]["label"] or NO_SIGN)
 
 
-def test_pipeline_workers_share_the_cores_and_close_gives_opencv_threads_back(make_workspace):
+def test_pipeline_workers_share_the_cores_where_the_process_starts_not_in_a_workspace(make_workspace):
     before = cv2.getNumThreads()
     try:
         cv2.setNumThreads(7)
         ws = make_workspace(workers=2)
-        assert cv2.getNumThreads() == max(1, CORES // 2)  # the pool's threads share the cores
+        assert cv2.getNumThreads() == 7  # the process's setting is not a workspace's to change
         ws.close()
-        assert cv2.getNumThreads() == 7  # the process has its own back, as evaluate gives it
+        assert rerun.share_cores(1) == 7 and cv2.getNumThreads() == 7  # one worker keeps OpenCV's threads
+        assert rerun.share_cores(2) == 7
+        assert cv2.getNumThreads() == max(1, CORES // 2)  # the pool's threads share the cores
     finally:
         cv2.setNumThreads(before)

@@ -15,7 +15,7 @@ from ..api_models import BoardSpec, CalibrationAdded, CalibrationOut, Calibratio
 from ..calibration import PREVIEW_MAX_SIDE, CalibrationState, calibrated_camera
 from ..responses import calibration_out, camera_out
 from ..uploads import read_upload
-from ..workspace import Conflict
+from ..image_store import Conflict
 from .deps import (FILES, IN_ORDER, JSON_BODY, MULTIPART, OPTIONAL_JSON_BODY, Batch, CalibrationDep, JsonBodyRoute,
                    Position, WorkspaceDep)
 

@@ -25,7 +25,8 @@ from signpose.pipeline.library import ID_PATTERN
 from ..calibration import CalibrationSession
 from ..scene import SceneHandle
 from ..uploads import in_order, single_values, the_file, uploads
-from ..workspace import IMAGE_ID, ImageRecord, Workspace
+from ..image_store import IMAGE_ID, ImageRecord
+from ..workspace import Workspace
 
 T = TypeVar("T")
 

@@ -10,7 +10,7 @@ from fastapi import APIRouter, Request
 from fastapi.sse import EventSourceResponse, ServerSentEvent
 
 from ..api_models import Health
-from ..workspace import Event
+from ..events import Event
 from .deps import JsonBodyRoute, WorkspaceDep
 
 router = APIRouter(tags=["server"], route_class=JsonBodyRoute)
