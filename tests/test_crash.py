@@ -11,12 +11,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import httpx
+import pytest
 
 from signpose.app.state import TMP_SUFFIX, StateDir
 from signpose.pipeline.image import decode_image
 from signpose.pipeline.library import load_library
-from scene_images import block_sign, tiny_photo
-from serving import TIMEOUT_S, start_serve, stop_serve
+from tests.support.scene_images import block_sign, tiny_photo
+from tests.support.serving import TIMEOUT_S, start_serve, stop_serve
+
+# Kills and restarts a real `signpose serve`.
+pytestmark = pytest.mark.server
 
 KILLS = 3
 SIGN_SIZE_M = {"width_m": "0.6", "height_m": "0.24"}

@@ -17,7 +17,7 @@ from signpose.pipeline.plaque_search import (cut_image, cut_levels, level_quads,
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.segment import segment
 from signpose.pipeline.settings import preset
-from scene_images import PLAQUE_AT, like_a_camera, render_plaque, shaded_wall, sign_on_wall
+from tests.support.scene_images import PLAQUE_AT, like_a_camera, render_plaque, shaded_wall, sign_on_wall
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_images"
 CORNERS = np.array([[230.0, 250.0], [380.0, 243.0], [383.0, 305.0], [228.0, 309.0]])
@@ -57,6 +57,7 @@ def test_search_finds_the_sign_the_fallback_misses(library, sign_id):
     assert np.linalg.norm(found.corners - CORNERS, axis=1).mean() < 1.0
 
 
+@pytest.mark.slow
 def test_a_large_photo_is_searched_at_a_bounded_resolution(library):
     """The lower levels of a 12 MP photo were cut at full resolution: 39 ms of connected components
     each. Cut where its longer side is MAX_CUT_SIDE, the same scene enlarged 4x finds its sign as

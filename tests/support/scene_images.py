@@ -18,7 +18,7 @@ from signpose.app.workspace import SAMPLE_SCENES
 from signpose.pipeline.camera import Camera, load_camera
 from signpose.pipeline.library import Library, LibrarySign
 from tools.render_library import render_sign
-from chessboards import pixel_rays
+from tests.support.chessboards import pixel_rays
 
 SIZE = (640, 480)  # (w, h) px
 
