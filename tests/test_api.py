@@ -28,11 +28,11 @@ from signpose.pipeline.settings import preset
 from signpose.pipeline.verify import CHECK_WIDTH
 from signpose.pipeline.synth import synthetic_camera
 from signpose.pipeline.camera import load_camera, ros_camera_yaml
-from tests.support.scene_images import (DECOYS, HEIC_START, OFF_CENTRE, big_photo, decoy_image, empty_photo, has, plaque_of,
-                          png_bomb, scrambled_scene, sign_photo, tiny_photo, turned_photos, turned_scene_position,
-                          with_focal_exif)
-from tests.support.serving import (MISFIT_CAMERA, REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, iter_events, running,
-                     start_serve, stop_serve, upload, wait_done)
+from tests.support.scene_images import (DECOYS, HEIC_START, OFF_CENTRE, big_photo, decoy_image, empty_photo, has,
+                                        plaque_of, png_bomb, scrambled_scene, sign_photo, tiny_photo, turned_photos,
+                                        turned_scene_position, with_focal_exif)
+from tests.support.serving import (MISFIT_CAMERA, REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange,
+                                   iter_events, running, start_serve, stop_serve, upload, wait_done)
 
 # The HTTP API, against a real uvicorn server (one per module, and more per test).
 pytestmark = pytest.mark.server

@@ -10,7 +10,8 @@ from PIL import Image
 
 import signpose.pipeline.calibrate as calib
 from signpose.app.cli import main
-from tests.support.chessboards import BOARD, DIST_TRUE, K_TRUE, SIZE, SQUARE_M, board_poses, projected_corners, render_boards
+from tests.support.chessboards import (BOARD, DIST_TRUE, K_TRUE, SIZE, SQUARE_M, board_poses, projected_corners,
+                                       render_boards)
 from signpose.pipeline.calibrate import (BoardView, CalibrationError, calibrate, chessboard_image, drop_outliers,
                                 find_board, format_report, other_sizes, parse_board, reference_size,
                                 too_few_boards_advice)

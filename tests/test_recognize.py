@@ -20,7 +20,8 @@ from signpose.pipeline.plaque_search import QuadCandidate
 from signpose.pipeline.recognize import AUTO_ECC_MAX_INLIERS, StageCache, candidate_regions, decide, recognize, score_sign
 from signpose.pipeline.segment import Blob, Segmentation
 from signpose.pipeline.settings import preset
-from tests.support.scene_images import DECOYS, PLAQUE_AT, decoy_image, like_a_camera, plaque_of, render_plaque, shaded_wall, sign_on_wall
+from tests.support.scene_images import (DECOYS, PLAQUE_AT, decoy_image, like_a_camera, plaque_of, render_plaque,
+                                        shaded_wall, sign_on_wall)
 
 SCENES = Path(__file__).resolve().parents[1] / "sample_images" / "scenes"
 TRUTH = json.loads((SCENES / "truth.json").read_text())["images"]
