@@ -18,6 +18,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 
@@ -209,7 +210,7 @@ class CalibrationSession:
         """How far the search for a new board size has come (`set_board`), None when none is under way."""
         return self._search
 
-    def _commit(self, **changes: object) -> CalibrationState:
+    def _commit(self, **changes: Any) -> CalibrationState:
         """Replace the state by one with `changes` and the next revision (the caller holds the lock).
 
         Any change but a fit makes the result stale, so it is dropped unless `changes` gives one
@@ -245,10 +246,11 @@ class CalibrationSession:
         not a usable image (naming every one), Conflict past the photo limit."""
         self._check_room(len(uploads))
         refused: dict[int, ImageError] = {}
-        grays = read_each(dict(enumerate(uploads)), lambda u: read_gray(u[0], u[1], self.max_pixels), refused)
+        read = read_each(dict(enumerate(uploads)), lambda u: read_gray(u[0], u[1], self.max_pixels), refused)
         if refused:
             raise refused_together(refused, len(uploads))
-        grays = list(grays.values())
+        grays = list(read.values())
+
         previews = [fit(gray, PREVIEW_MAX_SIDE) for gray in grays]  # made once: they do not depend on the board
         names = [name for name, _ in uploads]
         while True:

@@ -257,7 +257,9 @@ def cmd_calibrate(args) -> int:
         except ImageError as exc:
             return exc
 
-    views, unreadable = [], 0
+    views: list[BoardView] = []
+    unreadable = 0
+
     with ThreadPoolExecutor(CORES) as pool, \
             stopped_after(lambda: len(views) + unreadable, len(args.images), "photos searched"):
         # OpenCV releases the GIL: a photo per core
@@ -372,7 +374,7 @@ def field_of_view(text: str) -> float:
     try:
         return check_hfov(float(text))
     except (ValueError, CameraError) as exc:
-        raise argparse.ArgumentTypeError(str(exc) if isinstance(exc, CameraError) else f"{text!r} is not a number")
+        raise argparse.ArgumentTypeError(str(exc) if isinstance(exc, CameraError) else f"{text!r} is not a number") from None
 
 
 def file_path(text: str) -> str:

@@ -126,7 +126,14 @@ def _bgr(img: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img.ndim == 2 else img.copy()
 
 
+def _enlarged_box(box: Box, k: int) -> Box:
+    """`box` (x0, y0, x1, y1) px in the image `_enlarged` `k` times."""
+    x0, y0, x1, y1 = box
+    return k * x0, k * y0, k * x1, k * y1
+
+
 def _box(img: np.ndarray, box: Box, color, text: str | None = None) -> None:
+
     thick, _ = _pen(img.shape)
     x0, y0, x1, y1 = box
     cv2.rectangle(img, (x0, y0), (x1 - 1, y1 - 1), color, thick, cv2.LINE_AA)
@@ -173,7 +180,7 @@ def draw_input(image: np.ndarray, recognition: Recognition) -> np.ndarray:
     labels = []  # (text, color, spots to try in turn) for `_free_band`
     for attempt in recognition.attempts:
         color = YELLOW if attempt is recognition.attempt else ORANGE
-        x0, y0, _, y1 = region = tuple(k * v for v in attempt.region)
+        x0, y0, _, y1 = region = _enlarged_box(attempt.region, k)
         _box(img, region, color)
         labels.append((attempt.source, color, [((x0, y0), True), ((x0, y0), False), ((x0, y1), False)]))
     corners, answer = recognition.corners, answer_text(recognition)
@@ -219,7 +226,7 @@ def draw_blob(image: np.ndarray, recognition: Recognition) -> np.ndarray:
         cv2.copyTo(tinted, pixels, img[y0:y1, x0:x1])
     img, k = _enlarged(img)  # tinted first, at the labels' resolution
     for i, (blob, crop, color) in enumerate(zip(seg.blobs, seg.crops, colors)):
-        _box(img, tuple(k * v for v in crop), color, f"blob {i + 1}: {blob.area} px")
+        _box(img, _enlarged_box(crop, k), color, f"blob {i + 1}: {blob.area} px")
     if not seg.blobs:
         _label(img, "no blob above the threshold", (10, 10), RED)
     return img

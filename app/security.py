@@ -105,6 +105,7 @@ class AccessGuard:
         """Where the request's valid token is: "header", "cookie" or "query"; None when it has none."""
         headers = Headers(scope=scope)
         scheme, _, bearer = headers.get("authorization", "").partition(" ")
+        assert self.token is not None  # asked only of a server that has a token
         query = dict(parse_qsl(scope.get("query_string", b"").decode("latin-1")))
         # The query first: a page opened with it is redirected without it even when it has the cookie.
         for source, candidate in (("query", query.get(TOKEN_QUERY)),
@@ -144,6 +145,8 @@ class AccessGuard:
         """Set the token cookie and redirect to the same address without the token."""
         query = parse_qsl(scope.get("query_string", b"").decode("latin-1"), keep_blank_values=True)
         rest = urlencode([(k, v) for k, v in query if k != TOKEN_QUERY])
+        assert self.token is not None  # a token in the query is remembered only by a server that has one
+
         response = RedirectResponse(scope["path"] + (f"?{rest}" if rest else ""), status.HTTP_303_SEE_OTHER)
         response.set_cookie(TOKEN_COOKIE, self.token, httponly=True, samesite="lax")
         await response(scope, receive, send)

@@ -299,7 +299,7 @@ class StateDir:
         if not self.camera_path.exists():
             return None
         try:
-            data = parse_json(self.camera_path.read_bytes())
+            data: Any = parse_json(self.camera_path.read_bytes())  # a dict, or the errors below say what is wrong
             return camera_from_json(data, source=str(data.get("source") or "json"))
         except (JsonError, AttributeError, CameraError) as exc:
             raise StateError(f"{self.camera_path}: {exc}; fix or delete it to use an assumed camera") from None
@@ -340,7 +340,9 @@ class StateDir:
         if not self.fov_path.exists():
             return ASSUMED_HFOV_DEG
         try:
-            hfov = parse_json(self.fov_path.read_bytes())["hfov_deg"]
+            document: Any = parse_json(self.fov_path.read_bytes())  # a dict, or the errors below say what is wrong
+            hfov = document["hfov_deg"]
+
             return check_hfov(hfov)
         except (JsonError, TypeError, KeyError, CameraError) as exc:
             raise StateError(f"{self.fov_path}: {exc}; fix or delete it to assume "
@@ -490,8 +492,9 @@ class StateDir:
         if not self.index_path.exists():
             return None
         try:
-            entries = parse_json(self.index_path.read_bytes())
+            entries: Any = parse_json(self.index_path.read_bytes())  # a list of dicts, or TypeError below
             return [StoredImage(**e) for e in entries]
+
         except (JsonError, TypeError) as exc:
             raise StateError(f"{self.index_path} is damaged ({exc}); delete {self.images_dir} to start "
                              "without images") from None

@@ -31,8 +31,9 @@ import httpx
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
-from serving import start_serve, stop_serve  # noqa: E402  (the tests' way of starting and stopping the real command)
+sys.path.insert(0, str(ROOT))  # the checkout root, for tests.support
+# The tests' way of starting and stopping the real command.
+from tests.support.serving import start_serve, stop_serve  # noqa: E402
 
 from signpose.app.security import is_loopback  # noqa: E402
 

@@ -270,7 +270,8 @@ OTHER_SIZE_ADVICE = {
 def reference_size(views: tuple[BoardView, ...], found: list[int]) -> tuple[int, int]:
     """The size (width, height) px most of the `found` views share (the first listed of sizes tied):
     the size a calibration of them is for, so that the odd ones out are named rather than the rest."""
-    return tuple(Counter(tuple(views[i].image_size) for i in found).most_common(1)[0][0])
+    width, height = Counter(tuple(views[i].image_size) for i in found).most_common(1)[0][0]
+    return width, height
 
 
 def other_sizes(views: tuple[BoardView, ...], found: list[int], size: tuple[int, int]) -> dict[int, str]:
@@ -290,7 +291,7 @@ def size_mismatch(views: tuple[BoardView, ...], found: list[int], size: tuple[in
     A calibration holds for one image size; said once as "portrait and landscape photos need separate
     calibrations" for every other size, it misled about a photo that was merely half the size.
     """
-    by_size: dict[tuple[int, int], list[str]] = {}
+    by_size: dict[tuple[int, ...], list[str]] = {}
     for i in found:
         by_size.setdefault(tuple(views[i].image_size), []).append(views[i].name or str(i))
     alike = len(by_size.pop(size, []))
@@ -326,7 +327,9 @@ def calibrate(views: list[BoardView], board: tuple[int, int], square_m: float,
     if not found:
         raise CalibrationError(f"the {board[0]}x{board[1]} board was not found in any of the {len(views)} image(s); "
                                f"{too_few_boards_advice(board, 0, len(views))}")
-    size = tuple(image_size or reference_size(views, found))
+    width, height = image_size or reference_size(views, found)
+    size = (width, height)
+
     mismatch = size_mismatch(views, found, size)
     if mismatch:
         raise CalibrationError(mismatch)

@@ -604,7 +604,7 @@ def _opt_int(value: object, name: str) -> int | None:
     whole = isinstance(value, Integral) or (isinstance(value, Real) and float(value).is_integer())
     if isinstance(value, bool) or not whole:
         raise _not_number_error(value, name, "a whole number")
-    return int(value)
+    return int(value)  # type: ignore[call-overload]  # a Real, which `whole` checked and mypy cannot narrow to
 
 
 def _matrix(node: object, name: str, rows: int | None, cols: int | None, most: int) -> np.ndarray:
@@ -705,7 +705,7 @@ def _camera_matrix(fields: dict, kind: str) -> np.ndarray:
         missing = [k for k in ("fy", "cx", "cy") if k not in fields]
         if missing:
             raise CameraError(f"the camera matrix is missing {', '.join(missing)}: fx, fy, cx and cy give it together")
-        focal = [_number(fields[k], k) for k in ("fx", "fy", "cx", "cy")]
+        focal = np.array([_number(fields[k], k) for k in ("fx", "fy", "cx", "cy")])
     fx, fy, cx, cy = focal
     return np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
 
@@ -745,7 +745,9 @@ def _sensor_window(fields: dict, sensor: Camera) -> SensorWindow | None:
     None for the whole sensor unbinned (an all-zero or absent roi, binning 0 or 1); CameraError naming
     the key for a roi off the sensor, or a window without the sensor's size it is in px of."""
     roi = fields.get("roi")
-    binning = tuple(_whole(fields.get(key), key) or 1 for key in ("binning_x", "binning_y"))  # ROS: 0 is 1
+    binning_x, binning_y = (_whole(fields.get(key), key) or 1 for key in ("binning_x", "binning_y"))  # ROS: 0 is 1
+    binning = (binning_x, binning_y)
+
     if roi is not None:
         if not isinstance(roi, dict) or set(roi) - {"do_rectify"} != set(ROI_KEYS):
             raise CameraError(f"roi must be x_offset, y_offset, width and height, in px of the full, unbinned sensor "
@@ -771,7 +773,8 @@ def _sensor_window(fields: dict, sensor: Camera) -> SensorWindow | None:
                           "are the whole sensor's")
     if w < binning[0] or h < binning[1]:
         raise CameraError(f"binning {binning[0]}x{binning[1]} leaves no image px of the {w}x{h} px roi")
-    return SensorWindow(sensor, roi, binning)
+    return SensorWindow(sensor, (x, y, w, h), binning)
+
 
 
 def _whole(value: object, name: str) -> int | None:
@@ -794,7 +797,9 @@ def _image_size(fields: dict) -> tuple[int | None, int | None]:
         raise CameraError(f"{null} is null: give it a number, or leave out both the image width and height")
     resolution = fields.get("resolution")
     if resolution is None:
-        return tuple(None if f is None else _opt_int(f[1], f[0]) for f in (width, height))
+        given_width, given_height = (None if f is None else _opt_int(f[1], f[0]) for f in (width, height))
+        return given_width, given_height
+
     if width or height:
         other = (width or height)[0]
         raise CameraError(f"the image size is given twice, as resolution and {other}: keep the one meant")

@@ -32,7 +32,8 @@ import signal
 import threading
 import traceback
 import unicodedata
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Sequence
+
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import closing
 from dataclasses import dataclass, field
@@ -211,7 +212,7 @@ def _load_truth(root: Path) -> tuple[list[Sample], Path | None]:
     truth_path = root / "truth.json"
     truth = read_json(truth_path, DatasetError)
     images = truth.get("images") if isinstance(truth, dict) else None
-    if not isinstance(images, dict) or not images:
+    if not isinstance(truth, dict) or not isinstance(images, dict) or not images:
         raise DatasetError(f'{truth_path} must hold {{"images": {{"file.jpg": {{"label": ...}}}}}} '
                            "with at least one image")
     samples = []
@@ -439,7 +440,8 @@ def _take(next_job: Synchronized) -> int:
 
 
 def _measure_all(jobs: list[Job], library: Library, settings: Settings, check_image: ImageCheck | None,
-                 workers: int) -> Iterator[ImageResult]:
+                 workers: int) -> Generator[ImageResult, None, None]:
+
     """`_measure` of every (dataset name, sample, camera) job, in order, on `workers` processes.
 
     Processes, not threads: OpenCV releases the GIL inside SIFT, but RANSAC, matching and pose
@@ -536,7 +538,7 @@ def _receive(done: multiprocessing.Queue, helpers: list[BaseProcess], wait_s: fl
             raise item.error from WorkerTraceback(item.traceback)
     if ended and not received and wait_s:
         raise BrokenProcessPool("evaluate's worker processes stopped before measuring every image")
-    return received
+    return [item for item in received if not isinstance(item, _Failed)]  # none is: a failure raised above
 
 
 def check_labels(datasets: Sequence[Dataset], library: Library) -> None:
@@ -547,7 +549,7 @@ def check_labels(datasets: Sequence[Dataset], library: Library) -> None:
 
 
 def measure(datasets: Sequence[Dataset], library: Library, settings: Settings, camera: Camera | None = None,
-            workers: int | None = None, check_image: ImageCheck | None = None) -> Iterator[ImageResult]:
+            workers: int | None = None, check_image: ImageCheck | None = None) -> Generator[ImageResult, None, None]:
     """Run the pipeline on every sample and compare with the truth: each sample's result, in order, as soon as
     it and those before it are done. Closed early (`contextlib.closing`) or interrupted, the worker processes
     stop after their image.

@@ -213,8 +213,10 @@ def turned_camera(camera: Camera, orientation: int, width: int, height: int) -> 
                               "set the photo's EXIF orientation to 1 to use its pixels as the camera stored them")
         dist[12:] = -dist[12:]
     w, h = (int(size[1]), int(size[0])) if quarter else (int(size[0]), int(size[1]))
-    return Camera(K, dist, *((w, h) if camera.width is not None else (None, None)),
+    sized = camera.width is not None
+    return Camera(K, dist, w if sized else None, h if sized else None,
                   f"{camera.source}, turned {words} with the photo (EXIF orientation {orientation})")
+
 
 
 def exif_camera(data: bytes, width: int, height: int) -> ExifCamera:

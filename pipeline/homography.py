@@ -125,7 +125,7 @@ def dlt_homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     T_dst, d = _normalize_batch(dst)
     x, y = s[..., 0], s[..., 1]
     u, v = d[..., 0], d[..., 1]
-    A = np.zeros((B, N, 2, 9))  # per point a row for u, then one for v
+    A: np.ndarray = np.zeros((B, N, 2, 9))  # per point a row for u, then one for v
     A[..., 0, 0], A[..., 0, 1], A[..., 0, 2] = -x, -y, -1.0
     A[..., 1, 3], A[..., 1, 4], A[..., 1, 5] = -x, -y, -1.0
     A[..., 0, 6], A[..., 0, 7], A[..., 0, 8] = u * x, u * y, u
@@ -298,7 +298,8 @@ def _best_consensus(src: np.ndarray, dst: np.ndarray, samples: np.ndarray, thres
             best = found
         drawn = stop
         if confidence is not None and drawn == target:
-            needed = math.inf if best is None else hypotheses_needed(np.count_nonzero(best), len(src), confidence)
+            needed = math.inf if best is None else hypotheses_needed(int(np.count_nonzero(best)), len(src), confidence)
+
             target = len(samples) if needed >= len(samples) else max(drawn, math.ceil(needed))
     return best, drawn
 

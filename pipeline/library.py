@@ -288,9 +288,10 @@ def load_library(root: str | Path = SAMPLE_LIBRARY) -> Library:
         raise LibraryError(f"{root} is not a sign library: {meta_path} not found")
     meta = read_json(meta_path, LibraryError)
     entries = meta.get("signs") if isinstance(meta, dict) else None
-    if not isinstance(entries, list) or not entries:
+    if not isinstance(meta, dict) or not isinstance(entries, list) or not entries:
         raise LibraryError(f'{meta_path} must hold {{"signs": [...]}} with at least one sign')
     _refuse_unknown_keys(meta, LIBRARY_KEYS, str(meta_path))
+
     signs: list[LibrarySign] = []
     for i, entry in enumerate(entries):
         where = f"{meta_path} sign #{i}"

@@ -311,7 +311,8 @@ def match_plaque(gray: np.ndarray, labels: np.ndarray, blob: Blob, library: Libr
     if corners is None:
         return None
     scores, best_roll = plaque_correlations(gray, corners, library)
-    ranked = sorted(scores, key=scores.get, reverse=True)
+    ranked = sorted(scores, key=lambda sign: scores[sign], reverse=True)
+
     best = ranked[0]
     second = scores[ranked[1]] if len(ranked) > 1 else 0.0
     if scores[best] < min_ncc:

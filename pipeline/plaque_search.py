@@ -281,7 +281,8 @@ def search_plaques(gray: np.ndarray, quads: list[QuadCandidate], library: Librar
     for quad in quads[:MAX_ALIGNED]:
         if quad.best_ncc < MIN_NCC:
             break
-        ranked = sorted(quad.ncc, key=quad.ncc.get, reverse=True)
+        ranked = sorted(quad.ncc, key=lambda sign: quad.ncc[sign], reverse=True)
+
         H, cc = _aligned(gray, quad.corners, quad.rolls[ranked[0]], library[ranked[0]])
         if H is None or cc < required_correlation(quad.corners, settings.min_plaque_ecc):
             continue

@@ -456,7 +456,8 @@ def estimate_pose(H: np.ndarray, src_px: np.ndarray, dst_px: np.ndarray, sign: L
     if method == "paper":
         R, t = _paper_pose(H, src_px, ideal_px, sign, camera)
     elif method == "ippe":
-        R, t = min(solutions, key=lambda s: _reprojection_rmse(*s, obj, dst_px, camera))
+        R, t = min(solutions, key=lambda s: _reprojection_rmse(s[0], s[1], obj, dst_px, camera))
+
     else:
         R, t = best
 

@@ -358,7 +358,8 @@ def _text_lines(rng: np.random.Generator, img: np.ndarray, box: tuple[int, int, 
     scale = line_h / 30
     y = y0 + line_h
     while y < y1:
-        words, x = [], x0
+        words: list[str] = []
+        x = x0
         while True:
             word = str(rng.choice(LATIN_WORDS))
             (w, _), _ = cv2.getTextSize(word + " ", cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
@@ -403,12 +404,14 @@ def _paper(rng: np.random.Generator) -> tuple[np.ndarray, tuple[float, float]]:
     elif content == "shapes":
         for _ in range(rng.integers(3, 9)):
             color = _srgb(rng, (0.1, 0.8), (0.2, 1.0))
-            c = (int(rng.integers(m, w - m)), int(rng.integers(m, h - m)))
+            centre = (int(rng.integers(m, w - m)), int(rng.integers(m, h - m)))
             r = int(rng.integers(8, max(9, min(w, h) // 4)))
             if rng.random() < 0.5:
-                cv2.circle(img, c, r, color, -1 if rng.random() < 0.6 else 3, cv2.LINE_AA)
+                cv2.circle(img, centre, r, color, -1 if rng.random() < 0.6 else 3, cv2.LINE_AA)
             else:
-                cv2.rectangle(img, (c[0] - r, c[1] - r // 2), (c[0] + r, c[1] + r // 2), color, -1, cv2.LINE_AA)
+                cv2.rectangle(img, (centre[0] - r, centre[1] - r // 2), (centre[0] + r, centre[1] + r // 2), color, -1,
+                              cv2.LINE_AA)
+
     else:
         _text_lines(rng, img, (m, m, w - m, h - m), int(rng.integers(8, 14)), ink)
     return _linear(img), (w_m, h_m)

@@ -28,12 +28,14 @@ from signpose.pipeline.settings import preset
 from signpose.pipeline.verify import CHECK_WIDTH
 from signpose.pipeline.synth import synthetic_camera
 from signpose.pipeline.camera import load_camera, ros_camera_yaml
-from faults import fail_segmentation
-from scene_images import (DECOYS, HEIC_START, OFF_CENTRE, big_photo, decoy_image, empty_photo, has, plaque_of,
-                          png_bomb, scrambled_scene, sign_photo, tiny_photo, turned_photos, turned_scene_position,
-                          with_focal_exif)
-from serving import (MISFIT_CAMERA, REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, iter_events, running,
-                     start_serve, stop_serve, upload, wait_done)
+from tests.support.scene_images import (DECOYS, HEIC_START, OFF_CENTRE, big_photo, decoy_image, empty_photo, has,
+                                        plaque_of, png_bomb, scrambled_scene, sign_photo, tiny_photo, turned_photos,
+                                        turned_scene_position, with_focal_exif)
+from tests.support.serving import (MISFIT_CAMERA, REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange,
+                                   iter_events, running, start_serve, stop_serve, upload, wait_done)
+
+# The HTTP API, against a real uvicorn server (one per module, and more per test).
+pytestmark = pytest.mark.server
 
 LIBRARY = load_library(SAMPLE_LIBRARY)
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -669,13 +671,13 @@ def test_the_sweep_leaves_signs_the_plaque_fallback_found_out_of_its_margins(tmp
         assert margin >= 5 if correct > by_plaque else margin is None
 
 
-def test_a_failure_at_one_value_leaves_the_rest_of_the_sweep(tmp_path, monkeypatch):
+def test_a_failure_at_one_value_leaves_the_rest_of_the_sweep(tmp_path, fail_segmentation):
     """The pipeline failing on one image at one value answered the whole sweep with 422, and every
     sweep after it too while the image stayed."""
     with running(create_app(config(tmp_path / "state"))) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
         upload(c, ("compound.jpg", sign_photo(LIBRARY, "security_compound"), "security_compound"))
         wait_done(c)
-        fail_segmentation(monkeypatch, lambda _, settings: settings.threshold == 0.6)  # the server runs in this process
+        fail_segmentation(lambda _, settings: settings.threshold == 0.6)  # the server runs in this process
         r = c.get("/api/sweep", params={"param": "threshold", "lo": 0.5, "hi": 0.7, "steps": 3})
     assert r.status_code == 200, r.text
     sweep = r.json()

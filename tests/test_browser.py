@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-import browser_harness as harness
-from chessboards import K_TRUE, render_boards, shaky_board
+from tests.support import browser_harness as harness
+from tests.support.chessboards import K_TRUE, render_boards, shaky_board
 from signpose.pipeline.exif import LensExif, focal_px
 from signpose.pipeline.image import NOT_AN_IMAGE
 from signpose.pipeline.library import SAMPLE_LIBRARY, load_library
@@ -28,8 +28,11 @@ from signpose.app import tuning
 from signpose.app.figures import TEXT_BLOCK_PX
 from signpose.app.scene import LABEL_SEPARATOR
 from signpose.app.image_store import memory_text
-from scene_images import DECOYS, decoy_image, sign_seen_from
-from serving import MISFIT_CAMERA
+from tests.support.scene_images import DECOYS, decoy_image, sign_seen_from
+from tests.support.serving import MISFIT_CAMERA
+
+# Headless Chromium on the page of a real `signpose serve`.
+pytestmark = [pytest.mark.browser, pytest.mark.server]
 
 TRUTH = json.loads((harness.SCENES / "truth.json").read_text())["images"]
 # An easy scene with a sign: recognised at the default settings.

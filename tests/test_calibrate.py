@@ -10,7 +10,8 @@ from PIL import Image
 
 import signpose.pipeline.calibrate as calib
 from signpose.app.cli import main
-from chessboards import BOARD, DIST_TRUE, K_TRUE, SIZE, SQUARE_M, board_poses, projected_corners, render_boards
+from tests.support.chessboards import (BOARD, DIST_TRUE, K_TRUE, SIZE, SQUARE_M, board_poses, projected_corners,
+                                       render_boards)
 from signpose.pipeline.calibrate import (BoardView, CalibrationError, calibrate, chessboard_image, drop_outliers,
                                 find_board, format_report, other_sizes, parse_board, reference_size,
                                 too_few_boards_advice)
@@ -88,7 +89,7 @@ def test_per_view_errors_and_poses():
     # Per-view errors are RMS distances: with 0.1 px noise per axis they sit near 0.1·√2.
     assert np.all((cal.errors_px > 0.08) & (cal.errors_px < 0.2))
     assert np.sqrt(np.mean(cal.errors_px**2)) == pytest.approx(cal.rms_px, rel=1e-6)
-    for i, (r, t) in enumerate(board_poses(8)):
+    for i, (_, t) in enumerate(board_poses(8)):
         assert np.linalg.norm(cal.tvecs[i] - t) < 0.002
     assert np.all(cal.intrinsics_std > 0) and np.all(cal.intrinsics_std < 2)
 

@@ -16,14 +16,17 @@ import pytest
 from signpose.app import calibration
 from signpose.app.server import create_app
 from signpose.app.workspace import WorkspaceConfig
-from chessboards import BOARD, K_TRUE, SIZE, SQUARE_M, render_boards, shaky_board
+from tests.support.chessboards import BOARD, K_TRUE, SIZE, SQUARE_M, render_boards, shaky_board
 import signpose.pipeline.calibrate as pipeline_calibrate
 from signpose.pipeline.calibrate import find_board, reference_size
 from signpose.pipeline.camera import load_camera
 from signpose.pipeline.evaluate import CORES
 from signpose.pipeline.library import SAMPLE_LIBRARY, load_library
-from scene_images import sign_photo
-from serving import TIMEOUT_S, assert_error, iter_events, running, upload, wait_done
+from tests.support.scene_images import sign_photo
+from tests.support.serving import TIMEOUT_S, assert_error, iter_events, running, upload, wait_done
+
+# The calibration routes, against a real uvicorn server.
+pytestmark = pytest.mark.server
 
 N_PHOTOS = 12
 BOARD_SPEC = {"cols": BOARD[0], "rows": BOARD[1], "square_m": SQUARE_M}

@@ -988,6 +988,7 @@ def plain_json(K: np.ndarray, size: tuple[int, int], roi: tuple[int, int, int, i
                        "binning_y": binning[1], "roi": dict(zip(("x_offset", "y_offset", "width", "height"), roi))})
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("form, roi, binning", [
     (ros2_message, (300, 250, 640, 480), (0, 0)),  # ROS's 0: no binning
     (ros_file, (300, 250, 640, 480), (2, 2)),

@@ -27,8 +27,7 @@ from signpose.pipeline.camera import assumed_camera, save_camera
 from signpose.pipeline.library import load_library
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import preset
-from faults import fail_first_segmentation
-from scene_images import OFF_CENTRE, TURNED_SCENE, png_bomb, turned_photos, turned_scene_position
+from tests.support.scene_images import OFF_CENTRE, TURNED_SCENE, png_bomb, turned_photos, turned_scene_position
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "sample_images" / "scenes"
@@ -80,6 +79,7 @@ def test_json_schema_and_labels_on_sample_scenes():
         assert not any("assumed" in w for w in obj["warnings"])
 
 
+@pytest.mark.slow
 def test_bad_files_get_an_error_line_and_the_rest_still_run(tmp_path):
     good = SCENES / "scene_002.jpg"  # a sign: the pose, and so the note on it, is there
     fake = tmp_path / "notes.jpg"
@@ -104,8 +104,8 @@ def test_bad_files_get_an_error_line_and_the_rest_still_run(tmp_path):
                                  "TIFF,", "WebP,", "BMP", "or", "GIF)"]  # named once, by its file name as the other rows
 
 
-def test_a_failure_inside_the_pipeline_is_that_images_error_line(monkeypatch, capsys):
-    fail_first_segmentation(monkeypatch)  # in this process: main() runs here
+def test_a_failure_inside_the_pipeline_is_that_images_error_line(fail_first_segmentation, capsys):
+    # fail_first_segmentation patched this process: main() runs here
     names = [SCENES / "scene_002.jpg", SCENES / "scene_004.jpg"]
     assert main(["recognize", *map(str, names), "--json"]) == 1
     failed, recognised = map(json.loads, capsys.readouterr().out.splitlines())
@@ -268,6 +268,7 @@ def test_a_camera_without_size_whose_principal_point_is_off_the_image_fails_it(t
     assert "4032x3024" in line["error"]
 
 
+@pytest.mark.slow
 def test_the_assumed_field_of_view_is_the_pages(tmp_path):
     """The page's assumed FOV had no counterpart in the CLI (always 60°): a photo without a camera file or EXIF
     could not give in the CLI what it gave in the page."""
@@ -405,6 +406,7 @@ def test_evaluate_json_has_every_images_answer_against_the_truth(tmp_path):
     assert report["labels"][-1] == "none" and report["settings"]["ratio"] == 0.75
 
 
+@pytest.mark.slow
 def test_synth_then_evaluate_report_with_progress_bars_on_a_terminal_only(tmp_path):
     data = tmp_path / "scenes"
     made = signpose("synth", "--n", 4, "--seed", 3, data)
@@ -533,6 +535,7 @@ def left_running(pids: list[int], within_s: float = 5.0) -> list[int]:
     return running
 
 
+@pytest.mark.slow
 def test_ctrl_c_stops_evaluate_and_its_workers_with_one_line(tmp_path):
     proc, terminal = evaluate_under_way(tmp_path)
     # Ctrl-C in a terminal reaches the whole process group: the CLI and its worker processes.
@@ -543,6 +546,7 @@ def test_ctrl_c_stops_evaluate_and_its_workers_with_one_line(tmp_path):
     assert re.search(r"signpose evaluate: interrupted after \d+ of 200 images", err) and "Traceback" not in err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
 def test_sigterm_or_sighup_stop_evaluate_and_its_workers_as_ctrl_c_does(tmp_path, signum):
     """`kill PID` (SIGTERM) reaches the CLI alone: it ended at once, and its worker went on measuring,
@@ -565,6 +569,7 @@ def test_sigterm_or_sighup_stop_evaluate_and_its_workers_as_ctrl_c_does(tmp_path
     assert "nan" not in out
 
 
+@pytest.mark.slow
 def test_evaluates_worker_ends_with_it_when_it_is_killed_outright(tmp_path):
     """SIGKILL (or the out-of-memory killer) leaves the CLI no way to stop its workers: they notice."""
     proc, terminal = evaluate_under_way(tmp_path)
@@ -575,6 +580,7 @@ def test_evaluates_worker_ends_with_it_when_it_is_killed_outright(tmp_path):
     os.close(terminal)
 
 
+@pytest.mark.slow
 def test_sigterm_stops_recognize_between_whole_json_lines_and_says_how_many():
     images = sorted(SCENES.glob("*.jpg")) * 4
     proc = subprocess.Popen([sys.executable, "-m", "signpose.app.cli", "recognize", *images, "--json"], cwd=ROOT,
@@ -590,6 +596,7 @@ def test_sigterm_stops_recognize_between_whole_json_lines_and_says_how_many():
     assert err.splitlines()[-1] == f"signpose recognize: stopped by SIGTERM after {len(lines)} of {len(images)} images"
 
 
+@pytest.mark.slow
 def test_recognize_json_draws_its_progress_bar_between_whole_lines():
     """`recognize --json > out.jsonl` drew no bar; and a line printed while the bar was drawn on the same
     terminal began at the bar's end, in the table as in the JSON."""

@@ -22,8 +22,7 @@ from signpose.pipeline.evaluate import (Dataset, DatasetError, ImageResult, Samp
                                load_dataset, summarize, text_columns)
 from signpose.pipeline.library import load_library
 from signpose.pipeline.settings import preset
-from faults import fail_first_segmentation
-from scene_images import TURNED_SCENE, png_bomb, with_orientation
+from tests.support.scene_images import TURNED_SCENE, png_bomb, with_orientation
 
 SCENES = Path(__file__).resolve().parent.parent / "sample_images" / "scenes"
 
@@ -208,6 +207,7 @@ def _measured_here(job, library, settings, check_image):
     return ImageResult(dataset, sample, None, math.nan, error="measured in the calling process")
 
 
+@pytest.mark.slow
 def test_worker_processes_share_the_images_and_keep_their_order(monkeypatch, library):
     datasets = [load_dataset(SET3)] * 8  # 40 images: enough for a worker to be up before they run out
     alone = evaluate(datasets, library, preset("default"), workers=1)
@@ -272,6 +272,7 @@ def _slow_check(data: bytes, name: str) -> None:
     time.sleep(0.2)
 
 
+@pytest.mark.slow
 def test_a_worker_killed_outright_breaks_the_pool_instead_of_leaving_a_wait(monkeypatch, library):
     dataset = Dataset("many", SET3, [Sample(sorted(SET3.glob("*.jpg"))[0], None)] * 40)
     monkeypatch.setattr(evaluate_module, "_measure", _measured_here)  # the worker runs the real one
@@ -284,9 +285,8 @@ def test_a_worker_killed_outright_breaks_the_pool_instead_of_leaving_a_wait(monk
         list(measured)
 
 
-def test_a_failure_inside_the_pipeline_is_that_images_error(monkeypatch, library):
+def test_a_failure_inside_the_pipeline_is_that_images_error(fail_first_segmentation, library):
     dataset = load_dataset(SET3)
-    fail_first_segmentation(monkeypatch)
     report = evaluate([dataset], library, preset("default"), workers=1)  # patched in this process only
     errors = [r for r in report.results if r.error is not None]
     assert len(errors) == 1 and "pipeline failed on" in errors[0].error and "simulated defect" in errors[0].error

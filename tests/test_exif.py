@@ -146,6 +146,7 @@ def test_arbitrary_bytes_never_raise(data):
     assert camera is None or camera.K[0, 0] > 0
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(st.data())
 def test_corrupted_exif_never_raises(data):

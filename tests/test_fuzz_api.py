@@ -13,8 +13,11 @@ from schemathesis.checks import not_a_server_error
 from signpose.app.server import create_app
 from signpose.app.workspace import WorkspaceConfig
 from signpose.pipeline.library import SAMPLE_LIBRARY, load_library
-from scene_images import sign_photo
-from serving import TIMEOUT_S, running, upload, wait_done
+from tests.support.scene_images import sign_photo
+from tests.support.serving import TIMEOUT_S, running, upload, wait_done
+
+# Fuzzing the API of a real uvicorn server.
+pytestmark = pytest.mark.server
 
 
 def an_image(c: httpx.Client) -> str:

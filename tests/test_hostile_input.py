@@ -24,8 +24,11 @@ from signpose.app.figures import DIM, MIN_SIDE_PX, RED, STAGES
 from signpose.app.server import create_app
 from signpose.app.workspace import WorkspaceConfig
 from signpose.pipeline.library import SAMPLE_LIBRARY, load_library
-from scene_images import has, png_bomb, sign_photo
-from serving import TIMEOUT_S, assert_error, http_exchange, running, upload, wait_idle
+from tests.support.scene_images import has, png_bomb, sign_photo
+from tests.support.serving import TIMEOUT_S, assert_error, http_exchange, running, upload, wait_idle
+
+# Hostile requests to a real uvicorn server.
+pytestmark = pytest.mark.server
 
 LIBRARY = load_library(SAMPLE_LIBRARY)
 STORED_NAME = re.compile(r"^[0-9a-f]{12}\.\w+$")

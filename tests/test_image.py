@@ -16,8 +16,8 @@ import pytest
 from PIL import Image, ImageOps
 
 from signpose.pipeline.image import ImageError, decode_image, exif_orientation, read_file
-from chessboards import render_boards
-from scene_images import HEIC_START, scrambled_scene, with_orientation
+from tests.support.chessboards import render_boards
+from tests.support.scene_images import HEIC_START, scrambled_scene, with_orientation
 
 # Black text on a transparent ground, as sign artwork is often drawn: the ground's colour
 # values are black too (what many tools store under alpha 0).

@@ -12,7 +12,7 @@ import pytest
 
 from signpose.pipeline.library import (MAX_LIKENESS, SAMPLE_LIBRARY, LibraryError, alike_sign, likeness, load_library,
                               validate_sign_entry)
-from scene_images import DECOYS, plaque_of
+from tests.support.scene_images import DECOYS, plaque_of
 
 
 def entry(**sizes) -> dict:

@@ -19,8 +19,11 @@ from signpose.app.cli import main
 from signpose.app.server import create_app
 from signpose.app.workspace import WorkspaceConfig
 from signpose.pipeline.library import SAMPLE_LIBRARY, load_library
-from scene_images import sign_photo
-from serving import TIMEOUT_S, assert_error, running, upload, wait_done
+from tests.support.scene_images import sign_photo
+from tests.support.serving import TIMEOUT_S, assert_error, running, upload, wait_done
+
+# Time and size limits of a real uvicorn server.
+pytestmark = pytest.mark.server
 
 LIBRARY = load_library(SAMPLE_LIBRARY)
 LIMIT_S = 0.5

@@ -7,7 +7,12 @@ import json
 import subprocess
 import sys
 
-from serving import REPO
+import pytest
+
+from tests.support.serving import REPO
+
+# bench/load.py runs a real `signpose serve`.
+pytestmark = pytest.mark.server
 
 
 def test_concurrent_users_lose_nothing_and_every_result_matches_its_settings_version():

@@ -18,8 +18,8 @@ from signpose.pipeline.pose import estimate_pose, homography_from_pose, rotation
 from signpose.pipeline.recognize import StageCache, recognize
 from signpose.pipeline.settings import preset
 from signpose.pipeline.synth import render_scene, synthetic_camera
-from chessboards import pixel_rays
-from scene_images import like_a_camera, render_plaque
+from tests.support.chessboards import pixel_rays
+from tests.support.scene_images import like_a_camera, render_plaque
 
 TRUE_CORNERS = np.array([[212.3, 141.7], [431.9, 158.2], [425.6, 251.4], [205.8, 236.9]])
 
@@ -125,6 +125,7 @@ def through_lens(image: np.ndarray) -> np.ndarray:
     return cv2.remap(image, ideal_px[..., 0], ideal_px[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
+@pytest.mark.slow
 def test_pose_under_lens_distortion_is_as_good_as_without():
     """The sample scenes seen through a wide-angle lens (k1 -0.25): the plaque's sides are curves
     in the image, and the pose is as accurate as on the scenes themselves. Fitting straight
@@ -208,6 +209,7 @@ def test_a_wide_sign_is_aligned_in_the_shrunk_image(monkeypatch):
     assert rotation_error_deg(rec.pose.R, sample.R) < 2.0  # ECC alone, as on the scenes themselves
 
 
+@pytest.mark.slow
 def test_dense_refinement_under_lens_distortion_aligns_as_without():
     """Without the outline, ECC alone refines H. Through the wide-angle lens it aligns the sign in
     the image an ideal pinhole camera would take, so the sign's corners (undistorted) come out

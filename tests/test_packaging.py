@@ -51,6 +51,7 @@ with TestClient(create_app(WorkspaceConfig(state_dir=Path("state"))), base_url="
 """
 
 
+@pytest.mark.slow
 def test_an_installed_copy_serves_the_page_with_the_sample_library_and_scenes(installed, tmp_path):
     result = run_installed(installed, ["-c", SERVE.format(lib=str(installed))], tmp_path)
     assert result.returncode == 0, result.stderr

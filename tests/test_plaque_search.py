@@ -17,31 +17,15 @@ from signpose.pipeline.plaque_search import (cut_image, cut_levels, level_quads,
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.segment import segment
 from signpose.pipeline.settings import preset
-from scene_images import PLAQUE_AT, like_a_camera, render_plaque, shaded_wall, sign_on_wall
+from tests.support.scene_images import DIM_PLAQUE_AT as CORNERS, PLAQUE_AT, like_a_camera, shaded_wall, sign_on_wall
+from tests.support.scene_images import dim_plaque_scene as scene
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_images"
-CORNERS = np.array([[230.0, 250.0], [380.0, 243.0], [383.0, 305.0], [228.0, 309.0]])
 
 
 @pytest.fixture(scope="module")
 def library():
     return load_library()
-
-
-def scene(sign=None, plaque_level: float = 150.0, blur: float = 1.5, exit_plaque=None, seed: int = 0) -> np.ndarray:
-    """A 640 x 480 gray wall under a bright lamp (which sets the normalisation's maximum, so the
-    plaques stay below the segmentation threshold), with `sign` at CORNERS and optionally a
-    plaque reading EXIT at `exit_plaque` (x, y), both as bright as `plaque_level`; blurred and noised."""
-    img = np.full((480, 640), 70, np.float32)
-    img[20:60, 250:400] = 255
-    if sign is not None:
-        img = render_plaque(sign, CORNERS, img, plaque_level / 255)
-    if exit_plaque is not None:
-        x0, y0 = exit_plaque
-        text = np.full((50, 125), plaque_level, np.uint8)
-        cv2.putText(text, "EXIT", (12, 38), cv2.FONT_HERSHEY_SIMPLEX, 1.3, 25, 3)
-        img[y0:y0 + 50, x0:x0 + 125] = text
-    return like_a_camera(img, blur, seed)
 
 
 @pytest.mark.parametrize("sign_id", ["security_compound", "ministry_of_torture", "chief_of_security"])
@@ -57,6 +41,7 @@ def test_search_finds_the_sign_the_fallback_misses(library, sign_id):
     assert np.linalg.norm(found.corners - CORNERS, axis=1).mean() < 1.0
 
 
+@pytest.mark.slow
 def test_a_large_photo_is_searched_at_a_bounded_resolution(library):
     """The lower levels of a 12 MP photo were cut at full resolution: 39 ms of connected components
     each. Cut where its longer side is MAX_CUT_SIDE, the same scene enlarged 4x finds its sign as

@@ -20,7 +20,8 @@ from signpose.pipeline.plaque_search import QuadCandidate
 from signpose.pipeline.recognize import AUTO_ECC_MAX_INLIERS, StageCache, candidate_regions, decide, recognize, score_sign
 from signpose.pipeline.segment import Blob, Segmentation
 from signpose.pipeline.settings import preset
-from scene_images import DECOYS, PLAQUE_AT, decoy_image, like_a_camera, plaque_of, render_plaque, shaded_wall, sign_on_wall
+from tests.support.scene_images import (DECOYS, PLAQUE_AT, decoy_image, like_a_camera, plaque_of, render_plaque,
+                                        shaded_wall, sign_on_wall)
 
 SCENES = Path(__file__).resolve().parents[1] / "sample_images" / "scenes"
 TRUTH = json.loads((SCENES / "truth.json").read_text())["images"]
@@ -63,6 +64,7 @@ def test_a_clear_winner_skips_fitting_the_hopeless_signs(library):
     assert skipped > 0
 
 
+@pytest.mark.slow
 def test_a_ransac_change_reuses_every_stage_it_does_not_affect(library):
     # All scenes, so that negatives (plaque fallback and search) and refined winners are both covered.
     settings, camera = preset("default"), load_camera(SCENES / "camera.yaml")
@@ -219,6 +221,7 @@ def test_far_signs_report_their_tilt_error_in_the_covariance_or_as_ambiguous(lib
     assert worst < 3.0 and ambiguous < 6  # some poses are judged by their covariance
 
 
+@pytest.mark.slow
 def test_a_plaque_of_other_words_sharing_one_with_a_sign_is_not_read_as_that_sign(library):
     """Features name a sign from the part of it that matched: plaques of other words in the same
     font were answered as library signs (15-40 inliers on the shared word), with poses."""

@@ -22,7 +22,7 @@ from signpose.app.viser_compat import FOLD_SHEET_SCRIPT
 from signpose.app.workspace import SAMPLE_SCENES, Outcome, Workspace, WorkspaceConfig
 from signpose.pipeline.camera import assumed_camera
 from signpose.pipeline.settings import PRESETS, settings_schema
-from scene_images import sign_photo
+from tests.support.scene_images import sign_photo
 
 IDLE_TIMEOUT_S = 30
 TRUTH = json.loads((SAMPLE_SCENES / "truth.json").read_text(encoding="utf-8"))["images"]
@@ -189,6 +189,7 @@ def test_viewers_left_as_framed_follow_new_cameras_and_one_moved_by_hand_stays(s
     assert np.array_equal(moved.camera.position, held)
 
 
+@pytest.mark.slow
 def test_viewers_are_framed_on_the_first_cameras_drawn_in_an_empty_scene(scene, monkeypatch):
     """A page opened on an empty workspace (`serve --library DIR` loads no samples: the start of a
     round) was never framed: the first photo's camera, metres off, stayed outside its view until
@@ -218,6 +219,7 @@ def test_viewers_are_framed_on_the_first_cameras_drawn_in_an_empty_scene(scene, 
         assert _widest(handle, viewer.camera) < 0.8 * viewer.across_deg, viewer.client_id
 
 
+@pytest.mark.slow
 def test_a_view_moving_lays_out_the_labels_again_and_redraws_nothing_else(scene, monkeypatch):
     """Every camera report of every viewer (a dozen a second while one is dragged) ran the whole
     redraw: listing the images, comparing every record and writing the status line again, where
@@ -306,6 +308,7 @@ def test_status_line_says_when_its_times_are_cache_lookups(scene):
     assert "ms/image (median)" in status_markdown(["correct"] * len(outcomes), run_afresh, {})
 
 
+@pytest.mark.slow
 def test_sliders_rerun_and_frustums_follow(scene):
     handle, workspace = scene
     version = workspace.settings_version

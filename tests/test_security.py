@@ -11,7 +11,11 @@ from websockets.sync.client import connect
 from signpose.app.security import PAGE_CSP, TOKEN_COOKIE, VISER_CSP, access_token, is_loopback
 from signpose.app.server import create_app
 from signpose.app.workspace import Workspace, WorkspaceConfig
-from serving import TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve, stop_serve
+from tests.support.serving import (TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange, running, start_serve,
+                                   stop_serve)
+
+# The token and origin checks of a real uvicorn server and of `signpose serve`.
+pytestmark = pytest.mark.server
 
 TOKEN = "team-token-for-tests"
 

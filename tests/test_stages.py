@@ -20,7 +20,7 @@ from signpose.pipeline.library import load_library
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import Settings, settings_schema
 from signpose.pipeline.stages import ALL_STAGES, CACHED_STAGES, StageCache, feeding_settings, stage_key
-from test_plaque_search import scene as plaque_scene
+from tests.support.scene_images import dim_plaque_scene
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_images"
 # Two without a sign (every region searched, the full frame too, and the plaque fallback and its search turn down
@@ -44,7 +44,7 @@ def scenes():
     photos = [(path, read_image(SAMPLES / path), load_camera((SAMPLES / path).parent / "camera.yaml"), Settings())
               for path in SCENE_PATHS]
     # A dim sign below a lamp, which only the plaque search finds (when no plaque candidate is searched for features)
-    dim = ("dim sign", plaque_scene(load_library()["security_compound"], exit_plaque=(420, 330)), None,
+    dim = ("dim sign", dim_plaque_scene(load_library()["security_compound"], exit_plaque=(420, 330)), None,
            Settings(plaque_candidates=0))
     return [*photos, dim]
 

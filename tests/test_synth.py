@@ -28,6 +28,7 @@ def scenes(library):
     return camera, out
 
 
+@pytest.mark.slow
 def test_positive_ground_truth_is_self_consistent(library, scenes):
     camera, rendered = scenes
     for scene in rendered:
@@ -56,6 +57,7 @@ def test_negatives_have_no_sign(scenes):
     assert all(s.truth()["label"] is None and s.truth()["H"] is None for s in negatives)
 
 
+@pytest.mark.slow
 def test_rendered_sign_is_where_the_truth_says(library):
     """Rectifying the image by H⁻¹ must give back the library sign, not a shifted or mirrored one."""
     scene = render_scene(library, "ministry_of_torture", synthetic_camera(), np.random.default_rng(7), "easy")
@@ -81,6 +83,7 @@ def test_same_seed_same_scene(library):
     assert a.jpeg == b.jpeg and np.array_equal(a.H, b.H) and a.params == b.params
 
 
+@pytest.mark.slow
 def test_dataset_files_load_back(library, tmp_path):
     calls = []
     images = generate_dataset(tmp_path, library, n=4, seed=3, size=SMALL,
@@ -105,6 +108,7 @@ def test_dataset_files_load_back(library, tmp_path):
             assert np.array(entry["corners"]).shape == (4, 2)
 
 
+@pytest.mark.slow
 def test_refuses_a_folder_with_scenes_it_would_not_overwrite(library, tmp_path):
     for name in ("scene_000.jpg", "scene_001.jpg", "scene_0002.jpg"):
         (tmp_path / name).write_bytes(b"an earlier run's scene")
@@ -117,11 +121,13 @@ def test_refuses_a_folder_with_scenes_it_would_not_overwrite(library, tmp_path):
     assert sorted(images) == sorted(p.name for p in tmp_path.glob("scene_*.jpg"))
 
 
+@pytest.mark.slow
 def test_signs_take_turns(library, tmp_path):
     images = generate_dataset(tmp_path, library, n=3, seed=11, categories=("easy",), size=SMALL)
     assert sorted(e["label"] for e in images.values()) == sorted(library.ids)
 
 
+@pytest.mark.slow
 def test_large_variant_scales_sign_sizes(library):
     camera = synthetic_camera((1280, 960))
     assert camera.K[0, 0] == pytest.approx(640 / np.tan(np.radians(30)))

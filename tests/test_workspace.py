@@ -28,7 +28,7 @@ from signpose.pipeline.evaluate import CORES
 from signpose.pipeline.image import ImageError, decode_image
 from signpose.pipeline.library import NO_SIGN, SAMPLE_LIBRARY, LibraryError, load_library
 from signpose.pipeline.settings import SettingsError
-from scene_images import big_photo, block_sign, empty_photo, png_bomb, sign_photo, with_focal_exif
+from tests.support.scene_images import big_photo, block_sign, empty_photo, png_bomb, sign_photo, with_focal_exif
 
 LIBRARY = load_library(SAMPLE_LIBRARY)
 IDLE_TIMEOUT_S = 30
@@ -89,6 +89,7 @@ def test_images_are_processed_and_tagged(make_workspace):
     assert ws.progress() == {"version": 1, "running": False, "done": 3, "total": 3}
 
 
+@pytest.mark.slow
 def test_an_image_held_costs_two_bytes_a_pixel_and_is_still_drawn_in_colour(make_workspace):
     """Holding a 12 MP photo's colour (3 bytes a pixel), gray (1), mask (1) and int32 labels of every
     white component (4) would cost 110 MB. The pipeline reads only the gray, and the result needs
@@ -113,6 +114,7 @@ def test_an_image_held_costs_two_bytes_a_pixel_and_is_still_drawn_in_colour(make
     assert np.array_equal(ws.photo(record), decode_image(data))  # what the figures are drawn on
 
 
+@pytest.mark.slow
 def test_an_image_never_takes_more_memory_than_the_limit_counts_for_it(make_workspace):
     """The memory limit charges each image `held_bytes`: its cache must not outgrow that, as a
     fixed 64 MB per image did after a threshold sweep (7 segmentations of a 4 MP photo)."""
@@ -157,6 +159,7 @@ def resident_bytes() -> int:
         return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc/self/statm").exists() or not hasattr(ctypes.CDLL(None), "malloc_trim"),
                     reason="needs Linux's /proc and glibc")
 def test_the_memory_of_deleted_images_goes_back_to_the_system(tmp_path):
@@ -241,6 +244,7 @@ def test_state_files_edited_in_a_windows_editor_are_read_and_an_emptied_one_is_n
         state.load_assumed_hfov()
 
 
+@pytest.mark.slow
 def test_slider_storm_coalesces_into_few_runs_and_ends_on_the_last_value(make_workspace, counting, monkeypatch):
     ws = make_workspace(debounce_s=0.15, max_wait_s=1.0)
     records = add_signs(ws)
@@ -292,6 +296,7 @@ def test_slider_storm_coalesces_into_few_runs_and_ends_on_the_last_value(make_wo
         assert record.recognition.settings.ransac_threshold_px == 6.0
 
 
+@pytest.mark.slow
 def test_ransac_change_reuses_features_but_a_detector_change_does_not(make_workspace, counting):
     ws = make_workspace()
     add_signs(ws)
@@ -389,6 +394,7 @@ def test_bad_images_are_refused_before_anything_is_stored(make_workspace):
         ws.add_image("b.jpg", good, None)
 
 
+@pytest.mark.slow
 def test_state_survives_a_restart(make_workspace, tmp_path):
     ws = make_workspace()
     records = add_signs(ws)

@@ -12,8 +12,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-import browser_harness as harness  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout root, for tests.support
+from tests.support import browser_harness as harness  # noqa: E402
 
 
 def default_image() -> str:

@@ -25,7 +25,7 @@ def add_images(files: Annotated[list[UploadFile], File(description="one or more 
                workspace: WorkspaceDep,
                expected: Annotated[list[str], Form(description='a sign id, "none" (no sign in the photo) or "" '
                                                                '(unlabelled): one for every file, or one per file '
-                                                               'in their order')] = [],
+                                                               'in their order')] = [],  # noqa: B006 (FastAPI copies it per request; the schema shows it)
                batch: Batch = "", position: Position = 0,
                ) -> UploadOut:
     """Add images; each is processed in the background (status "pending" until done). All or nothing.

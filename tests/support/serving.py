@@ -21,7 +21,7 @@ import viser
 from signpose.app.server import bind
 from signpose.pipeline.library import SAMPLE_LIBRARY
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 TIMEOUT_S = 30
 VISER_PROTOCOL = f"viser-v{viser.__version__}"  # the websocket subprotocol viser's client asks for
 

@@ -18,7 +18,7 @@ from signpose.app.workspace import SAMPLE_SCENES
 from signpose.pipeline.camera import Camera, load_camera
 from signpose.pipeline.library import Library, LibrarySign
 from tools.render_library import render_sign
-from chessboards import pixel_rays
+from tests.support.chessboards import pixel_rays
 
 SIZE = (640, 480)  # (w, h) px
 
@@ -205,3 +205,23 @@ def turned_scene_position() -> np.ndarray:
     """(3,) m: where the camera stood for TURNED_SCENE, in the sign frame (−Rᵀt of its truth)."""
     truth = json.loads((SAMPLE_SCENES / "truth.json").read_text())["images"][TURNED_SCENE]
     return -np.array(truth["R"]).T @ np.array(truth["t"])
+
+
+# A 150 px sign, a little oblique, in dim_plaque_scene.
+DIM_PLAQUE_AT = np.array([[230.0, 250.0], [380.0, 243.0], [383.0, 305.0], [228.0, 309.0]])
+
+
+def dim_plaque_scene(sign=None, plaque_level: float = 150.0, blur: float = 1.5, exit_plaque=None, seed: int = 0) -> np.ndarray:
+    """A 640 x 480 gray wall under a bright lamp (which sets the normalisation's maximum, so the
+    plaques stay below the segmentation threshold), with `sign` at DIM_PLAQUE_AT and optionally a
+    plaque reading EXIT at `exit_plaque` (x, y), both as bright as `plaque_level`; blurred and noised."""
+    img = np.full((480, 640), 70, np.float32)
+    img[20:60, 250:400] = 255
+    if sign is not None:
+        img = render_plaque(sign, DIM_PLAQUE_AT, img, plaque_level / 255)
+    if exit_plaque is not None:
+        x0, y0 = exit_plaque
+        text = np.full((50, 125), plaque_level, np.uint8)
+        cv2.putText(text, "EXIT", (12, 38), cv2.FONT_HERSHEY_SIMPLEX, 1.3, 25, 3)
+        img[y0:y0 + 50, x0:x0 + 125] = text
+    return like_a_camera(img, blur, seed)

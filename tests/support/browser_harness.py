@@ -12,9 +12,9 @@ import time
 from pathlib import Path
 
 import httpx
-from serving import wait_idle
+from tests.support.serving import wait_idle
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
                  "--disable-background-networking"]
