@@ -17,6 +17,7 @@ only its labels' layout stale, which that thread lays out again without redrawin
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import statistics
@@ -24,7 +25,7 @@ import threading
 import time
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Literal
 
 import cv2
 import numpy as np
@@ -247,7 +248,7 @@ class SharedLabel:
     at: int
     cameras: list[int]
     text: str
-    anchor: str = "top-left"
+    anchor: Anchor = "top-left"
 
     def box(self, view: View) -> tuple[float, float, float, float]:
         """(left, top, right, bottom) px on `view`'s screen; NaN when its camera is behind the viewer."""
@@ -268,18 +269,22 @@ class SharedLabel:
         return self.beyond(view) == 0
 
 
+# A corner or side of a label's box, as viser anchors labels.
+Anchor = Literal["top-left", "top-center", "top-right", "center-left", "center-center", "center-right",
+                 "bottom-left", "bottom-center", "bottom-right"]
 # Where a label may be written from, as (camera, anchor) in the order tried; a camera's own as viser
 # writes it, rightward and down from it, else leftward, or up from it, or centred on it, to stay inside
 # the view. A group's from its camera highest, lowest or in the middle on the screen, as a camera's.
-OVER = (("top", "top-left"), ("top", "top-right"), ("bottom", "bottom-left"), ("bottom", "bottom-right"),
+OVER: tuple[tuple[str, Anchor], ...] = (("top", "top-left"), ("top", "top-right"), ("bottom", "bottom-left"), ("bottom", "bottom-right"),
         ("middle", "center-left"), ("middle", "center-right"), ("top", "top-center"), ("bottom", "bottom-center"),
         ("middle", "center-center"))
 # A group's beside its cameras, covering none of them, where it fits (written down from the highest, the
 # list ran over the others): left of the leftmost, above the highest, right of the rightmost, below the
 # lowest. Left first: a camera's own label runs rightward, and viser's own page has its control panel
 # over the right of the view.
-BESIDE = (("left", "center-right"), ("top", "bottom-left"), ("top", "bottom-right"), ("top", "bottom-center"),
-          ("right", "center-left"), ("bottom", "top-left"), ("bottom", "top-right"), ("bottom", "top-center"))
+BESIDE: tuple[tuple[str, Anchor], ...] = (
+    ("left", "center-right"), ("top", "bottom-left"), ("top", "bottom-right"), ("top", "bottom-center"),
+    ("right", "center-left"), ("bottom", "top-left"), ("bottom", "top-right"), ("bottom", "top-center"))
 
 
 def label_texts(texts: list[str]) -> list[str]:
@@ -334,10 +339,10 @@ def labels_apart(groups: list[list[int]], texts: list[str], views: list[View]) -
         b = np.asarray([[label.box(view) for view in views] for label in labels], float).reshape(
             len(labels), len(views), 4)   # left, top, right, bottom
         # NaN (behind a viewer) compares false: such a label overlaps nothing on that screen.
-        overlap = ((b[:, None, :, 0] < b[None, :, :, 2] + LABEL_GAP_PX)
-                   & (b[None, :, :, 0] < b[:, None, :, 2] + LABEL_GAP_PX)
-                   & (b[:, None, :, 1] < b[None, :, :, 3] + LABEL_GAP_PX)
-                   & (b[None, :, :, 1] < b[:, None, :, 3] + LABEL_GAP_PX)).any(axis=2)
+        overlap = np.any((b[:, None, :, 0] < b[None, :, :, 2] + LABEL_GAP_PX)
+                         & (b[None, :, :, 0] < b[:, None, :, 2] + LABEL_GAP_PX)
+                         & (b[:, None, :, 1] < b[None, :, :, 3] + LABEL_GAP_PX)
+                         & (b[None, :, :, 1] < b[:, None, :, 3] + LABEL_GAP_PX), axis=2)
         merged = linked_groups(len(groups), lambda i, j: bool(overlap[i, j]))
         if len(merged) == len(groups):
             return labels
@@ -366,11 +371,12 @@ class SettingControl:
     def show(self, value: Any) -> None:
         """Display `value`; fires the inputs' on_update callbacks (the panel's guard silences them)."""
         if self.enabled is not None:
-            self.enabled.value = value is not None
+            # viser sets `value` through its props machinery, which its type hints do not show.
+            self.enabled.value = value is not None  # type: ignore[misc]
             self.input.disabled = value is None
             if value is None:
                 return
-        self.input.value = value
+        self.input.value = value  # type: ignore[misc]
 
 
 @dataclass
@@ -426,7 +432,7 @@ def add_settings_panel(gui: viser.GuiApi, settings: Settings,
                 control = _add_control(gui, entry, current[entry["name"]])
                 for handle in (control.input, control.enabled):
                     if handle is not None:
-                        handle.on_update(lambda event, c=control: panel._edited(c, event))
+                        handle.on_update(functools.partial(panel._edited, control))
                 panel.controls[entry["name"]] = control
     return panel
 
@@ -756,7 +762,7 @@ class SceneHandle:
             if nodes is None:
                 return
             if self.world.value != nodes.sign:
-                self.world.value = nodes.sign
+                self.world.value = nodes.sign  # type: ignore[misc]
             position, wxyz = np.asarray(nodes.frustum.position), np.asarray(nodes.frustum.wxyz)
             text = nodes.text
         axes = tf.SO3(wxyz).as_matrix()
@@ -857,7 +863,7 @@ class SceneHandle:
         if tuple(self.world.options) != options:
             keep = self.world.value if self.world.value in options else None
             self.world.options = options
-            self.world.value = keep or (counts.most_common(1)[0][0] if counts else NO_WORLD)
+            self.world.value = keep or (counts.most_common(1)[0][0] if counts else NO_WORLD)  # type: ignore[misc]
         self.world.disabled = not counts
         self._on_view_option()
 

@@ -74,9 +74,11 @@ def _problem(error: dict) -> str:
     return f"{'.'.join(map(str, error['loc']))}: {error['msg']}"
 
 
-async def _validation_error_handler(request: Request, exc: RequestValidationError) -> JSONResponse:
+async def _validation_error_handler(request: Request, exc: Exception) -> JSONResponse:
     """422 `{"detail": "<every problem, one line>"}` like every other error. FastAPI's default
-    answers a list that echoes the input, and cannot encode it when it holds NaN or Infinity (a 500)."""
+    answers a list that echoes the input, and cannot encode it when it holds NaN or Infinity (a 500).
+    Registered for RequestValidationError only; Starlette types every handler over Exception."""
+    assert isinstance(exc, RequestValidationError)
     return JSONResponse({"detail": "; ".join(map(_problem, exc.errors()))},
                         status_code=status.HTTP_422_UNPROCESSABLE_CONTENT)
 
@@ -88,8 +90,8 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
     With `token`, every request and websocket must carry it (app/security.py); without, only
     requests addressed to a loopback host are answered.
     """
-    owned = not isinstance(source, Workspace)
-    workspace = Workspace.open(source) if owned else source
+    workspace = source if isinstance(source, Workspace) else Workspace.open(source)
+    owned = workspace is not source
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:

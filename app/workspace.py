@@ -24,6 +24,7 @@ import threading
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import Any
 from pathlib import Path
 
 import cv2
@@ -74,7 +75,8 @@ class WorkspaceConfig:
 def sample_scenes(folder: Path = SAMPLE_SCENES) -> list[tuple[Path, str | None]]:
     """(image path, expected label) of the sample scenes; negatives are expected `NO_SIGN`."""
     try:
-        truth = parse_json((folder / "truth.json").read_bytes())["images"]
+        document: Any = parse_json((folder / "truth.json").read_bytes())
+        truth = document["images"]
     except (OSError, ValueError, KeyError, TypeError):
         log.warning("no usable %s; starting without sample scenes", folder / "truth.json")
         return []
