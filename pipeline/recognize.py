@@ -30,7 +30,7 @@ from .plaque_search import (MIN_NCC, SAME_PLAQUE_IOU, QuadCandidate, confirm_pla
 from .pose import CORNER_SIGMA_PX, Pose, PoseError, distort_pixels, estimate_pose, with_corner_floor
 from .segment import Box, Segmentation, box_iou, expand_box, segment
 from .settings import Settings
-from .verify import TextCheck, check_text
+from .verify import TextCheck, check_text, overwhelming, text_threshold
 
 STAGES = ("segment", "features", "match", "ransac", "pose")
 # A sign seen from any usable viewpoint projects to a convex quad whose opposite sides differ
@@ -136,18 +136,8 @@ class Refined:
     notes: list[str]
 
     def text_problem(self, min_correlation: float) -> str | None:
-        """Why the winner is turned down for its text (`settings.min_text_correlation`), None if it is not."""
-        if self.text is None or self.text.passes(min_correlation):
-            return None
-        if self.text.weakest is None:
-            where = ("lies mostly outside it or is washed out by glare" if self.text.washed else "lies mostly outside it")
-            return (f"none of {self.sign.id}'s text can be read in the image (each of its {len(self.text.strips)} "
-                    f"strips {where}): a plaque of other words would read the same")
-        if self.text.weakest < min_correlation:
-            return (f"its text differs from {self.sign.id}'s (weakest strip correlation {self.text.weakest:.2f} < "
-                    f"{min_correlation:g}): another sign sharing some of its words, or a homography that is off")
-        return (f"the plaque and its text go on beyond {self.sign.id}'s {' and '.join(self.text.continued)} "
-                f"side: a plaque of {self.sign.id}'s words and more")
+        """Why the winner is turned down for its text at `min_correlation` (`verify.text_threshold`), None if it is not."""
+        return None if self.text is None else self.text.problem(self.sign, min_correlation)
 
 
 @dataclass(frozen=True, eq=False)
@@ -553,7 +543,8 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
                            "the pose is approximate")
 
     segmentation = None
-    if settings.segment_mode == "threshold":
+    # Pictures are no bright plaques: their crops, shrunk to max_crop_size, only cost accuracy.
+    if settings.segment_mode == "threshold" and not library.pictures_only:
         t0 = time.perf_counter()
         seg_key = ("segment", settings.normalization, settings.threshold, settings.high_threshold,
                    settings.candidates, settings.crop_margin, settings.min_blob_area)
@@ -589,6 +580,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         """The winner of `attempt` (else of `plaque`) refined, with its text checked."""
         t0 = time.perf_counter()
         H, src, dst, sign = winner_homography(attempt, plaque, library)
+        inliers = src if plaque is None else src[:0]  # the plaque fallback's are a grid, not matches
         # A RANSAC or decision change usually leaves the winner's H as it was: refine it once.
         refine_key = ("refine", sign.id, H.tobytes(), src.tobytes(), dst.tobytes(), settings.refine,
                       wants_dense_refinement(settings.refine, attempt), settings.refine_outline,
@@ -601,7 +593,9 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
 
         # The pose itself is estimated every time: "pose" is not reported reused.
         (H, src, dst, ecc, outline), notes = cached(cache, refine_key, refine, None, reused)
-        text = check_text(gray, library, sign.id, H, camera) if settings.min_text_correlation > 0 else None
+        text = (dataclasses.replace(check_text(gray, library, sign.id, H, camera),
+                                    overwhelming=overwhelming(sign, inliers))
+                if text_threshold(sign, settings) > 0 else None)
         timing["pose"] += (time.perf_counter() - t0) * 1e3
         return Refined(H, src, dst, ecc, outline, sign, text, notes)
 
@@ -609,7 +603,7 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
 
     def turn_down(refined: Refined, source: str) -> str | None:
         """Why `refined`, found in `source`, is turned down for its text (kept in `turned_down`), or None."""
-        why = refined.text_problem(settings.min_text_correlation)
+        why = refined.text_problem(text_threshold(refined.sign, settings))
         if why is not None:
             turned_down.append(TurnedDown(refined.sign.id, source, refined.H, refined.text))
         return why
@@ -717,7 +711,7 @@ def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.nd
     """
     why = None
     # A landmark searched without segmentation need not be a plaque with four straight edges.
-    use_outline = settings.refine_outline and settings.segment_mode != "none"
+    use_outline = settings.refine_outline and settings.segment_mode != "none" and sign.kind == "plaque"
     if use_outline:
         outline, why = refine_outline(gray, sign, H, settings.seed, camera)
         if outline is not None:
