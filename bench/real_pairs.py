@@ -28,7 +28,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
 from signpose.pipeline.library import Library, make_sign, validate_sign_entry
 from signpose.pipeline.recognize import Recognition, recognize, why_no_feature_winner
 from signpose.pipeline.settings import preset
@@ -97,9 +96,12 @@ def _opencv_matrix(path: Path) -> np.ndarray:
     """The first matrix's `data` of an OpenCV FileStorage XML file (cv2.FileStorage of OpenCV 5 cannot read
     this file of OpenCV 1's), as a (rows, cols) float64 array."""
     text = path.read_text(encoding="ascii")
-    rows, cols = (int(re.search(rf"<{tag}>\s*(\d+)", text).group(1)) for tag in ("rows", "cols"))
-    values = re.search(r"<data>(.*?)</data>", text, re.S).group(1).split()
-    return np.array(values, dtype=np.float64).reshape(rows, cols)
+    found = [re.search(pattern, text, re.DOTALL) for pattern in (r"<rows>\s*(\d+)", r"<cols>\s*(\d+)",
+                                                                 r"<data>(.*?)</data>")]
+    if any(f is None for f in found):
+        sys.exit(f"{path} holds no OpenCV matrix")
+    rows, cols, data = (f.group(1) for f in found if f is not None)
+    return np.array(data.split(), dtype=np.float64).reshape(int(rows), int(cols))
 
 
 def cases(shared: Path) -> list[Case]:
@@ -156,8 +158,8 @@ def run_opencv(case: Case) -> Outcome:
                 if m.distance < CV_RATIO * n.distance]
     H, mask = None, None
     if len(good) >= 4:
-        src = np.float32([kp_a[m.queryIdx].pt for m in good])
-        dst = np.float32([kp_b[m.trainIdx].pt for m in good])
+        src = np.array([kp_a[m.queryIdx].pt for m in good], dtype=np.float32)
+        dst = np.array([kp_b[m.trainIdx].pt for m in good], dtype=np.float32)
         H, mask = cv2.findHomography(src, dst, cv2.USAC_MAGSAC, CV_THRESHOLD_PX, maxIters=10000, confidence=0.999)
     ms = (time.perf_counter() - t0) * 1e3
     inliers = int(mask.sum()) if mask is not None else 0

@@ -39,9 +39,15 @@ import numpy as np
 from .camera import Camera
 from .image import inside_image
 from .library import Library, LibrarySign
-from .settings import Settings
-from .plaque import COMPARE_BLUR_SIGMA, quad_width, shrunk_view, sign_corners, sign_to_quad
+from .plaque import (
+    COMPARE_BLUR_SIGMA,
+    quad_width,
+    shrunk_view,
+    sign_corners,
+    sign_to_quad,
+)
 from .pose import distort_pixels, undistort_pixels
+from .settings import Settings
 
 STRIPS = 6
 CHECK_WIDTH = 128  # px of the rectified sign: fine enough for the words' letters, coarse enough to pool noise

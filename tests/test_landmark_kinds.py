@@ -10,14 +10,21 @@ import shutil
 import cv2
 import numpy as np
 import pytest
-
-from signpose.pipeline.library import (SAMPLE_LIBRARY, Library, LibraryError, infer_kind, load_library, make_sign,
-                                       save_library_json, validate_sign_entry)
+from scene_images import decoy_image
+from shared_data import shared_folder
+from signpose.pipeline.library import (
+    SAMPLE_LIBRARY,
+    Library,
+    LibraryError,
+    infer_kind,
+    load_library,
+    make_sign,
+    save_library_json,
+    validate_sign_entry,
+)
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import preset
 from signpose.pipeline.verify import text_threshold
-from scene_images import decoy_image
-from shared_data import shared_folder
 
 OPENCV = shared_folder() / "data" / "opencv"
 
