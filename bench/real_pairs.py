@@ -62,7 +62,7 @@ class Outcome:
     answered: bool
     error_px: float | None
     inliers: int
-    reason: str | None
+    reason: str | None  # why it was refused; for an answer, how much of the landmark was in view when not all
     ms: float
 
 
@@ -144,7 +144,8 @@ def run_signpose(case: Case, settings_name: str) -> Outcome:
     inliers = best.n_inliers if best is not None else 0
     if not rec.recognized or rec.H is None:
         return Outcome(False, None, inliers, refusal(rec), ms)
-    return Outcome(True, case.error(rec.H) if case.error else None, inliers, None, ms)
+    in_view = next((w.split(":")[0] for w in rec.warnings if w.startswith("only ") and " is in the image" in w), None)
+    return Outcome(True, case.error(rec.H) if case.error else None, inliers, in_view, ms)
 
 
 def run_opencv(case: Case) -> Outcome:
@@ -194,7 +195,7 @@ def main() -> None:
     if not (shared / "data" / "homogr").is_dir():
         sys.exit(f"no real pairs at {shared / 'data' / 'homogr'}: set SIGNPOSE_SHARED to the shared folder")
     ours, theirs = [], []
-    print(f"{'case':<14} {'signpose err':>9} {'inl':>5}   {'opencv err':>9} {'inl':>5}   signpose's reason")
+    print(f"{'case':<14} {'signpose err':>9} {'inl':>5}   {'opencv err':>9} {'inl':>5}   signpose's reason or note")
     for case in cases(shared):
         mine, cv = run_signpose(case, args.preset), run_opencv(case)
         ours.append((case, mine))

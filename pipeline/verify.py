@@ -104,6 +104,13 @@ PICTURE_MIN_VISIBLE = 0.25
 # its homography 1.7 px off). Not for plaques: a plaque of other words shares letter shapes all over.
 OVERWHELMING_INLIERS = 100
 OVERWHELMING_SPREAD = 0.2
+# A picture less than this fraction in the image is answered saying how much of it was.
+MOSTLY_IN_VIEW = 0.9
+# A picture's dense alignment is kept when its matched points fit it within this many times the
+# RMSE the matches' own H leaves them (at least DENSE_FLOOR_PX): see `dense_agrees`.
+DENSE_AGREEMENT = 2.0
+DENSE_FLOOR_PX = 0.5
+VISIBLE_GRID = 32  # points along each side of the landmark at which `visible_fraction` looks
 
 
 def local_contrast(image: np.ndarray) -> np.ndarray:
@@ -452,6 +459,30 @@ def overwhelming(sign: LibrarySign, inliers: np.ndarray) -> bool:
         return False
     w, h = sign.size_px
     return cv2.contourArea(cv2.convexHull(inliers.astype(np.float32))) >= OVERWHELMING_SPREAD * w * h
+
+
+def dense_agrees(H: np.ndarray, dense_H: np.ndarray, src: np.ndarray, dst: np.ndarray) -> bool:
+    """Whether `dense_H`, a picture's dense alignment, fits the (N, 2) matched points `src` (library
+    px) -> `dst` (image px) within DENSE_AGREEMENT times the RMSE that H, fitted to them, leaves.
+    ECC aligns what is in view and may bend the rest: the homogr pair BostonLib, a third of its A in
+    view, left its points 1.20 px RMSE off against the matches' 0.26, its truth 4.2 px off against
+    0.6; where ECC helped (graf, Brussels, Eiffel, boat) the points moved by at most 1.7 times."""
+    def rmse(homography: np.ndarray) -> float:
+        mapped = cv2.perspectiveTransform(src.reshape(1, -1, 2).astype(np.float64), homography)[0]
+        return float(np.sqrt(np.mean(np.sum((mapped - dst) ** 2, axis=1))))
+    return len(src) == 0 or rmse(dense_H) <= DENSE_AGREEMENT * max(rmse(H), DENSE_FLOOR_PX)
+
+
+def visible_fraction(H: np.ndarray, sign: LibrarySign, width: int, height: int) -> float:
+    """The fraction of `sign` that H (library px -> image px) puts inside a `width` x `height` px
+    image (and in front of the camera), from a VISIBLE_GRID x VISIBLE_GRID grid of its points."""
+    w, h = sign.size_px
+    steps = (np.arange(VISIBLE_GRID) + 0.5) / VISIBLE_GRID
+    u, v = np.meshgrid(steps * w, steps * h)
+    hom = np.column_stack([u.ravel(), v.ravel(), np.ones(u.size)]) @ np.asarray(H, np.float64).T
+    ahead = hom[:, 2] > 1e-12
+    x, y = hom[:, 0] / np.where(ahead, hom[:, 2], 1.0), hom[:, 1] / np.where(ahead, hom[:, 2], 1.0)
+    return float(np.mean(ahead & (x >= 0) & (x <= width) & (y >= 0) & (y <= height)))
 
 
 def text_threshold(sign: LibrarySign, settings: Settings) -> float:
