@@ -170,20 +170,22 @@ class TextCheck:
         and what may be changed; None when it passes."""
         if self.passes(min_correlation):
             return None
-        own_bar = ("lower its \"min_text_correlation\" in library.json" if self.kind == "picture" else
-                   f"give it \"kind\": \"picture\" in library.json if {sign.id} is no plaque of text")
+        as_picture = f"give it \"kind\": \"picture\" in library.json if {sign.id} is no plaque of text"
+        if self.score is None and self.kind == "picture":
+            return (f"too little of {sign.id} is in the image to compare (each of its {len(self.strips)} strips lies "
+                    f"less than {PICTURE_MIN_VISIBLE:.0%} in it)")
         if self.score is None:
             where = ("lies mostly outside it or is washed out by glare" if self.washed else "lies mostly outside it")
             return (f"none of {sign.id}'s text can be read in the image (each of its {len(self.strips)} "
-                    f"strips {where}): a plaque of other words would read the same")
+                    f"strips {where}): a plaque of other words would read the same; {as_picture}")
         if self.kind == "picture" and self.score < min_correlation:
             return (f"the picture differs from {sign.id}'s (median strip correlation {self.score:.2f} < "
-                    f"{min_correlation:g}): another object, or a homography that is off; if it is {sign.id}, "
-                    f"{own_bar}")
+                    f"{min_correlation:g}): another object, or a homography that is off; if it is {sign.id}, lower "
+                    "its \"min_text_correlation\" in library.json")
         if self.score < min_correlation:
             return (f"its text differs from {sign.id}'s (weakest strip correlation {self.score:.2f} < "
                     f"{min_correlation:g}): another sign sharing some of its words, or a homography that is off; "
-                    f"{own_bar}, or lower its \"min_text_correlation\" there")
+                    f"{as_picture}, or lower its \"min_text_correlation\" there")
         return (f"the plaque and its text go on beyond {sign.id}'s {' and '.join(self.continued)} "
                 f"side: a plaque of {sign.id}'s words and more")
 

@@ -103,3 +103,19 @@ def test_the_box_is_recognised_as_a_picture(crop):
                           Library(OPENCV, [make_sign(entry, box, "box")]), preset("default"))
     assert as_plaque.label is None
     assert any(s.reason and '"kind": "picture"' in s.reason for a in as_plaque.attempts for s in a.scores)
+
+
+@pytest.mark.skipif(not OPENCV.is_dir(), reason=f"OpenCV's sample photos not found at {OPENCV}")
+def test_a_landmarks_own_bar_decides_and_its_refusal_says_so():
+    """The entry's own min_text_correlation is the bar, whatever the settings say; turned down, the
+    reason names the check that failed and the value to change."""
+    box = cv2.imread(str(OPENCV / "box.png"), cv2.IMREAD_GRAYSCALE)
+    entry = validate_sign_entry({"id": "box", "image": "box.png", "width_m": 0.2, "min_text_correlation": 0.99},
+                                "box")
+    library = Library(OPENCV, [make_sign(entry, box, "box")])
+    rec = recognize(cv2.imread(str(OPENCV / "box_in_scene.png")), library,
+                    preset("default").replace(min_picture_correlation=0.1))
+    assert rec.label is None
+    reason = rec.scores[0].reason
+    assert reason.startswith("the picture differs from box's (median strip correlation 0.") and "< 0.99" in reason
+    assert reason.endswith('lower its "min_text_correlation" in library.json'), reason
