@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .camera import Camera, CameraError, assumed_camera
-from .features import Features, detect, feature_key, library_features
+from .features import Features, detect, feature_key, library_features, search_settings
 from .homography import HomographyEstimate, estimate_homography
 from .image import to_gray
 from .library import Library, LibrarySign
@@ -428,8 +428,9 @@ def search_region(gray: np.ndarray, region: Box, source: str, library: Library, 
     """Detect features in `region` and score every library sign against them (`cached` says what
     `cache` and `reused` are for)."""
     t0 = time.perf_counter()
-    query = cached(cache, ("features", *feature_key(settings), region), lambda: detect(gray, settings, region),
-                   "features", reused)
+    searched_with = search_settings(settings, library, region)
+    query = cached(cache, ("features", *feature_key(searched_with), region),
+                   lambda: detect(gray, searched_with, region), "features", reused)
     lib = library_features(library, settings)
     t1 = time.perf_counter()
     timing["features"] += (t1 - t0) * 1e3
