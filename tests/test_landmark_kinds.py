@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from scene_images import decoy_image
 from shared_data import shared_folder
+from signpose.pipeline.features import MAX_BUDGET, picture_budget, search_settings
 from signpose.pipeline.library import (
     SAMPLE_LIBRARY,
     Library,
@@ -119,3 +120,16 @@ def test_a_landmarks_own_bar_decides_and_its_refusal_says_so():
     reason = rec.scores[0].reason
     assert reason.startswith("the picture differs from box's (median strip correlation 0.") and "< 0.99" in reason
     assert reason.endswith('lower its "min_text_correlation" in library.json'), reason
+
+
+def test_a_pictures_feature_budget_grows_with_its_area_and_a_plaques_does_not():
+    settings = preset("default")
+    assert picture_budget(settings, 640, 480) is settings
+    assert picture_budget(settings, 1280, 960).max_features == 4 * settings.max_features
+    assert picture_budget(settings, 8000, 6000).max_features == MAX_BUDGET
+    plaques = load_library(SAMPLE_LIBRARY)
+    assert search_settings(settings, plaques, (0, 0, 4000, 3000)) is settings
+    picture = make_sign({"id": "p", "image": "p.png", "width_m": 1.0, "kind": "picture"},
+                        np.full((100, 100), 128, np.uint8) + np.eye(100, dtype=np.uint8) * 50, "p")
+    mixed = Library(plaques.root, [*plaques.signs, picture])
+    assert search_settings(settings, mixed, (0, 0, 1280, 960)).max_features == 4 * settings.max_features
