@@ -12,7 +12,7 @@ Measured with STRIPS 6 at CHECK_WIDTH 128 px: the 14 of 18 plaques of other Arab
 library's font, on real photos, that features read as a library sign reached at most 0.64 with
 it; 643 true signs (568 with a pose within 5° on synthetic scenes at 640x480 and 1280x960 and
 the sample datasets, 75 pasted on real photos under glare, blur, noise and low light) at least
-0.85. Signs read with a pose 34° and 68° off reached 0.68 and 0.14. Later a tester's وزارة
+0.85. Signs read with a pose 34° and 68° off reached 0.68 and 0.14. A plaque of وزارة
 التعليم, which differs from وزارة التعذيب only in its last letters, reached 0.72 in that strip:
 `min_text_correlation` became 0.75 (right answers on 1684 test images reached at least 0.83).
 
@@ -39,13 +39,7 @@ import numpy as np
 from .camera import Camera
 from .image import inside_image
 from .library import Library, LibrarySign
-from .plaque import (
-    COMPARE_BLUR_SIGMA,
-    quad_width,
-    shrunk_view,
-    sign_corners,
-    sign_to_quad,
-)
+from .plaque import COMPARE_BLUR_SIGMA, quad_width, shrunk_view, sign_corners, sign_to_quad
 from .pose import distort_pixels, undistort_pixels
 from .settings import Settings
 
@@ -87,7 +81,7 @@ MIN_MARGIN = 2
 # Glare that saturates the camera leaves no trace of the ink under it: a strip at least MAX_WASHED
 # of whose dark ink reads SATURATED or brighter (uint8 gray, before the blur) is washed out and not
 # judged, as a strip outside the image is not. Measured on 150 true signs pasted on real photos
-# under a highlight (30 saturating a letter or more) and a tester's 9 sample scenes under glare
+# under a highlight (30 saturating a letter or more) and 9 sample scenes under glare
 # washing out a word: 12 of 30 and 0 of 9 passed the check, 28 and 6 now (all 30 and 8 of 9 with
 # the check off); the 120 under milder glare passed before and still do. Leaving saturated pixels
 # out of the correlation, their strips counted, won 3 of the 30.
