@@ -15,7 +15,7 @@ from signpose.pipeline.image import to_gray
 from signpose.pipeline.library import Library
 from signpose.pipeline.recognize import Attempt, Recognition, SignScore
 from signpose.pipeline.segment import Box, Segmentation, normalize_levels, segment
-from signpose.pipeline.verify import TextCheck, TextTemplate, rectify_text, text_template
+from signpose.pipeline.verify import TextCheck, TextTemplate, rectify_text, text_template, text_threshold
 
 STAGES = ("input", "gray", "mask", "blob", "crop", "matches", "inliers", "text")
 # The stages drawn on the colour photo; the others need only its gray.
@@ -387,7 +387,7 @@ def draw_text(gray: np.ndarray, recognition: Recognition, library: Library) -> n
     sign = library[sign_id]
     template = text_template(library, sign.id)
     read = rectify_text(gray, sign, template, H, recognition.camera)
-    minimum = recognition.settings.min_text_correlation
+    minimum = text_threshold(sign, recognition.settings)  # the sign's own bar, or its kind's setting
     colors = _strip_colors(check, minimum)
     # black where the photo was not seen: the check leaves those pixels out
     photo = _text_panel(np.where(read.seen, _stretched(read.patch, template.rows, read.seen), 0).astype(np.uint8),
@@ -397,7 +397,8 @@ def draw_text(gray: np.ndarray, recognition: Recognition, library: Library) -> n
     values = [("washed out" if i in check.washed else "unseen" if c is None else f"{c:.3f}", x0, x1, color)
               for i, (c, x0, x1, color) in enumerate(zip(check.strips, edges[:-1], edges[1:], colors))]
     head = _text_band(width, [(what, 0, width, WHITE)])
-    foot = _text_band(width, [(f"library sign {sign.id}: strips pass at {minimum:g} or more", 0, width, WHITE)])
+    judged = "the median strip passes" if check.kind == "picture" else "strips pass"
+    foot = _text_band(width, [(f"library sign {sign.id}: {judged} at {minimum:g} or more", 0, width, WHITE)])
     bands = [head, photo, _text_band(width, values), library_sign, foot]
     if check.continued:
         sides = " and ".join(check.continued)

@@ -3,7 +3,14 @@
 `library.json`::
 
     {"signs": [{"id": "security_compound", "name": "Security Compound", "text": "مجمع أمني",
-                "image": "security_compound.png", "width_m": 0.6, "height_m": 0.24}]}
+                "image": "security_compound.png", "width_m": 0.6, "height_m": 0.24, "kind": "plaque"}]}
+
+`kind` says how a winner is verified (pipeline/verify.py): "plaque", a plaque of text on plain
+paper, checked strip by strip against look-alikes sharing some of its words; "picture", a textured
+landmark (a poster, a box, a photo of a facade), checked for its likeness alone. Without it, an
+image with a plain margin all round is a plaque, any other a picture (`infer_kind`).
+`min_text_correlation` (optional, 0-1) replaces the setting of that name (or, for a picture,
+`min_picture_correlation`) for this landmark alone.
 
 Library pixel (u, v) (OpenCV convention, the image's top-left corner at (0, 0) and its
 bottom-right corner at (w, h)) maps to the sign frame (x right, y down, z into the wall,
@@ -61,8 +68,16 @@ LIKENESS_SIZE = 60  # px, each side of the square both images are squeezed to
 # The keys library.json may hold, of a sign and at its top (beside "signs", what the server's state records of where
 # its library came from: app/state.py library_meta). Others are refused: a typo such as "heigth_m" was dropped
 # without a word, the height then taken from the image's aspect.
-SIGN_KEYS = ("id", "name", "text", "image", "width_m", "height_m")
+SIGN_KEYS = ("id", "name", "text", "image", "width_m", "height_m", "kind", "min_text_correlation")
 LIBRARY_KEYS = ("signs", "copied_from", "fingerprint", "added")
+KINDS = ("plaque", "picture")
+# An image is a plaque when this fraction of its edge pixels (at 128 px wide) lie within PLAIN_SPREAD
+# of its gray range from their median: paper all round its text. The sample signs have 1.00; of
+# the homogr photos (A side), OpenCV's box.png and graf1.png, none more than 0.85 but LePoint2A, a
+# near-blank page, at 1.00; a crop inside the box 0.13.
+PLAIN_BORDER = 0.95
+PLAIN_SPREAD = 0.1
+KIND_SIZE = 128  # px, the width an image is looked at to infer its kind
 LIKENESS_CELLS = (6, 2)  # columns and rows of the cells compared, each LIKENESS_SIZE / 6 x LIKENESS_SIZE / 2 px
 LIKENESS_SHADING_SIGMA = 8.0  # px at LIKENESS_SIZE: wider than strokes, narrower than the light across a sign
 # A cell with less than this fraction of the mean cell's detail in both images is blank in both:
@@ -89,6 +104,9 @@ class LibrarySign:
     width_m: float
     height_m: float
     image: np.ndarray = field(repr=False)
+    kind: str = "plaque"
+    # this landmark's own bar for the check of its look (None: the settings'), see `verify.text_threshold`
+    min_text_correlation: float | None = None
 
     @property
     def size_px(self) -> tuple[int, int]:
@@ -116,8 +134,11 @@ class LibrarySign:
         return np.column_stack([xy, np.zeros(len(xy))])
 
     def to_json(self) -> dict:
-        return {"id": self.id, "name": self.name, "text": self.text, "image": self.image_file,
-                "width_m": self.width_m, "height_m": self.height_m}
+        out = {"id": self.id, "name": self.name, "text": self.text, "image": self.image_file,
+               "width_m": self.width_m, "height_m": self.height_m, "kind": self.kind}
+        if self.min_text_correlation is not None:
+            out["min_text_correlation"] = self.min_text_correlation
+        return out
 
 
 @dataclass(eq=False)
@@ -137,6 +158,11 @@ class Library:
     @property
     def ids(self) -> list[str]:
         return [s.id for s in self.signs]
+
+    @property
+    def pictures_only(self) -> bool:
+        """Whether every sign is a picture: none is a bright plaque that segmentation could find."""
+        return all(s.kind == "picture" for s in self.signs)
 
     def per_sign(self, key: Hashable, compute: Callable[[LibrarySign], T]) -> dict[str, T]:
         """{sign id: compute(sign)} for every sign, computed once per `key` and kept in `cache`;
@@ -175,6 +201,15 @@ def validate_sign_entry(entry: dict, where: str) -> dict:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
             raise LibraryError(f"{where}: {key} must be a positive number of metres; got {reprlib.repr(value)}")
         check_size_m(key, float(value), where)
+    kind = entry.get("kind")
+    if kind is not None and kind not in KINDS:
+        raise LibraryError(f"{where}: kind {reprlib.repr(kind)} must be \"plaque\" (a plaque of text on plain paper, "
+                           "checked against plaques of other words) or \"picture\" (a textured landmark: a poster, a "
+                           "box, a photo), or left out to be told from the image")
+    bar = entry.get("min_text_correlation")
+    if bar is not None and (isinstance(bar, bool) or not isinstance(bar, (int, float)) or not 0 <= bar <= 1):
+        raise LibraryError(f"{where}: min_text_correlation must be a number from 0 (no check) to 1, or left out for "
+                           f"the settings'; got {reprlib.repr(bar)}")
     return entry
 
 
@@ -205,6 +240,16 @@ def check_size_m(key: str, value: float, where: str) -> None:
                        "converted to metres twice? give it in metres, e.g. 0.3 for a sign 30 cm wide")
 
 
+def infer_kind(image: np.ndarray) -> str:
+    """"plaque" when the (h, w) uint8 image has a plain margin all round (see PLAIN_BORDER), else "picture"."""
+    h, w = image.shape[:2]
+    small = cv2.resize(image, (KIND_SIZE, max(8, round(KIND_SIZE * h / w))), interpolation=cv2.INTER_AREA)
+    small = small.astype(np.float32)
+    border = np.concatenate([small[0], small[-1], small[:, 0], small[:, -1]])
+    plain = np.abs(border - np.median(border)) <= PLAIN_SPREAD * max(float(np.ptp(small)), 1e-6)
+    return "plaque" if plain.mean() >= PLAIN_BORDER else "picture"
+
+
 def make_sign(entry: dict, image: np.ndarray, where: str) -> LibrarySign:
     """A `LibrarySign` from a validated entry and its grayscale image; fills a missing height from the aspect."""
     h, w = image.shape[:2]
@@ -225,6 +270,8 @@ def make_sign(entry: dict, image: np.ndarray, where: str) -> LibrarySign:
     return LibrarySign(
         id=entry["id"], name=str(entry.get("name") or entry["id"]), text=str(entry.get("text") or ""),
         image_file=entry["image"], width_m=width_m, height_m=height_m, image=image,
+        kind=entry.get("kind") or infer_kind(image),
+        min_text_correlation=None if entry.get("min_text_correlation") is None else float(entry["min_text_correlation"]),
     )
 
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .camera import Camera, CameraError, assumed_camera
-from .features import Features, detect, library_features
+from .features import Features, detect, library_features, search_settings
 from .homography import HomographyEstimate, estimate_homography
 from .image import to_gray
 from .library import Library, LibrarySign
@@ -30,7 +30,8 @@ from .pose import CORNER_SIGMA_PX, Pose, PoseError, distort_pixels, estimate_pos
 from .segment import Box, Segmentation, box_iou, expand_box, segment
 from .settings import Settings
 from .stages import StageCache, StageRunner
-from .verify import TextCheck, check_text
+from .verify import (MOSTLY_IN_VIEW, TextCheck, check_text, dense_agrees, overwhelming, text_threshold,
+                     visible_fraction)
 
 # A sign seen from any usable viewpoint projects to a convex quad whose opposite sides differ
 # in length by far less than this factor; larger means a degenerate H fitted to a few points.
@@ -40,6 +41,9 @@ MAX_SIDE_RATIO = 8.0
 # plaque lost it at twice the frame's width with 28 inliers; 1.5 answered the same as 0.5 on 550
 # synthetic scenes, sample datasets and decoy plaques.
 MAX_CORNER_EXCURSION = 1.5
+# A picture (a poster, a facade) is often seen from closer than its size: the homogr pair BostonLib
+# shows a part of its A, whose corners lie 2.5 frames beyond B's edge (its H 0.6 px off).
+MAX_PICTURE_CORNER_EXCURSION = 4.0
 MIN_QUAD_AREA_PX = 64.0
 # Below this ECC correlation the dense alignment has latched onto something other than the sign.
 MIN_ECC = 0.5
@@ -135,18 +139,8 @@ class Refined:
     notes: list[str]
 
     def text_problem(self, min_correlation: float) -> str | None:
-        """Why the winner is turned down for its text (`settings.min_text_correlation`), None if it is not."""
-        if self.text is None or self.text.passes(min_correlation):
-            return None
-        if self.text.weakest is None:
-            where = ("lies mostly outside it or is washed out by glare" if self.text.washed else "lies mostly outside it")
-            return (f"none of {self.sign.id}'s text can be read in the image (each of its {len(self.text.strips)} "
-                    f"strips {where}): a plaque of other words would read the same")
-        if self.text.weakest < min_correlation:
-            return (f"its text differs from {self.sign.id}'s (weakest strip correlation {self.text.weakest:.2f} < "
-                    f"{min_correlation:g}): another sign sharing some of its words, or a homography that is off")
-        return (f"the plaque and its text go on beyond {self.sign.id}'s {' and '.join(self.text.continued)} "
-                f"side: a plaque of {self.sign.id}'s words and more")
+        """Why the winner is turned down for its text at `min_correlation` (`verify.text_threshold`), None if it is not."""
+        return None if self.text is None else self.text.problem(self.sign, min_correlation)
 
 
 @dataclass(frozen=True, eq=False)
@@ -281,7 +275,8 @@ def quad_problem(H: np.ndarray, sign: LibrarySign, width: int, height: int) -> t
     if area < MIN_QUAD_AREA_PX or max(sides[0] / sides[2], sides[2] / sides[0],
                                       sides[1] / sides[3], sides[3] / sides[1]) > MAX_SIDE_RATIO:
         return corners, "absurd scale: the sign would be tiny or extremely foreshortened"
-    margin_x, margin_y = MAX_CORNER_EXCURSION * width, MAX_CORNER_EXCURSION * height
+    excursion = MAX_PICTURE_CORNER_EXCURSION if sign.kind == "picture" else MAX_CORNER_EXCURSION
+    margin_x, margin_y = excursion * width, excursion * height
     if np.any((corners[:, 0] < -margin_x) | (corners[:, 0] > width + margin_x)
               | (corners[:, 1] < -margin_y) | (corners[:, 1] > height + margin_y)):
         return corners, "corners far outside the image"
@@ -454,7 +449,8 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     height, width = gray.shape
     camera, warnings, approximate = image_camera(camera, width, height)
     run = Run(gray, library, settings, camera, StageRunner(settings, cache))
-    if settings.segment_mode == "threshold":
+    # Pictures are no bright plaques: their crops, shrunk to max_crop_size, only cost accuracy.
+    if settings.segment_mode == "threshold" and not library.pictures_only:
         run.segmentation = run.stages.run("segment", lambda: segment(gray, settings))
         if not run.segmentation.blobs:
             warnings.append("no white blob above the threshold")
@@ -536,12 +532,16 @@ class Run:
     def search_region(self, region: Box, source: str) -> Attempt:
         """Detect features in `region` and score every library sign against them."""
         gray, library, settings = self.gray, self.library, self.settings
+        # A picture's view gets a feature budget grown with the region's area: the features, and the
+        # matches made of them, are keyed by the settings they were detected with.
+        searched_with = search_settings(settings, library, region)
         with self.stages.timed("features"):
-            query = self.stages.run("features", lambda: detect(gray, settings, region), (region,))
+            query = self.stages.run("features", lambda: detect(gray, searched_with, region), (region,),
+                                    settings=searched_with)
             lib = library_features(library, settings)
         trains = [lib[sign.id].descriptors for sign in library.signs]
         matches = self.stages.run("match", lambda: match_library(query.descriptors, trains, settings.ratio, query.norm),
-                                  (region,))
+                                  (region,), settings=searched_with)
         scores = score_signs(library, query, lib, matches, settings, (gray.shape[1], gray.shape[0]),
                              self.stages.timing)
         winner, margin = decide(scores, settings)
@@ -567,6 +567,7 @@ class Run:
         gray, settings, camera = self.gray, self.settings, self.camera
         with self.stages.timed("pose"):
             H, src, dst, sign = winner_homography(attempt, plaque, self.library)
+            inliers = src if plaque is None else src[:0]  # the plaque fallback's are a grid, not matches
             # A RANSAC or decision change usually leaves the winner's H as it was: refined once.
             inputs = (sign.id, H.tobytes(), src.tobytes(), dst.tobytes(),
                       wants_dense_refinement(settings.refine, attempt),
@@ -574,13 +575,14 @@ class Run:
             warned: list[str] = []  # what refining warns of when it runs, cached with its result
             (refined_H, refined_src, refined_dst, ecc, outline), notes = self.stages.run("refine", lambda: (
                 refine_winner(gray, sign, H, src, dst, settings, attempt, camera, warned), warned), inputs)
-            text = (check_text(gray, self.library, sign.id, refined_H, camera) if settings.min_text_correlation > 0
-                    else None)
+            text = (dataclasses.replace(check_text(gray, self.library, sign.id, refined_H, camera),
+                                        overwhelming=overwhelming(sign, inliers))
+                    if text_threshold(sign, settings) > 0 else None)
         return Refined(refined_H, refined_src, refined_dst, ecc, outline, sign, text, notes)
 
     def turn_down(self, refined: Refined, source: str) -> str | None:
         """Why `refined`, found in `source`, is turned down for its text (kept in `turned_down`), or None."""
-        why = refined.text_problem(self.settings.min_text_correlation)
+        why = refined.text_problem(text_threshold(refined.sign, self.settings))
         if why is not None and refined.text is not None:
             self.turned_down.append(TurnedDown(refined.sign.id, source, refined.H, refined.text))
         return why
@@ -613,7 +615,10 @@ class Run:
         pose = None
         with self.stages.timed("pose"):
             warnings += refined.notes
-            if text is not None and text.seen < len(text.strips):
+            height, width = self.gray.shape
+            if sign.kind == "picture" and (in_view := visible_fraction(H, sign, width, height)) < MOSTLY_IN_VIEW:
+                warnings.append(f"only {in_view:.0%} of {sign.id} is in the image: recognised from that part")
+            if text is not None and text.kind == "plaque" and text.seen < len(text.strips):
                 # The check cannot tell the sign from a plaque sharing the words seen: a cut look-alike
                 # whose other words are out of the image reads as the sign.
                 washed = f" ({len(text.washed)} washed out by glare)" if text.washed else ""
@@ -667,13 +672,15 @@ def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.nd
     """
     why = None
     # A landmark searched without segmentation need not be a plaque with four straight edges.
-    use_outline = settings.refine_outline and settings.segment_mode != "none"
+    use_outline = settings.refine_outline and settings.segment_mode != "none" and sign.kind == "plaque"
     if use_outline:
         outline, why = refine_outline(gray, sign, H, settings.seed, camera)
         if outline is not None:
             return outline.H, *outline.grid(sign, camera), None, outline
     ecc = None
-    wanted = wants_dense_refinement(settings.refine, attempt)
+    # A picture's texture aligns densely where a plaque's few strokes do not: on the homogr pairs
+    # ECC took graf's corners from 6.6 to 4.0 px off, Brussels' points from 2.6 to 1.3 px.
+    wanted = wants_dense_refinement(settings.refine, attempt) or (sign.kind == "picture" and settings.refine != "none")
     # Many inliers do not keep the features' corners within the edge search (8 px): a photo with
     # 31 inliers had one 20 px off, its pose 14.6 mm off, against 2.4 mm outlined when turned.
     if wanted or (use_outline and settings.refine != "none"):
@@ -688,6 +695,8 @@ def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.nd
             # drawn to a corner 1500 px beyond a 640 px frame, its pose 68 px RMSE off its points.
             _, implausible = quad_problem(dense_H, sign, gray.shape[1], gray.shape[0])
             problem = None if implausible is None else f"gave an implausible sign ({implausible})"
+            if problem is None and sign.kind == "picture" and not dense_agrees(H, dense_H, src, dst):
+                problem = "disagreed with the matched points"
         if problem is None:
             if use_outline:
                 outline, why = refine_outline(gray, sign, dense_H, settings.seed, camera)

@@ -137,6 +137,11 @@ class Settings:
                                        "The winner's text, rectified, must correlate with its sign's this much in "
                                        "each of 6 strips across it (turns down other signs sharing a word); "
                                        "0: no check", step=0.01, stages=("text check",))
+    min_picture_correlation: float = _num(0.5, 0.0, 1.0, "Decision",
+                                          "The same for a landmark of kind picture (a poster, a box, a photo), its "
+                                          "light evened out: the median of its 6 strips must reach this; a library "
+                                          "entry's own min_text_correlation replaces either", step=0.01,
+                                          stages=("text check",))
 
     # Plaque fallback
     plaque_fallback: bool = _flag(True, "Plaque",

@@ -161,14 +161,16 @@ class StageRunner:
             if self._inner_ms:
                 self._inner_ms[-1] += elapsed
 
-    def run(self, stage: str, compute: Callable[[], T], inputs: tuple = ()) -> T:
+    def run(self, stage: str, compute: Callable[[], T], inputs: tuple = (), *, settings: Settings | None = None) -> T:
         """`compute()`, the result of cached `stage` on `inputs` (what it depends on besides the image
-        and the settings of `stage_key`), timed, and taken from the cache when it is there."""
+        and the settings of `stage_key`), timed, and taken from the cache when it is there.
+        `settings`: those `compute` runs with where they differ from the run's (a picture's view
+        searched with a grown feature budget), so that its key holds what it was computed with."""
         spec = CACHED_STAGES[stage]
         with self.timed(spec.timed_as):
             if self.cache is None:
                 return compute()
-            key = (stage, inputs, stage_key(self.settings, stage))
+            key = (stage, inputs, stage_key(self.settings if settings is None else settings, stage))
             if spec.reported and key in self.cache:
                 self.reused.add(spec.timed_as)
             return self.cache.get(key, compute)

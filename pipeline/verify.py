@@ -20,6 +20,13 @@ A plaque of a sign's words and more (مجمع أمني جديد) matches it in e
 beyond the sign's outline, where the strips do not look. So the check also looks beyond each side
 (`continued_sides`): where the plaque's paper goes on past the sign's edge and its text past the
 text's, the winner is a plaque of more words than its sign's.
+
+A landmark of kind "picture" (a poster, a box, a photo: see pipeline/library.py) has no words to
+be mistaken for and no plaque to go on: its strips run across the whole image, the light across
+it (shadows, glare on one side, vignetting) is taken out of both images by `local_contrast`
+before they are compared, and the median strip seen decides, so that one strip in shadow or
+behind a passer-by does not turn down a landmark every other strip confirms. A picture's strip
+counts when PICTURE_MIN_VISIBLE of it is in the image: a poster seen from close up shows a part.
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ from .image import inside_image
 from .library import Library, LibrarySign
 from .plaque import COMPARE_BLUR_SIGMA, quad_width, shrunk_view, sign_corners, sign_to_quad
 from .pose import distort_pixels, undistort_pixels
+from .settings import Settings
 
 STRIPS = 6
 CHECK_WIDTH = 128  # px of the rectified sign: fine enough for the words' letters, coarse enough to pool noise
@@ -79,6 +87,33 @@ MIN_MARGIN = 2
 # Leaving saturated pixels out of the correlation, their strips counted, won only 3 of the 30.
 SATURATED = 250
 MAX_WASHED = 0.25
+# A picture's light is taken out over this many px of the 128 px wide template (`local_contrast`):
+# wider than its texture's detail, narrower than a shadow's or a glare's extent across it.
+LOCAL_SIGMA = 4.0
+# A picture's strip counts when this fraction of it lies in the image (MIN_VISIBLE for a plaque's).
+PICTURE_MIN_VISIBLE = 0.25
+# Evidence no look-alike gives: at least this many inliers, their convex hull covering at least
+# OVERWHELMING_SPREAD of the picture. A picture so matched passes whatever its strips (a
+# whiteboard written on again between the photos: 206 inliers over 0.35 of it, median strip 0.33,
+# its homography 1.7 px off). Not for plaques: a plaque of other words shares letter shapes all over.
+OVERWHELMING_INLIERS = 100
+OVERWHELMING_SPREAD = 0.2
+# A picture less than this fraction in the image is answered saying how much of it was.
+MOSTLY_IN_VIEW = 0.9
+# A picture's dense alignment is kept when its matched points fit it within this many times the
+# RMSE the matches' own H leaves them (at least DENSE_FLOOR_PX): see `dense_agrees`.
+DENSE_AGREEMENT = 2.0
+DENSE_FLOOR_PX = 0.5
+VISIBLE_GRID = 32  # points along each side of the landmark at which `visible_fraction` looks
+
+
+def local_contrast(image: np.ndarray) -> np.ndarray:
+    """The (h, w) float32 `image` less its local mean, over its local standard deviation (both
+    Gaussian-weighted over LOCAL_SIGMA px): what is left of a texture under any smooth light."""
+    mean = cv2.GaussianBlur(image, (0, 0), LOCAL_SIGMA)
+    detail = image - mean
+    spread = np.sqrt(cv2.GaussianBlur(detail * detail, (0, 0), LOCAL_SIGMA))
+    return detail / (spread + 1.0)
 
 
 @dataclass(frozen=True)
@@ -90,6 +125,8 @@ class TextCheck:
     strips: tuple[float | None, ...]
     continued: tuple[str, ...] = ()
     washed: tuple[int, ...] = ()
+    kind: str = "plaque"  # of the landmark checked: a picture is judged by its median strip
+    overwhelming: bool = False  # a picture's matches leave no doubt: see `overwhelming`
 
     @property
     def seen(self) -> int:
@@ -102,14 +139,49 @@ class TextCheck:
         seen = [c for c in self.strips if c is not None]
         return min(seen) if seen else None
 
+    @property
+    def score(self) -> float | None:
+        """What is held against the bar: a plaque's weakest strip, a picture's median strip
+        (None when no strip was seen)."""
+        seen = [c for c in self.strips if c is not None]
+        if not seen:
+            return None
+        return float(np.median(seen)) if self.kind == "picture" else min(seen)
+
     def passes(self, min_correlation: float) -> bool:
-        """Whether at least one strip was seen, every strip seen reaches `min_correlation` and the
+        """Whether at least one strip was seen, the `score` reaches `min_correlation` and the
         text goes on beyond no side.
 
         With no strip seen (a sign cut by the frame across its text) nothing tells it from a plaque
         of other words: رئيس الوزراء and وزارة التعليم cut so would pass as رئيس الأمن and وزارة
         التعذيب. A plaque of the sign's words and more (مجمع أمني جديد) matches in every strip."""
-        return self.weakest is not None and self.weakest >= min_correlation and not self.continued
+        if self.score is None:
+            return False
+        return (self.score >= min_correlation or self.overwhelming) and not self.continued
+
+    def problem(self, sign: LibrarySign, min_correlation: float) -> str | None:
+        """Why `sign`'s winner is turned down by this check at `min_correlation`: which part failed
+        and what may be changed; None when it passes."""
+        if self.passes(min_correlation):
+            return None
+        as_picture = f"give it \"kind\": \"picture\" in library.json if {sign.id} is no plaque of text"
+        if self.score is None and self.kind == "picture":
+            return (f"too little of {sign.id} is in the image to compare (each of its {len(self.strips)} strips lies "
+                    f"less than {PICTURE_MIN_VISIBLE:.0%} in it)")
+        if self.score is None:
+            where = ("lies mostly outside it or is washed out by glare" if self.washed else "lies mostly outside it")
+            return (f"none of {sign.id}'s text can be read in the image (each of its {len(self.strips)} "
+                    f"strips {where}): a plaque of other words would read the same; {as_picture}")
+        if self.kind == "picture" and self.score < min_correlation:
+            return (f"the picture differs from {sign.id}'s (median strip correlation {self.score:.2f} < "
+                    f"{min_correlation:g}): another object, or a homography that is off; if it is {sign.id}, lower "
+                    "its \"min_text_correlation\" in library.json")
+        if self.score < min_correlation:
+            return (f"its text differs from {sign.id}'s (weakest strip correlation {self.score:.2f} < "
+                    f"{min_correlation:g}): another sign sharing some of its words, or a homography that is off; "
+                    f"{as_picture}, or lower its \"min_text_correlation\" there")
+        return (f"the plaque and its text go on beyond {sign.id}'s {' and '.join(self.continued)} "
+                f"side: a plaque of {sign.id}'s words and more")
 
     def to_json(self) -> dict:
         return {"strips": [None if c is None else round(c, 4) for c in self.strips],
@@ -143,15 +215,22 @@ class TextTemplate:
     dark_ink: bool
     reach: int
     around: np.ndarray | None
+    kind: str = "plaque"
 
 
 def _template(sign: LibrarySign) -> TextTemplate:
     """The sign's `TextTemplate`: strips over the bounding box of its content (pixels well away from the
-    level of its border, its background), with a margin of a quarter of its height above and below."""
+    level of its border, its background), with a margin of a quarter of its height above and below;
+    a picture's over all of it, with no look beyond its sides."""
     w, h = sign.size_px
     size = (CHECK_WIDTH, max(8, round(CHECK_WIDTH * h / w)))
     small = cv2.resize(sign.image, size, interpolation=cv2.INTER_AREA)
     image = cv2.GaussianBlur(small.astype(np.float32), (0, 0), COMPARE_BLUR_SIGMA)
+    if sign.kind == "picture":
+        nothing = np.zeros(image.shape, bool)
+        return TextTemplate(image, (0, size[1]), np.linspace(0, size[0], STRIPS + 1).round().astype(int),
+                            _centres(size, (w, h), 0), (0, size[1], 0, size[0]), nothing, nothing, False, 0, None,
+                            "picture")
     border = np.concatenate([image[0], image[-1], image[:, 0], image[:, -1]])
     away = np.abs(image - np.median(border))
     span = max(float(away.max()), 1e-6)
@@ -291,11 +370,15 @@ def compare_text(rectified: Rectified, template: TextTemplate) -> TextCheck:
     top, bottom = template.rows
     columns = template.columns
     seen = rectified.seen[top:bottom]
-    visible = _strip_sums(seen, columns) / (np.diff(columns) * (bottom - top)) >= MIN_VISIBLE
+    least = PICTURE_MIN_VISIBLE if template.kind == "picture" else MIN_VISIBLE
+    visible = _strip_sums(seen, columns) / (np.diff(columns) * (bottom - top)) >= least
     washed = visible & _washed_out(rectified, template)
-    correlations = _strip_correlations(rectified.patch[top:bottom], template.image[top:bottom], columns, seen)
+    patch, image = rectified.patch[top:bottom], template.image[top:bottom]
+    if template.kind == "picture":
+        patch, image = local_contrast(patch), local_contrast(image)
+    correlations = _strip_correlations(patch, image, columns, seen)
     return TextCheck(tuple(float(c) if v and not x else None for c, v, x in zip(correlations, visible, washed)),
-                     washed=tuple(int(i) for i in np.flatnonzero(washed)))
+                     washed=tuple(int(i) for i in np.flatnonzero(washed)), kind=template.kind)
 
 
 def _washed_out(rectified: Rectified, template: TextTemplate) -> np.ndarray:
@@ -363,6 +446,50 @@ def continued_sides(around: Rectified, template: TextTemplate) -> tuple[str, ...
         if plaque is not None and plaque >= CONTINUED_PAPER and max(inked, default=0.0) >= CONTINUED_INK:
             continued.append(side)
     return tuple(continued)
+
+
+def overwhelming(sign: LibrarySign, inliers: np.ndarray) -> bool:
+    """Whether a picture's (N, 2) library px feature inliers are evidence no look-alike gives (see
+    OVERWHELMING_INLIERS); never for a plaque."""
+    if sign.kind != "picture" or len(inliers) < OVERWHELMING_INLIERS:
+        return False
+    w, h = sign.size_px
+    return cv2.contourArea(cv2.convexHull(inliers.astype(np.float32))) >= OVERWHELMING_SPREAD * w * h
+
+
+def dense_agrees(H: np.ndarray, dense_H: np.ndarray, src: np.ndarray, dst: np.ndarray) -> bool:
+    """Whether `dense_H`, a picture's dense alignment, fits the (N, 2) matched points `src` (library
+    px) -> `dst` (image px) within DENSE_AGREEMENT times the RMSE that H, fitted to them, leaves.
+    ECC aligns what is in view and may bend the rest: the homogr pair BostonLib, a third of its A in
+    view, left its points 1.20 px RMSE off against the matches' 0.26, its truth 4.2 px off against
+    0.6; where ECC helped (graf, Brussels, Eiffel, boat) the points moved by at most 1.7 times."""
+    def rmse(homography: np.ndarray) -> float:
+        mapped = cv2.perspectiveTransform(src.reshape(1, -1, 2).astype(np.float64), homography)[0]
+        return float(np.sqrt(np.mean(np.sum((mapped - dst) ** 2, axis=1))))
+    return len(src) == 0 or rmse(dense_H) <= DENSE_AGREEMENT * max(rmse(H), DENSE_FLOOR_PX)
+
+
+def visible_fraction(H: np.ndarray, sign: LibrarySign, width: int, height: int) -> float:
+    """The fraction of `sign` that H (library px -> image px) puts inside a `width` x `height` px
+    image (and in front of the camera), from a VISIBLE_GRID x VISIBLE_GRID grid of its points."""
+    w, h = sign.size_px
+    steps = (np.arange(VISIBLE_GRID) + 0.5) / VISIBLE_GRID
+    u, v = np.meshgrid(steps * w, steps * h)
+    hom = np.column_stack([u.ravel(), v.ravel(), np.ones(u.size)]) @ np.asarray(H, np.float64).T
+    ahead = hom[:, 2] > 1e-12
+    x, y = hom[:, 0] / np.where(ahead, hom[:, 2], 1.0), hom[:, 1] / np.where(ahead, hom[:, 2], 1.0)
+    return float(np.mean(ahead & (x >= 0) & (x <= width) & (y >= 0) & (y <= height)))
+
+
+def text_threshold(sign: LibrarySign, settings: Settings) -> float:
+    """The bar `sign`'s winner must reach in the check (0: not checked): the sign's own
+    `min_text_correlation` when its library entry gives one; else none when the settings' is 0 (the
+    check off), a picture's `settings.min_picture_correlation`, a plaque's `settings.min_text_correlation`."""
+    if sign.min_text_correlation is not None:
+        return sign.min_text_correlation
+    if settings.min_text_correlation <= 0:
+        return 0.0
+    return settings.min_picture_correlation if sign.kind == "picture" else settings.min_text_correlation
 
 
 def check_text(gray: np.ndarray, library: Library, sign_id: str, H: np.ndarray,

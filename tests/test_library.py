@@ -74,7 +74,7 @@ def test_a_library_file_with_a_size_in_centimetres_is_refused(tmp_path):
 @pytest.mark.parametrize("change, words", [
     (lambda meta: meta["signs"][1].update(heigth_m=0.5),
      " sign #1: unknown key(s) 'heigth_m': correct or remove them; the keys read are id, name, text, "
-     "image, width_m, height_m"),
+     "image, width_m, height_m, kind, min_text_correlation"),
     (lambda meta: meta.update(sign=[]),
      ": unknown key(s) 'sign': correct or remove them; the keys read are signs, copied_from, "
      "fingerprint, added"),

@@ -4,17 +4,15 @@ Image A plays the library sign and B the scene; the default preset runs on the f
 (`segment_mode="none"`), as for any landmark that is not a bright plaque.
 """
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
-
+from shared_data import shared_folder
 from signpose.pipeline.library import Library, make_sign
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import preset
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "homogr"
+DATA = shared_folder() / "data" / "homogr"
 SOLVABLE = ["adam", "boat", "city", "WhiteBoard", "BruggeSquare"]
 
 pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason=f"real photo pairs not found at {DATA}")
@@ -28,7 +26,7 @@ def run_pair(name: str):
     truth = pts[pts[:, 6] == 1]
     library = Library(DATA, [make_sign({"id": "a", "image": "a.png", "width_m": 1.0}, a, name)])
     rec = recognize(b, library, preset("default").replace(segment_mode="none"))
-    H = rec.scores[0].H
+    H = rec.H if rec.recognized else rec.scores[0].H
     if H is None:
         return rec, None
     mapped = cv2.perspectiveTransform(truth[None, :, :2], H)[0]
@@ -41,23 +39,34 @@ def test_default_preset_is_accurate_on_real_photos():
     assert all(v is not None for v in rmse.values()), rmse
     assert np.median(list(rmse.values())) <= 1.5, rmse
     assert rmse["city"] < 1.0 and rmse["adam"] < 1.0, rmse
-    # Photo A's corners land up to 0.83 frames outside B, as a sign's do seen from up close (these
-    # were refused at half a frame), and adam's, cut by B's edge, passes the text check on what B shows.
-    # The others are turned down by it, their H right all the same: WhiteBoard's part of A in view,
-    # under B's other glare (with strips counted only when 90 % in view, none of its was, and it
-    # passed with nothing checked); city's A, under other light, below min_text_correlation 0.75 in
-    # one strip; and none of BruggeSquare's strips is in B's view, which passed unchecked until the
-    # check turned down what it cannot check.
+    # Photo A is a picture (no plain margin round it), checked with its light evened out and judged
+    # by its median strip: WhiteBoard (one strip in glare, its board written on again), city (other
+    # light) and BruggeSquare (partly in view) were turned down as plaques of other words.
     answered = {name for name, (rec, _) in runs.items() if rec.recognized}
-    assert answered == {"adam", "boat"}, answered
-    checks = {name: runs[name][0].turned_down[0].text for name in ("WhiteBoard", "city", "BruggeSquare")}
-    assert checks["WhiteBoard"].seen == 3 and checks["WhiteBoard"].weakest < 0.5, checks
-    assert checks["city"].seen == 6 and 0.7 < checks["city"].weakest < 0.75, checks
-    assert checks["BruggeSquare"].seen == 0, checks
+    assert answered == set(SOLVABLE), answered
+    assert all(rec.text_check.kind == "picture" for rec, _ in runs.values())
+    assert runs["WhiteBoard"][0].text_check.overwhelming  # its strips alone would not pass
 
+
+def test_a_picture_larger_than_the_view_is_recognised_saying_how_much_was_in_view():
+    """BostonLib's B shows a third of its A, whose corners lie 2.5 frames beyond B's edge: it was
+    refused for "corners far outside the image". Dense alignment, which bends what is out of view
+    (its truth 4.2 px off), is not used where the matched points contradict it."""
+    rec, rmse = run_pair("BostonLib")
+    assert rec.recognized and rmse is not None and rmse < 1.5, (rmse, rec.warnings)
+    assert any(w.startswith("only ") and "% of a is in the image" in w for w in rec.warnings), rec.warnings
+    assert any("dense refinement disagreed with the matched points" in w for w in rec.warnings), rec.warnings
 
 def test_unsolvable_pair_is_reported_not_guessed():
     rec, rmse = run_pair("LePoint1")
     score = rec.scores[0]
     assert not rec.recognized
     assert score.reason is not None, f"LePoint1 accepted with H error {rmse} px"
+
+
+def test_a_picture_seen_in_a_small_part_gets_features_by_its_area():
+    """Eiffel's B shows a sixth of its A (1198 x 958 px): with max_features' 2000 over the whole of
+    each photo, 48 inliers put its points 5.9 px off."""
+    rec, rmse = run_pair("Eiffel")
+    assert rec.recognized and rmse is not None and rmse < 2.5, (rmse, rec.warnings)
+    assert rec.best.n_inliers > 200

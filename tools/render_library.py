@@ -66,7 +66,8 @@ def main(out_dir: Path = OUT_DIR) -> None:
     for sign in SIGNS:
         image_file = f"{sign['id']}.png"
         render_sign(sign["text"]).save(out_dir / image_file, optimize=True)
-        entries.append({**sign, "image": image_file, "width_m": WIDTH_M, "height_m": HEIGHT_M})
+        entries.append({**sign, "image": image_file, "width_m": WIDTH_M, "height_m": HEIGHT_M,
+                        "kind": "plaque"})
     (out_dir / "library.json").write_text(
         json.dumps({"signs": entries}, ensure_ascii=False, indent=2) + "\n", encoding="utf-8")
     print(f"wrote {len(entries)} signs to {out_dir}")
