@@ -10,8 +10,6 @@ import shutil
 import cv2
 import numpy as np
 import pytest
-from scene_images import decoy_image
-from shared_data import shared_folder
 from signpose.pipeline.features import MAX_BUDGET, picture_budget, search_settings
 from signpose.pipeline.library import (
     SAMPLE_LIBRARY,
@@ -26,6 +24,8 @@ from signpose.pipeline.library import (
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import preset
 from signpose.pipeline.verify import text_threshold
+from tests.support.scene_images import decoy_image
+from tests.support.shared_data import shared_folder
 
 OPENCV = shared_folder() / "data" / "opencv"
 

@@ -7,10 +7,10 @@ Image A plays the library sign and B the scene; the default preset runs on the f
 import cv2
 import numpy as np
 import pytest
-from shared_data import shared_folder
 from signpose.pipeline.library import Library, make_sign
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import preset
+from tests.support.shared_data import shared_folder
 
 DATA = shared_folder() / "data" / "homogr"
 SOLVABLE = ["adam", "boat", "city", "WhiteBoard", "BruggeSquare"]

@@ -8,4 +8,4 @@ from pathlib import Path
 
 def shared_folder() -> Path:
     override = os.environ.get("SIGNPOSE_SHARED")
-    return Path(override) if override else Path(__file__).resolve().parents[1].parent / "shared"
+    return Path(override) if override else Path(__file__).resolve().parents[2].parent / "shared"
