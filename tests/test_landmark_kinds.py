@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Callable, Hashable
+from typing import TypeVar
 
 import cv2
 import numpy as np
@@ -23,11 +25,13 @@ from signpose.pipeline.library import (
 )
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import preset
+from signpose.pipeline.stages import StageCache, stage_key
 from signpose.pipeline.verify import text_threshold
 from tests.support.scene_images import decoy_image
 from tests.support.shared_data import shared_folder
 
 OPENCV = shared_folder() / "data" / "opencv"
+T = TypeVar("T")
 
 
 def test_a_library_json_with_kind_and_its_own_bar_round_trips(tmp_path):
@@ -133,3 +137,37 @@ def test_a_pictures_feature_budget_grows_with_its_area_and_a_plaques_does_not():
                         np.full((100, 100), 128, np.uint8) + np.eye(100, dtype=np.uint8) * 50, "p")
     mixed = Library(plaques.root, [*plaques.signs, picture])
     assert search_settings(settings, mixed, (0, 0, 1280, 960)).max_features == 4 * settings.max_features
+
+
+class KeyRecordingCache(StageCache):
+    """A stage cache that records the key of every lookup."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.keys: list[Hashable] = []
+
+    def get(self, key: Hashable, compute: Callable[[], T]) -> T:
+        self.keys.append(key)
+        return super().get(key, compute)
+
+
+def test_a_view_searched_for_a_picture_is_cached_under_the_budget_it_was_detected_with():
+    """The grown budget reaches the features' and the matches' keys through the settings they ran
+    with (`StageRunner.run`), derived as every stage key is, not written out beside them."""
+    rng = np.random.default_rng(0)
+    texture = cv2.GaussianBlur(rng.integers(0, 256, (240, 320), dtype=np.uint8), (0, 0), 1.5)
+    picture = make_sign({"id": "p", "image": "p.png", "width_m": 1.0, "kind": "picture"}, texture, "p")
+    library = Library(SAMPLE_LIBRARY, [picture])
+    scene = np.full((960, 1280), 90, np.uint8)
+    scene[300:540, 400:720] = texture
+    settings = preset("default")
+    grown = search_settings(settings, library, (0, 0, 1280, 960))
+    assert grown.max_features == 4 * settings.max_features
+    cache = KeyRecordingCache()
+    recognize(scene, library, settings, cache=cache)
+    keyed = {key[0]: key[2] for key in cache.keys if isinstance(key, tuple) and key[0] in ("features", "match")}
+    assert keyed == {"features": stage_key(grown, "features"), "match": stage_key(grown, "match")}
+    # the same run again is handed them; one under another max_features is not
+    assert {"features", "match"} <= set(recognize(scene, library, settings, cache=cache).reused_stages)
+    smaller = settings.replace(max_features=settings.max_features // 2)
+    assert "features" not in recognize(scene, library, smaller, cache=cache).reused_stages
