@@ -62,7 +62,7 @@ from .api_models import (
 from .calibration import (PREVIEW_MAX_SIDE, CalibrationSession, CalibrationState, calibrated_camera,
                           page_outlier_advice)
 from .security import DOCS_ASSETS, AccessGuard, SecurityHeaders
-from .viser_proxy import mount_viser
+from .viser_proxy import PrivateViser, mount_viser
 from .workspace import (
     IMAGE_ID, Conflict, ImageRecord, ImageTooLarge, Outcome, PipelineError, Workspace, WorkspaceConfig, display_name,
     is_correct, status_of,
@@ -989,15 +989,15 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
     async def lifespan(app: FastAPI):
         # viser prints its private address unconditionally; people should only see ours.
         with contextlib.redirect_stdout(io.StringIO()):
-            server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-        app.state.viser_url = f"ws://127.0.0.1:{server.get_port()}"
-        scene = app.state.scene = _attach_scene(server, workspace)
+            private = PrivateViser.start()
+        app.state.viser_socket = private.socket_path
+        scene = app.state.scene = _attach_scene(private.server, workspace)
         try:
             yield
         finally:
             if scene is not None:
                 scene.close()
-            server.stop()
+            private.stop()
             if owned:
                 await run_in_threadpool(workspace.close)
 
