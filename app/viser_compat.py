@@ -30,6 +30,7 @@ import functools
 import inspect
 import logging
 import threading
+import types
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -152,10 +153,11 @@ SERVE_READY = "ready_sem.release()"
 _serve_swap = threading.Lock()
 
 
-class _Swapped:
+class _Swapped(types.ModuleType):
     """A module as another module sees it, with some of its attributes replaced."""
 
-    def __init__(self, module: Any, **replaced: Any) -> None:
+    def __init__(self, module: types.ModuleType, **replaced: Any) -> None:
+        super().__init__(module.__name__)
         self._module = module
         self.__dict__.update(replaced)
 

@@ -83,7 +83,8 @@ def unreadable(data: bytes | str) -> str | None:
         return "a text frame"
     try:
         viser.infra.Message.deserialize(data)
-    except Exception as exc:  # msgpack, a missing or unknown type, wrong fields: all mean garbage
+    except (ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
+        # not msgpack, nested past its depth limit, no or an unknown type, wrong fields
         return f"{type(exc).__name__}: {str(exc)[:80]}"
     return None
 

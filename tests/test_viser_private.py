@@ -11,8 +11,10 @@ import time
 import uuid
 from pathlib import Path
 
+import cv2
 import httpx
 import msgspec
+import numpy as np
 import pytest
 import zstandard
 from websockets.exceptions import ConnectionClosed, InvalidStatus
@@ -98,6 +100,13 @@ def open_viewer(base: str) -> tuple[ClientConnection, str]:
     return ws, button["uuid"]
 
 
+def register(ws: ClientConnection) -> None:
+    """Register with viser as the page's viewer does, with its first camera report: only then is it
+    told anything, or are its uploads taken."""
+    send(ws, "ViewerCameraMessage", wxyz=(1.0, 0.0, 0.0, 0.0), position=(0.0, 0.0, -3.0), fov=1.0, near=0.01,
+         far=100.0, image_height=480, image_width=640, look_at=(0.0, 0.0, 0.0), up_direction=(0.0, -1.0, 0.0))
+
+
 def start_upload(ws: ClientConnection, button: str, *, size: int, parts: int) -> str:
     transfer = str(uuid.uuid4())
     send(ws, "FileTransferStartUpload", source_component_uuid=button, transfer_uuid=transfer, filename="big.jpg",
@@ -163,9 +172,7 @@ def test_a_half_finished_upload_is_freed_when_its_client_leaves(serve):
 def test_an_upload_over_the_limit_is_refused_with_a_message(serve):
     _proc, base = serve
     ws, button = open_viewer(base)
-    # the page's viewer registers with its first camera report; only then can it be told anything
-    send(ws, "ViewerCameraMessage", wxyz=(1.0, 0.0, 0.0, 0.0), position=(0.0, 0.0, -3.0), fov=1.0, near=0.01,
-         far=100.0, image_height=480, image_width=640, look_at=(0.0, 0.0, 0.0), up_direction=(0.0, -1.0, 0.0))
+    register(ws)
 
     def notice(message: dict) -> bool:
         return message["type"] == "NotificationShowMessage" and message["props"]["title"] == "Image not added"
@@ -198,3 +205,23 @@ def test_a_garbage_frame_is_logged_in_one_line(tmp_path):
         _out, err = stop_serve(proc)
     lines = [line for line in err.splitlines() if "/viser websocket" in line]
     assert len(lines) == 3 and "Traceback" not in err, err
+
+
+def test_an_upload_within_the_limit_adds_the_image(serve):
+    """What the "Add image" button sends, in parts as viser's client cuts it, passes the guard."""
+    _proc, base = serve
+    _ok, jpeg = cv2.imencode(".jpg", np.full((120, 160, 3), 128, np.uint8))
+    content = jpeg.tobytes()
+    before = len(httpx.get(base + "/api/images", headers=AUTH, timeout=TIMEOUT_S).json()["images"])
+    ws, button = open_viewer(base)
+    register(ws)
+    transfer = start_upload(ws, button, size=len(content), parts=2)
+    half = len(content) // 2
+    for index, chunk in enumerate((content[:half], content[half:])):
+        send(ws, "FileTransferPart", source_component_uuid=button, transfer_uuid=transfer, part_index=index,
+             content=chunk)
+    deadline = time.monotonic() + TIMEOUT_S
+    while len(httpx.get(base + "/api/images", headers=AUTH, timeout=TIMEOUT_S).json()["images"]) == before:
+        assert time.monotonic() < deadline, "the uploaded image was not added"
+        time.sleep(0.1)
+    ws.close()
