@@ -274,6 +274,7 @@ def guard_uploads(server: viser.ViserServer, *, max_bytes: int,
     gui: Any = server.gui
     uploads: dict[str, Any] = gui._current_file_upload_states
     start, part = gui._handle_file_transfer_start, gui._handle_file_transfer_part
+    uploaders: set[int] = set()   # clients that started an upload since they connected
 
     def guarded_start(client_id: int, message: FileTransferStartUpload) -> None:
         held = sum(state["total_bytes"] for state in uploads.values() if state["client_id"] == client_id)
@@ -285,6 +286,7 @@ def guard_uploads(server: viser.ViserServer, *, max_bytes: int,
                                f"than the {max_bytes / 1e6:.1f} MB this server takes at once; reload the page "
                                "to drop unfinished uploads")
         else:
+            uploaders.add(client_id)
             start(client_id, message)
 
     def guarded_part(client_id: int, message: FileTransferPart) -> None:
@@ -297,8 +299,10 @@ def guard_uploads(server: viser.ViserServer, *, max_bytes: int,
         part(client_id, message)
 
     def free_uploads(connection: Any) -> None:
-        # viser's own disconnect handler frees them only for a client that sent a camera report.
-        if any(state["client_id"] == connection.client_id for state in uploads.values()):
+        # viser's own disconnect handler, which runs first, frees them only for a client that sent
+        # a camera report; and neither hands their memory back.
+        if connection.client_id in uploaders:
+            uploaders.discard(connection.client_id)
             gui._drop_uploads_from_client(connection.client_id)
             _return_freed_memory()
 

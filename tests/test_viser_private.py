@@ -142,9 +142,10 @@ def test_nothing_but_the_public_port_listens_and_it_refuses_strangers(serve):
     ws.close()
 
 
-def test_a_half_finished_upload_is_freed_when_its_client_leaves(serve):
-    """A client that never registers with viser (no camera report) declares a big upload, sends
-    part of it and leaves: what it sent is freed."""
+@pytest.mark.parametrize("registered", [False, True])
+def test_a_half_finished_upload_is_freed_when_its_client_leaves(serve, registered):
+    """A client declares a big upload, sends part of it and leaves: what it sent is freed, whether
+    it registered with viser (the page's viewer, a closed tab) or not (a script)."""
     proc, base = serve
     ws, button = open_viewer(base)
     transfer = start_upload(ws, button, size=12 * PART_BYTES, parts=12)
@@ -155,6 +156,8 @@ def test_a_half_finished_upload_is_freed_when_its_client_leaves(serve):
     time.sleep(1)
     before = rss_mb(proc.pid)
     ws, button = open_viewer(base)
+    if registered:
+        register(ws)
     transfer = start_upload(ws, button, size=12 * PART_BYTES, parts=12)
     for index in range(10):
         send(ws, "FileTransferPart", source_component_uuid=button, transfer_uuid=transfer, part_index=index,
