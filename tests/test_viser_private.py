@@ -35,8 +35,14 @@ def serve(tmp_path_factory):
     proc, url = start_serve(tmp_path_factory.mktemp("viser-private") / "state", "--host", "0.0.0.0",
                             "--token", TOKEN, "--max-upload-mb", str(MAX_UPLOAD_MB))
     port = int(re.search(r":(\d+)/", url).group(1))
-    yield proc, f"http://127.0.0.1:{port}"
+    yield proc, started(f"http://127.0.0.1:{port}", AUTH)
     stop_serve(proc)
+
+
+def started(base: str, headers: dict | None = None) -> str:
+    """`base` once its server answers: its lifespan, which starts viser, has run."""
+    assert httpx.get(base + "/api/health", headers=headers, timeout=TIMEOUT_S).status_code == 200
+    return base
 
 
 def socket_inodes(pid: int) -> set[int]:
@@ -194,7 +200,8 @@ def test_an_upload_over_the_limit_is_refused_with_a_message(serve):
 
 def test_a_garbage_frame_is_logged_in_one_line(tmp_path):
     proc, url = start_serve(tmp_path / "state")
-    base = url.split("?")[0].rstrip("/")
+    base = started(url.split("?")[0].rstrip("/"))
+    [viser_socket] = unix_socket_paths(proc.pid)
     try:
         for garbage in (b"\x00not msgpack", msgspec.msgpack.encode({"type": "NoSuchMessage"}), "text"):
             with connect(base.replace("http://", "ws://") + "/viser", subprotocols=[VISER_PROTOCOL],
@@ -208,6 +215,7 @@ def test_a_garbage_frame_is_logged_in_one_line(tmp_path):
         _out, err = stop_serve(proc)
     lines = [line for line in err.splitlines() if "/viser websocket" in line]
     assert len(lines) == 3 and "Traceback" not in err, err
+    assert not viser_socket.parent.exists()   # removed at shutdown
 
 
 def test_an_upload_within_the_limit_adds_the_image(serve):
