@@ -34,7 +34,7 @@ import viser.transforms as tf
 
 from signpose.app.events import Event
 from signpose.app.image_store import ImageRecord, Outcome, is_correct, status_of
-from signpose.app.viser_compat import SHEET_BELOW_PX, fold_sheet, run_script
+from signpose.app.viser_compat import SHEET_BELOW_PX, fold_sheet, guard_uploads, run_script
 from signpose.app.workspace import Workspace
 from signpose.pipeline.library import Library, LibrarySign
 from signpose.pipeline.pose import camera_position
@@ -611,6 +611,13 @@ class SceneHandle:
                 event.client.add_notification("Image not added", str(exc), color="red", auto_close_seconds=8.0)
             log.info("upload %s rejected: %s", file.name, exc)
 
+    def _on_upload_refused(self, client_id: int, why: str) -> None:
+        """viser's event loop calls this: queue the notice, no more."""
+        client = self.server.get_clients().get(client_id)
+        if client is not None:
+            client.add_notification("Image not added", why, color="red", auto_close_seconds=8.0)
+        log.info("upload refused: %s", why)
+
     def _on_view_option(self, _event: viser.GuiEvent | None = None) -> None:
         with self._lock:
             for sign_id, nodes in self.signs.items():
@@ -1006,6 +1013,8 @@ def attach(server: viser.ViserServer, workspace: Workspace) -> SceneHandle:
     show_matches.on_update(scene._on_view_option)
     frustum_width.on_update(scene._on_frustum_width)
     upload.on_upload(scene._on_upload)
+    if not guard_uploads(server, max_bytes=workspace.config.max_upload_bytes, refused=scene._on_upload_refused):
+        upload.disabled = True   # unbounded, and never freed if its client leaves halfway
     server.on_client_connect(scene._on_connect)
     server.on_client_connect(name_viewer)
     server.on_client_disconnect(scene._on_disconnect)

@@ -23,7 +23,6 @@ from collections.abc import AsyncIterator, Awaitable, Callable
 from importlib import metadata
 from pathlib import Path
 
-import viser
 from fastapi import FastAPI, Request, status
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
@@ -46,7 +45,7 @@ from .scene import attach as attach_scene
 from .security import DOCS_ASSETS, AccessGuard, SecurityHeaders
 from .tuning import TuningError
 from .uploads import UploadLimit
-from .viser_proxy import mount_viser
+from .viser_proxy import PrivateViser, mount_viser
 from .workspace import Workspace, WorkspaceConfig
 
 STATIC_DIR = shipped_folder(Path(__file__).resolve().parent, "static")
@@ -97,14 +96,14 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         # viser prints its private address unconditionally; people should only see ours.
         with contextlib.redirect_stdout(io.StringIO()):
-            server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-        app.state.viser_url = f"ws://127.0.0.1:{server.get_port()}"
-        scene = app.state.scene = attach_scene(server, workspace)
+            private = PrivateViser.start()
+        app.state.viser_socket = private.socket_path
+        scene = app.state.scene = attach_scene(private.server, workspace)
         try:
             yield
         finally:
             scene.close()
-            server.stop()
+            private.stop()
             if owned:
                 await run_in_threadpool(workspace.close)
 

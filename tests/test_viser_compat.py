@@ -18,7 +18,9 @@ from signpose.app.viser_compat import (
     ViserPrivateAccessError,
     check_private_access,
     fold_sheet,
+    guard_uploads,
     run_script,
+    start_on_unix_socket,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -72,6 +74,36 @@ def test_a_viser_without_it_is_named(monkeypatch):
     with pytest.raises(ViserPrivateAccessError, match="_websock_connection"):
         check_private_access(types.SimpleNamespace())
     assert not run_script(types.SimpleNamespace(), "1")
+
+
+def test_viser_on_a_unix_socket_listens_there_only(tmp_path):
+    server = start_on_unix_socket(tmp_path / "viser.sock")
+    try:
+        assert (tmp_path / "viser.sock").is_socket()
+        assert guard_uploads(server, max_bytes=1000, refused=lambda client_id, why: None)
+    finally:
+        server.stop()
+
+
+def test_a_viser_that_serves_or_uploads_otherwise_is_named(monkeypatch, tmp_path):
+    """Then nothing listens rather than an open port, and no upload is taken rather than an
+    unbounded one."""
+    for name, marks, problem in (("SERVE_CALL", "no such call(", viser_compat._unix_socket_problem),
+                                 ("UPLOAD_STATE_KEYS", ("no such key",), viser_compat._upload_problem)):
+        with monkeypatch.context() as patched:
+            patched.setattr(viser_compat, name, marks)
+            problem.cache_clear()
+            try:
+                with pytest.raises(ViserPrivateAccessError, match=re.escape(f"viser {viser.__version__} ")):
+                    check_private_access()
+                if name == "SERVE_CALL":
+                    with pytest.raises(ViserPrivateAccessError):
+                        start_on_unix_socket(tmp_path / "viser.sock")
+                    assert not (tmp_path / "viser.sock").exists()
+                else:
+                    assert not guard_uploads(types.SimpleNamespace(), max_bytes=1, refused=lambda client_id, why: None)
+            finally:
+                problem.cache_clear()
 
 
 def test_run_script_queues_it_on_that_client_only():
