@@ -41,6 +41,7 @@ from signpose.pipeline.settings import SettingsError
 
 from . import api
 from .calibration import CalibrationSession
+from .heavy import WorkQueue
 from .image_store import Conflict, ImageTooLarge
 from .scene import attach as attach_scene
 from .security import DOCS_ASSETS, AccessGuard, SecurityHeaders
@@ -115,6 +116,7 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
     app.state.scene = None   # until the lifespan attaches it
     app.state.calibration = CalibrationSession(workspace.config.max_pixels,
                                                publish=lambda payload: workspace.publish("calibration", payload))
+    app.state.work_queue = WorkQueue(workers=workspace.config.workers)
     # The last added runs first: headers on every answer, then access, then the body limit.
     app.add_middleware(UploadLimit, max_bytes=workspace.config.max_upload_bytes)
     app.add_middleware(AccessGuard, token=token)
