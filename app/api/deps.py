@@ -18,6 +18,7 @@ from fastapi.routing import APIRoute
 from python_multipart.exceptions import MultipartParseError
 from python_multipart.multipart import DEFAULT_MAX_HEADER_SIZE
 from starlette.datastructures import FormData
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from signpose.pipeline.jsonfile import JsonError, parse_json
 from signpose.pipeline.library import ID_PATTERN
@@ -169,8 +170,9 @@ class JsonBodyRequest(Request):
                         max_part_size: int = 1024 * 1024) -> FormData:
         try:
             return await super()._get_form(max_files=max_files, max_fields=max_fields, max_part_size=max_part_size)
-        except HTTPException as exc:
-            # Starlette raises it while handling its MultiPartException, caused by the parser's own error.
+        except StarletteHTTPException as exc:
+            # Starlette raises it (its own, which FastAPI's subclasses) while handling its
+            # MultiPartException, itself raised from the parser's error.
             cause = exc.__context__.__cause__ if exc.__context__ is not None else None
             if isinstance(cause, MultipartParseError) and "header size" in str(cause):
                 raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, LONG_PART_HEADER) from None
