@@ -34,7 +34,11 @@ from ..workspace import Workspace
 # ---------------------------------------------------------------- what routes work on
 
 
-def get_workspace(request: Request) -> Workspace:
+# The getters are `async`: FastAPI runs a plain `def` dependency in the thread pool, a wait for
+# a thread to read an attribute.
+
+
+async def get_workspace(request: Request) -> Workspace:
     return request.app.state.workspace
 
 
@@ -68,14 +72,14 @@ def get_sign_id(sign_id: str, workspace: WorkspaceDep) -> str:
 SignIdDep = Annotated[str, Depends(get_sign_id)]
 
 
-def get_calibration(request: Request) -> CalibrationSession:
+async def get_calibration(request: Request) -> CalibrationSession:
     return request.app.state.calibration
 
 
 CalibrationDep = Annotated[CalibrationSession, Depends(get_calibration)]
 
 
-def get_scene(request: Request) -> SceneHandle | None:
+async def get_scene(request: Request) -> SceneHandle | None:
     """The viser scene, None until the app's lifespan has attached it."""
     return request.app.state.scene
 
