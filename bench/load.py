@@ -17,7 +17,7 @@ sample scenes, each asks for GET /api/sweep again and again, retrying a busy ans
 The busy answers are counted apart, never as 5xx; the run also fails unless health's p99 is under
 HEALTH_P99_LIMIT_MS. The storm's figures in docs/benchmarks.md come from:
 
-    python bench/load.py --clients 32 --sweepers 16 --seconds 60
+    python bench/load.py --clients 32 --sweepers 16 --seconds 30
 
 tests/test_load.py runs a short one (4 clients, 8 s).
 """
