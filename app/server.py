@@ -3,8 +3,9 @@
 `create_app` builds the FastAPI app around one `Workspace` (docs/web-contract.md lists every
 endpoint): the API's routers (app/api/), the middleware, the exception handlers, the page and the
 viser relay; `bind` and `serve` run it with uvicorn. Routes are thin: they validate, call the
-workspace or the pipeline off the event loop (plain `def` routes run in a thread pool, heavy work in
-the queue of app/heavy.py, 503 "busy" when it is full) and shape the answer (app/responses.py). Domain errors become 4xx with the pipeline's own message: SettingsError,
+workspace or the pipeline off the event loop (plain `def` routes run in a thread pool, heavy work
+in the queue of app/heavy.py, 503 "busy" when it is full) and shape the answer
+(app/responses.py). Domain errors become 4xx with the pipeline's own message: SettingsError,
 CameraError, LibraryError, ImageError, CalibrationError, PipelineError and TuningError 422,
 ImageTooLarge and oversized bodies 413 (app/uploads.py), Conflict 409, unknown ids 404, pipeline work
 past the request time limit 503; requests that fail validation 422, as one `where: what` line that
