@@ -441,10 +441,12 @@ class ImageStore:
                 self._photos.popitem(last=False)
             return photo
 
-    def memory_held(self) -> int:
-        """Bytes the images held take as `held_bytes` counts them: what `max_memory_bytes` limits."""
-        with self._lock:
-            return self._held()
+    def held_now(self) -> tuple[int, int]:
+        """(images held, the bytes they take as `held_bytes` counts them: what `max_memory_bytes`
+        limits), read without the lock, which is held across every fsync'd write of the index:
+        /api/health answers at once, not behind a queue of uploads."""
+        records = list(self._records.values())  # one step for the GIL, whatever other threads do
+        return len(records), sum(held_bytes(r.gray.size) for r in records)
 
     def _held(self) -> int:
         return sum(held_bytes(r.gray.size) for r in self._records.values())

@@ -12,7 +12,10 @@
   rebinding) cannot reach it.
 - Either way a browser's cross-site write or websocket is refused by its Origin header (CSRF,
   cross-site websocket hijacking: no token or cookie is needed for those on loopback). Scripts
-  and command-line tools send no Origin and are unaffected.
+  and command-line tools send no Origin and are unaffected. The heavy routes (app/heavy.py) refuse
+  a cross-site GET too (`cross_site_refusal`, which app/api/deps.py applies to them).
+- A Host header that is not `host[:port]` (`evil.example@127.0.0.1:8000` names a user before the
+  host, and would read as 127.0.0.1) is refused with 400 whoever sends it.
 
 `SecurityHeaders` adds nosniff, same-origin framing (the page iframes `/viser/`), no referrer,
 and a Content-Security-Policy per area: strict for the page and the API (only its own scripts,
@@ -71,6 +74,13 @@ def access_token(host: str, given: str | None) -> str | None:
     return None if is_loopback(host) else secrets.token_urlsafe(18)
 
 
+# What a Host header may hold besides a name, an address and a port: no user before an "@", no path.
+NOT_IN_HOST = frozenset("@/\\?#")
+# Sec-Fetch-Site values of a browser's request from a page of another origin. "same-site" too: on
+# 127.0.0.1 every other port's page, any local program's, is the same site.
+FOREIGN_FETCHES = ("cross-site", "same-site")
+
+
 def _netloc(url: str) -> tuple[str, str]:
     """(host name, host[:port]) of `url`, lower case; empty for what does not parse (a stray "[")."""
     try:
@@ -78,6 +88,26 @@ def _netloc(url: str) -> tuple[str, str]:
         return parts.hostname or "", parts.netloc.lower()
     except ValueError:
         return "", ""
+
+
+def _origin_refusal(origin: str | None, netloc: str) -> str | None:
+    """Why a browser's request from `origin` is refused: not the page of the server addressed as
+    `netloc` (host[:port]); None without an Origin or from that page."""
+    if origin is None or (netloc and _netloc(origin)[1] == netloc):
+        return None
+    return f"cross-site request from {origin!r} refused; use the page this server serves"
+
+
+def cross_site_refusal(headers: Headers) -> str | None:
+    """Why a browser's request is refused as coming from another origin's page, even a GET (an `<img>`
+    tag sends no Origin, but Sec-Fetch-Site); None for the server's own page (same-origin), a typed
+    address or bookmark (none), and scripts and command-line tools, which send neither header."""
+    refusal = _origin_refusal(headers.get("origin"), _netloc(f"//{headers.get('host', '')}")[1])
+    site = headers.get("sec-fetch-site", "").lower()
+    if refusal is None and site in FOREIGN_FETCHES:
+        refusal = (f"request from another site's page refused (Sec-Fetch-Site: {site}): this route runs heavy "
+                   "work; use the page this server serves, or call it from a script")
+    return refusal
 
 
 class AccessGuard:
@@ -91,15 +121,15 @@ class AccessGuard:
         """(status, message) when the request may not proceed whoever sends it; None when it may."""
         headers = Headers(scope=scope)
         host = headers.get("host", "")
+        if NOT_IN_HOST.intersection(host):
+            return 400, f"the Host header must be host[:port], got {host!r}"
         host_name, netloc = _netloc(f"//{host}")
         if self.token is None and not is_loopback(host_name):
             return 403, (f"this signpose server only answers requests for this machine (got Host {host!r}); "
                          "open it as http://127.0.0.1:<port>/, or restart it with --host and share its token")
-        origin = headers.get("origin")
         writes = scope["type"] == "websocket" or scope["method"] not in SAFE_METHODS
-        if writes and origin is not None and (not netloc or _netloc(origin)[1] != netloc):
-            return 403, f"cross-site request from {origin!r} refused; use the page this server serves"
-        return None
+        refusal = _origin_refusal(headers.get("origin"), netloc) if writes else None
+        return None if refusal is None else (403, refusal)
 
     def _token_source(self, scope: Scope) -> str | None:
         """Where the request's valid token is: "header", "cookie" or "query"; None when it has none."""

@@ -3,8 +3,9 @@
 `create_app` builds the FastAPI app around one `Workspace` (docs/web-contract.md lists every
 endpoint): the API's routers (app/api/), the middleware, the exception handlers, the page and the
 viser relay; `bind` and `serve` run it with uvicorn. Routes are thin: they validate, call the
-workspace or the pipeline off the event loop (plain `def` routes run in a thread pool) and shape the
-answer (app/responses.py). Domain errors become 4xx with the pipeline's own message: SettingsError,
+workspace or the pipeline off the event loop (plain `def` routes run in a thread pool, heavy work
+in the queue of app/heavy.py, 503 "busy" when it is full) and shape the answer
+(app/responses.py). Domain errors become 4xx with the pipeline's own message: SettingsError,
 CameraError, LibraryError, ImageError, CalibrationError, PipelineError and TuningError 422,
 ImageTooLarge and oversized bodies 413 (app/uploads.py), Conflict 409, unknown ids 404, pipeline work
 past the request time limit 503; requests that fail validation 422, as one `where: what` line that
@@ -40,6 +41,7 @@ from signpose.pipeline.settings import SettingsError
 
 from . import api
 from .calibration import CalibrationSession
+from .heavy import WorkQueue
 from .image_store import Conflict, ImageTooLarge
 from .scene import attach as attach_scene
 from .security import DOCS_ASSETS, AccessGuard, SecurityHeaders
@@ -114,6 +116,7 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
     app.state.scene = None   # until the lifespan attaches it
     app.state.calibration = CalibrationSession(workspace.config.max_pixels,
                                                publish=lambda payload: workspace.publish("calibration", payload))
+    app.state.work_queue = WorkQueue(workers=workspace.config.workers)
     # The last added runs first: headers on every answer, then access, then the body limit.
     app.add_middleware(UploadLimit, max_bytes=workspace.config.max_upload_bytes)
     app.add_middleware(AccessGuard, token=token)

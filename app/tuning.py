@@ -6,6 +6,7 @@ A request that cannot be answered as asked raises TuningError, which the server 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -57,7 +58,9 @@ class ThresholdSuggestion:
 def sign_region(recognition: Recognition, width: int, height: int) -> tuple[np.ndarray, str] | None:
     """(H, W) bool mask of where the pipeline found the sign, and what it is; None when it found nothing.
 
-    The detected sign's quad when there is one, else the blob of the region searched last.
+    The detected sign's quad when there is one, else the blob the answer came from, else the
+    largest candidate blob: the segmentation figure draws them all, and an answer from a plaque
+    candidate or the full frame leaves none of them its own.
     """
     if recognition.corners is not None:
         mask = np.zeros((height, width), np.uint8)
@@ -65,10 +68,12 @@ def sign_region(recognition: Recognition, width: int, height: int) -> tuple[np.n
         if mask.any():
             return mask.astype(bool), "detected sign"
     seg, attempt = recognition.segmentation, recognition.attempt
-    if seg is not None and attempt is not None and attempt.source.startswith("blob "):
+    if seg is None or not seg.blobs:
+        return None
+    if attempt is not None and attempt.source.startswith("blob "):
         blob = seg.blobs[int(attempt.source.split()[1]) - 1]
         return seg.labels == blob.label, "blob"
-    return None
+    return seg.labels == seg.blobs[0].label, "blob"
 
 
 def rect_mask(rect: Box, width: int, height: int) -> np.ndarray:
@@ -161,7 +166,7 @@ def sweep_values(lo: float, hi: float, steps: int, integer: bool) -> list[float]
 def values_to_sweep(settings: Settings, param: str, lo: float, hi: float, steps: int) -> list[float]:
     """The values of `param` that a sweep of `steps` values from `lo` to `hi` runs beside `settings`.
 
-    TuningError when `param` is no numeric setting or `lo` is not below `hi`; when an end is out of
+    TuningError when `param` is no numeric setting, `lo` or `hi` is not finite, or `lo` is not below `hi`; when an end is out of
     the setting's own range, naming it as given (the first value refused was often one between them
     that nobody typed); and when no value goes with the other settings. Values that contradict
     another setting are left out (a max_crop_size swept up from 0, never downscale, passes sizes
@@ -169,6 +174,9 @@ def values_to_sweep(settings: Settings, param: str, lo: float, hi: float, steps:
     """
     if param not in NUMERIC_SETTINGS:
         raise TuningError(f"cannot sweep {param!r}; choose a numeric setting: {', '.join(NUMERIC_SETTINGS)}")
+    for end, given in (("lo", lo), ("hi", hi)):
+        if not math.isfinite(given):
+            raise TuningError(f"{end} must be a finite number, got {given}")
     if not lo < hi:
         raise TuningError(f"lo ({lo}) must be below hi ({hi})")
     values = sweep_values(lo, hi, steps, param in INTEGER_SETTINGS)

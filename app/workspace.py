@@ -264,9 +264,10 @@ class Workspace:
         """(H, W, 3) uint8 BGR: the image in colour, as uploaded, for the figures drawn on it (`ImageStore.photo`)."""
         return self._images.photo(record)
 
-    def memory_held(self) -> int:
-        """Bytes the images held take as `held_bytes` counts them: what `max_memory_bytes` limits."""
-        return self._images.memory_held()
+    def held_now(self) -> tuple[int, int]:
+        """(images held, the bytes they take as `held_bytes` counts them: what `max_memory_bytes`
+        limits), read without waiting for any lock (`ImageStore.held_now`)."""
+        return self._images.held_now()
 
     def set_expected(self, image_id: str, expected: str | None) -> ImageRecord:
         """Label image `image_id` `expected` (checked as `check_expected`); KeyError when there is none."""

@@ -11,6 +11,14 @@ unless every one of the failure counts is 0. The figures in docs/benchmarks.md c
 
     python bench/load.py --clients 16 --seconds 60
 
+With `--sweepers N` a storm of sweeps runs beside them: N more clients, after labelling a few
+sample scenes, each asks for GET /api/sweep again and again, retrying a busy answer (503 "busy:
+...", the heavy queue full) after SWEEP_RETRY_S, and /api/health is asked every HEALTH_EVERY_S.
+The busy answers are counted apart, never as 5xx; the run also fails unless health's p99 is under
+HEALTH_P99_LIMIT_MS. The storm's figures in docs/benchmarks.md come from:
+
+    python bench/load.py --clients 32 --sweepers 16 --seconds 30
+
 tests/test_load.py runs a short one (4 clients, 8 s).
 """
 
@@ -42,6 +50,12 @@ SETTINGS_EVERY_S = 0.5
 # Values that keep the samples recognisable: the point is re-runs, not failures.
 SETTINGS_CYCLE = [{"ransac_threshold_px": t, "ratio": r} for t, r in ((3.0, 0.72), (4.0, 0.75), (5.0, 0.78))]
 POLL_S = 0.1
+# The sweep storm: sample scenes labelled for it (name, sign id), and the sweep each stormer repeats.
+SWEPT_SCENES = [("scene_002.jpg", "security_compound"), ("scene_004.jpg", "chief_of_security")]
+SWEEP = {"param": "threshold", "lo": 0.5, "hi": 0.9, "steps": 5}
+SWEEP_RETRY_S = 0.2  # far sooner than Retry-After says: a storm, not a polite client
+HEALTH_EVERY_S = 0.1
+HEALTH_P99_LIMIT_MS = 1000.0
 RESULT_WAIT_S = 60.0  # an acknowledged upload with no result after this long counts as unfinished
 REQUEST_TIMEOUT_S = 60.0
 
@@ -57,6 +71,9 @@ class Tally:
     uploads: int = 0
     checked: int = 0
     settings_changes: int = 0
+    sweeps: int = 0  # sweeps answered in full
+    busy: int = 0  # 503 busy answers of the heavy queue: documented, not errors
+    health_s: list[float] = field(default_factory=list)
 
     def report(self, clients: int, seconds: float) -> dict:
         latencies = np.array(self.latencies_s) * 1000 if self.latencies_s else np.zeros(1)
@@ -68,6 +85,9 @@ class Tally:
             "uploads": self.uploads, "results_checked": self.checked, "settings_changes": self.settings_changes,
             "server_errors": len(self.server_errors), "failed": len(self.failed), "lost_uploads": len(self.lost),
             "unfinished": len(self.unfinished), "mixed_results": len(self.mixed),
+            "sweeps": self.sweeps, "busy": self.busy, "health_checks": len(self.health_s),
+            "health_p99_ms": round(float(np.percentile(self.health_s, 99)) * 1000, 1) if self.health_s else None,
+            "health_max_ms": round(max(self.health_s) * 1000, 1) if self.health_s else None,
             "examples": (self.server_errors + self.failed + self.lost + self.unfinished + self.mixed)[:5],
         }
 
@@ -88,11 +108,19 @@ class Session:
             self.tally.failed.append(f"{method} {url}: {type(exc).__name__} {exc}")
             return None
         self.tally.latencies_s.append(time.perf_counter() - started)
-        if response.status_code >= 500:
+        if is_busy(response):
+            self.tally.busy += 1
+        elif response.status_code >= 500:
             self.tally.server_errors.append(f"{method} {url}: {response.status_code} {response.text[:200]}")
         elif response.status_code not in ok:
             self.tally.failed.append(f"{method} {url}: {response.status_code} {response.text[:200]}")
         return response if response.status_code in ok else None
+
+
+def is_busy(response: httpx.Response) -> bool:
+    """Whether `response` is the heavy queue's documented busy answer (app/heavy.py)."""
+    return response.status_code == 503 and "Retry-After" in response.headers and \
+        response.json().get("detail", "").startswith("busy: ")
 
 
 class History:
@@ -163,30 +191,76 @@ async def tuner(session: Session, deadline: float) -> None:
         await asyncio.sleep(SETTINGS_EVERY_S)
 
 
-async def run(url: str, clients: int, seconds: float, headers: dict | None = None) -> dict:
-    """Load `url` with `clients` users and one tuner for `seconds`; the report (see Tally.report)."""
+async def label_scenes(session: Session) -> list[str]:
+    """Upload SWEPT_SCENES labelled, for the sweeps to run over; their ids."""
+    files = [("files", (name, (SCENES / name).read_bytes(), "image/jpeg")) for name, _ in SWEPT_SCENES]
+    r = await session.request("POST", "/api/images", ok=(201,), files=files,
+                              data={"expected": [label for _, label in SWEPT_SCENES]})
+    return [] if r is None else [i["id"] for i in r.json()["images"]]
+
+
+async def sweeper(session: Session, deadline: float) -> None:
+    while time.monotonic() < deadline:
+        r = await session.request("GET", "/api/sweep", params=SWEEP)
+        if r is not None:
+            session.tally.sweeps += 1
+        else:
+            await asyncio.sleep(SWEEP_RETRY_S)
+
+
+def health(url: str, headers: dict | None, tally: Tally, deadline: float) -> None:
+    """Ask /api/health every HEALTH_EVERY_S, timing each answer apart from the others. In a thread
+    of its own with a client of its own: on the users' event loop, the time it waited for that loop,
+    as busy as the server on the same cores, counted as the server's."""
+    with httpx.Client(base_url=url, timeout=REQUEST_TIMEOUT_S, headers=headers) as client:
+        while time.monotonic() < deadline:
+            started = time.perf_counter()
+            try:
+                r = client.get("/api/health")
+            except httpx.HTTPError as exc:
+                tally.failed.append(f"GET /api/health: {type(exc).__name__} {exc}")
+                continue
+            if r.status_code == 200:
+                tally.health_s.append(time.perf_counter() - started)
+            else:
+                (tally.server_errors if r.status_code >= 500 else tally.failed).append(
+                    f"GET /api/health: {r.status_code} {r.text[:200]}")
+            time.sleep(HEALTH_EVERY_S)
+
+
+async def run(url: str, clients: int, seconds: float, headers: dict | None = None, sweepers: int = 0) -> dict:
+    """Load `url` with `clients` users, one tuner and `sweepers` sweep stormers for `seconds`; the
+    report (see Tally.report)."""
     photos = itertools.cycle([(p.name, p.read_bytes()) for p in sorted(SCENES.glob("*.jpg"))])
     tally = Tally()
-    limits = httpx.Limits(max_connections=clients + 2)
+    limits = httpx.Limits(max_connections=clients + sweepers + 3)
     async with httpx.AsyncClient(base_url=url, timeout=REQUEST_TIMEOUT_S, limits=limits, headers=headers) as client:
         session = Session(client, tally)
         history = History(session)
+        labelled = await label_scenes(session) if sweepers else []
         started = time.monotonic()
         deadline = started + seconds
+        storm = [asyncio.to_thread(health, url, headers, tally, deadline),
+                 *[sweeper(session, deadline) for _ in range(sweepers)]] if sweepers else []
         await asyncio.gather(tuner(session, deadline), *[user(session, history, photos, deadline)
-                                                         for _ in range(clients)])
+                                                         for _ in range(clients)], *storm)
         elapsed = time.monotonic() - started
+        for image_id in labelled:
+            await session.request("DELETE", f"/api/images/{image_id}", ok=(204,))
     return tally.report(clients, elapsed)
 
 
 def passed(report: dict) -> bool:
-    return all(report[k] == 0 for k in ("server_errors", "failed", "lost_uploads", "unfinished", "mixed_results"))
+    return all(report[k] == 0 for k in ("server_errors", "failed", "lost_uploads", "unfinished", "mixed_results")) \
+        and (report["health_p99_ms"] is None or report["health_p99_ms"] < HEALTH_P99_LIMIT_MS)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--clients", type=int, default=16, help="simulated users uploading and reading (default 16)")
     parser.add_argument("--seconds", type=float, default=60.0, help="how long they keep at it (default 60)")
+    parser.add_argument("--sweepers", type=int, default=0,
+                        help="clients sweeping a setting over and over beside them (default 0: no sweep storm)")
     parser.add_argument("--url", help="a running signpose serve on this machine (default: start one)")
     parser.add_argument("--token", help="its access token, if it needs one")
     parser.add_argument("--json", action="store_true", help="print the report as one JSON object")
@@ -195,21 +269,24 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--url {args.url}: load only a server on this machine (127.0.0.1)")
     headers = {"Authorization": f"Bearer {args.token}"} if args.token else None
     if args.url:
-        report = asyncio.run(run(args.url.rstrip("/"), args.clients, args.seconds, headers))
+        report = asyncio.run(run(args.url.rstrip("/"), args.clients, args.seconds, headers, args.sweepers))
     else:
         with tempfile.TemporaryDirectory(prefix="signpose-load-") as tmp:
             proc, url = start_serve(Path(tmp) / "state")
             try:
-                report = asyncio.run(run(url.rstrip("/"), args.clients, args.seconds, headers))
+                report = asyncio.run(run(url.rstrip("/"), args.clients, args.seconds, headers, args.sweepers))
             finally:
                 stop_serve(proc, timeout=30)
     if args.json:
         print(json.dumps(report))
     else:
-        print(f"{report['clients']} clients + 1 changing settings every {SETTINGS_EVERY_S} s, "
+        storm = f" + {args.sweepers} sweeping" if args.sweepers else ""
+        print(f"{report['clients']} clients + 1 changing settings every {SETTINGS_EVERY_S} s{storm}, "
               f"{report['seconds']:.0f} s against {args.url or 'a fresh signpose serve on 127.0.0.1'}")
+        storm_keys = ("sweeps", "busy", "health_checks", "health_p99_ms", "health_max_ms") if args.sweepers else ()
         for key in ("requests", "requests_per_s", "p50_ms", "p99_ms", "uploads", "results_checked",
-                    "settings_changes", "server_errors", "failed", "lost_uploads", "unfinished", "mixed_results"):
+                    "settings_changes", "server_errors", "failed", "lost_uploads", "unfinished", "mixed_results",
+                    *storm_keys):
             print(f"  {key:<18} {report[key]}")
         for example in report["examples"]:
             print(f"  e.g. {example}")

@@ -14,6 +14,7 @@ let shownKey = "";          // keyOf(shown image): reload only when the result c
 let loadToken = 0;          // drops responses that arrive after a newer request
 let calib = null;           // POST /api/calibrate/threshold answer for the shown image
 let calibToken = 0;         // drops measurements of a box or result replaced while they ran
+let calibRefused = { key: "", error: "" };  // the last measurement refused (4xx): asked again, it is refused again
 let sweep = null;           // GET /api/sweep answer plus the settings it ran under
 let sweeping = false;
 const boxes = new Map();    // image id -> calibration box [x0, y0, x1, y1] in image px
@@ -304,8 +305,12 @@ async function calibrate() {
   let measured;
   // Without a box the server measures the detected sign, else the blob the answer came from
   // (tuning.sign_region): it would refuse an image with no result, or one with neither.
+  // The result version changes with every re-run, so a refusal is not repeated for the same result and box.
+  const key = `${id}:${detail.result_version}:${rect}`;
   if (!rect && !detail.result?.corners && !detail.attempts.some((a) => a.source.startsWith("blob "))) {
     measured = { error: NOTHING_TO_MEASURE };
+  } else if (calibRefused.key === key) {
+    measured = { error: calibRefused.error };
   } else {
     try {
       measured = await api("POST", "/api/calibrate/threshold", { image_id: id, rect });
@@ -313,6 +318,8 @@ async function calibrate() {
       // Shown beside the histogram, where the person is looking. Without a box the server refuses
       // (422) an image with no region to measure, in an API user's words.
       measured = { error: !rect && err.status === 422 ? NOTHING_TO_MEASURE : err.message };
+      // A busy server (503) or a lost connection may answer the same request next time.
+      if (err.status >= 400 && err.status < 500) calibRefused = { key, error: measured.error };
     }
   }
   // A reply to a box since replaced (a second drag, a reload of the result) may come last.

@@ -618,6 +618,29 @@ def test_threshold_calibration(client):
         client.delete(f"/api/images/{image_id}")
 
 
+def test_threshold_calibration_measures_the_blob_when_the_answer_came_from_elsewhere(client):
+    """Nothing recognised, the features' best region the full frame: the server looked only at the
+    region its answer came from and refused (422) though the page drew the blob and asked after
+    every settings change. It measures the largest blob now."""
+    (image_id,) = add_photos(client, "security_compound")
+    try:
+        client.put("/api/settings", json={"min_inliers": 200, "plaque_fallback": False}).raise_for_status()
+        wait_done(client)
+        attempts = [a["source"] for a in client.get(f"/api/images/{image_id}").json()["attempts"]]
+        assert attempts == ["blob 1", "full frame"], attempts
+        r = client.post("/api/calibrate/threshold", json={"image_id": image_id})
+        assert r.status_code == 200, r.text
+        assert r.json()["source"] == "blob" and r.json()["white_level"] > 0.9
+    finally:
+        client.post("/api/settings/preset/default").raise_for_status()
+        client.delete(f"/api/images/{image_id}")
+
+
+@pytest.mark.parametrize("end, value", [("lo", "-inf"), ("hi", "inf"), ("lo", "nan"), ("hi", "NaN")])
+def test_sweep_ends_must_be_finite(client, end, value):
+    assert_error(client.get("/api/sweep", params={end: value}), 422, f"{end} must be a finite number, got {value.lower()}")
+
+
 def test_sweep_finds_the_working_band(client):
     ids = add_photos(client, "security_compound", "chief_of_security", "none")
     r = client.get("/api/sweep", params={"param": "threshold", "lo": 0.1, "hi": 0.99, "steps": 9})

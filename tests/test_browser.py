@@ -28,7 +28,7 @@ from signpose.app import tuning
 from signpose.app.figures import TEXT_BLOCK_PX
 from signpose.app.scene import LABEL_SEPARATOR
 from signpose.app.image_store import memory_text
-from tests.support.scene_images import DECOYS, decoy_image, sign_seen_from
+from tests.support.scene_images import DECOYS, decoy_image, sign_photo, sign_seen_from
 from tests.support.serving import MISFIT_CAMERA
 
 # Headless Chromium on the page of a real `signpose serve`.
@@ -1015,6 +1015,38 @@ def test_a_measurement_of_a_replaced_box_is_not_shown_when_it_comes_last(page, a
     expected = api.post("/api/calibrate/threshold", json={"image_id": image_id, "rect": [120, 90, 320, 250]}).json()
     assert float(page.inner_text("#calib-result b.suggested")) == pytest.approx(expected["suggested_threshold"],
                                                                                abs=1e-3)
+
+
+def test_settings_changes_leave_no_threshold_errors_in_the_console(page, api):
+    """Nothing recognised and the features' best region the full frame: the server refused (422) to
+    measure the blob the page draws, and the page asked again after every settings change, an error
+    in the console each time. The blob is measured now, and a refusal is not asked for again."""
+    photo = sign_photo(load_library(SAMPLE_LIBRARY), "security_compound")
+    r = api.post("/api/images", files={"files": ("threshold-errors.jpg", photo, "image/jpeg")})
+    r.raise_for_status()
+    image_id = r.json()["images"][0]["id"]
+    problems, measured = [], []
+    page.on("console", lambda msg: msg.type == "error" and problems.append(msg.text))
+    page.on("response", lambda response: "/api/calibrate/threshold" in response.url
+            and measured.append(response.status))
+    try:
+        changes = [{"min_inliers": 200, "plaque_fallback": False}, {"ratio": 0.7}, {"ratio": 0.72}, {"ratio": 0.74}]
+        api.put("/api/settings", json=changes[0]).raise_for_status()
+        harness.wait_setting(page, api, changes[0])
+        attempts = [a["source"] for a in api.get(f"/api/images/{image_id}").json()["attempts"]]
+        assert attempts == ["blob 1", "full frame"], attempts  # the answer came from the full frame
+        open_detail(page, image_id)
+        page.wait_for_selector("#histogram:not([hidden])")
+        for change in changes[1:]:
+            with page.expect_response("**/api/calibrate/threshold"):
+                api.put("/api/settings", json=change).raise_for_status()
+                harness.wait_setting(page, api, change)
+        page.wait_for_selector("#histogram:not([hidden])")
+        assert "blob" in page.inner_text("#calib-result")
+        assert measured and set(measured) == {200}, measured
+        assert not problems, problems
+    finally:
+        api.delete(f"/api/images/{image_id}")
 
 
 def test_a_label_changed_elsewhere_shows_in_the_open_detail(page, api):

@@ -20,6 +20,7 @@ import pytest
 from PIL import Image
 
 import signpose.app.image_store as image_store
+from signpose.app.api.deps import FILE_NAME_CHARS
 from signpose.app.figures import DIM, MIN_SIDE_PX, RED, STAGES
 from signpose.app.server import create_app
 from signpose.app.workspace import WorkspaceConfig
@@ -232,10 +233,13 @@ def test_client_file_names_are_labels_never_paths(client, base_url, root):
         assert "/" not in name and "\\" not in name and "\x00" not in name and 0 < len(name) <= 200, name
     names = [i["name"] for i in client.get("/api/images").json()["images"]]
     assert names[0] == "escape.jpg" and names[-1] == "مجمع أمني.jpg"
-    # Past the multipart parser's 4 KB header line: the form is refused whole.
-    status, body = raw_post(base_url, "/api/images", *multipart(b"a" * 5000 + b".jpg", photo))
-    assert status == 400 and "multipart" in body["detail"]
+    # Past the multipart parser's 4 KB header line: the form is refused whole, saying why.
+    for path, field in (("/api/images", "files"), ("/api/recognize", "file"), ("/api/library", "file")):
+        r = client.post(path, files={field: ("a" * 5000 + ".jpg", photo, "image/jpeg")})
+        assert_error(r, 422, f"a file name longer than about {FILE_NAME_CHARS:,} characters", "shorter name")
     assert image_count(client) == len(names)
+    longest = "a" * (FILE_NAME_CHARS - len(".jpg")) + ".jpg"  # the longest the message promises
+    assert client.post("/api/recognize", files={"file": (longest, photo, "image/jpeg")}).status_code == 200
     images_dir = root / "state" / "images"
     assert sorted(p.name for p in images_dir.iterdir() if not STORED_NAME.match(p.name)) == ["index.json"]
     assert outside_state(root) == before and not Path("/tmp/absolute.jpg").exists()

@@ -1,5 +1,5 @@
-"""Limits of `signpose serve`: the request time limit on pipeline work, the CLI's limit options,
-and the bounded settings history that results are checked against.
+"""Limits of `signpose serve`: the request time limit on pipeline work, the queue heavy requests
+wait in, the CLI's limit options, and the bounded settings history that results are checked against.
 
 (The upload, pixel and image-count limits are tested in test_api.py and test_hostile_input.py,
 the slider storm's single pending re-run in test_workspace.py.)
@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
 
 import httpx
 import pytest
@@ -88,3 +90,79 @@ def test_results_can_be_checked_against_the_settings_of_their_version(tmp_path, 
         assert_error(c.get("/api/settings", params={"version": min(sent)}), 404, "not kept", kept)
         assert_error(c.get("/api/settings", params={"version": 99}), 404, kept)
         assert c.get("/api/settings", params={"version": 0}).status_code == 422
+
+
+def test_a_full_heavy_queue_answers_busy_at_once(tmp_path, monkeypatch):
+    """Heavy requests beyond the running and the waiting ones are answered 503 at once, with
+    Retry-After, while the others wait their turn and are answered in full."""
+    config = WorkspaceConfig(state_dir=tmp_path / "state", load_samples=False, workers=1)
+    app = create_app(config)
+    queue = app.state.work_queue
+    release, recognize = threading.Event(), recognize_module.recognize
+    monkeypatch.setattr(recognize_module, "recognize",
+                        lambda *a, **k: release.wait(TIMEOUT_S) and recognize(*a, **k))
+    photo = sign_photo(LIBRARY, "security_compound")
+    answers: list[httpx.Response] = []
+
+    def post(c: httpx.Client) -> None:
+        answers.append(c.post("/api/recognize", files={"file": ("held.jpg", photo, "image/jpeg")}))
+
+    with running(app) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        held = [threading.Thread(target=post, args=(c,)) for _ in range(queue.workers + queue.max_waiting)]
+        try:
+            for thread in held:
+                thread.start()
+            deadline = time.monotonic() + TIMEOUT_S
+            while queue.queued < len(held):
+                assert time.monotonic() < deadline, f"{queue.queued} of {len(held)} queued"
+                time.sleep(0.02)
+            started = time.monotonic()
+            r = c.post("/api/recognize", files={"file": ("more.jpg", photo, "image/jpeg")})
+            assert_error(r, 503, f"busy: {len(held)} requests queued; try again in a moment")
+            assert int(r.headers["Retry-After"]) > 0 and time.monotonic() - started < 1
+            assert c.get("/api/health").json()["status"] == "ok"
+        finally:
+            release.set()
+            for thread in held:
+                thread.join(TIMEOUT_S)
+        assert [a.status_code for a in answers] == [200] * len(held)
+        assert c.post("/api/recognize", files={"file": ("after.jpg", photo, "image/jpeg")}).status_code == 200
+
+
+def test_health_answers_within_a_second_through_a_storm_of_sweeps(tmp_path):
+    """45 sweeps at once held all 40 of the threads the plain routes share for two minutes, and
+    /api/health with them. They wait in a queue of their own now, and what it cannot hold is
+    answered 503 busy: nothing else is a 5xx."""
+    config = WorkspaceConfig(state_dir=tmp_path / "state", load_samples=False, workers=2)
+    storm, polls = 45, []
+    with running(create_app(config)) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as c:
+        upload(c, *[(f"{sid}.jpg", sign_photo(LIBRARY, sid, seed=i), sid)
+                    for i, sid in enumerate(("security_compound", "chief_of_security"))])
+        wait_done(c)
+        done = threading.Event()
+
+        def sweep(_: int) -> httpx.Response:
+            with httpx.Client(base_url=url, timeout=2 * TIMEOUT_S) as own:
+                return own.get("/api/sweep", params={"param": "threshold", "lo": 0.5, "hi": 0.9, "steps": 5})
+
+        def poll() -> None:
+            while not done.is_set():
+                started = time.monotonic()
+                assert c.get("/api/health").status_code == 200
+                polls.append(time.monotonic() - started)
+                time.sleep(0.05)
+
+        poller = threading.Thread(target=poll)
+        poller.start()
+        try:
+            with ThreadPoolExecutor(storm) as pool:
+                answers = list(pool.map(sweep, range(storm)))
+        finally:
+            done.set()
+            poller.join(TIMEOUT_S)
+    codes = Counter(a.status_code for a in answers)
+    assert set(codes) == {200, 503} and codes[200] >= 2, codes
+    for a in answers:
+        if a.status_code == 503:
+            assert a.json()["detail"].startswith("busy: ") and "Retry-After" in a.headers, a.text
+    assert len(polls) >= 5 and sorted(polls)[int(0.99 * (len(polls) - 1))] < 1.0, max(polls)

@@ -109,6 +109,34 @@ def test_without_a_token_only_requests_for_this_machine_are_answered(open_url):
     assert_error(httpx.get(open_url + "/api/images", headers={"Host": "["}), 403, "this machine")
 
 
+def test_a_host_with_a_user_or_a_path_in_it_is_refused(open_url, guarded):
+    """`evil.example@127.0.0.1` names the user evil.example at 127.0.0.1: read as a URL it passed the
+    loopback check, though a proxy or a browser may have taken evil.example for the host."""
+    port = open_url.rsplit(":", 1)[1]
+    for host in (f"evil.example@127.0.0.1:{port}", f"127.0.0.1:{port}/evil", "evil.example#@127.0.0.1"):
+        assert_error(httpx.get(open_url + "/api/health", headers={"Host": host}), 400, "host[:port]", host)
+    r = httpx.get(guarded + "/api/health", headers={"Host": "evil.example@127.0.0.1", "Authorization": f"Bearer {TOKEN}"})
+    assert_error(r, 400, "host[:port]")
+
+
+def test_a_cross_site_get_of_heavy_work_is_refused(open_url):
+    """An `<img>` tag on another site's page sends a GET without Origin, but with Sec-Fetch-Site: the
+    heavy routes refuse it as writes are refused; the page itself, typed addresses and scripts pass."""
+    for site in ("cross-site", "same-site"):
+        r = httpx.get(open_url + "/api/sweep", headers={"Sec-Fetch-Site": site})
+        assert_error(r, 403, f"Sec-Fetch-Site: {site}", "heavy work", "use the page this server serves")
+        r = httpx.post(open_url + "/api/calibrate/threshold", json={"image_id": "0123456789ab"},
+                       headers={"Sec-Fetch-Site": site})
+        assert_error(r, 403, "another site's page")
+    assert_error(httpx.get(open_url + "/api/sweep", headers={"Origin": "http://evil.example"}), 403, "cross-site",
+                 "evil.example")
+    # Past the check: no labelled images to sweep over.
+    for headers in ({"Sec-Fetch-Site": "same-origin", "Origin": open_url}, {"Sec-Fetch-Site": "none"}, {}):
+        assert_error(httpx.get(open_url + "/api/sweep", headers=headers), 409, "no labelled images")
+    # Light GETs are as they were: other sites' pages may show them, never read them (no CORS).
+    assert httpx.get(open_url + "/api/settings", headers={"Sec-Fetch-Site": "cross-site"}).status_code == 200
+
+
 def test_cross_site_writes_and_websockets_are_refused(open_url):
     origin = open_url  # what a browser sends from the page itself
     before = httpx.get(open_url + "/api/settings").json()

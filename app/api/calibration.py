@@ -17,7 +17,7 @@ from ..responses import calibration_out, camera_out
 from ..uploads import read_upload
 from ..image_store import Conflict
 from .deps import (FILES, IN_ORDER, JSON_BODY, MULTIPART, OPTIONAL_JSON_BODY, Batch, CalibrationDep, JsonBodyRoute,
-                   Position, WorkspaceDep)
+                   Position, WorkQueueDep, WorkspaceDep)
 
 router = APIRouter(tags=["calibration"], route_class=JsonBodyRoute)
 
@@ -63,10 +63,14 @@ def set_calibration_board(body: BoardSpec, calibration: CalibrationDep) -> Calib
 
 
 @router.post("/calibration/run", response_model=CalibrationOut, dependencies=[OPTIONAL_JSON_BODY])
-def run_calibration(calibration: CalibrationDep, body: CalibrationRunIn | None = None) -> CalibrationOut:
+async def run_calibration(calibration: CalibrationDep, queue: WorkQueueDep,
+                          body: CalibrationRunIn | None = None) -> CalibrationOut:
     """Fit the intrinsics to the photos where the board was found, on the board set (422 says why it
     cannot). The body is optional: without one, `drop_outliers` is false."""
-    return calibration_out(calibration, calibration.run((body or CalibrationRunIn()).drop_outliers))
+    drop_outliers = (body or CalibrationRunIn()).drop_outliers
+    # No time limit: a fit cannot stop part-way, and the session holds its lock while it runs.
+    return await queue.run("the calibration", lambda _: calibration_out(calibration, calibration.run(drop_outliers)),
+                           limit_s=None)
 
 
 @router.get("/calibration/views/{view_id}/image",

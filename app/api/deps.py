@@ -1,7 +1,7 @@
 """What the API's routes share: the objects they work on (the workspace, an image, a sign, the
-calibration session, the 3D scene) as FastAPI dependencies, the checks of a request's body
-(its media type, its multipart fields), the route class that reads JSON bodies, and the time
-limit on pipeline work done for a request.
+calibration session, the 3D scene, the queue heavy work waits in) as FastAPI dependencies, the
+checks of a request's body (its media type, its multipart fields), and the route class that reads
+bodies.
 
 The objects live on `app.state` (app/server.py's `create_app` puts them there); a route asks for
 one by its parameter type (`WorkspaceDep`, ...), never through a module global, so that every app
@@ -10,30 +10,35 @@ built in one process (the tests build many) has its own.
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Callable, Coroutine
-from typing import Annotated, Any, TypeVar
+from typing import Annotated, Any
 
-import anyio
 from fastapi import Depends, Form, HTTPException, Request, Response, status
 from fastapi.routing import APIRoute
+from python_multipart.exceptions import MultipartParseError
+from python_multipart.multipart import DEFAULT_MAX_HEADER_SIZE
 from starlette.datastructures import FormData
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from signpose.pipeline.jsonfile import JsonError, parse_json
 from signpose.pipeline.library import ID_PATTERN
 
 from ..calibration import CalibrationSession
+from ..heavy import WorkQueue
 from ..scene import SceneHandle
+from ..security import cross_site_refusal
 from ..uploads import in_order, single_values, the_file, uploads
 from ..image_store import IMAGE_ID, ImageRecord
 from ..workspace import Workspace
 
-T = TypeVar("T")
-
 # ---------------------------------------------------------------- what routes work on
 
 
-def get_workspace(request: Request) -> Workspace:
+# The getters are `async`: FastAPI runs a plain `def` dependency in the thread pool, a wait for
+# a thread to read an attribute.
+
+
+async def get_workspace(request: Request) -> Workspace:
     return request.app.state.workspace
 
 
@@ -67,14 +72,14 @@ def get_sign_id(sign_id: str, workspace: WorkspaceDep) -> str:
 SignIdDep = Annotated[str, Depends(get_sign_id)]
 
 
-def get_calibration(request: Request) -> CalibrationSession:
+async def get_calibration(request: Request) -> CalibrationSession:
     return request.app.state.calibration
 
 
 CalibrationDep = Annotated[CalibrationSession, Depends(get_calibration)]
 
 
-def get_scene(request: Request) -> SceneHandle | None:
+async def get_scene(request: Request) -> SceneHandle | None:
     """The viser scene, None until the app's lifespan has attached it."""
     return request.app.state.scene
 
@@ -82,22 +87,17 @@ def get_scene(request: Request) -> SceneHandle | None:
 SceneDep = Annotated[SceneHandle | None, Depends(get_scene)]
 
 
-async def within_time_limit(workspace: Workspace, what: str, work: Callable[[threading.Event], T]) -> T:
-    """`work(stop)` in a worker thread; 503 once it runs past the request time limit.
+async def get_work_queue(request: Request) -> WorkQueue:
+    """The queue heavy work waits in (app/heavy.py); 403 when a browser sent the request from another
+    site's page: a GET is not Origin-checked as writes are, and an `<img>` tag could start a sweep."""
+    refusal = cross_site_refusal(request.headers)
+    if refusal is not None:
+        raise HTTPException(status.HTTP_403_FORBIDDEN, refusal)
+    return request.app.state.work_queue
 
-    A stuck pipeline call cannot be killed: the request is answered, the thread abandoned, and
-    `stop` set so that work able to end early (a sweep between runs) does.
-    """
-    limit = workspace.config.request_timeout_s
-    stop = threading.Event()
-    try:
-        with anyio.fail_after(limit):
-            return await anyio.to_thread.run_sync(work, stop, abandon_on_cancel=True)
-    except TimeoutError:
-        stop.set()
-        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
-                            f"{what} took longer than the {limit:g} s limit (signpose serve --request-timeout); "
-                            "try fewer images or steps, or lighter settings") from None
+
+# A route taking this is heavy: it runs its work through the queue, and only for its own page or a script.
+WorkQueueDep = Annotated[WorkQueue, Depends(get_work_queue)]
 
 
 # ---------------------------------------------------------------- request bodies
@@ -148,6 +148,12 @@ def single(*fields: str) -> Any:
     return form_check(lambda form: single_values(form, fields))
 
 
+# The longest file name a browser's part header leaves room for, in hundreds of characters.
+FILE_NAME_CHARS = (DEFAULT_MAX_HEADER_SIZE - len('Content-Disposition: form-data; name="files"; filename=""')) // 100 * 100
+LONG_PART_HEADER = (f"a part of the multipart body has a header line longer than {DEFAULT_MAX_HEADER_SIZE} bytes, "
+                    f"the parser's limit: a file name longer than about {FILE_NAME_CHARS:,} characters (fewer "
+                    "outside ASCII); send the file under a shorter name")
+
 # The multipart fields of the routes that take a batch of uploads a request each (workspace.Slot).
 Batch = Annotated[str, Form(max_length=64, description="a name the client gives a batch of files it sends a "
                                                        "request each, several at once: they are listed by "
@@ -160,7 +166,21 @@ class JsonBodyRequest(Request):
     """A request whose JSON body is read as signpose reads every JSON document (`parse_json`), with
     422 saying what is wrong: FastAPI read it with json.loads and answered what that cannot hold (nested
     some thousand levels deep, a whole number of thousands of digits) or bytes that are not UTF-8 with
-    400 "There was an error parsing the body"."""
+    400 "There was an error parsing the body". A multipart body whose part header is too long (a file
+    name of over about 4,100 characters) is refused with 422 saying so, not Starlette's bare 400
+    "Invalid multipart data."."""
+
+    async def _get_form(self, *, max_files: int | float = 1000, max_fields: int | float = 1000,
+                        max_part_size: int = 1024 * 1024) -> FormData:
+        try:
+            return await super()._get_form(max_files=max_files, max_fields=max_fields, max_part_size=max_part_size)
+        except StarletteHTTPException as exc:
+            # Starlette raises it (its own, which FastAPI's subclasses) while handling its
+            # MultiPartException, itself raised from the parser's error.
+            cause = exc.__context__.__cause__ if exc.__context__ is not None else None
+            if isinstance(cause, MultipartParseError) and "header size" in str(cause):
+                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, LONG_PART_HEADER) from None
+            raise
 
     async def json(self) -> Any:
         if not hasattr(self, "_json"):

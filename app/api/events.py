@@ -17,9 +17,11 @@ router = APIRouter(tags=["server"], route_class=JsonBodyRoute)
 
 
 @router.get("/health", response_model=Health)
-def health(request: Request, workspace: WorkspaceDep) -> Health:
-    return Health(version=request.app.version, images=len(workspace.images()), busy=workspace.busy,
-                  memory_held_bytes=workspace.memory_held(), memory_limit_bytes=workspace.config.max_memory_bytes)
+async def health(request: Request, workspace: WorkspaceDep) -> Health:
+    """On the event loop and taking no lock: it answers while every worker thread is busy."""
+    images, held = workspace.held_now()
+    return Health(version=request.app.version, images=images, busy=workspace.busy,
+                  memory_held_bytes=held, memory_limit_bytes=workspace.config.max_memory_bytes)
 
 
 @router.get("/events", response_class=EventSourceResponse)

@@ -14,7 +14,7 @@ from ..api_models import ExpectedIn, ImageDetail, ImagesOut, ImagesRemoved, Imag
 from ..responses import detail, result_of, summary
 from ..uploads import read_upload
 from .deps import (FILES, IN_ORDER, JSON_BODY, MULTIPART, ONE_FILE, Batch, JsonBodyRoute, Position, RecordDep,
-                   WorkspaceDep, within_time_limit)
+                   WorkQueueDep, WorkspaceDep)
 
 router = APIRouter(tags=["images"], route_class=JsonBodyRoute)
 
@@ -96,10 +96,11 @@ def get_stage(record: RecordDep, stage: Literal[figures.STAGES], workspace: Work
 
 
 @router.post("/recognize", response_model=RecognitionOut, dependencies=[MULTIPART, ONE_FILE])
-async def recognize_once(file: Annotated[UploadFile, File()], workspace: WorkspaceDep) -> dict:
+async def recognize_once(file: Annotated[UploadFile, File()], workspace: WorkspaceDep, queue: WorkQueueDep) -> dict:
     """Recognise one image with the current settings, library and camera without keeping it."""
     # The sync upload routes call read_upload directly; here, as in PUT /api/camera, the read goes
     # to a worker thread so that a large upload spooled to disk does not block the event loop.
     name, data = await run_in_threadpool(read_upload, file)
-    rec = await within_time_limit(workspace, f"recognising {name}", lambda _: workspace.recognize_upload(data, name))
+    rec = await queue.run(f"recognising {name}", lambda _: workspace.recognize_upload(data, name),
+                          limit_s=workspace.config.request_timeout_s)
     return rec.to_json(name)

@@ -10,24 +10,30 @@ from fastapi import APIRouter, HTTPException, Query, status
 from .. import tuning
 from ..api_models import CalibrateIn, CalibrateOut, SweepOut
 from ..responses import result_of
-from .deps import JSON_BODY, JsonBodyRoute, WorkspaceDep, find_record, within_time_limit
+from .deps import JSON_BODY, JsonBodyRoute, WorkQueueDep, WorkspaceDep, find_record
 
 router = APIRouter(tags=["tuning"], route_class=JsonBodyRoute)
 
 
 @router.post("/calibrate/threshold", response_model=CalibrateOut, dependencies=[JSON_BODY])
-def calibrate_threshold(body: CalibrateIn, workspace: WorkspaceDep) -> tuning.ThresholdSuggestion:
+async def calibrate_threshold(body: CalibrateIn, workspace: WorkspaceDep,
+                              queue: WorkQueueDep) -> tuning.ThresholdSuggestion:
     """Measure the sign's white and suggest a threshold just below it (the paper: 0.8 measured, 0.75 set)."""
     record = find_record(workspace, body.image_id)
-    if body.rect is not None:
-        inside, source = tuning.box_region(body.rect, record.width, record.height)
-    else:
-        inside, source = tuning.found_region(result_of(record).recognition, record.width, record.height, record.name)
-    return tuning.suggest_threshold(record.gray, workspace.settings.normalization, inside, source)
+    normalization = workspace.settings.normalization
+
+    def measure(_: object) -> tuning.ThresholdSuggestion:
+        if body.rect is not None:
+            inside, source = tuning.box_region(body.rect, record.width, record.height)
+        else:
+            inside, source = tuning.found_region(result_of(record).recognition, record.width, record.height,
+                                                 record.name)
+        return tuning.suggest_threshold(record.gray, normalization, inside, source)
+    return await queue.run(f"measuring {record.name}", measure, limit_s=workspace.config.request_timeout_s)
 
 
 @router.get("/sweep", response_model=SweepOut)
-async def sweep(workspace: WorkspaceDep,
+async def sweep(workspace: WorkspaceDep, queue: WorkQueueDep,
                 param: Annotated[str, Query(description="a numeric setting: "
                                                         f"{', '.join(tuning.NUMERIC_SETTINGS)}")] = "threshold",
                 lo: float = 0.3, hi: float = 0.9,
@@ -39,8 +45,9 @@ async def sweep(workspace: WorkspaceDep,
         raise HTTPException(status.HTTP_409_CONFLICT,
                             "no labelled images to sweep over: give images an expected label "
                             "(when uploading, or PATCH /api/images/{id})")
-    runs = await within_time_limit(workspace, f"the sweep of {param} over {len(labelled)} images",
-                                   lambda stop: workspace.sweep(param, values, labelled, stop))
+    runs = await queue.run(f"the sweep of {param} over {len(labelled)} images",
+                           lambda stop: workspace.sweep(param, values, labelled, stop),
+                           limit_s=workspace.config.request_timeout_s)
     tally = tuning.tally_sweep(values, [r.expected for r in labelled], runs,
                                integer=param in tuning.INTEGER_SETTINGS)
     return SweepOut(param=param, values=values, correct=tally.correct, min_margin=tally.min_margin,
