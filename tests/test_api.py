@@ -657,8 +657,8 @@ def test_sweep_finds_the_working_band(client):
     assert ints["band"] == [4, 7] and ints["centre"] == 5
     # JSON whole numbers, not 4.0, 5.0: the page's chart took them for a continuous range
     assert all(type(v) is int for v in [*ints["values"], *ints["band"], ints["centre"]])
-    tester = client.get("/api/sweep", params={"param": "min_inliers", "lo": 4, "hi": 30, "steps": 14}).json()
-    assert tester["values"] == list(range(4, 31, 2)) and all(type(v) is int for v in tester["values"])
+    swept = client.get("/api/sweep", params={"param": "min_inliers", "lo": 4, "hi": 30, "steps": 14}).json()
+    assert swept["values"] == list(range(4, 31, 2)) and all(type(v) is int for v in swept["values"])
     assert_error(client.get("/api/sweep", params={"param": "detector"}), 422, "numeric setting", "threshold")
     assert_error(client.get("/api/sweep", params={"lo": 0.9, "hi": 0.3}), 422, "below")
     # a value between them was named, 1.15 for hi=2, or 1.0625 for hi=1.5
