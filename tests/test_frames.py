@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from mcap_ros2.writer import Writer as McapRos2Writer
 from rosbags.rosbag1 import Writer as Bag1Writer
+from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Bag2Writer
 from rosbags.typesys import Stores, get_typestore
 
@@ -111,9 +112,10 @@ def _write_mcap(path: Path, messages: list[tuple[str, object]]) -> Path:
     return path
 
 
-def _write_bag2(path: Path, messages: list[tuple[str, object]], log_ns: list[int] | None = None) -> Path:
-    """A rosbag2 folder (metadata.yaml and a .db3), as rosbags writes it."""
-    with Bag2Writer(path, version=9) as writer:
+def _write_bag2(path: Path, messages: list[tuple[str, object]], log_ns: list[int] | None = None,
+                storage: StoragePlugin = StoragePlugin.SQLITE3) -> Path:
+    """A rosbag2 folder (metadata.yaml and a .db3 or .mcap), as rosbags writes it."""
+    with Bag2Writer(path, version=9, storage_plugin=storage) as writer:
         connections: dict[str, object] = {}
         for n, (topic, msg) in enumerate(messages):
             if topic not in connections:
@@ -304,6 +306,18 @@ def test_image_encodings_in_a_rosbag2_folder(tmp_path, encoding):
             assert int(frame.image[0, 0]) == (10 * i if encoding == "mono8" else [100, 2660 >> 4][i])
         else:
             np.testing.assert_array_equal(frame.image, _frame(i))
+
+
+def test_a_rosbag2_folder_of_mcap_storage_with_its_camera(tmp_path):
+    stamps = _stamps(2)
+    messages = [("/drone/cam/image_raw/compressed", _compressed_msg(ROS2, i, s)) for i, s in enumerate(stamps)]
+    messages.append(("/drone/cam/camera_info", _info_msg(ROS2)))
+    bag = _write_bag2(tmp_path / "bag", messages, storage=StoragePlugin.MCAP)
+    assert list(bag.glob("*.mcap"))
+    frames, source = _collect(bag)
+    _assert_frames(frames, 2, stamps)
+    assert source.name == str(bag) and source.count == 2
+    np.testing.assert_allclose(source.camera.K, np.reshape(K, (3, 3)))
 
 
 def test_header_stamps_left_at_zero_fall_back_to_the_recording_times(tmp_path):
