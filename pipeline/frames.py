@@ -277,8 +277,11 @@ class VideoSource(FrameSource):
 def _unopened_video(path: Path) -> str:
     """Why OpenCV could not open the video file `path`, by the container its first bytes name (FFmpeg refuses
     a file it has no decoder for as it refuses a damaged one: they cannot be told apart from OpenCV)."""
-    with path.open("rb") as file:
-        head = file.read(12)
+    try:
+        with path.open("rb") as file:
+            head = file.read(12)
+    except OSError as exc:
+        return f"cannot be read: {exc.strerror or exc}"
     container = next((kind for kind, test in _CONTAINERS.items() if test(head)), None)
     if container is None:
         return "not a video file OpenCV's FFmpeg reads (or one truncated or corrupt)"

@@ -381,6 +381,9 @@ def test_an_uncalibrated_camera_info_is_left_out_with_a_warning(tmp_path):
 def test_damaged_bags_and_frames_are_refused(tmp_path):
     (tmp_path / "junk.mcap").write_bytes(b"not a bag" * 10)
     assert _error(tmp_path / "junk.mcap").startswith(f"{tmp_path / 'junk.mcap'}: cannot be read as a ROS bag: ")
+    whole = _write_mcap(tmp_path / "whole.mcap", [("/image", _image_msg(ROS2, 0, "bgr8", T0))]).read_bytes()
+    (tmp_path / "stopped.mcap").write_bytes(whole[:len(whole) // 2])  # a recording that stopped without its summary
+    assert _error(tmp_path / "stopped.mcap").startswith(f"{tmp_path / 'stopped.mcap'}: cannot be read as a ROS bag: ")
     (tmp_path / "junk.bag").write_bytes(b"not a bag" * 10)
     assert "junk.bag: cannot be read as a ROS bag" in _error(tmp_path / "junk.bag")
     bad = _compressed_msg(ROS2, 0, T0)
