@@ -83,6 +83,7 @@ class FrameSource:
     `name`: the source as given. `camera`: intrinsics the source carries (a bag's CameraInfo), else None.
     `fps`: its nominal frame rate, None when not known. `count`: how many frames it holds when known
     (for a progress bar), else None. `warnings`: what the source noticed and the caller should show.
+    Videos, cameras and streams are iterated once; image files and bags can be read again.
     """
 
     def __init__(self, name: str, *, camera: Camera | None = None, fps: float | None = None,

@@ -320,6 +320,20 @@ def test_a_rosbag2_folder_of_mcap_storage_with_its_camera(tmp_path):
     np.testing.assert_allclose(source.camera.K, np.reshape(K, (3, 3)))
 
 
+@pytest.mark.parametrize("pattern", ["rggb", "bggr", "gbrg", "grbg"])
+def test_bayer_images_are_demosaiced_with_ros_pattern_names(tmp_path, pattern):
+    """ROS names a Bayer pattern by its top-left 2x2 block, row by row: rggb has red at (0, 0), blue at (1, 1)."""
+    colour = _frame(5)
+    channel = {"b": 0, "g": 1, "r": 2}
+    mosaic = np.zeros((H, W), np.uint8)
+    for k, letter in enumerate(pattern):
+        mosaic[k // 2::2, k % 2::2] = colour[k // 2::2, k % 2::2, channel[letter]]
+    msg = _image_msg(ROS2, 0, "mono8", T0)
+    msg.encoding, msg.data = f"bayer_{pattern}8", mosaic.ravel()
+    (frame,), _ = _collect(_write_mcap(tmp_path / "bayer.mcap", [("/image", msg)]))
+    np.testing.assert_array_equal(frame.image[2:-2, 2:-2], colour[2:-2, 2:-2])
+
+
 def test_header_stamps_left_at_zero_fall_back_to_the_recording_times(tmp_path):
     logged = [T0 + 5, T0 + 100_000_005]
     bag = _write_bag2(tmp_path / "bag", [("/image", _image_msg(ROS2, i, "bgr8", 0)) for i in range(2)], log_ns=logged)
