@@ -1,0 +1,308 @@
+"""Writers of a flight's per-frame records: JSON lines, CSV, and a ROS 2 MCAP that Foxglove and `ros2 bag play` open.
+
+A record is one frame's answer (the `signpose track --json` schema):
+`{"source", "frame", "time_s", "signs": [{"label", "track_id", "state", "corners", "homography", "pose",
+"filtered_pose"}], "timing_ms", "warnings"}`, where `pose` and `filtered_pose` are `Pose.to_json()` objects
+(R, t, covariance over [rotation vector, translation], ...) or None.
+
+Frames (REP 103/105): the sign frame `sign_<label>` has its origin at the sign centre, x right, y down the
+sign, z into the wall, metres; `camera_optical` is the camera's, z forward, x right, y down. A pose (R, t)
+maps sign points into the camera, X_cam = R·X_sign + t; the camera sits at -Rᵀt in the sign frame and its
+axes are Rᵀ's columns there.
+
+Every writer is a context manager that leaves a whole, readable file however the run ends (Ctrl-C
+included): JSON lines and CSV are flushed a frame at a time, and the MCAP gets its summary and footer.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Protocol
+
+import cv2
+import numpy as np
+
+from signpose.pipeline.pose import camera_position, quaternion_wxyz
+
+OUTPUT_SUFFIXES = (".jsonl", ".csv", ".mcap")
+CAMERA_FRAME = "camera_optical"
+IMAGE_TOPIC = "/signpose/image/compressed"
+TF_TOPIC = "/tf"
+JPEG_QUALITY = 90
+# The CSV's columns, one row per sign observation: the camera's position (m) and the quaternion (w, x, y, z)
+# of R (sign frame -> camera frame, as in the JSON's pose), the filtered camera position, and the variances
+# of the camera pose in ROS order (m², rad²: x, y, z, rotation about the sign frame's x, y, z; `ros_covariance`).
+CSV_COLUMNS = ("frame", "time_s", "label", "track_id", "state", "camera_x", "camera_y", "camera_z",
+               "qw", "qx", "qy", "qz", "filtered_x", "filtered_y", "filtered_z",
+               "var_x", "var_y", "var_z", "var_rot_x", "var_rot_y", "var_rot_z")
+# geometry_msgs has no "covariance unknown" value; sensor_msgs' convention marks it so: -1 first, zeros after.
+UNKNOWN_COVARIANCE = (-1.0, *([0.0] * 35))
+
+
+class PoseLike(Protocol):
+    """What the writers need of a pose: R (3, 3) and t (3,) m, X_cam = R·X_sign + t, and a (6, 6) covariance
+    over [rotation vector of R (rad), t (m)] or None (`signpose.pipeline.pose.Pose` is one)."""
+
+    @property
+    def R(self) -> np.ndarray: ...
+    @property
+    def t(self) -> np.ndarray: ...
+    @property
+    def covariance(self) -> np.ndarray | None: ...
+
+
+@dataclass(frozen=True)
+class PoseValues:
+    """The R, t and covariance of a pose read back from its JSON (`Pose.to_json`)."""
+
+    R: np.ndarray
+    t: np.ndarray
+    covariance: np.ndarray | None
+
+    @classmethod
+    def from_json(cls, data: dict | None) -> PoseValues | None:
+        """None for a null pose; a covariance with a null (non-finite) entry is no covariance."""
+        if data is None:
+            return None
+        covariance = data.get("covariance")
+        known = covariance is not None and all(v is not None for row in covariance for v in row)
+        return cls(np.array(data["R"], dtype=np.float64), np.array(data["t"], dtype=np.float64),
+                   np.array(covariance, dtype=np.float64) if known else None)
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(3, 3) [v]×, the matrix of the cross product v × ·."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _left_jacobian(rvec: np.ndarray) -> np.ndarray:
+    """(3, 3) left Jacobian of SO(3) at rotation vector `rvec`: exp(rvec + δ) ≈ exp(J·δ)·exp(rvec)."""
+    angle = float(np.linalg.norm(rvec))
+    S = _skew(rvec)
+    if angle < 1e-8:
+        return np.eye(3) + 0.5 * S
+    return (np.eye(3) + (1 - math.cos(angle)) / angle**2 * S + (angle - math.sin(angle)) / angle**3 * S @ S)
+
+
+def ros_jacobian(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(6, 6) Jacobian of the camera's pose in the sign frame, in ROS order [position (m), rotation about the
+    sign frame's x, y, z (rad)], with respect to the pipeline's [rotation vector of R, t].
+
+    With R(r + δr) = exp([J_l δr]×)·R: the camera's orientation Rᵀ turns by δθ = -Rᵀ·J_l·δr (about the
+    sign frame's axes), and its position -Rᵀt moves by -Rᵀ·δt - Rᵀ[t]×·J_l·δr.
+    """
+    R = np.asarray(R, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64).reshape(3)
+    J_l = _left_jacobian(cv2.Rodrigues(R)[0].ravel())
+    jacobian = np.zeros((6, 6))
+    jacobian[:3, :3] = -R.T @ _skew(t) @ J_l
+    jacobian[:3, 3:] = -R.T
+    jacobian[3:, :3] = -R.T @ J_l
+    return jacobian
+
+
+def ros_covariance(pose: PoseLike) -> np.ndarray | None:
+    """(6, 6) covariance of the camera's pose in the sign frame in ROS order (x, y, z in m; rotation about the
+    sign frame's x, y, z in rad, the orientation perturbed as exp([δθ]×)·Rᵀ), propagated from the pose's
+    covariance over [rotation vector of R, t]; None when the pose has none."""
+    if pose.covariance is None:
+        return None
+    jacobian = ros_jacobian(pose.R, pose.t)
+    covariance = jacobian @ np.asarray(pose.covariance, dtype=np.float64) @ jacobian.T
+    return 0.5 * (covariance + covariance.T)
+
+
+def _token(label: str) -> str:
+    """`label` in the letters, digits and single underscores ROS names are made of."""
+    return re.sub(r"_+", "_", re.sub(r"[^A-Za-z0-9_]", "_", label)).strip("_") or "sign"
+
+
+def ros_name(label: str) -> str:
+    """`label` as a ROS topic name token (`_token`), which may not start with a digit: "3f" is sign_3f."""
+    token = _token(label)
+    return f"sign_{token}" if token[0].isdigit() else token
+
+
+def sign_frame(label: str) -> str:
+    """The TF frame of the sign `label`: sign_<label>, its label in ROS name characters."""
+    return f"sign_{_token(label)}"
+
+
+def pose_topic(label: str, *, filtered: bool = False) -> str:
+    """/signpose/<label>/camera_pose, or camera_pose_filtered for the filter's pose."""
+    return f"/signpose/{ros_name(label)}/camera_pose{'_filtered' if filtered else ''}"
+
+
+class FlightWriter:
+    """Writes a flight's records to `path`, a frame at a time; a context manager that closes the file whole."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def write(self, record: dict, *, image: np.ndarray | None = None, stamp_ns: int | None = None) -> None:
+        """Write one frame's `record`. `image` (H, W, 3) BGR or (H, W) gray uint8: the input frame, which only the
+        MCAP keeps. `stamp_ns`: the frame's time since the epoch (a bag's), else its time_s from 0."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> FlightWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def open_flight_output(path: str | Path) -> FlightWriter:
+    """The writer for `path` by its suffix: .jsonl, .csv or .mcap; ValueError for any other."""
+    path = Path(path)
+    writers: dict[str, type[FlightWriter]] = {".jsonl": JsonLinesWriter, ".csv": CsvWriter, ".mcap": McapWriter}
+    writer = writers.get(path.suffix.lower())
+    if writer is None:
+        raise ValueError(f"{path}: unknown output kind {path.suffix or '(no extension)'}; write "
+                         f"{', '.join(OUTPUT_SUFFIXES)}")
+    return writer(path)
+
+
+class JsonLinesWriter(FlightWriter):
+    """One record a line, as `--json` prints it."""
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(path)
+        self.file: IO[str] = path.open("w", encoding="utf-8")
+
+    def write(self, record: dict, *, image: np.ndarray | None = None, stamp_ns: int | None = None) -> None:
+        self.file.write(json.dumps(record, allow_nan=False) + "\n")
+        self.file.flush()
+
+    def close(self) -> None:
+        self.file.close()
+
+
+def _csv_number(value: float | None) -> str:
+    """A number for a CSV cell: empty for None or non-finite, else repr-exact."""
+    return "" if value is None or not math.isfinite(value) else repr(float(value))
+
+
+def csv_row(record: dict, sign: dict) -> list[str]:
+    """The CSV_COLUMNS cells of one sign observation of `record`."""
+    pose = PoseValues.from_json(sign.get("pose"))
+    filtered = PoseValues.from_json(sign.get("filtered_pose"))
+    none3: Sequence[float | None] = (None, None, None)
+    position = camera_position(pose.R, pose.t) if pose else none3
+    quaternion = quaternion_wxyz(pose.R) if pose else (None,) * 4
+    filtered_position = camera_position(filtered.R, filtered.t) if filtered else none3
+    covariance = ros_covariance(pose) if pose else None
+    variances = np.diag(covariance) if covariance is not None else (None,) * 6
+    cells = [str(record["frame"]), _csv_number(record["time_s"]), sign["label"], str(sign["track_id"]), sign["state"]]
+    return cells + [_csv_number(v) for v in (*position, *quaternion, *filtered_position, *variances)]
+
+
+class CsvWriter(FlightWriter):
+    """One row per sign observation (CSV_COLUMNS), after a header row; a frame without signs has no row."""
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(path)
+        self.file: IO[str] = path.open("w", encoding="utf-8", newline="")
+        self.csv = csv.writer(self.file)
+        self.csv.writerow(CSV_COLUMNS)
+        self.file.flush()
+
+    def write(self, record: dict, *, image: np.ndarray | None = None, stamp_ns: int | None = None) -> None:
+        self.csv.writerows(csv_row(record, sign) for sign in record["signs"])
+        self.file.flush()
+
+    def close(self) -> None:
+        self.file.close()
+
+
+def _stamp(stamp_ns: int) -> dict[str, int]:
+    """builtin_interfaces/Time of `stamp_ns` ns."""
+    return {"sec": stamp_ns // 1_000_000_000, "nanosec": stamp_ns % 1_000_000_000}
+
+
+def _ros_pose(pose: PoseLike) -> dict[str, dict[str, float]]:
+    """geometry_msgs/Pose of the camera in the sign frame: position -Rᵀt, orientation Rᵀ."""
+    position = camera_position(pose.R, pose.t)
+    w, x, y, z = quaternion_wxyz(np.asarray(pose.R).T)
+    return {"position": dict(zip("xyz", map(float, position))),
+            "orientation": {"x": float(x), "y": float(y), "z": float(z), "w": float(w)}}
+
+
+class McapWriter(FlightWriter):
+    """A ROS 2 MCAP (profile ros2, CDR messages, message definitions embedded), per frame:
+    - per sign with a pose, geometry_msgs/PoseWithCovarianceStamped on /signpose/<label>/camera_pose (and the
+      filter's on .../camera_pose_filtered): the camera's pose in `sign_<label>`, covariance by `ros_covariance`;
+    - tf2_msgs/TFMessage on /tf: sign_<label> -> camera_optical per sign, from the filtered pose when there is one;
+    - sensor_msgs/CompressedImage (JPEG) on /signpose/image/compressed, frame camera_optical, when an image is given.
+    Message times (log, publish and header stamps) are `stamp_ns`, else the record's time_s from 0.
+    """
+
+    MESSAGE_TYPES = ("geometry_msgs/msg/PoseWithCovarianceStamped", "tf2_msgs/msg/TFMessage",
+                     "sensor_msgs/msg/CompressedImage")
+
+    def __init__(self, path: Path) -> None:
+        from mcap_ros2.writer import Writer
+        from rosbags.typesys import Stores, get_typestore
+
+        super().__init__(path)
+        typestore = get_typestore(Stores.ROS2_HUMBLE)
+        self.file = path.open("wb")
+        self.writer = Writer(self.file)
+        # mcap_ros2 wants "pkg/msg/Type" names and definitions whose dependencies read "MSG: pkg/Type".
+        self.schemas = {name: self.writer.register_msgdef(name, typestore.generate_msgdef(name, ros_version=2)[0])
+                        for name in self.MESSAGE_TYPES}
+        self.closed = False
+
+    def _send(self, topic: str, type_name: str, message: dict, stamp_ns: int) -> None:
+        self.writer.write_message(topic, self.schemas[type_name], message, log_time=stamp_ns, publish_time=stamp_ns)
+
+    def write(self, record: dict, *, image: np.ndarray | None = None, stamp_ns: int | None = None) -> None:
+        if stamp_ns is None:
+            stamp_ns = round(float(record["time_s"]) * 1e9)
+        stamp = _stamp(stamp_ns)
+        transforms = []
+        for sign in record["signs"]:
+            frame_id = sign_frame(sign["label"])
+            header = {"stamp": stamp, "frame_id": frame_id}
+            poses = [(PoseValues.from_json(sign.get("pose")), False),
+                     (PoseValues.from_json(sign.get("filtered_pose")), True)]
+            for pose, filtered in poses:
+                if pose is None:
+                    continue
+                covariance = ros_covariance(pose)
+                message = {"header": header, "pose": {
+                    "pose": _ros_pose(pose),
+                    "covariance": UNKNOWN_COVARIANCE if covariance is None else [float(v) for v in covariance.ravel()]}}
+                self._send(pose_topic(sign["label"], filtered=filtered), self.MESSAGE_TYPES[0], message, stamp_ns)
+            shown = poses[1][0] or poses[0][0]
+            if shown is not None:
+                ros_pose = _ros_pose(shown)
+                transforms.append({"header": header, "child_frame_id": CAMERA_FRAME, "transform": {
+                    "translation": ros_pose["position"], "rotation": ros_pose["orientation"]}})
+        if transforms:
+            self._send(TF_TOPIC, self.MESSAGE_TYPES[1], {"transforms": transforms}, stamp_ns)
+        if image is not None:
+            ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+            if not ok:
+                raise ValueError(f"{self.path}: frame {record['frame']} cannot be encoded as JPEG")
+            message = {"header": {"stamp": stamp, "frame_id": CAMERA_FRAME}, "format": "jpeg", "data": jpeg.tobytes()}
+            self._send(IMAGE_TOPIC, self.MESSAGE_TYPES[2], message, stamp_ns)
+
+    def close(self) -> None:
+        """Write the summary and footer (once), then close the file."""
+        if self.closed:
+            return
+        self.closed = True
+        try:
+            self.writer.finish()
+        finally:
+            self.file.close()
+
