@@ -26,7 +26,7 @@ from .pose import Pose
 # White angular acceleration density, rad²/s³, and linear, m²/s³: a hand-held or UAV camera turns
 # and moves in fractions of a second.
 ANGULAR_ACCELERATION_DENSITY = 50.0
-LINEAR_ACCELERATION_DENSITY = 2.0
+LINEAR_ACCELERATION_DENSITY = 0.2
 # A measurement this many σ (Mahalanobis, over 6 dof) from the prediction is a new motion the
 # model missed, not noise: the filter restarts from it instead of lagging behind it.
 RESTART_MAHALANOBIS = 12.0
@@ -141,7 +141,7 @@ class PoseFilter:
         innovation = np.concatenate([log_so3(R_sc @ self.R_sc.T), p - self.p])
         S = self.P[:6, :6] + cov
         try:
-            distance = float(math.sqrt(max(0.0, innovation @ np.linalg.solve(S, innovation))))
+            distance = math.sqrt(max(0.0, float(innovation @ np.linalg.solve(S, innovation))))
         except np.linalg.LinAlgError:
             distance = math.inf
         if distance > self.restart_mahalanobis:

@@ -281,7 +281,8 @@ def write_flight(out_dir: str | Path, library: Library, camera: Camera, *, durat
                  path: Sequence[Keyframe] = CORRIDOR_PATH, seed: int = 0, quality: int = 90,
                  progress: Callable[[int, int], None] | None = None) -> Path:
     """Render a flight into `out_dir`: flight.mp4, truth.json and camera.yaml. `path` is played
-    over `duration_s` seconds (its keyframe times scaled to fit) at `fps`. Returns the video's path.
+    over `duration_s` seconds (its keyframe times shifted to start at 0 and scaled to fit) at `fps`.
+    Returns the video's path.
 
     truth.json: {"fps", "width", "height", "video", "frames": [{"frame", "time_s",
     "camera_position" (world m), "signs": [{"label", "corners" (4x2 px TL, TR, BR, BL), "R", "t"
@@ -290,8 +291,7 @@ def write_flight(out_dir: str | Path, library: Library, camera: Camera, *, durat
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     span = path[-1].time_s - path[0].time_s
-    scaled = [Keyframe(path[0].time_s + (k.time_s - path[0].time_s) * duration_s / span, k.position, k.target)
-              for k in path]
+    scaled = [Keyframe((k.time_s - path[0].time_s) * duration_s / span, k.position, k.target) for k in path]
     renderer = FlightRenderer(library, camera, seed=seed)
     video = out / "flight.mp4"
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*FOURCC), fps, renderer.size)

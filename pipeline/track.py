@@ -70,6 +70,8 @@ class TrackerConfig:
     forward_backward_px: float = 1.0
     ransac_px: float = 2.0
     min_inlier_ratio: float = 0.6
+    # Less of the sign in the frame than this: its points and edges no longer pin the pose.
+    min_visible: float = 0.5
     max_rmse_px: float = 1.5  # pose residual beyond which a track asks for the detector
     lk_window_px: int = 21
     lk_levels: int = 3
@@ -168,6 +170,17 @@ def quad_box(corners: np.ndarray, width: int, height: int) -> Box:
     x0, y0 = np.floor(corners.min(axis=0)).astype(int)
     x1, y1 = np.ceil(corners.max(axis=0)).astype(int)
     return max(0, x0), max(0, y0), min(width, x1 + 1), min(height, y1 + 1)
+
+
+def visible_fraction(corners: np.ndarray, width: int, height: int) -> float:
+    """The fraction of the convex quad (4, 2) image px inside the width x height frame."""
+    quad = corners.astype(np.float32)
+    area = cv2.contourArea(quad)
+    if area <= 0:
+        return 0.0
+    frame = np.array([[0, 0], [width, 0], [width, height], [0, height]], np.float32)
+    inside, _ = cv2.intersectConvexConvex(quad, frame)
+    return float(inside) / area
 
 
 def mask_quads(gray: np.ndarray, quads: list[np.ndarray]) -> np.ndarray:
@@ -275,8 +288,7 @@ class Tracker:
         corners, problem = quad_problem(H, track.sign, width, height)
         if problem is not None or corners is None:
             return None
-        x0, y0, x1, y1 = quad_box(corners, width, height)
-        if x1 - x0 < 4 or y1 - y0 < 4:  # out of the frame
+        if visible_fraction(corners, width, height) < cfg.min_visible:
             return None
         # Weak when most of the points seeded are lost: the view changed beyond what they can follow.
         weak = inl.sum() < max(cfg.min_points, cfg.keep_fraction * track.seeded)
