@@ -470,3 +470,32 @@ def estimate_pose(H: np.ndarray, src_px: np.ndarray, dst_px: np.ndarray, sign: L
         covariance=with_corner_floor(_covariance(residuals, jacobian) if measured else None, R, t, sign, camera,
                                      corner_sigma_px) if with_covariance else None,
     )
+
+
+def pose_near(R: np.ndarray, t: np.ndarray, src_px: np.ndarray, dst_px: np.ndarray, sign: LibrarySign,
+              camera: Camera, corner_sigma_px: float = 0.0) -> Pose:
+    """The pose of `sign` fitted to (N >= 4, 2) library px `src_px` seen at (N, 2) image px `dst_px`
+    by Levenberg-Marquardt from the start (R (3, 3), t (3,) m), with its covariance as `estimate_pose`
+    gives it.
+
+    For a sign followed from frame to frame: starting from the previous frame's pose keeps the
+    planar solution it had, so the two-fold ambiguity is settled by continuity, not decided again
+    on each frame's points. `solution_errors` is None and `ambiguous` False: the other solution
+    is not looked at.
+
+    Raises PoseError when the points admit no pose.
+    """
+    src_px = np.ascontiguousarray(src_px, dtype=np.float64).reshape(-1, 2)
+    dst_px = np.ascontiguousarray(dst_px, dtype=np.float64).reshape(-1, 2)
+    if len(src_px) < 4 or len(src_px) != len(dst_px):
+        raise PoseError(f"a pose needs 4 or more correspondences; got {len(src_px)} and {len(dst_px)} points")
+    obj = sign.to_metric(src_px)
+    _check_spread(obj)
+    R, t = _refine_lm(np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64), obj, dst_px, camera)
+    if not _in_front(R, t, obj):
+        raise PoseError("the refined pose puts the sign behind the camera")
+    projected, jacobian = _project(R, t, obj, camera)
+    residuals = projected - dst_px
+    return Pose(R=R, t=t, method="tracked", reprojection_rmse_px=_rmse(residuals), ambiguous=False,
+                solution_errors=None,
+                covariance=with_corner_floor(_covariance(residuals, jacobian), R, t, sign, camera, corner_sigma_px))

@@ -1,0 +1,180 @@
+"""Tracking benchmark: `Tracker` side by side with `recognize` on every frame of a synthetic flight.
+
+Both read the same video (pipeline.synth_flight's corridor: far from the wall in to the first sign
+until it fills the frame, past a white look-alike plaque, to the second and away) in one run, on
+one OpenCV thread, decode included. Per method: frames a second; recall, the share of (frame, sign)
+pairs with the sign at least MIN_WIDTH_PX wide and fully in view that are answered with its
+label; wrong labels (a label for a sign not in front of the camera); camera position error
+p50 / p90 for signs within MAX_DISTANCE_M; and the frame-to-frame jitter of the camera position
+beyond the true motion (median, p90), raw and, for the tracker, filtered.
+
+    python bench/track.py [--flight DIR] [--duration 12] [--json OUT]
+
+Without --flight the 12 s corridor flight is rendered into the temp folder (once; re-used).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from signpose.pipeline.camera import Camera, load_camera
+from signpose.pipeline.library import Library, load_library
+from signpose.pipeline.pose import Pose
+from signpose.pipeline.recognize import recognize
+from signpose.pipeline.settings import Settings
+from signpose.pipeline.synth import synthetic_camera
+from signpose.pipeline.synth_flight import write_flight
+from signpose.pipeline.track import Tracker
+
+MIN_WIDTH_PX = 45.0
+MAX_DISTANCE_M = 3.0
+
+
+@dataclass
+class Tally:
+    """What one method answered over the flight."""
+
+    name: str
+    seconds: float = 0.0
+    frames: int = 0
+    due: int = 0  # (frame, sign) pairs that should be answered
+    answered: int = 0
+    wrong: list[tuple[int, str]] = field(default_factory=list)
+    errors_m: list[float] = field(default_factory=list)
+    # per label: (frame, measured position, true position) for the jitter, raw and filtered
+    tracks: dict[str, dict[str, list[tuple[int, np.ndarray, np.ndarray]]]] = field(default_factory=dict)
+
+    def add(self, index: int, truth: dict, answers: list[tuple[str, Pose | None, Pose | None]]) -> None:
+        present = {s["label"]: s for s in truth["signs"]}
+        labels = {label for label, _, _ in answers}
+        for sign in present.values():
+            if sign["in_view"] and sign["width_px"] >= MIN_WIDTH_PX:
+                self.due += 1
+                self.answered += sign["label"] in labels
+        for label, pose, filtered in answers:
+            if label not in present:
+                self.wrong.append((index, label))
+                continue
+            sign = present[label]
+            R, t = np.array(sign["R"]), np.array(sign["t"])
+            true_position = -R.T @ t
+            for kind, measured in (("raw", pose), ("filtered", filtered)):
+                if measured is None:
+                    continue
+                position = measured.camera_position
+                self.tracks.setdefault(label, {}).setdefault(kind, []).append((index, position, true_position))
+                if kind == "raw" and np.linalg.norm(t) <= MAX_DISTANCE_M:
+                    self.errors_m.append(float(np.linalg.norm(position - true_position)))
+
+    def jitter_mm(self, kind: str) -> list[float]:
+        """|measured step - true step| between consecutive frames answering the same sign, mm."""
+        out = []
+        for per_kind in self.tracks.values():
+            seen = per_kind.get(kind, [])
+            for (i0, p0, g0), (i1, p1, g1) in zip(seen, seen[1:]):
+                if i1 == i0 + 1:
+                    out.append(float(np.linalg.norm((p1 - p0) - (g1 - g0))) * 1e3)
+        return out
+
+    def summary(self) -> dict:
+        def pct(values: list[float], q: float) -> float | None:
+            return round(float(np.percentile(values, q)), 2) if values else None
+
+        errors_cm = [e * 100 for e in self.errors_m]
+        return {
+            "method": self.name, "frames": self.frames, "fps": round(self.frames / self.seconds, 1),
+            "recall_pct": round(100 * self.answered / self.due, 1) if self.due else None,
+            "sign_frames_due": self.due, "wrong_labels": len(self.wrong),
+            "position_error_cm_p50": pct(errors_cm, 50), "position_error_cm_p90": pct(errors_cm, 90),
+            "jitter_mm_median": pct(self.jitter_mm("raw"), 50), "jitter_mm_p90": pct(self.jitter_mm("raw"), 90),
+            "filtered_jitter_mm_median": pct(self.jitter_mm("filtered"), 50),
+            "filtered_jitter_mm_p90": pct(self.jitter_mm("filtered"), 90),
+        }
+
+
+def frames(video: Path) -> Iterator[np.ndarray]:
+    capture = cv2.VideoCapture(str(video))
+    try:
+        while True:
+            ok, frame = capture.read()
+            if not ok:
+                return
+            yield frame
+    finally:
+        capture.release()
+
+
+def measure(name: str, video: Path, truth: dict,
+            answer: Callable[[np.ndarray, int, float], list[tuple[str, Pose | None, Pose | None]]]) -> Tally:
+    """Decode `video` and run `answer` on every frame, timing both."""
+    tally = Tally(name)
+    fps = truth["fps"]
+    start = time.perf_counter()
+    for index, frame in enumerate(frames(video)):
+        answers = answer(frame, index, index / fps)
+        pause = time.perf_counter()
+        tally.add(index, truth["frames"][index], answers)
+        start += time.perf_counter() - pause  # scoring is not the method's time
+        tally.frames += 1
+    tally.seconds = time.perf_counter() - start
+    return tally
+
+
+def tracker_answers(library: Library, settings: Settings, camera: Camera, fps: float):
+    tracker = Tracker(library, settings, camera, fps=fps)
+
+    def answer(frame: np.ndarray, index: int, time_s: float):
+        result = tracker.step(frame, index=index, time_s=time_s)
+        return [(s.label, s.pose, s.filtered_pose) for s in result.signs]
+
+    return answer
+
+
+def recognize_answers(library: Library, settings: Settings, camera: Camera):
+    def answer(frame: np.ndarray, index: int, time_s: float):
+        rec = recognize(frame, library, settings, camera)
+        return [(rec.label, rec.pose, None)] if rec.label is not None else []
+
+    return answer
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--flight", type=Path, help="a folder with flight.mp4, truth.json, camera.yaml")
+    parser.add_argument("--duration", type=float, default=12.0, help="seconds of the rendered flight")
+    parser.add_argument("--json", type=Path, help="write the figures here as JSON")
+    args = parser.parse_args()
+    cv2.setNumThreads(1)
+    library = load_library()
+    flight = args.flight or Path(tempfile.gettempdir()) / f"signpose-flight-{args.duration:g}s"
+    if not (flight / "truth.json").exists():
+        print(f"rendering the {args.duration:g} s corridor flight into {flight}")
+        t0 = time.perf_counter()
+        write_flight(flight, library, synthetic_camera(), duration_s=args.duration)
+        print(f"  rendered in {time.perf_counter() - t0:.1f} s")
+    truth = json.loads((flight / "truth.json").read_text())
+    camera = load_camera(flight / "camera.yaml")
+    video = flight / truth["video"]
+    settings = Settings()
+    results = [
+        measure("tracker", video, truth, tracker_answers(library, settings, camera, truth["fps"])).summary(),
+        measure("recognize", video, truth, recognize_answers(library, settings, camera)).summary(),
+    ]
+    results[0]["speedup"] = round(results[0]["fps"] / results[1]["fps"], 1)
+    for result in results:
+        print(json.dumps(result))
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
+
+
+if __name__ == "__main__":
+    main()

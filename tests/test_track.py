@@ -1,0 +1,186 @@
+"""The tracker (pipeline/track.py) and the pose filter (pipeline/pose_filter.py) on short synthetic
+flights (pipeline/synth_flight.py) and on the committed sample flight."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from signpose.pipeline.camera import load_camera
+from signpose.pipeline.library import load_library
+from signpose.pipeline.pose import Pose, rotation_error_deg
+from signpose.pipeline.pose_filter import PoseFilter, exp_so3, log_so3
+from signpose.pipeline.settings import Settings
+from signpose.pipeline.synth import synthetic_camera
+from signpose.pipeline.synth_flight import FlightRenderer, Keyframe, Plaque
+from signpose.pipeline.track import STATES, FrameResult, Tracker
+
+SAMPLE_FLIGHT = Path(__file__).resolve().parents[1] / "sample_images" / "flights" / "corridor"
+FPS = 30.0
+SIGN = (0.6, 0.24)
+
+
+@pytest.fixture(scope="module")
+def library():
+    return load_library()
+
+
+def render(library, plaques, keyframes, n: int, seed: int = 0) -> list[np.ndarray]:
+    """`n` frames at FPS of a camera through `keyframes` past `plaques` on the corridor wall."""
+    renderer = FlightRenderer(library, synthetic_camera(), plaques, seed=seed)
+    return [renderer.render(keyframes, i / FPS, FPS).image for i in range(n)]
+
+
+def hover(x: float, distance: float, seconds: float = 1.0) -> tuple[Keyframe, Keyframe]:
+    """A camera drifting 2 cm sideways `distance` m in front of the wall at `x`, looking at it."""
+    return (Keyframe(0.0, (x, -0.2, -distance), (x, -0.2, 0.0)),
+            Keyframe(seconds, (x + 0.02, -0.2, -distance), (x + 0.02, -0.2, 0.0)))
+
+
+def run(library, frames: list[np.ndarray]) -> list[FrameResult]:
+    tracker = Tracker(library, Settings(), synthetic_camera(), fps=FPS)
+    return [tracker.step(frame, index=i, time_s=i / FPS) for i, frame in enumerate(frames)]
+
+
+def test_a_sign_is_detected_confirmed_then_tracked(library):
+    frames = render(library, [Plaque("security_compound", (0.0, -0.2), SIGN)], hover(0.0, 1.2), 5)
+    results = run(library, frames)
+    assert results[0].signs == [] and results[0].tentative, "one detection is not yet a track"
+    assert [s.state for s in results[1].signs] == ["detected"]
+    for result in results[2:]:
+        assert [(s.label, s.state) for s in result.signs] == [("security_compound", "tracked")]
+        assert result.recognitions == [], "a healthy track needs no detector"
+    assert len({s.track_id for r in results[1:] for s in r.signs}) == 1
+    pose = results[-1].signs[0].pose
+    assert pose is not None and abs(pose.camera_position[2] + 1.2) < 0.02
+
+
+def test_a_one_frame_sign_and_a_look_alike_never_become_tracks(library):
+    plaques = [Plaque("security_compound", (0.0, -0.2), SIGN), Plaque(None, (0.9, -0.2), SIGN)]
+    with_sign = render(library, plaques, hover(0.45, 1.8), 1)
+    look_alike_only = render(library, plaques[1:], hover(0.45, 1.8), 5, seed=1)
+    results = run(library, with_sign + look_alike_only)
+    assert results[0].tentative, "the detector reads the sign once"
+    assert all(r.signs == [] for r in results)
+    assert results[-1].tentative == []
+
+
+def test_a_track_survives_one_blank_frame(library):
+    frames = render(library, [Plaque("chief_of_security", (0.0, -0.2), SIGN)], hover(0.0, 1.2), 6)
+    frames[3] = np.zeros_like(frames[3])
+    results = run(library, frames)
+    assert results[3].signs == []
+    before, after = results[2].signs, results[4].signs
+    assert [s.label for s in before] == [s.label for s in after] == ["chief_of_security"]
+    assert before[0].track_id == after[0].track_id
+    assert results[5].signs and results[5].signs[0].track_id == before[0].track_id
+
+
+def test_two_signs_in_one_frame_are_both_reported(library):
+    plaques = [Plaque("security_compound", (-0.4, -0.2), SIGN), Plaque("chief_of_security", (0.4, -0.2), SIGN)]
+    results = run(library, render(library, plaques, hover(0.0, 1.6), 4))
+    labels = [sorted(s.label for s in r.signs) for r in results[1:]]
+    assert labels[-1] == ["chief_of_security", "security_compound"], labels
+    ids = {s.track_id for s in results[-1].signs}
+    assert len(ids) == 2
+
+
+def test_frame_json_schema(library):
+    frames = render(library, [Plaque("security_compound", (0.0, -0.2), SIGN)], hover(0.0, 1.2), 3)
+    result = run(library, frames)[-1]
+    doc = json.loads(json.dumps(result.to_json("flight.mp4")))
+    assert set(doc) == {"source", "frame", "time_s", "signs", "timing_ms", "warnings"}
+    assert doc["source"] == "flight.mp4" and doc["frame"] == 2 and doc["time_s"] == pytest.approx(2 / FPS)
+    assert set(doc["timing_ms"]) == {"detect", "track", "total"}
+    assert isinstance(doc["warnings"], list)
+    (sign,) = doc["signs"]
+    assert set(sign) == {"label", "track_id", "state", "corners", "homography", "pose", "filtered_pose"}
+    assert sign["state"] in STATES and isinstance(sign["track_id"], int)
+    assert np.array(sign["corners"]).shape == (4, 2) and np.array(sign["homography"]).shape == (3, 3)
+    for key in ("pose", "filtered_pose"):
+        assert set(sign[key]) == {"R", "t", "camera_position", "quaternion_wxyz", "euler_deg",
+                                  "reprojection_rmse_px", "ambiguous", "covariance"}
+        assert np.array(sign[key]["covariance"]).shape == (6, 6)
+
+
+def _pose(R: np.ndarray, position: np.ndarray, sigma_rad: float = 0.002, sigma_m: float = 0.005) -> Pose:
+    """A measured pose of a camera at `position` (sign frame) with rotation R, and a covariance."""
+    covariance = np.diag([sigma_rad**2] * 3 + [sigma_m**2] * 3)
+    return Pose(R=R, t=-R @ position, method="test", reprojection_rmse_px=0.1, ambiguous=False,
+                solution_errors=None, covariance=covariance)
+
+
+def _yaw(deg: float) -> np.ndarray:
+    return exp_so3(np.array([0.0, math.radians(deg), 0.0]))
+
+
+def test_filter_follows_a_step_turn_within_two_frames():
+    # Measurements of 0.6° σ: the 20° step is past the restart gate, the filter starts again from it.
+    pose_filter = PoseFilter()
+    position = np.array([0.1, 0.0, -1.5])
+    for i in range(15):
+        pose_filter.update(_pose(_yaw(0.0), position, 0.01), i / FPS)
+    errors = []
+    for i in range(15, 20):
+        filtered = pose_filter.update(_pose(_yaw(20.0), position, 0.01), i / FPS)
+        errors.append(rotation_error_deg(filtered.R, _yaw(20.0)))
+    assert errors[2] < 2.0, errors  # within a tenth of the step by the third frame after it
+
+
+def test_filter_follows_a_fast_turn_with_at_most_two_frames_lag():
+    # 3° a frame against measurements of 0.6° σ: within the restart gate, the filter itself must keep up.
+    pose_filter = PoseFilter()
+    position = np.array([0.0, 0.0, -2.0])
+    rate = 90.0 / FPS  # 90 degrees a second
+    filtered_yaw = []
+    for i in range(40):
+        yaw = max(0.0, i - 10) * rate
+        filtered_yaw.append(math.degrees(log_so3(pose_filter.update(_pose(_yaw(yaw), position, 0.01), i / FPS).R)[1]))
+    lag_frames = [(max(0.0, i - 10) * rate - filtered_yaw[i]) / rate for i in range(20, 40)]
+    assert max(lag_frames) <= 2.0, lag_frames
+
+
+def test_filter_reduces_jitter_on_a_still_noisy_camera():
+    rng = np.random.default_rng(3)
+    pose_filter = PoseFilter()
+    position = np.array([0.2, -0.1, -2.0])
+    raw, filtered = [], []
+    t = -position
+    for i in range(90):
+        # noise as the covariance declares it: over [rotation vector, t]
+        R = exp_so3(rng.normal(0.0, 0.002, 3))
+        noisy_t = t + rng.normal(0.0, 0.005, 3)
+        measured = _pose(R, -R.T @ noisy_t)
+        raw.append(measured.camera_position)
+        filtered.append(pose_filter.update(measured, i / FPS).camera_position)
+    raw_jitter = np.median(np.linalg.norm(np.diff(raw[30:], axis=0), axis=1))
+    filtered_jitter = np.median(np.linalg.norm(np.diff(filtered[30:], axis=0), axis=1))
+    assert filtered_jitter < 0.5 * raw_jitter, (raw_jitter, filtered_jitter)
+
+
+def test_tracker_on_the_sample_flight_finds_both_signs_with_no_wrong_label(library):
+    truth = json.loads((SAMPLE_FLIGHT / "truth.json").read_text())
+    tracker = Tracker(library, Settings(), load_camera(SAMPLE_FLIGHT / "camera.yaml"), fps=truth["fps"])
+    video = cv2.VideoCapture(str(SAMPLE_FLIGHT / truth["video"]))
+    found: set[str] = set()
+    wrong = []
+    index = 0
+    while True:
+        ok, frame = video.read()
+        if not ok:
+            break
+        present = {s["label"] for s in truth["frames"][index]["signs"]}
+        result = tracker.step(frame, index=index, time_s=index / truth["fps"])
+        for sign in result.signs:
+            found.add(sign.label)
+            if sign.label not in present:
+                wrong.append((index, sign.label))
+        index += 1
+    assert index == len(truth["frames"])
+    assert found == {"security_compound", "chief_of_security"}
+    assert wrong == []
