@@ -1,4 +1,4 @@
-"""`signpose` command line: recognize, synth, evaluate, calibrate, serve."""
+"""`signpose` command line: recognize, track, synth, evaluate, calibrate, serve."""
 
 from __future__ import annotations
 
@@ -10,10 +10,11 @@ import os
 import signal
 import sys
 import tempfile
+import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from contextlib import closing, contextmanager, suppress
+from contextlib import closing, contextmanager, nullcontext, suppress
 from pathlib import Path
 from typing import NoReturn, TextIO
 
@@ -141,7 +142,7 @@ def progress(iterable: Iterable | None = None, *, hidden: bool = False, **option
     disable=None): in a log file or a CI log its redraws are carriage-return clutter. `hidden`:
     never drawn. What a command prints when it is done (tables, counts) is printed either way;
     what it prints while the bar is drawn, it prints with `say`."""
-    return tqdm(iterable, file=sys.stderr, unit="img", disable=True if hidden else None, **options)
+    return tqdm(iterable, file=sys.stderr, disable=True if hidden else None, **{"unit": "img", **options})
 
 
 def say(text: str, file: TextIO | None = None) -> None:
@@ -167,6 +168,67 @@ def unusable_images(failed: int, total: int) -> int:
     if failed:
         print(f"{failed} of {total} image(s) could not be used", file=sys.stderr)
     return 1 if failed else 0
+
+
+def cmd_track(args) -> int:
+    from signpose.app.flight_output import open_flight_output
+    from signpose.pipeline.frames import BagSource, SourceError, open_source
+    from signpose.pipeline.track import Tracker
+
+    library, settings, camera = load_inputs(args)
+    keep_freed_memory()
+    spec = args.sources[0] if len(args.sources) == 1 else args.sources
+    try:
+        source = open_source(spec, topic=args.topic, fps=args.fps, max_pixels=max_pixels(args))
+    except SourceError as exc:
+        raise CliError(str(exc)) from None
+    frames = seen = 0
+    labels: dict[int, str] = {}  # confirmed track id: label
+    started = time.perf_counter()
+    total = min(filter(None, (source.count, args.max_frames)), default=None)
+    with source, (open_flight_output(args.output) if args.output else nullcontext()) as output, \
+            progress(total=total, unit="frame", desc="track", leave=False) as bar, \
+            stopped_after(lambda: frames, total or frames, "frames"):
+        for warning in source.warnings:
+            say(f"warning: {warning}", sys.stderr)
+        tracker = Tracker(library, settings, camera if camera is not None else source.camera, fps=source.fps)
+        stream = iter(source)
+        while args.max_frames is None or frames < args.max_frames:
+            t_decode = time.perf_counter()
+            try:
+                frame = next(stream, None)
+            except SourceError as exc:  # the frames before it were tracked and written
+                say(f"signpose track: error: {exc}", sys.stderr)
+                return 1
+            if frame is None:
+                break
+            decode_ms = (time.perf_counter() - t_decode) * 1e3
+            try:
+                result = tracker.step(frame.image, index=frame.index, time_s=frame.time_s)
+            except CameraError as exc:
+                raise CliError(f"{source.name}: {exc}") from None
+            record = result.to_json(source.name)
+            record["timing_ms"] = {"decode": round(decode_ms, 3), **record["timing_ms"],
+                                   "total": round(decode_ms + result.timing_ms["total"], 3)}
+            if output is not None:
+                output.write(record, image=None if isinstance(source, BagSource) else frame.image,
+                             stamp_ns=frame.stamp_ns)
+            if args.json:
+                say(json.dumps(record))
+            for sign in result.signs:
+                if sign.track_id not in labels:
+                    labels[sign.track_id] = sign.label
+                    if not args.json:
+                        say(f"frame {frame.index} ({frame.time_s:.2f} s): {sign.label} confirmed as track "
+                            f"{sign.track_id}")
+            seen += bool(result.signs)
+            frames += 1
+            bar.update()
+    elapsed = time.perf_counter() - started
+    names = ", ".join(f"{label} (track {track_id})" for track_id, label in sorted(labels.items())) or "none"
+    print(f"{frames} frames, {seen} with a sign; signs seen: {names}; {frames / elapsed:.1f} frames/s",
+          file=sys.stderr)
+    return 0
 
 
 def cmd_synth(args) -> int:
@@ -400,6 +462,15 @@ def output_path(text: str) -> str:
     return text
 
 
+def flight_output_path(text: str) -> str:
+    """argparse type: a file to write a flight to, by its suffix (.mcap, .csv, .jsonl)."""
+    from signpose.app.flight_output import OUTPUT_SUFFIXES
+
+    if Path(text).suffix.lower() not in OUTPUT_SUFFIXES:
+        raise argparse.ArgumentTypeError(f"{text!r}: write a flight as {', '.join(OUTPUT_SUFFIXES)}")
+    return output_path(text)
+
+
 class ArgumentParser(argparse.ArgumentParser):
     """argparse's parser, whose errors are one line, as every other error of the CLI: argparse printed
     the command's usage (3 to 5 lines) above it, which `--help` gives."""
@@ -423,6 +494,21 @@ def build_parser() -> argparse.ArgumentParser:
                         "a usable EXIF focal length, as the page's assumed FOV (default %(default)g)"
                         .format(*ASSUMED_HFOV_RANGE_DEG))
     p.set_defaults(func=cmd_recognize)
+
+    p = sub.add_parser("track", help="track signs through a video, a ROS bag or a folder of frames")
+    p.add_argument("sources", nargs="+", metavar="SOURCE",
+                   help="a video file, a ROS 2 bag (.mcap, .db3 or a rosbag2 folder), a ROS 1 .bag, a folder of "
+                        "frames (natural order), image files (each a frame), camera:N or a stream URL")
+    add_common(p)
+    add_max_megapixels(p)
+    p.add_argument("--topic", help="the bag's image topic (default: its only one)")
+    p.add_argument("--fps", type=positive_number, help="frame rate of image files and folders (default 1)")
+    p.add_argument("--max-frames", type=positive_int, metavar="N", help="stop after N frames")
+    p.add_argument("--json", action="store_true", help="one JSON object per frame per line")
+    p.add_argument("-o", "--output", type=flight_output_path, metavar="OUT",
+                   help="write the flight as OUT.mcap (ROS 2: poses with covariance, /tf, the frames), OUT.csv "
+                        "or OUT.jsonl")
+    p.set_defaults(func=cmd_track)
 
     p = sub.add_parser("synth", help="render synthetic scenes with ground truth")
     p.add_argument("out_dir", help="folder to write the scenes, truth.json and camera.yaml into (made if missing)")

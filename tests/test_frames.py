@@ -7,18 +7,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from mcap_ros2.writer import Writer as McapRos2Writer
-from rosbags.rosbag1 import Writer as Bag1Writer
 from rosbags.rosbag2 import StoragePlugin
-from rosbags.rosbag2 import Writer as Bag2Writer
-from rosbags.typesys import Stores, get_typestore
 
 from signpose.pipeline.frames import Frame, SourceError, natural_key, open_source
+from tests.support.bags import ROS1, ROS2, header, write_bag1, write_bag2, write_mcap
 from tests.support.shared_data import shared_folder
 
 BOX = shared_folder() / "data" / "video" / "box.mp4"
-ROS2 = get_typestore(Stores.ROS2_HUMBLE)
-ROS1 = get_typestore(Stores.ROS1_NOETIC)
 W, H = 32, 24
 K = [100.0, 0.0, 16.0, 0.0, 100.0, 12.0, 0.0, 0.0, 1.0]
 D = [0.1, -0.05, 0.0, 0.0, 0.0]
@@ -48,12 +43,6 @@ def _error(spec, **kwargs) -> str:
 
 # --- bags written here: one message dict per frame, made into each format's messages -------------------------
 
-def _header(store, stamp_ns: int, ros1: bool):
-    Time, Header = store.types["builtin_interfaces/msg/Time"], store.types["std_msgs/msg/Header"]
-    stamp = Time(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
-    return Header(seq=0, stamp=stamp, frame_id="cam") if ros1 else Header(stamp=stamp, frame_id="cam")
-
-
 def _image_msg(store, i: int, encoding: str, stamp_ns: int, ros1: bool = False):
     bgr = _frame(i)
     pixels = {"bgr8": bgr, "rgb8": bgr[..., ::-1], "bgra8": np.dstack([bgr, np.full((H, W), 7, np.uint8)]),
@@ -61,13 +50,13 @@ def _image_msg(store, i: int, encoding: str, stamp_ns: int, ros1: bool = False):
               "mono8": np.full((H, W), 10 * i, np.uint8), "mono16": np.full((H, W), 2560 * i + 100, np.uint16)}[encoding]
     step = pixels.shape[1] * (pixels.shape[2] if pixels.ndim == 3 else 1) * pixels.itemsize
     return store.types["sensor_msgs/msg/Image"](
-        header=_header(store, stamp_ns, ros1), height=H, width=W, encoding=encoding, is_bigendian=0, step=step,
+        header=header(store, stamp_ns, ros1), height=H, width=W, encoding=encoding, is_bigendian=0, step=step,
         data=np.frombuffer(pixels.astype(pixels.dtype.newbyteorder("<")).tobytes(), np.uint8))
 
 
 def _compressed_msg(store, i: int, stamp_ns: int, ros1: bool = False):
     ok, png = cv2.imencode(".png", _frame(i))
-    return store.types["sensor_msgs/msg/CompressedImage"](header=_header(store, stamp_ns, ros1), format="png",
+    return store.types["sensor_msgs/msg/CompressedImage"](header=header(store, stamp_ns, ros1), format="png",
                                                           data=np.frombuffer(png.tobytes(), np.uint8))
 
 
@@ -78,63 +67,12 @@ def _info_msg(store, ros1: bool = False, k: list[float] = K):
     if not ros1:
         fields = {key.lower(): value for key, value in fields.items()}
     return store.types["sensor_msgs/msg/CameraInfo"](
-        header=_header(store, T0, ros1), height=H, width=W, distortion_model="plumb_bob", binning_x=0, binning_y=0,
+        header=header(store, T0, ros1), height=H, width=W, distortion_model="plumb_bob", binning_x=0, binning_y=0,
         roi=roi, **fields)
 
 
 def _stamps(n: int) -> list[int]:
     return [T0 + i * 50_000_000 for i in range(n)]  # 20 fps
-
-
-def _plain(value):
-    """A rosbags message as the dicts, lists and bytes mcap-ros2-support encodes."""
-    if isinstance(value, np.ndarray):
-        return value.tobytes() if value.dtype == np.uint8 else value.tolist()
-    if hasattr(value, "__dataclass_fields__"):
-        return {k: _plain(getattr(value, k)) for k in value.__dataclass_fields__ if k != "__msgtype__"}
-    return value
-
-
-def _write_mcap(path: Path, messages: list[tuple[str, object]]) -> Path:
-    """A bare .mcap file, as mcap-ros2-support writes it: (topic, rosbags ROS 2 message) pairs, CDR, definitions
-    embedded; log times from the header stamps."""
-    with path.open("wb") as file:
-        writer = McapRos2Writer(file)
-        schemas: dict[str, object] = {}
-        for topic, msg in messages:
-            name = msg.__msgtype__
-            if name not in schemas:
-                schemas[name] = writer.register_msgdef(name, ROS2.generate_msgdef(name, ros_version=2)[0])
-            stamp = msg.header.stamp
-            ns = stamp.sec * 10**9 + stamp.nanosec
-            writer.write_message(topic, schemas[name], _plain(msg), log_time=ns, publish_time=ns)
-        writer.finish()
-    return path
-
-
-def _write_bag2(path: Path, messages: list[tuple[str, object]], log_ns: list[int] | None = None,
-                storage: StoragePlugin = StoragePlugin.SQLITE3) -> Path:
-    """A rosbag2 folder (metadata.yaml and a .db3 or .mcap), as rosbags writes it."""
-    with Bag2Writer(path, version=9, storage_plugin=storage) as writer:
-        connections: dict[str, object] = {}
-        for n, (topic, msg) in enumerate(messages):
-            if topic not in connections:
-                connections[topic] = writer.add_connection(topic, msg.__msgtype__, typestore=ROS2)
-            ns = log_ns[n] if log_ns else msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
-            writer.write(connections[topic], ns, ROS2.serialize_cdr(msg, msg.__msgtype__))
-    return path
-
-
-def _write_bag1(path: Path, messages: list[tuple[str, object]]) -> Path:
-    """A ROS 1 .bag, as rosbags writes it."""
-    with Bag1Writer(path) as writer:
-        connections: dict[str, object] = {}
-        for topic, msg in messages:
-            if topic not in connections:
-                connections[topic] = writer.add_connection(topic, msg.__msgtype__, typestore=ROS1)
-            ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
-            writer.write(connections[topic], ns, ROS1.serialize_ros1(msg, msg.__msgtype__))
-    return path
 
 
 def _assert_frames(frames: list[Frame], n: int, stamps: list[int]) -> None:
@@ -274,7 +212,7 @@ def test_an_mcap_bag_gives_its_images_stamps_and_camera(tmp_path):
     stamps = _stamps(3)
     messages = [("/cam/camera_info", _info_msg(ROS2))]
     messages += [("/cam/image_raw", _image_msg(ROS2, i, "rgb8", s)) for i, s in enumerate(stamps)]
-    frames, source = _collect(_write_mcap(tmp_path / "flight.mcap", messages))
+    frames, source = _collect(write_mcap(tmp_path / "flight.mcap", messages))
     _assert_frames(frames, 3, stamps)
     assert source.count == 3 and source.fps is None and source.warnings == []
     np.testing.assert_allclose(source.camera.K, np.reshape(K, (3, 3)))
@@ -286,7 +224,7 @@ def test_compressed_images_in_an_mcap_bag_and_the_camera_of_a_parent_namespace(t
     stamps = _stamps(2)
     messages = [("/cam/image_raw/compressed", _compressed_msg(ROS2, i, s)) for i, s in enumerate(stamps)]
     messages.append(("/cam/camera_info", _info_msg(ROS2)))
-    frames, source = _collect(_write_mcap(tmp_path / "flight.mcap", messages))
+    frames, source = _collect(write_mcap(tmp_path / "flight.mcap", messages))
     _assert_frames(frames, 2, stamps)
     np.testing.assert_allclose(source.camera.K, np.reshape(K, (3, 3)))
 
@@ -294,7 +232,7 @@ def test_compressed_images_in_an_mcap_bag_and_the_camera_of_a_parent_namespace(t
 @pytest.mark.parametrize("encoding", ["bgr8", "rgb8", "bgra8", "rgba8", "mono8", "mono16"])
 def test_image_encodings_in_a_rosbag2_folder(tmp_path, encoding):
     stamps = _stamps(2)
-    bag = _write_bag2(tmp_path / "bag", [("/camera/image", _image_msg(ROS2, i, encoding, s))
+    bag = write_bag2(tmp_path / "bag", [("/camera/image", _image_msg(ROS2, i, encoding, s))
                                          for i, s in enumerate(stamps)])
     assert (bag / "metadata.yaml").exists() and list(bag.glob("*.db3"))
     frames, source = _collect(bag)
@@ -312,7 +250,7 @@ def test_a_rosbag2_folder_of_mcap_storage_with_its_camera(tmp_path):
     stamps = _stamps(2)
     messages = [("/drone/cam/image_raw/compressed", _compressed_msg(ROS2, i, s)) for i, s in enumerate(stamps)]
     messages.append(("/drone/cam/camera_info", _info_msg(ROS2)))
-    bag = _write_bag2(tmp_path / "bag", messages, storage=StoragePlugin.MCAP)
+    bag = write_bag2(tmp_path / "bag", messages, storage=StoragePlugin.MCAP)
     assert list(bag.glob("*.mcap"))
     frames, source = _collect(bag)
     _assert_frames(frames, 2, stamps)
@@ -330,13 +268,13 @@ def test_bayer_images_are_demosaiced_with_ros_pattern_names(tmp_path, pattern):
         mosaic[k // 2::2, k % 2::2] = colour[k // 2::2, k % 2::2, channel[letter]]
     msg = _image_msg(ROS2, 0, "mono8", T0)
     msg.encoding, msg.data = f"bayer_{pattern}8", mosaic.ravel()
-    (frame,), _ = _collect(_write_mcap(tmp_path / "bayer.mcap", [("/image", msg)]))
+    (frame,), _ = _collect(write_mcap(tmp_path / "bayer.mcap", [("/image", msg)]))
     np.testing.assert_array_equal(frame.image[2:-2, 2:-2], colour[2:-2, 2:-2])
 
 
 def test_header_stamps_left_at_zero_fall_back_to_the_recording_times(tmp_path):
     logged = [T0 + 5, T0 + 100_000_005]
-    bag = _write_bag2(tmp_path / "bag", [("/image", _image_msg(ROS2, i, "bgr8", 0)) for i in range(2)], log_ns=logged)
+    bag = write_bag2(tmp_path / "bag", [("/image", _image_msg(ROS2, i, "bgr8", 0)) for i in range(2)], log_ns=logged)
     frames, _ = _collect(bag)
     assert [f.stamp_ns for f in frames] == logged and [f.time_s for f in frames] == [0.0, 0.1]
 
@@ -345,7 +283,7 @@ def test_a_ros1_bag_gives_its_compressed_images_and_camera(tmp_path):
     stamps = _stamps(3)
     messages = [("/usb_cam/camera_info", _info_msg(ROS1, ros1=True))]
     messages += [("/usb_cam/image_raw/compressed", _compressed_msg(ROS1, i, s, ros1=True)) for i, s in enumerate(stamps)]
-    frames, source = _collect(_write_bag1(tmp_path / "flight.bag", messages))
+    frames, source = _collect(write_bag1(tmp_path / "flight.bag", messages))
     _assert_frames(frames, 3, stamps)
     np.testing.assert_allclose(source.camera.K, np.reshape(K, (3, 3)))
     np.testing.assert_allclose(source.camera.dist, D)
@@ -353,7 +291,7 @@ def test_a_ros1_bag_gives_its_compressed_images_and_camera(tmp_path):
 
 def test_ros1_raw_images(tmp_path):
     stamps = _stamps(2)
-    bag = _write_bag1(tmp_path / "raw.bag", [("/image", _image_msg(ROS1, i, "rgb8", s, ros1=True))
+    bag = write_bag1(tmp_path / "raw.bag", [("/image", _image_msg(ROS1, i, "rgb8", s, ros1=True))
                                              for i, s in enumerate(stamps)])
     frames, source = _collect(bag)
     _assert_frames(frames, 2, stamps)
@@ -365,7 +303,7 @@ def test_topics_are_chosen_or_refused_by_name(tmp_path):
     messages = [("/left/image_raw", _image_msg(ROS2, i, "bgr8", s)) for i, s in enumerate(stamps)]
     messages += [("/right/image_raw/compressed", _compressed_msg(ROS2, i, s)) for i, s in enumerate(stamps)]
     messages.append(("/left/camera_info", _info_msg(ROS2)))
-    bag = _write_mcap(tmp_path / "stereo.mcap", messages)
+    bag = write_mcap(tmp_path / "stereo.mcap", messages)
     assert _error(bag) == (f"{bag}: the bag has several image topics (/left/image_raw, /right/image_raw/compressed): "
                            "choose one with --topic")
     frames, source = _collect(bag, topic="/right/image_raw/compressed")
@@ -379,7 +317,7 @@ def test_topics_are_chosen_or_refused_by_name(tmp_path):
 
 
 def test_a_bag_without_image_topics_lists_its_topics(tmp_path):
-    bag = _write_mcap(tmp_path / "info.mcap", [("/cam/camera_info", _info_msg(ROS2))])
+    bag = write_mcap(tmp_path / "info.mcap", [("/cam/camera_info", _info_msg(ROS2))])
     assert _error(bag) == (f"{bag}: the bag has no image topics (sensor_msgs/Image or CompressedImage); its topics: "
                            "/cam/camera_info (sensor_msgs/msg/CameraInfo)")
 
@@ -387,7 +325,7 @@ def test_a_bag_without_image_topics_lists_its_topics(tmp_path):
 def test_an_uncalibrated_camera_info_is_left_out_with_a_warning(tmp_path):
     messages = [("/cam/camera_info", _info_msg(ROS2, k=[0.0] * 9)),
                 ("/cam/image_raw", _image_msg(ROS2, 0, "bgr8", T0))]
-    frames, source = _collect(_write_mcap(tmp_path / "flight.mcap", messages))
+    frames, source = _collect(write_mcap(tmp_path / "flight.mcap", messages))
     assert len(frames) == 1 and source.camera is None
     assert len(source.warnings) == 1 and "the CameraInfo on /cam/camera_info is not used" in source.warnings[0]
 
@@ -395,22 +333,22 @@ def test_an_uncalibrated_camera_info_is_left_out_with_a_warning(tmp_path):
 def test_damaged_bags_and_frames_are_refused(tmp_path):
     (tmp_path / "junk.mcap").write_bytes(b"not a bag" * 10)
     assert _error(tmp_path / "junk.mcap").startswith(f"{tmp_path / 'junk.mcap'}: cannot be read as a ROS bag: ")
-    whole = _write_mcap(tmp_path / "whole.mcap", [("/image", _image_msg(ROS2, 0, "bgr8", T0))]).read_bytes()
+    whole = write_mcap(tmp_path / "whole.mcap", [("/image", _image_msg(ROS2, 0, "bgr8", T0))]).read_bytes()
     (tmp_path / "stopped.mcap").write_bytes(whole[:len(whole) // 2])  # a recording that stopped without its summary
     assert _error(tmp_path / "stopped.mcap").startswith(f"{tmp_path / 'stopped.mcap'}: cannot be read as a ROS bag: ")
     (tmp_path / "junk.bag").write_bytes(b"not a bag" * 10)
     assert "junk.bag: cannot be read as a ROS bag" in _error(tmp_path / "junk.bag")
     bad = _compressed_msg(ROS2, 0, T0)
     bad.data = bad.data[:20]
-    bag = _write_mcap(tmp_path / "cut.mcap", [("/image/compressed", bad)])
+    bag = write_mcap(tmp_path / "cut.mcap", [("/image/compressed", bad)])
     assert _error(bag).startswith(f"{bag}: message 0 on /image/compressed")
     odd = _image_msg(ROS2, 0, "bgr8", T0)
     odd.encoding = "yuv422"
-    bag = _write_mcap(tmp_path / "yuv.mcap", [("/image", odd)])
+    bag = write_mcap(tmp_path / "yuv.mcap", [("/image", odd)])
     assert "message 0 on /image has encoding 'yuv422'; readable: mono8" in _error(bag)
     short = _image_msg(ROS2, 0, "bgr8", T0)
     short.data = short.data[:100]
-    bag = _write_mcap(tmp_path / "short.mcap", [("/image", short)])
+    bag = write_mcap(tmp_path / "short.mcap", [("/image", short)])
     assert "holds 100 bytes, too few for 32x24 px bgr8" in _error(bag)
-    big = _write_mcap(tmp_path / "big.mcap", [("/image", _image_msg(ROS2, 0, "bgr8", T0))])
+    big = write_mcap(tmp_path / "big.mcap", [("/image", _image_msg(ROS2, 0, "bgr8", T0))])
     assert "message 0 on /image is 32x24 px" in _error(big, max_pixels=100)
