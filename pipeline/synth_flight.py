@@ -171,7 +171,8 @@ class FlightRenderer:
         self.decals = [_Decal(p, _pyramid(library[p.label].image if p.label is not None else _look_alike(p.size_m)))
                        for p in plaques]
         u, v = np.meshgrid(np.arange(self.size[0], dtype=np.float64), np.arange(self.size[1], dtype=np.float64))
-        self.rays = np.stack([u, v, np.ones_like(u)], axis=-1) @ np.linalg.inv(camera.K).T  # (H, W, 3)
+        rays = np.stack([u, v, np.ones_like(u)], axis=-1) @ np.linalg.inv(camera.K).T
+        self.rays = rays.astype(np.float32)  # (H, W, 3) camera frame
 
     def signs(self) -> list[LibrarySign]:
         return [self.library[d.plaque.label] for d in self.decals if d.plaque.label is not None]
@@ -179,13 +180,13 @@ class FlightRenderer:
     def radiance(self, R: np.ndarray, t: np.ndarray) -> np.ndarray:
         """(H, W) float32 linear-ish gray of the scene seen with world pose (R, t), before exposure."""
         centre = -R.T @ t
-        d = self.rays @ R  # world directions, R^T applied to each ray
+        d = self.rays @ R.astype(np.float32)  # world directions, R^T applied to each ray
         with np.errstate(divide="ignore", invalid="ignore"):
             s_wall = np.where(d[..., 2] > 1e-9, -centre[2] / d[..., 2], np.inf)
             s_floor = np.where(d[..., 1] > 1e-9, (FLOOR_Y - centre[1]) / d[..., 1], np.inf)
             s_ceiling = np.where(d[..., 1] < -1e-9, (CEILING_Y - centre[1]) / d[..., 1], np.inf)
         s = np.minimum(np.minimum(s_wall, s_floor), s_ceiling)
-        hit = centre + d * s[..., None]
+        hit = centre.astype(np.float32) + d * s[..., None]
         out = np.zeros(s.shape, np.float32)
         for name, s_plane, (a, b) in (("wall", s_wall, (0, 1)), ("floor", s_floor, (0, 2)),
                                       ("ceiling", s_ceiling, (0, 2))):

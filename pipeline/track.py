@@ -1,8 +1,8 @@
 """Signs followed from frame to frame in a video: detected by `recognize`, then tracked.
 
 A sign the detector finds becomes a tentative track; it is confirmed (and reported) once the
-detector has found it on `TrackerConfig.confirm_frames` consecutive frames, so a look-alike that
-fools the detector once never becomes a track. A confirmed track is followed by pyramidal
+detector has found it on `TrackerConfig.confirm_frames` frames within `confirm_window`, so a
+look-alike that fools the detector once never becomes a track. A confirmed track is followed by pyramidal
 Lucas-Kanade on corners inside its quad, checked forward and backward, its homography
 (library px -> image px) fitted by RANSAC to the tracked points and the camera pose refined from
 the previous frame's (`pose_near`), which settles the planar two-fold ambiguity by continuity.
@@ -59,10 +59,12 @@ class TrackerConfig:
     Intervals are in seconds of video (frames at the tracker's fps); points and px are image px.
     """
 
-    detect_interval_s: float = 0.33  # detector while every track is healthy: new signs, re-anchoring
-    idle_interval_s: float = 0.1  # detector while nothing is tracked
+    detect_interval_s: float = 0.5  # detector while every track is healthy: new signs
+    idle_interval_s: float = 0.2  # detector while nothing is tracked
     searches_per_frame: int = 2  # recognize calls per detection frame (one more per sign found)
-    confirm_frames: int = 2  # consecutive detections that confirm a track
+    weak_retry_frames: int = 5  # frames between detector runs asked for by a weak or lost track
+    confirm_frames: int = 2  # detections that confirm a track ...
+    confirm_window: int = 4  # ... within this many frames from its first
     drop_after_misses: int = 3  # frames not followed before a track is dropped
     max_points: int = 120
     min_points: int = 12  # fewer tracked points: the frame is a miss
@@ -141,6 +143,8 @@ class Track:
     reference: np.ndarray
     pose_filter: PoseFilter = field(default_factory=PoseFilter)
     seeded: int = 0  # points when last seeded
+    born: int = 0  # frame index of its first detection
+    detected_at: int = 0  # frame index of its last detection
     detections: int = 0
     confirmed: bool = False
     misses: int = 0
@@ -215,7 +219,6 @@ class Tracker:
         self.tracks: list[Track] = []
         self.next_id = 1
         self.last_detect: int | None = None
-        self.runs = 0  # detector runs so far
 
     # -- the frame ---------------------------------------------------------------------------
 
@@ -241,7 +244,10 @@ class Tracker:
         detected: set[int] = set()
         if self._detection_due(index, followed):
             self.last_detect = index
-            recognitions, detected = self._detect(gray, camera, followed)
+            recognitions, detected = self._detect(gray, camera, followed, index)
+            for track in self.tracks:
+                if track.track_id in detected:
+                    track.detected_at = index
         t_detected = time.perf_counter()
 
         signs = self._settle(gray, camera, followed, detected, time_s, warnings)
@@ -254,7 +260,12 @@ class Tracker:
     def _detection_due(self, index: int, followed: dict[int, Followed]) -> bool:
         if self.last_detect is None:
             return True
-        if any(not t.confirmed or t.track_id not in followed or followed[t.track_id].weak for t in self.tracks):
+        if any(not t.confirmed for t in self.tracks):
+            return True
+        # A lost or weak track asks again only some frames after its last detection: one leaving
+        # the frame weakens on every frame, and the detector cannot do better with it.
+        if any((t.track_id not in followed or followed[t.track_id].weak)
+               and index - t.detected_at >= self.config.weak_retry_frames for t in self.tracks):
             return True
         every = self.detect_every if self.tracks else self.idle_every
         return index - self.last_detect >= every
@@ -314,15 +325,13 @@ class Tracker:
 
     # -- detecting ---------------------------------------------------------------------------
 
-    def _detect(self, gray: np.ndarray, camera: Camera, followed: dict[int, Followed]) -> tuple[list[Recognition], set[int]]:
+    def _detect(self, gray: np.ndarray, camera: Camera, followed: dict[int, Followed], index: int) -> tuple[list[Recognition], set[int]]:
         """Run the detector on `gray`, the healthy confirmed tracks masked out, as long as it finds
         signs and the budget allows. Returns (its recognitions, the ids of tracks it found)."""
         height, width = gray.shape
-        # Every other run looks at the healthy tracks too, re-anchoring them against drift.
-        self.runs += 1
-        anchoring = self.runs % 2 == 0
+        # Healthy tracks need no detector: the plaque's outline keeps their H from drifting.
         hidden = [sign_corners(t.sign, followed[t.track_id].H) for t in self.tracks
-                  if t.confirmed and t.track_id in followed and not followed[t.track_id].weak and not anchoring]
+                  if t.confirmed and t.track_id in followed and not followed[t.track_id].weak]
         recognitions: list[Recognition] = []
         found: set[int] = set()
         for _ in range(self.config.searches_per_frame):
@@ -333,22 +342,21 @@ class Tracker:
                 break
             corners = rec.corners
             assert corners is not None
-            track = self._claim(rec, corners, width, height, gray, camera)
+            track = self._claim(rec, corners, width, height, gray, camera, index)
             found.add(track.track_id)
             hidden.append(corners)
-        # Every detection frame counts toward confirmation; a tentative track the detector did not
-        # find again is a look-alike (or too uncertain to report) and goes.
+        # A tentative track the detector has not found `confirm_frames` times within
+        # `confirm_window` frames is a look-alike (or too uncertain to report) and goes.
         for track in list(self.tracks):
             if track.track_id in found:
                 track.detections += 1
-                if track.detections >= self.config.confirm_frames:
-                    track.confirmed = True
-            elif not track.confirmed:
+                track.confirmed = track.confirmed or track.detections >= self.config.confirm_frames
+            elif not track.confirmed and index - track.born + 1 >= self.config.confirm_window:
                 self.tracks.remove(track)
         return recognitions, found
 
     def _claim(self, rec: Recognition, corners: np.ndarray, width: int, height: int, gray: np.ndarray,
-               camera: Camera) -> Track:
+               camera: Camera, index: int) -> Track:
         """The track a detection belongs to, re-anchored on it, or a new tentative one."""
         assert rec.label is not None and rec.H is not None
         sign = self.library[rec.label]
@@ -360,7 +368,8 @@ class Tracker:
                 self.tracks.remove(other)  # a tentative track the detector now reads as another sign
         H = rec.H / rec.H[2, 2]
         if mine is None:
-            mine = Track(self.next_id, sign, H, rec.pose, np.zeros((0, 2), np.float32), np.zeros((0, 2)), gray)
+            mine = Track(self.next_id, sign, H, rec.pose, np.zeros((0, 2), np.float32), np.zeros((0, 2)), gray,
+                         born=index)
             self.next_id += 1
             self.tracks.append(mine)
         else:
