@@ -5,7 +5,7 @@ until it fills the frame, past a white look-alike plaque, to the second and away
 one OpenCV thread, decode included. Per method: frames a second; recall, the share of (frame, sign)
 pairs with the sign at least MIN_WIDTH_PX wide and fully in view that are answered with its
 label; wrong labels (a label for a sign not in front of the camera); camera position error
-p50 / p90 for signs within MAX_DISTANCE_M; and the frame-to-frame jitter of the camera position
+p50 / p90 for signs within MAX_DISTANCE_M, raw and filtered; and the frame-to-frame jitter of the camera position
 beyond the true motion (median, p90), raw and, for the tracker, filtered.
 
     python bench/track.py [--flight DIR] [--duration 12] [--json OUT]
@@ -49,7 +49,7 @@ class Tally:
     due: int = 0  # (frame, sign) pairs that should be answered
     answered: int = 0
     wrong: list[tuple[int, str]] = field(default_factory=list)
-    errors_m: list[float] = field(default_factory=list)
+    errors_m: dict[str, list[float]] = field(default_factory=dict)  # "raw" / "filtered": position errors
     # per label: (frame, measured position, true position) for the jitter, raw and filtered
     tracks: dict[str, dict[str, list[tuple[int, np.ndarray, np.ndarray]]]] = field(default_factory=dict)
 
@@ -72,8 +72,8 @@ class Tally:
                     continue
                 position = measured.camera_position
                 self.tracks.setdefault(label, {}).setdefault(kind, []).append((index, position, true_position))
-                if kind == "raw" and np.linalg.norm(t) <= MAX_DISTANCE_M:
-                    self.errors_m.append(float(np.linalg.norm(position - true_position)))
+                if np.linalg.norm(t) <= MAX_DISTANCE_M:
+                    self.errors_m.setdefault(kind, []).append(float(np.linalg.norm(position - true_position)))
 
     def jitter_mm(self, kind: str) -> list[float]:
         """|measured step - true step| between consecutive frames answering the same sign, mm."""
@@ -89,12 +89,15 @@ class Tally:
         def pct(values: list[float], q: float) -> float | None:
             return round(float(np.percentile(values, q)), 2) if values else None
 
-        errors_cm = [e * 100 for e in self.errors_m]
+        errors_cm = [e * 100 for e in self.errors_m.get("raw", [])]
+        filtered_cm = [e * 100 for e in self.errors_m.get("filtered", [])]
         return {
             "method": self.name, "frames": self.frames, "fps": round(self.frames / self.seconds, 1),
             "recall_pct": round(100 * self.answered / self.due, 1) if self.due else None,
             "sign_frames_due": self.due, "wrong_labels": len(self.wrong),
             "position_error_cm_p50": pct(errors_cm, 50), "position_error_cm_p90": pct(errors_cm, 90),
+            "filtered_position_error_cm_p50": pct(filtered_cm, 50),
+            "filtered_position_error_cm_p90": pct(filtered_cm, 90),
             "jitter_mm_median": pct(self.jitter_mm("raw"), 50), "jitter_mm_p90": pct(self.jitter_mm("raw"), 90),
             "filtered_jitter_mm_median": pct(self.jitter_mm("filtered"), 50),
             "filtered_jitter_mm_p90": pct(self.jitter_mm("filtered"), 90),
