@@ -254,8 +254,8 @@ class Tracker:
 
         signs = self._settle(gray, camera, followed, detected, time_s, warnings)
         t_end = time.perf_counter()
-        timing = {"detect": (t_detected - t_tracked) * 1e3, "track": ((t_tracked - t_start) + (t_end - t_detected)) * 1e3,
-                  "total": (t_end - t_start) * 1e3}
+        tracking = (t_tracked - t_start) + (t_end - t_detected)
+        timing = {"detect": (t_detected - t_tracked) * 1e3, "track": tracking * 1e3, "total": (t_end - t_start) * 1e3}
         return FrameResult(index, time_s, signs, timing, warnings, recognitions,
                            [t.track_id for t in self.tracks if not t.confirmed])
 
@@ -327,7 +327,8 @@ class Tracker:
 
     # -- detecting ---------------------------------------------------------------------------
 
-    def _detect(self, gray: np.ndarray, camera: Camera, followed: dict[int, Followed], index: int) -> tuple[list[Recognition], set[int]]:
+    def _detect(self, gray: np.ndarray, camera: Camera, followed: dict[int, Followed],
+                index: int) -> tuple[list[Recognition], set[int]]:
         """Run the detector on `gray`, the healthy confirmed tracks masked out, as long as it finds
         signs and the budget allows. Returns (its recognitions, the ids of tracks it found)."""
         height, width = gray.shape
