@@ -62,7 +62,7 @@ def left_jacobian(phi: np.ndarray) -> np.ndarray:
             + (angle - math.sin(angle)) / angle**3 * K @ K)
 
 
-def _pose_jacobian(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+def pose_jacobian(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     """(6, 6) first-order map from a pose's [rotation vector of R, t] errors to the filter's
     [φ (left perturbation of Rᵀ), p = -Rᵀt] errors."""
     # R = exp(ψ)R̂ with ψ = J_l·δrvec gives Rᵀ = R̂ᵀexp(-ψ) = exp(-R̂ᵀψ)R̂ᵀ, so φ = -R̂ᵀψ; and
@@ -101,7 +101,7 @@ class PoseFilter:
         cov = pose.covariance
         if cov is None or not np.all(np.isfinite(cov)):
             cov = np.diag([FALLBACK_SIGMA[0] ** 2] * 3 + [FALLBACK_SIGMA[1] ** 2] * 3)
-        J = _pose_jacobian(R, t)
+        J = pose_jacobian(R, t)
         return R.T, -R.T @ t, J @ cov @ J.T
 
     def _start(self, R_sc: np.ndarray, p: np.ndarray, cov: np.ndarray, time_s: float) -> None:
@@ -167,7 +167,7 @@ class PoseFilter:
         assert self.R_sc is not None, "no pose before the first update"
         R = self.R_sc.T
         t = -R @ self.p
-        J_inv = np.linalg.inv(_pose_jacobian(R, t))
+        J_inv = np.linalg.inv(pose_jacobian(R, t))
         covariance = J_inv @ self.P[:6, :6] @ J_inv.T
         return Pose(R=R, t=t, method="filtered", reprojection_rmse_px=math.nan, ambiguous=False,
                     solution_errors=None, covariance=0.5 * (covariance + covariance.T))
