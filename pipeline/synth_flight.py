@@ -56,7 +56,7 @@ class Plaque:
     size_m: tuple[float, float]
 
 
-# Far from the wall (both signs ~40 px wide), in to the first until it fills the frame, along past
+# From 7 m off the wall (both signs 45-50 px wide), in to the first until it fills the frame, along past
 # the look-alike, to the second and away obliquely.
 CORRIDOR_PATH = (
     Keyframe(0.0, (-0.4, 0.1, -7.0), (0.9, -0.15, 0.0)),
@@ -171,7 +171,7 @@ class FlightRenderer:
         along = np.arange(TEXTURE_SIZE, dtype=np.float32)[None, :]
         light = 0.75 + 0.25 * np.cos(2 * np.pi * along / TEXTURE_SIZE)
         self.textures = {name: _texture(self.rng, base, lines) * light
-                         for name, base, lines in (("wall", 0.62, None), ("floor", 0.35, 0.5), ("ceiling", 0.8, 0.6))}
+                         for name, base, lines in (("wall", 0.5, None), ("floor", 0.3, 0.5), ("ceiling", 0.6, 0.6))}
         self.decals = [_Decal(p, _pyramid(library[p.label].image if p.label is not None else _look_alike(p.size_m)))
                        for p in plaques]
         u, v = np.meshgrid(np.arange(self.size[0], dtype=np.float64), np.arange(self.size[1], dtype=np.float64))

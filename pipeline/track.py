@@ -69,7 +69,7 @@ class TrackerConfig:
     confirm_window: int = 4  # ... within this many frames from its first
     drop_after_misses: int = 3  # frames not followed before a track is dropped
     max_points: int = 120
-    min_points: int = 12  # fewer tracked points: the frame is a miss
+    min_points: int = 8  # fewer tracked points: the frame is a miss
     keep_fraction: float = 0.5  # fewer of the points seeded left: reseed them, ask for the detector
     forward_backward_px: float = 1.0
     ransac_px: float = 2.0
