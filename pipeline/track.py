@@ -215,6 +215,9 @@ class Tracker:
                  config: TrackerConfig | None = None) -> None:
         self.library, self.settings, self.config = library, settings, config or TrackerConfig()
         self.given_camera = camera
+        # Looking for more signs beside those found, the full-frame search, the costliest of a
+        # frame without a sign, is left out: a new sign is a plaque of its own, found among the blobs.
+        self.looking_settings = dataclasses.replace(settings, full_frame_fallback=False)
         self.camera: Camera | None = None
         rate = fps if fps is not None and fps > 0 and math.isfinite(fps) else 30.0
         self.detect_every = max(1, round(self.config.detect_interval_s * rate))
@@ -340,7 +343,7 @@ class Tracker:
         found: set[int] = set()
         for _ in range(self.config.searches_per_frame):
             image = mask_quads(gray, hidden)
-            rec = recognize(image, self.library, self.settings, camera)
+            rec = recognize(image, self.library, self.looking_settings if hidden else self.settings, camera)
             recognitions.append(rec)
             if rec.label is None or rec.H is None:
                 break
