@@ -10,11 +10,16 @@ A track that weakens (few points, a poor fit, an implausible quad) asks for the 
 next frame; one not followed for `drop_after_misses` frames is dropped. Points are tracked from
 the last frame the track was followed in, so one blank or corrupted frame does not lose them.
 
-The detector runs on a budget: every frame while a track is tentative or weak, otherwise every
-`detect_interval_s` while something is tracked (to catch new signs and re-anchor the tracked
-ones) and every `idle_interval_s` while nothing is. Several signs per frame: once a sign is
+Each frame the plaque's outline (`refine_outline`) refines the tracked H where its edges are
+found, and the points' library px are read again through it, so drift does not build up.
+
+The detector runs on a budget: every frame while a track is tentative, every
+`weak_retry_frames` for a weak or lost one, otherwise every `detect_interval_s` while something
+is tracked (to catch new signs; the healthy tracks are masked out) and every `idle_interval_s`
+while nothing is. Several signs per frame: once a sign is
 found, the detector searches the frame again with the found signs' quads masked out, up to
-`searches_per_frame` times.
+`searches_per_frame` times; a search beside signs found or tracked leaves out the full-frame
+fallback, the costliest part of a frame without a (new) sign.
 
 Each track's camera pose is smoothed by a constant-velocity filter on SE(3) (`PoseFilter`).
 Conventions as in `pipeline.pose`: X_cam = R·X_sign + t; corners TL, TR, BR, BL in image px.
