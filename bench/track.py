@@ -5,8 +5,9 @@ until it fills the frame, past a white look-alike plaque, to the second and away
 one OpenCV thread, decode included. Per method: frames a second; recall, the share of (frame, sign)
 pairs with the sign at least MIN_WIDTH_PX wide and fully in view that are answered with its
 label; wrong labels (a label for a sign not in front of the camera); camera position error
-p50 / p90 for signs within MAX_DISTANCE_M; and the frame-to-frame jitter of the camera position
-beyond the true motion (median, p90), raw and, for the tracker, filtered.
+p50 / p90 for signs within MAX_DISTANCE_M, raw and filtered; and the frame-to-frame jitter of the camera position
+beyond the true motion (median, p90), raw and, for the tracker, filtered, over every frame and
+for signs within MAX_DISTANCE_M.
 
     python bench/track.py [--flight DIR] [--duration 12] [--json OUT]
 
@@ -49,9 +50,9 @@ class Tally:
     due: int = 0  # (frame, sign) pairs that should be answered
     answered: int = 0
     wrong: list[tuple[int, str]] = field(default_factory=list)
-    errors_m: list[float] = field(default_factory=list)
-    # per label: (frame, measured position, true position) for the jitter, raw and filtered
-    tracks: dict[str, dict[str, list[tuple[int, np.ndarray, np.ndarray]]]] = field(default_factory=dict)
+    errors_m: dict[str, list[float]] = field(default_factory=dict)  # "raw" / "filtered": position errors
+    # per label and kind ("raw", "filtered"): (frame, measured position, true position, distance m)
+    tracks: dict[str, dict[str, list[tuple[int, np.ndarray, np.ndarray, float]]]] = field(default_factory=dict)
 
     def add(self, index: int, truth: dict, answers: list[tuple[str, Pose | None, Pose | None]]) -> None:
         present = {s["label"]: s for s in truth["signs"]}
@@ -71,17 +72,19 @@ class Tally:
                 if measured is None:
                     continue
                 position = measured.camera_position
-                self.tracks.setdefault(label, {}).setdefault(kind, []).append((index, position, true_position))
-                if kind == "raw" and np.linalg.norm(t) <= MAX_DISTANCE_M:
-                    self.errors_m.append(float(np.linalg.norm(position - true_position)))
+                self.tracks.setdefault(label, {}).setdefault(kind, []).append(
+                    (index, position, true_position, float(np.linalg.norm(t))))
+                if np.linalg.norm(t) <= MAX_DISTANCE_M:
+                    self.errors_m.setdefault(kind, []).append(float(np.linalg.norm(position - true_position)))
 
-    def jitter_mm(self, kind: str) -> list[float]:
-        """|measured step - true step| between consecutive frames answering the same sign, mm."""
+    def jitter_mm(self, kind: str, max_distance_m: float = np.inf) -> list[float]:
+        """|measured step - true step| between consecutive frames answering the same sign, mm
+        (of signs within `max_distance_m` on the second frame)."""
         out = []
         for per_kind in self.tracks.values():
             seen = per_kind.get(kind, [])
-            for (i0, p0, g0), (i1, p1, g1) in zip(seen, seen[1:]):
-                if i1 == i0 + 1:
+            for (i0, p0, g0, _), (i1, p1, g1, distance) in zip(seen, seen[1:]):
+                if i1 == i0 + 1 and distance <= max_distance_m:
                     out.append(float(np.linalg.norm((p1 - p0) - (g1 - g0))) * 1e3)
         return out
 
@@ -89,15 +92,22 @@ class Tally:
         def pct(values: list[float], q: float) -> float | None:
             return round(float(np.percentile(values, q)), 2) if values else None
 
-        errors_cm = [e * 100 for e in self.errors_m]
+        errors_cm = [e * 100 for e in self.errors_m.get("raw", [])]
+        filtered_cm = [e * 100 for e in self.errors_m.get("filtered", [])]
         return {
             "method": self.name, "frames": self.frames, "fps": round(self.frames / self.seconds, 1),
             "recall_pct": round(100 * self.answered / self.due, 1) if self.due else None,
             "sign_frames_due": self.due, "wrong_labels": len(self.wrong),
             "position_error_cm_p50": pct(errors_cm, 50), "position_error_cm_p90": pct(errors_cm, 90),
+            "filtered_position_error_cm_p50": pct(filtered_cm, 50),
+            "filtered_position_error_cm_p90": pct(filtered_cm, 90),
             "jitter_mm_median": pct(self.jitter_mm("raw"), 50), "jitter_mm_p90": pct(self.jitter_mm("raw"), 90),
             "filtered_jitter_mm_median": pct(self.jitter_mm("filtered"), 50),
             "filtered_jitter_mm_p90": pct(self.jitter_mm("filtered"), 90),
+            "within_3m_jitter_mm_median": pct(self.jitter_mm("raw", MAX_DISTANCE_M), 50),
+            "within_3m_jitter_mm_p90": pct(self.jitter_mm("raw", MAX_DISTANCE_M), 90),
+            "within_3m_filtered_jitter_mm_median": pct(self.jitter_mm("filtered", MAX_DISTANCE_M), 50),
+            "within_3m_filtered_jitter_mm_p90": pct(self.jitter_mm("filtered", MAX_DISTANCE_M), 90),
         }
 
 

@@ -6,8 +6,8 @@ its `centre`, its sign frame the world's axes moved there (x right, y down, z in
 `pipeline.pose` has it), so a camera pose (R, t_w) of the world, X_cam = R·X_world + t_w, sees
 the sign at X_cam = R·X_sign + (R·centre + t_w).
 
-Frames are ray-cast per pixel against the three planes (procedural textures sampled by
-`cv2.remap`, repeating), the signs and a white look-alike plaque warped on with their exact
+Each of the three planes is warped on by its homography (a procedural texture, repeating), on the
+pixels whose rays meet it first; the signs and a white look-alike plaque warped on with their exact
 homographies from a mip level near their size on screen; then lit by a band of ceiling lights,
 exposed with a drifting gain, blurred along the frame's motion, noised with per-row bands.
 The camera follows a smooth path through keyframes (position and the point it looks at,
@@ -31,7 +31,7 @@ from .library import Library, LibrarySign
 FLOOR_Y = 1.4
 CEILING_Y = -1.3
 TEXTURE_PX_PER_M = 200.0
-LIGHT_SPACING_M = 3.0
+TEXTURE_SIZE = 512  # px: a texture repeats every TEXTURE_SIZE / TEXTURE_PX_PER_M = 2.56 m
 # Shutter open for this fraction of the frame interval: the length of the motion blur.
 SHUTTER = 0.5
 FOURCC = "mp4v"
@@ -56,7 +56,7 @@ class Plaque:
     size_m: tuple[float, float]
 
 
-# Far from the wall (both signs ~40 px wide), in to the first until it fills the frame, along past
+# From 7 m off the wall (both signs 45-50 px wide), in to the first until it fills the frame, along past
 # the look-alike, to the second and away obliquely.
 CORRIDOR_PATH = (
     Keyframe(0.0, (-0.4, 0.1, -7.0), (0.9, -0.15, 0.0)),
@@ -101,7 +101,7 @@ def camera_pose(path: Sequence[Keyframe], time_s: float, roll_deg: float = 3.0) 
     return R, -R @ centre
 
 
-def _texture(rng: np.random.Generator, base: float, lines_m: float | None, size: int = 512) -> np.ndarray:
+def _texture(rng: np.random.Generator, base: float, lines_m: float | None, size: int = TEXTURE_SIZE) -> np.ndarray:
     """(size, size) float32 repeating texture, gray level around `base` in [0, 1], with grid
     lines every `lines_m` metres (tiles, planks) when given."""
     # Blurred as a 3 x 3 tiling and cut from the middle, so that the texture repeats seamlessly.
@@ -166,12 +166,17 @@ class FlightRenderer:
         self.library, self.camera = library, camera
         self.size = (camera.width, camera.height)
         self.rng = np.random.default_rng(seed)
-        self.textures = {"wall": _texture(self.rng, 0.62, None), "floor": _texture(self.rng, 0.35, 0.5),
-                         "ceiling": _texture(self.rng, 0.8, 0.6)}
+        # A row of ceiling lights along the corridor, one a texture repeat apart: the surfaces are
+        # brighter under each and dimmer between; the plaques are lit evenly.
+        along = np.arange(TEXTURE_SIZE, dtype=np.float32)[None, :]
+        light = 0.75 + 0.25 * np.cos(2 * np.pi * along / TEXTURE_SIZE)
+        self.textures = {name: _texture(self.rng, base, lines) * light
+                         for name, base, lines in (("wall", 0.5, None), ("floor", 0.3, 0.5), ("ceiling", 0.6, 0.6))}
         self.decals = [_Decal(p, _pyramid(library[p.label].image if p.label is not None else _look_alike(p.size_m)))
                        for p in plaques]
         u, v = np.meshgrid(np.arange(self.size[0], dtype=np.float64), np.arange(self.size[1], dtype=np.float64))
-        self.rays = np.stack([u, v, np.ones_like(u)], axis=-1) @ np.linalg.inv(camera.K).T  # (H, W, 3)
+        rays = np.stack([u, v, np.ones_like(u)], axis=-1) @ np.linalg.inv(camera.K).T
+        self.rays = rays.astype(np.float32)  # (H, W, 3) camera frame
 
     def signs(self) -> list[LibrarySign]:
         return [self.library[d.plaque.label] for d in self.decals if d.plaque.label is not None]
@@ -179,22 +184,29 @@ class FlightRenderer:
     def radiance(self, R: np.ndarray, t: np.ndarray) -> np.ndarray:
         """(H, W) float32 linear-ish gray of the scene seen with world pose (R, t), before exposure."""
         centre = -R.T @ t
-        d = self.rays @ R  # world directions, R^T applied to each ray
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s_wall = np.where(d[..., 2] > 1e-9, -centre[2] / d[..., 2], np.inf)
-            s_floor = np.where(d[..., 1] > 1e-9, (FLOOR_Y - centre[1]) / d[..., 1], np.inf)
-            s_ceiling = np.where(d[..., 1] < -1e-9, (CEILING_Y - centre[1]) / d[..., 1], np.inf)
-        s = np.minimum(np.minimum(s_wall, s_floor), s_ceiling)
-        hit = centre + d * s[..., None]
-        out = np.zeros(s.shape, np.float32)
-        for name, s_plane, (a, b) in (("wall", s_wall, (0, 1)), ("floor", s_floor, (0, 2)),
-                                      ("ceiling", s_ceiling, (0, 2))):
-            mask = s_plane == s
-            mapx = (hit[..., a] * TEXTURE_PX_PER_M).astype(np.float32)
-            mapy = (hit[..., b] * TEXTURE_PX_PER_M).astype(np.float32)
-            sampled = cv2.remap(self.textures[name], mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
-            out[mask] = sampled[mask]
         K = self.camera.K
+        # Each plane's texture goes on through its homography (texture px -> image px); which plane
+        # a pixel sees follows from its ray, whose y and z components are linear in (u, v).
+        A = R.T @ np.linalg.inv(K)
+        u = np.arange(self.size[0], dtype=np.float32)[None, :]
+        v = np.arange(self.size[1], dtype=np.float32)[:, None]
+        dy = np.float32(A[1, 0]) * u + np.float32(A[1, 1]) * v + np.float32(A[1, 2])
+        dz = np.float32(A[2, 0]) * u + np.float32(A[2, 1]) * v + np.float32(A[2, 2])
+        reach = np.float32(-centre[2]) * dy  # the wall point's y below the camera, times dz
+        wall = ((dz > 0) & (reach > np.float32(CEILING_Y - centre[1]) * dz)
+                & (reach < np.float32(FLOOR_Y - centre[1]) * dz))
+        scale = np.diag([1 / TEXTURE_PX_PER_M, 1 / TEXTURE_PX_PER_M, 1.0])
+        planes = {"wall": np.column_stack([R[:, 0], R[:, 1], t]),
+                  "floor": np.column_stack([R[:, 0], R[:, 2], R[:, 1] * FLOOR_Y + t]),
+                  "ceiling": np.column_stack([R[:, 0], R[:, 2], R[:, 1] * CEILING_Y + t])}
+        seen = {"wall": wall, "floor": ~wall & (dy > 0), "ceiling": ~wall & (dy <= 0)}
+        out = np.zeros((self.size[1], self.size[0]), np.float32)
+        for name, P in planes.items():
+            if not seen[name].any():
+                continue
+            warped = cv2.warpPerspective(self.textures[name], K @ P @ scale, self.size, flags=cv2.INTER_LINEAR,
+                                         borderMode=cv2.BORDER_WRAP)
+            np.copyto(out, warped, where=seen[name])
         for decal in self.decals:
             H = K @ np.column_stack([R[:, 0], R[:, 1], t]) @ decal.pixel_to_world()
             h, w = decal.levels[0].shape
@@ -212,9 +224,7 @@ class FlightRenderer:
             cover = cv2.warpPerspective(np.ones_like(src), H_level, self.size, flags=cv2.INTER_LINEAR,
                                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
             out = out * (1 - cover) + warped * 0.97
-        # A row of ceiling lights along the corridor: brighter under each, dimmer between.
-        light = 0.75 + 0.25 * np.cos(2 * np.pi * hit[..., 0] / LIGHT_SPACING_M)
-        return (out * light).astype(np.float32)
+        return out
 
     def render(self, path: Sequence[Keyframe], time_s: float, fps: float) -> FlightFrame:
         """The frame at `time_s` on `path`, with motion blur over SHUTTER of a frame at `fps`."""
@@ -224,8 +234,9 @@ class FlightRenderer:
         if np.hypot(*blur) >= 1.0:
             image = _motion_blur(image, blur)
         gain = 1.0 + 0.18 * math.sin(2 * math.pi * time_s / 5.0) + 0.05 * math.sin(2 * math.pi * time_s / 1.3)
-        image = np.clip(image * gain, 0.0, 1.0) ** (1 / 1.4) * 255
-        noise = self.rng.normal(0.0, 2.0, image.shape) + self.rng.normal(0.0, 1.0, (image.shape[0], 1))
+        image = cv2.pow(np.clip(image * np.float32(gain), 0.0, 1.0), 1 / 1.4) * np.float32(255)
+        noise = (2.0 * self.rng.standard_normal(image.shape, dtype=np.float32)
+                 + self.rng.standard_normal((image.shape[0], 1), dtype=np.float32))
         gray = np.clip(image + noise, 0, 255).astype(np.uint8)
         return FlightFrame(cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR), self._truth(R, t))
 

@@ -1,8 +1,8 @@
 """Signs followed from frame to frame in a video: detected by `recognize`, then tracked.
 
 A sign the detector finds becomes a tentative track; it is confirmed (and reported) once the
-detector has found it on `TrackerConfig.confirm_frames` consecutive frames, so a look-alike that
-fools the detector once never becomes a track. A confirmed track is followed by pyramidal
+detector has found it on `TrackerConfig.confirm_frames` frames within `confirm_window`, so a
+look-alike that fools the detector once never becomes a track. A confirmed track is followed by pyramidal
 Lucas-Kanade on corners inside its quad, checked forward and backward, its homography
 (library px -> image px) fitted by RANSAC to the tracked points and the camera pose refined from
 the previous frame's (`pose_near`), which settles the planar two-fold ambiguity by continuity.
@@ -10,11 +10,16 @@ A track that weakens (few points, a poor fit, an implausible quad) asks for the 
 next frame; one not followed for `drop_after_misses` frames is dropped. Points are tracked from
 the last frame the track was followed in, so one blank or corrupted frame does not lose them.
 
-The detector runs on a budget: every frame while a track is tentative or weak, otherwise every
-`detect_interval_s` while something is tracked (to catch new signs and re-anchor the tracked
-ones) and every `idle_interval_s` while nothing is. Several signs per frame: once a sign is
+Each frame the plaque's outline (`refine_outline`) refines the tracked H where its edges are
+found, and the points' library px are read again through it, so drift does not build up.
+
+The detector runs on a budget: every frame while a track is tentative, every
+`weak_retry_frames` for a weak or lost one, otherwise every `detect_interval_s` while something
+is tracked (to catch new signs; the healthy tracks are masked out) and every `idle_interval_s`
+while nothing is. Several signs per frame: once a sign is
 found, the detector searches the frame again with the found signs' quads masked out, up to
-`searches_per_frame` times.
+`searches_per_frame` times; a search beside signs found or tracked leaves out the full-frame
+fallback, the costliest part of a frame without a (new) sign.
 
 Each track's camera pose is smoothed by a constant-velocity filter on SE(3) (`PoseFilter`).
 Conventions as in `pipeline.pose`: X_cam = R·X_sign + t; corners TL, TR, BR, BL in image px.
@@ -42,8 +47,10 @@ from .segment import Box, box_iou
 from .settings import Settings
 
 STATES = ("detected", "tracked")
-# 1σ px of a tracked sign's corners beyond what the tracked points' residuals show (their shared
-# drift since the sign was last detected).
+# 1σ px of a tracked sign's corners beyond what the fit's residuals show: the points' shared drift,
+# or the edges of a plaque in a blurred, compressed video frame, off by more than in a still photo
+# (CORNER_SIGMA_PX["outline"]). On the 12 s synthetic corridor flight 0.5 against 0.1 took the
+# filtered jitter from 3.4 to 2.6 mm median (13.3 to 11.3 mm p90); 1.0 lagged, 14.7 mm p90.
 TRACK_CORNER_SIGMA_PX = 0.5
 # A quad masked out for the next search is grown about its centre by this fraction, so that the
 # plaque's rim and its edge features do not make a blob of their own.
@@ -59,19 +66,22 @@ class TrackerConfig:
     Intervals are in seconds of video (frames at the tracker's fps); points and px are image px.
     """
 
-    detect_interval_s: float = 0.33  # detector while every track is healthy: new signs, re-anchoring
-    idle_interval_s: float = 0.1  # detector while nothing is tracked
+    detect_interval_s: float = 0.5  # detector while every track is healthy: new signs
+    idle_interval_s: float = 0.2  # detector while nothing is tracked
     searches_per_frame: int = 2  # recognize calls per detection frame (one more per sign found)
-    confirm_frames: int = 2  # consecutive detections that confirm a track
+    weak_retry_frames: int = 5  # frames between detector runs asked for by a weak or lost track
+    confirm_frames: int = 2  # detections that confirm a track ...
+    confirm_window: int = 4  # ... within this many frames from its first
     drop_after_misses: int = 3  # frames not followed before a track is dropped
     max_points: int = 120
-    min_points: int = 12  # fewer tracked points: the frame is a miss
+    min_points: int = 8  # fewer tracked points: the frame is a miss
     keep_fraction: float = 0.5  # fewer of the points seeded left: reseed them, ask for the detector
     forward_backward_px: float = 1.0
     ransac_px: float = 2.0
     min_inlier_ratio: float = 0.6
-    # Less of the sign in the frame than this: its points and edges no longer pin the pose.
-    min_visible: float = 0.5
+    # Less of the sign in the frame than this: its points and edges no longer pin the pose (on the
+    # corridor flight a sign leaving the frame, tracked down to half in view, was 5-30 cm off at 1 m).
+    min_visible: float = 0.75
     max_rmse_px: float = 1.5  # pose residual beyond which a track asks for the detector
     lk_window_px: int = 21
     lk_levels: int = 3
@@ -141,6 +151,8 @@ class Track:
     reference: np.ndarray
     pose_filter: PoseFilter = field(default_factory=PoseFilter)
     seeded: int = 0  # points when last seeded
+    born: int = 0  # frame index of its first detection
+    detected_at: int = 0  # frame index of its last detection
     detections: int = 0
     confirmed: bool = False
     misses: int = 0
@@ -208,6 +220,9 @@ class Tracker:
                  config: TrackerConfig | None = None) -> None:
         self.library, self.settings, self.config = library, settings, config or TrackerConfig()
         self.given_camera = camera
+        # Looking for more signs beside those found, the full-frame search, the costliest of a
+        # frame without a sign, is left out: a new sign is a plaque of its own, found among the blobs.
+        self.looking_settings = dataclasses.replace(settings, full_frame_fallback=False)
         self.camera: Camera | None = None
         rate = fps if fps is not None and fps > 0 and math.isfinite(fps) else 30.0
         self.detect_every = max(1, round(self.config.detect_interval_s * rate))
@@ -215,7 +230,6 @@ class Tracker:
         self.tracks: list[Track] = []
         self.next_id = 1
         self.last_detect: int | None = None
-        self.runs = 0  # detector runs so far
 
     # -- the frame ---------------------------------------------------------------------------
 
@@ -241,20 +255,28 @@ class Tracker:
         detected: set[int] = set()
         if self._detection_due(index, followed):
             self.last_detect = index
-            recognitions, detected = self._detect(gray, camera, followed)
+            recognitions, detected = self._detect(gray, camera, followed, index)
+            for track in self.tracks:
+                if track.track_id in detected:
+                    track.detected_at = index
         t_detected = time.perf_counter()
 
         signs = self._settle(gray, camera, followed, detected, time_s, warnings)
         t_end = time.perf_counter()
-        timing = {"detect": (t_detected - t_tracked) * 1e3, "track": ((t_tracked - t_start) + (t_end - t_detected)) * 1e3,
-                  "total": (t_end - t_start) * 1e3}
+        tracking = (t_tracked - t_start) + (t_end - t_detected)
+        timing = {"detect": (t_detected - t_tracked) * 1e3, "track": tracking * 1e3, "total": (t_end - t_start) * 1e3}
         return FrameResult(index, time_s, signs, timing, warnings, recognitions,
                            [t.track_id for t in self.tracks if not t.confirmed])
 
     def _detection_due(self, index: int, followed: dict[int, Followed]) -> bool:
         if self.last_detect is None:
             return True
-        if any(not t.confirmed or t.track_id not in followed or followed[t.track_id].weak for t in self.tracks):
+        if any(not t.confirmed for t in self.tracks):
+            return True
+        # A lost or weak track asks again only some frames after its last detection: one leaving
+        # the frame weakens on every frame, and the detector cannot do better with it.
+        if any((t.track_id not in followed or followed[t.track_id].weak)
+               and index - t.detected_at >= self.config.weak_retry_frames for t in self.tracks):
             return True
         every = self.detect_every if self.tracks else self.idle_every
         return index - self.last_detect >= every
@@ -314,41 +336,39 @@ class Tracker:
 
     # -- detecting ---------------------------------------------------------------------------
 
-    def _detect(self, gray: np.ndarray, camera: Camera, followed: dict[int, Followed]) -> tuple[list[Recognition], set[int]]:
+    def _detect(self, gray: np.ndarray, camera: Camera, followed: dict[int, Followed],
+                index: int) -> tuple[list[Recognition], set[int]]:
         """Run the detector on `gray`, the healthy confirmed tracks masked out, as long as it finds
         signs and the budget allows. Returns (its recognitions, the ids of tracks it found)."""
         height, width = gray.shape
-        # Every other run looks at the healthy tracks too, re-anchoring them against drift.
-        self.runs += 1
-        anchoring = self.runs % 2 == 0
+        # Healthy tracks need no detector: the plaque's outline keeps their H from drifting.
         hidden = [sign_corners(t.sign, followed[t.track_id].H) for t in self.tracks
-                  if t.confirmed and t.track_id in followed and not followed[t.track_id].weak and not anchoring]
+                  if t.confirmed and t.track_id in followed and not followed[t.track_id].weak]
         recognitions: list[Recognition] = []
         found: set[int] = set()
         for _ in range(self.config.searches_per_frame):
             image = mask_quads(gray, hidden)
-            rec = recognize(image, self.library, self.settings, camera)
+            rec = recognize(image, self.library, self.looking_settings if hidden else self.settings, camera)
             recognitions.append(rec)
             if rec.label is None or rec.H is None:
                 break
             corners = rec.corners
             assert corners is not None
-            track = self._claim(rec, corners, width, height, gray, camera)
+            track = self._claim(rec, corners, width, height, gray, camera, index)
             found.add(track.track_id)
             hidden.append(corners)
-        # Every detection frame counts toward confirmation; a tentative track the detector did not
-        # find again is a look-alike (or too uncertain to report) and goes.
+        # A tentative track the detector has not found `confirm_frames` times within
+        # `confirm_window` frames is a look-alike (or too uncertain to report) and goes.
         for track in list(self.tracks):
             if track.track_id in found:
                 track.detections += 1
-                if track.detections >= self.config.confirm_frames:
-                    track.confirmed = True
-            elif not track.confirmed:
+                track.confirmed = track.confirmed or track.detections >= self.config.confirm_frames
+            elif not track.confirmed and index - track.born + 1 >= self.config.confirm_window:
                 self.tracks.remove(track)
         return recognitions, found
 
     def _claim(self, rec: Recognition, corners: np.ndarray, width: int, height: int, gray: np.ndarray,
-               camera: Camera) -> Track:
+               camera: Camera, index: int) -> Track:
         """The track a detection belongs to, re-anchored on it, or a new tentative one."""
         assert rec.label is not None and rec.H is not None
         sign = self.library[rec.label]
@@ -360,7 +380,8 @@ class Tracker:
                 self.tracks.remove(other)  # a tentative track the detector now reads as another sign
         H = rec.H / rec.H[2, 2]
         if mine is None:
-            mine = Track(self.next_id, sign, H, rec.pose, np.zeros((0, 2), np.float32), np.zeros((0, 2)), gray)
+            mine = Track(self.next_id, sign, H, rec.pose, np.zeros((0, 2), np.float32), np.zeros((0, 2)), gray,
+                         born=index)
             self.next_id += 1
             self.tracks.append(mine)
         else:
@@ -432,7 +453,7 @@ class Tracker:
         if step.outline is None:
             return pose_near(start.R, start.t, src, step.dst, sign, camera, TRACK_CORNER_SIGMA_PX)
         grid_src, grid_dst = step.outline.grid(sign, camera)
-        sigma = CORNER_SIGMA_PX["outline"]
+        sigma = TRACK_CORNER_SIGMA_PX
         pose = pose_near(start.R, start.t, grid_src, grid_dst, sign, camera, sigma)
         rmse, covariance = outline_fit(pose.R, pose.t, step.outline, sign, camera)
         return dataclasses.replace(pose, reprojection_rmse_px=rmse,

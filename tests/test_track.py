@@ -14,7 +14,7 @@ import pytest
 from signpose.pipeline.camera import load_camera
 from signpose.pipeline.library import load_library
 from signpose.pipeline.pose import Pose, rotation_error_deg
-from signpose.pipeline.pose_filter import PoseFilter, exp_so3, log_so3
+from signpose.pipeline.pose_filter import PoseFilter, pose_jacobian, exp_so3, log_so3
 from signpose.pipeline.settings import Settings
 from signpose.pipeline.synth import synthetic_camera
 from signpose.pipeline.synth_flight import FlightRenderer, Keyframe, Plaque
@@ -184,3 +184,20 @@ def test_tracker_on_the_sample_flight_finds_both_signs_with_no_wrong_label(libra
     assert index == len(truth["frames"])
     assert found == {"security_compound", "chief_of_security"}
     assert wrong == []
+
+
+def test_filter_carries_the_covariance_into_its_state_to_first_order():
+    """The map from a pose's [rotation vector, t] errors to the filter's [φ, camera position]
+    errors agrees with finite differences (where a wrong sign would weight the wrong axis)."""
+    rng = np.random.default_rng(0)
+    rvec, t = rng.normal(0.0, 1.0, 3), rng.normal(0.0, 2.0, 3)
+    R = exp_so3(rvec)
+
+    def state_error(x: np.ndarray) -> np.ndarray:
+        R2 = exp_so3(x[:3])
+        return np.concatenate([log_so3(R2.T @ R), -R2.T @ x[3:] + R.T @ t])
+
+    x0, eps = np.concatenate([rvec, t]), 1e-4
+    numeric = np.column_stack([(state_error(x0 + eps * e) - state_error(x0 - eps * e)) / (2 * eps)
+                               for e in np.eye(6)])
+    assert np.allclose(pose_jacobian(R, t), numeric, atol=1e-6)
