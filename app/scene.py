@@ -710,7 +710,8 @@ class SceneHandle:
                 self._framed.setdefault(client.client_id, None)
             if first:
                 self.frame_for(client)
-                self._fold_panel_once(client)
+            # Every report, not the first only: a view laid out as it loads reports a size it then leaves.
+            self._fold_panel_once(client)
             self._mark_stale(labels_only=True)
 
         client.camera.on_update(on_camera)
@@ -739,11 +740,14 @@ class SceneHandle:
 
     def _fold_panel_once(self, client: viser.ClientHandle) -> None:
         """`fold_panel_in_small_view` for `client` once both its canvas' size in CSS px and its
-        camera (the canvas' aspect) are known, whichever comes last; once a viewer, and again as
-        its view crosses viser's phone breakpoint, so a panel the person opened stays open."""
+        camera (the canvas' aspect) are known, whichever comes last, until the view is small enough
+        to fold it; once a viewer, and again as its view crosses viser's phone breakpoint, so a
+        panel the person opened stays open."""
         with self._lock:
             css_width = self._css_width.get(client.client_id)
             if css_width is None or client.client_id not in self._framed or client.client_id in self._panel_checked:
+                return
+            if not panel_covers_view(client, css_width):
                 return
             self._panel_checked.add(client.client_id)
         fold_panel_in_small_view(client, css_width)
@@ -978,14 +982,19 @@ def name_viewer(client: viser.ClientHandle) -> None:
     run_script(client, f"window.signposeViewer = {{ id: {int(client.client_id)} }};")
 
 
+def panel_covers_view(client: viser.ClientHandle, css_width: float) -> bool:
+    """Whether viser's control panel would cover much of `client`'s view, `css_width` CSS px wide
+    (`FOLD_PANEL_BELOW_PX`): in the page, the 3D column at the side and the strip under the images."""
+    return css_width < FOLD_PANEL_BELOW_PX[0] or css_width / client.camera.aspect < FOLD_PANEL_BELOW_PX[1]
+
+
 def fold_panel_in_small_view(client: viser.ClientHandle, css_width: float) -> None:
-    """Fold viser's control panel for `client`, whose canvas is `css_width` CSS px wide, when it
-    would cover much of its view (`FOLD_PANEL_BELOW_PX`): in the page, the 3D column at the side and
-    the strip under the images. viser shows it as a sheet at the bottom of a view narrower than its
-    phone breakpoint, which no call of viser's folds (`fold_sheet`), else as a floating window."""
+    """Fold viser's control panel for `client`, whose canvas is `css_width` CSS px wide. viser shows
+    it as a sheet at the bottom of a view narrower than its phone breakpoint, which no call of
+    viser's folds (`fold_sheet`), else as a floating window."""
     if css_width < SHEET_BELOW_PX:
         fold_sheet(client)
-    elif css_width < FOLD_PANEL_BELOW_PX[0] or css_width / client.camera.aspect < FOLD_PANEL_BELOW_PX[1]:
+    else:
         client.gui.main_panel.minimize()
 
 

@@ -1406,7 +1406,7 @@ def test_viser_controls_start_folded_in_the_page(page, width, opener):
     page.set_viewport_size({"width": width, "height": 1000})
     page.reload()
     frame = viser_frame(page)
-    frame.wait_for_function(f"() => ({COVERED_SHARE})() < 0.06", timeout=10_000)
+    frame.wait_for_function(f"() => ({COVERED_SHARE})() < 0.06", timeout=30_000)
     page.locator("#scene").scroll_into_view_if_needed()
     page.frame_locator("#scene").locator(opener).click()
     frame.wait_for_function(f"() => ({COVERED_SHARE})() > 0.2", timeout=10_000)

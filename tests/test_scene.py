@@ -499,6 +499,22 @@ def test_a_viewers_panel_is_folded_once_its_view_is_known_and_again_across_the_p
     assert column.folds == ["sheet", "window", "sheet"]
 
 
+def test_a_view_that_settles_small_after_it_loads_is_folded_then(scene, monkeypatch):
+    """A page lays its 3D strip out as it loads: the viewer's first camera may report a canvas it then
+    leaves (as tall as a large view's). Its panel is folded once the view settles small, once."""
+    handle, _ = scene
+    strip = Viewer(2, 1200 / 900, handle.server.initial_camera, height_px=900)
+    monkeypatch.setattr(handle.server, "get_clients", lambda: {2: strip})
+    handle._on_connect(strip)
+    handle.set_canvas_width(2, 1200.0)
+    strip.report()
+    assert strip.folds == []   # a view this large keeps its panel
+    strip.camera.aspect = 1200 / 360
+    strip.report()
+    strip.report()
+    assert strip.folds == ["window"]
+
+
 def _said(label, names: list[str]) -> bool:
     """Whether `label` (a SharedLabel) lists the `names` of its cameras, one a line, or, for more than
     MAX_TEXTS_LISTED, counts them with the first and last."""
