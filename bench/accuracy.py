@@ -81,11 +81,13 @@ def rendered(data: Path, library: Library, n: int, seed: int, categories: tuple[
 
 
 def steep_rows(reports: dict[str, Report]) -> list[tuple[str, str]]:
-    """(row name, value): of the steep set, the views identified, then those answered with another
-    sign, by configuration (the names of `reports`)."""
+    """(row name, value): of the steep set, the views identified, those answered with another sign and
+    the rotation error of those identified, by configuration (the names of `reports`)."""
     return [(f"steep: identified, {name}", _fraction(report.results, lambda r: r.correct))
             for name, report in reports.items()] + [
         (f"steep: wrong sign, {name}", _fraction(report.results, lambda r: r.predicted not in (None, r.sample.label)))
+        for name, report in reports.items()] + [
+        (f"steep: rotation error med / p90 (deg), {name}", _pair(summarize(report.results).rotation_deg))
         for name, report in reports.items()]
 
 
