@@ -1,14 +1,16 @@
 """Accuracy benchmark on synthetic scenes: the `paper` and `default` presets side by side.
 
 Renders N scenes (default 300) from a fixed seed - easy, hard and negatives in
-`pipeline.synth.DEFAULT_WEIGHTS` proportions - runs both presets on them and prints accuracy by
-category and hard look, false positives on negatives, rotation / translation / corner errors and
-time per image. The figures in docs/benchmarks.md come from:
+`pipeline.synth.DEFAULT_WEIGHTS` proportions - and a set of --steep scenes (default 40) of the
+"steep" category (a sign 60-75 degrees off its normal), runs both presets on them and prints
+accuracy by category and hard look, steep views with the default's affine fallback and without it,
+false positives on negatives, rotation / translation / corner errors and time per image (of the
+first set). The figures in docs/benchmarks.md come from:
 
-    python bench/accuracy.py [--n 300] [--seed 0] [--data DIR]
+    python bench/accuracy.py [--n 300] [--steep 40] [--seed 0] [--data DIR]
 
-`--data DIR` keeps the rendered scenes (and re-uses them when DIR already holds a truth.json).
-Not a timed test: rendering takes about a second a scene.
+`--data DIR` keeps the rendered scenes (and re-uses them when DIR already holds a truth.json; the
+steep set in DIR/steep). Not a timed test: rendering takes about a second a scene.
 """
 
 from __future__ import annotations
@@ -20,9 +22,9 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from signpose.pipeline.evaluate import ImageResult, Report, evaluate, load_dataset, summarize
-from signpose.pipeline.library import load_library
-from signpose.pipeline.settings import preset
+from signpose.pipeline.evaluate import Dataset, ImageResult, Report, evaluate, load_dataset, summarize
+from signpose.pipeline.library import Library, load_library
+from signpose.pipeline.settings import Settings, preset
 from signpose.pipeline.synth import HARD_MODES, generate_dataset
 
 PRESETS = ("paper", "default")
@@ -68,24 +70,53 @@ def rows(report: Report, both_right: set[str]) -> list[tuple[str, str]]:
     return out
 
 
+def rendered(data: Path, library: Library, n: int, seed: int, categories: tuple[str, ...] | None = None) -> Dataset:
+    """The `n` scenes from `seed` in `data` (of `categories` in equal parts, default the default mix),
+    rendered first unless `data` holds a truth.json."""
+    if not (data / "truth.json").is_file():
+        mix = {} if categories is None else {"categories": categories, "weights": (1.0,) * len(categories)}
+        with tqdm(total=n, desc=f"render {data.name}", unit="scene") as bar:
+            generate_dataset(data, library, n=n, seed=seed, progress=lambda i, total: bar.update(1), **mix)
+    return load_dataset(data)
+
+
+def steep_rows(reports: dict[str, Report]) -> list[tuple[str, str]]:
+    """(row name, value): of the steep set, the views identified, those answered with another sign and
+    the rotation error of those identified, by configuration (the names of `reports`)."""
+    return [(f"steep: identified, {name}", _fraction(report.results, lambda r: r.correct))
+            for name, report in reports.items()] + [
+        (f"steep: wrong sign, {name}", _fraction(report.results, lambda r: r.predicted not in (None, r.sample.label)))
+        for name, report in reports.items()] + [
+        (f"steep: rotation error med / p90 (deg), {name}", _pair(summarize(report.results).rotation_deg))
+        for name, report in reports.items()]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=300, help="scenes to render (default 300)")
+    parser.add_argument("--steep", type=int, default=40, help="steep scenes to render besides them (default 40; 0: none)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--data", type=Path, help="folder for the scenes (default: a temporary folder)")
     args = parser.parse_args()
 
     library = load_library()
+    steep_settings: dict[str, Settings] = {"paper": preset("paper"), "default": preset("default"),
+                                           "default without affine fallback":
+                                               preset("default").replace(affine_fallback=False)}
     with tempfile.TemporaryDirectory() as tmp:
         data = args.data or Path(tmp)
-        if not (data / "truth.json").is_file():
-            with tqdm(total=args.n, desc="render", unit="scene") as bar:
-                generate_dataset(data, library, n=args.n, seed=args.seed, progress=lambda i, n: bar.update(1))
-        dataset = load_dataset(data)
+        dataset = rendered(data, library, args.n, args.seed)
         reports = {}
         for name in PRESETS:
             with tqdm(total=len(dataset), desc=name, unit="img") as bar:
                 reports[name] = evaluate([dataset], library, preset(name), progress=lambda i, n: bar.update(1))
+        steep_reports = {}
+        if args.steep > 0:
+            steep = rendered(data / "steep", library, args.steep, args.seed, ("steep",))
+            for name, settings in steep_settings.items():
+                with tqdm(total=len(steep), desc=f"steep, {name}", unit="img") as bar:
+                    steep_reports[name] = evaluate([steep], library, settings,
+                                                   progress=lambda i, n: bar.update(1))
 
     both_right = set.intersection(*({r.sample.path.name for r in rep.results if r.correct and r.sample.label}
                                     for rep in reports.values()))
@@ -98,6 +129,10 @@ def main() -> None:
     print(f"{'':<{width}}" + "".join(f"{name:>24}" for name in PRESETS))
     for row in names:
         print(f"{row:<{width}}" + "".join(f"{table[name][row]:>24}" for name in PRESETS))
+    if steep_reports:
+        print(f"\n{args.steep} steep scenes (60-75 degrees off the sign's normal), seed {args.seed}")
+        for row, value in steep_rows(steep_reports):
+            print(f"{row:<{width + 24}}{value:>24}")
 
 
 if __name__ == "__main__":

@@ -46,7 +46,7 @@ import numpy as np
 
 from .camera import ASSUMED_HFOV_DEG, Camera, CameraError, load_camera
 from .exif import ExifCamera
-from .features import library_features
+from .features import library_affine_features, library_features
 from .image import ImageError, decode_image, exif_orientation, read_file
 from .jsonfile import read_json
 from .library import NO_SIGN, Library
@@ -482,7 +482,8 @@ def _measure_all(jobs: list[Job], library: Library, settings: Settings, check_im
 def _start_workers(helpers: list[BaseProcess], count: int, context: multiprocessing.context.SpawnContext,
                    next_job: Synchronized, work: multiprocessing.Queue, done: multiprocessing.Queue,
                    given: Work) -> None:
-    """Start `count` worker processes into `helpers`, compute the library's features and hand each the `given` work.
+    """Start `count` worker processes into `helpers`, compute the library's features (and, for the affine
+    fallback, its simulated steep views) and hand each the `given` work.
 
     Started first: a worker takes about 0.3 s to import numpy, OpenCV and the pipeline, which it does
     while this process computes the features (0.1-0.3 s for the sample library when not cached). The
@@ -499,6 +500,8 @@ def _start_workers(helpers: list[BaseProcess], count: int, context: multiprocess
             helper.start()
             helpers.append(helper)
         library_features(given[0], given[1])  # computed here once, pickled to every worker with the library
+        if given[1].affine_fallback:  # a batch has images without a sign, on which the affine fallback runs
+            library_affine_features(given[0], given[1])
         handed = pickle.dumps(given)
     finally:
         for _ in helpers:

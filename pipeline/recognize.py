@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .camera import Camera, CameraError, assumed_camera
-from .features import Features, detect, library_features, search_settings
+from .features import Features, detect, library_affine_features, library_features, search_settings
 from .homography import HomographyEstimate, estimate_homography
 from .image import to_gray
 from .library import Library, LibrarySign
@@ -461,6 +461,11 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     plaque = None
     if no_feature_winner(chosen) and settings.plaque_fallback and run.segmentation is not None:
         plaque, refined = run.plaque_fallback(chosen, warnings)
+    if refined is None and settings.affine_fallback:
+        steep = run.affine_fallback(attempts, chosen, warnings)
+        if steep is not None:
+            chosen, refined = steep
+            attempts.append(chosen)
     pose = run.winner_pose(refined, not no_feature_winner(chosen), warnings) if refined is not None else None
     if pose is not None and approximate is not None:
         # Last, after what the run found: where the server's clients have always read it.
@@ -546,6 +551,38 @@ class Run:
                              self.stages.timing)
         winner, margin = decide(scores, settings)
         return Attempt(region, source, query, scores, winner, margin)
+
+    def affine_fallback(self, attempts: list[Attempt], chosen: Attempt | None,
+                        warnings: list[str]) -> tuple[Attempt, Refined] | None:
+        """The affine fallback, where neither features nor the plaque fallback named a sign: each
+        region of `attempts` in turn, its features matched with the library's simulated steep views
+        (`library_affine_features`) and scored as `search_region` scores them, until a winner passes
+        the text check. Returns (that region's attempt, its winner refined), or None; adds a warning
+        that says so to `warnings`. No feature is detected in the image again."""
+        library, settings = self.library, self.settings
+        with self.stages.timed("features"):
+            lib = library_affine_features(library, settings)
+        trains = [lib[sign.id].descriptors for sign in library.signs]
+        image_size = (self.gray.shape[1], self.gray.shape[0])
+        for searched in attempts:
+            query, region = searched.features, searched.region
+            matches = self.stages.run("affine match",
+                                      lambda: match_library(query.descriptors, trains, settings.ratio, query.norm),
+                                      (region,), settings=search_settings(settings, library, region))
+            scores = score_signs(library, query, lib, matches, settings, image_size, self.stages.timing)
+            winner, margin = decide(scores, settings)
+            if winner is None:
+                continue
+            source = f"{searched.source}, simulated steep views"
+            attempt = Attempt(region, source, query, scores, winner, margin)
+            refined = self.refined_winner(attempt, None)
+            why = self.turn_down(refined, source)
+            if why is None:
+                warnings.append(f"recognised by the affine fallback, matching simulated steep views of the signs "
+                                f"({scores[winner].n_inliers} inliers in {searched.source}): features did not "
+                                f"decide ({why_no_feature_winner(chosen)})")
+                return attempt, refined
+        return None
 
     def quads(self, shrink: int) -> Iterator[list[QuadCandidate]]:
         """The segmentation's plaque-shaped regions level by level (`cut_levels`), the levels other

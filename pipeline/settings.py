@@ -102,10 +102,15 @@ class Settings:
                                      "SIFT contrast threshold: lower finds more, weaker keypoints", step=0.001,
                                      stages=("library features", "features"))
 
+    affine_fallback: bool = _flag(True, "Features",
+                                  "When neither features nor the plaque fallback name a sign, match the regions' "
+                                  "features with simulated steep views of each sign (ASIFT tilts 2-4: 60-76 degrees "
+                                  "off its normal), computed once per library", stages=("affine match",))
+
     # Matching
     ratio: float = _num(0.75, 0.3, 1.0, "Matching",
                         "Lowe's distance-ratio test: keep a match when best < ratio x second best", step=0.01,
-                        stages=("match",))
+                        stages=("match", "affine match"))
 
     # RANSAC
     ransac_method: str = _choice("own", RANSAC_METHODS, "RANSAC",
@@ -287,6 +292,7 @@ PRESETS: dict[str, Settings] = {
         full_frame_fallback=False,
         min_crop_size=0,
         max_crop_size=0,
+        affine_fallback=False,
         ratio=0.667,
         ransac_method="own",
         ransac_iterations=50,

@@ -50,6 +50,8 @@ CACHED_STAGES: dict[str, CachedStage] = {
     # A region's features depend on the region alone, not on the segmentation that proposed it.
     "features": CachedStage((), "features"),
     "match": CachedStage(("features",), "match"),
+    # a region's features matched with the library's simulated steep views (`library_affine_features`)
+    "affine match": CachedStage(("features",), "match"),
     "plaque": CachedStage(("quads",), "match"),
     # Its inputs, the winner's H and correspondences, carry what the stages before it found: a RANSAC or
     # decision change usually leaves them as they were. The pose itself is estimated every time.

@@ -32,8 +32,11 @@ from signpose.pipeline.camera import Camera, assumed_camera, save_camera
 from signpose.pipeline.image import resize_map
 from signpose.pipeline.library import Library, LibrarySign
 
+# The default mix of a dataset; "steep" (a sign 60-75 degrees off its normal, ALL_CATEGORIES) is rendered
+# only when asked for, so the mix, and the figures measured on it, stay as they were.
 CATEGORIES = ("easy", "hard", "negative")
-DEFAULT_WEIGHTS = {"easy": 0.5, "hard": 0.3, "negative": 0.2}
+ALL_CATEGORIES = (*CATEGORIES, "steep")
+DEFAULT_WEIGHTS = {"easy": 0.5, "hard": 0.3, "negative": 0.2, "steep": 0.3}
 # Sign-width ranges below are in px for a 640 px wide image and scale with the image width.
 REFERENCE_WIDTH = 640
 SUPERSAMPLE = 2
@@ -108,6 +111,8 @@ LOOKS = {
     "dim": _Look("dim", (0, 45), (110, 300), 20, (0, 1.0), (0, 0), (6, 14), (0.1, 0.2), (60, 85)),
     "gradient": _Look("gradient", (0, 45), (110, 300), 20, (0, 1.0), (0, 0), (3, 8), (0.25, 0.45), (60, 85),
                       side_lamp=True),
+    # A UAV flying along a corridor sees door signs this way: SIFT on the view alone finds few matches.
+    "steep": _Look("steep", (60, 75), (90, 200), 10, (0, 0.8), (0, 0), (2, 5), (0.3, 0.5), (60, 90)),
 }
 HARD_MODES = ("oblique", "small", "blurred", "dim", "gradient")
 
@@ -925,11 +930,11 @@ def synthetic_camera(size: tuple[int, int] = (640, 480)) -> Camera:
 
 def render_scene(library: Library, sign_id: str | None, camera: Camera, rng: np.random.Generator,
                  category: str) -> Scene:
-    """One scene of `category`; `sign_id` is the sign shown (positives) or None (negatives)."""
-    if category not in CATEGORIES:
-        raise SynthError(f"category must be one of {', '.join(CATEGORIES)}; got {category!r}")
+    """One scene of `category` (of ALL_CATEGORIES); `sign_id` is the sign shown (positives) or None (negatives)."""
+    if category not in ALL_CATEGORIES:
+        raise SynthError(f"category must be one of {', '.join(ALL_CATEGORIES)}; got {category!r}")
     if (category == "negative") != (sign_id is None):
-        raise SynthError("negatives show no sign (sign_id None); easy and hard scenes need a sign_id")
+        raise SynthError("negatives show no sign (sign_id None); easy, hard and steep scenes need a sign_id")
     if camera.width is None or camera.height is None:
         raise SynthError("the camera needs an image width and height to render")
     if camera.has_distortion:
@@ -938,6 +943,8 @@ def render_scene(library: Library, sign_id: str | None, camera: Camera, rng: np.
     sign_size = (sign.width_m, sign.height_m)
     if category == "hard" or (category == "negative" and rng.random() < 0.4):
         look = LOOKS[str(rng.choice(HARD_MODES))]
+    elif category == "steep":
+        look = LOOKS["steep"]
     else:
         look = LOOKS["easy"]
 
@@ -1021,9 +1028,9 @@ def generate_dataset(out_dir: str | Path, library: Library, n: int, seed: int, c
     Returns truth.json's "images" mapping, file name -> truth entry. The same seed gives the
     same files.
     """
-    unknown = set(categories) - set(CATEGORIES)
+    unknown = set(categories) - set(ALL_CATEGORIES)
     if unknown or not categories:
-        raise SynthError(f"categories must be among {', '.join(CATEGORIES)}; got {list(categories)}")
+        raise SynthError(f"categories must be among {', '.join(ALL_CATEGORIES)}; got {list(categories)}")
     weights = [DEFAULT_WEIGHTS[c] for c in categories] if weights is None else list(weights)
     if len(weights) != len(categories) or min(weights) < 0 or sum(weights) <= 0:
         raise SynthError("weights must be one non-negative number per category, not all zero")

@@ -154,12 +154,10 @@ def has(img: np.ndarray, color: tuple[int, int, int]) -> bool:
     return bool(np.all(img == color, axis=2).any())
 
 
-def sign_seen_from(library: Library, sign_id: str, position_m: tuple[float, float, float], seed: int = 0,
-                   hfov_deg: float = 60.0) -> bytes:
-    """JPEG of `sign_id` on a noisy wall, photographed by a pinhole camera of `hfov_deg` (the page's
-    default assumed field of view, so the pose recognised is this one) standing at `position_m` in
-    the sign frame (z < 0: in front of it) and looking at the sign's centre, upright."""
-    sign = library[sign_id]
+def corners_seen_from(sign: LibrarySign, position_m: tuple[float, float, float], hfov_deg: float = 60.0) -> np.ndarray:
+    """(4, 2) image px of `sign`'s corners TL, TR, BR, BL in a SIZE image, photographed by a pinhole
+    camera of `hfov_deg` standing at `position_m` in the sign frame (z < 0: in front of it) and
+    looking at the sign's centre, upright."""
     forward = -np.asarray(position_m, float) / np.linalg.norm(position_m)
     right = np.cross([0.0, 1.0, 0.0], forward)   # the sign's y runs down, as the camera's does
     right /= np.linalg.norm(right)
@@ -167,9 +165,24 @@ def sign_seen_from(library: Library, sign_id: str, position_m: tuple[float, floa
     f = SIZE[0] / 2 / np.tan(np.radians(hfov_deg) / 2)
     K = np.array([[f, 0, SIZE[0] / 2], [0, f, SIZE[1] / 2], [0, 0, 1]])
     in_camera = (sign.to_metric(sign.corners_px) - position_m) @ R.T
-    corners = (in_camera @ K.T)[:, :2] / in_camera[:, 2:]
-    gray = sign_on_wall(sign, corners, seed)
+    return (in_camera @ K.T)[:, :2] / in_camera[:, 2:]
+
+
+def sign_seen_from(library: Library, sign_id: str, position_m: tuple[float, float, float], seed: int = 0,
+                   hfov_deg: float = 60.0) -> bytes:
+    """JPEG of `sign_id` on a noisy wall as `corners_seen_from` sees it (`hfov_deg`: the page's
+    default assumed field of view, so the pose recognised is this one)."""
+    gray = sign_on_wall(library[sign_id], corners_seen_from(library[sign_id], position_m, hfov_deg), seed)
     return cv2.imencode(".jpg", cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR), [cv2.IMWRITE_JPEG_QUALITY, 92])[1].tobytes()
+
+
+def steep_plaque(sign: LibrarySign, off_axis_deg: float, distance_m: float = 1.0, seed: int = 0) -> np.ndarray:
+    """(480, 640) uint8 photo of `sign` seen `off_axis_deg` off its normal from the side at `distance_m`
+    (`corners_seen_from`), on a wall nearly as light as the plaque: no white blob stands out for the
+    plaque fallback to read."""
+    angle = np.radians(off_axis_deg)
+    corners = corners_seen_from(sign, (distance_m * np.sin(angle), 0.0, -distance_m * np.cos(angle)))
+    return like_a_camera(render_plaque(sign, corners, np.clip(shaded_wall(seed) + 90, 0, 255), 0.95), 0.7, seed)
 
 
 # The sample scenes' camera with its principal point 60 px right of and 30 px below the centre, behind a lens
