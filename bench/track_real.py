@@ -3,10 +3,11 @@
 The landmark is the box's large top face in frame LANDMARK_FRAME, rectified to a fronto-parallel
 image through its four corners (CORNERS_PX, found by fitting lines to the face's edges in that frame
 and intersecting them; the back-left corner lies under the holding hand and is where the back and
-left edges meet). Its size: FACE_WIDTH_M x FACE_HEIGHT_M, the proportions at which the rectified
-face's corner ornaments come out round and its frame square, those of the only focal length (square
-pixels, about 690 px) at which the face's edges are at right angles; the README's intrinsics are
-used for the pose all the same, as a user would. The one-picture library is written to a temporary
+left edges meet). Its size: FACE_WIDTH_M x FACE_HEIGHT_M, the mean of the proportions (1.08, 1.03)
+at which the face's edges meet at right angles in frames 152 and 304 (square pixels, focal length
+690 and 743 px), at which the rectified face's frame is square and its corner ornaments round; the
+box's true size is not known. The README's intrinsics, far from square-pixel ones, are used for the
+pose all the same, as a user would. The one-picture library is written to a temporary
 folder and loaded as `signpose track --library` loads one.
 
 Over every frame, in one run on one OpenCV thread: the `Tracker`, and separately a fresh
