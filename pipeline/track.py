@@ -11,11 +11,13 @@ next frame; one not followed for `drop_after_misses` frames is dropped. Points a
 the last frame the track was followed in, so one blank or corrupted frame does not lose them.
 
 Each frame the plaque's outline (`refine_outline`) refines the tracked H where its edges are
-found, and the points' library px are read again through it, so drift does not build up.
+found, and the points' library px are read again through it, so drift does not build up. A track
+without an outline on a frame (a picture landmark, or a plaque whose edges were not found) is
+not masked from the detector's budgeted runs, which re-anchor it on the library image.
 
 The detector runs on a budget: every frame while a track is tentative, every
 `weak_retry_frames` for a weak or lost one, otherwise every `detect_interval_s` while something
-is tracked (to catch new signs; the healthy tracks are masked out) and every `idle_interval_s`
+is tracked (to catch new signs; the healthy tracks held by an outline are masked out) and every `idle_interval_s`
 while nothing is. Several signs per frame: once a sign is
 found, the detector searches the frame again with the found signs' quads masked out, up to
 `searches_per_frame` times; a search beside signs found or tracked leaves out the full-frame
@@ -341,9 +343,12 @@ class Tracker:
         """Run the detector on `gray`, the healthy confirmed tracks masked out, as long as it finds
         signs and the budget allows. Returns (its recognitions, the ids of tracks it found)."""
         height, width = gray.shape
-        # Healthy tracks need no detector: the plaque's outline keeps their H from drifting.
+        # Healthy tracks held by their plaque's outline need no detector: the outline keeps their H
+        # from drifting. One followed by its points alone (a picture, or a plaque whose edges were
+        # not found) drifts with them, and the detector re-anchors it.
         hidden = [sign_corners(t.sign, followed[t.track_id].H) for t in self.tracks
-                  if t.confirmed and t.track_id in followed and not followed[t.track_id].weak]
+                  if t.confirmed and t.track_id in followed and not followed[t.track_id].weak
+                  and followed[t.track_id].outline is not None]
         recognitions: list[Recognition] = []
         found: set[int] = set()
         for _ in range(self.config.searches_per_frame):

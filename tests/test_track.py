@@ -18,7 +18,7 @@ from signpose.pipeline.pose_filter import PoseFilter, pose_jacobian, exp_so3, lo
 from signpose.pipeline.settings import Settings
 from signpose.pipeline.synth import synthetic_camera
 from signpose.pipeline.synth_flight import FlightRenderer, Keyframe, Plaque
-from signpose.pipeline.track import STATES, FrameResult, Tracker
+from signpose.pipeline.track import STATES, FrameResult, Tracker, TrackerConfig
 
 SAMPLE_FLIGHT = Path(__file__).resolve().parents[1] / "sample_images" / "flights" / "corridor"
 FPS = 30.0
@@ -58,6 +58,18 @@ def test_a_sign_is_detected_confirmed_then_tracked(library):
     assert len({s.track_id for r in results[1:] for s in r.signs}) == 1
     pose = results[-1].signs[0].pose
     assert pose is not None and abs(pose.camera_position[2] + 1.2) < 0.02
+
+
+def test_a_track_without_an_outline_is_re_anchored_by_the_detector(library):
+    # Without the plaque's outline (as for a picture) nothing but the detector stops the points' drift.
+    frames = render(library, [Plaque("security_compound", (0.0, -0.2), SIGN)], hover(0.0, 1.2), 8)
+    tracker = Tracker(library, Settings(refine_outline=False), synthetic_camera(), fps=FPS,
+                      config=TrackerConfig(detect_interval_s=0.1))
+    results = [tracker.step(frame, index=i, time_s=i / FPS) for i, frame in enumerate(frames)]
+    states = [[s.state for s in r.signs] for r in results]
+    assert states[1] == ["detected"] and states[2] == ["tracked"], states
+    assert states[4] == ["detected"], f"the detector's next budgeted run re-anchors the track: {states}"
+    assert len({s.track_id for r in results[1:] for s in r.signs}) == 1
 
 
 def test_a_one_frame_sign_and_a_look_alike_never_become_tracks(library):
