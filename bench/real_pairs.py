@@ -18,7 +18,6 @@ The data is read where it lies (`shared` beside the checkout, or SIGNPOSE_SHARED
 from __future__ import annotations
 
 import argparse
-import os
 import re
 import sys
 import time
@@ -31,6 +30,8 @@ import numpy as np
 from signpose.pipeline.library import Library, make_sign, validate_sign_entry
 from signpose.pipeline.recognize import Recognition, recognize, why_no_feature_winner
 from signpose.pipeline.settings import preset
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout root, for tests.support
+from tests.support.shared_data import shared_folder  # noqa: E402
 
 GOOD_PX = 5.0  # an answer within this RMSE is right
 WRONG_PX = 20.0  # an answer beyond it is a confident wrong one
@@ -38,12 +39,6 @@ CV_FEATURES, CV_RATIO, CV_THRESHOLD_PX, CV_MIN_INLIERS = 8000, 0.8, 3.0, 10
 # The box's crop, library px (x0, y0, x1, y1) of box.png: its front face, cut inside its edges,
 # as a user marking the landmark on the page would cut it.
 BOX_CROP = (40, 30, 280, 200)
-
-
-def shared_folder() -> Path:
-    """The project's shared data: SIGNPOSE_SHARED, else `shared` beside the checkout."""
-    override = os.environ.get("SIGNPOSE_SHARED")
-    return Path(override) if override else Path(__file__).resolve().parents[1].parent / "shared"
 
 
 @dataclass(frozen=True)

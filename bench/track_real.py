@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
+import sys
 import tempfile
 import time
 from collections.abc import Iterator
@@ -41,6 +41,8 @@ from signpose.pipeline.library import Library, load_library
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import Settings
 from signpose.pipeline.track import Tracker
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout root, for tests.support
+from tests.support.shared_data import shared_folder  # noqa: E402
 
 LANDMARK_ID = "box_top"
 LANDMARK_FRAME = 304
@@ -53,12 +55,6 @@ LANDMARK_WIDTH_PX = 400
 FX, FY, CX, CY = 1578.5, 1771.8, 320.0, 240.0
 TARGET_TRACKED = 0.95
 TARGET_CORNER_PX = 3.0
-
-
-def shared_folder() -> Path:
-    """The project's shared data: SIGNPOSE_SHARED, else `shared` beside the checkout."""
-    override = os.environ.get("SIGNPOSE_SHARED")
-    return Path(override) if override else Path(__file__).resolve().parents[1].parent / "shared"
 
 
 def video_path(shared: Path) -> Path:
