@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from signpose.pipeline.pose import camera_position, quaternion_wxyz
+from signpose.pipeline.pose_filter import pose_jacobian
 
 OUTPUT_SUFFIXES = (".jsonl", ".csv", ".mcap")
 CAMERA_FRAME = "camera_optical"
@@ -76,35 +77,12 @@ class PoseValues:
                    np.array(covariance, dtype=np.float64) if known else None)
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    """(3, 3) [v]×, the matrix of the cross product v × ·."""
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
-def _left_jacobian(rvec: np.ndarray) -> np.ndarray:
-    """(3, 3) left Jacobian of SO(3) at rotation vector `rvec`: exp(rvec + δ) ≈ exp(J·δ)·exp(rvec)."""
-    angle = float(np.linalg.norm(rvec))
-    S = _skew(rvec)
-    if angle < 1e-8:
-        return np.eye(3) + 0.5 * S
-    return (np.eye(3) + (1 - math.cos(angle)) / angle**2 * S + (angle - math.sin(angle)) / angle**3 * S @ S)
-
-
 def ros_jacobian(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     """(6, 6) Jacobian of the camera's pose in the sign frame, in ROS order [position (m), rotation about the
-    sign frame's x, y, z (rad)], with respect to the pipeline's [rotation vector of R, t].
-
-    With R(r + δr) = exp([J_l δr]×)·R: the camera's orientation Rᵀ turns by δθ = -Rᵀ·J_l·δr (about the
-    sign frame's axes), and its position -Rᵀt moves by -Rᵀ·δt - Rᵀ[t]×·J_l·δr.
-    """
-    R = np.asarray(R, dtype=np.float64)
-    t = np.asarray(t, dtype=np.float64).reshape(3)
-    J_l = _left_jacobian(cv2.Rodrigues(R)[0].ravel())
-    jacobian = np.zeros((6, 6))
-    jacobian[:3, :3] = -R.T @ _skew(t) @ J_l
-    jacobian[:3, 3:] = -R.T
-    jacobian[3:, :3] = -R.T @ J_l
-    return jacobian
+    sign frame's x, y, z (rad)], with respect to the pipeline's [rotation vector of R, t]: the pose
+    filter's state Jacobian ([rotation, position], `pose_jacobian`) with its two blocks of rows swapped."""
+    jacobian = pose_jacobian(np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64).reshape(3))
+    return np.vstack([jacobian[3:], jacobian[:3]])
 
 
 def ros_covariance(pose: PoseLike) -> np.ndarray | None:
