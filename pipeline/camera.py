@@ -127,14 +127,20 @@ class CameraError(ValueError):
     """A camera file or intrinsics that cannot be used; the message says which and why."""
 
 
-class _CameraYamlLoader(yaml.SafeLoader):
-    """PyYAML's safe loader, refusing with a CameraError saying where: aliases (`*name`, and so `<<:
-    *name` merges), as a camera file has no use for them and they let a few hundred bytes stand for
+class GuardedYamlLoader(yaml.SafeLoader):
+    """PyYAML's safe loader for the small files users write (camera files, sign maps), refusing with an
+    `error` saying where: aliases (`*name`, and so `<<: *name` merges), as such a file has no use for them and they let a few hundred bytes stand for
     billions of values (a 421-byte file of nested aliases took 19 s and 3 GB to read); values nested
     more than MAX_NESTING deep, which PyYAML's recursion would take past Python's stack; more than
     MAX_YAML_NODES values; whole numbers too long for Python to read (a ValueError's traceback); and a
     key given twice in one mapping, of which PyYAML keeps the last without a word.
-    Documents are composed one at a time: those after the first are not read."""
+    Documents are composed one at a time: those after the first are not read. A subclass sets what
+    the file is (`what`, `error`, `most_nodes` and `too_many`, the advice when it has more values)."""
+
+    error: type[ValueError] = CameraError
+    what = "camera file"
+    most_nodes = MAX_YAML_NODES
+    too_many = "a camera file has some tens: give one with the camera's matrix, distortion and image size"
 
     def __init__(self, stream: str) -> None:
         super().__init__(stream)
@@ -145,14 +151,13 @@ class _CameraYamlLoader(yaml.SafeLoader):
         mark = event.start_mark
         where = f"line {mark.line + 1}, column {mark.column + 1}"
         if isinstance(event, yaml.AliasEvent):
-            raise CameraError(f"{where}: YAML alias *{event.anchor}: camera files are read without anchors and "
-                              "aliases; write the values out")
+            raise self.error(f"{where}: YAML alias *{event.anchor}: {self.what}s are read without anchors and "
+                             "aliases; write the values out")
         if self.depth == MAX_NESTING:
-            raise CameraError(f"{where}: {NESTED_TOO_DEEP}")
+            raise self.error(f"{where}: values nested more than {MAX_NESTING} levels deep, which no {self.what}'s are")
         self.nodes += 1
-        if self.nodes > MAX_YAML_NODES:
-            raise CameraError(f"{where}: more than {MAX_YAML_NODES} values, where a camera file has some tens: give one "
-                              "with the camera's matrix, distortion and image size")
+        if self.nodes > self.most_nodes:
+            raise self.error(f"{where}: more than {self.most_nodes} values, where {self.too_many}")
         self.depth += 1
         try:
             return super().compose_node(parent, index)
@@ -164,11 +169,11 @@ class _CameraYamlLoader(yaml.SafeLoader):
             return super().construct_yaml_int(node)
         except ValueError:  # Python reads no whole number of more than sys.get_int_max_str_digits() digits
             mark = node.start_mark
-            raise CameraError(f"line {mark.line + 1}, column {mark.column + 1}: a whole number of {len(node.value)} "
-                              "characters, which no camera value has") from None
+            raise self.error(f"line {mark.line + 1}, column {mark.column + 1}: a whole number of {len(node.value)} "
+                             f"characters, which no value in a {self.what} has") from None
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
-        """The mapping `node` as a dict; CameraError saying where a key is given twice."""
+        """The mapping `node` as a dict; `error` saying where a key is given twice."""
         keys = set()
         # The keys as written, before flattening adds those of a `<<` merge, which the ones written override.
         for key_node, _ in node.value:
@@ -177,18 +182,18 @@ class _CameraYamlLoader(yaml.SafeLoader):
                 key = self.construct_object(key_node)
                 if key in keys:
                     mark = key_node.start_mark
-                    raise CameraError(f"line {mark.line + 1}, column {mark.column + 1}: {key_given_twice(key)}")
+                    raise self.error(f"line {mark.line + 1}, column {mark.column + 1}: {key_given_twice(key)}")
                 keys.add(key)
         return super().construct_mapping(node, deep)
 
 
-_CameraYamlLoader.add_constructor("tag:yaml.org,2002:int", _CameraYamlLoader.construct_yaml_int)
+GuardedYamlLoader.add_constructor("tag:yaml.org,2002:int", GuardedYamlLoader.construct_yaml_int)
 # YAML 1.1 reads a number with an exponent but no dot or no sign in it (5.54e2, 1e3) as text, where JSON and
 # YAML 1.2 read a number: it is one here too, so that text (a quoted "554") can be refused as no number.
-_CameraYamlLoader.add_implicit_resolver("tag:yaml.org,2002:float", DECIMAL_NUMBER, list("-+0123456789."))
+GuardedYamlLoader.add_implicit_resolver("tag:yaml.org,2002:float", DECIMAL_NUMBER, list("-+0123456789."))
 # Python's json writes non-finite floats as NaN and Infinity, and PUT /api/camera's JSON reads them so: read
 # as those numbers here too (then refused as not finite), so that a JSON file says what that body says.
-_CameraYamlLoader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(r"^(?:NaN|[-+]?Infinity)$"),
+GuardedYamlLoader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(r"^(?:NaN|[-+]?Infinity)$"),
                                         list("N-+I"))
 
 
@@ -918,7 +923,7 @@ def load_camera(path: str | Path) -> Camera:
     board; a message's header, `r` and `p`, as the rectification and projection matrices are not
     used) are ignored, except those that look like distortion or a lens model (DISTORTION_LIKE), which
     are refused. Files that no camera file is (nested deep, large, YAML aliases) are refused before
-    they are read far: see _CameraYamlLoader and _filestorage_fields. OpenCV's distortion model
+    they are read far: see GuardedYamlLoader and _filestorage_fields. OpenCV's distortion model
     only (ROS's `plumb_bob` or `rational_polynomial`, Kalibr's pinhole `radtan`; the calibration
     sample's `fisheye_model: 0`): any other is refused, since its coefficients mean something else.
     A file that names no model cannot be told from OpenCV's: cv2.fisheye's 4 coefficients without
@@ -990,7 +995,7 @@ def _parse_camera(text: str, source: str) -> Camera:
     try:
         # YAML is a superset of JSON. `ros2 topic echo` ends each message with "---", which starts
         # another (empty) document; without --once it prints one after the other: the first is used.
-        data = next((d for d in yaml.load_all(text, _CameraYamlLoader) if d is not None), None)
+        data = next((d for d in yaml.load_all(text, GuardedYamlLoader) if d is not None), None)
     except yaml.YAMLError as exc:
         raise CameraError(f"neither valid YAML nor JSON ({_yaml_error(exc)})") from None
     if not isinstance(data, dict):

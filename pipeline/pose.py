@@ -139,6 +139,22 @@ def quaternion_wxyz(R: np.ndarray) -> np.ndarray:
     return np.concatenate([[math.cos(angle / 2)], math.sin(angle / 2) * rvec / angle])
 
 
+def rotation_from_quaternion_wxyz(q: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation of the unit quaternion q (4,) = (w, x, y, z); the inverse of `quaternion_wxyz`."""
+    w, x, y, z = (float(v) for v in q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def rotation_from_euler_zyx_deg(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    """(3, 3) rotation Rz(yaw)·Ry(pitch)·Rx(roll), angles in degrees; the inverse of `euler_zyx_deg`."""
+    (cy, sy), (cp, sp), (cr, sr) = ((math.cos(a), math.sin(a)) for a in map(math.radians, (yaw, pitch, roll)))
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
 def euler_zyx_deg(R: np.ndarray) -> tuple[float, float, float]:
     """(yaw, pitch, roll) in degrees with R = Rz(yaw)·Ry(pitch)·Rx(roll); pitch in [-90, 90].
 

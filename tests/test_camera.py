@@ -922,7 +922,7 @@ def test_values_nested_deeper_than_any_camera_files_are_refused(tmp_path, text, 
 def test_a_whole_number_too_long_for_python_is_refused_saying_where(tmp_path):
     """A ValueError's traceback (an HTTP 500 in PUT /api/camera): Python reads no int of 4301 digits."""
     assert_one_line_error(tmp_path / "camera.yaml", "fy: 500\nfx: " + "1" * 5000 + "\ncx: 320\ncy: 240\n",
-                          "line 2, column 5: a whole number of 5000 characters, which no camera value has")
+                          "line 2, column 5: a whole number of 5000 characters, which no value in a camera file has")
 
 
 def test_a_camera_file_too_large_for_one_or_with_too_many_values_is_refused(tmp_path):
