@@ -19,7 +19,7 @@ The detector runs on a budget: every frame while a track is tentative, every
 `weak_retry_frames` for a weak or lost one, otherwise every `detect_interval_s` while something
 is tracked (to catch new signs; the healthy tracks held by an outline are masked out) and every `idle_interval_s`
 while nothing is. Several signs per frame: once a sign is
-found, the detector searches the frame again with the found signs' quads masked out, up to
+found, the detector searches the frame again with the found signs' quads masked out (`recognize_every_sign`), up to
 `searches_per_frame` times; a search beside signs found or tracked leaves out the full-frame
 fallback, the costliest part of a frame without a (new) sign.
 
@@ -38,13 +38,14 @@ import cv2
 import numpy as np
 
 from .camera import Camera
+from .every_sign import recognize_every_sign
 from .image import to_gray
 from .library import Library, LibrarySign
 from .outline import Outline, outline_fit, refine_outline
 from .plaque import grid_correspondences, sign_corners
 from .pose import CORNER_SIGMA_PX, Pose, PoseError, pose_near, with_corner_floor
 from .pose_filter import PoseFilter
-from .recognize import Recognition, image_camera, quad_problem, recognize
+from .recognize import Recognition, image_camera, quad_problem
 from .segment import Box, box_iou
 from .settings import Settings
 
@@ -54,9 +55,6 @@ STATES = ("detected", "tracked")
 # (CORNER_SIGMA_PX["outline"]). On the 12 s synthetic corridor flight 0.5 against 0.1 took the
 # filtered jitter from 3.4 to 2.6 mm median (13.3 to 11.3 mm p90); 1.0 lagged, 14.7 mm p90.
 TRACK_CORNER_SIGMA_PX = 0.5
-# A quad masked out for the next search is grown about its centre by this fraction, so that the
-# plaque's rim and its edge features do not make a blob of their own.
-MASK_GROWTH = 0.15
 # Detections of one label whose quads' boxes overlap more than this are the same sign.
 SAME_SIGN_IOU = 0.2
 
@@ -197,20 +195,6 @@ def visible_fraction(corners: np.ndarray, width: int, height: int) -> float:
     return float(inside) / area
 
 
-def mask_quads(gray: np.ndarray, quads: list[np.ndarray]) -> np.ndarray:
-    """A copy of (H, W) uint8 `gray` with each (4, 2) image px quad, grown by MASK_GROWTH, filled
-    with the image's median gray: flat, neither a white blob nor a dark frame around one."""
-    if not quads:
-        return gray
-    out = gray.copy()
-    fill = int(np.median(gray[::4, ::4]))
-    for quad in quads:
-        centre = quad.mean(axis=0)
-        grown = centre + (quad - centre) * (1 + MASK_GROWTH)
-        cv2.fillConvexPoly(out, np.round(grown).astype(np.int32), fill)
-    return out
-
-
 class Tracker:
     """Follows library signs through the frames of one video; `step` takes each frame in order.
 
@@ -222,9 +206,6 @@ class Tracker:
                  config: TrackerConfig | None = None) -> None:
         self.library, self.settings, self.config = library, settings, config or TrackerConfig()
         self.given_camera = camera
-        # Looking for more signs beside those found, the full-frame search, the costliest of a
-        # frame without a sign, is left out: a new sign is a plaque of its own, found among the blobs.
-        self.looking_settings = dataclasses.replace(settings, full_frame_fallback=False)
         self.camera: Camera | None = None
         rate = fps if fps is not None and fps > 0 and math.isfinite(fps) else 30.0
         self.detect_every = max(1, round(self.config.detect_interval_s * rate))
@@ -349,19 +330,10 @@ class Tracker:
         hidden = [sign_corners(t.sign, followed[t.track_id].H) for t in self.tracks
                   if t.confirmed and t.track_id in followed and not followed[t.track_id].weak
                   and followed[t.track_id].outline is not None]
-        recognitions: list[Recognition] = []
-        found: set[int] = set()
-        for _ in range(self.config.searches_per_frame):
-            image = mask_quads(gray, hidden)
-            rec = recognize(image, self.library, self.looking_settings if hidden else self.settings, camera)
-            recognitions.append(rec)
-            if rec.label is None or rec.H is None:
-                break
-            corners = rec.corners
-            assert corners is not None
-            track = self._claim(rec, corners, width, height, gray, camera, index)
-            found.add(track.track_id)
-            hidden.append(corners)
+        recognitions = recognize_every_sign(gray, self.library, self.settings, camera, known=hidden,
+                                            most=self.config.searches_per_frame)
+        found = {self._claim(rec, rec.corners, width, height, gray, camera, index).track_id
+                 for rec in recognitions if rec.label is not None and rec.corners is not None}
         # A tentative track the detector has not found `confirm_frames` times within
         # `confirm_window` frames is a look-alike (or too uncertain to report) and goes.
         for track in list(self.tracks):
