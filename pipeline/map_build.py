@@ -25,11 +25,12 @@ import math
 from collections import Counter, defaultdict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import gtsam
 import numpy as np
 
-from .pose import euler_zyx_deg
+from .pose import Pose, euler_zyx_deg
 from .pose_filter import FALLBACK_SIGMA, left_jacobian, log_so3
 from .sign_map import DEFAULT_FRAME, MappedSign, SignMap
 
@@ -118,6 +119,22 @@ class MapBuild:
     def comments(self) -> dict[str, list[str]]:
         """Per sign id, the report's lines, for `save_sign_map(..., comments=...)`."""
         return {sign_id: report.lines() for sign_id, report in self.reports.items()}
+
+
+class SeenSign(Protocol):
+    """A sign found in an image: a `Recognition`, a tracker's `SignObservation`."""
+
+    @property
+    def label(self) -> str | None: ...
+
+    @property
+    def pose(self) -> Pose | None: ...
+
+
+def observations_of(image: str, found: Iterable[SeenSign]) -> list[Observation]:
+    """The observations in image `image` of the signs `found` in it that have a pose."""
+    return [Observation(image, sign.label, sign.pose.R, sign.pose.t, sign.pose.covariance)
+            for sign in found if sign.label is not None and sign.pose is not None]
 
 
 def right_jacobian(r: np.ndarray) -> np.ndarray:

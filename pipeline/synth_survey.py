@@ -243,7 +243,7 @@ class SurveyPhoto:
 
 
 def plan_photos(renderer: SurveyRenderer, n: int, rng: np.random.Generator, *, max_tries: int = 2000) -> list[SurveyPhoto]:
-    """`n` camera poses: the first sees the first sign alone (the default anchor), then they go
+    """`n` camera poses: the first sees the first sign alone from close by (the default anchor), then they go
     round the neighbouring pairs (two in three photos) and single signs, each from a random place
     at least WALL_MARGIN_M from the walls. ValueError when a pair cannot be seen together."""
     room = renderer.room
@@ -256,9 +256,12 @@ def plan_photos(renderer: SurveyRenderer, n: int, rng: np.random.Generator, *, m
     photos = []
     for i, want in enumerate(wanted):
         for _ in range(max_tries):
-            centre = np.array([rng.uniform(room.x_min + WALL_MARGIN_M, room.x_max - WALL_MARGIN_M),
-                               rng.uniform(-0.5, 0.4),
-                               rng.uniform(-room.depth + WALL_MARGIN_M, -WALL_MARGIN_M)])
+            if i == 0:  # close in front of the first sign, which alone is in view
+                centre = want[0].centre - want[0].R[:, 2] * rng.uniform(1.5, 2.5) + rng.normal(0.0, 0.2, 3)
+            else:
+                centre = np.array([rng.uniform(room.x_min + WALL_MARGIN_M, room.x_max - WALL_MARGIN_M),
+                                   rng.uniform(-0.5, 0.4),
+                                   rng.uniform(-room.depth + WALL_MARGIN_M, -WALL_MARGIN_M)])
             target = np.mean([s.centre for s in want], axis=0) + rng.normal(0.0, 0.15, 3)
             R = look_at(centre, target, math.radians(rng.normal(0.0, 4.0)))
             t = -R @ centre
