@@ -102,12 +102,19 @@ def main() -> None:
     library = load_library(LIBRARY)
     out = args.out or Path(tempfile.gettempdir()) / f"signpose-bench-map-{args.size}"
     everything = []
-    for seed in range(args.surveys):
-        spacing = SPACINGS[seed % len(SPACINGS)]
-        folder = out / f"survey{seed}-{spacing[0]:g}-{spacing[1]:g}m-{args.photos}"
-        if not (folder / "truth.json").is_file():
-            write_survey(folder, library, camera, labels=[s.id for s in library.signs], n_photos=args.photos,
-                         spacing_m=spacing, seed=seed)
+    for index in range(args.surveys):
+        spacing = SPACINGS[index % len(SPACINGS)]
+        # A room too small for its spacing (two neighbours no place in it sees together): the next seed.
+        for seed in range(index, index + 100 * args.surveys, args.surveys):
+            folder = out / f"survey{seed}-{spacing[0]:g}-{spacing[1]:g}m-{args.photos}"
+            if (folder / "truth.json").is_file():
+                break
+            try:
+                write_survey(folder, library, camera, labels=[s.id for s in library.signs], n_photos=args.photos,
+                             spacing_m=spacing, seed=seed)
+                break
+            except ValueError as exc:
+                print(f"{folder.name}: {exc}; next seed")
         rows, counts = measure_survey(folder)
         mapped = [r for r in rows if r["mapped"]]
         print(f"{folder.name}: {counts['observations']} observations, {counts['rejected']} rejected, "
