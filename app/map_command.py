@@ -22,7 +22,7 @@ from signpose.pipeline.sign_map import MapError, load_sign_map, save_sign_map, s
 from signpose.pipeline.track import Tracker
 
 # A flight's frames close in time see a sign with nearly the same errors, which the pose graph would
-# count as independent: one frame in this many is taken.
+# count as independent: one frame in this many is taken, besides every frame that links two signs.
 FLIGHT_STEP = 10
 # A survey folder may carry these beside its photos; used unless --camera or --library is given.
 SURVEY_CAMERA, SURVEY_LIBRARY = "camera.yaml", "library"
@@ -53,7 +53,8 @@ def add_map_command(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--preset", default="default", choices=sorted(PRESETS), help="base settings (default: default)")
     b.add_argument("--topic", help="a bag's image topic (default: its only one)")
     b.add_argument("--flight-step", type=positive_int, default=FLIGHT_STEP, metavar="N",
-                   help="take a flight's confirmed signs on one frame in N (default %(default)s)")
+                   help="take a flight's confirmed signs on one frame in N, and on every frame with two or more "
+                        "(default %(default)s)")
     add_max_megapixels(b)
     b.set_defaults(func=cmd_map_build)
 
@@ -151,7 +152,9 @@ def photo_observations(name: str, library: Library, settings: Settings, camera: 
 def flight_observations(source: FrameSource, library: Library, settings: Settings, camera: Camera | None,
                         step: int):
     """Per frame of the flight `source`, (1, its observations): the tracker's confirmed signs on one
-    frame in `step` (the others give none). A frame that cannot be read ends the flight, said on stderr."""
+    frame in `step` and on every frame with two or more (the links between signs, which a flight
+    past a wall gives a few frames of); the others give none. A frame that cannot be read ends the
+    flight, said on stderr."""
     tracker = Tracker(library, settings, camera if camera is not None else source.camera, fps=source.fps)
     frames = iter(source)
     while True:
@@ -166,4 +169,6 @@ def flight_observations(source: FrameSource, library: Library, settings: Setting
             result = tracker.step(frame.image, index=frame.index, time_s=frame.time_s)
         except CameraError as exc:
             raise CliError(f"{source.name}: {exc}") from None
-        yield 1, (observations_of(f"{source.name}#{frame.index}", result.signs) if frame.index % step == 0 else [])
+        linking = len(result.signs) >= 2
+        yield 1, (observations_of(f"{source.name}#{frame.index}", result.signs)
+                  if linking or frame.index % step == 0 else [])

@@ -301,8 +301,8 @@ def _fixed_signs(seen: list[str], anchor: str | None, known: SignMap | None) -> 
     return {anchor: (gtsam.Pose3(), tight, "anchor")}
 
 
-def _check_groups(groups: list[list[str]], fixed: Iterable[str]) -> None:
-    """DisconnectedSurvey unless every group of signs holds a fixed one."""
+def _check_groups(groups: list[list[str]], fixed: Iterable[str], known: bool) -> None:
+    """DisconnectedSurvey unless every group of signs holds a fixed one (`known`: signs of a known map)."""
     fixed = set(fixed)
     loose = [g for g in groups if not fixed & set(g)]
     if not loose:
@@ -315,7 +315,7 @@ def _check_groups(groups: list[list[str]], fixed: Iterable[str]) -> None:
     else:
         message = (f"the survey's signs form {len(groups)} groups that no image links: {named}; take photos "
                    "that see a sign of one group beside a sign of another")
-        if held:
+        if known and held:
             message += f" (or give a known pose for a sign of {'; '.join('{' + ', '.join(g) + '}' for g in loose)})"
     raise DisconnectedSurvey(message, loose, held)
 
@@ -340,7 +340,7 @@ def build_map(observations: Sequence[Observation], *, anchor: str | None = None,
         raise MapBuildError("no sign was seen in the survey")
     seen = list(dict.fromkeys(o.sign_id for o in obs))
     fixed = _fixed_signs(seen, anchor, known)
-    _check_groups(sign_groups(obs), fixed)
+    _check_groups(sign_groups(obs), fixed, known is not None)
     problem = _Graph(obs, {s: (pose, cov) for s, (pose, cov, _) in fixed.items()})
     every = list(range(len(obs)))
     robust = _optimize(problem.graph(every, robust=True), problem.initial(every))

@@ -245,3 +245,17 @@ def test_map_build_is_a_subcommand_with_its_help():
     run = subprocess.run([sys.executable, "-m", "signpose.app.cli", "map", "build", "--help"], capture_output=True,
                          text=True, cwd=ROOT)
     assert run.returncode == 0 and "--anchor SIGN_ID" in run.stdout and "--known MAP" in run.stdout
+
+
+@pytest.mark.slow
+def test_map_build_maps_the_signs_a_flight_sees_together(tmp_path, capsys):
+    flight = ROOT / "sample_images" / "flights" / "corridor"
+    code, out, err = run_map_build(flight / "flight.mp4", "-o", tmp_path / "map.yaml", "--anchor", "security_compound",
+                                   capsys=capsys)
+    assert code == 0, err
+    built = load_sign_map(tmp_path / "map.yaml")
+    # On the corridor wall: chief_of_security 2.6 m along x and 0.1 m up from security_compound.
+    # Off the wall (z) by the anchor's tilt, which its 0.6 m plaque, seen from 1-4 m, gives to a degree
+    # or two: 2.6 m along, a 12 cm lever.
+    np.testing.assert_allclose(built.signs["chief_of_security"].position_m, [2.6, 0.1, 0.0], atol=[0.05, 0.05, 0.2])
+    assert "security_compound (" in out.splitlines()[2]  # seen with it, on the frames that link them
