@@ -183,8 +183,10 @@ class SurveyRenderer:
             px = hom[:, :2] / hom[:, 2:]
             width_px = max(np.linalg.norm(px[1] - px[0]), np.linalg.norm(px[2] - px[3]), 1.0)
             level = int(np.clip(math.floor(math.log2(w / width_px)), 0, len(levels) - 1))
-            # A pixel of mip level L averages 2^L full-size ones: its centre is (2^L - 1) / 2 px on from theirs.
-            step, offset = 2.0**level, (2.0**level - 1) / 2
+            # The sign's pixel u spans [u, u + 1] of `pixel_to_metric`'s coordinates (its edges at 0 and w),
+            # while warpPerspective samples pixel centres at whole coordinates: a pixel of mip level L spans
+            # [2^L i, 2^L (i + 1)], its centre at 2^L (i + 1/2).
+            step, offset = 2.0**level, 2.0**level / 2
             H_level = H @ np.array([[step, 0.0, offset], [0.0, step, offset], [0.0, 0.0, 1.0]])
             src = levels[level]
             warped = cv2.warpPerspective(src, H_level, self.size, flags=cv2.INTER_LINEAR,
