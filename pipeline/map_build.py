@@ -116,7 +116,7 @@ class MapBuild:
     cameras: dict[str, tuple[np.ndarray, np.ndarray]]
     unmapped: dict[str, str] = field(default_factory=dict)
 
-    def comments(self) -> dict[str, list[str]]:
+    def comments(self) -> dict[str, Iterable[str]]:
         """Per sign id, the report's lines, for `save_sign_map(..., comments=...)`."""
         return {sign_id: report.lines() for sign_id, report in self.reports.items()}
 

@@ -104,7 +104,7 @@ def room_layout(labels: Sequence[str], rng: np.random.Generator, *, spacing_m: t
     lengths = {"back": width, "right": depth, "front": width, "left": depth}
     starts = {"back": np.array([x_min, 0.0, 0.0]), "right": np.array([x_min + width, 0.0, 0.0]),
               "front": np.array([x_min + width, 0.0, -depth]), "left": np.array([x_min, 0.0, -depth])}
-    signs = []
+    signs: list[PlacedSign] = []
     along = CORNER_MARGIN_M
     wall_index = 0
     for label, step in zip(labels, steps):
