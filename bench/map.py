@@ -10,7 +10,7 @@ covers them: the error within 2 sigma along its own direction, for position and 
 Targets (issue): position within 10 mm, orientation within 0.3 degrees, 2-sigma coverage for at
 least 90 % of signs.
 
-    python bench/map.py [--surveys 6] [--photos 48] [--size 1280x960] [--json OUT]
+    python bench/map.py [--surveys 6] [--photos 48] [--pair-share 0.67] [--size 1280x960] [--json OUT]
 """
 
 from __future__ import annotations
@@ -93,6 +93,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--surveys", type=int, default=6)
     parser.add_argument("--photos", type=int, default=48)
+    parser.add_argument("--pair-share", type=float, default=2 / 3,
+                        help="share of the photos aimed between two neighbours (default 2/3; the others at one sign)")
     parser.add_argument("--size", default="1280x960", help="photo size WxH (the sample survey's: 640x480)")
     parser.add_argument("--out", type=Path, help="render the surveys here (default: the temp folder)")
     parser.add_argument("--json", type=Path, help="write every sign's figures here")
@@ -106,12 +108,12 @@ def main() -> None:
         spacing = SPACINGS[index % len(SPACINGS)]
         # A room too small for its spacing (two neighbours no place in it sees together): the next seed.
         for seed in range(index, index + 100 * args.surveys, args.surveys):
-            folder = out / f"survey{seed}-{spacing[0]:g}-{spacing[1]:g}m-{args.photos}"
+            folder = out / f"survey{seed}-{spacing[0]:g}-{spacing[1]:g}m-{args.photos}-pairs{args.pair_share:.2f}"
             if (folder / "truth.json").is_file():
                 break
             try:
                 write_survey(folder, library, camera, labels=[s.id for s in library.signs], n_photos=args.photos,
-                             spacing_m=spacing, seed=seed)
+                             spacing_m=spacing, pair_share=args.pair_share, seed=seed)
                 break
             except ValueError as exc:
                 print(f"{folder.name}: {exc}; next seed")
@@ -129,7 +131,8 @@ def main() -> None:
     position = np.array([r["position_mm"] for r in mapped])
     rotation = np.array([r["rotation_deg"] for r in mapped])
     covered = np.mean([r["covered"] for r in mapped])
-    print(f"\n{len(mapped)} of {len(everything)} signs mapped over {args.surveys} surveys ({args.size}, {args.photos} photos)")
+    print(f"\n{len(mapped)} of {len(everything)} signs mapped over {args.surveys} surveys ({args.size}, {args.photos} "
+          f"photos, {args.pair_share:.0%} aimed at two signs)")
     print(f"position error mm: median {np.median(position):.1f}, p90 {np.percentile(position, 90):.1f}, max "
           f"{position.max():.1f}; within {TARGET_POSITION_MM:g} mm: {np.mean(position <= TARGET_POSITION_MM):.0%}")
     print(f"orientation error deg: median {np.median(rotation):.3f}, p90 {np.percentile(rotation, 90):.3f}, max "

@@ -244,17 +244,20 @@ class SurveyPhoto:
     signs: list[str]
 
 
-def plan_photos(renderer: SurveyRenderer, n: int, rng: np.random.Generator, *, max_tries: int = 2000) -> list[SurveyPhoto]:
+def plan_photos(renderer: SurveyRenderer, n: int, rng: np.random.Generator, *, pair_share: float = 2 / 3,
+                max_tries: int = 2000) -> list[SurveyPhoto]:
     """`n` camera poses: the first sees the first sign alone from close by (the default anchor), then they go
-    round the neighbouring pairs (two in three photos) and single signs, each from a random place
+    round the neighbouring pairs (`pair_share` of the photos) and single signs, each from a random place
     at least WALL_MARGIN_M from the walls. ValueError when a pair cannot be seen together."""
     room = renderer.room
     signs = room.signs
     pairs = [(a, b) for a, b in zip(signs, signs[1:])]
     wanted: list[tuple[PlacedSign, ...]] = [(signs[0],)]
-    while len(wanted) < n:
-        k = len(wanted)
-        wanted.append(pairs[(k // 3 * 2 + k % 3) % len(pairs)] if k % 3 else (signs[(k // 3) % len(signs)],))
+    for k in range(1, n):
+        if math.floor(k * pair_share + 1e-9) > math.floor((k - 1) * pair_share + 1e-9):
+            wanted.append(pairs[sum(len(w) == 2 for w in wanted) % len(pairs)])
+        else:
+            wanted.append((signs[(sum(len(w) == 1 for w in wanted) - 1) % len(signs)],))
     photos = []
     for i, want in enumerate(wanted):
         for _ in range(max_tries):
@@ -278,15 +281,16 @@ def plan_photos(renderer: SurveyRenderer, n: int, rng: np.random.Generator, *, m
 
 
 def write_survey(out_dir: str | Path, library: Library, camera: Camera, *, labels: Sequence[str], n_photos: int,
-                 spacing_m: tuple[float, float] = (2.0, 4.0), seed: int = 0, quality: int = 90,
-                 progress: Callable[[int, int], None] | None = None) -> Room:
+                 spacing_m: tuple[float, float] = (2.0, 4.0), pair_share: float = 2 / 3, seed: int = 0,
+                 quality: int = 90, progress: Callable[[int, int], None] | None = None) -> Room:
     """Render a survey into `out_dir`: photo_NNN.jpg, camera.yaml, truth_map.yaml (every sign's pose in
     the room's frame, `save_sign_map`) and truth.json ({"photos": [{"image", "R", "t" (X_cam =
-    R·X_world + t), "camera_position" (world m), "signs" (labels in full view)}]}). Returns the room."""
+    R·X_world + t), "camera_position" (world m), "signs" (labels in full view)}]}). `pair_share`: the
+    share of photos aimed between two neighbours (`plan_photos`). Returns the room."""
     rng = np.random.default_rng(seed)
     room = room_layout(labels, rng, spacing_m=spacing_m)
     renderer = SurveyRenderer(library, camera, room, seed=seed)
-    photos = plan_photos(renderer, n_photos, rng)
+    photos = plan_photos(renderer, n_photos, rng, pair_share=pair_share)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     for i, photo in enumerate(photos):
