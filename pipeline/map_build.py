@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter, defaultdict
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -253,31 +253,32 @@ class _Graph:
         weight = {i: float(np.trace(self.noise[i].covariance()[:3, :3])) for i in kept}
         grew = True
         while grew:
-            grew = False
-            best_image: dict[str, int] = {}
-            for i in kept:
-                o = self.observations[i]
-                if o.sign_id in signs and o.image not in images:
-                    if o.image not in best_image or weight[i] < weight[best_image[o.image]]:
-                        best_image[o.image] = i
+            best_image = self._most_certain(kept, weight, lambda o: o.sign_id in signs and o.image not in images,
+                                            lambda o: o.image)
             for image, i in best_image.items():
                 images[image] = signs[self.observations[i].sign_id].compose(self.measured[i].inverse())
-                grew = True
-            best_sign: dict[str, int] = {}
-            for i in kept:
-                o = self.observations[i]
-                if o.image in images and o.sign_id not in signs:
-                    if o.sign_id not in best_sign or weight[i] < weight[best_sign[o.sign_id]]:
-                        best_sign[o.sign_id] = i
+            best_sign = self._most_certain(kept, weight, lambda o: o.image in images and o.sign_id not in signs,
+                                           lambda o: o.sign_id)
             for sign_id, i in best_sign.items():
                 signs[sign_id] = images[self.observations[i].image].compose(self.measured[i])
-                grew = True
+            grew = bool(best_image or best_sign)
         values = gtsam.Values()
         for s, pose in signs.items():
             values.insert(self.sign_key[s], pose)
         for image, pose in images.items():
             values.insert(self.image_key[image], pose)
         return values
+
+
+    def _most_certain(self, kept: Sequence[int], weight: dict[int, float], placing: Callable[[Observation], bool],
+                      placed: Callable[[Observation], str]) -> dict[str, int]:
+        """Per image or sign `placed(o)`, the observation of smallest `weight` among the `kept` ones that are `placing`."""
+        best: dict[str, int] = {}
+        for i in kept:
+            o = self.observations[i]
+            if placing(o) and (placed(o) not in best or weight[i] < weight[best[placed(o)]]):
+                best[placed(o)] = i
+        return best
 
 
 def _optimize(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values) -> gtsam.Values:
