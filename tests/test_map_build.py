@@ -18,7 +18,7 @@ from signpose.pipeline.library import load_library
 from signpose.pipeline.map_build import (CHI2_REJECT, DisconnectedSurvey, MapBuildError, Observation, build_map,
                                          gtsam_covariance, ros_covariance, sign_groups)
 from signpose.pipeline.pose_filter import exp_so3, log_so3
-from signpose.pipeline.sign_map import MappedSign, SignMap, load_sign_map
+from signpose.pipeline.sign_map import MappedSign, SignMap, load_sign_map, read_sign_map
 from signpose.pipeline.synth import synthetic_camera
 from signpose.pipeline.synth_survey import write_survey
 
@@ -131,10 +131,13 @@ def test_two_known_signs_fix_the_map_frame_and_keep_their_poses():
     p_w = np.array([10.0, -1.0, 5.0])
     in_building = {s: (R_w @ R, R_w @ p + p_w) for s, (R, p) in SIGNS.items()}
     taped = np.diag([1e-6] * 3 + [1e-6] * 3)  # 1 mm and 1 mrad
+    lobby = MappedSign("lobby", np.eye(3), np.array([30.0, 0.0, 0.0]))  # known, not in the survey
     known = SignMap({"a": MappedSign("a", *in_building["a"], covariance=taped),
-                     "c": MappedSign("c", *in_building["c"])}, frame="building")
+                     "c": MappedSign("c", *in_building["c"]), "lobby": lobby}, frame="building")
     build = build_map(survey(rng), known=known)
     assert build.sign_map.frame == "building"
+    assert build.reports["lobby"].images == 0 and build.reports["lobby"].fixed == "known"
+    np.testing.assert_allclose(build.sign_map.signs["lobby"].position_m, lobby.position_m, atol=1e-9)
     assert build.reports["a"].fixed == build.reports["c"].fixed == "known" and build.reports["b"].fixed is None
     np.testing.assert_allclose(build.sign_map.signs["c"].position_m, in_building["c"][1], atol=1e-4)
     e = error(build.sign_map.signs["b"], *in_building["b"])
@@ -211,6 +214,10 @@ def test_map_build_maps_the_sample_survey_and_the_map_loads_back(tmp_path, capsy
         assert np.linalg.norm(e[3:]) < max(5 * sigma_rotation, math.radians(0.3)), sign_id
     text = (tmp_path / "map.yaml").read_text()
     assert "# fixed (anchor); seen in" in text and "1-sigma" in text
+    # -o -: the map on stdout, the report on stderr.
+    code, out, err = run_map_build(*(SURVEY / f"photo_{i:03d}.jpg" for i in range(4)), "-o", "-", capsys=capsys)
+    assert code == 0 and "security_compound" in err
+    assert set(read_sign_map(out.encode(), "stdout").signs) <= set(truth.signs)
 
 
 @pytest.mark.slow
