@@ -31,7 +31,7 @@ SURVEY_CAMERA, SURVEY_LIBRARY = "camera.yaml", "library"
 def add_map_command(sub: argparse._SubParsersAction) -> None:
     """`signpose map build` on the CLI's sub-command parsers `sub`."""
     p = sub.add_parser("map", help="sign maps: build one from a survey (docs/map.md)")
-    commands = p.add_subparsers(dest="map_command", required=True)
+    commands = p.add_subparsers(dest="map_command", required=True, metavar="{build}", help="what to do with a map")
     b = commands.add_parser("build", help="every sign's pose in one map frame, from photos and flights that see "
                                           "signs together")
     b.add_argument("sources", nargs="+", metavar="SOURCE",
