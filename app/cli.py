@@ -1,4 +1,4 @@
-"""`signpose` command line: recognize, track, synth, evaluate, calibrate, serve."""
+"""`signpose` command line: recognize, track, synth, evaluate, calibrate, serve, map build."""
 
 from __future__ import annotations
 
@@ -572,6 +572,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--request-timeout", type=positive_number, default=WorkspaceConfig.request_timeout_s,
                    help="longest a request waits for pipeline work (recognise, sweep) in seconds (default %(default)g)")
     p.set_defaults(func=cmd_serve)
+
+    from signpose.app.map_command import add_map_command  # it builds on this module's helpers
+
+    add_map_command(sub)
     return parser
 
 

@@ -90,15 +90,19 @@ def camera_pose(path: Sequence[Keyframe], time_s: float, roll_deg: float = 3.0) 
     times = np.array([k.time_s for k in path])
     centre = _catmull_rom(times, np.array([k.position for k in path]), time_s)
     target = _catmull_rom(times, np.array([k.target for k in path]), time_s)
-    z = target - centre
+    R = look_at(centre, target, math.radians(roll_deg) * math.sin(2 * math.pi * time_s / 4.0))
+    return R, -R @ centre
+
+
+def look_at(centre: np.ndarray, target: np.ndarray, roll_rad: float = 0.0) -> np.ndarray:
+    """(3, 3) R (world to camera) of a camera at `centre` looking at `target` (world metres), image y
+    along world y (down), then rolled by `roll_rad` about its optical axis."""
+    z = np.asarray(target, dtype=np.float64) - centre
     z /= np.linalg.norm(z)
     x = np.cross(np.array([0.0, 1.0, 0.0]), z)
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
-    R = np.stack([x, y, z])
-    roll = math.radians(roll_deg) * math.sin(2 * math.pi * time_s / 4.0)
-    R = cv2.Rodrigues(np.array([0.0, 0.0, roll]))[0] @ R
-    return R, -R @ centre
+    return cv2.Rodrigues(np.array([0.0, 0.0, roll_rad]))[0] @ np.stack([x, y, z])
 
 
 def _texture(rng: np.random.Generator, base: float, lines_m: float | None, size: int = TEXTURE_SIZE) -> np.ndarray:

@@ -58,15 +58,18 @@ def render_sign(text: str) -> Image.Image:
     return image
 
 
-def main(out_dir: Path = OUT_DIR) -> None:
+def main(out_dir: Path = OUT_DIR, signs: list[dict[str, str]] = SIGNS,
+         size_m: tuple[float, float] = (WIDTH_M, HEIGHT_M)) -> None:
+    """Render `signs` (id, name, text) and their library.json into `out_dir`, as plaques `size_m`
+    (width, height) metres."""
     if not features.check("raqm"):
         sys.exit("Pillow was built without raqm: Arabic would render as unjoined, left-to-right letters")
     out_dir.mkdir(parents=True, exist_ok=True)
     entries = []
-    for sign in SIGNS:
+    for sign in signs:
         image_file = f"{sign['id']}.png"
         render_sign(sign["text"]).save(out_dir / image_file, optimize=True)
-        entries.append({**sign, "image": image_file, "width_m": WIDTH_M, "height_m": HEIGHT_M,
+        entries.append({**sign, "image": image_file, "width_m": size_m[0], "height_m": size_m[1],
                         "kind": "plaque"})
     (out_dir / "library.json").write_text(
         json.dumps({"signs": entries}, ensure_ascii=False, indent=2) + "\n", encoding="utf-8")
