@@ -173,7 +173,7 @@ def unusable_images(failed: int, total: int) -> int:
 def cmd_track(args) -> int:
     from signpose.app.flight_output import open_flight_output
     from signpose.pipeline.frames import BagSource, SourceError, open_source
-    from signpose.pipeline.track import Tracker
+    from signpose.pipeline.track import Tracker, tracked_frames
 
     library, settings, camera = load_inputs(args)
     keep_freed_memory()
@@ -192,24 +192,18 @@ def cmd_track(args) -> int:
         for warning in source.warnings:
             say(f"warning: {warning}", sys.stderr)
         tracker = Tracker(library, settings, camera if camera is not None else source.camera, fps=source.fps)
-        stream = iter(source)
+        stream = tracked_frames(source, tracker, source.name)
         while args.max_frames is None or frames < args.max_frames:
-            t_decode = time.perf_counter()
             try:
-                frame = next(stream, None)
+                tracked = next(stream, None)
             except SourceError as exc:  # the frames before it were tracked and written
                 say(f"signpose track: error: {exc}", sys.stderr)
                 return 1
-            if frame is None:
-                break
-            decode_ms = (time.perf_counter() - t_decode) * 1e3
-            try:
-                result = tracker.step(frame.image, index=frame.index, time_s=frame.time_s)
             except CameraError as exc:
                 raise CliError(f"{source.name}: {exc}") from None
-            record = result.to_json(source.name)
-            record["timing_ms"] = {"decode": round(decode_ms, 3), **record["timing_ms"],
-                                   "total": round(decode_ms + result.timing_ms["total"], 3)}
+            if tracked is None:
+                break
+            frame, result, record = tracked
             if output is not None:
                 output.write(record, image=None if isinstance(source, BagSource) else frame.image,
                              stamp_ns=frame.stamp_ns)
