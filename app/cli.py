@@ -359,6 +359,8 @@ def cmd_serve(args) -> int:
         settings_file=Path(args.settings) if args.settings else None,
         max_images=args.max_images, max_pixels=max_pixels(args), max_memory_bytes=round(args.max_memory_gb * 1e9),
         max_upload_bytes=round(args.max_upload_mb * 1e6), request_timeout_s=args.request_timeout,
+        max_flight_upload_bytes=round(args.max_flight_mb * 1e6), max_flight_frames=args.max_flight_frames,
+        max_flights=args.max_flights,
     )
     token = access_token(args.host, args.token or os.environ.get(TOKEN_ENV))
     try:
@@ -563,6 +565,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_max_megapixels(p)
     p.add_argument("--max-upload-mb", type=positive_number, default=WorkspaceConfig.max_upload_bytes / 1e6,
                    help="largest request body in MB (default %(default)g)")
+    p.add_argument("--max-flight-mb", type=positive_number, default=WorkspaceConfig.max_flight_upload_bytes / 1e6,
+                   help="largest flight upload (a video or a bag) in MB (default %(default)g)")
+    p.add_argument("--max-flight-frames", type=positive_int, default=WorkspaceConfig.max_flight_frames,
+                   help="most frames one flight may hold (default %(default)s, 100 s at 30 fps)")
+    p.add_argument("--max-flights", type=positive_int, default=WorkspaceConfig.max_flights,
+                   help="most flights held at once (default %(default)s)")
     p.add_argument("--request-timeout", type=positive_number, default=WorkspaceConfig.request_timeout_s,
                    help="longest a request waits for pipeline work (recognise, sweep) in seconds (default %(default)g)")
     p.set_defaults(func=cmd_serve)
