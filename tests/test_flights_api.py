@@ -15,15 +15,14 @@ import httpx
 import numpy as np
 import pytest
 
-from signpose.app.server import create_app
-from signpose.app.workspace import SAMPLE_FLIGHT, Workspace, WorkspaceConfig
+from signpose.app.workspace import SAMPLE_FLIGHT, WorkspaceConfig
 from signpose.pipeline.camera import load_camera
 from signpose.pipeline.frames import open_source
 from signpose.pipeline.library import SAMPLE_LIBRARY, load_library
 from signpose.pipeline.settings import PRESETS
 from signpose.pipeline.track import Tracker, tracked_frames
 from tests.support.bags import ROS2, header, write_bag2, write_mcap
-from tests.support.serving import MISFIT_CAMERA, TIMEOUT_S, assert_error, running, sample_library_copy
+from tests.support.serving import MISFIT_CAMERA, TIMEOUT_S, assert_error, running_workspace, sample_library_copy
 
 pytestmark = pytest.mark.server
 
@@ -41,12 +40,8 @@ def config(state_dir: Path, **options) -> WorkspaceConfig:
 
 @pytest.fixture(scope="module")
 def base_url(tmp_path_factory):
-    workspace = Workspace.open(config(tmp_path_factory.mktemp("flights") / "state", max_flight_frames=200))
-    try:
-        with running(create_app(workspace)) as url:
-            yield url
-    finally:
-        workspace.close()
+    with running_workspace(config(tmp_path_factory.mktemp("flights") / "state", max_flight_frames=200)) as url:
+        yield url
 
 
 @pytest.fixture
@@ -196,11 +191,8 @@ def test_bad_flights_are_refused_saying_why(client, tmp_path):
 
 
 def test_a_flight_longer_than_a_flight_may_hold_is_refused(tmp_path):
-    workspace = Workspace.open(config(tmp_path / "state", max_flight_frames=100))
-    try:
-        with running(create_app(workspace)) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as client:
-            assert_error(add_flight(client, "flight.mp4", VIDEO.read_bytes()), 413,
-                         "flight.mp4: 150 frames (5 s at 30 fps), more than the 100 a flight may hold",
-                         "--max-flight-frames")
-    finally:
-        workspace.close()
+    with running_workspace(config(tmp_path / "state", max_flight_frames=100)) as url, \
+            httpx.Client(base_url=url, timeout=TIMEOUT_S) as client:
+        assert_error(add_flight(client, "flight.mp4", VIDEO.read_bytes()), 413,
+                     "flight.mp4: 150 frames (5 s at 30 fps), more than the 100 a flight may hold",
+                     "--max-flight-frames")
