@@ -251,10 +251,7 @@ class Flights:
                 topic: str | None) -> Flight:
         """The Flight of `source`, checked: it opens, its first frame decodes, it holds no more than
         `max_frames` and its camera fits it."""
-        try:
-            found = probe(source, name, topic=topic, max_pixels=self.max_pixels)
-        except FlightError as exc:
-            raise FlightError(str(exc).replace(str(source), name)) from None
+        found = probe(source, name, topic=topic, max_pixels=self.max_pixels)
         if found.count is not None and found.count > self.max_frames:
             seconds = f" ({found.count / found.fps:.0f} s at {found.fps:g} fps)" if found.fps else ""
             raise FlightTooLarge(f"{name}: {found.count} frames{seconds}, more than the {self.max_frames} a flight "
@@ -373,8 +370,7 @@ class Flights:
         None when the run was stopped for a newer one."""
         records: list[dict] = []
         stamps: list[int | None] = []
-        keep_jpegs = len(flight.jpegs) == 0   # a re-run reads the same frames: those kept stay
-        jpegs: list[bytes] = [] if keep_jpegs else flight.jpegs
+        jpegs = list(flight.jpegs)   # a re-run reads the same frames: those kept stay
         error = None
         last_report = time.monotonic()
         frames: Iterator = tracked_frames(source, tracker, flight.name)
@@ -398,7 +394,7 @@ class Flights:
                 break
             records.append(record)
             stamps.append(frame.stamp_ns)
-            if keep_jpegs:
+            if len(jpegs) < len(records):
                 jpegs.append(frame_jpeg(frame.image))
             with self._lock:
                 flight.done = len(records)
