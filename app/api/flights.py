@@ -64,7 +64,7 @@ async def add_flight(file: Annotated[UploadFile, File(description="a video, a RO
     intrinsics = None
     if camera is not None:
         name, data = await run_in_threadpool(read_upload, camera, "camera")
-        intrinsics = read_camera(data, name)
+        intrinsics = await run_in_threadpool(read_camera, data, name)
     flight = await run_in_threadpool(flights.add, file.filename or "flight", file.file, camera=intrinsics,
                                      topic=topic or None)
     return FlightOut(**flight.summary())
