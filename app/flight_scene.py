@@ -96,7 +96,7 @@ class FlightLayer:
 
     def labels(self) -> set[str]:
         """The signs some flight's trajectory is drawn for (their worlds must exist)."""
-        return {label for flight in self.flights.list() for label in self.seen(flight)}
+        return {label for flight in self.flights.held() for label in self.seen(flight)}
 
     def points(self, label: str) -> list[np.ndarray]:
         """(N, 3) m each: the camera positions drawn in sign `label`'s world, to frame views on."""
@@ -111,7 +111,7 @@ class FlightLayer:
     def prune(self, library: Library) -> None:
         """Take away the nodes of flights no longer held and of signs they no longer see: before the
         scene removes a sign's world, which takes its nodes with it."""
-        held = {flight.id: flight for flight in self.flights.list()}
+        held = {flight.id: flight for flight in self.flights.held()}
         self._seen = {k: v for k, v in self._seen.items() if k in held}
         wanted = {(flight.id, label) for flight in held.values() for label in self.seen(flight)
                   if label in library.ids}
@@ -121,7 +121,7 @@ class FlightLayer:
     def draw(self, library: Library, photo_width_m: float, *, redraw_all: bool = False) -> None:
         """Draw the flights held (`prune` has taken the others away): new runs drawn, each current
         frustum at its flight's cursor."""
-        for flight in self.flights.list():
+        for flight in self.flights.held():
             for label, seen in self.seen(flight).items():
                 if label not in library.ids:
                     continue

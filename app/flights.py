@@ -200,7 +200,8 @@ class Flights:
 
     # ---- held flights
 
-    def list(self) -> list[Flight]:
+    def held(self) -> list[Flight]:
+        """Every flight held, in the order they came."""
         with self._lock:
             return list(self._flights.values())
 

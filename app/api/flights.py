@@ -72,7 +72,7 @@ async def add_flight(file: Annotated[UploadFile, File(description="a video, a RO
 
 @router.get("/flights", response_model=FlightsOut)
 def list_flights(flights: FlightsDep) -> FlightsOut:
-    return FlightsOut(flights=[FlightOut(**f.summary()) for f in flights.list()])
+    return FlightsOut(flights=[FlightOut(**f.summary()) for f in flights.held()])
 
 
 @router.get("/flights/{flight_id}", response_model=FlightOut)
