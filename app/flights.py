@@ -188,8 +188,11 @@ class Flights:
 
     def __init__(self, *, snapshot: Callable[[], Snapshot], publish: Callable[[str, dict], None],
                  max_flights: int, max_frames: int, max_bytes: int, max_pixels: int) -> None:
+        """At most `max_flights` held, `max_frames` frames each; `max_bytes` what a zipped bag may unpack
+        to (the upload's own limit); `max_pixels` a frame's pixels, as for photos."""
         self._snapshot, self._publish = snapshot, publish
-        self.max_flights, self.max_frames, self.max_bytes, self.max_pixels = max_flights, max_frames, max_bytes, max_pixels
+        self.max_flights, self.max_frames = max_flights, max_frames
+        self.max_bytes, self.max_pixels = max_bytes, max_pixels
         self._folder = Path(tempfile.mkdtemp(prefix="signpose-flights-"))
         self._lock = threading.Lock()
         self._wake = threading.Condition(self._lock)

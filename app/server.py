@@ -6,9 +6,9 @@ viser relay; `bind` and `serve` run it with uvicorn. Routes are thin: they valid
 workspace or the pipeline off the event loop (plain `def` routes run in a thread pool, heavy work
 in the queue of app/heavy.py, 503 "busy" when it is full) and shape the answer
 (app/responses.py). Domain errors become 4xx with the pipeline's own message: SettingsError,
-CameraError, LibraryError, ImageError, CalibrationError, PipelineError and TuningError 422,
-FlightError 422, ImageTooLarge, FlightTooLarge and oversized bodies 413 (app/uploads.py), Conflict 409, unknown ids 404, pipeline work
-past the request time limit 503; requests that fail validation 422, as one `where: what` line that
+CameraError, LibraryError, ImageError, CalibrationError, PipelineError, TuningError and FlightError
+422, ImageTooLarge, FlightTooLarge and oversized bodies 413 (app/uploads.py), Conflict 409, unknown
+ids 404, pipeline work past the request time limit 503; requests that fail validation 422, as one `where: what` line that
 never echoes the input. app/security.py guards access and sets security headers. The camera
 calibration session (app/calibration.py) and the flights (app/flights.py) sit beside the Workspace
 and reach the routes through their own dependencies.
