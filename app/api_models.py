@@ -370,3 +370,53 @@ class SweepOut(BaseModel):
     centre: int | float | None = Field(description="the middle of the band; for an integer setting the value swept "
                                                    "in the band nearest it")
     labelled: int
+
+
+class FlightCamera(BaseModel):
+    """The intrinsics a flight was tracked with, px."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int | None
+    height: int | None
+    source: str
+
+
+class FlightOut(BaseModel):
+    """A flight (app/flights.py): `status` queued | processing | done | error, `done` of `total` frames
+    tracked (total null while not known), `frames` the frames of the last complete run, `cursor` the
+    frame the page shows (the 3D scene's current frustum)."""
+
+    id: str
+    name: str
+    kind: Literal["video", "bag"]
+    status: Literal["queued", "processing", "done", "error"]
+    done: int
+    total: int | None
+    frames: int
+    width: int
+    height: int
+    fps: float | None
+    error: str | None
+    warnings: list[str]
+    result_version: int
+    cursor: int
+    camera: FlightCamera | None
+
+
+class FlightsOut(BaseModel):
+    flights: list[FlightOut]
+
+
+class FlightFramesOut(BaseModel):
+    """Every frame's line of `signpose track --json` for the flight's last complete run."""
+
+    id: str
+    result_version: int
+    frames: list[dict[str, Any]]
+
+
+class FlightCursorIn(BaseModel):
+    frame: WholeNumber = Field(ge=0, description="the frame shown, from 0")

@@ -173,7 +173,7 @@ def unusable_images(failed: int, total: int) -> int:
 def cmd_track(args) -> int:
     from signpose.app.flight_output import open_flight_output
     from signpose.pipeline.frames import BagSource, SourceError, open_source
-    from signpose.pipeline.track import Tracker
+    from signpose.pipeline.track import Tracker, tracked_frames
 
     library, settings, camera = load_inputs(args)
     keep_freed_memory()
@@ -192,24 +192,18 @@ def cmd_track(args) -> int:
         for warning in source.warnings:
             say(f"warning: {warning}", sys.stderr)
         tracker = Tracker(library, settings, camera if camera is not None else source.camera, fps=source.fps)
-        stream = iter(source)
+        stream = tracked_frames(source, tracker, source.name)
         while args.max_frames is None or frames < args.max_frames:
-            t_decode = time.perf_counter()
             try:
-                frame = next(stream, None)
+                tracked = next(stream, None)
             except SourceError as exc:  # the frames before it were tracked and written
                 say(f"signpose track: error: {exc}", sys.stderr)
                 return 1
-            if frame is None:
-                break
-            decode_ms = (time.perf_counter() - t_decode) * 1e3
-            try:
-                result = tracker.step(frame.image, index=frame.index, time_s=frame.time_s)
             except CameraError as exc:
                 raise CliError(f"{source.name}: {exc}") from None
-            record = result.to_json(source.name)
-            record["timing_ms"] = {"decode": round(decode_ms, 3), **record["timing_ms"],
-                                   "total": round(decode_ms + result.timing_ms["total"], 3)}
+            if tracked is None:
+                break
+            frame, result, record = tracked
             if output is not None:
                 output.write(record, image=None if isinstance(source, BagSource) else frame.image,
                              stamp_ns=frame.stamp_ns)
@@ -365,6 +359,8 @@ def cmd_serve(args) -> int:
         settings_file=Path(args.settings) if args.settings else None,
         max_images=args.max_images, max_pixels=max_pixels(args), max_memory_bytes=round(args.max_memory_gb * 1e9),
         max_upload_bytes=round(args.max_upload_mb * 1e6), request_timeout_s=args.request_timeout,
+        max_flight_upload_bytes=round(args.max_flight_mb * 1e6), max_flight_frames=args.max_flight_frames,
+        max_flights=args.max_flights,
     )
     token = access_token(args.host, args.token or os.environ.get(TOKEN_ENV))
     try:
@@ -569,6 +565,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_max_megapixels(p)
     p.add_argument("--max-upload-mb", type=positive_number, default=WorkspaceConfig.max_upload_bytes / 1e6,
                    help="largest request body in MB (default %(default)g)")
+    p.add_argument("--max-flight-mb", type=positive_number, default=WorkspaceConfig.max_flight_upload_bytes / 1e6,
+                   help="largest flight upload (a video or a bag) in MB (default %(default)g)")
+    p.add_argument("--max-flight-frames", type=positive_int, default=WorkspaceConfig.max_flight_frames,
+                   help="most frames one flight may hold (default %(default)s, 100 s at 30 fps)")
+    p.add_argument("--max-flights", type=positive_int, default=WorkspaceConfig.max_flights,
+                   help="most flights held at once (default %(default)s)")
     p.add_argument("--request-timeout", type=positive_number, default=WorkspaceConfig.request_timeout_s,
                    help="longest a request waits for pipeline work (recognise, sweep) in seconds (default %(default)g)")
     p.set_defaults(func=cmd_serve)

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 log = logging.getLogger(__name__)
 
-EVENT_KINDS = ("settings", "results", "library", "camera", "images", "calibration")
+EVENT_KINDS = ("settings", "results", "library", "camera", "images", "calibration", "flights", "flight_cursor")
 
 
 @dataclass(frozen=True)

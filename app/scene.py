@@ -25,7 +25,7 @@ import threading
 import time
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal
+from typing import TYPE_CHECKING, Any, Callable, Literal
 
 import cv2
 import numpy as np
@@ -40,6 +40,10 @@ from signpose.pipeline.library import Library, LibrarySign
 from signpose.pipeline.pose import camera_position
 from signpose.pipeline.recognize import Recognition
 from signpose.pipeline.settings import Settings, SettingsError, settings_schema
+
+if TYPE_CHECKING:
+    from signpose.app.flight_scene import FlightLayer
+    from signpose.app.flights import Flights
 
 log = logging.getLogger(__name__)
 
@@ -532,6 +536,10 @@ class SceneHandle:
     _stale_signs: bool = False
     _unsubscribe: Callable[[], None] | None = field(default=None, repr=False)
     _thread: threading.Thread | None = field(default=None, repr=False)
+    # The flights' trajectories (app/flight_scene.py), None for a scene without flights; redrawn when
+    # the (id, result_version) of the flights held, last seen in `_flight_runs`, change.
+    flight_layer: FlightLayer | None = None
+    _flight_runs: tuple = ()
 
     # ---- lifecycle
 
@@ -585,6 +593,14 @@ class SceneHandle:
             return
         if event.kind == "calibration":   # nothing drawn depends on it: a board search would redraw a photo at a time
             return
+        if event.kind == "flight_cursor":
+            self._follow_cursor(event.payload["id"])
+            return
+        if event.kind == "flights":   # progress while a flight runs changes nothing drawn until it ends
+            runs = tuple((f["id"], f["result_version"]) for f in event.payload["flights"])
+            if runs == self._flight_runs:
+                return
+            self._flight_runs = runs
         if event.kind == "results":
             self._progress = event.payload
         elif event.kind == "library":
@@ -618,6 +634,18 @@ class SceneHandle:
             client.add_notification("Image not added", why, color="red", auto_close_seconds=8.0)
         log.info("upload refused: %s", why)
 
+    def _follow_cursor(self, flight_id: str) -> None:
+        """Move the flight's current frustum to the frame the page shows, in the world of a sign that
+        frame sees (switching worlds when the one shown does not see it)."""
+        if self.flight_layer is None:
+            return
+        with self._lock:
+            self.flight_layer.show_cursor(flight_id)
+            worlds = self.flight_layer.cursor_labels(flight_id)
+            if worlds and self.world.value not in worlds and worlds[0] in self.world.options:
+                self.world.value = worlds[0]  # type: ignore[misc]
+                self._on_view_option()
+
     def _on_view_option(self, _event: viser.GuiEvent | None = None) -> None:
         with self._lock:
             for sign_id, nodes in self.signs.items():
@@ -638,9 +666,10 @@ class SceneHandle:
         sign = self.signs.get(self.world.value)
         if sign is None:
             return None
+        flown = self.flight_layer.points(self.world.value) if self.flight_layer is not None else []
         points = np.vstack([np.asarray(sign.outline.points).reshape(-1, 3),
                             *[np.asarray(n.frustum.position).reshape(1, 3)
-                              for n in self.cameras.values() if n.sign == self.world.value]])
+                              for n in self.cameras.values() if n.sign == self.world.value], *flown])
         return overview_camera(points, fov_rad, aspect)
 
     def _label_px(self) -> float:
@@ -801,12 +830,19 @@ class SceneHandle:
             shown = [(r, o.recognition) for r, o in zip(records, outcomes)
                      if _has_pose(o.recognition) and o.recognition.label in library.ids]
             counts = Counter(rec.label for _, rec in shown)
+            # A flight's signs have a world too, ranked after every sign a photo shows.
+            for label in self.flight_layer.labels() & set(library.ids) if self.flight_layer is not None else ():
+                counts[label] += 0
+            stale_geometry, self._stale_geometry = self._stale_geometry, False
             if self._stale_signs:
                 # Library edits can change a sign's image or size under the same id.
                 self._stale_signs = False
                 self._remove_cameras(set(self.cameras))
+                if self.flight_layer is not None:
+                    self.flight_layer.clear()
                 self._remove_signs(set(self.signs))
-            stale_geometry, self._stale_geometry = self._stale_geometry, False
+            if self.flight_layer is not None:
+                self.flight_layer.prune(library)
 
             current = {r.id for r in records}
             self._thumbnails = {k: v for k, v in self._thumbnails.items() if k in current}
@@ -820,6 +856,8 @@ class SceneHandle:
                 nodes = self.cameras.get(record.id)
                 if nodes is None or nodes.recognition is not rec or stale_geometry:
                     self._draw_camera(record, rec, library)
+            if self.flight_layer is not None:
+                self.flight_layer.draw(library, self.frustum_width.value, redraw_all=stale_geometry)
             self._choose_world(counts)
             self._shown = shown
             self._share_labels(shown)   # laid out in the views as framed for the world chosen
@@ -998,8 +1036,11 @@ def fold_panel_in_small_view(client: viser.ClientHandle, css_width: float) -> No
         client.gui.main_panel.minimize()
 
 
-def attach(server: viser.ViserServer, workspace: Workspace) -> SceneHandle:
-    """Add the sign/camera scene and the tuning GUI to `server` and keep both in step with `workspace`."""
+def attach(server: viser.ViserServer, workspace: Workspace, flights: Flights | None = None) -> SceneHandle:
+    """Add the sign/camera scene and the tuning GUI to `server` and keep both in step with `workspace`,
+    and with `flights`' trajectories when given."""
+    from signpose.app.flight_scene import FlightLayer   # it draws with this module's helpers
+
     server.scene.set_up_direction("-y")  # y runs down the sign
     server.initial_camera.position = INITIAL_VIEW_POSITION_M
     server.initial_camera.look_at = INITIAL_VIEW_LOOK_AT_M
@@ -1017,7 +1058,8 @@ def attach(server: viser.ViserServer, workspace: Workspace) -> SceneHandle:
     # `scene` is bound below, before any client can connect and edit a setting.
     panel = add_settings_panel(gui, workspace.settings, lambda changes, client: scene._apply_settings(changes, client))
     panel.version = workspace.settings_version
-    scene = SceneHandle(server, workspace, panel, world, show_matches, frustum_width, status, upload)
+    scene = SceneHandle(server, workspace, panel, world, show_matches, frustum_width, status, upload,
+                        flight_layer=FlightLayer(server, flights) if flights is not None else None)
     world.on_update(scene._on_world)
     show_matches.on_update(scene._on_view_option)
     frustum_width.on_update(scene._on_frustum_width)

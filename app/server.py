@@ -6,18 +6,19 @@ viser relay; `bind` and `serve` run it with uvicorn. Routes are thin: they valid
 workspace or the pipeline off the event loop (plain `def` routes run in a thread pool, heavy work
 in the queue of app/heavy.py, 503 "busy" when it is full) and shape the answer
 (app/responses.py). Domain errors become 4xx with the pipeline's own message: SettingsError,
-CameraError, LibraryError, ImageError, CalibrationError, PipelineError and TuningError 422,
-ImageTooLarge and oversized bodies 413 (app/uploads.py), Conflict 409, unknown ids 404, pipeline work
-past the request time limit 503; requests that fail validation 422, as one `where: what` line that
+CameraError, LibraryError, ImageError, CalibrationError, PipelineError, TuningError and FlightError
+422, ImageTooLarge, FlightTooLarge and oversized bodies 413 (app/uploads.py), Conflict 409, unknown
+ids 404, pipeline work past the request time limit 503; requests that fail validation 422, as one `where: what` line that
 never echoes the input. app/security.py guards access and sets security headers. The camera
-calibration session (app/calibration.py) sits beside the Workspace and reaches the routes through
-its own dependency.
+calibration session (app/calibration.py) and the flights (app/flights.py) sit beside the Workspace
+and reach the routes through their own dependencies.
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
+import logging
 import socket
 import tomllib
 from collections.abc import AsyncIterator, Awaitable, Callable
@@ -33,7 +34,7 @@ from starlette.concurrency import run_in_threadpool
 
 from signpose.pipeline import shipped_folder
 from signpose.pipeline.calibrate import CalibrationError
-from signpose.pipeline.camera import CameraError
+from signpose.pipeline.camera import CameraError, load_camera
 from signpose.pipeline.image import ImageError
 from signpose.pipeline.library import LibraryError
 from signpose.pipeline.recognize import PipelineError
@@ -41,6 +42,7 @@ from signpose.pipeline.settings import SettingsError
 
 from . import api
 from .calibration import CalibrationSession
+from .flights import FlightError, Flights, FlightTooLarge
 from .heavy import WorkQueue
 from .image_store import Conflict, ImageTooLarge
 from .scene import attach as attach_scene
@@ -48,7 +50,9 @@ from .security import DOCS_ASSETS, AccessGuard, SecurityHeaders
 from .tuning import TuningError
 from .uploads import UploadLimit
 from .viser_proxy import PrivateViser, mount_viser
-from .workspace import Workspace, WorkspaceConfig
+from .workspace import SAMPLE_FLIGHT, Workspace, WorkspaceConfig
+
+log = logging.getLogger(__name__)
 
 STATIC_DIR = shipped_folder(Path(__file__).resolve().parent, "static")
 BACKLOG = 2048  # uvicorn's default
@@ -84,6 +88,17 @@ async def _validation_error_handler(request: Request, exc: Exception) -> JSONRes
                         status_code=status.HTTP_422_UNPROCESSABLE_CONTENT)
 
 
+def add_sample_flight(flights: Flights, folder: Path = SAMPLE_FLIGHT) -> None:
+    """The sample flight (sample_images/flights/corridor: its video and camera file), among the flights;
+    logged and left out when it cannot be read."""
+    try:
+        camera = load_camera(folder / "camera.yaml")
+        with (folder / "flight.mp4").open("rb") as video:
+            flights.add(f"{folder.name}.mp4", video, camera=camera)
+    except (OSError, ValueError) as exc:
+        log.warning("sample flight %s not loaded: %s", folder, exc)
+
+
 def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) -> FastAPI:
     """The signpose app around `source`: a Workspace the caller owns and closes, or a config to
     build one from (then the app closes it at shutdown). The viser server starts with the app.
@@ -100,12 +115,14 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
         with contextlib.redirect_stdout(io.StringIO()):
             private = PrivateViser.start()
         app.state.viser_socket = private.socket_path
-        scene = app.state.scene = attach_scene(private.server, workspace)
+        scene = app.state.scene = attach_scene(private.server, workspace, flights)
         try:
             yield
         finally:
             scene.close()
             private.stop()
+            stop_flights()
+            await run_in_threadpool(flights.close)
             if owned:
                 await run_in_threadpool(workspace.close)
 
@@ -117,13 +134,21 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
     app.state.calibration = CalibrationSession(workspace.config.max_pixels,
                                                publish=lambda payload: workspace.publish("calibration", payload))
     app.state.work_queue = WorkQueue(workers=workspace.config.workers)
+    config = workspace.config
+    flights = app.state.flights = Flights(snapshot=lambda: workspace.snapshot, publish=workspace.publish,
+                                          max_flights=config.max_flights, max_frames=config.max_flight_frames,
+                                          max_bytes=config.max_flight_upload_bytes, max_pixels=config.max_pixels)
+    stop_flights = workspace.subscribe(flights.on_event)
+    if workspace.shows_samples:
+        add_sample_flight(flights)
     # The last added runs first: headers on every answer, then access, then the body limit.
-    app.add_middleware(UploadLimit, max_bytes=workspace.config.max_upload_bytes)
+    app.add_middleware(UploadLimit, max_bytes=config.max_upload_bytes,
+                       routes={"/api/flights": (config.max_flight_upload_bytes, "--max-flight-mb")})
     app.add_middleware(AccessGuard, token=token)
     app.add_middleware(SecurityHeaders)
     for error, code in ((SettingsError, 422), (CameraError, 422), (LibraryError, 422), (ImageError, 422),
-                        (PipelineError, 422), (CalibrationError, 422), (TuningError, 422), (ImageTooLarge, 413),
-                        (Conflict, 409)):
+                        (PipelineError, 422), (CalibrationError, 422), (TuningError, 422), (FlightError, 422),
+                        (ImageTooLarge, 413), (FlightTooLarge, 413), (Conflict, 409)):
         app.add_exception_handler(error, _error_handler(code))
     app.add_exception_handler(RequestValidationError, _validation_error_handler)
     app.include_router(api.router)

@@ -20,28 +20,38 @@ from .image_store import display_name
 
 class UploadLimit:
     """Refuse request bodies over `max_bytes` with 413: at once when Content-Length says so,
-    else as soon as the bytes received pass the limit, so nothing larger is ever buffered."""
+    else as soon as the bytes received pass the limit, so nothing larger is ever buffered.
+    `routes`: paths whose bodies have a limit of their own, path -> (bytes, the serve option that sets
+    it): a flight's video is one request far larger than a photo."""
 
-    def __init__(self, app: ASGIApp, max_bytes: int) -> None:
+    def __init__(self, app: ASGIApp, max_bytes: int, routes: dict[str, tuple[int, str]] | None = None) -> None:
         self.app = app
         self.max_bytes = max_bytes
+        self.routes = routes or {}
 
-    def message(self, size: int | None) -> str:
+    def limit(self, path: str) -> tuple[int, str]:
+        """(the largest body in bytes, the option that sets it) for a request to `path`."""
+        return self.routes.get(path.rstrip("/"), (self.max_bytes, "--max-upload-mb"))
+
+    def message(self, size: int | None, path: str = "") -> str:
         """Why a body of `size` bytes (None: not declared) is refused, and what to do: the page sends one
         file per request, so a single large photo can only pass with the limit raised where it is set."""
+        max_bytes, option = self.limit(path)
         size_text = f"{size / 1e6:.1f} MB, " if size is not None else ""
         enough = f" {math.ceil(size / 1e6)}" if size is not None else ""
-        return (f"the upload is {size_text}more than this server's limit of {self.max_bytes / 1e6:.1f} MB per request: "
+        return (f"the upload is {size_text}more than this server's limit of {max_bytes / 1e6:.1f} MB per request: "
                 f"send fewer or smaller files per request, or start the server with a higher limit "
-                f"(signpose serve --max-upload-mb{enough})")
+                f"(signpose serve {option}{enough})")
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
+        path = scope.get("path", "")
+        max_bytes = self.limit(path)[0]
         declared = Headers(scope=scope).get("content-length", "")
-        if declared.isdigit() and int(declared) > self.max_bytes:
-            await JSONResponse({"detail": self.message(int(declared))}, status.HTTP_413_CONTENT_TOO_LARGE)(
+        if declared.isdigit() and int(declared) > max_bytes:
+            await JSONResponse({"detail": self.message(int(declared), path)}, status.HTTP_413_CONTENT_TOO_LARGE)(
                 scope, receive, send)
             return
         received = 0
@@ -51,9 +61,9 @@ class UploadLimit:
             message = await receive()
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
-                if received > self.max_bytes:
+                if received > max_bytes:
                     # Raised inside the app's body parsing; FastAPI turns it into the response.
-                    raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE, self.message(None))
+                    raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE, self.message(None, path))
             return message
 
         await self.app(scope, counting_receive, send)

@@ -51,6 +51,7 @@ from .state import Replaced, StateDir, StoredImage
 log = logging.getLogger(__name__)
 
 SAMPLE_SCENES = SAMPLE_LIBRARY.parent / "scenes"
+SAMPLE_FLIGHT = SAMPLE_LIBRARY.parent / "flights" / "corridor"
 
 
 @dataclass(frozen=True)
@@ -65,6 +66,9 @@ class WorkspaceConfig:
     max_images: int = 500
     max_pixels: int = 40_000_000
     max_upload_bytes: int = 25_000_000
+    max_flight_upload_bytes: int = 500_000_000  # a flight's upload (a video or a bag) is one request
+    max_flight_frames: int = 3000  # frames one flight may hold: 100 s at 30 fps
+    max_flights: int = 5  # flights held at once (each keeps its frames as JPEG)
     max_memory_bytes: int = DEFAULT_MAX_MEMORY_BYTES  # what the images held may take, as `held_bytes` counts
     request_timeout_s: float = 120.0  # longest a request waits for pipeline work (recognise, sweep)
     workers: int = CORES  # every core; `signpose evaluate --workers` defaults to it too
@@ -140,6 +144,9 @@ class Workspace:
         self._library_lock = threading.Lock()
         self._disk_lock = threading.Lock()
         self._history = SettingsHistory(snapshot)
+        # A state started from the sample library shows the samples: the sample scenes once, on a fresh
+        # state; the sample flight (flights are not kept in the state) at every start. Set by `open`.
+        self.shows_samples = False
         self._images = ImageStore(state, images, max_images=config.max_images, max_pixels=config.max_pixels,
                                   max_memory_bytes=config.max_memory_bytes)
         self._events = EventBus()
@@ -176,8 +183,9 @@ class Workspace:
         if len(records) != len(stored or []):
             state.save_images([r.stored() for r in records])
         workspace = cls(config, state=state, snapshot=snapshot, images=records)
-        from_samples = state.library_record().copied_from == SAMPLE_LIBRARY.resolve()
-        if stored is None and config.load_samples and from_samples:
+        workspace.shows_samples = config.load_samples and \
+            state.library_record().copied_from == SAMPLE_LIBRARY.resolve()
+        if stored is None and workspace.shows_samples:
             workspace._load_samples()
         return workspace
 

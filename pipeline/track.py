@@ -32,6 +32,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
 import cv2
@@ -39,6 +40,7 @@ import numpy as np
 
 from .camera import Camera
 from .every_sign import recognize_every_sign
+from .frames import Frame
 from .image import to_gray
 from .library import Library, LibrarySign
 from .outline import Outline, outline_fit, refine_outline
@@ -435,3 +437,24 @@ class Tracker:
         rmse, covariance = outline_fit(pose.R, pose.t, step.outline, sign, camera)
         return dataclasses.replace(pose, reprojection_rmse_px=rmse,
                                    covariance=with_corner_floor(covariance, pose.R, pose.t, sign, camera, sigma))
+
+
+def tracked_frames(frames: Iterable[Frame], tracker: Tracker, source: str) -> Iterator[tuple[Frame, FrameResult, dict]]:
+    """Each of `frames` through `tracker`, in order: (the frame, the tracker's result, its line of
+    `signpose track --json` named `source`, whose timings include the frame's decode, in ms).
+
+    The frames' errors (SourceError) and the tracker's (CameraError: the camera does not fit the
+    frames) are raised as they come; the frames before them have been yielded.
+    """
+    stream = iter(frames)
+    while True:
+        t_decode = time.perf_counter()
+        frame = next(stream, None)
+        if frame is None:
+            return
+        decode_ms = (time.perf_counter() - t_decode) * 1e3
+        result = tracker.step(frame.image, index=frame.index, time_s=frame.time_s)
+        record = result.to_json(source)
+        record["timing_ms"] = {"decode": round(decode_ms, 3), **record["timing_ms"],
+                               "total": round(decode_ms + result.timing_ms["total"], 3)}
+        yield frame, result, record

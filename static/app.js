@@ -3,6 +3,7 @@
 import { get, latestGet } from "./api.js";
 import { initCamera } from "./camera.js";
 import { initDetail } from "./detail.js";
+import { initFlights, refreshFlights } from "./flights.js";
 import { choose, initGallery, refreshImages } from "./gallery.js";
 import { initLibrary, loadLibrary } from "./library.js";
 import { reloadScene } from "./scene.js";
@@ -50,6 +51,7 @@ async function resync() {
   try {
     applySettings(await get("/api/settings"), true);
     refreshImages();
+    refreshFlights();
     emit("calibration", null);   // an open Camera dialog shows the calibration again
     loadHealth();   // a restarted server may have another memory limit
   } catch (err) {
@@ -81,6 +83,7 @@ function listen() {
   source.addEventListener("library", handle(() => loadLibrary().then(refreshImages, report)));
   source.addEventListener("camera", handle(() => emit("camera")));
   source.addEventListener("calibration", handle((change) => emit("calibration", change)));
+  source.addEventListener("flights", handle((progress) => emit("flights", progress)));
 }
 
 /** The image a `#image=<id>` link names, or null. */
@@ -97,6 +100,7 @@ async function main() {
   initLibrary();
   initGallery();
   initDetail();
+  initFlights();
   const wanted = linkedImage();
   let autoOpen = true;
   let heldIds = null;   // the ids of the images the memory figure counts

@@ -1,5 +1,6 @@
-// Canvas charts: the gray histogram and the threshold sweep (threshold calibration), and the
-// per-photo reprojection errors of a camera calibration.
+// Canvas charts: the gray histogram and the threshold sweep (threshold calibration), the
+// per-photo reprojection errors of a camera calibration, and a flight's camera position and
+// tracking state over time.
 
 import { settingText } from "./settings.js";
 
@@ -11,6 +12,7 @@ const COLORS = {
   threshold: "#0969da", suggested: "#1a7f37", white: "#57606a", background: "#9a6700", high: "#bc4c00",
   bars: "#8c959f", correct: "#1a7f37", margin: "#8250df", band: "rgba(26,127,55,0.12)",
   outlier: "#cf222e", excluded: "#d0d7de", selected: "#0969da",
+  x: "#cf222e", y: "#1a7f37", z: "#0969da", detected: "#8250df", tracked: "#1a7f37", unseen: "#eaeef2",
 };
 
 /** Size the canvas for the device's pixel ratio and return plot-area transforms for x in [x0, x1];
@@ -213,4 +215,54 @@ export function drawViewErrors(canvas, views, result, selected) {
 /** Index of the bar under a click at `clientX` on a chart of `n` bars drawn by drawViewErrors. */
 export function barAt(canvas, clientX, n) {
   return Math.min(n - 1, Math.floor(valueAt(canvas, clientX, 0, n)));
+}
+
+/** A flight's camera position in the sign's frame (m) against time (s): `times` and `positions`
+ *  ([x, y, z] or null where the sign was not seen, which breaks the lines), over [t0, t1]; the frame
+ *  shown at `cursor` s. */
+export function drawFlightPositions(canvas, times, positions, t0, t1, cursor) {
+  const p = plot(canvas, t0, Math.max(t1, t0 + 1e-3), 1);
+  const { ctx, x, y, w } = p;
+  const values = positions.filter(Boolean).flat();
+  const lo = Math.min(...values, 0), hi = Math.max(...values, 0);
+  const span = hi - lo || 1;
+  const f = (v) => (v - lo) / span;
+  ["x", "y", "z"].forEach((axis, k) => {
+    ctx.strokeStyle = COLORS[axis];
+    ctx.lineWidth = 1.5;
+    ctx.beginPath();
+    let drawing = false;
+    positions.forEach((position, i) => {
+      if (!position) { drawing = false; return; }
+      if (drawing) ctx.lineTo(x(times[i]), y(f(position[k])));
+      else ctx.moveTo(x(times[i]), y(f(position[k])));
+      drawing = true;
+    });
+    ctx.stroke();
+    ctx.fillStyle = COLORS[axis];
+    ctx.textAlign = "left";
+    ctx.textBaseline = "top";
+    ctx.fillText(axis, PAD.left + w + 4 + 10 * k, PAD.top);
+  });
+  ctx.fillStyle = INK;
+  ctx.textAlign = "right";
+  ctx.textBaseline = "middle";
+  ctx.fillText(`${hi.toFixed(1)} m`, PAD.left - 2, y(1));
+  ctx.fillText(lo.toFixed(1), PAD.left - 2, y(0));
+  if (lo < 0 && hi > 0) ctx.fillText("0", PAD.left - 2, y(f(0)));
+  marker(p, cursor, COLORS.selected, "");
+}
+
+/** A flight's state per frame, a bar each: "detected", "tracked" or null (the sign not seen), over
+ *  [t0, t1] s at `times`; the frame shown at `cursor` s. */
+export function drawFlightStates(canvas, times, states, t0, t1, cursor) {
+  const p = plot(canvas, t0, Math.max(t1, t0 + 1e-3), 1);
+  const { ctx, x, y } = p;
+  const step = times.length > 1 ? (t1 - t0) / (times.length - 1) : 1;
+  states.forEach((state, i) => {
+    ctx.fillStyle = COLORS[state ?? "unseen"];
+    ctx.fillRect(x(times[i] - step / 2), y(0.9), Math.max(1, x(times[i] + step / 2) - x(times[i] - step / 2)),
+      y(0.1) - y(0.9));
+  });
+  marker(p, cursor, COLORS.selected, "");
 }

@@ -3,6 +3,7 @@
 import { api, latestGet } from "./api.js";
 import { state, emit, on, select, signName } from "./store.js";
 import { $, el, fill, plural, report, throttle, toast } from "./ui.js";
+import { addFlights, isFlightFile } from "./flights.js";
 import { dropTarget, filesForm, uploadQueue } from "./uploads.js";
 
 /** ImageSummary.status as the page words it, and what it means. "no sign" alone would read as the
@@ -39,8 +40,13 @@ function bindUpload() {
   });
   const picker = $("#file-picker");
   picker.onchange = () => { enqueue(picker.files); picker.value = ""; };
-  // The whole page is a drop target: aiming at a small box is needless friction.
-  dropTarget(document.body, enqueue);
+  // The whole page is a drop target: aiming at a small box is needless friction. Videos and bags are flights.
+  dropTarget(document.body, (files) => {
+    const all = [...files];
+    const flights = all.filter(isFlightFile);
+    if (flights.length) addFlights(flights);
+    if (flights.length < all.length) enqueue(all.filter((file) => !isFlightFile(file)));
+  });
 }
 
 /** Options for an expected-label select: unlabelled, "none" (no sign in the photo) or a library sign. */

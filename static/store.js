@@ -13,7 +13,8 @@ export const state = {
 
 const bus = new EventTarget();
 
-/** Events: settings, library, images, select, camera, calibration, detail (an image's detail drawn). */
+/** Events: settings, library, images, select, camera, calibration, detail (an image's detail drawn),
+ *  flights (the server's flights event: their progress). */
 export function emit(name, detail) {
   bus.dispatchEvent(new CustomEvent(name, { detail }));
 }

@@ -8,6 +8,13 @@ const PARALLEL_UPLOADS = 3;
 // For files the browser gives no media type: what the server reads (pipeline/image.py).
 const IMAGE_FILE = /\.(jpe?g|png|bmp|tiff?|webp|gif|pgm|ppm)$/i;
 
+/** What a queue sends by default: images, counted as such. `accepts(file)`, and the message for a file refused. */
+export const IMAGES = {
+  noun: "image",
+  accepts: (file) => file.type.startsWith("image/") || IMAGE_FILE.test(file.name),
+  refusal: (file) => `${file.name}: not an image file (use JPEG, PNG, TIFF, WebP, BMP or GIF), skipped`,
+};
+
 let unfinished = 0;   // files queued or being sent, in every queue: leaving the page drops them
 
 window.addEventListener("beforeunload", (e) => {
@@ -45,7 +52,7 @@ function uploadRow(list, file) {
 /** The line over a queue's progress rows counting the files sent since it was last idle: how many
  *  the server has stored, how many failed or were stopped and how many are still to go. Shown for
  *  two files or more; it goes a while after the last, and stays while any failed. */
-function batchLine(list) {
+function batchLine(list, noun) {
   const text = el("span.upload-status");
   const line = el("li.upload.batch", { role: "status" }, text,
     el("button.icon", { type: "button", title: "Dismiss", onclick: () => line.remove() }, "×"));
@@ -53,7 +60,7 @@ function batchLine(list) {
   let removal = null;
   const render = () => {
     const { total, stored, failed, stopped } = counts, left = total - stored - failed - stopped;
-    text.textContent = [`${stored} of ${plural(total, "image")} stored`, failed && `${failed} failed`,
+    text.textContent = [`${stored} of ${plural(total, noun)} stored`, failed && `${failed} failed`,
       stopped && `${stopped} stopped`, left && `${left} to go`].filter(Boolean).join(" · ");
     line.hidden = total < 2;
   };
@@ -95,12 +102,13 @@ export function filesForm(file, fields = {}) {
  * also names the batch (the files queued until the queue is next idle) and the file's position
  * in it: the server lists them in that order, whichever of the parallel uploads lands first.
  * `done(body)` gets each JSON answer and returns the row's closing message; `idle()` runs when
- * the queue has emptied. Returns `enqueue(files)`, with `enqueue.left()` the files queued or being
- * sent and `enqueue.stop()` (see there).
+ * the queue has emptied. `kind`: the files it takes (IMAGES by default; others are refused with a
+ * message). Returns `enqueue(files)`, with `enqueue.left()` the files queued or being sent and
+ * `enqueue.stop()` (see there).
  */
-export function uploadQueue({ list, url, form, done, idle = () => {} }) {
+export function uploadQueue({ list, url, form, done, idle = () => {}, kind = IMAGES }) {
   const queue = [];
-  const batch = batchLine(list);
+  const batch = batchLine(list, kind.noun);
   let active = 0;
   let batchName = "", position = 0;
   const waiting = [];   // resolves of stop()s waiting for the files being sent
@@ -133,9 +141,9 @@ export function uploadQueue({ list, url, form, done, idle = () => {} }) {
 
   function enqueue(files) {
     const images = [...files].filter((file) => {
-      const image = file.type.startsWith("image/") || IMAGE_FILE.test(file.name);
-      if (!image) toast(`${file.name}: not an image file (use JPEG, PNG, TIFF, WebP, BMP or GIF), skipped`, "error");
-      return image;
+      const accepted = kind.accepts(file);
+      if (!accepted) toast(kind.refusal(file), "error");
+      return accepted;
     });
     if (!images.length) return;
     if (!active && !queue.length) {

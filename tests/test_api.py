@@ -94,7 +94,10 @@ def test_health_docs_and_every_contract_path_in_openapi(client):
                  "/api/events",
                  "/api/calibration", "/api/calibration/images", "/api/calibration/board", "/api/calibration/run",
                  "/api/calibration/views/{view_id}/image", "/api/calibration/views/{view_id}",
-                 "/api/calibration/apply", "/api/calibration/camera.yaml"):
+                 "/api/calibration/apply", "/api/calibration/camera.yaml",
+                 "/api/flights", "/api/flights/{flight_id}", "/api/flights/{flight_id}/frames",
+                 "/api/flights/{flight_id}/frames/{index}", "/api/flights/{flight_id}/frames/{index}/image",
+                 "/api/flights/{flight_id}/cursor", "/api/flights/{flight_id}/export"):
         assert path in paths, path
 
 

@@ -12,7 +12,8 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 # What building the wheel reads: the packages and the folders pyproject.toml packs into them.
-SOURCES = ("pyproject.toml", "README.md", "app", "pipeline", "static", "sample_images/library", "sample_images/scenes")
+SOURCES = ("pyproject.toml", "README.md", "app", "pipeline", "static", "sample_images/library", "sample_images/scenes",
+           "sample_images/flights")
 
 
 @pytest.fixture(scope="module")
@@ -47,16 +48,17 @@ assert Path(signpose.app.__file__).is_relative_to({lib!r}), signpose.app.__file_
 # the server answers requests addressed to a loopback host only
 with TestClient(create_app(WorkspaceConfig(state_dir=Path("state"))), base_url="http://127.0.0.1") as client:
     page, script = client.get("/"), client.get("/app.js")
-    print(page.status_code, "<html" in page.text.lower(), script.status_code, len(client.get("/api/images").json()["images"]))
+    print(page.status_code, "<html" in page.text.lower(), script.status_code, len(client.get("/api/images").json()["images"]),
+          [f["name"] for f in client.get("/api/flights").json()["flights"]])
 """
 
 
 @pytest.mark.slow
-def test_an_installed_copy_serves_the_page_with_the_sample_library_and_scenes(installed, tmp_path):
+def test_an_installed_copy_serves_the_page_with_the_sample_library_scenes_and_flight(installed, tmp_path):
     result = run_installed(installed, ["-c", SERVE.format(lib=str(installed))], tmp_path)
     assert result.returncode == 0, result.stderr
-    # the page, its script, the 12 sample scenes (viser then says it stopped)
-    assert result.stdout.splitlines()[0].split() == ["200", "True", "200", "12"], result.stdout
+    # the page, its script, the 12 sample scenes and the sample flight (viser then says it stopped)
+    assert result.stdout.splitlines()[0].split() == ["200", "True", "200", "12", "['corridor.mp4']"], result.stdout
 
 
 def test_an_installed_copy_recognizes_with_the_sample_library_by_default(installed, tmp_path):

@@ -1,5 +1,5 @@
 """What the API's routes share: the objects they work on (the workspace, an image, a sign, the
-calibration session, the 3D scene, the queue heavy work waits in) as FastAPI dependencies, the
+calibration session, the flights, the 3D scene, the queue heavy work waits in) as FastAPI dependencies, the
 checks of a request's body (its media type, its multipart fields), and the route class that reads
 bodies.
 
@@ -24,6 +24,7 @@ from signpose.pipeline.jsonfile import JsonError, parse_json
 from signpose.pipeline.library import ID_PATTERN
 
 from ..calibration import CalibrationSession
+from ..flights import Flights
 from ..heavy import WorkQueue
 from ..scene import SceneHandle
 from ..security import cross_site_refusal
@@ -85,6 +86,13 @@ async def get_scene(request: Request) -> SceneHandle | None:
 
 
 SceneDep = Annotated[SceneHandle | None, Depends(get_scene)]
+
+
+async def get_flights(request: Request) -> Flights:
+    return request.app.state.flights
+
+
+FlightsDep = Annotated[Flights, Depends(get_flights)]
 
 
 async def get_work_queue(request: Request) -> WorkQueue:

@@ -18,7 +18,8 @@ import httpx
 import uvicorn
 import viser
 
-from signpose.app.server import bind
+from signpose.app.server import bind, create_app
+from signpose.app.workspace import Workspace, WorkspaceConfig
 from signpose.pipeline.library import SAMPLE_LIBRARY
 
 REPO = Path(__file__).resolve().parents[2]
@@ -42,6 +43,17 @@ def running(app):
     finally:
         server.should_exit = True
         thread.join(TIMEOUT_S)
+
+
+@contextmanager
+def running_workspace(config: WorkspaceConfig):
+    """`running` the app of a Workspace opened from `config`, closed after; yields the base URL."""
+    workspace = Workspace.open(config)
+    try:
+        with running(create_app(workspace)) as url:
+            yield url
+    finally:
+        workspace.close()
 
 
 def sample_library_copy(folder: Path) -> Path:

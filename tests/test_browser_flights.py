@@ -1,0 +1,124 @@
+"""A flight in a real browser: the sample flight uploaded through the page, scrubbed, and its
+trajectory and current camera seen in the viser scene. Skipped only when /usr/bin/chromium is missing."""
+
+from __future__ import annotations
+
+import re
+
+import httpx
+import numpy as np
+import pytest
+
+from signpose.app.workspace import SAMPLE_FLIGHT
+from tests.support import browser_harness as harness
+
+pytestmark = [pytest.mark.browser, pytest.mark.server]
+
+VIDEO = SAMPLE_FLIGHT / "flight.mp4"
+
+# The flight's nodes in the viser client's scene tree: the trajectory's segments and the current
+# camera's position (where its Three.js object is, else the pose the server last sent) and visibility.
+FLIGHT_NODES = """flightId => {
+    const m = window.__viserMutable, tree = window.__viserSceneTree.getState();
+    const nodes = {};
+    for (const [name, node] of Object.entries(tree)) {
+        const match = name.match(/^\\/signs\\/([^/]+)\\/flights\\/([^/]+)\\/(trajectory|current)$/);
+        if (!match || match[2] !== flightId) continue;
+        const object = m.nodeRefFromName[name];
+        nodes[`${match[1]}/${match[3]}`] = {
+            type: node.message.type,
+            points: node.message.props.points?.length ?? null,
+            position: object ? object.position.toArray() : (m.nodePoseData[name]?.position ?? null),
+            visible: node.effectiveVisibility ?? null,
+        };
+    }
+    return nodes;
+}"""
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory):
+    if not harness.CHROMIUM.exists():
+        pytest.skip(f"{harness.CHROMIUM} not found: install Debian's chromium to run the browser tests")
+    tmp = tmp_path_factory.mktemp("serve")
+    with harness.serve(tmp / "state", tmp / "serve.log") as url:
+        yield url
+
+
+@pytest.fixture
+def page(base):
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = harness.launch(p)
+        page = harness.open_page(browser, base)
+        yield page
+        harness.close_page(page)
+        browser.close()
+
+
+def flight_row(page, name: str):
+    return page.locator(".flight-row").filter(has=page.locator(".flight-name", has_text=re.compile(f"^{re.escape(name)}$")))
+
+
+def viewed_from(record: dict, label: str) -> list[float]:
+    """The camera position (m, the sign's frame) a frame's record gives for sign `label`: filtered if it can."""
+    sign = next(s for s in record["signs"] if s["label"] == label)
+    return (sign["filtered_pose"] or sign["pose"])["camera_position"]
+
+
+def test_upload_scrub_and_see_the_trajectory_in_the_3d_scene(page, base, tmp_path):
+    # `signpose serve` on a fresh state shows the sample flight among the samples.
+    flight_row(page, "corridor.mp4").wait_for(timeout=30_000)
+
+    upload = tmp_path / "upload-flight.mp4"
+    upload.write_bytes(VIDEO.read_bytes())
+    page.set_input_files("#flight-picker", str(upload))
+    row = flight_row(page, upload.name)
+    row.wait_for(timeout=60_000)
+    page.wait_for_function("id => document.querySelector(`.flight-row[data-id='${id}']`)?.dataset.status === 'done'",
+                           arg=row.get_attribute("data-id"), timeout=180_000)
+    flight_id = row.get_attribute("data-id")
+    with httpx.Client(base_url=base, timeout=30) as api:
+        flight = api.get(f"/api/flights/{flight_id}").json()
+        records = api.get(f"/api/flights/{flight_id}/frames").json()["frames"]
+    assert flight["status"] == "done" and flight["frames"] == len(records) > 100, flight
+    row.locator(".flight-open").click()
+    page.wait_for_function("id => !document.querySelector('#flight').hidden && "
+                           "document.querySelector('#flight').dataset.id === id", arg=flight_id)
+    assert page.inner_text("#flight-name") == upload.name
+
+    # Two frames that see one sign, far apart: scrub to each.
+    label = page.input_value("#flight-label")
+    seeing = [r["frame"] for r in records if any(s["label"] == label and (s["filtered_pose"] or s["pose"])
+                                                  for s in r["signs"])]
+    assert len(seeing) > 20, seeing
+    page.frame_locator("#scene").get_by_text("Connected", exact=True).wait_for(timeout=30_000)
+    frame = page.frame(url=re.compile(r"/viser/"))
+    for index in (seeing[len(seeing) // 4], seeing[3 * len(seeing) // 4]):
+        page.fill("#flight-scrub", str(index))
+        page.wait_for_function("i => document.querySelector('#flight-time').textContent.startsWith(`frame ${i} `)",
+                               arg=index)
+        page.wait_for_function("() => document.querySelector('#flight-img').complete && "
+                               "document.querySelector('#flight-img').naturalWidth === 640")
+        record = records[index]
+        assert page.locator("#flight-overlay polygon").count() == len(record["signs"])
+        states = {s["state"] for s in record["signs"]}
+        assert any(state in page.inner_text("#flight-state") for state in states)
+
+        # The viser scene: the trajectory as a line in the sign's world, the current camera at this frame.
+        expected = viewed_from(record, label)
+        nodes = None
+        for _ in range(100):
+            nodes = frame.evaluate(FLIGHT_NODES, flight_id)
+            current = nodes.get(f"{label}/current")
+            if current and current["visible"] and current["position"] and \
+                    np.allclose(current["position"], expected, atol=1e-3):
+                break
+            page.wait_for_timeout(100)
+        else:
+            raise AssertionError(f"the 3D scene's current camera is not at frame {index}'s: {nodes}, "
+                                 f"expected {expected}")
+        trajectory = nodes[f"{label}/trajectory"]
+        assert trajectory["type"] == "LineSegmentsMessage"
+        assert trajectory["visible"]
