@@ -306,8 +306,10 @@ def cmd_synth(args) -> int:
 
 def cmd_evaluate(args) -> int:
     from signpose.pipeline.evaluate import ImageResult, check_labels, format_table, load_dataset, measure, report_on
+    from signpose.pipeline.evaluate_map import format_map_table
 
     library, settings, camera = load_inputs(args)
+    sign_map = load_map(args, library)
     # This process measures images too (all of them on one worker): evaluating 200 scenes took 6.8 s without it
     # and 6.2 s with it on one worker, 4.4 s and 4.1 s on two.
     keep_freed_memory()
@@ -315,10 +317,23 @@ def cmd_evaluate(args) -> int:
     if len(set(roots)) < len(roots):
         raise CliError("a dataset folder is given twice")
     try:
-        datasets = [load_dataset(Path(d)) for d in args.datasets]
+        surveys = {} if sign_map is None else map_surveys(args.datasets)
+        datasets = [load_dataset(Path(d)) for d in args.datasets if d not in surveys]
         check_labels(datasets, library)
     except (ValueError, OSError) as exc:  # DatasetError, and what reading truth.json raises
         raise CliError(str(exc)) from None
+    if sign_map is not None and datasets:
+        print(f"the map is not used for {', '.join(d.name for d in datasets)}: no camera poses in the map frame in "
+              "their truth", file=sys.stderr)
+    in_map: dict[str, dict] = {}
+    failed_in_map, photos_in_map = 0, sum(len(p) for p in surveys.values())
+    map_table = ""
+    if sign_map is not None and surveys:
+        in_map, failed_in_map = evaluate_in_map(surveys, library, settings, camera, sign_map, args)
+        map_table = format_map_table(in_map, sign_map.frame)
+        if not datasets:
+            print(json.dumps({"camera_in_map": in_map}) if args.json else map_table)
+            return unusable_images(failed_in_map, photos_in_map)
     names = [d.name for d in datasets]
     for dataset, given in zip(datasets, args.datasets):
         if names.count(dataset.name) > 1:  # a/set1 and b/set1: each its own row
@@ -342,8 +357,49 @@ def cmd_evaluate(args) -> int:
                       + format_table(report_on(datasets, library, settings, results)), flush=True)
         raise
     report = report_on(datasets, library, settings, results)
-    print(json.dumps(report.to_json()) if args.json else format_table(report))
-    return unusable_images(sum(r.error is not None for r in report.results), len(report.results))
+    if args.json:
+        print(json.dumps({**report.to_json(), **({"camera_in_map": in_map} if in_map else {})}))
+    else:
+        print(format_table(report) + (f"\n\n{map_table}" if map_table else ""))
+    failed = sum(r.error is not None for r in report.results) + failed_in_map
+    return unusable_images(failed, len(report.results) + photos_in_map)
+
+
+def map_surveys(folders: list[str]) -> dict:
+    """{folder: its photos} of the `folders` whose truth gives camera poses in the map frame (surveys)."""
+    from signpose.pipeline.evaluate_map import survey_photos
+
+    found = {folder: survey_photos(Path(folder)) for folder in folders}
+    return {folder: photos for folder, photos in found.items() if photos is not None}
+
+
+def evaluate_in_map(surveys: dict, library: Library, settings: Settings, camera: Camera | None, sign_map: SignMap,
+                    args) -> tuple[dict[str, dict], int]:
+    """Each survey's photos located in `sign_map` (`pipeline.evaluate_map`), a photo at a time: ({survey name:
+    `summary_in_map`}, how many photos could not be used, each named on stderr)."""
+    from signpose.pipeline.evaluate_map import locate_photos, summary_in_map
+
+    check = functools.partial(check_image_header, max_pixels=max_pixels(args))
+    summaries, failed = {}, 0
+    total = sum(len(p) for p in surveys.values())
+    with progress(total=total, desc="evaluate in map") as bar:
+        for folder, photos in surveys.items():
+            root = Path(folder)
+            survey_camera = camera
+            if survey_camera is None and (root / "camera.yaml").is_file():
+                try:
+                    survey_camera = load_camera(root / "camera.yaml")
+                except CameraError as exc:
+                    raise CliError(str(exc)) from None
+            results = []
+            for result in locate_photos(photos, library, settings, survey_camera, sign_map, check):
+                if result.error is not None:
+                    say(f"{result.error}", sys.stderr)
+                    failed += 1
+                results.append(result)
+                bar.update(1)
+            summaries[root.name] = summary_in_map(results)
+    return summaries, failed
 
 
 def cmd_calibrate(args) -> int:
@@ -580,6 +636,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="one JSON object instead of the table: summaries, confusion and every image's answer")
     add_common(p)
     add_max_megapixels(p)
+    add_map_option(p)
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("calibrate", help="camera intrinsics from photos of a printed chessboard (docs/calibration.md)")

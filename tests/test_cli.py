@@ -117,8 +117,8 @@ def test_recognize_gives_every_sign_in_view_and_with_a_map_the_camera_in_the_map
 def test_a_bad_map_file_is_one_clear_line_before_any_image(tmp_path, content, message):
     path = tmp_path / "map.yaml"
     path.write_text(content)
-    for command in ("recognize", "track"):
-        result = signpose(command, SCENES / "scene_000.jpg", "--map", path)
+    for command in ("recognize", "track", "evaluate"):
+        result = signpose(command, SCENES / "scene_000.jpg" if command != "evaluate" else SCENES, "--map", path)
         assert result.returncode == 2 and result.stdout == "", (command, result.stderr)
         assert result.stderr.splitlines() == [f"signpose {command}: error: {path}: {message}, which has "
                                               "chief_of_security, ministry_of_torture, security_compound"
@@ -449,6 +449,29 @@ def test_evaluate_json_has_every_images_answer_against_the_truth(tmp_path):
             assert entry["rotation_error_deg"] < 1.0
     assert report["total"]["correct"] == sum(e["correct"] for e in images.values())
     assert report["labels"][-1] == "none" and report["settings"]["ratio"] == 0.75
+
+
+def test_evaluate_with_a_map_measures_the_camera_in_the_map_frame_on_a_survey_and_says_where_it_is_not_used(tmp_path):
+    survey = tmp_path / "room"
+    survey.mkdir()
+    photos = json.loads((SURVEY / "truth.json").read_text())["photos"][1:4]  # one sign, then two
+    for name in ("camera.yaml", *(p["image"] for p in photos)):
+        shutil.copy(SURVEY / name, survey / name)
+    (survey / "truth.json").write_text(json.dumps({"photos": photos}))
+    common = ("--map", SURVEY / "truth_map.yaml", "--library", SURVEY / "library", "--workers", 1)
+    result = signpose("evaluate", survey, ROOT / "sample_images" / "datasets" / "set3", *common, "--json")
+    assert result.returncode == 0, result.stderr
+    assert "the map is not used for set3: no camera poses in the map frame" in result.stderr
+    report = json.loads(result.stdout)
+    assert report["total"]["images"] == 5 and set(report["camera_in_map"]) == {"room"}
+    room = report["camera_in_map"]["room"]
+    assert room["photos"] == room["located"] == 3
+    assert room["position_error_m"]["median"] < 0.03 and room["rotation_error_deg"]["median"] < 0.5
+    table = signpose("evaluate", survey, *common)
+    assert table.returncode == 0, table.stderr
+    assert table.stdout.splitlines()[:3] == ["camera in the map frame (map)",
+                                              "survey           photos located      position med/p90   rotation med/p90",
+                                              "-" * 72]
 
 
 @pytest.mark.slow
