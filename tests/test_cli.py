@@ -84,7 +84,6 @@ def test_json_schema_and_labels_on_sample_scenes():
         assert not any("assumed" in w for w in obj["warnings"])
 
 
-@pytest.mark.slow
 def test_recognize_gives_every_sign_in_view_and_with_a_map_the_camera_in_the_map_frame(tmp_path):
     truth = {p["image"]: p for p in json.loads((SURVEY / "truth.json").read_text())["photos"]}
     names = ["photo_002.jpg", "photo_004.jpg"]  # two signs in view; one
@@ -126,6 +125,7 @@ def test_a_bad_map_file_is_one_clear_line_before_any_image(tmp_path, content, me
                                               if "library" in message else f"signpose {command}: error: {path}: {message}"]
 
 
+@pytest.mark.slow
 def test_bad_files_get_an_error_line_and_the_rest_still_run(tmp_path):
     good = SCENES / "scene_002.jpg"  # a sign: the pose, and so the note on it, is there
     fake = tmp_path / "notes.jpg"
