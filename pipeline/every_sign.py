@@ -26,6 +26,9 @@ MASK_GROWTH = 0.15
 # Searches of one image: its signs plus the one that finds no more. A building's door shows one
 # sign, a corridor view two or three.
 MAX_SEARCHES = 4
+# `recognize_near` keeps the box of the quad grown by this fraction of its size on every side: room
+# for a sign that moved a little since the quad was seen, and for the wall around its plaque.
+NEAR_MARGIN = 0.5
 
 
 def mask_quads(gray: np.ndarray, quads: Sequence[np.ndarray]) -> np.ndarray:
@@ -63,3 +66,21 @@ def recognize_every_sign(image: np.ndarray, library: Library, settings: Settings
             break
         hidden.append(rec.corners)
     return recognitions
+
+
+def recognize_near(image: np.ndarray, library: Library, settings: Settings, camera: Camera | None, *,
+                   quad: np.ndarray) -> Recognition:
+    """`recognize` of the neighbourhood of `quad` ((4, 2) image px, TL TR BR BL: where a sign was
+    last seen) in `image` ((H, W, 3) BGR or (H, W) gray uint8): the image outside the quad's box,
+    grown by NEAR_MARGIN, is filled with its median gray, and the search leaves out the full-frame
+    and affine fallbacks, which look for a sign anywhere. A check of a known sign costing a
+    fraction of a search of the whole frame, with the same text check; its image px are `image`'s."""
+    gray = to_gray(image)
+    height, width = gray.shape
+    centre, half = (quad.max(axis=0) + quad.min(axis=0)) / 2, (quad.max(axis=0) - quad.min(axis=0)) / 2
+    x0, y0 = np.maximum(np.floor(centre - half * (1 + 2 * NEAR_MARGIN)).astype(int), 0)
+    x1, y1 = np.minimum(np.ceil(centre + half * (1 + 2 * NEAR_MARGIN)).astype(int) + 1, [width, height])
+    near = np.full_like(gray, int(np.median(gray[::4, ::4])))
+    near[y0:y1, x0:x1] = gray[y0:y1, x0:x1]
+    local = dataclasses.replace(settings, full_frame_fallback=False, affine_fallback=False)
+    return recognize(near, library, local, camera)

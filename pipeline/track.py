@@ -13,15 +13,22 @@ the last frame the track was followed in, so one blank or corrupted frame does n
 Each frame the plaque's outline (`refine_outline`) refines the tracked H where its edges are
 found, and the points' library px are read again through it, so drift does not build up. A track
 without an outline on a frame (a picture landmark, or a plaque whose edges were not found) is
-not masked from the detector's budgeted runs, which re-anchor it on the library image.
+checked by the detector where it is every `detect_interval_s`, which re-anchors it on the library
+image.
 
-The detector runs on a budget: every frame while a track is tentative, every
-`weak_retry_frames` for a weak or lost one, otherwise every `detect_interval_s` while something
-is tracked (to catch new signs; the healthy tracks held by an outline are masked out) and every `idle_interval_s`
-while nothing is. Several signs per frame: once a sign is
-found, the detector searches the frame again with the found signs' quads masked out (`recognize_every_sign`), up to
-`searches_per_frame` times; a search beside signs found or tracked leaves out the full-frame
-fallback, the costliest part of a frame without a (new) sign.
+The detector runs where it is needed and on a budget. A check of one sign (`recognize_near`: the
+frame outside the sign's neighbourhood flattened, no full-frame or affine fallback) confirms each
+tentative track on every frame and re-anchors the tracks without an outline. A search of the whole
+frame, with the healthy followed tracks masked out, looks for new signs: every frame while a track
+is tentative (signs come into view together), every `weak_retry_frames` for a weak or lost track,
+every `detect_interval_s` while something is tracked and every `idle_interval_s` while nothing is.
+Several signs per frame: once a sign is found, the frame is searched again with the found signs'
+quads masked out (`recognize_every_sign`), up to `searches_per_frame` times; a search beside signs
+found or tracked leaves out the full-frame fallback and the affine fallback, the costliest parts
+of a search that finds no (new) sign.
+
+Points are seeded and followed in the sign's neighbourhood alone: Lucas-Kanade's pyramids and the
+corner measure then cost the sign's area, not the frame's.
 
 Each track's camera pose is smoothed by a constant-velocity filter on SE(3) (`PoseFilter`).
 Conventions as in `pipeline.pose`: X_cam = R·X_sign + t; corners TL, TR, BR, BL in image px.
@@ -39,7 +46,7 @@ import cv2
 import numpy as np
 
 from .camera import Camera
-from .every_sign import recognize_every_sign
+from .every_sign import recognize_every_sign, recognize_near
 from .frames import Frame
 from .image import to_gray
 from .library import Library, LibrarySign
@@ -59,6 +66,8 @@ STATES = ("detected", "tracked")
 TRACK_CORNER_SIGMA_PX = 0.5
 # Detections of one label whose quads' boxes overlap more than this are the same sign.
 SAME_SIGN_IOU = 0.2
+# Image px around a quad's box read when seeding its points: more than the corner measure's block.
+SEED_MARGIN_PX = 8
 
 
 @dataclass(frozen=True)
@@ -238,9 +247,12 @@ class Tracker:
 
         recognitions: list[Recognition] = []
         detected: set[int] = set()
-        if self._detection_due(index, followed):
-            self.last_detect = index
-            recognitions, detected = self._detect(gray, camera, followed, index)
+        checks = self._checks_due(index, followed)
+        search = self._search_due(index, followed)
+        if checks or search:
+            if search:
+                self.last_detect = index
+            recognitions, detected = self._detect(gray, camera, followed, index, checks, search)
             for track in self.tracks:
                 if track.track_id in detected:
                     track.detected_at = index
@@ -253,17 +265,30 @@ class Tracker:
         return FrameResult(index, time_s, signs, timing, warnings, recognitions,
                            [t.track_id for t in self.tracks if not t.confirmed])
 
-    def _detection_due(self, index: int, followed: dict[int, Followed]) -> bool:
-        if self.last_detect is None:
-            return True
-        if any(not t.confirmed for t in self.tracks):
+    def _checks_due(self, index: int, followed: dict[int, Followed]) -> list[Track]:
+        """The tracks the detector checks where they are on this frame: each tentative one (to confirm
+        it), and each healthy confirmed one followed by its points alone (a picture, or a plaque whose
+        edges were not found), every `detect_every` frames, which re-anchors it on the library image
+        before its points' drift builds up. A track held by its plaque's outline needs no check."""
+        def drifting(t: Track) -> bool:
+            step = followed.get(t.track_id)
+            return (step is not None and not step.weak and step.outline is None
+                    and index - t.detected_at >= self.detect_every)
+
+        return [t for t in self.tracks if not t.confirmed or drifting(t)]
+
+    def _search_due(self, index: int, followed: dict[int, Followed]) -> bool:
+        """Whether the detector searches the whole frame (the followed tracks masked out) on this one."""
+        # While a track is tentative, every frame: signs come into view together, and a small one
+        # is found on some frames only.
+        if self.last_detect is None or any(not t.confirmed for t in self.tracks):
             return True
         # A lost or weak track asks again only some frames after its last detection: one leaving
         # the frame weakens on every frame, and the detector cannot do better with it.
         if any((t.track_id not in followed or followed[t.track_id].weak)
                and index - t.detected_at >= self.config.weak_retry_frames for t in self.tracks):
             return True
-        every = self.detect_every if self.tracks else self.idle_every
+        every = self.detect_every if any(t.confirmed for t in self.tracks) else self.idle_every
         return index - self.last_detect >= every
 
     # -- following ---------------------------------------------------------------------------
@@ -273,18 +298,25 @@ class Tracker:
         cfg = self.config
         if len(track.points) < cfg.min_points or track.reference.shape != gray.shape:
             return None
+        height, width = gray.shape
         lk = {"winSize": (cfg.lk_window_px, cfg.lk_window_px), "maxLevel": cfg.lk_levels,
               "criteria": (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.03)}
-        p0 = track.points.reshape(-1, 1, 2)
-        p1, status, _ = cv2.calcOpticalFlowPyrLK(track.reference, gray, p0, None, **lk)
+        # Both frames cut to the points' box grown by the farthest move the pyramid follows (half a
+        # window at its top level): its pyramids cost the box's area, not the whole frame's.
+        reach = (cfg.lk_window_px // 2 + 1) << cfg.lk_levels
+        x0, y0 = np.maximum(np.floor(track.points.min(axis=0)).astype(int) - reach, 0)
+        x1, y1 = np.minimum(np.ceil(track.points.max(axis=0)).astype(int) + reach + 1, [width, height])
+        before, after = track.reference[y0:y1, x0:x1], gray[y0:y1, x0:x1]
+        p0 = (track.points - (x0, y0)).astype(np.float32).reshape(-1, 1, 2)
+        p1, status, _ = cv2.calcOpticalFlowPyrLK(before, after, p0, None, **lk)
         if p1 is None:
             return None
-        back, status_back, _ = cv2.calcOpticalFlowPyrLK(gray, track.reference, p1, None, **lk)
+        back, status_back, _ = cv2.calcOpticalFlowPyrLK(after, before, p1, None, **lk)
         fb = np.linalg.norm((back - p0).reshape(-1, 2), axis=1)
         good = (status.ravel() == 1) & (status_back.ravel() == 1) & (fb < cfg.forward_backward_px)
         if good.sum() < cfg.min_points:
             return None
-        src, dst = track.src[good], p1.reshape(-1, 2)[good].astype(np.float64)
+        src, dst = track.src[good], p1.reshape(-1, 2)[good].astype(np.float64) + (x0, y0)
         H, inliers = cv2.findHomography(src, dst, cv2.RANSAC, cfg.ransac_px)
         if H is None:
             return None
@@ -310,10 +342,19 @@ class Tracker:
     def _seed(self, track: Track, gray: np.ndarray) -> None:
         """New points for `track`: corners inside its quad in `gray`, their library px through its H."""
         cfg = self.config
-        mask = np.zeros(gray.shape, np.uint8)
-        cv2.fillConvexPoly(mask, np.round(track.corners).astype(np.int32), 255)
-        found = cv2.goodFeaturesToTrack(gray, cfg.max_points, 0.01, 5, mask=mask, blockSize=5)
-        points = (np.zeros((0, 2), np.float32) if found is None else found.reshape(-1, 2).astype(np.float32))
+        height, width = gray.shape
+        # Looked for in the quad's box alone (the corner measure over the whole frame costs more than
+        # the tracking itself), with a margin that keeps the image's border off the plaque's corners.
+        x0, y0, x1, y1 = quad_box(track.corners, width, height)
+        x0, y0 = max(0, x0 - SEED_MARGIN_PX), max(0, y0 - SEED_MARGIN_PX)
+        x1, y1 = min(width, x1 + SEED_MARGIN_PX), min(height, y1 + SEED_MARGIN_PX)
+        points = np.zeros((0, 2), np.float32)
+        if x1 > x0 and y1 > y0:
+            mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
+            cv2.fillConvexPoly(mask, np.round(track.corners - (x0, y0)).astype(np.int32), 255)
+            found = cv2.goodFeaturesToTrack(gray[y0:y1, x0:x1], cfg.max_points, 0.01, 5, mask=mask, blockSize=5)
+            if found is not None:
+                points = (found.reshape(-1, 2) + (x0, y0)).astype(np.float32)
         track.points, track.seeded = points, len(points)
         track.src = cv2.perspectiveTransform(points.astype(np.float64).reshape(-1, 1, 2),
                                              np.linalg.inv(track.H)).reshape(-1, 2)
@@ -321,19 +362,24 @@ class Tracker:
 
     # -- detecting ---------------------------------------------------------------------------
 
-    def _detect(self, gray: np.ndarray, camera: Camera, followed: dict[int, Followed],
-                index: int) -> tuple[list[Recognition], set[int]]:
-        """Run the detector on `gray`, the healthy confirmed tracks masked out, as long as it finds
-        signs and the budget allows. Returns (its recognitions, the ids of tracks it found)."""
+    def _detect(self, gray: np.ndarray, camera: Camera, followed: dict[int, Followed], index: int, checks: list[Track],
+                search: bool) -> tuple[list[Recognition], set[int]]:
+        """Run the detector on `gray`: around each of the `checks` (`recognize_near`), then, when
+        `search`, over the frame with the healthy followed tracks masked out, as long as it finds signs
+        and the budget allows. Returns (its recognitions, the ids of tracks it found)."""
         height, width = gray.shape
-        # Healthy tracks held by their plaque's outline need no detector: the outline keeps their H
-        # from drifting. One followed by its points alone (a picture, or a plaque whose edges were
-        # not found) drifts with them, and the detector re-anchors it.
-        hidden = [sign_corners(t.sign, followed[t.track_id].H) for t in self.tracks
-                  if t.confirmed and t.track_id in followed and not followed[t.track_id].weak
-                  and followed[t.track_id].outline is not None]
-        recognitions = recognize_every_sign(gray, self.library, self.settings, camera, known=hidden,
-                                            most=self.config.searches_per_frame)
+        recognitions = [recognize_near(gray, self.library, self.settings, camera,
+                                       quad=sign_corners(t.sign, followed[t.track_id].H if t.track_id in followed
+                                                         else t.H)) for t in checks]
+        if search:
+            hidden = [sign_corners(t.sign, followed[t.track_id].H) for t in self.tracks
+                      if t.track_id in followed and not followed[t.track_id].weak]
+            # Beside tracked signs the search is for new ones, which come into view as plaques of
+            # their own; the affine fallback, for steep views where features fail, costs more than
+            # the rest of such a search and waits for a search with nothing tracked.
+            settings = dataclasses.replace(self.settings, affine_fallback=False) if hidden else self.settings
+            recognitions += recognize_every_sign(gray, self.library, settings, camera, known=hidden,
+                                                 most=self.config.searches_per_frame)
         found = {self._claim(rec, rec.corners, width, height, gray, camera, index).track_id
                  for rec in recognitions if rec.label is not None and rec.corners is not None}
         # A tentative track the detector has not found `confirm_frames` times within
