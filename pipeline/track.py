@@ -80,6 +80,12 @@ class TrackerConfig:
     detect_interval_s: float = 0.5  # detector while every track is healthy: new signs
     idle_interval_s: float = 0.2  # detector while nothing is tracked
     searches_per_frame: int = 2  # recognize calls per detection frame (one more per sign found)
+    # The settings' affine fallback in the searches with nothing tracked. It finds a sign seen 60-80°
+    # off its normal where features fail; a flight sees a sign from a less steep view a moment later,
+    # and on the corridor flight it found none, while it took a sixth of the tracker's time (its
+    # simulated views of the library are computed on first use, then matched on every search that
+    # finds nothing).
+    affine_fallback: bool = False
     weak_retry_frames: int = 5  # frames between detector runs asked for by a weak or lost track
     confirm_frames: int = 2  # detections that confirm a track ...
     confirm_window: int = 4  # ... within this many frames from its first
@@ -285,8 +291,9 @@ class Tracker:
             return True
         # A lost or weak track asks again only some frames after its last detection: one leaving
         # the frame weakens on every frame, and the detector cannot do better with it.
+        last = self.last_detect
         if any((t.track_id not in followed or followed[t.track_id].weak)
-               and index - t.detected_at >= self.config.weak_retry_frames for t in self.tracks):
+               and index - max(t.detected_at, last) >= self.config.weak_retry_frames for t in self.tracks):
             return True
         every = self.detect_every if any(t.confirmed for t in self.tracks) else self.idle_every
         return index - self.last_detect >= every
@@ -376,12 +383,15 @@ class Tracker:
                       if t.track_id in followed and not followed[t.track_id].weak]
             # Beside tracked signs the search is for new ones, which come into view as plaques of
             # their own; the affine fallback, for steep views where features fail, costs more than
-            # the rest of such a search and waits for a search with nothing tracked.
-            settings = dataclasses.replace(self.settings, affine_fallback=False) if hidden else self.settings
+            # the rest of such a search.
+            affine = self.settings.affine_fallback and self.config.affine_fallback and not hidden
+            settings = dataclasses.replace(self.settings, affine_fallback=affine)
             recognitions += recognize_every_sign(gray, self.library, settings, camera, known=hidden,
                                                  most=self.config.searches_per_frame)
+        # A sign mostly out of the frame would be lost again on the next frame: it is not followed.
         found = {self._claim(rec, rec.corners, width, height, gray, camera, index).track_id
-                 for rec in recognitions if rec.label is not None and rec.corners is not None}
+                 for rec in recognitions if rec.label is not None and rec.corners is not None
+                 and visible_fraction(rec.corners, width, height) >= self.config.min_visible}
         # A tentative track the detector has not found `confirm_frames` times within
         # `confirm_window` frames is a look-alike (or too uncertain to report) and goes.
         for track in list(self.tracks):
