@@ -489,7 +489,7 @@ class Tracker:
             return pose_near(start.R, start.t, src, step.dst, sign, camera, TRACK_CORNER_SIGMA_PX)
         grid_src, grid_dst = step.outline.grid(sign, camera)
         sigma = TRACK_CORNER_SIGMA_PX
-        pose = pose_near(start.R, start.t, grid_src, grid_dst, sign, camera, sigma)
+        pose = pose_near(start.R, start.t, grid_src, grid_dst, sign, camera, with_covariance=False)
         rmse, covariance = outline_fit(pose.R, pose.t, step.outline, sign, camera)
         return dataclasses.replace(pose, reprojection_rmse_px=rmse,
                                    covariance=with_corner_floor(covariance, pose.R, pose.t, sign, camera, sigma))
