@@ -16,8 +16,8 @@ without an outline on a frame (a picture landmark, or a plaque whose edges were 
 checked by the detector where it is every `detect_interval_s`, which re-anchors it on the library
 image.
 
-The detector runs where it is needed and on a budget. A check of one sign (`recognize_near`: the
-frame outside the sign's neighbourhood flattened, no full-frame or affine fallback) confirms each
+The detector runs where it is needed and on a budget. A check of one sign (`recognize_near`: its
+neighbourhood cut from the frame, no full-frame or affine fallback) confirms each
 tentative track on every frame and re-anchors the tracks without an outline. A search of the whole
 frame, with the healthy followed tracks masked out, looks for new signs: every frame while a track
 is tentative (signs come into view together), every `weak_retry_frames` for a weak or lost track,
@@ -134,8 +134,9 @@ class SignObservation:
 class FrameResult:
     """What the tracker made of one frame: the confirmed `signs` seen on it, milliseconds spent
     (`timing_ms`: "detect", "track", "total"; the caller adds its decode), `warnings`, and as
-    intermediates the detector's `recognitions` on this frame (empty when it did not run) and the
-    ids of the tentative tracks (`tentative`)."""
+    intermediates the detector's `recognitions` of the whole frame (empty when it did not search
+    it), the ids of the tracks it checked where they are (`checked`, `recognize_near`) and the ids
+    of the tentative tracks (`tentative`)."""
 
     frame: int
     time_s: float
@@ -143,6 +144,7 @@ class FrameResult:
     timing_ms: dict[str, float]
     warnings: list[str]
     recognitions: list[Recognition] = field(default_factory=list, repr=False)
+    checked: list[int] = field(default_factory=list)
     tentative: list[int] = field(default_factory=list)
 
     def to_json(self, source: str) -> dict:
@@ -268,7 +270,7 @@ class Tracker:
         t_end = time.perf_counter()
         tracking = (t_tracked - t_start) + (t_end - t_detected)
         timing = {"detect": (t_detected - t_tracked) * 1e3, "track": tracking * 1e3, "total": (t_end - t_start) * 1e3}
-        return FrameResult(index, time_s, signs, timing, warnings, recognitions,
+        return FrameResult(index, time_s, signs, timing, warnings, recognitions, [t.track_id for t in checks],
                            [t.track_id for t in self.tracks if not t.confirmed])
 
     def _checks_due(self, index: int, followed: dict[int, Followed]) -> list[Track]:
@@ -373,11 +375,13 @@ class Tracker:
                 search: bool) -> tuple[list[Recognition], set[int]]:
         """Run the detector on `gray`: around each of the `checks` (`recognize_near`), then, when
         `search`, over the frame with the healthy followed tracks masked out, as long as it finds signs
-        and the budget allows. Returns (its recognitions, the ids of tracks it found)."""
+        and the budget allows. Returns (the recognitions of the whole frame, the ids of tracks found)."""
         height, width = gray.shape
-        recognitions = [recognize_near(gray, self.library, self.settings, camera,
-                                       quad=sign_corners(t.sign, followed[t.track_id].H if t.track_id in followed
-                                                         else t.H)) for t in checks]
+        nearby = [recognize_near(gray, self.library, self.settings, camera,
+                                 quad=sign_corners(t.sign, followed[t.track_id].H if t.track_id in followed else t.H))
+                  for t in checks]
+        seen = [(n.recognition, n.H, n.corners) for n in nearby]
+        recognitions: list[Recognition] = []
         if search:
             hidden = [sign_corners(t.sign, followed[t.track_id].H) for t in self.tracks
                       if t.track_id in followed and not followed[t.track_id].weak]
@@ -386,12 +390,13 @@ class Tracker:
             # the rest of such a search.
             affine = self.settings.affine_fallback and self.config.affine_fallback and not hidden
             settings = dataclasses.replace(self.settings, affine_fallback=affine)
-            recognitions += recognize_every_sign(gray, self.library, settings, camera, known=hidden,
-                                                 most=self.config.searches_per_frame)
+            recognitions = recognize_every_sign(gray, self.library, settings, camera, known=hidden,
+                                                most=self.config.searches_per_frame)
+            seen += [(rec, rec.H, rec.corners) for rec in recognitions]
         # A sign mostly out of the frame would be lost again on the next frame: it is not followed.
-        found = {self._claim(rec, rec.corners, width, height, gray, camera, index).track_id
-                 for rec in recognitions if rec.label is not None and rec.corners is not None
-                 and visible_fraction(rec.corners, width, height) >= self.config.min_visible}
+        found = {self._claim(rec, H, corners, width, height, gray, camera, index).track_id
+                 for rec, H, corners in seen if rec.label is not None and H is not None and corners is not None
+                 and visible_fraction(corners, width, height) >= self.config.min_visible}
         # A tentative track the detector has not found `confirm_frames` times within
         # `confirm_window` frames is a look-alike (or too uncertain to report) and goes.
         for track in list(self.tracks):
@@ -402,10 +407,11 @@ class Tracker:
                 self.tracks.remove(track)
         return recognitions, found
 
-    def _claim(self, rec: Recognition, corners: np.ndarray, width: int, height: int, gray: np.ndarray,
+    def _claim(self, rec: Recognition, H: np.ndarray, corners: np.ndarray, width: int, height: int, gray: np.ndarray,
                camera: Camera, index: int) -> Track:
-        """The track a detection belongs to, re-anchored on it, or a new tentative one."""
-        assert rec.label is not None and rec.H is not None
+        """The track a detection belongs to, re-anchored on it, or a new tentative one: `rec` names the
+        sign and gives its pose and outline, `H` (3, 3) and `corners` (4, 2) are in `gray`'s px."""
+        assert rec.label is not None
         sign = self.library[rec.label]
         box = quad_box(corners, width, height)
         same = [t for t in self.tracks if box_iou(box, quad_box(t.corners, width, height)) > SAME_SIGN_IOU]
@@ -413,7 +419,7 @@ class Tracker:
         for other in same:
             if other is not mine and not other.confirmed:
                 self.tracks.remove(other)  # a tentative track the detector now reads as another sign
-        H = rec.H / rec.H[2, 2]
+        H = H / H[2, 2]
         if mine is None:
             mine = Track(self.next_id, sign, H, rec.pose, np.zeros((0, 2), np.float32), np.zeros((0, 2)), gray,
                          born=index)
