@@ -96,9 +96,10 @@ def recognize_near(image: np.ndarray, library: Library, settings: Settings, came
     """`recognize` of the neighbourhood of `quad` ((4, 2) image px, TL TR BR BL: where a sign was
     last seen) in `image` ((H, W, 3) BGR or (H, W) gray uint8, `camera`'s): the quad's box grown
     by NEAR_MARGIN of its size on every side is cut out and searched with the camera of the cut (its
-    principal point moved with it), without the full-frame and affine fallbacks, which look for a
-    sign anywhere. A check of a known sign costing a fraction of a search of the whole frame (the
-    same text check), its pose in `camera`'s frame."""
+    principal point moved with it), without the full-frame fallback (a library of pictures alone, which
+    is not segmented, has the whole cut searched). A check of a known sign costing a fraction of a search of the whole
+    frame (the same text check; the affine fallback as `settings` say, for a sign turned steeply
+    away), its pose in `camera`'s frame."""
     gray = to_gray(image)
     height, width = gray.shape
     low, high = quad.min(axis=0), quad.max(axis=0)
@@ -109,5 +110,5 @@ def recognize_near(image: np.ndarray, library: Library, settings: Settings, came
     K = camera.K.copy()
     K[:2, 2] -= (x0, y0)
     cut_camera = Camera(K, camera.dist, width=int(x1 - x0), height=int(y1 - y0), source=camera.source)
-    local = dataclasses.replace(settings, full_frame_fallback=False, affine_fallback=False)
+    local = dataclasses.replace(settings, full_frame_fallback=False)
     return Nearby(recognize(cut, library, local, cut_camera), (int(x0), int(y0)))

@@ -17,7 +17,7 @@ checked by the detector where it is every `detect_interval_s`, which re-anchors 
 image.
 
 The detector runs where it is needed and on a budget. A check of one sign (`recognize_near`: its
-neighbourhood cut from the frame, no full-frame or affine fallback) confirms each
+neighbourhood cut from the frame, no full-frame fallback) confirms each
 tentative track on every frame and re-anchors the tracks without an outline. A search of the whole
 frame, with the healthy followed tracks masked out, looks for new signs: every frame while a track
 is tentative (signs come into view together), every `weak_retry_frames` for a weak or lost track,
@@ -398,8 +398,12 @@ class Tracker:
         `search`, over the frame with the healthy followed tracks masked out, as long as it finds signs
         and the budget allows. Returns (the recognitions of the whole frame, the ids of tracks found)."""
         height, width = gray.shape
-        nearby = [recognize_near(gray, self.library, self.settings, camera,
-                                 quad=sign_corners(t.sign, followed[t.track_id].H if t.track_id in followed else t.H))
+        # A plaque seen steeply is found by its outline's quad (the plaque fallback); a picture has its
+        # features alone, and keeps the affine fallback for steep views of it.
+        plaque_check = dataclasses.replace(self.settings, affine_fallback=False)
+        nearby = [recognize_near(gray, self.library, self.settings if t.sign.kind == "picture" else plaque_check,
+                                 camera, quad=sign_corners(t.sign, followed[t.track_id].H if t.track_id in followed
+                                                           else t.H))
                   for t in checks]
         seen = [(n.recognition, n.H, n.corners) for n in nearby]
         recognitions: list[Recognition] = []
