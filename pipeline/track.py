@@ -17,15 +17,17 @@ checked by the detector where it is every `detect_interval_s`, which re-anchors 
 image.
 
 The detector runs where it is needed and on a budget. A check of one sign (`recognize_near`: its
-neighbourhood cut from the frame, no full-frame fallback) confirms each
-tentative track on every frame and re-anchors the tracks without an outline. A search of the whole
-frame, with the healthy followed tracks masked out, looks for new signs: every frame while a track
-is tentative (signs come into view together), every `weak_retry_frames` for a weak or lost track,
-every `detect_interval_s` while something is tracked and every `idle_interval_s` while nothing is.
+neighbourhood cut from the frame, no full-frame fallback) confirms each tentative track on every
+frame and re-anchors the tracks without an outline. A search of the whole frame, with the healthy
+followed tracks masked out, looks for new signs: every frame while a track is tentative (signs
+come into view together), every `weak_retry_frames` for a weak or lost track, every
+`detect_interval_s` while something is tracked and every `idle_interval_s` while nothing is.
 Several signs per frame: once a sign is found, the frame is searched again with the found signs'
 quads masked out (`recognize_every_sign`), up to `searches_per_frame` times; a search beside signs
-found or tracked leaves out the full-frame fallback and the affine fallback, the costliest parts
-of a search that finds no (new) sign.
+found or tracked leaves out the full-frame fallback, the costliest part of a search that finds no
+(new) sign. The affine fallback runs only in searches with nothing tracked, when
+`TrackerConfig.affine_fallback` asks for it; with nothing tracked, a library of plaques alone has
+its full-frame fallback on the frame shrunk to `idle_search_size`.
 
 Points are seeded and followed in the sign's neighbourhood alone: Lucas-Kanade's pyramids and the
 corner measure then cost the sign's area, not the frame's.
@@ -86,9 +88,9 @@ class TrackerConfig:
     searches_per_frame: int = 2  # recognize calls per detection frame (one more per sign found)
     # The settings' affine fallback in the searches with nothing tracked. It finds a sign seen 60-80°
     # off its normal where features fail; a flight sees a sign from a less steep view a moment later,
-    # and on the corridor flight it found none, while it took a sixth of the tracker's time (its
+    # and on the corridor flight it found none, while it took 14 % of the tracker's time (its
     # simulated views of the library are computed on first use, then matched on every search that
-    # finds nothing).
+    # finds nothing). A picture's neighbourhood check keeps it (`_detect`).
     affine_fallback: bool = False
     # Longer side (px) the frame is shrunk to for the full-frame fallback of a search with nothing
     # tracked, for a library of plaques alone (the settings' max_search_size, if smaller, still
@@ -404,8 +406,8 @@ class Tracker:
         `search`, over the frame with the healthy followed tracks masked out, as long as it finds signs
         and the budget allows. Returns (the recognitions of the whole frame, the ids of tracks found)."""
         height, width = gray.shape
-        # A plaque seen steeply is found by its outline's quad (the plaque fallback); a picture has its
-        # features alone, and keeps the affine fallback for steep views of it.
+        # A plaque seen steeply is found by the plaque fallback's quads; a picture has its features
+        # alone, and keeps the settings' affine fallback for steep views of it.
         plaque_check = dataclasses.replace(self.settings, affine_fallback=False)
         nearby = [recognize_near(gray, self.library, self.settings if t.sign.kind == "picture" else plaque_check,
                                  camera, quad=sign_corners(t.sign, followed[t.track_id].H if t.track_id in followed
