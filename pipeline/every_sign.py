@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .camera import Camera
+from .camera import Camera, CameraError
 from .image import to_gray
 from .library import Library
 from .recognize import Recognition, recognize
@@ -109,6 +109,13 @@ def recognize_near(image: np.ndarray, library: Library, settings: Settings, came
     cut = gray[y0:y1, x0:x1]
     K = camera.K.copy()
     K[:2, 2] -= (x0, y0)
-    cut_camera = Camera(K, camera.dist, width=int(x1 - x0), height=int(y1 - y0), source=camera.source)
+    try:
+        cut_camera = Camera(K, camera.dist, width=int(x1 - x0), height=int(y1 - y0), source=camera.source)
+    except CameraError:
+        # A cut the camera checks refuse (a lens whose distortion is bounded over the whole frame
+        # only): the whole frame is searched, flat outside the cut.
+        flat = np.full_like(gray, int(np.median(gray[::4, ::4])))
+        flat[y0:y1, x0:x1] = cut
+        cut, cut_camera, x0, y0 = flat, camera, 0, 0
     local = dataclasses.replace(settings, full_frame_fallback=False)
     return Nearby(recognize(cut, library, local, cut_camera), (int(x0), int(y0)))

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from signpose.pipeline.camera import load_camera
+from signpose.pipeline.camera import CameraError, load_camera
 from signpose.pipeline.library import load_library
 from signpose.pipeline.pose import Pose, corner_covariance, rotation_error_deg
 from signpose.pipeline.pose_filter import PoseFilter, pose_jacobian, exp_so3, log_so3
@@ -70,6 +70,24 @@ def test_a_track_without_an_outline_is_re_anchored_by_the_detector(library):
     assert states[1] == ["detected"] and states[2] == ["tracked"], states
     assert states[4] == ["detected"], f"the detector's next budgeted run re-anchors the track: {states}"
     assert len({s.track_id for r in results[1:] for s in r.signs}) == 1
+
+
+def test_a_check_where_the_cut_has_no_camera_searches_the_frame(library, monkeypatch):
+    from signpose.pipeline import every_sign
+
+    frame = render(library, [Plaque("security_compound", (0.0, -0.2), SIGN)], hover(0.0, 1.2), 1)[0]
+    tracker = run(library, [frame] * 2)
+    quad = tracker[1].signs[0].corners
+    cut = every_sign.recognize_near(frame, library, Settings(), synthetic_camera(), quad=quad)
+
+    def no_cut_camera(K, dist, **size):
+        raise CameraError("refused for the test")
+
+    monkeypatch.setattr(every_sign, "Camera", no_cut_camera)
+    whole = every_sign.recognize_near(frame, library, Settings(), synthetic_camera(), quad=quad)
+    assert whole.offset == (0, 0) and cut.offset != (0, 0)
+    assert whole.recognition.label == cut.recognition.label == "security_compound"
+    assert np.abs(whole.corners - cut.corners).max() < 0.5
 
 
 def test_a_one_frame_sign_and_a_look_alike_never_become_tracks(library):
