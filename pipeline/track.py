@@ -198,6 +198,7 @@ class Track:
     misses: int = 0
     weak: bool = False
     filtered: Pose | None = None
+    outlined: bool = False  # its plaque's outline placed it on the frame it was last followed in
 
     @property
     def corners(self) -> np.ndarray:
@@ -349,9 +350,13 @@ class Tracker:
         p1, status, _ = cv2.calcOpticalFlowPyrLK(before, after, p0, None, **lk)
         if p1 is None:
             return None
-        back, status_back, _ = cv2.calcOpticalFlowPyrLK(after, before, p1, None, **lk)
-        fb = np.linalg.norm((back - p0).reshape(-1, 2), axis=1)
-        good = (status.ravel() == 1) & (status_back.ravel() == 1) & (fb < cfg.forward_backward_px)
+        good = status.ravel() == 1
+        if not (track.outlined and self.settings.refine_outline):
+            # Checked backward where the points alone place the sign. Where its outline does, they
+            # only start the search for its edges, and RANSAC drops the strays among them.
+            back, status_back, _ = cv2.calcOpticalFlowPyrLK(after, before, p1, None, **lk)
+            fb = np.linalg.norm((back - p0).reshape(-1, 2), axis=1)
+            good &= (status_back.ravel() == 1) & (fb < cfg.forward_backward_px)
         if good.sum() < cfg.min_points:
             return None
         src, dst = track.src[good], p1.reshape(-1, 2)[good].astype(np.float64) + (x0, y0)
@@ -473,7 +478,7 @@ class Tracker:
                 except PoseError:
                     pass
             mine.H = H
-        mine.misses, mine.weak = 0, False
+        mine.misses, mine.weak, mine.outlined = 0, False, rec.outline is not None
         self._seed(mine, gray)
         return mine
 
@@ -504,7 +509,7 @@ class Tracker:
 
     def _advance(self, track: Track, step: Followed, gray: np.ndarray, camera: Camera, warnings: list[str]) -> None:
         """Move `track` onto the frame it was followed to."""
-        track.H, track.misses, track.weak = step.H, 0, step.weak
+        track.H, track.misses, track.weak, track.outlined = step.H, 0, step.weak, step.outline is not None
         src = step.src
         if step.outline is not None:
             # The points' library px re-read through the outline's H: their drift does not build up.
