@@ -1,4 +1,5 @@
-"""Every library sign in one image: `recognize` again with the signs already found masked out.
+"""Every library sign in one image: `recognize` again with the signs already found masked out;
+and one sign where it is expected: `recognize` of its neighbourhood alone (`recognize_near`).
 
 `recognize` answers with the one region that decides. A photo or frame with two signs in view
 holds two answers: after each sign found, the image is searched again with its quad (and any
@@ -10,11 +11,12 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from .camera import Camera
+from .camera import Camera, CameraError
 from .image import to_gray
 from .library import Library
 from .recognize import Recognition, recognize
@@ -26,6 +28,9 @@ MASK_GROWTH = 0.15
 # Searches of one image: its signs plus the one that finds no more. A building's door shows one
 # sign, a corridor view two or three.
 MAX_SEARCHES = 4
+# `recognize_near` cuts out the box of the quad grown by this fraction of its size on every side: room
+# for a sign that moved a little since the quad was seen, and for the wall around its plaque.
+NEAR_MARGIN = 0.5
 
 
 def mask_quads(gray: np.ndarray, quads: Sequence[np.ndarray]) -> np.ndarray:
@@ -63,3 +68,54 @@ def recognize_every_sign(image: np.ndarray, library: Library, settings: Settings
             break
         hidden.append(rec.corners)
     return recognitions
+
+
+@dataclass(frozen=True, eq=False)
+class Nearby:
+    """What `recognize_near` found: the `recognition` of the neighbourhood cut from the image (its
+    image px are the cut's) and `offset`, the cut's top-left corner (x0, y0) in the image's px."""
+
+    recognition: Recognition
+    offset: tuple[int, int]
+
+    @property
+    def H(self) -> np.ndarray | None:
+        """(3, 3) library px -> the image's px, or None."""
+        H = self.recognition.H
+        return None if H is None else np.array([[1.0, 0, self.offset[0]], [0, 1, self.offset[1]], [0, 0, 1]]) @ H
+
+    @property
+    def corners(self) -> np.ndarray | None:
+        """(4, 2) the image's px of the sign's TL, TR, BR, BL, or None."""
+        corners = self.recognition.corners
+        return None if corners is None else corners + self.offset
+
+
+def recognize_near(image: np.ndarray, library: Library, settings: Settings, camera: Camera, *,
+                   quad: np.ndarray) -> Nearby:
+    """`recognize` of the neighbourhood of `quad` ((4, 2) image px, TL TR BR BL: where a sign was
+    last seen) in `image` ((H, W, 3) BGR or (H, W) gray uint8, `camera`'s): the quad's box grown
+    by NEAR_MARGIN of its size on every side is cut out and searched with the camera of the cut (its
+    principal point moved with it), without the full-frame fallback (a library of pictures alone, which
+    is not segmented, has the whole cut searched). A check of a known sign costing a fraction of a search of the whole
+    frame (the same text check; the affine fallback as `settings` say, for a sign turned steeply
+    away), its pose in `camera`'s frame."""
+    gray = to_gray(image)
+    height, width = gray.shape
+    low, high = quad.min(axis=0), quad.max(axis=0)
+    grow = (high - low) * NEAR_MARGIN
+    x0, y0 = np.clip(np.floor(low - grow).astype(int), 0, [width - 1, height - 1])
+    x1, y1 = np.clip(np.ceil(high + grow).astype(int) + 1, [x0 + 1, y0 + 1], [width, height])
+    cut = gray[y0:y1, x0:x1]
+    K = camera.K.copy()
+    K[:2, 2] -= (x0, y0)
+    try:
+        cut_camera = Camera(K, camera.dist, width=int(x1 - x0), height=int(y1 - y0), source=camera.source)
+    except CameraError:
+        # A cut the camera checks refuse (a lens whose distortion is bounded over the whole frame
+        # only): the whole frame is searched, flat outside the cut.
+        flat = np.full_like(gray, int(np.median(gray[::4, ::4])))
+        flat[y0:y1, x0:x1] = cut
+        cut, cut_camera, x0, y0 = flat, camera, 0, 0
+    local = dataclasses.replace(settings, full_frame_fallback=False)
+    return Nearby(recognize(cut, library, local, cut_camera), (int(x0), int(y0)))

@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 from .camera import Camera, CameraError, camera_from_json
-from .image import ImageError, decode_image, read_image
+from .image import ImageError, check_image_header, decode_image, read_file
 
 # The largest frame read, as for photos (app.workspace.WorkspaceConfig.max_pixels).
 DEFAULT_MAX_PIXELS = 40_000_000
@@ -200,11 +200,13 @@ class ImageSource(FrameSource):
         first: tuple[int, int] | None = None
         for index, path in enumerate(self.paths):
             try:
-                image = read_image(path)
+                data = read_file(path)
+                # The header's size, before decoding: a small file can claim gigabytes of pixels.
+                check_image_header(data, f"{self.name}: frame {index} ({path.name})", self.max_pixels)
+                image = decode_image(data, str(path))
             except ImageError as exc:
                 raise SourceError(str(exc)) from None
             height, width = image.shape[:2]
-            self.check_size(width, height, f"frame {index} ({path.name})")
             if first is None:
                 first = (width, height)
             elif (width, height) != first:

@@ -2,19 +2,22 @@
 
 from __future__ import annotations
 
+import io
 import os
 import re
 import stat
 import struct
 import tempfile
 import threading
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO
+from typing import IO, NamedTuple
 
 import cv2
 import numpy as np
+from PIL import Image, UnidentifiedImageError
 
 NOT_AN_IMAGE = "not an image file (use JPEG, PNG, TIFF, WebP, BMP or GIF)"
 # How each format signpose reads begins: a file that begins so and cannot be read is that format
@@ -166,6 +169,10 @@ class ImageError(ValueError):
     """An input that is not a usable image; the message says why."""
 
 
+class ImageTooLarge(ImageError):
+    """An image whose pixel count exceeds the limit (a decompression bomb or a huge scan)."""
+
+
 def image_format(data: bytes) -> str | None:
     """The format encoded image `data` begins as ("JPEG", "PNG", ... a key of SIGNATURES), or None."""
     return next((name for name, signature in SIGNATURES.items() if signature.match(data)), None)
@@ -206,6 +213,62 @@ def unreadable(data: bytes, name: str) -> ImageError:
                           "export it with 8- or 16-bit integer samples")
     return ImageError(f"{name}: damaged or truncated {kind} file (it begins as a {kind} but its image data cannot "
                       "be read); copy or export it again")
+
+
+class ImageHeader(NamedTuple):
+    media_type: str
+    width: int  # px, as stored (before any EXIF rotation)
+    height: int
+
+
+def check_image_header(data: bytes, name: str, max_pixels: int) -> ImageHeader:
+    """The media type and size of encoded image `data`, after checking its header says at most `max_pixels` px.
+
+    Reads only the header (no pixel data is decoded), so a small file claiming a huge image
+    is refused before it can take gigabytes of memory.
+    """
+    if not data:
+        raise ImageError(f"{name}: file is empty")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(io.BytesIO(data)) as im:
+                width, height = im.size
+                media_type = im.get_format_mimetype() or "application/octet-stream"
+    except Image.DecompressionBombError:  # past Pillow's own ceiling, which a higher max_pixels cannot lift
+        raise _too_large(name, *_claimed_size(data, name), max_pixels) from None
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError):  # a header cut short, or no image
+        raise unreadable(data, name) from None
+    if width * height > max_pixels:
+        raise _too_large(name, width, height, max_pixels)
+    return ImageHeader(media_type, width, height)
+
+
+def _too_large(name: str, width: int, height: int, max_pixels: int) -> ImageTooLarge:
+    """The error for image `name` of `width` x `height` px, more than `max_pixels` px or Pillow's ceiling (twice
+    Image.MAX_IMAGE_PIXELS, which it refuses to open): its size, and whether a higher --max-megapixels would let it
+    through."""
+    pixels = width * height
+    ceiling = 2 * (Image.MAX_IMAGE_PIXELS or pixels)  # None: Pillow has no ceiling
+    size = f"{name}: {width}x{height} px is {pixels / 1e6:.1f} megapixels, more than the"
+    if pixels > ceiling:
+        return ImageTooLarge(f"{size} {ceiling / 1e6:.0f} that can be read at any --max-megapixels; downscale it")
+    return ImageTooLarge(f"{size} limit of {max_pixels / 1e6:g}; downscale it, or raise --max-megapixels")
+
+
+def _claimed_size(data: bytes, name: str) -> tuple[int, int]:
+    """The size (px) the header of image `data` claims, where Image.open refused it past Pillow's ceiling without
+    saying it: read by the first format that accepts its first bytes, as Image.open reads it, without the ceiling."""
+    Image.init()
+    for factory, accept in (Image.OPEN[f] for f in Image.ID):
+        accepted = accept is None or accept(data[:16])
+        if accepted and not isinstance(accepted, str):  # a str is Pillow's warning that it cannot read this kind
+            try:
+                with factory(io.BytesIO(data), name) as image:
+                    return image.size
+            except (SyntaxError, IndexError, TypeError, struct.error):  # not this format, as Image.open takes it
+                continue
+    raise unreadable(data, name)
 
 
 def jpeg_structure(data: bytes) -> tuple[str | None, tuple[int, bytes], list[int]]:

@@ -489,10 +489,10 @@ def estimate_pose(H: np.ndarray, src_px: np.ndarray, dst_px: np.ndarray, sign: L
 
 
 def pose_near(R: np.ndarray, t: np.ndarray, src_px: np.ndarray, dst_px: np.ndarray, sign: LibrarySign,
-              camera: Camera, corner_sigma_px: float = 0.0) -> Pose:
+              camera: Camera, corner_sigma_px: float = 0.0, *, with_covariance: bool = True) -> Pose:
     """The pose of `sign` fitted to (N >= 4, 2) library px `src_px` seen at (N, 2) image px `dst_px`
     by Levenberg-Marquardt from the start (R (3, 3), t (3,) m), with its covariance as `estimate_pose`
-    gives it.
+    gives it (None without `with_covariance`: for a caller that measures it otherwise).
 
     For a sign followed from frame to frame: starting from the previous frame's pose keeps the
     planar solution it had, so the two-fold ambiguity is settled by continuity, not decided again
@@ -510,6 +510,9 @@ def pose_near(R: np.ndarray, t: np.ndarray, src_px: np.ndarray, dst_px: np.ndarr
     R, t = _refine_lm(np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64), obj, dst_px, camera)
     if not _in_front(R, t, obj):
         raise PoseError("the refined pose puts the sign behind the camera")
+    if not with_covariance:
+        return Pose(R=R, t=t, method="tracked", reprojection_rmse_px=_reprojection_rmse(R, t, obj, dst_px, camera),
+                    ambiguous=False, solution_errors=None, covariance=None)
     projected, jacobian = _project(R, t, obj, camera)
     residuals = projected - dst_px
     return Pose(R=R, t=t, method="tracked", reprojection_rmse_px=_rmse(residuals), ambiguous=False,

@@ -13,15 +13,24 @@ the last frame the track was followed in, so one blank or corrupted frame does n
 Each frame the plaque's outline (`refine_outline`) refines the tracked H where its edges are
 found, and the points' library px are read again through it, so drift does not build up. A track
 without an outline on a frame (a picture landmark, or a plaque whose edges were not found) is
-not masked from the detector's budgeted runs, which re-anchor it on the library image.
+checked by the detector where it is every `detect_interval_s`, which re-anchors it on the library
+image.
 
-The detector runs on a budget: every frame while a track is tentative, every
-`weak_retry_frames` for a weak or lost one, otherwise every `detect_interval_s` while something
-is tracked (to catch new signs; the healthy tracks held by an outline are masked out) and every `idle_interval_s`
-while nothing is. Several signs per frame: once a sign is
-found, the detector searches the frame again with the found signs' quads masked out (`recognize_every_sign`), up to
-`searches_per_frame` times; a search beside signs found or tracked leaves out the full-frame
-fallback, the costliest part of a frame without a (new) sign.
+The detector runs where it is needed and on a budget. A check of one sign (`recognize_near`: its
+neighbourhood cut from the frame, no full-frame fallback) confirms each tentative track on every
+frame and re-anchors the tracks without an outline. A search of the whole frame, with the healthy
+followed tracks masked out, looks for new signs: every frame while a track is tentative (signs
+come into view together), every `weak_retry_frames` for a weak or lost track, every
+`detect_interval_s` while something is tracked and every `idle_interval_s` while nothing is.
+Several signs per frame: once a sign is found, the frame is searched again with the found signs'
+quads masked out (`recognize_every_sign`), up to `searches_per_frame` times; a search beside signs
+found or tracked leaves out the full-frame fallback, the costliest part of a search that finds no
+(new) sign. The affine fallback runs only in searches with nothing tracked, when
+`TrackerConfig.affine_fallback` asks for it; with nothing tracked, a library of plaques alone has
+its full-frame fallback on the frame shrunk to `idle_search_size`.
+
+Points are seeded and followed in the sign's neighbourhood alone: Lucas-Kanade's pyramids and the
+corner measure then cost the sign's area, not the frame's.
 
 Each track's camera pose is smoothed by a constant-velocity filter on SE(3) (`PoseFilter`). Given a
 sign map, each frame's confirmed signs also locate the camera in the map frame (`locate_in_map`, one
@@ -41,7 +50,7 @@ import cv2
 import numpy as np
 
 from .camera import Camera
-from .every_sign import recognize_every_sign
+from .every_sign import recognize_every_sign, recognize_near
 from .frames import Frame
 from .image import to_gray
 from .library import Library, LibrarySign
@@ -63,6 +72,8 @@ STATES = ("detected", "tracked")
 TRACK_CORNER_SIGMA_PX = 0.5
 # Detections of one label whose quads' boxes overlap more than this are the same sign.
 SAME_SIGN_IOU = 0.2
+# Image px around a quad's box read when seeding its points: more than the corner measure's block.
+SEED_MARGIN_PX = 8
 
 
 @dataclass(frozen=True)
@@ -75,6 +86,18 @@ class TrackerConfig:
     detect_interval_s: float = 0.5  # detector while every track is healthy: new signs
     idle_interval_s: float = 0.2  # detector while nothing is tracked
     searches_per_frame: int = 2  # recognize calls per detection frame (one more per sign found)
+    # The settings' affine fallback in the searches with nothing tracked. It finds a sign seen 60-80°
+    # off its normal where features fail; a flight sees a sign from a less steep view a moment later,
+    # and on the corridor flight it found none, while it took 14 % of the tracker's time (its
+    # simulated views of the library are computed on first use, then matched on every search that
+    # finds nothing). A picture's neighbourhood check keeps it (`_detect`).
+    affine_fallback: bool = False
+    # Longer side (px) the frame is shrunk to for the full-frame fallback of a search with nothing
+    # tracked, for a library of plaques alone (the settings' max_search_size, if smaller, still
+    # holds): a plaque the blobs and quads at full resolution did not find is a large one, which
+    # half a 640x480 frame still shows. On the corridor flight it halved the searches between signs
+    # (100 to 45 ms), finding the same. A picture has its features alone, in the full frame.
+    idle_search_size: int = 320
     weak_retry_frames: int = 5  # frames between detector runs asked for by a weak or lost track
     confirm_frames: int = 2  # detections that confirm a track ...
     confirm_window: int = 4  # ... within this many frames from its first
@@ -123,8 +146,9 @@ class SignObservation:
 class FrameResult:
     """What the tracker made of one frame: the confirmed `signs` seen on it, milliseconds spent
     (`timing_ms`: "detect", "track", "total"; the caller adds its decode), `warnings`, and as
-    intermediates the detector's `recognitions` on this frame (empty when it did not run) and the
-    ids of the tentative tracks (`tentative`). With a sign map (`mapped`), the camera in the map frame
+    intermediates the detector's `recognitions` of the whole frame (empty when it did not search
+    it), the ids of the tracks it checked where they are (`checked`, `recognize_near`) and the ids
+    of the tentative tracks (`tentative`). With a sign map (`mapped`), the camera in the map frame
     from this frame's signs (`camera_in_map`) and filtered over time (`filtered_camera_in_map`), None
     on a frame without a mapped sign."""
 
@@ -134,6 +158,7 @@ class FrameResult:
     timing_ms: dict[str, float]
     warnings: list[str]
     recognitions: list[Recognition] = field(default_factory=list, repr=False)
+    checked: list[int] = field(default_factory=list)
     tentative: list[int] = field(default_factory=list)
     mapped: bool = False
     camera_in_map: CameraInMap | None = field(default=None, repr=False)
@@ -173,6 +198,7 @@ class Track:
     misses: int = 0
     weak: bool = False
     filtered: Pose | None = None
+    outlined: bool = False  # its plaque's outline placed it on the frame it was last followed in
 
     @property
     def corners(self) -> np.ndarray:
@@ -253,9 +279,12 @@ class Tracker:
 
         recognitions: list[Recognition] = []
         detected: set[int] = set()
-        if self._detection_due(index, followed):
-            self.last_detect = index
-            recognitions, detected = self._detect(gray, camera, followed, index)
+        checks = self._checks_due(index, followed)
+        search = self._search_due(index, followed)
+        if checks or search:
+            if search:
+                self.last_detect = index
+            recognitions, detected = self._detect(gray, camera, followed, index, checks, search)
             for track in self.tracks:
                 if track.track_id in detected:
                     track.detected_at = index
@@ -270,21 +299,35 @@ class Tracker:
         t_end = time.perf_counter()
         tracking = (t_tracked - t_start) + (t_end - t_detected)
         timing = {"detect": (t_detected - t_tracked) * 1e3, "track": tracking * 1e3, "total": (t_end - t_start) * 1e3}
-        return FrameResult(index, time_s, signs, timing, warnings, recognitions,
+        return FrameResult(index, time_s, signs, timing, warnings, recognitions, [t.track_id for t in checks],
                            [t.track_id for t in self.tracks if not t.confirmed], self.sign_map is not None, located,
                            filtered)
 
-    def _detection_due(self, index: int, followed: dict[int, Followed]) -> bool:
-        if self.last_detect is None:
-            return True
-        if any(not t.confirmed for t in self.tracks):
+    def _checks_due(self, index: int, followed: dict[int, Followed]) -> list[Track]:
+        """The tracks the detector checks where they are on this frame: each tentative one (to confirm
+        it), and each healthy confirmed one followed by its points alone (a picture, or a plaque whose
+        edges were not found), every `detect_every` frames, which re-anchors it on the library image
+        before its points' drift builds up. A track held by its plaque's outline needs no check."""
+        def drifting(t: Track) -> bool:
+            step = followed.get(t.track_id)
+            return (step is not None and not step.weak and step.outline is None
+                    and index - t.detected_at >= self.detect_every)
+
+        return [t for t in self.tracks if not t.confirmed or drifting(t)]
+
+    def _search_due(self, index: int, followed: dict[int, Followed]) -> bool:
+        """Whether the detector searches the whole frame (the followed tracks masked out) on this one."""
+        # While a track is tentative, every frame: signs come into view together, and a small one
+        # is found on some frames only.
+        if self.last_detect is None or any(not t.confirmed for t in self.tracks):
             return True
         # A lost or weak track asks again only some frames after its last detection: one leaving
         # the frame weakens on every frame, and the detector cannot do better with it.
+        last = self.last_detect
         if any((t.track_id not in followed or followed[t.track_id].weak)
-               and index - t.detected_at >= self.config.weak_retry_frames for t in self.tracks):
+               and index - max(t.detected_at, last) >= self.config.weak_retry_frames for t in self.tracks):
             return True
-        every = self.detect_every if self.tracks else self.idle_every
+        every = self.detect_every if any(t.confirmed for t in self.tracks) else self.idle_every
         return index - self.last_detect >= every
 
     # -- following ---------------------------------------------------------------------------
@@ -294,18 +337,29 @@ class Tracker:
         cfg = self.config
         if len(track.points) < cfg.min_points or track.reference.shape != gray.shape:
             return None
+        height, width = gray.shape
         lk = {"winSize": (cfg.lk_window_px, cfg.lk_window_px), "maxLevel": cfg.lk_levels,
               "criteria": (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.03)}
-        p0 = track.points.reshape(-1, 1, 2)
-        p1, status, _ = cv2.calcOpticalFlowPyrLK(track.reference, gray, p0, None, **lk)
+        # Both frames cut to the points' box grown by the farthest move the pyramid follows (half a
+        # window at its top level): its pyramids cost the box's area, not the whole frame's.
+        reach = (cfg.lk_window_px // 2 + 1) << cfg.lk_levels
+        x0, y0 = np.maximum(np.floor(track.points.min(axis=0)).astype(int) - reach, 0)
+        x1, y1 = np.minimum(np.ceil(track.points.max(axis=0)).astype(int) + reach + 1, [width, height])
+        before, after = track.reference[y0:y1, x0:x1], gray[y0:y1, x0:x1]
+        p0 = (track.points - (x0, y0)).astype(np.float32).reshape(-1, 1, 2)
+        p1, status, _ = cv2.calcOpticalFlowPyrLK(before, after, p0, None, **lk)
         if p1 is None:
             return None
-        back, status_back, _ = cv2.calcOpticalFlowPyrLK(gray, track.reference, p1, None, **lk)
-        fb = np.linalg.norm((back - p0).reshape(-1, 2), axis=1)
-        good = (status.ravel() == 1) & (status_back.ravel() == 1) & (fb < cfg.forward_backward_px)
+        good = status.ravel() == 1
+        if not (track.outlined and self.settings.refine_outline):
+            # Checked backward where the points alone place the sign. Where its outline does, they
+            # only start the search for its edges, and RANSAC drops the strays among them.
+            back, status_back, _ = cv2.calcOpticalFlowPyrLK(after, before, p1, None, **lk)
+            fb = np.linalg.norm((back - p0).reshape(-1, 2), axis=1)
+            good &= (status_back.ravel() == 1) & (fb < cfg.forward_backward_px)
         if good.sum() < cfg.min_points:
             return None
-        src, dst = track.src[good], p1.reshape(-1, 2)[good].astype(np.float64)
+        src, dst = track.src[good], p1.reshape(-1, 2)[good].astype(np.float64) + (x0, y0)
         H, inliers = cv2.findHomography(src, dst, cv2.RANSAC, cfg.ransac_px)
         if H is None:
             return None
@@ -331,10 +385,19 @@ class Tracker:
     def _seed(self, track: Track, gray: np.ndarray) -> None:
         """New points for `track`: corners inside its quad in `gray`, their library px through its H."""
         cfg = self.config
-        mask = np.zeros(gray.shape, np.uint8)
-        cv2.fillConvexPoly(mask, np.round(track.corners).astype(np.int32), 255)
-        found = cv2.goodFeaturesToTrack(gray, cfg.max_points, 0.01, 5, mask=mask, blockSize=5)
-        points = (np.zeros((0, 2), np.float32) if found is None else found.reshape(-1, 2).astype(np.float32))
+        height, width = gray.shape
+        # Looked for in the quad's box alone (the corner measure over the whole frame costs more than
+        # the tracking itself), with a margin that keeps the image's border off the plaque's corners.
+        x0, y0, x1, y1 = quad_box(track.corners, width, height)
+        x0, y0 = max(0, x0 - SEED_MARGIN_PX), max(0, y0 - SEED_MARGIN_PX)
+        x1, y1 = min(width, x1 + SEED_MARGIN_PX), min(height, y1 + SEED_MARGIN_PX)
+        points = np.zeros((0, 2), np.float32)
+        if x1 > x0 and y1 > y0:
+            mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
+            cv2.fillConvexPoly(mask, np.round(track.corners - (x0, y0)).astype(np.int32), 255)
+            found = cv2.goodFeaturesToTrack(gray[y0:y1, x0:x1], cfg.max_points, 0.01, 5, mask=mask, blockSize=5)
+            if found is not None:
+                points = (found.reshape(-1, 2) + (x0, y0)).astype(np.float32)
         track.points, track.seeded = points, len(points)
         track.src = cv2.perspectiveTransform(points.astype(np.float64).reshape(-1, 1, 2),
                                              np.linalg.inv(track.H)).reshape(-1, 2)
@@ -342,21 +405,39 @@ class Tracker:
 
     # -- detecting ---------------------------------------------------------------------------
 
-    def _detect(self, gray: np.ndarray, camera: Camera, followed: dict[int, Followed],
-                index: int) -> tuple[list[Recognition], set[int]]:
-        """Run the detector on `gray`, the healthy confirmed tracks masked out, as long as it finds
-        signs and the budget allows. Returns (its recognitions, the ids of tracks it found)."""
+    def _detect(self, gray: np.ndarray, camera: Camera, followed: dict[int, Followed], index: int, checks: list[Track],
+                search: bool) -> tuple[list[Recognition], set[int]]:
+        """Run the detector on `gray`: around each of the `checks` (`recognize_near`), then, when
+        `search`, over the frame with the healthy followed tracks masked out, as long as it finds signs
+        and the budget allows. Returns (the recognitions of the whole frame, the ids of tracks found)."""
         height, width = gray.shape
-        # Healthy tracks held by their plaque's outline need no detector: the outline keeps their H
-        # from drifting. One followed by its points alone (a picture, or a plaque whose edges were
-        # not found) drifts with them, and the detector re-anchors it.
-        hidden = [sign_corners(t.sign, followed[t.track_id].H) for t in self.tracks
-                  if t.confirmed and t.track_id in followed and not followed[t.track_id].weak
-                  and followed[t.track_id].outline is not None]
-        recognitions = recognize_every_sign(gray, self.library, self.settings, camera, known=hidden,
-                                            most=self.config.searches_per_frame)
-        found = {self._claim(rec, rec.corners, width, height, gray, camera, index).track_id
-                 for rec in recognitions if rec.label is not None and rec.corners is not None}
+        # A plaque seen steeply is found by the plaque fallback's quads; a picture has its features
+        # alone, and keeps the settings' affine fallback for steep views of it.
+        plaque_check = dataclasses.replace(self.settings, affine_fallback=False)
+        nearby = [recognize_near(gray, self.library, self.settings if t.sign.kind == "picture" else plaque_check,
+                                 camera, quad=sign_corners(t.sign, followed[t.track_id].H if t.track_id in followed
+                                                           else t.H))
+                  for t in checks]
+        seen = [(n.recognition, n.H, n.corners) for n in nearby]
+        recognitions: list[Recognition] = []
+        if search:
+            hidden = [sign_corners(t.sign, followed[t.track_id].H) for t in self.tracks
+                      if t.track_id in followed and not followed[t.track_id].weak]
+            # Beside tracked signs the search is for new ones, which come into view as plaques of
+            # their own; the affine fallback, for steep views where features fail, costs more than
+            # the rest of such a search.
+            affine = self.settings.affine_fallback and self.config.affine_fallback and not hidden
+            size = self.settings.max_search_size
+            if not hidden and all(sign.kind == "plaque" for sign in self.library.signs):
+                size = int(min(size or math.inf, self.config.idle_search_size))
+            settings = dataclasses.replace(self.settings, affine_fallback=affine, max_search_size=size)
+            recognitions = recognize_every_sign(gray, self.library, settings, camera, known=hidden,
+                                                most=self.config.searches_per_frame)
+            seen += [(rec, rec.H, rec.corners) for rec in recognitions]
+        # A sign mostly out of the frame would be lost again on the next frame: it is not followed.
+        found = {self._claim(rec, H, corners, width, height, gray, camera, index).track_id
+                 for rec, H, corners in seen if rec.label is not None and H is not None and corners is not None
+                 and visible_fraction(corners, width, height) >= self.config.min_visible}
         # A tentative track the detector has not found `confirm_frames` times within
         # `confirm_window` frames is a look-alike (or too uncertain to report) and goes.
         for track in list(self.tracks):
@@ -367,10 +448,11 @@ class Tracker:
                 self.tracks.remove(track)
         return recognitions, found
 
-    def _claim(self, rec: Recognition, corners: np.ndarray, width: int, height: int, gray: np.ndarray,
+    def _claim(self, rec: Recognition, H: np.ndarray, corners: np.ndarray, width: int, height: int, gray: np.ndarray,
                camera: Camera, index: int) -> Track:
-        """The track a detection belongs to, re-anchored on it, or a new tentative one."""
-        assert rec.label is not None and rec.H is not None
+        """The track a detection belongs to, re-anchored on it, or a new tentative one: `rec` names the
+        sign and gives its pose and outline, `H` (3, 3) and `corners` (4, 2) are in `gray`'s px."""
+        assert rec.label is not None
         sign = self.library[rec.label]
         box = quad_box(corners, width, height)
         same = [t for t in self.tracks if box_iou(box, quad_box(t.corners, width, height)) > SAME_SIGN_IOU]
@@ -378,7 +460,7 @@ class Tracker:
         for other in same:
             if other is not mine and not other.confirmed:
                 self.tracks.remove(other)  # a tentative track the detector now reads as another sign
-        H = rec.H / rec.H[2, 2]
+        H = H / H[2, 2]
         if mine is None:
             mine = Track(self.next_id, sign, H, rec.pose, np.zeros((0, 2), np.float32), np.zeros((0, 2)), gray,
                          born=index)
@@ -396,7 +478,7 @@ class Tracker:
                 except PoseError:
                     pass
             mine.H = H
-        mine.misses, mine.weak = 0, False
+        mine.misses, mine.weak, mine.outlined = 0, False, rec.outline is not None
         self._seed(mine, gray)
         return mine
 
@@ -427,7 +509,7 @@ class Tracker:
 
     def _advance(self, track: Track, step: Followed, gray: np.ndarray, camera: Camera, warnings: list[str]) -> None:
         """Move `track` onto the frame it was followed to."""
-        track.H, track.misses, track.weak = step.H, 0, step.weak
+        track.H, track.misses, track.weak, track.outlined = step.H, 0, step.weak, step.outline is not None
         src = step.src
         if step.outline is not None:
             # The points' library px re-read through the outline's H: their drift does not build up.
@@ -454,7 +536,7 @@ class Tracker:
             return pose_near(start.R, start.t, src, step.dst, sign, camera, TRACK_CORNER_SIGMA_PX)
         grid_src, grid_dst = step.outline.grid(sign, camera)
         sigma = TRACK_CORNER_SIGMA_PX
-        pose = pose_near(start.R, start.t, grid_src, grid_dst, sign, camera, sigma)
+        pose = pose_near(start.R, start.t, grid_src, grid_dst, sign, camera, with_covariance=False)
         rmse, covariance = outline_fit(pose.R, pose.t, step.outline, sign, camera)
         return dataclasses.replace(pose, reprojection_rmse_px=rmse,
                                    covariance=with_corner_floor(covariance, pose.R, pose.t, sign, camera, sigma))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import struct
+import zlib
 from pathlib import Path
 
 import cv2
@@ -126,8 +128,28 @@ def test_bad_image_sequences_are_refused_with_a_clear_message(tmp_path):
     assert "clip.mp4: not an image file" in _error([tmp_path / "a1.png", tmp_path / "clip.mp4"])
     (tmp_path / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 20)
     assert "broken.png" in _error([tmp_path / "a1.png", tmp_path / "broken.png"])
-    assert "more than the 0.0001 megapixels allowed" in _error(tmp_path / "a1.png", max_pixels=100)
+    assert "a1.png): 32x24 px is 0.0 megapixels, more than the limit of 0.0001" in _error(tmp_path / "a1.png",
+                                                                                         max_pixels=100)
     assert "frame rate must be a positive number" in _error(tmp_path / "a1.png", fps=0.0)
+
+
+def test_a_huge_image_frame_is_refused_from_its_header_without_decoding(tmp_path, monkeypatch):
+    # A 200-byte PNG whose header claims 60000 x 60000 px (3.6 gigapixels, 10 GB decoded).
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    header = struct.pack(">IIBBBBB", 60000, 60000, 8, 2, 0, 0, 0)
+    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b"")
+    cv2.imwrite(str(tmp_path / "f1.png"), _frame(1))
+    (tmp_path / "f2.png").write_bytes(png)
+
+    def no_decoding(data: bytes, name: str = "image", as_stored: bool = False) -> np.ndarray:
+        assert data != png, "the huge frame was handed to the decoder"
+        return _frame(1)
+
+    monkeypatch.setattr("signpose.pipeline.frames.decode_image", no_decoding)
+    message = _error(tmp_path)
+    assert "frame 1 (f2.png): 60000x60000 px is 3600.0 megapixels" in message, message
 
 
 def test_missing_and_unknown_sources_are_named(tmp_path):
