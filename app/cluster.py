@@ -7,6 +7,7 @@ installed on the workers, in the version the client runs.
 
 from __future__ import annotations
 
+import socket
 from collections import Counter
 from collections.abc import Callable, Hashable, Iterable, Iterator
 from typing import Any
@@ -28,11 +29,23 @@ IN_FLIGHT_PER_THREAD = 2
 
 def connect(address: str) -> Client:
     """A client of the Dask scheduler at `address` (tcp://host:8786); BatchError when it cannot be reached."""
+    advice = "start one with `dask scheduler` and its workers with `dask worker ADDRESS` (docs/cluster.md)"
     try:
+        probe_tcp(address)
         return Client(address, timeout=CONNECT_TIMEOUT_S)
     except (OSError, TimeoutError, ValueError) as exc:
-        raise BatchError(f"cannot reach the Dask scheduler at {address} within {CONNECT_TIMEOUT_S} s ({exc}); "
-                         "start one with `dask scheduler` and its workers with `dask worker ADDRESS`") from None
+        raise BatchError(f"cannot reach the Dask scheduler at {address} ({exc}); {advice}") from None
+
+
+def probe_tcp(address: str) -> None:
+    """OSError at once when nothing listens at the tcp:// (or scheme-less) `address`: Dask's client would try
+    again until its timeout before saying so."""
+    scheme, _, rest = address.rpartition("://")
+    if scheme not in ("", "tcp"):
+        return
+    host, _, port = rest.rpartition(":")
+    if port.isdigit():
+        socket.create_connection((host.strip("[]") or "127.0.0.1", int(port)), timeout=CONNECT_TIMEOUT_S).close()
 
 
 class DaskRunner:
