@@ -64,13 +64,13 @@ def test_evaluate_on_the_cluster_answers_as_a_local_run(cluster, capsys):
 
 
 def test_track_on_the_cluster_answers_as_a_local_run(cluster, capsys):
-    code, local, _ = run(capsys, "track", FLIGHT, "--json")
+    code, local, _ = run(capsys, "track", FLIGHT, "--json", "--max-frames", "60")
     assert code == 0
-    code, remote, err = run(capsys, "track", FLIGHT, FLIGHT, "--json", "--dask", cluster)
+    code, remote, err = run(capsys, "track", FLIGHT, FLIGHT, "--json", "--max-frames", "60", "--dask", cluster)
     assert code == 0 and "2 flight(s) computed" in err
     local_lines = [without_times(json.loads(line)) for line in local.splitlines()]
     remote_lines = [without_times(json.loads(line)) for line in remote.splitlines()]
-    assert len(local_lines) == 150 and remote_lines == local_lines * 2
+    assert len(local_lines) == 60 and remote_lines == local_lines * 2
     assert any(line["signs"] for line in local_lines)
 
 
@@ -126,7 +126,7 @@ def test_a_resumed_run_computes_only_what_is_missing(cluster, capsys, tmp_path):
 
 
 def test_a_flight_is_resumed_too(cluster, capsys, tmp_path):
-    argv = ["track", FLIGHT, "--json", "--results", str(tmp_path), "--dask", cluster]
+    argv = ["track", FLIGHT, "--json", "--max-frames", "20", "--results", str(tmp_path), "--dask", cluster]
     code, first, err = run(capsys, *argv)
     assert code == 0 and "1 flight(s) computed, 0 taken" in err
     code, again, err = run(capsys, *argv)
