@@ -61,15 +61,25 @@ class LocalRunner:
     """Runs chunks on `workers` processes of this machine (spawned, one OpenCV thread each)."""
 
     def __init__(self, workers: int) -> None:
+        self.workers = workers
         self.pool = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
 
     def share(self, value: Any) -> Any:
         return value  # pickled with each chunk
 
     def run(self, function: Callable[..., Any], shared: tuple, chunks: Iterable[Chunk]) -> Iterator[tuple[Chunk, Any]]:
-        running = {self.pool.submit(function, *shared, chunk.work): chunk for chunk in chunks}
-        for future in concurrent.futures.as_completed(running):
-            yield running[future], future.result()
+        """(chunk, `function(*shared, chunk.work)`) as each finishes, two chunks a process in flight: the images'
+        bytes of a long run are read when their turn comes."""
+        pending = iter(chunks)
+        running: dict[concurrent.futures.Future, Chunk] = {}
+        while True:
+            while len(running) < 2 * self.workers and (chunk := next(pending, None)) is not None:
+                running[self.pool.submit(function, *shared, chunk.work)] = chunk
+            if not running:
+                return
+            finished, _ = concurrent.futures.wait(running, return_when=concurrent.futures.FIRST_COMPLETED)
+            for future in finished:
+                yield running.pop(future), future.result()
 
     def retried(self) -> list[str]:
         return []  # a process that dies breaks the pool: nothing is run again
