@@ -155,7 +155,8 @@ def with_features(library: Library, settings: Sequence[Settings]) -> Library:
 
 def recognize_all(jobs: Sequence[tuple[str, Camera | None]], library: Library, variants: Sequence[Settings],
                   check_image: ImageCheck | None, *, runner: Runner, store: ResultStore | None, context: dict,
-                  shared_paths: bool, images_per_chunk: int, done: Callable[[int], None]) -> tuple[list[list[Outcome]], Tally]:
+                  shared_paths: bool, images_per_chunk: int,
+                  done: Callable[[int], None]) -> tuple[list[list[Outcome]], Tally]:
     """The pipeline's `Outcome` on every job (image file name, camera) under each of `variants`: [variant][job].
 
     Results in `store` (keyed by the image's bytes and the settings that feed recognition, with `context`:
@@ -205,7 +206,7 @@ def recognize_all(jobs: Sequence[tuple[str, Camera | None]], library: Library, v
                 tally.reused += 1
                 done(1)
                 return None
-        payload: bytes | str = str(Path(name).resolve()) if shared_paths else data  # type: ignore[assignment]
+        payload: bytes | str = data if data is not None and not shared_paths else str(Path(name).resolve())
         return ImageItem(index, name, payload, camera, missing)
 
     shared = (runner.share(with_features(library, variants)), list(variants), check_image)
@@ -297,7 +298,8 @@ def track_all(sources: Sequence[str], library: Library, settings: Settings, came
     tally = Tally()
     keys: dict[int, tuple[str, str]] = {}
     context = {"kind": "track", "library": library_fingerprint(library), "topic": topic, "fps": fps,
-               "max_frames": max_frames, "max_pixels": max_pixels, "camera": None if camera is None else camera.to_json()}
+               "max_frames": max_frames, "max_pixels": max_pixels,
+               "camera": None if camera is None else camera.to_json()}
 
     def chunks() -> Iterator[Chunk]:
         for index, spec in enumerate(sources):

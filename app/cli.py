@@ -424,7 +424,8 @@ def evaluated_in_chunks(args, datasets: list, library: Library, settings: Settin
     from signpose.pipeline.evaluate import jobs_of, judged
 
     outcomes, tally = outcomes_in_chunks(args, datasets, library, [settings], camera, args.workers, "evaluate")
-    return [judged(name, sample, outcome) for (name, sample, _), outcome in zip(jobs_of(datasets, camera), outcomes[0])], tally
+    jobs = jobs_of(datasets, camera)
+    return [judged(name, sample, outcome) for (name, sample, _), outcome in zip(jobs, outcomes[0])], tally
 
 
 def cmd_sweep(args) -> int:

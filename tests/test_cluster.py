@@ -61,6 +61,9 @@ def test_evaluate_on_the_cluster_answers_as_a_local_run(cluster, capsys):
     code, remote, err = run(capsys, "evaluate", *DATASETS, "--json", "--dask", cluster, "--chunk", "3")
     assert code == 0 and "26 images computed" in err
     assert without_times(json.loads(remote)) == without_times(json.loads(local))
+    # The workers read the files themselves (they share this machine's paths).
+    code, by_path, err = run(capsys, "evaluate", *DATASETS, "--json", "--dask", cluster, "--shared-paths")
+    assert code == 0 and without_times(json.loads(by_path)) == without_times(json.loads(local))
 
 
 def test_track_on_the_cluster_answers_as_a_local_run(cluster, capsys):
