@@ -20,7 +20,7 @@ from typing import Any, Protocol
 import cv2
 
 from signpose.pipeline.camera import Camera
-from signpose.pipeline.evaluate import ImageCheck, Outcome, outcomes_of
+from signpose.pipeline.evaluate import ImageCheck, Outcome, keep_freed_memory, outcomes_of
 from signpose.pipeline.features import library_affine_features, library_features
 from signpose.pipeline.image import ImageError, read_file
 from signpose.pipeline.library import Library
@@ -130,7 +130,7 @@ class ImageItem:
 def image_outcomes(library: Library, variants: Sequence[Settings], check_image: ImageCheck | None,
                    items: Sequence[ImageItem]) -> list[list[Outcome]]:
     """On a worker: each item's `Outcome`s under its settings variants, in the items' order."""
-    cv2.setNumThreads(1)  # one thread per worker process, as the local pool: the per-image times compare
+    worker_process()
     out = []
     for item in items:
         wanted = [variants[v] for v in item.variants]
@@ -141,6 +141,13 @@ def image_outcomes(library: Library, variants: Sequence[Settings], check_image: 
             continue
         out.append(outcomes_of(data, item.name, item.camera, library, wanted, check_image))
     return out
+
+
+def worker_process() -> None:
+    """Set a worker process up as the local pool's: one OpenCV thread (the processes fill the cores, and the
+    per-image times compare), freed memory kept for the next image (about 25 % faster per image)."""
+    cv2.setNumThreads(1)
+    keep_freed_memory()
 
 
 def with_features(library: Library, settings: Sequence[Settings]) -> Library:
@@ -272,7 +279,7 @@ def tracked_flight(library: Library, settings: Settings, item: FlightItem) -> di
     from signpose.pipeline.frames import SourceError, open_source
     from signpose.pipeline.track import Tracker, tracked_frames
 
-    cv2.setNumThreads(1)
+    worker_process()
     with tempfile.TemporaryDirectory(prefix="signpose-flight-") as folder:
         where = item.payload if isinstance(item.payload, str) else placed(item.payload, folder)
         records: list[dict] = []

@@ -125,12 +125,13 @@ def main() -> None:
                       dashboard_address=":0") as cluster, Client(cluster) as client:
         client.wait_for_workers(max(SIMULATED))
         addresses = sorted(client.scheduler_info()["workers"])
+        # First, as a warm-up too: the scheduler's own pace, chunks of no work on every worker.
+        empty = simulated_rate(client, addresses, [0.0] * 1000, [b""] * 1000, 1, scale=0.0)
         print(f"{'workers':>8} {'images/s':>9} {'ideal':>7} {'of ideal':>9}")
         for count in SIMULATED:
             rate = simulated_rate(client, addresses[:count], times_ms, payloads, args.chunk)
             ideal = count * 1e3 / mean_ms
             print(f"{count:>8} {rate:>9.1f} {ideal:>7.1f} {100 * rate / ideal:>8.0f}%")
-        empty = simulated_rate(client, addresses, [0.0] * 1000, [b""] * 1000, 1, scale=0.0)
         chunk_ms = args.chunk * mean_ms
         print(f"\nscheduler with no work, 16 workers: {empty:.0f} chunks/s; a chunk of {args.chunk} images takes "
               f"{chunk_ms:.0f} ms, so the scheduler sets the pace from about {empty * chunk_ms / 1e3:.0f} workers "
