@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import multiprocessing
+import signal
 import tempfile
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -62,7 +63,10 @@ class LocalRunner:
 
     def __init__(self, workers: int) -> None:
         self.workers = workers
-        self.pool = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
+        # Ctrl-C reaches the whole process group: this process stops the run, the workers finish their chunk.
+        self.pool = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                                           initializer=signal.signal,
+                                                           initargs=(signal.SIGINT, signal.SIG_IGN))
 
     def share(self, value: Any) -> Any:
         return value  # pickled with each chunk
