@@ -190,3 +190,12 @@ def test_a_result_key_holds_the_settings_that_feed_its_stages_only(tmp_path):
     assert [p.name for p in (tmp_path / "content").iterdir()] == [f"{key}.json"]  # no temporary file left
     store.path("content", key).write_text("{cut sho")  # a file cut short is computed again
     assert store.get("content", key) is None
+
+
+def test_sweep_and_track_refuse_what_they_cannot_do_in_one_line(capsys, tmp_path):
+    code, out, err = run(capsys, "sweep", "detector", "--lo", "0", "--hi", "1", DATASETS[2])
+    assert code == 2 and out == "" and "cannot sweep 'detector'; choose a numeric setting" in err
+    code, _, err = run(capsys, "track", FLIGHT, "--results", str(tmp_path), "-o", str(tmp_path / "out.csv"))
+    assert code == 2 and "-o writes the flight of a local run" in err
+    code, _, err = run(capsys, "track", "camera:0", "--results", str(tmp_path))
+    assert code == 2 and "camera:0: no such file or folder" in err
