@@ -27,6 +27,7 @@ from signpose.pipeline.image import ImageError, read_file
 from signpose.pipeline.library import Library
 from signpose.pipeline.results import ResultStore, content_hash, files_hash, library_fingerprint, result_key
 from signpose.pipeline.settings import Settings
+from signpose.pipeline.sign_map import SignMap
 from signpose.pipeline.stages import ALL_STAGES
 
 EXTRA = "signpose[dask]"  # what `pip install` needs for --dask
@@ -268,6 +269,7 @@ class FlightItem:
     name: str
     payload: list[tuple[str, bytes]] | str
     camera: Camera | None
+    sign_map: SignMap | None
     topic: str | None
     fps: float | None
     max_frames: int | None
@@ -290,7 +292,7 @@ def tracked_flight(library: Library, settings: Settings, item: FlightItem) -> di
         try:
             with open_source(where, topic=item.topic, fps=item.fps, max_pixels=item.max_pixels) as source:
                 tracker = Tracker(library, settings, item.camera if item.camera is not None else source.camera,
-                                  fps=source.fps)
+                                  fps=source.fps, sign_map=item.sign_map)
                 for _, _, record in tracked_frames(source, tracker, item.name):
                     records.append(record)
                     if item.max_frames is not None and len(records) >= item.max_frames:
@@ -300,9 +302,10 @@ def tracked_flight(library: Library, settings: Settings, item: FlightItem) -> di
     return {"records": records, "error": None}
 
 
-def track_all(sources: Sequence[str], library: Library, settings: Settings, camera: Camera | None, *, topic: str | None,
-              fps: float | None, max_frames: int | None, max_pixels: int, runner: Runner, store: ResultStore | None,
-              shared_paths: bool, done: Callable[[int], None]) -> tuple[list[dict], Tally]:
+def track_all(sources: Sequence[str], library: Library, settings: Settings, camera: Camera | None, *,
+              sign_map: SignMap | None, topic: str | None, fps: float | None, max_frames: int | None, max_pixels: int,
+              runner: Runner, store: ResultStore | None, shared_paths: bool,
+              done: Callable[[int], None]) -> tuple[list[dict], Tally]:
     """`tracked_flight` of every source, in the sources' order, taken from `store` where it holds it (keyed by
     the flight's files and every setting: tracking runs every stage). `done(1)` follows each flight."""
     results: list[dict | None] = [None] * len(sources)
@@ -310,7 +313,8 @@ def track_all(sources: Sequence[str], library: Library, settings: Settings, came
     keys: dict[int, tuple[str, str]] = {}
     context = {"kind": "track", "library": library_fingerprint(library), "topic": topic, "fps": fps,
                "max_frames": max_frames, "max_pixels": max_pixels,
-               "camera": None if camera is None else camera.to_json()}
+               "camera": None if camera is None else camera.to_json(),
+               "map": None if sign_map is None else sign_map.to_json()}
 
     def chunks() -> Iterator[Chunk]:
         for index, spec in enumerate(sources):
@@ -324,7 +328,7 @@ def track_all(sources: Sequence[str], library: Library, settings: Settings, came
                     done(1)
                     continue
             payload: list[tuple[str, bytes]] | str = str(Path(spec).resolve()) if shared_paths else files
-            yield Chunk(spec, FlightItem(index, spec, payload, camera, topic, fps, max_frames, max_pixels), 1)
+            yield Chunk(spec, FlightItem(index, spec, payload, camera, sign_map, topic, fps, max_frames, max_pixels), 1)
 
     shared = (runner.share(with_features(library, [settings])), settings)
     for chunk, result in runner.run(tracked_flight, shared, chunks()):
