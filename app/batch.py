@@ -41,7 +41,7 @@ class BatchError(Exception):
 @dataclass(frozen=True)
 class Chunk:
     """A piece of work sent to one worker: `work`, the chunk function's last argument; `name`, how the
-    final table names it; `size`, how many images (or frames) it advances the progress bar."""
+    final table names it; `size`, how many images (or flights) it advances the progress bar."""
 
     name: str
     work: Any
