@@ -1,8 +1,9 @@
-"""`signpose` command line: recognize, track, synth, evaluate, calibrate, serve, map build."""
+"""`signpose` command line: recognize, track, synth, evaluate, sweep, calibrate, serve, map build."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import json
 import math
@@ -22,8 +23,10 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from signpose.app.batch import IMAGES_PER_CHUNK, BatchError, Runner, Tally, runner_for
 from signpose.app.entry import STOP_SIGNALS, Interrupted, interrupted, stopping_on_signals
 from signpose.app.image_store import HELD_BYTES_PER_PIXEL, check_image_header, decode_upload, held_bytes
+from signpose.app.tuning import MAX_SWEEP_STEPS
 from signpose.app.workspace import WorkspaceConfig
 from signpose.pipeline.camera import ASSUMED_HFOV_DEG, ASSUMED_HFOV_RANGE_DEG, Camera, CameraError, check_hfov, load_camera
 from signpose.pipeline.evaluate import CORES, keep_freed_memory, pad_to
@@ -32,6 +35,7 @@ from signpose.pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, loa
 from signpose.pipeline.every_sign import recognize_every_sign
 from signpose.pipeline.localise import CameraInMap, locate_in_map
 from signpose.pipeline.recognize import PipelineError, Recognition, pipeline_errors, why_no_feature_winner
+from signpose.pipeline.results import ResultStore
 from signpose.pipeline.settings import PRESETS, Settings, SettingsError, load_settings, preset
 from signpose.pipeline.sign_map import MapError, SignMap, load_sign_map
 
@@ -93,6 +97,47 @@ def add_max_megapixels(p: argparse.ArgumentParser) -> None:
 def max_pixels(args) -> int:
     """The --max-megapixels limit in pixels."""
     return round(args.max_megapixels * 1e6)
+
+
+def add_cluster(p: argparse.ArgumentParser, what: str, chunks: bool = True) -> None:
+    """--dask, --results, --shared-paths (and --chunk): where the work runs and where its results are kept."""
+    p.add_argument("--dask", metavar="ADDRESS",
+                   help="run on the Dask cluster whose scheduler is at ADDRESS (e.g. tcp://host:8786) instead of this "
+                        "machine's processes; needs signpose[dask] installed here and on the workers (docs/cluster.md)")
+    p.add_argument("--results", metavar="DIR",
+                   help=f"keep each {what}'s result in DIR, keyed by the file's content and the settings that feed it: "
+                        "a re-run (after Ctrl-C, a lost worker or a settings change) computes only what is missing")
+    p.add_argument("--shared-paths", action="store_true",
+                   help="send the workers paths, not the files' bytes: every worker sees the files at the same paths")
+    if chunks:
+        p.add_argument("--chunk", type=positive_int, default=IMAGES_PER_CHUNK, metavar="N",
+                       help="images sent to a worker at a time (default %(default)s)")
+
+
+@contextmanager
+def batch_runner(args, workers: int) -> Iterator[Runner]:
+    """Where the command's chunks run: the cluster at --dask, else `workers` processes here; its errors are the
+    command's."""
+    try:
+        runner = runner_for(args.dask, workers)
+    except BatchError as exc:
+        raise CliError(str(exc)) from None
+    try:
+        yield runner
+    except BatchError as exc:
+        raise CliError(str(exc)) from None
+    finally:
+        runner.close()
+
+
+def result_store(args) -> ResultStore | None:
+    """The --results folder's store, None without one."""
+    if args.results is None:
+        return None
+    try:
+        return ResultStore(args.results)
+    except OSError as exc:
+        raise CliError(f"cannot use --results {args.results}: {exc.strerror or exc}") from None
 
 
 def format_row(name: str, rec: Recognition) -> str:
@@ -233,6 +278,8 @@ def cmd_track(args) -> int:
     library, settings, camera = load_inputs(args)
     sign_map = load_map(args, library)
     keep_freed_memory()
+    if args.dask or args.results:
+        return track_in_chunks(args, library, settings, camera, sign_map)
     spec = args.sources[0] if len(args.sources) == 1 else args.sources
     try:
         source = open_source(spec, topic=args.topic, fps=args.fps, max_pixels=max_pixels(args))
@@ -264,22 +311,67 @@ def cmd_track(args) -> int:
             if output is not None:
                 output.write(record, image=None if isinstance(source, BagSource) else frame.image,
                              stamp_ns=frame.stamp_ns)
-            if args.json:
-                say(json.dumps(record))
-            for sign in result.signs:
-                if sign.track_id not in labels:
-                    labels[sign.track_id] = sign.label
-                    if not args.json:
-                        say(f"frame {frame.index} ({frame.time_s:.2f} s): {sign.label} confirmed as track "
-                            f"{sign.track_id}")
-            seen += bool(result.signs)
+            seen += told(record, labels, args.json)
             frames += 1
             bar.update()
     elapsed = time.perf_counter() - started
-    names = ", ".join(f"{label} (track {track_id})" for track_id, label in sorted(labels.items())) or "none"
-    print(f"{frames} frames, {seen} with a sign; signs seen: {names}; {frames / elapsed:.1f} frames/s",
+    print(f"{frames} frames, {seen} with a sign; signs seen: {signs_seen(labels)}; {frames / elapsed:.1f} frames/s",
           file=sys.stderr)
     return 0
+
+
+def told(record: dict, labels: dict[int, str], as_json: bool) -> bool:
+    """Print what a tracked frame's `record` (its `--json` line) tells: the line itself, or a line per track
+    first confirmed on it (noted in `labels`, track id: label); whether a sign is on the frame."""
+    if as_json:
+        say(json.dumps(record))
+    for sign in record["signs"]:
+        if sign["track_id"] not in labels:
+            labels[sign["track_id"]] = sign["label"]
+            if not as_json:
+                say(f"frame {record['frame']} ({record['time_s']:.2f} s): {sign['label']} confirmed as track "
+                    f"{sign['track_id']}")
+    return bool(record["signs"])
+
+
+def signs_seen(labels: dict[int, str]) -> str:
+    """The tracks confirmed, for the summary line."""
+    return ", ".join(f"{label} (track {track_id})" for track_id, label in sorted(labels.items())) or "none"
+
+
+def track_in_chunks(args, library: Library, settings: Settings, camera: Camera | None,
+                    sign_map: SignMap | None) -> int:
+    """`track --dask` or `--results`: every SOURCE a flight of its own, one chunk each, printed in order."""
+    from signpose.app.batch import track_all
+
+    if args.output:
+        raise CliError("-o writes the flight of a local run; with --dask or --results use --json, whose lines name "
+                       "their source")
+    for spec in args.sources:
+        if not Path(spec).exists():
+            raise CliError(f"{spec}: no such file or folder; with --dask or --results each SOURCE is a video, a bag "
+                           "or a folder of frames")
+    started = time.perf_counter()
+    with progress(total=len(args.sources), unit="flight", desc="track", leave=False) as bar, \
+            batch_runner(args, CORES) as runner:
+        results, tally = track_all(args.sources, library, settings, camera, sign_map=sign_map, topic=args.topic,
+                                   fps=args.fps, max_frames=args.max_frames, max_pixels=max_pixels(args),
+                                   runner=runner, store=result_store(args), shared_paths=args.shared_paths,
+                                   done=bar.update)
+    frames = failed = 0
+    for spec, result in zip(args.sources, results):
+        labels: dict[int, str] = {}
+        seen = sum(told(record, labels, args.json) for record in result["records"])
+        frames += len(result["records"])
+        if result["error"] is not None:
+            say(f"signpose track: error: {result['error']}", sys.stderr)
+            failed += 1
+        print(f"{spec}: {len(result['records'])} frames, {seen} with a sign; signs seen: {signs_seen(labels)}",
+              file=sys.stderr)
+    elapsed = time.perf_counter() - started
+    print(f"{frames} frames of {len(args.sources)} flight(s), {frames / elapsed:.1f} frames/s; "
+          f"{tally.summary('flight(s)')}", file=sys.stderr)
+    return 1 if failed else 0
 
 
 def cmd_synth(args) -> int:
@@ -306,7 +398,7 @@ def cmd_synth(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from signpose.pipeline.evaluate import ImageResult, check_labels, format_table, load_dataset, measure, report_on
+    from signpose.pipeline.evaluate import ImageResult, format_table, measure, report_on
     from signpose.pipeline.evaluate_map import format_map_table
 
     library, settings, camera = load_inputs(args)
@@ -319,10 +411,9 @@ def cmd_evaluate(args) -> int:
         raise CliError("a dataset folder is given twice")
     try:
         surveys = {} if sign_map is None else map_surveys(args.datasets)
-        datasets = [load_dataset(Path(d)) for d in args.datasets if d not in surveys]
-        check_labels(datasets, library)
     except (ValueError, OSError) as exc:  # DatasetError, and what reading truth.json raises
         raise CliError(str(exc)) from None
+    datasets = load_datasets([d for d in args.datasets if d not in surveys], library)
     if sign_map is not None and datasets:
         print(f"the map is not used for {', '.join(d.name for d in datasets)}: no camera poses in the map frame in "
               "their truth", file=sys.stderr)
@@ -335,33 +426,36 @@ def cmd_evaluate(args) -> int:
         if not datasets:
             print(json.dumps({"camera_in_map": in_map}) if args.json else map_table)
             return unusable_images(failed_in_map, photos_in_map)
-    names = [d.name for d in datasets]
-    for dataset, given in zip(datasets, args.datasets):
-        if names.count(dataset.name) > 1:  # a/set1 and b/set1: each its own row
-            dataset.name = given
     total = sum(len(d) for d in datasets)
     results: list[ImageResult] = []
-    check = functools.partial(check_image_header, max_pixels=max_pixels(args))
-    try:
-        with progress(total=total, desc="evaluate") as bar, stopped_after(lambda: len(results), total, "images"), \
-                closing(measure(datasets, library, settings, camera, args.workers, check)) as measured:
-            for result in measured:
-                results.append(result)
-                bar.update(1)
-    except BrokenProcessPool:
-        raise CliError("a worker process stopped before it finished (out of memory?); "
-                       "fewer workers, e.g. --workers 1, need less") from None
-    except Interrupted as exc:
-        if results and not args.json:  # the table of what was measured; a JSON reader would take it for all
-            with suppress(OSError):  # after SIGHUP the terminal may be gone
-                print(f"partial results: the first {exc.done}\n"
-                      + format_table(report_on(datasets, library, settings, results)), flush=True)
-        raise
+    tally = None
+    if args.dask or args.results:
+        results, tally = evaluated_in_chunks(args, datasets, library, settings, camera)
+    else:
+        check = functools.partial(check_image_header, max_pixels=max_pixels(args))
+        try:
+            with progress(total=total, desc="evaluate") as bar, stopped_after(lambda: len(results), total, "images"), \
+                    closing(measure(datasets, library, settings, camera, args.workers, check)) as measured:
+                for result in measured:
+                    results.append(result)
+                    bar.update(1)
+        except BrokenProcessPool:
+            raise CliError("a worker process stopped before it finished (out of memory?); "
+                           "fewer workers, e.g. --workers 1, need less") from None
+        except Interrupted as exc:
+            if results and not args.json:  # the table of what was measured; a JSON reader would take it for all
+                with suppress(OSError):  # after SIGHUP the terminal may be gone
+                    print(f"partial results: the first {exc.done}\n"
+                          + format_table(report_on(datasets, library, settings, results)), flush=True)
+            raise
     report = report_on(datasets, library, settings, results)
     if args.json:
         print(json.dumps({**report.to_json(), **({"camera_in_map": in_map} if in_map else {})}))
+        if tally is not None:
+            print(tally.summary("images"), file=sys.stderr)
     else:
-        print(format_table(report) + (f"\n\n{map_table}" if map_table else ""))
+        print(format_table(report) + (f"\n\n{map_table}" if map_table else "")
+              + (f"\n\n{tally.summary('images')}" if tally is not None else ""))
     failed = sum(r.error is not None for r in report.results) + failed_in_map
     return unusable_images(failed, len(report.results) + photos_in_map)
 
@@ -401,6 +495,102 @@ def evaluate_in_map(surveys: dict, library: Library, settings: Settings, camera:
                 bar.update(1)
             summaries[root.name] = summary_in_map(results)
     return summaries, failed
+
+
+def load_datasets(folders: list[str], library: Library) -> list:
+    """The dataset folders `folders`, their labels checked against `library`; each named after its folder, or as
+    given where two folders share a name."""
+    from signpose.pipeline.evaluate import check_labels, load_dataset
+
+    roots = [Path(d).resolve() for d in folders]
+    if len(set(roots)) < len(roots):
+        raise CliError("a dataset folder is given twice")
+    try:
+        datasets = [load_dataset(Path(d)) for d in folders]
+        check_labels(datasets, library)
+    except (ValueError, OSError) as exc:  # DatasetError, and what reading truth.json raises
+        raise CliError(str(exc)) from None
+    names = [d.name for d in datasets]
+    for dataset, given in zip(datasets, folders):
+        if names.count(dataset.name) > 1:  # a/set1 and b/set1: each its own row
+            dataset.name = given
+    return datasets
+
+
+def outcomes_in_chunks(args, datasets: list, library: Library, variants: list[Settings], camera: Camera | None,
+                       workers: int, desc: str) -> tuple[list, Tally]:
+    """Every sample's `Outcome` under each of `variants` ([variant][sample]), on the cluster at --dask or
+    `workers` processes here, taken from --results where it holds them."""
+    from signpose.app.batch import recognize_all
+    from signpose.pipeline.evaluate import jobs_of
+
+    jobs = [(str(sample.path), cam) for _, sample, cam in jobs_of(datasets, camera)]
+    check = functools.partial(check_image_header, max_pixels=max_pixels(args))
+    done = 0
+
+    def advance(images: int) -> None:
+        nonlocal done
+        done += images
+        bar.update(images)
+
+    with progress(total=len(jobs), desc=desc) as bar, stopped_after(lambda: done, len(jobs), "images"), \
+            batch_runner(args, workers) as runner:
+        return recognize_all(jobs, library, variants, check, runner=runner, store=result_store(args),
+                             context={"max_pixels": max_pixels(args)}, shared_paths=args.shared_paths,
+                             images_per_chunk=args.chunk, done=advance)
+
+
+def evaluated_in_chunks(args, datasets: list, library: Library, settings: Settings,
+                        camera: Camera | None) -> tuple[list, Tally]:
+    """`evaluate --dask` or `--results`: each sample's result against its truth, in the samples' order."""
+    from signpose.pipeline.evaluate import jobs_of, judged
+
+    outcomes, tally = outcomes_in_chunks(args, datasets, library, [settings], camera, args.workers, "evaluate")
+    jobs = jobs_of(datasets, camera)
+    return [judged(name, sample, outcome) for (name, sample, _), outcome in zip(jobs, outcomes[0])], tally
+
+
+def cmd_sweep(args) -> int:
+    from signpose.app.tuning import INTEGER_SETTINGS, TuningError, tally_sweep, values_to_sweep
+    from signpose.pipeline.library import NO_SIGN
+
+    library, settings, camera = load_inputs(args)
+    datasets = load_datasets(args.datasets, library)
+    try:
+        values = values_to_sweep(settings, args.param, args.lo, args.hi, args.steps)
+    except TuningError as exc:
+        raise CliError(str(exc)) from None
+    variants = [settings.replace(**{args.param: value}) for value in values]
+    outcomes, tally = outcomes_in_chunks(args, datasets, library, variants, camera, args.workers, "sweep")
+    expected = [sample.label or NO_SIGN for d in datasets for sample in d.samples]
+    # As the page's sweep: an image the pipeline could not run on at a value is None there.
+    runs = [[None if o.error is not None else o for o in row] for row in outcomes]
+    swept = tally_sweep(values, expected, runs, integer=args.param in INTEGER_SETTINGS)
+    if args.json:
+        print(json.dumps({"param": args.param, "values": values, "labelled": len(expected),
+                          **dataclasses.asdict(swept)}))
+        if args.dask or args.results:
+            print(tally.summary("images"), file=sys.stderr)
+    else:
+        print(format_sweep(args.param, values, len(expected), swept))
+        if args.dask or args.results:
+            print("\n" + tally.summary("images"))
+    return 0
+
+
+def format_sweep(param: str, values: list[float], labelled: int, swept) -> str:
+    """The sweep's table: per value the images right, the smallest margin, those right by plaque and those the
+    pipeline failed on; then the working band and its centre."""
+    lines = [f"{param:>20} {'correct':>9} {'min margin':>11} {'by plaque':>10} {'failed':>7}"]
+    for value, correct, margin, plaque, failed in zip(values, swept.correct, swept.min_margin, swept.by_plaque,
+                                                      swept.failed):
+        lines.append(f"{value:>20g} {f'{correct}/{labelled}':>9} {'-' if margin is None else margin:>11} "
+                     f"{plaque:>10} {failed:>7}")
+    if swept.band is None:
+        lines.append(f"\nno value of {param} gets every labelled image right")
+    else:
+        lines.append(f"\nevery image right from {swept.band[0]:g} to {swept.band[1]:g}; centre {swept.centre:g}")
+    return "\n".join(lines)
 
 
 def cmd_calibrate(args) -> int:
@@ -619,6 +809,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", type=flight_output_path, metavar="OUT",
                    help="write the flight as OUT.mcap (ROS 2: poses with covariance, /tf, the frames), OUT.csv "
                         "or OUT.jsonl")
+    add_cluster(p, "flight", chunks=False)
     p.set_defaults(func=cmd_track)
 
     p = sub.add_parser("synth", help="render synthetic scenes with ground truth")
@@ -638,7 +829,23 @@ def build_parser() -> argparse.ArgumentParser:
     add_common(p)
     add_max_megapixels(p)
     add_map_option(p)
+    add_cluster(p, "image")
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("sweep", help="the page's sweep over labelled datasets: images right per value of one setting")
+    p.add_argument("param", metavar="PARAM", help="the numeric setting to sweep, e.g. threshold")
+    p.add_argument("--lo", type=float, required=True, help="first value")
+    p.add_argument("--hi", type=float, required=True, help="last value")
+    p.add_argument("--steps", type=whole_number(2, MAX_SWEEP_STEPS), default=13,
+                   help=f"values from lo to hi, 2 to {MAX_SWEEP_STEPS} (default %(default)s)")
+    p.add_argument("datasets", nargs="+", metavar="DATASET", help="dataset folders, as for evaluate")
+    p.add_argument("--workers", type=positive_int, default=WorkspaceConfig.workers,
+                   help="processes sharing the images without --dask (default: every core, here %(default)s)")
+    p.add_argument("--json", action="store_true", help="one JSON object, as the page's GET /api/sweep answers")
+    add_common(p)
+    add_max_megapixels(p)
+    add_cluster(p, "image and value")
+    p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("calibrate", help="camera intrinsics from photos of a printed chessboard (docs/calibration.md)")
     p.add_argument("images", nargs="+", help="photos of the board, all the same size as the camera stored them "

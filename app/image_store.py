@@ -19,7 +19,7 @@ from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TypeVar
+from typing import NamedTuple, Protocol, TypeVar
 
 import cv2
 import numpy as np
@@ -190,7 +190,23 @@ class ImageRecord:
         return StoredImage(self.id, self.name, self.expected, self.file, self.media_type)
 
 
-def is_correct(expected: str | None, recognition: Recognition) -> bool | None:
+class Answer(Protocol):
+    """What the pipeline answered on an image: a `Recognition`, or the `Outcome` a batch keeps of one."""
+
+    @property
+    def label(self) -> str | None: ...
+
+    @property
+    def recognized(self) -> bool: ...
+
+    @property
+    def by_plaque(self) -> bool: ...
+
+    @property
+    def margin(self) -> int: ...
+
+
+def is_correct(expected: str | None, recognition: Answer) -> bool | None:
     """Whether `recognition` matches `expected` (None when the image is unlabelled)."""
     if expected is None:
         return None

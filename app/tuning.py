@@ -7,6 +7,7 @@ A request that cannot be answered as asked raises TuningError, which the server 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -17,7 +18,7 @@ from signpose.pipeline.recognize import Recognition
 from signpose.pipeline.segment import Box, normalize_levels
 from signpose.pipeline.settings import Settings, SettingsError, check_setting, settings_schema
 
-from .image_store import is_correct
+from .image_store import Answer, is_correct
 
 HISTOGRAM_BINS = 256
 # The paper measured the sign at 0.8 and thresholded at 0.75: just below the sign's white.
@@ -220,11 +221,12 @@ class SweepTally:
     centre: float | None
 
 
-def tally_sweep(values: list[float], expected: list[str | None], runs: list[list[Recognition | None]],
+def tally_sweep(values: list[float], expected: list[str | None], runs: Sequence[Sequence[Answer | None]],
                 *, integer: bool) -> SweepTally:
     """Count the `runs` of a sweep ([value index][image index], None where the image could not be
     run) of images labelled `expected` (None, a label cleared since, is never correct), over the
-    `values` of a setting that takes whole numbers when `integer`."""
+    `values` of a setting that takes whole numbers when `integer`: the page's `Recognition`s, or the
+    `Outcome`s of `signpose sweep`."""
     correct: list[int] = []
     min_margin: list[int | None] = []
     by_plaque: list[int] = []

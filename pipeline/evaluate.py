@@ -51,8 +51,9 @@ from .image import ImageError, decode_image, exif_orientation, read_file
 from .jsonfile import read_json
 from .library import NO_SIGN, Library
 from .pose import camera_position, rotation_error_deg
-from .recognize import PipelineError, run_pipeline
+from .recognize import PipelineError, Recognition, run_pipeline
 from .settings import Settings
+from .stages import StageCache
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}
 NEGATIVE_FOLDERS = {"none", "negative"}
@@ -316,33 +317,106 @@ Job = tuple[str, Sample, Camera | None]  # dataset name, sample, camera (None: a
 ImageCheck = Callable[[bytes, str], object]
 
 
+@dataclass(eq=False)
+class Outcome:
+    """What the pipeline answered on one image under one set of settings, without the truth: what a
+    result store keeps and a cluster's worker sends back.
+
+    label: the sign recognised (None: no sign); margin: the winner's inlier margin over the runner-up;
+    time_ms: the pipeline's time; R (3, 3), t (3,) metres: the pose, X_cam = R·X_sign + t; corners (4, 2):
+    image px, TL, TR, BR, BL; error: why the image could not be used (the rest is then empty).
+    """
+
+    label: str | None = None
+    by_plaque: bool = False
+    margin: int = 0
+    time_ms: float = math.nan
+    R: np.ndarray | None = field(default=None, repr=False)
+    t: np.ndarray | None = field(default=None, repr=False)
+    corners: np.ndarray | None = field(default=None, repr=False)
+    error: str | None = None
+
+    @property
+    def recognized(self) -> bool:
+        return self.label is not None
+
+    @classmethod
+    def of(cls, rec: Recognition) -> Outcome:
+        pose = rec.pose
+        return cls(rec.label, rec.by_plaque, rec.margin, rec.timing_ms["total"], None if pose is None else pose.R,
+                   None if pose is None else pose.t, rec.corners)
+
+    def to_json(self) -> dict:
+        """JSON that `from_json` reads back to the same values (floats in full)."""
+        def array(value: np.ndarray | None) -> list | None:
+            return None if value is None else np.asarray(value, dtype=np.float64).tolist()
+        return {"label": self.label, "by_plaque": self.by_plaque, "margin": int(self.margin),
+                "time_ms": _finite(float(self.time_ms)), "R": array(self.R), "t": array(self.t),
+                "corners": array(self.corners), "error": self.error}
+
+    @classmethod
+    def from_json(cls, data: dict) -> Outcome:
+        def array(value: list | None) -> np.ndarray | None:
+            return None if value is None else np.asarray(value, dtype=np.float64)
+        return cls(data["label"], data["by_plaque"], data["margin"],
+                   math.nan if data["time_ms"] is None else data["time_ms"], array(data["R"]), array(data["t"]),
+                   array(data["corners"]), data["error"])
+
+
+def outcomes_of(data: bytes, name: str, camera: Camera | None, library: Library, variants: Sequence[Settings],
+                check_image: ImageCheck | None = None) -> list[Outcome]:
+    """The pipeline's `Outcome` on the image file's bytes `data` (called `name`) under each of `variants`, in
+    order; each the image's error when it cannot be used. The image is decoded once; with several variants,
+    each run reuses what the runs before it computed (a `StageCache`, as the page's sweep does).
+
+    `camera` describes the pixels as stored, and the assumed field of view spans the sensor as it stored them:
+    either is turned as the photo's EXIF orientation turned it.
+    """
+    try:
+        if check_image is not None:
+            check_image(data, name)
+        image = decode_image(data, name)
+        orientation = ExifCamera(orientation=exif_orientation(data))
+        camera = orientation.camera_for(camera, image.shape[1], image.shape[0], ASSUMED_HFOV_DEG)
+    # CameraError: the camera cannot be turned or scaled to this image
+    except (ImageError, CameraError) as exc:
+        return [Outcome(error=str(exc)) for _ in variants]
+    cache = StageCache() if len(variants) > 1 else None
+    outcomes = []
+    for settings in variants:
+        try:
+            outcomes.append(Outcome.of(run_pipeline(name, image, library, settings, camera, cache)))
+        # CameraError: the camera cannot be scaled to this image; PipelineError: a failure inside the pipeline
+        except (CameraError, PipelineError) as exc:
+            outcomes.append(Outcome(error=str(exc)))
+    return outcomes
+
+
+def judged(dataset: str, sample: Sample, outcome: Outcome) -> ImageResult:
+    """The `ImageResult` of `outcome`, the pipeline's answer on `sample`, against the sample's truth."""
+    if outcome.error is not None:
+        return ImageResult(dataset, sample, None, math.nan, error=outcome.error)
+    result = ImageResult(dataset, sample, outcome.label, outcome.time_ms)
+    if not result.correct or sample.label is None:
+        return result
+    if outcome.R is not None and outcome.t is not None and sample.R is not None and sample.t is not None:
+        result.rotation_error_deg = rotation_error_deg(sample.R, outcome.R)
+        result.translation_error_pct = float(100 * np.linalg.norm(outcome.t - sample.t) / np.linalg.norm(sample.t))
+        result.position_error_m = float(np.linalg.norm(camera_position(outcome.R, outcome.t)
+                                                       - camera_position(sample.R, sample.t)))
+    if outcome.corners is not None and sample.corners is not None:
+        result.corner_error_px = float(np.linalg.norm(outcome.corners - sample.corners, axis=1).mean())
+    return result
+
+
 def _measure(job: Job, library: Library, settings: Settings, check_image: ImageCheck | None) -> ImageResult:
     """The pipeline's answer on one job's sample and its errors against the truth."""
     dataset, sample, camera = job
     try:
         data = read_file(sample.path)
-        if check_image is not None:
-            check_image(data, str(sample.path))
-        image = decode_image(data, str(sample.path))
-        # The dataset's camera describes the pixels as stored, and the assumed field of view spans the sensor as it
-        # stored them: either is turned as the photo's EXIF orientation turned it.
-        orientation = ExifCamera(orientation=exif_orientation(data))
-        camera = orientation.camera_for(camera, image.shape[1], image.shape[0], ASSUMED_HFOV_DEG)
-        rec = run_pipeline(str(sample.path), image, library, settings, camera)
-    # CameraError: the camera cannot be turned or scaled to this image; PipelineError: a failure inside the pipeline
-    except (ImageError, CameraError, PipelineError) as exc:
-        return ImageResult(dataset, sample, None, math.nan, error=str(exc))
-    result = ImageResult(dataset, sample, rec.label, rec.timing_ms["total"])
-    if not result.correct or sample.label is None:
-        return result
-    if rec.pose is not None and sample.R is not None and sample.t is not None:
-        result.rotation_error_deg = rotation_error_deg(sample.R, rec.pose.R)
-        result.translation_error_pct = float(100 * np.linalg.norm(rec.pose.t - sample.t) / np.linalg.norm(sample.t))
-        result.position_error_m = float(np.linalg.norm(camera_position(rec.pose.R, rec.pose.t)
-                                                       - camera_position(sample.R, sample.t)))
-    if rec.corners is not None and sample.corners is not None:
-        result.corner_error_px = float(np.linalg.norm(rec.corners - sample.corners, axis=1).mean())
-    return result
+    except ImageError as exc:
+        return judged(dataset, sample, Outcome(error=str(exc)))
+    return judged(dataset, sample, outcomes_of(data, str(sample.path), camera, library, [settings], check_image)[0])
 
 
 # glibc's mallopt parameters (malloc.h) and the values `keep_freed_memory` sets.
@@ -566,8 +640,13 @@ def measure(datasets: Sequence[Dataset], library: Library, settings: Settings, c
     image (ImageError, reported as that image's error); it must pickle to reach the worker processes.
     """
     check_labels(datasets, library)
-    jobs = [(d.name, sample, camera or d.camera) for d in datasets for sample in d.samples]
-    return _measure_all(jobs, library, settings, check_image, workers or CORES)
+    return _measure_all(jobs_of(datasets, camera), library, settings, check_image, workers or CORES)
+
+
+def jobs_of(datasets: Sequence[Dataset], camera: Camera | None = None) -> list[Job]:
+    """Every sample of `datasets` in order, with its dataset's name and the camera it is measured with:
+    `camera` when given, else its dataset's (None: an assumed field of view)."""
+    return [(d.name, sample, camera or d.camera) for d in datasets for sample in d.samples]
 
 
 def report_on(datasets: Sequence[Dataset], library: Library, settings: Settings,

@@ -116,7 +116,8 @@ def fake_recognize(answers):
         label = answers.get(sample.path.name, sample.label)
         pose = None if sample.R is None else SimpleNamespace(R=sample.R, t=sample.t * 1.02)
         corners = None if sample.corners is None else sample.corners + [3, 4]
-        return SimpleNamespace(label=label, pose=pose, corners=corners, timing_ms={"total": 10.0})
+        return SimpleNamespace(label=label, pose=pose, corners=corners, timing_ms={"total": 10.0},
+                               by_plaque=False, margin=0)
     return recognize
 
 
@@ -130,7 +131,8 @@ def test_a_tilt_error_is_a_position_error_however_small_the_translation_error(mo
     def tilted(image, library, settings, camera, cache=None):
         sample = next(s for name, s in truth.items() if np.array_equal(image, cv2.imread(str(SET3 / name))))
         pose = None if sample.R is None else SimpleNamespace(R=tilt @ sample.R, t=sample.t)
-        return SimpleNamespace(label=sample.label, pose=pose, corners=sample.corners, timing_ms={"total": 10.0})
+        return SimpleNamespace(label=sample.label, pose=pose, corners=sample.corners, timing_ms={"total": 10.0},
+                               by_plaque=False, margin=0)
 
     monkeypatch.setattr(recognize_module, "recognize", tilted)
     report = evaluate([load_dataset(SET3)], library, preset("default"), workers=1)

@@ -3,6 +3,7 @@ labelled images (app/tuning.py does both)."""
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Annotated
 
 from fastapi import APIRouter, HTTPException, Query, status
@@ -50,6 +51,4 @@ async def sweep(workspace: WorkspaceDep, queue: WorkQueueDep,
                            limit_s=workspace.config.request_timeout_s)
     tally = tuning.tally_sweep(values, [r.expected for r in labelled], runs,
                                integer=param in tuning.INTEGER_SETTINGS)
-    return SweepOut(param=param, values=values, correct=tally.correct, min_margin=tally.min_margin,
-                    by_plaque=tally.by_plaque, failed=tally.failed, band=tally.band, centre=tally.centre,
-                    labelled=len(labelled))
+    return SweepOut(param=param, values=values, labelled=len(labelled), **dataclasses.asdict(tally))
