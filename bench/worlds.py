@@ -113,12 +113,15 @@ def main() -> None:
     parser.add_argument("--backgrounds", type=Path, nargs="+", default=None,
                         help="folders of real photographs (default: the shared homogr and opencv folders)")
     parser.add_argument("--misses", action="store_true", help="list the default preset's misses")
+    parser.add_argument("--world", choices=("rooms", "photos"), action="append",
+                        help="run only this world (again for both; default both)")
     args = parser.parse_args()
     library = load_library()
     load_start = os.getloadavg()[0]
-    worlds = {"rooms": rooms(args.data / f"rooms-n{args.n}-seed{args.seed}", library, args.n, args.seed),
-              "photos": photos(args.data / f"photos-n{args.n}-seed{args.seed}", library, args.n, args.seed,
-                               args.backgrounds or default_backgrounds())}
+    render = {"rooms": lambda: rooms(args.data / f"rooms-n{args.n}-seed{args.seed}", library, args.n, args.seed),
+              "photos": lambda: photos(args.data / f"photos-n{args.n}-seed{args.seed}", library, args.n, args.seed,
+                                       args.backgrounds or default_backgrounds())}
+    worlds = {world: make() for world, make in render.items() if world in (args.world or render)}
     reports: dict[tuple[str, str], Report] = {}
     for world, dataset in worlds.items():
         for name in PRESETS:

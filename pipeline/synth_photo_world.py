@@ -243,9 +243,9 @@ def _paste(canvas: np.ndarray, albedo: np.ndarray, H: np.ndarray) -> np.ndarray:
 
 
 def _clutter(rng: np.random.Generator, canvas: np.ndarray, lamps: bool, keep_out: np.ndarray | None) -> list[str]:
-    """Paste 0-3 cards of Latin print, none over the `keep_out` quad ((4, 2) canvas px, the
-    plaque's, or None) and, with `lamps`, 1-3 lamps or windows brighter than any paper (they set
-    the image's maximum) onto the linear `canvas` (in place); returns their kinds."""
+    """Paste 0-3 cards of Latin print and, with `lamps`, 1-3 lamps or windows brighter than any
+    paper (they set the image's maximum) onto the linear `canvas` (in place), none over the
+    `keep_out` quad ((4, 2) canvas px, the plaque's, or None); returns their kinds."""
     hc, wc = canvas.shape[:2]
     kinds = []
     for _ in range(int(rng.integers(0, 4))):
@@ -261,6 +261,9 @@ def _clutter(rng: np.random.Generator, canvas: np.ndarray, lamps: bool, keep_out
     for _ in range(int(rng.integers(1, 4)) if lamps else 0):
         centre = (int(rng.uniform(0, wc)), int(rng.uniform(0, hc)))
         axes = (int(rng.uniform(0.03, 0.12) * wc), int(rng.uniform(0.02, 0.1) * wc))
+        extent = np.array([[centre[0] - axes[0], centre[1] - axes[1]], [centre[0] + axes[0], centre[1] + axes[1]]])
+        if keep_out is not None and _overlap(extent, keep_out):
+            continue
         glow = np.zeros((hc, wc), np.float32)
         if rng.random() < 0.5:
             cv2.ellipse(glow, centre, axes, float(rng.uniform(0, 180)), 0, 360, 1.0, -1, cv2.LINE_AA)
@@ -441,20 +444,17 @@ def _seen_corners(sign: LibrarySign, R: np.ndarray, t: np.ndarray, camera: Camer
 
 def scene_plan(library: Library, counts: dict[str, int], rng: np.random.Generator) -> list[tuple[str, str, str | None]]:
     """(category, look, sign id or None) per scene for `counts` scenes of each category, in a
-    random order: hard looks, negative looks and signs in turn."""
+    random order: looks in turn, and each category's signs in turn and shuffled, so that no look
+    goes with one sign."""
     unknown = set(counts) - set(CATEGORIES)
     if unknown or any(n < 0 for n in counts.values()) or not sum(counts.values()):
         raise PhotoWorldError(f"counts must give a non-negative number of scenes for some of {', '.join(CATEGORIES)}; "
                               f"got {counts}")
-    plan = []
-    turn = int(rng.integers(len(library.ids)))
+    plan: list[tuple[str, str, str | None]] = []
     for category, n in counts.items():
         looks = {"easy": ("easy",), "hard": HARD_LOOKS, "steep": ("steep",), "negative": NEGATIVE_LOOKS}[category]
-        for i in range(n):
-            sign = None
-            if category != "negative":
-                sign, turn = library.ids[turn % len(library.ids)], turn + 1
-            plan.append((category, looks[i % len(looks)], sign))
+        signs = [None if category == "negative" else library.ids[i % len(library.ids)] for i in range(n)]
+        plan += [(category, looks[i % len(looks)], signs[j]) for i, j in enumerate(rng.permutation(n))]
     return [plan[i] for i in rng.permutation(len(plan))]
 
 
