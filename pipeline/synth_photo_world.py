@@ -14,7 +14,8 @@ Camera (`photo_world_camera`): a 70 degree lens with barrel distortion and an of
 principal point (its camera.yaml says so), defocus, motion or Gaussian blur, Poisson-Gaussian
 sensor noise, a gamma of 1.8-2.6 and JPEG at quality 45-95.
 
-Ground truth, for the distorted image the camera records: X_cam = R·X_sign + t (sign frame,
+Scenes are `pipeline.synth.Scene` records, the truth `pipeline.evaluate.load_dataset` reads; nothing
+of synth's rendering is used. Ground truth, for the distorted image the camera records: X_cam = R·X_sign + t (sign frame,
 metres); `corners` (4, 2) image px TL, TR, BR, BL, the sign's corners through the lens; `H`
 (3, 3) library px -> image px through those corners (under distortion no homography is exact).
 """
@@ -33,6 +34,7 @@ import numpy as np
 
 from signpose.pipeline.camera import Camera, save_camera
 from signpose.pipeline.library import Library, LibrarySign
+from signpose.pipeline.synth import Scene
 
 CATEGORIES = ("easy", "hard", "steep", "negative")
 HARD_LOOKS = ("small", "dim", "shadow", "glare", "blurred", "oblique")
@@ -70,30 +72,6 @@ VIEWS = {
     "oblique": View((40, 60), (90, 250), 15),
     "steep": View((60, 75), (70, 200), 10),
 }
-
-
-@dataclass
-class PhotoScene:
-    """One rendered scene: `image` (h, w, 3) BGR uint8 as decoding `jpeg` gives it, its `label`
-    (None: no library sign), `category`, `look`, the truth (R (3, 3), t (3,) m, H (3, 3),
-    corners (4, 2) image px; None without a sign) and the drawn `params` (JSON-ready)."""
-
-    image: np.ndarray
-    jpeg: bytes
-    label: str | None
-    category: str
-    R: np.ndarray | None
-    t: np.ndarray | None
-    H: np.ndarray | None
-    corners: np.ndarray | None
-    params: dict
-
-    def truth(self) -> dict:
-        """This scene's truth.json entry, as `pipeline.evaluate.load_dataset` reads it."""
-        def listed(a):
-            return None if a is None else np.asarray(a).tolist()
-        return {"label": self.label, "category": self.category, "R": listed(self.R), "t": listed(self.t),
-                "H": listed(self.H), "corners": listed(self.corners), "params": self.params}
 
 
 def photo_world_camera(size: tuple[int, int] = (640, 480)) -> Camera:
@@ -362,7 +340,7 @@ def _record(rng: np.random.Generator, linear: np.ndarray, look: str) -> tuple[np
 
 
 def render_photo_scene(library: Library, *, sign_id: str | None, decoy: np.ndarray | None, category: str, look: str,
-                       photos: Sequence[Path], camera: Camera, rng: np.random.Generator) -> PhotoScene:
+                       photos: Sequence[Path], camera: Camera, rng: np.random.Generator) -> Scene:
     """One scene: library sign `sign_id`, the look-alike plaque `decoy` ((h, w) uint8, seen as a
     library sign would be) or neither, pasted on one of `photos` in `look` (VIEWS, HARD_LOOKS or
     NEGATIVE_LOOKS) and recorded by `camera` (with its size and distortion)."""
@@ -428,12 +406,12 @@ def render_photo_scene(library: Library, *, sign_id: str | None, decoy: np.ndarr
     if shown is None or R is None or t is None:
         if R is not None and t is not None:
             params["look_alike_corners"] = _seen_corners(model, R, t, camera).round(2).tolist()
-        return PhotoScene(image, jpeg, None, category, None, None, None, None, params)
+        return Scene(image, jpeg, None, category, None, None, None, None, params)
     corners = _seen_corners(shown, R, t, camera)
     params["sign_width_px"] = round(float(max(np.linalg.norm(corners[1] - corners[0]),
                                               np.linalg.norm(corners[2] - corners[3]))), 2)
     H = cv2.getPerspectiveTransform(shown.corners_px.astype(np.float32), corners.astype(np.float32))
-    return PhotoScene(image, jpeg, shown.id, category, R, t, H / H[2, 2], corners, params)
+    return Scene(image, jpeg, shown.id, category, R, t, H / H[2, 2], corners, params)
 
 
 def _seen_corners(sign: LibrarySign, R: np.ndarray, t: np.ndarray, camera: Camera) -> np.ndarray:

@@ -73,6 +73,7 @@ def test_the_truth_corners_land_on_the_printed_sign(library, photos, look):
     assert np.all(rendered.corners >= 0) and np.all(rendered.corners <= [640, 480])
 
 
+@pytest.mark.slow
 def test_sign_widths_and_angles_follow_the_look(library, photos):
     small = [scene(library, photos, seed, look="small", category="hard") for seed in range(4)]
     steep = [scene(library, photos, seed, look="steep", category="steep") for seed in range(4)]
@@ -80,6 +81,7 @@ def test_sign_widths_and_angles_follow_the_look(library, photos):
     assert all(55 <= s.params["off_axis_deg"] <= 78 for s in steep), [s.params["off_axis_deg"] for s in steep]
 
 
+@pytest.mark.slow
 def test_a_set_loads_back_with_its_distorted_camera(library, tmp_path):
     images = generate_photo_world(tmp_path / "set", library, backgrounds=BACKGROUNDS, decoys=look_alike_plaques()[:2],
                                   counts={"easy": 2, "negative": 2}, seed=0)
@@ -94,13 +96,14 @@ def test_a_set_loads_back_with_its_distorted_camera(library, tmp_path):
                              counts={"easy": 1}, seed=0)
 
 
-# Scenes the default preset answers: a frontal sign, one 60-70 px wide, a dim one in clutter, one
+# Scenes the default preset answers: a frontal sign, one 53 px wide, a dim one in clutter, one
 # 60 degrees off its normal; and two it must refuse: a plaque of other words, and none.
-FIXED = [("easy", "easy", "chief_of_security", 21), ("hard", "small", "ministry_of_torture", 22),
+FIXED = [("easy", "easy", "chief_of_security", 21), ("hard", "small", "ministry_of_torture", 27),
          ("hard", "dim", "security_compound", 23), ("steep", "steep", "chief_of_security", 24),
          ("negative", "look-alike", None, 25), ("negative", "no sign", None, 26)]
 
 
+@pytest.mark.slow
 def test_the_default_preset_on_a_fixed_set_of_the_photo_world(library, photos):
     decoy = look_alike_plaques()[0]
     camera = photo_world_camera()
