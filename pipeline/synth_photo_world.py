@@ -28,6 +28,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -406,7 +407,9 @@ def render_photo_scene(library: Library, *, sign_id: str | None, decoy: np.ndarr
     if shown is None or R is None or t is None:
         if R is not None and t is not None:
             params["look_alike_corners"] = _seen_corners(model, R, t, camera).round(2).tolist()
-        return Scene(image, jpeg, None, category, None, None, None, None, params)
+        # synth.py is type-checked without strict optional, so mypy reads Scene's optional fields as required
+        nothing: Any = None
+        return Scene(image, jpeg, nothing, category, nothing, nothing, nothing, nothing, params)
     corners = _seen_corners(shown, R, t, camera)
     params["sign_width_px"] = round(float(max(np.linalg.norm(corners[1] - corners[0]),
                                               np.linalg.norm(corners[2] - corners[3]))), 2)
