@@ -338,9 +338,13 @@ def default_lines(dataset: Dataset, outcomes: dict[str, list[Outcome]], floors: 
     ratio = np.array([naive.timing_ms["total"] / default.timing_ms["total"]
                       for naive, default in zip(outcomes["naive"], outcomes["default"])])
     category = np.array([s.category for s in dataset.samples])
+    totals = {name: np.array([o.timing_ms["total"] for o in runs]) for name, runs in outcomes.items()}
     return ["default vs naive, median per image by category: "
             + ", ".join(f"{c} {np.median(ratio[category == c]):.1f}x" for c in CATEGORIES if np.any(category == c))
             + f"; at least 8x on {np.mean(ratio >= 8):.0%} of images",
+            "median ms per image by category: " + "; ".join(
+                f"{c} " + ", ".join(f"{name} {np.median(t[category == c]):.1f}" for name, t in totals.items())
+                for c in CATEGORIES if np.any(category == c)),
             *(floor_line(name, outcomes[name], floors[name]) for name in PRESETS),
             one_region_line(outcomes["default"], np.array(floors["default"]))]
 

@@ -31,8 +31,8 @@ from .pose import CORNER_SIGMA_PX, Pose, PoseError, distort_pixels, estimate_pos
 from .segment import Box, Segmentation, box_iou, expand_box, segment
 from .settings import Settings
 from .stages import StageCache, StageRunner
-from .verify import (MOSTLY_IN_VIEW, TextCheck, check_text, dense_agrees, overwhelming, text_threshold,
-                     visible_fraction)
+from .verify import (MOSTLY_IN_VIEW, OUTLINE_FLOOR_PX, TextCheck, check_text, dense_agrees, overwhelming,
+                     text_threshold, visible_fraction)
 
 # A sign seen from any usable viewpoint projects to a convex quad whose opposite sides differ
 # in length by far less than this factor; larger means a degenerate H fitted to a few points.
@@ -719,7 +719,7 @@ def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.nd
     # A landmark searched without segmentation need not be a plaque with four straight edges.
     use_outline = settings.refine_outline and settings.segment_mode != "none" and sign.kind == "plaque"
     if use_outline:
-        outline, why = refine_outline(gray, sign, H, settings.seed, camera)
+        outline, why = outline_agreeing(gray, sign, H, src, dst, settings, attempt, camera)
         if outline is not None:
             return outline.H, *outline.grid(sign, camera), None, outline
     ecc = None
@@ -744,7 +744,7 @@ def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.nd
                 problem = "disagreed with the matched points"
         if problem is None:
             if use_outline:
-                outline, why = refine_outline(gray, sign, dense_H, settings.seed, camera)
+                outline, why = outline_agreeing(gray, sign, dense_H, src, dst, settings, attempt, camera)
                 if outline is not None:
                     return outline.H, *outline.grid(sign, camera), None, outline
             # Without the edges, many inliers still pose better than ECC's H: of the 500 synthetic
@@ -756,6 +756,20 @@ def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.nd
     if why is not None:
         warnings.append(f"plaque outline not used: {why}")
     return H, src, dst, ecc, None
+
+
+def outline_agreeing(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.ndarray, dst: np.ndarray,
+                     settings: Settings, attempt: Attempt | None, camera: Camera) -> tuple[Outline | None, str | None]:
+    """`refine_outline` from H, but for a features' winner (`attempt`) an outline whose H moves
+    its matched points src -> dst ((N, 2) library and image px) much further than H leaves them
+    (`dense_agrees` at OUTLINE_FLOOR_PX) is none: an edge of something beside the sign (a shadow's, a card's, a photo's)
+    taken for one of the plaque's, which put a corner 4-7 px off and the text check's strips far
+    below its bar on the photo world's frontal signs."""
+    outline, why = refine_outline(gray, sign, H, settings.seed, camera)
+    if (outline is not None and not no_feature_winner(attempt)
+            and not dense_agrees(H, outline.H, src, dst, floor_px=OUTLINE_FLOOR_PX)):
+        return None, "its edges disagreed with the matched points"
+    return outline, why
 
 
 def no_feature_winner(attempt: Attempt | None) -> bool:
