@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 
 from signpose.pipeline.pose import camera_position, quaternion_wxyz
-from signpose.pipeline.pose_filter import pose_jacobian
+from signpose.pipeline.pose_filter import ros_jacobian
 
 OUTPUT_SUFFIXES = (".jsonl", ".csv", ".mcap")
 CAMERA_FRAME = "camera_optical"
@@ -75,14 +75,6 @@ class PoseValues:
         known = covariance is not None and all(v is not None for row in covariance for v in row)
         return cls(np.array(data["R"], dtype=np.float64), np.array(data["t"], dtype=np.float64),
                    np.array(covariance, dtype=np.float64) if known else None)
-
-
-def ros_jacobian(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(6, 6) Jacobian of the camera's pose in the sign frame, in ROS order [position (m), rotation about the
-    sign frame's x, y, z (rad)], with respect to the pipeline's [rotation vector of R, t]: the pose
-    filter's state Jacobian ([rotation, position], `pose_jacobian`) with its two blocks of rows swapped."""
-    jacobian = pose_jacobian(np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64).reshape(3))
-    return np.vstack([jacobian[3:], jacobian[:3]])
 
 
 def ros_covariance(pose: PoseLike) -> np.ndarray | None:

@@ -75,6 +75,15 @@ def pose_jacobian(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return J
 
 
+def ros_jacobian(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(6, 6) Jacobian of the camera's pose in the frame a pose (R (3, 3), t (3,) m) maps from (X_cam =
+    R·X + t: a sign's, the map's), in ROS order [position (m), rotation about that frame's x, y, z (rad)],
+    with respect to the pipeline's [rotation vector of R, t]: `pose_jacobian` with its two blocks of rows
+    swapped."""
+    jacobian = pose_jacobian(np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64).reshape(3))
+    return np.vstack([jacobian[3:], jacobian[:3]])
+
+
 @dataclass
 class PoseFilter:
     """Constant-velocity filter of one sign's camera pose; `update` takes each frame's measured
