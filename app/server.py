@@ -129,7 +129,7 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
         with contextlib.redirect_stdout(io.StringIO()):
             private = PrivateViser.start()
         app.state.viser_socket = private.socket_path
-        scene = app.state.scene = attach_scene(private.server, workspace, flights)
+        scene = app.state.scene = attach_scene(private.server, workspace, flights, sign_maps)
         try:
             yield
         finally:

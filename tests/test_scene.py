@@ -653,3 +653,45 @@ def test_close_stops_following(scene):
     time.sleep(0.3)
     assert len(handle.cameras) == len(POSITIVES)
     assert handle.panel.controls["min_inliers"].input.value != 1000
+
+
+def test_the_map_world_draws_every_mapped_sign_in_place_its_uncertainty_and_the_photos_cameras(workspace):
+    """A map of the sample signs, one of them turned: the map world is shown as the map comes, each sign
+    at its map pose with its 3-sigma ellipsoid, and each photo's camera located in the map frame (one
+    sign in view: where its pose puts it in the sign's world, carried through the map)."""
+    from signpose.app.map_scene import ELLIPSOID_SIGMAS
+    from signpose.app.scene import MAP_WORLD
+    from signpose.app.sign_maps import SignMaps
+    from signpose.pipeline.pose import rotation_from_euler_zyx_deg
+    from signpose.pipeline.sign_map import MappedSign, SignMap
+
+    covariance = np.diag([1e-4, 4e-4, 9e-4, 1e-5, 1e-5, 1e-5])
+    poses = {sign_id: (rotation_from_euler_zyx_deg(30.0 * i, 0.0, 0.0), np.array([2.0 * i, 0.1, -1.0 * i]))
+             for i, sign_id in enumerate(workspace.library.ids)}
+    sign_map = SignMap({s: MappedSign(s, R, p, covariance) for s, (R, p) in poses.items()})
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    maps = SignMaps(publish=workspace.publish)
+    handle = attach(server, workspace, sign_maps=maps)
+    try:
+        wait_for(lambda: len(handle.cameras) == len(POSITIVES))
+        assert MAP_WORLD not in handle.world.options   # no map held: no map world
+        maps.hold_file(sign_map, "test.yaml")
+        wait_for(lambda: handle.world.value == MAP_WORLD and len(handle.map_layer.cameras) == len(POSITIVES))
+        layer = handle.map_layer
+        assert layer.root.visible and not any(n.frame.visible for n in handle.signs.values())
+        for sign_id, (R, position) in poses.items():
+            nodes = layer.signs[sign_id]
+            np.testing.assert_allclose(nodes.sign.frame.position, position)
+            np.testing.assert_allclose(tf.SO3(nodes.sign.frame.wxyz).as_matrix(), R, atol=1e-12)
+            np.testing.assert_allclose(sorted(nodes.ellipsoid.scale), ELLIPSOID_SIGMAS * np.array([0.01, 0.02, 0.03]))
+        for image_id, (rec, camera, frustum) in layer.cameras.items():
+            R, position = poses[rec.label]
+            in_sign = handle.cameras[image_id].frustum.position
+            # Within a centimetre: the fit in the map is over the sign's corners, the pose over its inliers.
+            np.testing.assert_allclose(frustum.position, R @ in_sign + position, atol=0.01)
+            assert camera.signs_used == (rec.label,)
+        maps.clear()
+        wait_for(lambda: MAP_WORLD not in handle.world.options and not layer.signs)
+    finally:
+        handle.close()
+        server.stop()
