@@ -29,15 +29,16 @@ def free_port() -> int:
 
 
 @contextlib.contextmanager
-def serve(state_dir: Path, log_path: Path, timeout: float = 300, port: int | None = None):
-    """`signpose serve` on `port` (default: a free loopback port); yields its base URL once /api/health
-    answers (which is after the sample scenes a fresh state starts with have been processed)."""
+def serve(state_dir: Path, log_path: Path, timeout: float = 300, port: int | None = None, options: tuple[str, ...] = ()):
+    """`signpose serve` on `port` (default: a free loopback port) with more command-line `options`; yields its
+    base URL once /api/health answers (which is after the sample scenes a fresh state starts with have been
+    processed)."""
     port = port or free_port()
     base = f"http://127.0.0.1:{port}"
     with open(log_path, "wb") as log:
         proc = subprocess.Popen(
             [sys.executable, "-m", "signpose.app.cli", "serve", "--port", str(port),
-             "--state-dir", str(state_dir)],
+             "--state-dir", str(state_dir), *options],
             cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
         try:
             deadline = time.monotonic() + timeout
