@@ -131,7 +131,8 @@ def survey(workspace: Workspace, flights: Flights, stop: threading.Event | None 
             observations += observations_of(record.id, found)
     done = [f for f in flights.held() if f.records]
     for flight in done:
-        for index, record in enumerate(flight.records):
+        for record in flight.records:
+            index = int(record["frame"])
             if takes_frame(index, len(record["signs"])):
                 names[frame_key(flight, index)] = f"{flight.name} frame {index}"
                 observations += observations_of(frame_key(flight, index), recorded_signs(record))
