@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import NoReturn, TextIO
 
 import cv2
+import numpy as np
 from tqdm import tqdm
 
 from signpose.app.entry import STOP_SIGNALS, Interrupted, interrupted, stopping_on_signals
@@ -28,8 +29,11 @@ from signpose.pipeline.camera import ASSUMED_HFOV_DEG, ASSUMED_HFOV_RANGE_DEG, C
 from signpose.pipeline.evaluate import CORES, keep_freed_memory, pad_to
 from signpose.pipeline.image import ImageError, read_file
 from signpose.pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
-from signpose.pipeline.recognize import PipelineError, Recognition, run_pipeline, why_no_feature_winner
+from signpose.pipeline.every_sign import recognize_every_sign
+from signpose.pipeline.localise import CameraInMap, locate_in_map
+from signpose.pipeline.recognize import PipelineError, Recognition, pipeline_errors, why_no_feature_winner
 from signpose.pipeline.settings import PRESETS, Settings, SettingsError, load_settings, preset
+from signpose.pipeline.sign_map import MapError, SignMap, load_sign_map
 
 EXIT_USAGE = 2
 EXIT_BROKEN_PIPE = 141  # the shell's 128 + SIGPIPE
@@ -51,6 +55,22 @@ def load_inputs(args) -> tuple[Library, Settings, Camera | None]:
     except (LibraryError, SettingsError, CameraError) as exc:
         raise CliError(str(exc)) from None
     return library, settings, camera
+
+
+def load_map(args, library: Library) -> SignMap | None:
+    """The map file of --map (None without one), its signs checked against `library`."""
+    if args.map is None:
+        return None
+    try:
+        return load_sign_map(args.map, library.ids)
+    except MapError as exc:
+        raise CliError(str(exc)) from None
+
+
+def add_map_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--map", type=file_path, metavar="FILE",
+                   help="sign map (YAML or JSON, docs/map.md): locate the camera in the map frame from the mapped "
+                        "signs in view")
 
 
 def add_common(p: argparse.ArgumentParser, camera: bool = True) -> None:
@@ -98,6 +118,7 @@ def format_row(name: str, rec: Recognition) -> str:
 
 def cmd_recognize(args) -> int:
     library, settings, camera = load_inputs(args)
+    sign_map = load_map(args, library)
     keep_freed_memory()  # this process exists to run the pipeline: about 25 % faster per image
     limit = max_pixels(args)
     done = failed = 0
@@ -107,21 +128,27 @@ def cmd_recognize(args) -> int:
     with progress(args.images, desc="recognize", hidden=len(args.images) < 10, leave=False) as images, \
             stopped_after(lambda: done, len(args.images), "images"):
         for path in images:
-            failed += not recognize_one(str(path), library, settings, camera, args.assumed_fov, limit, args.json)
+            failed += not recognize_one(str(path), library, settings, camera, args.assumed_fov, limit, args.json,
+                                        sign_map)
             done += 1
     return unusable_images(failed, len(args.images))
 
 
 def recognize_one(name: str, library: Library, settings: Settings, camera: Camera | None, hfov_deg: float,
-                  limit: int, as_json: bool) -> bool:
-    """Recognise the image file `name` and print its line: a table row (and its warnings) or, `as_json`, a JSON
-    object; whether the image could be used (else the line says why not). `camera` turned as the image's EXIF
-    orientation turned it; without one, the image's EXIF focal length, else `hfov_deg` assumed, as the server
-    chooses."""
+                  limit: int, as_json: bool, sign_map: SignMap | None = None) -> bool:
+    """Recognise every library sign in the image file `name` (`recognize_every_sign`) and print its line: a table
+    row for the first (the answer), lines for the others and, with `sign_map`, the camera in the map frame (and
+    their warnings) or, `as_json`, a JSON object; whether the image could be used (else the line says why not).
+    `camera` turned as the image's EXIF orientation turned it; without one, the image's EXIF focal length, else
+    `hfov_deg` assumed, as the server chooses."""
     try:
         image, _, exif = decode_upload(read_file(name), name, limit)
-        rec = run_pipeline(name, image, library, settings,
-                           exif.camera_for(camera, image.shape[1], image.shape[0], hfov_deg))
+        with pipeline_errors(name):
+            recognitions = recognize_every_sign(image, library, settings,
+                                                exif.camera_for(camera, image.shape[1], image.shape[0], hfov_deg))
+            found = [r for r in recognitions if r.label is not None]
+            located = (locate_in_map(found=found, sign_map=sign_map, library=library, camera=recognitions[0].camera)
+                       if sign_map is not None else None)
     # CameraError: the camera cannot be turned or scaled to this image; PipelineError: a failure inside the pipeline
     except (ImageError, CameraError, PipelineError) as exc:
         if as_json:
@@ -130,11 +157,38 @@ def recognize_one(name: str, library: Library, settings: Settings, camera: Camer
             # The row names the image already; the image errors begin with its path.
             say(f"{pad_to(Path(name).name, 28)} error: {str(exc).removeprefix(name + ': ')}")
         return False
+    rec = recognitions[0]
     if as_json:
-        say(json.dumps(rec.to_json(name)))
+        document = rec.to_json(name)
+        document["signs"] = [sign_json(r) for r in found]
+        if sign_map is not None:
+            document["camera_in_map"] = located.to_json() if located is not None else None
+        say(json.dumps(document))
     else:
-        say("\n".join([format_row(Path(name).name, rec), *(f"{'':<28}   warning: {w}" for w in rec.warnings)]))
+        lines = [format_row(Path(name).name, rec), *(f"{'':<28}   warning: {w}" for w in rec.warnings)]
+        for other in found[1:]:
+            lines.append(format_row("  and", other))
+        if sign_map is not None:
+            lines.append(f"{'':<28}   {format_in_map(located, sign_map.frame)}")
+        say("\n".join(lines))
     return True
+
+
+def sign_json(rec: Recognition) -> dict:
+    """One entry of `recognize --json`'s `signs`: a sign found in the image, its corners and pose."""
+    document = rec.to_json("")
+    return {key: document[key] for key in ("label", "corners", "pose")}
+
+
+def format_in_map(located: CameraInMap | None, frame: str) -> str:
+    """The table's line of the camera in the map frame `frame`: position, 1σ, the signs it came from."""
+    if located is None:
+        return f"in {frame}: no mapped sign in view"
+    x, y, z = located.position_m
+    covariance = located.covariance_xyz_rpy
+    sigma = ("" if covariance is None
+             else f" ± {1e3 * math.sqrt(max(np.linalg.eigvalsh(covariance[:3, :3]).max(), 0.0)):.0f} mm")
+    return f"in {frame}: cam at ({x:+.3f}, {y:+.3f}, {z:+.3f}) m{sigma}, from {', '.join(located.signs_used)}"
 
 
 def progress(iterable: Iterable | None = None, *, hidden: bool = False, **options) -> tqdm:
@@ -176,6 +230,7 @@ def cmd_track(args) -> int:
     from signpose.pipeline.track import Tracker, tracked_frames
 
     library, settings, camera = load_inputs(args)
+    sign_map = load_map(args, library)
     keep_freed_memory()
     spec = args.sources[0] if len(args.sources) == 1 else args.sources
     try:
@@ -186,12 +241,13 @@ def cmd_track(args) -> int:
     labels: dict[int, str] = {}  # confirmed track id: label
     started = time.perf_counter()
     total = min(filter(None, (source.count, args.max_frames)), default=None)
-    with source, (open_flight_output(args.output) if args.output else nullcontext()) as output, \
+    with source, (open_flight_output(args.output, sign_map=sign_map) if args.output else nullcontext()) as output, \
             progress(total=total, unit="frame", desc="track", leave=False) as bar, \
             stopped_after(lambda: frames, total or frames, "frames"):
         for warning in source.warnings:
             say(f"warning: {warning}", sys.stderr)
-        tracker = Tracker(library, settings, camera if camera is not None else source.camera, fps=source.fps)
+        tracker = Tracker(library, settings, camera if camera is not None else source.camera, fps=source.fps,
+                          sign_map=sign_map)
         stream = tracked_frames(source, tracker, source.name)
         while args.max_frames is None or frames < args.max_frames:
             try:
@@ -250,8 +306,10 @@ def cmd_synth(args) -> int:
 
 def cmd_evaluate(args) -> int:
     from signpose.pipeline.evaluate import ImageResult, check_labels, format_table, load_dataset, measure, report_on
+    from signpose.pipeline.evaluate_map import format_map_table
 
     library, settings, camera = load_inputs(args)
+    sign_map = load_map(args, library)
     # This process measures images too (all of them on one worker): evaluating 200 scenes took 6.8 s without it
     # and 6.2 s with it on one worker, 4.4 s and 4.1 s on two.
     keep_freed_memory()
@@ -259,10 +317,23 @@ def cmd_evaluate(args) -> int:
     if len(set(roots)) < len(roots):
         raise CliError("a dataset folder is given twice")
     try:
-        datasets = [load_dataset(Path(d)) for d in args.datasets]
+        surveys = {} if sign_map is None else map_surveys(args.datasets)
+        datasets = [load_dataset(Path(d)) for d in args.datasets if d not in surveys]
         check_labels(datasets, library)
     except (ValueError, OSError) as exc:  # DatasetError, and what reading truth.json raises
         raise CliError(str(exc)) from None
+    if sign_map is not None and datasets:
+        print(f"the map is not used for {', '.join(d.name for d in datasets)}: no camera poses in the map frame in "
+              "their truth", file=sys.stderr)
+    in_map: dict[str, dict] = {}
+    failed_in_map, photos_in_map = 0, sum(len(p) for p in surveys.values())
+    map_table = ""
+    if sign_map is not None and surveys:
+        in_map, failed_in_map = evaluate_in_map(surveys, library, settings, camera, sign_map, args)
+        map_table = format_map_table(in_map, sign_map.frame)
+        if not datasets:
+            print(json.dumps({"camera_in_map": in_map}) if args.json else map_table)
+            return unusable_images(failed_in_map, photos_in_map)
     names = [d.name for d in datasets]
     for dataset, given in zip(datasets, args.datasets):
         if names.count(dataset.name) > 1:  # a/set1 and b/set1: each its own row
@@ -286,8 +357,49 @@ def cmd_evaluate(args) -> int:
                       + format_table(report_on(datasets, library, settings, results)), flush=True)
         raise
     report = report_on(datasets, library, settings, results)
-    print(json.dumps(report.to_json()) if args.json else format_table(report))
-    return unusable_images(sum(r.error is not None for r in report.results), len(report.results))
+    if args.json:
+        print(json.dumps({**report.to_json(), **({"camera_in_map": in_map} if in_map else {})}))
+    else:
+        print(format_table(report) + (f"\n\n{map_table}" if map_table else ""))
+    failed = sum(r.error is not None for r in report.results) + failed_in_map
+    return unusable_images(failed, len(report.results) + photos_in_map)
+
+
+def map_surveys(folders: list[str]) -> dict:
+    """{folder: its photos} of the `folders` whose truth gives camera poses in the map frame (surveys)."""
+    from signpose.pipeline.evaluate_map import survey_photos
+
+    found = {folder: survey_photos(Path(folder)) for folder in folders}
+    return {folder: photos for folder, photos in found.items() if photos is not None}
+
+
+def evaluate_in_map(surveys: dict, library: Library, settings: Settings, camera: Camera | None, sign_map: SignMap,
+                    args) -> tuple[dict[str, dict], int]:
+    """Each survey's photos located in `sign_map` (`pipeline.evaluate_map`), a photo at a time: ({survey name:
+    `summary_in_map`}, how many photos could not be used, each named on stderr)."""
+    from signpose.pipeline.evaluate_map import locate_photos, summary_in_map
+
+    check = functools.partial(check_image_header, max_pixels=max_pixels(args))
+    summaries, failed = {}, 0
+    total = sum(len(p) for p in surveys.values())
+    with progress(total=total, desc="evaluate in map") as bar:
+        for folder, photos in surveys.items():
+            root = Path(folder)
+            survey_camera = camera
+            if survey_camera is None and (root / "camera.yaml").is_file():
+                try:
+                    survey_camera = load_camera(root / "camera.yaml")
+                except CameraError as exc:
+                    raise CliError(str(exc)) from None
+            results = []
+            for result in locate_photos(photos, library, settings, survey_camera, sign_map, check):
+                if result.error is not None:
+                    say(f"{result.error}", sys.stderr)
+                    failed += 1
+                results.append(result)
+                bar.update(1)
+            summaries[root.name] = summary_in_map(results)
+    return summaries, failed
 
 
 def cmd_calibrate(args) -> int:
@@ -486,6 +598,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("images", nargs="+", help="image files")
     add_common(p)
     add_max_megapixels(p)
+    add_map_option(p)
     p.add_argument("--json", action="store_true", help="one JSON object per image per line")
     p.add_argument("--assumed-fov", type=field_of_view, default=ASSUMED_HFOV_DEG, metavar="DEG",
                    help="horizontal field of view, {:g} to {:g} degrees, assumed for an image without --camera or "
@@ -499,6 +612,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "frames (natural order), image files (each a frame), camera:N or a stream URL")
     add_common(p)
     add_max_megapixels(p)
+    add_map_option(p)
     p.add_argument("--topic", help="the bag's image topic (default: its only one)")
     p.add_argument("--fps", type=positive_number, help="frame rate of image files and folders (default 1)")
     p.add_argument("--max-frames", type=positive_int, metavar="N", help="stop after N frames")
@@ -524,6 +638,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="one JSON object instead of the table: summaries, confusion and every image's answer")
     add_common(p)
     add_max_megapixels(p)
+    add_map_option(p)
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("calibrate", help="camera intrinsics from photos of a printed chessboard (docs/calibration.md)")

@@ -3,7 +3,9 @@
 A record is one frame's answer (the `signpose track --json` schema):
 `{"source", "frame", "time_s", "signs": [{"label", "track_id", "state", "corners", "homography", "pose",
 "filtered_pose"}], "timing_ms", "warnings"}`, where `pose` and `filtered_pose` are `Pose.to_json()` objects
-(R, t, covariance over [rotation vector, translation], ...) or None.
+(R, t, covariance over [rotation vector, translation], ...) or None; tracked with a sign map, also
+`"camera_in_map"` and `"filtered_camera_in_map"` (`CameraInMap.to_json()`: position_m, orientation_wxyz,
+covariance_xyz_rpy in ROS order, signs_used) or None.
 
 Frames (REP 103/105): the sign frame `sign_<label>` has its origin at the sign centre, x right, y down the
 sign, z into the wall, metres; `camera_optical` is the camera's, z forward, x right, y down. A pose (R, t)
@@ -20,7 +22,7 @@ import csv
 import json
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Protocol
@@ -30,18 +32,26 @@ import numpy as np
 
 from signpose.pipeline.pose import camera_position, quaternion_wxyz
 from signpose.pipeline.pose_filter import ros_jacobian
+from signpose.pipeline.sign_map import DEFAULT_FRAME, SignMap
 
 OUTPUT_SUFFIXES = (".jsonl", ".csv", ".mcap")
 CAMERA_FRAME = "camera_optical"
 IMAGE_TOPIC = "/signpose/image/compressed"
 TF_TOPIC = "/tf"
+TF_STATIC_TOPIC = "/tf_static"
+MAP_POSE_TOPIC = "/signpose/camera_in_map"
 JPEG_QUALITY = 90
 # The CSV's columns, one row per sign observation: the camera's position (m) and the quaternion (w, x, y, z)
 # of R (sign frame -> camera frame, as in the JSON's pose), the filtered camera position, and the variances
 # of the camera pose in ROS order (m², rad²: x, y, z, rotation about the sign frame's x, y, z; `ros_covariance`).
 CSV_COLUMNS = ("frame", "time_s", "label", "track_id", "state", "camera_x", "camera_y", "camera_z",
                "qw", "qx", "qy", "qz", "filtered_x", "filtered_y", "filtered_z",
-               "var_x", "var_y", "var_z", "var_rot_x", "var_rot_y", "var_rot_z")
+               "var_x", "var_y", "var_z", "var_rot_x", "var_rot_y", "var_rot_z",
+               # the frame's camera in the map frame (tracked with a sign map; empty without), on each of its rows:
+               # position (m), orientation (w, x, y, z), filtered position, variances in ROS order about the map's axes
+               "map_x", "map_y", "map_z", "map_qw", "map_qx", "map_qy", "map_qz",
+               "map_filtered_x", "map_filtered_y", "map_filtered_z",
+               "map_var_x", "map_var_y", "map_var_z", "map_var_rot_x", "map_var_rot_y", "map_var_rot_z")
 # geometry_msgs has no "covariance unknown" value; sensor_msgs' convention marks it so: -1 first, zeros after.
 UNKNOWN_COVARIANCE = (-1.0, *([0.0] * 35))
 
@@ -110,10 +120,11 @@ def pose_topic(label: str, *, filtered: bool = False) -> str:
 
 
 class FlightWriter:
-    """Writes a flight's records to `path`, a frame at a time; a context manager that closes the file whole."""
+    """Writes a flight's records to `path`, a frame at a time; a context manager that closes the file whole.
+    `sign_map`: the map the flight was located in, if any."""
 
-    def __init__(self, path: Path) -> None:
-        self.path = path
+    def __init__(self, path: Path, sign_map: SignMap | None = None) -> None:
+        self.path, self.sign_map = path, sign_map
 
     def write(self, record: dict, *, image: np.ndarray | None = None, stamp_ns: int | None = None) -> None:
         """Write one frame's `record`. `image` (H, W, 3) BGR or (H, W) gray uint8: the input frame, which only the
@@ -130,22 +141,23 @@ class FlightWriter:
         self.close()
 
 
-def open_flight_output(path: str | Path) -> FlightWriter:
-    """The writer for `path` by its suffix: .jsonl, .csv or .mcap; ValueError for any other."""
+def open_flight_output(path: str | Path, *, sign_map: SignMap | None = None) -> FlightWriter:
+    """The writer for `path` by its suffix: .jsonl, .csv or .mcap; ValueError for any other. `sign_map`: the map
+    the flight was located in (the MCAP's `map` frame and its signs)."""
     path = Path(path)
     writers: dict[str, type[FlightWriter]] = {".jsonl": JsonLinesWriter, ".csv": CsvWriter, ".mcap": McapWriter}
     writer = writers.get(path.suffix.lower())
     if writer is None:
         raise ValueError(f"{path}: unknown output kind {path.suffix or '(no extension)'}; write "
                          f"{', '.join(OUTPUT_SUFFIXES)}")
-    return writer(path)
+    return writer(path, sign_map)
 
 
 class JsonLinesWriter(FlightWriter):
     """One record a line, as `--json` prints it."""
 
-    def __init__(self, path: Path) -> None:
-        super().__init__(path)
+    def __init__(self, path: Path, sign_map: SignMap | None = None) -> None:
+        super().__init__(path, sign_map)
         self.file: IO[str] = path.open("w", encoding="utf-8")
 
     def write(self, record: dict, *, image: np.ndarray | None = None, stamp_ns: int | None = None) -> None:
@@ -171,15 +183,20 @@ def csv_row(record: dict, sign: dict) -> list[str]:
     filtered_position = camera_position(filtered.R, filtered.t) if filtered else none3
     covariance = ros_covariance(pose) if pose else None
     variances = np.diag(covariance) if covariance is not None else (None,) * 6
+    located, filtered_located = record.get("camera_in_map"), record.get("filtered_camera_in_map")
+    in_map = [*located["position_m"], *located["orientation_wxyz"]] if located else [None] * 7
+    in_map += filtered_located["position_m"] if filtered_located else none3
+    map_covariance = located and located["covariance_xyz_rpy"]
+    in_map += [map_covariance[i][i] for i in range(6)] if map_covariance else [None] * 6
     cells = [str(record["frame"]), _csv_number(record["time_s"]), sign["label"], str(sign["track_id"]), sign["state"]]
-    return cells + [_csv_number(v) for v in (*position, *quaternion, *filtered_position, *variances)]
+    return cells + [_csv_number(v) for v in (*position, *quaternion, *filtered_position, *variances, *in_map)]
 
 
 class CsvWriter(FlightWriter):
     """One row per sign observation (CSV_COLUMNS), after a header row; a frame without signs has no row."""
 
-    def __init__(self, path: Path) -> None:
-        super().__init__(path)
+    def __init__(self, path: Path, sign_map: SignMap | None = None) -> None:
+        super().__init__(path, sign_map)
         self.file: IO[str] = path.open("w", encoding="utf-8", newline="")
         self.csv = csv.writer(self.file)
         self.csv.writerow(CSV_COLUMNS)
@@ -200,10 +217,25 @@ def _stamp(stamp_ns: int) -> dict[str, int]:
 
 def _ros_pose(pose: PoseLike) -> dict[str, dict[str, float]]:
     """geometry_msgs/Pose of the camera in the sign frame: position -Rᵀt, orientation Rᵀ."""
-    position = camera_position(pose.R, pose.t)
-    w, x, y, z = quaternion_wxyz(np.asarray(pose.R).T)
+    return _pose_message(camera_position(pose.R, pose.t), quaternion_wxyz(np.asarray(pose.R).T))
+
+
+def _pose_message(position: Iterable[float], orientation_wxyz: Iterable[float]) -> dict[str, dict[str, float]]:
+    """geometry_msgs/Pose of a (3,) position (m) and a (4,) quaternion (w, x, y, z)."""
+    w, x, y, z = orientation_wxyz
     return {"position": dict(zip("xyz", map(float, position))),
             "orientation": {"x": float(x), "y": float(y), "z": float(z), "w": float(w)}}
+
+
+def _transform(header: dict, child_frame: str, pose: dict[str, dict[str, float]]) -> dict:
+    """geometry_msgs/TransformStamped of `child_frame` at `pose` (a geometry_msgs/Pose) in the header's frame."""
+    return {"header": header, "child_frame_id": child_frame,
+            "transform": {"translation": pose["position"], "rotation": pose["orientation"]}}
+
+
+def _covariance_message(covariance: np.ndarray | Sequence[Sequence[float]] | None) -> Sequence[float]:
+    """A message's 36 covariance numbers, row by row, or UNKNOWN_COVARIANCE for None."""
+    return UNKNOWN_COVARIANCE if covariance is None else [float(v) for v in np.ravel(covariance)]
 
 
 class McapWriter(FlightWriter):
@@ -211,18 +243,23 @@ class McapWriter(FlightWriter):
     - per sign with a pose, geometry_msgs/PoseWithCovarianceStamped on /signpose/<label>/camera_pose (and the
       filter's on .../camera_pose_filtered): the camera's pose in `sign_<label>`, covariance by `ros_covariance`;
     - tf2_msgs/TFMessage on /tf: sign_<label> -> camera_optical per sign, from the filtered pose when there is one;
-    - sensor_msgs/CompressedImage (JPEG) on /signpose/image/compressed, frame camera_optical, when an image is given.
+    - sensor_msgs/CompressedImage (JPEG) on /signpose/image/compressed, frame camera_optical, when an image is given;
+    - with a sign map, geometry_msgs/PoseWithCovarianceStamped on /signpose/camera_in_map (and .../camera_in_map_filtered)
+      in the map's frame, covariance in ROS order about the map's axes, on each frame that has it; and once, with
+      the first frame, tf2_msgs/TFMessage on /tf_static: map -> sign_<id> for every mapped sign.
     Message times (log, publish and header stamps) are `stamp_ns`, else the record's time_s from 0.
     """
 
     MESSAGE_TYPES = ("geometry_msgs/msg/PoseWithCovarianceStamped", "tf2_msgs/msg/TFMessage",
                      "sensor_msgs/msg/CompressedImage")
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, sign_map: SignMap | None = None) -> None:
         from mcap_ros2.writer import Writer
         from rosbags.typesys import Stores, get_typestore
 
-        super().__init__(path)
+        super().__init__(path, sign_map)
+        self.map_frame = sign_map.frame if sign_map is not None else DEFAULT_FRAME
+        self.static_sent = sign_map is None
         typestore = get_typestore(Stores.ROS2_HUMBLE)
         self.file = path.open("wb")
         self.writer = Writer(self.file)
@@ -238,6 +275,15 @@ class McapWriter(FlightWriter):
         if stamp_ns is None:
             stamp_ns = round(float(record["time_s"]) * 1e9)
         stamp = _stamp(stamp_ns)
+        if not self.static_sent:
+            self._send_map(stamp, stamp_ns)
+        for key, topic in (("camera_in_map", MAP_POSE_TOPIC), ("filtered_camera_in_map", MAP_POSE_TOPIC + "_filtered")):
+            located = record.get(key)
+            if located is not None:
+                message = {"header": {"stamp": stamp, "frame_id": self.map_frame}, "pose": {
+                    "pose": _pose_message(located["position_m"], located["orientation_wxyz"]),
+                    "covariance": _covariance_message(located["covariance_xyz_rpy"])}}
+                self._send(topic, self.MESSAGE_TYPES[0], message, stamp_ns)
         transforms = []
         for sign in record["signs"]:
             frame_id = sign_frame(sign["label"])
@@ -248,15 +294,11 @@ class McapWriter(FlightWriter):
                 if pose is None:
                     continue
                 covariance = ros_covariance(pose)
-                message = {"header": header, "pose": {
-                    "pose": _ros_pose(pose),
-                    "covariance": UNKNOWN_COVARIANCE if covariance is None else [float(v) for v in covariance.ravel()]}}
+                message = {"header": header, "pose": {"pose": _ros_pose(pose), "covariance": _covariance_message(covariance)}}
                 self._send(pose_topic(sign["label"], filtered=filtered), self.MESSAGE_TYPES[0], message, stamp_ns)
             shown = poses[1][0] or poses[0][0]
             if shown is not None:
-                ros_pose = _ros_pose(shown)
-                transforms.append({"header": header, "child_frame_id": CAMERA_FRAME, "transform": {
-                    "translation": ros_pose["position"], "rotation": ros_pose["orientation"]}})
+                transforms.append(_transform(header, CAMERA_FRAME, _ros_pose(shown)))
         if transforms:
             self._send(TF_TOPIC, self.MESSAGE_TYPES[1], {"transforms": transforms}, stamp_ns)
         if image is not None:
@@ -265,6 +307,15 @@ class McapWriter(FlightWriter):
                 raise ValueError(f"{self.path}: frame {record['frame']} cannot be encoded as JPEG")
             message = {"header": {"stamp": stamp, "frame_id": CAMERA_FRAME}, "format": "jpeg", "data": jpeg.tobytes()}
             self._send(IMAGE_TOPIC, self.MESSAGE_TYPES[2], message, stamp_ns)
+
+    def _send_map(self, stamp: dict[str, int], stamp_ns: int) -> None:
+        """/tf_static: the map frame -> sign_<id> of every mapped sign (its pose in the map), once."""
+        assert self.sign_map is not None
+        header = {"stamp": stamp, "frame_id": self.map_frame}
+        transforms = [_transform(header, sign_frame(sign.sign_id), _pose_message(sign.position_m, quaternion_wxyz(sign.R)))
+                      for sign in self.sign_map.signs.values()]
+        self._send(TF_STATIC_TOPIC, self.MESSAGE_TYPES[1], {"transforms": transforms}, stamp_ns)
+        self.static_sent = True
 
     def close(self) -> None:
         """Write the summary and footer (once), then close the file."""

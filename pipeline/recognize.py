@@ -11,6 +11,7 @@ import dataclasses
 import functools
 import time
 from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -423,8 +424,15 @@ def run_pipeline(name: str, image: np.ndarray, library: Library, settings: Setti
     """`recognize`, with any failure inside it turned into a PipelineError naming the image, so a
     batch can report it as that image's error and go on with the others. A CameraError (the
     camera cannot be scaled to this image) is the camera's, not the pipeline's, and passes as it is."""
-    try:
+    with pipeline_errors(name):
         return recognize(image, library, settings, camera, cache)
+
+
+@contextmanager
+def pipeline_errors(name: str) -> Iterator[None]:
+    """Inside, any failure but a CameraError is raised as a PipelineError naming the image `name` (`run_pipeline`)."""
+    try:
+        yield
     except CameraError:
         raise
     except Exception as exc:

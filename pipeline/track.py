@@ -23,7 +23,9 @@ found, the detector searches the frame again with the found signs' quads masked 
 `searches_per_frame` times; a search beside signs found or tracked leaves out the full-frame
 fallback, the costliest part of a frame without a (new) sign.
 
-Each track's camera pose is smoothed by a constant-velocity filter on SE(3) (`PoseFilter`).
+Each track's camera pose is smoothed by a constant-velocity filter on SE(3) (`PoseFilter`). Given a
+sign map, each frame's confirmed signs also locate the camera in the map frame (`locate_in_map`, one
+fit over all of them), smoothed by a filter of its own.
 Conventions as in `pipeline.pose`: X_cam = R·X_sign + t; corners TL, TR, BR, BL in image px.
 """
 
@@ -43,6 +45,7 @@ from .every_sign import recognize_every_sign
 from .frames import Frame
 from .image import to_gray
 from .library import Library, LibrarySign
+from .localise import CameraInMap, locate_in_map
 from .outline import Outline, outline_fit, refine_outline
 from .plaque import grid_correspondences, sign_corners
 from .pose import CORNER_SIGMA_PX, Pose, PoseError, pose_near, with_corner_floor
@@ -50,6 +53,7 @@ from .pose_filter import PoseFilter
 from .recognize import Recognition, image_camera, quad_problem
 from .segment import Box, box_iou
 from .settings import Settings
+from .sign_map import SignMap
 
 STATES = ("detected", "tracked")
 # 1σ px of a tracked sign's corners beyond what the fit's residuals show: the points' shared drift,
@@ -120,7 +124,9 @@ class FrameResult:
     """What the tracker made of one frame: the confirmed `signs` seen on it, milliseconds spent
     (`timing_ms`: "detect", "track", "total"; the caller adds its decode), `warnings`, and as
     intermediates the detector's `recognitions` on this frame (empty when it did not run) and the
-    ids of the tentative tracks (`tentative`)."""
+    ids of the tentative tracks (`tentative`). With a sign map (`mapped`), the camera in the map frame
+    from this frame's signs (`camera_in_map`) and filtered over time (`filtered_camera_in_map`), None
+    on a frame without a mapped sign."""
 
     frame: int
     time_s: float
@@ -129,12 +135,19 @@ class FrameResult:
     warnings: list[str]
     recognitions: list[Recognition] = field(default_factory=list, repr=False)
     tentative: list[int] = field(default_factory=list)
+    mapped: bool = False
+    camera_in_map: CameraInMap | None = field(default=None, repr=False)
+    filtered_camera_in_map: CameraInMap | None = field(default=None, repr=False)
 
     def to_json(self, source: str) -> dict:
-        """One line of `signpose track --json`."""
-        return {"source": source, "frame": int(self.frame), "time_s": float(self.time_s),
-                "signs": [s.to_json() for s in self.signs],
-                "timing_ms": {k: round(float(v), 3) for k, v in self.timing_ms.items()},
+        """One line of `signpose track --json`; with a map, `camera_in_map` and `filtered_camera_in_map`."""
+        record = {"source": source, "frame": int(self.frame), "time_s": float(self.time_s),
+                  "signs": [s.to_json() for s in self.signs]}
+        if self.mapped:
+            for key, located in (("camera_in_map", self.camera_in_map),
+                                 ("filtered_camera_in_map", self.filtered_camera_in_map)):
+                record[key] = located.to_json() if located is not None else None
+        return {**record, "timing_ms": {k: round(float(v), 3) for k, v in self.timing_ms.items()},
                 "warnings": list(self.warnings)}
 
 
@@ -202,11 +215,13 @@ class Tracker:
 
     `camera`: the intrinsics (None: a 60° field of view, as for `recognize`), scaled to the frame
     size on the first frame. `fps` turns the config's intervals into frames (30 when not given).
+    `sign_map`: each frame locates the camera in its frame too.
     """
 
     def __init__(self, library: Library, settings: Settings, camera: Camera | None, *, fps: float | None = None,
-                 config: TrackerConfig | None = None) -> None:
+                 config: TrackerConfig | None = None, sign_map: SignMap | None = None) -> None:
         self.library, self.settings, self.config = library, settings, config or TrackerConfig()
+        self.sign_map, self.map_filter = sign_map, PoseFilter()
         self.given_camera = camera
         self.camera: Camera | None = None
         rate = fps if fps is not None and fps > 0 and math.isfinite(fps) else 30.0
@@ -247,11 +262,17 @@ class Tracker:
         t_detected = time.perf_counter()
 
         signs = self._settle(gray, camera, followed, detected, time_s, warnings)
+        located = filtered = None
+        if self.sign_map is not None:
+            located = locate_in_map(found=signs, sign_map=self.sign_map, library=self.library, camera=camera)
+            if located is not None:
+                filtered = CameraInMap(self.map_filter.update(located.pose, time_s), located.signs_used)
         t_end = time.perf_counter()
         tracking = (t_tracked - t_start) + (t_end - t_detected)
         timing = {"detect": (t_detected - t_tracked) * 1e3, "track": tracking * 1e3, "total": (t_end - t_start) * 1e3}
         return FrameResult(index, time_s, signs, timing, warnings, recognitions,
-                           [t.track_id for t in self.tracks if not t.confirmed])
+                           [t.track_id for t in self.tracks if not t.confirmed], self.sign_map is not None, located,
+                           filtered)
 
     def _detection_due(self, index: int, followed: dict[int, Followed]) -> bool:
         if self.last_detect is None:

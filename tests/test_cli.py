@@ -31,6 +31,7 @@ from tests.support.scene_images import OFF_CENTRE, TURNED_SCENE, png_bomb, turne
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "sample_images" / "scenes"
+SURVEY = ROOT / "sample_images" / "surveys" / "room"
 POSE_KEYS = {"R", "t", "camera_position", "quaternion_wxyz", "euler_deg", "reprojection_rmse_px", "ambiguous",
              "covariance"}
 TIMING_KEYS = {"segment", "features", "match", "ransac", "pose", "total"}
@@ -43,7 +44,10 @@ def signpose(*args, cwd=ROOT):
 
 def check_schema(obj):
     assert set(obj) == {"image", "recognized", "label", "scores", "homography", "corners", "pose", "text_check",
-                        "turned_down", "timing_ms", "reused_stages", "warnings"}
+                        "turned_down", "timing_ms", "reused_stages", "warnings", "signs"}
+    # every sign found, the answer first
+    assert [s["label"] for s in obj["signs"][:1]] == ([obj["label"]] if obj["recognized"] else [])
+    assert all(set(s) == {"label", "corners", "pose"} for s in obj["signs"])
     assert all(set(t) == {"sign", "source", "text_check"} for t in obj["turned_down"])
     if obj["recognized"]:
         assert len(obj["text_check"]["strips"]) == 6 and obj["text_check"]["weakest"] >= 0.7
@@ -80,6 +84,47 @@ def test_json_schema_and_labels_on_sample_scenes():
 
 
 @pytest.mark.slow
+def test_recognize_gives_every_sign_in_view_and_with_a_map_the_camera_in_the_map_frame(tmp_path):
+    truth = {p["image"]: p for p in json.loads((SURVEY / "truth.json").read_text())["photos"]}
+    names = ["photo_002.jpg", "photo_004.jpg"]  # two signs in view; one
+    result = signpose("recognize", *[SURVEY / n for n in names], "--library", SURVEY / "library", "--camera",
+                      SURVEY / "camera.yaml", "--map", SURVEY / "truth_map.yaml", "--json")
+    assert result.returncode == 0, result.stderr
+    for name, line in zip(names, result.stdout.splitlines()):
+        obj = json.loads(line)
+        check_schema({k: v for k, v in obj.items() if k != "camera_in_map"})
+        assert sorted(s["label"] for s in obj["signs"]) == sorted(truth[name]["signs"])
+        located = obj["camera_in_map"]
+        assert sorted(located["signs_used"]) == sorted(truth[name]["signs"])
+        assert np.linalg.norm(np.subtract(located["position_m"], truth[name]["camera_position"])) < 0.03
+        assert np.array(located["covariance_xyz_rpy"]).shape == (6, 6)
+    # a map of a sign not in view: null, and the table says so
+    elsewhere = tmp_path / "map.yaml"
+    elsewhere.write_text("frame: building\nsigns:\n  - {id: emergency_exit, position_m: [0, 0, 0], "
+                         "orientation_wxyz: [1, 0, 0, 0]}\n")
+    common = ("--library", SURVEY / "library", "--camera", SURVEY / "camera.yaml", "--map", elsewhere)
+    obj = json.loads(signpose("recognize", SURVEY / names[1], *common, "--json").stdout)
+    assert obj["signs"] and obj["camera_in_map"] is None
+    table = signpose("recognize", SURVEY / names[0], *common)
+    assert table.returncode == 0 and "  and " in table.stdout and "in building: no mapped sign in view" in table.stdout
+
+
+@pytest.mark.parametrize("content, message", [
+    ("signs: []", "signs must be a list of at least one sign"),
+    ("signs:\n  - {id: nowhere, position_m: [0, 0, 0], orientation_wxyz: [1, 0, 0, 0]}",
+     "signs[0].id: 'nowhere' is not a sign of the library"),
+])
+def test_a_bad_map_file_is_one_clear_line_before_any_image(tmp_path, content, message):
+    path = tmp_path / "map.yaml"
+    path.write_text(content)
+    for command in ("recognize", "track", "evaluate"):
+        result = signpose(command, SCENES / "scene_000.jpg" if command != "evaluate" else SCENES, "--map", path)
+        assert result.returncode == 2 and result.stdout == "", (command, result.stderr)
+        assert result.stderr.splitlines() == [f"signpose {command}: error: {path}: {message}, which has "
+                                              "chief_of_security, ministry_of_torture, security_compound"
+                                              if "library" in message else f"signpose {command}: error: {path}: {message}"]
+
+
 def test_bad_files_get_an_error_line_and_the_rest_still_run(tmp_path):
     good = SCENES / "scene_002.jpg"  # a sign: the pose, and so the note on it, is there
     fake = tmp_path / "notes.jpg"
@@ -404,6 +449,29 @@ def test_evaluate_json_has_every_images_answer_against_the_truth(tmp_path):
             assert entry["rotation_error_deg"] < 1.0
     assert report["total"]["correct"] == sum(e["correct"] for e in images.values())
     assert report["labels"][-1] == "none" and report["settings"]["ratio"] == 0.75
+
+
+def test_evaluate_with_a_map_measures_the_camera_in_the_map_frame_on_a_survey_and_says_where_it_is_not_used(tmp_path):
+    survey = tmp_path / "room"
+    survey.mkdir()
+    photos = json.loads((SURVEY / "truth.json").read_text())["photos"][1:4]  # one sign, then two
+    for name in ("camera.yaml", *(p["image"] for p in photos)):
+        shutil.copy(SURVEY / name, survey / name)
+    (survey / "truth.json").write_text(json.dumps({"photos": photos}))
+    common = ("--map", SURVEY / "truth_map.yaml", "--library", SURVEY / "library", "--workers", 1)
+    result = signpose("evaluate", survey, ROOT / "sample_images" / "datasets" / "set3", *common, "--json")
+    assert result.returncode == 0, result.stderr
+    assert "the map is not used for set3: no camera poses in the map frame" in result.stderr
+    report = json.loads(result.stdout)
+    assert report["total"]["images"] == 5 and set(report["camera_in_map"]) == {"room"}
+    room = report["camera_in_map"]["room"]
+    assert room["photos"] == room["located"] == 3
+    assert room["position_error_m"]["median"] < 0.03 and room["rotation_error_deg"]["median"] < 0.5
+    table = signpose("evaluate", survey, *common)
+    assert table.returncode == 0, table.stderr
+    assert table.stdout.splitlines()[:3] == ["camera in the map frame (map)",
+                                              "survey           photos located      position med/p90   rotation med/p90",
+                                              "-" * 72]
 
 
 @pytest.mark.slow

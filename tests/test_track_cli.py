@@ -120,6 +120,61 @@ def test_csv_and_jsonl_outputs_hold_what_json_prints(tmp_path, flight_json):
     assert "5 frames" in run.stderr.splitlines()[-1]  # the one-line summary
 
 
+CORRIDOR_MAP = """frame: corridor
+signs:
+  - {id: security_compound, position_m: [0.0, -0.2, 0.0], orientation_wxyz: [1, 0, 0, 0]}
+  - {id: chief_of_security, position_m: [2.6, -0.1, 0.0], orientation_wxyz: [1, 0, 0, 0]}
+"""
+
+
+def test_with_a_map_each_frame_locates_the_camera_in_it_and_every_output_carries_it(tmp_path):
+    """The corridor's signs in a map of their wall's frame: the camera in it per frame, filtered, in the JSON, the
+    CSV and the MCAP (PoseWithCovarianceStamped in the map frame, /tf_static map -> each sign)."""
+    (tmp_path / "map.yaml").write_text(CORRIDOR_MAP)
+    truth = json.loads((FLIGHT / "truth.json").read_text())["frames"]
+    run = track(VIDEO, "--camera", CAMERA, "--map", tmp_path / "map.yaml", "--max-frames", 12, "--json",
+                "-o", tmp_path / "out.mcap")
+    assert run.returncode == 0, run.stderr
+    got = records(run.stdout)
+    assert all({"camera_in_map", "filtered_camera_in_map"} <= set(r) for r in got)
+    located = [r for r in got if r["camera_in_map"] is not None]
+    assert len(located) >= 8 and all(r["filtered_camera_in_map"] is not None for r in located)
+    both = [r for r in located if len(r["camera_in_map"]["signs_used"]) == 2]
+    assert both  # 6-7 m from the wall, both signs 45-50 px wide
+    for r in both:  # within 2 % of the distance
+        error = np.linalg.norm(np.subtract(r["camera_in_map"]["position_m"], truth[r["frame"]]["camera_position"]))
+        assert error < 0.15, (r["frame"], error)
+    topics: dict[str, list] = {}
+    for msg in read_ros2_messages(str(tmp_path / "out.mcap")):
+        topics.setdefault(msg.channel.topic, []).append(msg)
+    poses = topics["/signpose/camera_in_map"]
+    assert len(poses) == len(located) and len(topics["/signpose/camera_in_map_filtered"]) == len(located)
+    for msg, r in zip(poses, located):
+        assert msg.schema.name == "geometry_msgs/msg/PoseWithCovarianceStamped"
+        assert msg.ros_msg.header.frame_id == "corridor"
+        position = msg.ros_msg.pose.pose.position
+        np.testing.assert_allclose([position.x, position.y, position.z], r["camera_in_map"]["position_m"])
+        q = msg.ros_msg.pose.pose.orientation
+        np.testing.assert_allclose([q.w, q.x, q.y, q.z], r["camera_in_map"]["orientation_wxyz"])
+        # ROS order, as the JSON's: position block first, then rotation about the map's axes
+        np.testing.assert_allclose(np.reshape(msg.ros_msg.pose.covariance, (6, 6)),
+                                   r["camera_in_map"]["covariance_xyz_rpy"])
+    (static,) = topics["/tf_static"]
+    assert static.schema.name == "tf2_msgs/msg/TFMessage"
+    placed = {t.child_frame_id: (t.header.frame_id, t.transform.translation) for t in static.ros_msg.transforms}
+    assert set(placed) == {"sign_security_compound", "sign_chief_of_security"}
+    parent, translation = placed["sign_chief_of_security"]
+    assert parent == "corridor" and (translation.x, translation.y, translation.z) == (2.6, -0.1, 0.0)
+
+    run = track(VIDEO, "--camera", CAMERA, "--map", tmp_path / "map.yaml", "--max-frames", 4, "-o", tmp_path / "f.csv")
+    assert run.returncode == 0, run.stderr
+    rows = [r for r in csv.DictReader((tmp_path / "f.csv").open()) if r["map_x"]]
+    assert rows
+    frame = got[int(rows[-1]["frame"])]["camera_in_map"]
+    np.testing.assert_allclose([float(rows[-1][f"map_{a}"]) for a in "xyz"], frame["position_m"])
+    np.testing.assert_allclose(float(rows[-1]["map_var_rot_z"]), frame["covariance_xyz_rpy"][5][5])
+
+
 @pytest.mark.parametrize("args, message", [
     (["missing.mp4"], "no such file"),
     (["README.md"], "README.md"),
