@@ -464,7 +464,6 @@ def cmd_serve(args) -> int:
     from signpose.app.security import TOKEN_ENV, access_token
     from signpose.app.server import bind, create_app, serve
     from signpose.app.state import StateError
-    from signpose.pipeline.sign_map import MapError
 
     config = WorkspaceConfig(
         state_dir=Path(args.state_dir), library_dir=Path(args.library) if args.library else None,
