@@ -98,6 +98,7 @@ export function initMap() {
   };
   $("#map-download").onclick = () => download("/api/map/file");
   $("#map-clear").onclick = async () => {
+    if (!confirm("Forget the sign map? Download it first to keep it.")) return;
     try {
       await api("DELETE", "/api/map");
       await loadMap();
