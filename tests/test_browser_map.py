@@ -18,28 +18,9 @@ pytestmark = [pytest.mark.browser, pytest.mark.server]
 
 TRUTH = load_sign_map(ROOM / "truth_map.yaml")
 
-# The map world's nodes in the viser client's scene tree: where each is (its Three.js object, else the
-# pose the server last sent) and whether it is shown.
-MAP_NODES = """() => {
-    const m = window.__viserMutable, tree = window.__viserSceneTree.getState();
-    const nodes = {};
-    for (const [name, node] of Object.entries(tree)) {
-        if (!name.startsWith("/map/")) continue;
-        const object = m.nodeRefFromName[name];
-        nodes[name] = {
-            type: node.message.type,
-            position: object ? object.position.toArray() : (m.nodePoseData[name]?.position ?? null),
-            visible: node.effectiveVisibility ?? null,
-        };
-    }
-    return nodes;
-}"""
-
-
 @pytest.fixture(scope="module")
 def base(tmp_path_factory):
-    if not harness.CHROMIUM.exists():
-        pytest.skip(f"{harness.CHROMIUM} not found: install Debian's chromium to run the browser tests")
+    harness.skip_without_chromium()
     tmp = tmp_path_factory.mktemp("serve")
     with harness.serve(tmp / "state", tmp / "serve.log",
                        options=("--library", str(ROOM / "library"), "--camera", str(ROOM / "camera.yaml"))) as url:
@@ -48,14 +29,8 @@ def base(tmp_path_factory):
 
 @pytest.fixture
 def page(base):
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        browser = harness.launch(p)
-        page = harness.open_page(browser, base)
+    with harness.page_of(base) as page:
         yield page
-        harness.close_page(page)
-        browser.close()
 
 
 def test_build_a_map_from_the_survey_and_see_it_in_the_table_and_the_3d_scene(page, base):
@@ -84,7 +59,7 @@ def test_build_a_map_from_the_survey_and_see_it_in_the_table_and_the_3d_scene(pa
     frame = page.frame(url=re.compile(r"/viser/"))
     nodes = {}
     for _ in range(100):
-        nodes = frame.evaluate(MAP_NODES)
+        nodes = harness.scene_nodes(frame, "/map/")
         signs = {name.split("/")[3]: node for name, node in nodes.items() if re.fullmatch(r"/map/signs/[^/]+", name)}
         if set(signs) == set(TRUTH.signs) and all(n["visible"] and n["position"] for n in signs.values()):
             break
