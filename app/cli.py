@@ -136,9 +136,10 @@ def cmd_recognize(args) -> int:
 
 def recognize_one(name: str, library: Library, settings: Settings, camera: Camera | None, hfov_deg: float,
                   limit: int, as_json: bool, sign_map: SignMap | None = None) -> bool:
-    """Recognise every library sign in the image file `name` (`recognize_every_sign`) and print its line: a table
-    row for the first (the answer), lines for the others and, with `sign_map`, the camera in the map frame (and
-    their warnings) or, `as_json`, a JSON object; whether the image could be used (else the line says why not).
+    """Recognise every library sign in the image file `name` (`recognize_every_sign`) and print its lines: a table
+    row for the answer (the first) with its warnings, a row for each other sign and, with `sign_map`, a line of the
+    camera in the map frame; or, `as_json`, a JSON object. Returns whether the image could be used (else the line
+    says why not).
     `camera` turned as the image's EXIF orientation turned it; without one, the image's EXIF focal length, else
     `hfov_deg` assumed, as the server chooses."""
     try:

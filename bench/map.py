@@ -20,6 +20,7 @@ import json
 import math
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -89,21 +90,23 @@ def measure_survey(folder: Path) -> tuple[list[dict], dict]:
     return rows, counts
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--surveys", type=int, default=6)
+def survey_options(parser: argparse.ArgumentParser, surveys: int = 6) -> None:
+    """The options of the surveys rendered (`surveys`) on `parser`."""
+    parser.add_argument("--surveys", type=int, default=surveys)
     parser.add_argument("--photos", type=int, default=48)
     parser.add_argument("--pair-share", type=float, default=2 / 3,
                         help="share of the photos aimed between two neighbours (default 2/3; the others at one sign)")
     parser.add_argument("--size", default="1280x960", help="photo size WxH (the sample survey's: 640x480)")
     parser.add_argument("--out", type=Path, help="render the surveys here (default: the temp folder)")
-    parser.add_argument("--json", type=Path, help="write every sign's figures here")
-    args = parser.parse_args()
+
+
+def surveys(args: argparse.Namespace) -> Iterator[Path]:
+    """The folders of the surveys `survey_options` asked for, each rendered when it is not there yet:
+    survey i with neighbours SPACINGS[i % 4] apart, the first seed from i whose room fits its spacing."""
     width, height = (int(v) for v in args.size.split("x"))
     camera = synthetic_camera((width, height))
     library = load_library(LIBRARY)
     out = args.out or Path(tempfile.gettempdir()) / f"signpose-bench-map-{args.size}"
-    everything = []
     for index in range(args.surveys):
         spacing = SPACINGS[index % len(SPACINGS)]
         # A room too small for its spacing (two neighbours no place in it sees together): the next seed.
@@ -117,6 +120,16 @@ def main() -> None:
                 break
             except ValueError as exc:
                 print(f"{folder.name}: {exc}; next seed")
+        yield folder
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    survey_options(parser)
+    parser.add_argument("--json", type=Path, help="write every sign's figures here")
+    args = parser.parse_args()
+    everything = []
+    for folder in surveys(args):
         rows, counts = measure_survey(folder)
         mapped = [r for r in rows if r["mapped"]]
         print(f"{folder.name}: {counts['observations']} observations, {counts['rejected']} rejected, "

@@ -129,7 +129,8 @@ def _sign_points(found: SignInView, sign_map: SignMap, library: Library, camera:
     if sigma is None:
         return None
     R = pose.R @ mapped.R.T  # X_cam = R_cs·R_msᵀ·(X_map - p_ms) + t_cs
-    position_block = (pose_jacobian(pose.R, pose.t) @ pose.covariance @ pose_jacobian(pose.R, pose.t).T)[3:, 3:]
+    to_position = pose_jacobian(pose.R, pose.t)[3:]  # the camera position's rows
+    position_block = to_position @ pose.covariance @ to_position.T
     return _SignPoints(label, mapped.to_map(corners_sign), np.asarray(corners, dtype=np.float64).reshape(4, 2),
                        sigma, (R, pose.t - R @ mapped.position_m), float(np.trace(position_block)),
                        mapped.position_m, mapped.covariance)
