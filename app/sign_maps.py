@@ -98,15 +98,13 @@ def recorded_signs(record: dict) -> list[RecordedSign]:
     """The signs of one flight record (a frame), with their measured poses (None where there is none)."""
     signs = []
     for sign in record["signs"]:
-        pose = sign["pose"]
-        if pose is not None and pose["R"] is not None and pose["t"] is not None:
-            covariance = pose["covariance"]
-            pose = Pose(R=np.array(pose["R"], float), t=np.array(pose["t"], float), method="recorded",
-                        reprojection_rmse_px=pose["reprojection_rmse_px"] or float("nan"), ambiguous=pose["ambiguous"],
-                        solution_errors=None,
+        measured, pose = sign["pose"], None
+        if measured is not None and measured["R"] is not None and measured["t"] is not None:
+            covariance = measured["covariance"]   # non-finite numbers are null in JSON: NaN here
+            pose = Pose(R=np.array(measured["R"], float), t=np.array(measured["t"], float), method="recorded",
+                        reprojection_rmse_px=measured["reprojection_rmse_px"] or float("nan"),
+                        ambiguous=measured["ambiguous"], solution_errors=None,
                         covariance=None if covariance is None else np.array(covariance, dtype=float))
-        else:
-            pose = None
         signs.append(RecordedSign(sign["label"], np.array(sign["corners"], float), pose))
     return signs
 

@@ -1,7 +1,7 @@
 """The sign map through the HTTP API (`/api/map`), against a real uvicorn server serving the sample
 survey (its library and camera): a map file loaded, a bad one refused naming the field with the map
 held kept, a map built from the survey's photos and downloaded, loading back as it was; a survey whose
-signs form two groups no photo links refused, naming both."""
+signs form two groups no photo links refused, naming both, and one without photos refused saying so."""
 
 from __future__ import annotations
 
@@ -119,9 +119,11 @@ def test_a_map_built_from_the_photos_is_downloaded_and_loads_back(client):
     assert_error(client.get("/api/map/file"), 404, "no sign map is held")
 
 
-def test_a_survey_in_two_unlinked_groups_is_refused_naming_both(tmp_path_factory):
+def test_a_survey_in_two_unlinked_groups_is_refused_naming_both_and_one_without_signs_saying_so(tmp_path_factory):
     for url in serve_photos(tmp_path_factory, TWO_GROUPS):
         with httpx.Client(base_url=url, timeout=120) as client:
             assert_error(client.post("/api/map/build"), 409, "2 groups",
                          "{ministry_of_torture, security_compound}", "{directors_office, emergency_exit}")
             assert client.get("/api/map").json() is None
+            assert client.delete("/api/images").status_code == 200
+            assert_error(client.post("/api/map/build"), 409, "no sign with a pose in the photos and flights held")
