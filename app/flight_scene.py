@@ -159,9 +159,9 @@ class FlightLayer:
             return
         with self.server.atomic():
             nodes.current.position, nodes.current.wxyz = seen.position, seen.wxyz
-            if cursor < len(flight.jpegs):
-                frame = cv2.imdecode(np.frombuffer(flight.jpegs[cursor], np.uint8), cv2.IMREAD_COLOR)
-                nodes.current.image = cv2.cvtColor(fit_width(frame, THUMBNAIL_WIDTH_PX), cv2.COLOR_BGR2RGB)
+            image = frame_thumbnail(flight, cursor)
+            if image is not None:
+                nodes.current.image = image
             nodes.current.visible = True
 
     def _add(self, flight: Flight, label: str, seen: list[Seen], library: Library, photo_width_m: float) -> FlightNodes:
@@ -180,6 +180,14 @@ class FlightLayer:
         current = scene.add_camera_frustum(f"{root}/current", fov, aspect, scale=scale, color=CURRENT_RGB,
                                            thickness=3.0, thickness_units="screen", visible=False)
         return FlightNodes(flight.result_version, trajectory, frusta, current, {s.frame: s for s in seen})
+
+
+def frame_thumbnail(flight: Flight, index: int) -> np.ndarray | None:
+    """Frame `index` of the flight as an RGB thumbnail for a frustum (THUMBNAIL_WIDTH_PX wide at most);
+    None when its JPEG is not kept."""
+    if not 0 <= index < len(flight.jpegs):
+        return None
+    return fit_width(cv2.imdecode(np.frombuffer(flight.jpegs[index], np.uint8), cv2.IMREAD_COLOR), THUMBNAIL_WIDTH_PX)
 
 
 def frustum_of(flight: Flight) -> tuple[float, float]:

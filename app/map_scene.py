@@ -6,7 +6,7 @@ ellipsoid of its position (``uncertainty/<id>``: axes along the eigenvectors of 
 covariance, half-lengths three times their sigma) and a label giving its worst-direction 1-sigma.
 Each photo whose recognised sign is mapped is drawn as a frustum (``cameras/<image id>``), and each
 flight as its camera's trajectory through the frames located in the map (``flights/<id>/trajectory``,
-a small frustum every `FRUSTUM_EVERY_S` seconds), the cameras located from the signs they see by
+a small frustum every `FRUSTUM_EVERY_S` seconds, and ``current``, the frame the page shows), the cameras located from the signs they see by
 `pipeline.localise.locate_in_map` (app/sign_maps.py).
 """
 
@@ -24,7 +24,7 @@ from signpose.pipeline.localise import CameraInMap
 from signpose.pipeline.recognize import Recognition
 from signpose.pipeline.sign_map import MappedSign
 
-from .flight_scene import CURRENT_RGB, DEFAULT_FPS, FRUSTUM_EVERY_S, TRAIL_SCALE, frustum_of
+from .flight_scene import CURRENT_RGB, DEFAULT_FPS, FRUSTUM_EVERY_S, TRAIL_SCALE, frame_thumbnail, frustum_of
 from .flights import Flight, Flights
 from .image_store import ImageRecord
 from .scene import SignNodes, add_sign_nodes, frustum_scale, frustum_shape, label_rgb
@@ -69,11 +69,18 @@ class MappedSignNodes:
 
 @dataclass
 class FlightInMap:
+    """What one flight shows in the map world: its trajectory, frusta along it and the `current` camera,
+    at the frame the page shows (`cursor`) when that frame is located (`by_frame`)."""
+
     result_version: int
     trajectory: viser.LineSegmentsHandle
-    frusta: list[viser.CameraFrustumHandle] = field(default_factory=list)
+    frusta: list[viser.CameraFrustumHandle]
+    current: viser.CameraFrustumHandle
+    by_frame: dict[int, CameraInMap] = field(repr=False)
+    cursor: int = -1
 
     def remove(self) -> None:
+        self.current.remove()
         for frustum in self.frusta:
             frustum.remove()
         self.trajectory.remove()
@@ -182,11 +189,34 @@ class MapLayer:
             self.flight_nodes.pop(flight_id).remove()
         for flight in flights.values():
             drawn = self.flight_nodes.get(flight.id)
-            if drawn is not None and drawn.result_version == flight.result_version:
-                continue
-            if drawn is not None:
-                drawn.remove()
-            self.flight_nodes[flight.id] = self._add_flight(flight, held, library, photo_width_m)
+            if drawn is None or drawn.result_version != flight.result_version:
+                if drawn is not None:
+                    drawn.remove()
+                drawn = self.flight_nodes[flight.id] = self._add_flight(flight, held, library, photo_width_m)
+            self._show_cursor(flight, drawn)
+
+    def show_cursor(self, flight_id: str) -> None:
+        """Move the flight's current camera to its cursor (hidden on a frame not located in the map)."""
+        nodes = self.flight_nodes.get(flight_id)
+        flight = next((f for f in self.flights.held() if f.id == flight_id), None) if self.flights is not None else None
+        if nodes is not None and flight is not None:
+            self._show_cursor(flight, nodes)
+
+    def _show_cursor(self, flight: Flight, nodes: FlightInMap) -> None:
+        cursor = flight.cursor
+        if nodes.cursor == cursor:
+            return
+        nodes.cursor = cursor
+        camera = nodes.by_frame.get(cursor)
+        if camera is None:
+            nodes.current.visible = False
+            return
+        with self.server.atomic():
+            nodes.current.position, nodes.current.wxyz = camera.position_m, tf.SO3.from_matrix(camera.R).wxyz
+            image = frame_thumbnail(flight, cursor)
+            if image is not None:
+                nodes.current.image = image
+            nodes.current.visible = True
 
     def _add_flight(self, flight: Flight, held: HeldMap, library: Library, photo_width_m: float) -> FlightInMap:
         root = f"{ROOT}/flights/{flight.id}"
@@ -204,4 +234,7 @@ class MapLayer:
             f"{root}/frusta/{frame}", fov, aspect, scale=scale, color=CURRENT_RGB, thickness=1.0,
             thickness_units="screen", position=camera.position_m, wxyz=tf.SO3.from_matrix(camera.R).wxyz)
             for frame, camera in located if frame % every == 0]
-        return FlightInMap(flight.result_version, trajectory, frusta)
+        current = self.server.scene.add_camera_frustum(f"{root}/current", fov, aspect, scale=scale / TRAIL_SCALE,
+                                                       color=CURRENT_RGB, thickness=3.0, thickness_units="screen",
+                                                       visible=False)
+        return FlightInMap(flight.result_version, trajectory, frusta, current, dict(located))

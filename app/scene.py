@@ -648,12 +648,16 @@ class SceneHandle:
         log.info("upload refused: %s", why)
 
     def _follow_cursor(self, flight_id: str) -> None:
-        """Move the flight's current frustum to the frame the page shows, in the world of a sign that
-        frame sees (switching worlds when the one shown does not see it)."""
+        """Move the flight's current frustum to the frame the page shows, in the map world and in the
+        world of a sign that frame sees (switching worlds when the one shown is a sign's that does not see it)."""
         if self.flight_layer is None:
             return
         with self._lock:
+            if self.map_layer is not None:
+                self.map_layer.show_cursor(flight_id)
             self.flight_layer.show_cursor(flight_id)
+            if self.world.value == MAP_WORLD:
+                return
             worlds = self.flight_layer.cursor_labels(flight_id)
             if worlds and self.world.value not in worlds and worlds[0] in self.world.options:
                 self.world.value = worlds[0]  # type: ignore[misc]

@@ -700,7 +700,8 @@ def test_the_map_world_draws_every_mapped_sign_in_place_its_uncertainty_and_the_
 
 def test_a_flight_is_drawn_in_the_map_world_through_its_frames_located_in_the_map(tmp_path):
     """Frames that see a mapped sign (as a flight's records keep them) give the camera's trajectory in the map
-    frame: each frame's camera where its pose puts it in the sign's frame, carried through the map."""
+    frame: each frame's camera where its pose puts it in the sign's frame, carried through the map; its current
+    camera follows the frame the page shows."""
     from signpose.app.flights import Flight
     from signpose.app.map_scene import MapLayer
     from signpose.app.sign_maps import SignMaps
@@ -734,5 +735,12 @@ def test_a_flight_is_drawn_in_the_map_world_through_its_frames_located_in_the_ma
         # frames 0-1 and, across the gap of frame 2, none to 3
         np.testing.assert_allclose(segments, [[in_map[0], in_map[1]]], atol=1e-4)
         np.testing.assert_allclose(layer.flight_nodes["f1"].frusta[0].position, in_map[0], atol=1e-4)
+        current = layer.flight_nodes["f1"].current
+        assert current.visible   # at the cursor, frame 0
+        for cursor, shown in ((3, True), (2, False)):   # the page scrubs to frame 3, then to 2, which sees no sign
+            flight.cursor = cursor
+            layer.show_cursor("f1")
+            assert current.visible == shown
+        np.testing.assert_allclose(current.position, in_map[3], atol=1e-4)
     finally:
         server.stop()
