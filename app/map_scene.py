@@ -13,7 +13,7 @@ a small frustum every `FRUSTUM_EVERY_S` seconds, and ``current``, the frame the 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import viser
@@ -24,7 +24,7 @@ from signpose.pipeline.localise import CameraInMap
 from signpose.pipeline.recognize import Recognition
 from signpose.pipeline.sign_map import MappedSign
 
-from .flight_scene import CURRENT_RGB, DEFAULT_FPS, FRUSTUM_EVERY_S, TRAIL_SCALE, frame_thumbnail, frustum_of
+from .flight_scene import FlightNodes, Seen, add_flight_nodes, show_current
 from .flights import Flight, Flights
 from .image_store import ImageRecord
 from .scene import SignNodes, add_sign_nodes, frustum_scale, frustum_shape, label_rgb
@@ -35,6 +35,8 @@ ROOT = "/map"
 ELLIPSOID_SIGMAS = 3.0
 ELLIPSOID_RGB = (220, 40, 160)
 ELLIPSOID_OPACITY = 0.35
+# A flight's trajectory in the map world, which no one sign's colour stands for.
+FLIGHT_RGB = (23, 190, 207)
 
 
 def ellipsoid_axes(covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -67,25 +69,6 @@ class MappedSignNodes:
         self.sign.remove()
 
 
-@dataclass
-class FlightInMap:
-    """What one flight shows in the map world: its trajectory, frusta along it and the `current` camera,
-    at the frame the page shows (`cursor`) when that frame is located (`by_frame`)."""
-
-    result_version: int
-    trajectory: viser.LineSegmentsHandle
-    frusta: list[viser.CameraFrustumHandle]
-    current: viser.CameraFrustumHandle
-    by_frame: dict[int, CameraInMap] = field(repr=False)
-    cursor: int = -1
-
-    def remove(self) -> None:
-        self.current.remove()
-        for frustum in self.frusta:
-            frustum.remove()
-        self.trajectory.remove()
-
-
 class MapLayer:
     """The map world of a viser scene; the scene's redraw thread calls `draw`, under the scene's lock.
     What it drew is of map revision `revision` (-1: no map)."""
@@ -97,7 +80,7 @@ class MapLayer:
         self.signs: dict[str, MappedSignNodes] = {}
         # By image id: the recognition drawn, its camera in the map (None: not located) and its frustum.
         self.cameras: dict[str, tuple[Recognition, CameraInMap | None, viser.CameraFrustumHandle | None]] = {}
-        self.flight_nodes: dict[str, FlightInMap] = {}
+        self.flight_nodes: dict[str, FlightNodes] = {}
 
     @property
     def held(self) -> HeldMap | None:
@@ -193,48 +176,18 @@ class MapLayer:
                 if drawn is not None:
                     drawn.remove()
                 drawn = self.flight_nodes[flight.id] = self._add_flight(flight, held, library, photo_width_m)
-            self._show_cursor(flight, drawn)
+            show_current(self.server, flight, drawn)
 
     def show_cursor(self, flight_id: str) -> None:
         """Move the flight's current camera to its cursor (hidden on a frame not located in the map)."""
         nodes = self.flight_nodes.get(flight_id)
         flight = next((f for f in self.flights.held() if f.id == flight_id), None) if self.flights is not None else None
         if nodes is not None and flight is not None:
-            self._show_cursor(flight, nodes)
+            show_current(self.server, flight, nodes)
 
-    def _show_cursor(self, flight: Flight, nodes: FlightInMap) -> None:
-        cursor = flight.cursor
-        if nodes.cursor == cursor:
-            return
-        nodes.cursor = cursor
-        camera = nodes.by_frame.get(cursor)
-        if camera is None:
-            nodes.current.visible = False
-            return
-        with self.server.atomic():
-            nodes.current.position, nodes.current.wxyz = camera.position_m, tf.SO3.from_matrix(camera.R).wxyz
-            image = frame_thumbnail(flight, cursor)
-            if image is not None:
-                nodes.current.image = image
-            nodes.current.visible = True
-
-    def _add_flight(self, flight: Flight, held: HeldMap, library: Library, photo_width_m: float) -> FlightInMap:
-        root = f"{ROOT}/flights/{flight.id}"
-        located = [(int(record["frame"]), camera) for record in flight.records
-                   if (camera := camera_in_map(recorded_signs(record), held.sign_map, library,
-                                               flight.tracked_camera)) is not None]
-        segments = [(a.position_m, b.position_m) for (i, a), (j, b) in zip(located, located[1:]) if j == i + 1]
-        trajectory = self.server.scene.add_line_segments(
-            f"{root}/trajectory", np.array(segments, dtype=np.float32).reshape(-1, 2, 3), CURRENT_RGB,
-            thickness=3.0, thickness_units="screen")
-        fov, aspect = frustum_of(flight)
-        scale = TRAIL_SCALE * frustum_scale(fov, aspect, photo_width_m)
-        every = max(1, round(FRUSTUM_EVERY_S * (flight.fps or DEFAULT_FPS)))
-        frusta = [self.server.scene.add_camera_frustum(
-            f"{root}/frusta/{frame}", fov, aspect, scale=scale, color=CURRENT_RGB, thickness=1.0,
-            thickness_units="screen", position=camera.position_m, wxyz=tf.SO3.from_matrix(camera.R).wxyz)
-            for frame, camera in located if frame % every == 0]
-        current = self.server.scene.add_camera_frustum(f"{root}/current", fov, aspect, scale=scale / TRAIL_SCALE,
-                                                       color=CURRENT_RGB, thickness=3.0, thickness_units="screen",
-                                                       visible=False)
-        return FlightInMap(flight.result_version, trajectory, frusta, current, dict(located))
+    def _add_flight(self, flight: Flight, held: HeldMap, library: Library, photo_width_m: float) -> FlightNodes:
+        seen = [Seen(int(record["frame"]), camera.position_m, tf.SO3.from_matrix(camera.R).wxyz)
+                for record in flight.records
+                if (camera := camera_in_map(recorded_signs(record), held.sign_map, library,
+                                            flight.tracked_camera)) is not None]
+        return add_flight_nodes(self.server, f"{ROOT}/flights/{flight.id}", flight, seen, FLIGHT_RGB, photo_width_m)
