@@ -5,8 +5,9 @@ library sign is drawn in place as the sign worlds draw a sign (``signs/<id>``), 
 ellipsoid of its position (``uncertainty/<id>``: axes along the eigenvectors of its position
 covariance, half-lengths three times their sigma) and a label giving its worst-direction 1-sigma.
 Each photo whose recognised sign is mapped is drawn as a frustum (``cameras/<image id>``), and each
-flight as its camera's trajectory through the frames located in the map (``flights/<id>/trajectory``,
-a small frustum every `FRUSTUM_EVERY_S` seconds, and ``current``, the frame the page shows), the cameras located from the signs they see by
+flight as its camera's trajectory through the frames located in the map (``flights/<id>/``, as
+app/flight_scene.py draws one in a sign's world: ``trajectory``, ``frusta/<frame>`` and ``current``,
+the frame the page shows), the cameras located from the signs they see by
 `pipeline.localise.locate_in_map` (app/sign_maps.py).
 """
 
@@ -58,6 +59,9 @@ def sign_text(sign: MappedSign) -> str:
 
 @dataclass
 class MappedSignNodes:
+    """One mapped sign in the map world: the sign as a sign world draws it, its label and its ellipsoid
+    (None without a covariance)."""
+
     sign: SignNodes
     label: viser.LabelHandle
     ellipsoid: viser.IcosphereHandle | None
