@@ -12,6 +12,7 @@ import pytest
 
 import signpose.pipeline.recognize as recognize_module
 from signpose.pipeline.settings import Settings
+from tests.support.browser_harness import FAILED
 
 SegmentationFault = Callable[[Callable[[int, Settings], bool]], None]
 
@@ -39,3 +40,13 @@ def fail_segmentation(monkeypatch) -> SegmentationFault:
 def fail_first_segmentation(fail_segmentation: SegmentationFault) -> None:
     """`fail_segmentation` on the first image segmented in this process only, from the test's start."""
     fail_segmentation(lambda n, _: n == 1)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item, call):
+    """Records on the test whether its call failed, for fixtures that keep state across tests
+    (the browser tests' shared page is opened again after a failure)."""
+    report = yield
+    if report.when == "call" and report.failed:
+        item.stash[FAILED] = True
+    return report

@@ -62,11 +62,28 @@ def browser(base):
         browser.close()
 
 
+@pytest.fixture(scope="module")
+def shared_page(browser, base):
+    """The module's tests share one page (opening one takes 2-3 s); `page` opens it again after a
+    test that failed, closed it or left errors in it."""
+    held = harness.SharedPage(browser, base)
+    yield held
+    held.close()
+
+
 @pytest.fixture
-def page(browser, base):
+def fresh_page(browser, base):
+    """A page of its own, for a test that leaves listeners on it (dialogs, file choosers)."""
     page = harness.open_page(browser, base)
     yield page
     harness.close_page(page)
+
+
+@pytest.fixture
+def page(shared_page, request):
+    page = shared_page.take()
+    yield page
+    shared_page.give_back(failed=request.node.stash.get(harness.FAILED, False))
 
 
 @pytest.fixture
@@ -315,10 +332,11 @@ def detail_brought(page, image_id: str) -> None:
                            arg=image_id, timeout=10_000)
 
 
-def test_every_way_of_choosing_an_image_on_a_phone_brings_its_detail_into_view(page, browser, base):
+def test_every_way_of_choosing_an_image_on_a_phone_brings_its_detail_into_view(fresh_page, browser, base):
     """On a phone (360×640) only a card tapped scrolled the page to the image's detail, under the whole
     gallery: ← →, the detail's ‹ › and a #image= link, followed or opened, left the page where it was,
     the detail out of sight below or its top above the window."""
+    page = fresh_page
     page.set_viewport_size(PHONE)
     page.wait_for_selector("#detail:not([hidden])")   # the first image, opened by itself: nothing scrolls
     assert page.evaluate("() => scrollY") == 0
@@ -621,7 +639,8 @@ def test_remove_all_during_uploads_stops_them_and_says_what_is_left(browser, tmp
         harness.close_page(page)
 
 
-def test_leaving_during_uploads_asks_first_and_progress_counts_stored(page, tmp_path):
+def test_leaving_during_uploads_asks_first_and_progress_counts_stored(fresh_page, tmp_path):
+    page = fresh_page
     files = [tmp_path / f"held-{i}-{SCENE}" for i in range(5)]
     for f in files:
         f.write_bytes((harness.SCENES / SCENE).read_bytes())
@@ -797,7 +816,8 @@ def assert_file_button_works(page, choosers: list[str], input_id: str, key: str)
         page.wait_for_timeout(50)   # lets Playwright deliver the filechooser event
 
 
-def test_file_buttons_work_from_the_keyboard(page):
+def test_file_buttons_work_from_the_keyboard(fresh_page):
+    page = fresh_page
     # A listener for the whole test, not expect_file_chooser: that one starts intercepting choosers
     # only after a round trip the key press can overtake, and the chooser is then lost.
     choosers = []
@@ -812,7 +832,8 @@ def test_file_buttons_work_from_the_keyboard(page):
     page.click("#library-close")
 
 
-def test_api_errors_are_shown(page, api, tmp_path):
+def test_api_errors_are_shown(fresh_page, api, tmp_path):
+    page = fresh_page
     broken = tmp_path / "broken.jpg"
     broken.write_text("not a picture")
     page.set_input_files("#file-picker", str(broken))
@@ -962,9 +983,10 @@ def test_threshold_calibration_and_sweep(page, api):
     assert "labelled" in page.inner_text("#sweep-info")
 
 
-def test_a_box_typed_is_measured_as_a_dragged_one(page, api):
+def test_a_box_typed_is_measured_as_a_dragged_one(fresh_page, api):
     """The box to measure could only be dragged with a mouse: typed, it is measured the same, a
     wrong one is said beside it, and clearing it goes back to the region the pipeline found."""
+    page = fresh_page
     image_id = uploaded_scene(api)
     open_detail(page, image_id)
     page.wait_for_selector("#histogram:not([hidden])")
@@ -1093,9 +1115,10 @@ def test_labels_chosen_in_quick_succession_end_on_the_last(page, api):
         api.patch(f"/api/images/{image_id}", json={"expected": LABEL}).raise_for_status()
 
 
-def test_a_detail_closed_while_it_loads_stays_closed(page, api):
+def test_a_detail_closed_while_it_loads_stays_closed(fresh_page, api):
     """Escape pressed before an image's detail had come: it came, and opened a view that no key
     or button could close, with no card selected."""
+    page = fresh_page
     image_id = uploaded_scene(api)
     held = []
     page.route(f"**/api/images/{image_id}", lambda route: held.append(route))
@@ -1143,7 +1166,8 @@ def test_a_setting_changed_while_a_sweep_runs_is_said_when_it_ends(page, api):
     page.unroute("**/api/sweep?*")
 
 
-def test_sweep_of_an_integer_setting_shows_whole_numbers(page, api):
+def test_sweep_of_an_integer_setting_shows_whole_numbers(fresh_page, api):
+    page = fresh_page
     open_detail(page, uploaded_scene(api))
     page.select_option("#sweep-param", "min_matches")
     page.fill("#sweep-lo", "4")
@@ -1787,9 +1811,10 @@ def test_the_new_signs_id_follows_the_image_chosen_unless_typed(page, api, exit_
     page.keyboard.press("Escape")
 
 
-def test_a_next_signs_image_chosen_while_one_is_added_is_kept(page, api, exit_sign):
+def test_a_next_signs_image_chosen_while_one_is_added_is_kept(fresh_page, api, exit_sign):
     """The form was cleared when the server took a sign, and with it a next sign's image and id
     chosen while the first was being sent."""
+    page = fresh_page
     next_image = exit_sign.with_name("IMG_4031.png")
     next_image.write_bytes(exit_sign.read_bytes())
     page.click("#library-open")
@@ -1830,9 +1855,10 @@ def test_a_library_answered_after_a_newer_one_is_not_shown(page, api, exit_sign)
         assert page.locator('#expected option[value="exit_sign"]').count() == 0
 
 
-def test_an_image_named_in_arabic_gets_an_id_and_every_refused_add_says_why(page, api, tmp_path):
+def test_an_image_named_in_arabic_gets_an_id_and_every_refused_add_says_why(fresh_page, api, tmp_path):
     """An image named مخرج.png got an empty id, and *add* then did nothing but show the browser's
     required-field bubble; a copy of a sign already there was taken, and neither was recognised again."""
+    page = fresh_page
     copy = tmp_path / "مخرج.png"
     copy.write_bytes((SAMPLE_LIBRARY / "security_compound.png").read_bytes())
     page.click("#library-open")
@@ -2009,9 +2035,10 @@ def test_removing_photos_one_by_one_after_dropping_an_outlier_keeps_saying_why_t
     assert page.is_disabled("#calib-apply") and page.is_disabled("#calib-yaml")
 
 
-def test_a_photo_of_another_size_is_flagged_before_any_run(page, api, tmp_path, no_camera):
+def test_a_photo_of_another_size_is_flagged_before_any_run(fresh_page, api, tmp_path, no_camera):
     """A photo of another size was marked "found" and the summary said "run the calibration", but
     every run failed with a toast: the card and the summary say so first, and no run is tried."""
+    page = fresh_page
     images, _ = render_boards(4)
     images.insert(1, cv2.resize(images[1], (800, 600)))
     photos = [tmp_path / f"size{i}.png" for i in range(len(images))]
@@ -2137,7 +2164,8 @@ def test_assumed_field_of_view_and_typed_intrinsics(page, api, no_camera):
         "source": "", "kind": "typed"}
 
 
-def test_typed_intrinsics_say_where_their_distortion_comes_from(page, api, no_camera):
+def test_typed_intrinsics_say_where_their_distortion_comes_from(fresh_page, api, no_camera):
+    page = fresh_page
     api.put("/api/camera", json={"fx": 600, "fy": 600, "cx": 320, "cy": 240, "dist": [-0.2, 0.05, 0, 0, 0],
                                  "width": 640, "height": 480}).raise_for_status()
     page.wait_for_function("() => document.querySelector('#camera-info').textContent.includes('typed in')")
@@ -2176,12 +2204,13 @@ WINDOW_FIELDS = {"#typed-fx": "554", "#typed-fy": "554", "#typed-cx": "640", "#t
                  "#typed-binning_x": "2", "#typed-binning_y": "2"}
 
 
-def test_typed_intrinsics_of_part_of_a_sensor_as_camera_files_give_them(page, api, no_camera):
+def test_typed_intrinsics_of_part_of_a_sensor_as_camera_files_give_them(fresh_page, api, no_camera):
     """The typed intrinsics could not say that the images are part of the sensor their matrix is for
     (ROS's roi and binning, which camera files and PUT /api/camera take), and a camera loaded with
     them was filled in as its images' intrinsics: applied again from the form, it lost its roi. The
     form has them, filled in as the camera's file gives them, and applied unchanged they give the
     same camera."""
+    page = fresh_page
     api.put("/api/camera", json=SENSOR | WINDOW).raise_for_status()
     given = api.get("/api/camera/file").json()
     page.click("#camera-open")
@@ -2387,7 +2416,8 @@ def assert_toast_on_top(page, toast) -> None:
     toast.wait_for(state="detached")
 
 
-def test_toasts_show_above_the_camera_dialog(page, api, no_camera):
+def test_toasts_show_above_the_camera_dialog(fresh_page, api, no_camera):
+    page = fresh_page
     page.click("#camera-open")
     page.wait_for_function("() => document.querySelector('#board-rows').value !== ''")
     page.fill("#board-square", "0")
@@ -2431,7 +2461,8 @@ def test_assumed_fov_note_uses_the_exif_35mm_convention(page, api, no_camera):
     assert math.degrees(2 * math.atan(320 / f)) == pytest.approx(60, abs=1)
 
 
-def test_calibration_summary_counts_one_photo(page, api, tmp_path, no_camera):
+def test_calibration_summary_counts_one_photo(fresh_page, api, tmp_path, no_camera):
+    page = fresh_page
     photo = tmp_path / "board.png"
     cv2.imwrite(str(photo), render_boards(1)[0][0])
     page.click("#camera-open")

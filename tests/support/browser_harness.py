@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import httpx
+import pytest
 from tests.support.serving import wait_idle
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -92,8 +93,6 @@ def scene_nodes(frame, prefix: str) -> dict[str, dict]:
 
 def skip_without_chromium() -> None:
     if not CHROMIUM.exists():
-        import pytest
-
         pytest.skip(f"{CHROMIUM} not found: install Debian's chromium to run the browser tests")
 
 
@@ -134,6 +133,49 @@ def close_page(page) -> None:
     errors = page.errors
     page.close()
     assert not errors, f"uncaught errors in the page: {errors}"
+
+
+FAILED = pytest.StashKey[bool]()
+
+
+class SharedPage:
+    """One page of the tool for a module's tests, set back between them to what a test may assume
+    of a page it did not open: no request routed, the first viewport, no dialog open, the page
+    scrolled to the top, no message (toast) on show, no errors collected. The detail shown and the server's state carry over,
+    as they do for a person who keeps the tab open."""
+
+    def __init__(self, browser, base: str) -> None:
+        self.browser, self.base = browser, base
+        self.page = None
+
+    def take(self):
+        if self.page is None or self.page.is_closed():
+            self.page = open_page(self.browser, self.base)
+            return self.page
+        page = self.page
+        page.unroute_all(behavior="ignoreErrors")
+        page.set_viewport_size(VIEWPORT)
+        if page.url.split("#")[0].rstrip("/") != self.base:
+            page.goto(f"{self.base}/")
+            page.wait_for_selector("#settings-form .field")
+        page.evaluate("""() => { for (const d of document.querySelectorAll('dialog[open]')) d.close();
+                                 for (const t of document.querySelectorAll('.toast')) t.remove();
+                                 document.activeElement?.blur(); window.scrollTo(0, 0); }""")
+        return page
+
+    def give_back(self, *, failed: bool) -> None:
+        """After a test: fails it if the page collected errors; a page a test failed on is not reused."""
+        page, errors = self.page, list(self.page.errors) if self.page is not None else []
+        if page is not None and (failed or errors or page.is_closed()):
+            self.close()
+        elif page is not None:
+            page.errors.clear()
+        assert not errors, f"uncaught errors in the page: {errors}"
+
+    def close(self) -> None:
+        if self.page is not None and not self.page.is_closed():
+            self.page.close()
+        self.page = None
 
 
 def upload(page, files: list[Path], expected: str = "") -> None:
