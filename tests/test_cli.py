@@ -11,6 +11,7 @@ import signal
 import struct
 import subprocess
 import sys
+import tempfile
 import termios
 import time
 import tomllib
@@ -410,11 +411,22 @@ def on_a_terminal(*args: object, cwd=ROOT, stdout_too: bool = False) -> tuple[su
     piped, or on the terminal too when `stdout_too`) and the terminal's end to read from (`terminal_output`)."""
     terminal, stderr = pty.openpty()
     fcntl.ioctl(stderr, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))  # 24 x 100 (new ones are 0 x 0)
+    # stdout into a file, not a pipe: a test reading the terminal to its end first would wait forever
+    # on a command blocked writing more than a pipe holds (64 KB).
+    written = None if stdout_too else tempfile.TemporaryFile("w+")
     proc = subprocess.Popen([sys.executable, "-m", "signpose.app.cli", *map(str, args)], cwd=cwd,
-                            stdout=stderr if stdout_too else subprocess.PIPE, stderr=stderr, text=True,
+                            stdout=stderr if stdout_too else written, stderr=stderr, text=True,
                             start_new_session=True)
+    proc.written = written  # type: ignore[attr-defined]
     os.close(stderr)
     return proc, terminal
+
+
+def stdout_of(proc: subprocess.Popen, timeout: float = 300) -> str:
+    """What an `on_a_terminal` command wrote on its stdout, once it has ended."""
+    proc.wait(timeout=timeout)
+    proc.written.seek(0)  # type: ignore[attr-defined]
+    return proc.written.read()  # type: ignore[attr-defined]
 
 
 def terminal_output(terminal: int) -> str:
@@ -487,7 +499,7 @@ def test_synth_then_evaluate_report_with_progress_bars_on_a_terminal_only(tmp_pa
     row = next(line.split() for line in result.stdout.splitlines() if line.startswith("scenes "))
     assert row[1] == "4" and int(row[2]) >= 3  # images, correct
     proc, terminal = on_a_terminal("evaluate", data, "--workers", 2)
-    out, _ = proc.communicate(timeout=300)
+    out = stdout_of(proc)
     assert proc.returncode == 0 and "4/4" in terminal_output(terminal)  # the progress bar reached the end
     assert any(line.startswith("scenes ") for line in out.splitlines())
 
@@ -618,7 +630,7 @@ def test_ctrl_c_stops_evaluate_and_its_workers_with_one_line(tmp_path):
     proc, terminal = evaluate_under_way(tmp_path)
     # Ctrl-C in a terminal reaches the whole process group: the CLI and its worker processes.
     os.killpg(proc.pid, signal.SIGINT)
-    proc.communicate(timeout=30)
+    proc.wait(timeout=30)
     err = terminal_output(terminal)
     assert proc.returncode == 130
     assert re.search(r"signpose evaluate: interrupted after \d+ of 200 images", err) and "Traceback" not in err
@@ -636,7 +648,7 @@ def test_sigterm_or_sighup_stop_evaluate_and_its_workers_as_ctrl_c_does(tmp_path
     os.kill(proc.pid, signum)
     proc.wait(timeout=30)
     assert left_running(helpers) == []
-    out, _ = proc.communicate(timeout=30)
+    out = stdout_of(proc, 30)
     err = terminal_output(terminal)
     assert proc.returncode == 128 + signum
     said = re.search(rf"signpose evaluate: stopped by {signal.Signals(signum).name} after (\d+) of 200 images", err)
@@ -681,7 +693,7 @@ def test_recognize_json_draws_its_progress_bar_between_whole_lines():
     images = sorted(SCENES.glob("*.jpg"))[:12]
     proc, terminal = on_a_terminal("recognize", *images, "--json")
     bar = terminal_output(terminal)  # read as it comes: a terminal nobody reads fills up, and its writer waits
-    assert len(proc.communicate(timeout=300)[0].splitlines()) == 12 and "/12 [" in bar
+    assert len(stdout_of(proc).splitlines()) == 12 and "/12 [" in bar
     proc, terminal = on_a_terminal("recognize", *images, "--json", stdout_too=True)
     # What is left of each terminal line: what was written after its last carriage return.
     shown = [line.rpartition("\r")[2] for line in terminal_output(terminal).split("\r\n")]
