@@ -72,8 +72,11 @@ def shared_page(browser, base):
 
 
 @pytest.fixture
-def fresh_page(browser, base):
-    """A page of its own, for a test that leaves listeners on it (dialogs, file choosers)."""
+def fresh_page(browser, base, shared_page):
+    """A page of its own, for a test that needs one just loaded or leaves listeners on it (dialogs,
+    file choosers). The shared page is closed first: what it holds open (a dialog, a request on its
+    way) would act on the server beside the test's page."""
+    shared_page.close()
     page = harness.open_page(browser, base)
     yield page
     harness.close_page(page)
