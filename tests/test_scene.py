@@ -674,10 +674,11 @@ def test_the_map_world_draws_every_mapped_sign_in_place_its_uncertainty_and_the_
     maps = SignMaps(publish=workspace.publish)
     handle = attach(server, workspace, sign_maps=maps)
     try:
-        wait_for(lambda: len(handle.cameras) == len(POSITIVES))
+        wait_for(lambda: len(handle.cameras) == len(POSITIVES), timeout=IDLE_TIMEOUT_S)
         assert MAP_WORLD not in handle.world.options   # no map held: no map world
         maps.hold_file(sign_map, "test.yaml")
-        wait_for(lambda: handle.world.value == MAP_WORLD and len(handle.map_layer.cameras) == len(POSITIVES))
+        wait_for(lambda: handle.world.value == MAP_WORLD and len(handle.map_layer.cameras) == len(POSITIVES),
+                 timeout=IDLE_TIMEOUT_S)
         layer = handle.map_layer
         assert layer.root.visible and not any(n.frame.visible for n in handle.signs.values())
         for sign_id, (R, position) in poses.items():
@@ -692,7 +693,7 @@ def test_the_map_world_draws_every_mapped_sign_in_place_its_uncertainty_and_the_
             np.testing.assert_allclose(frustum.position, R @ in_sign + position, atol=0.01)
             assert camera.signs_used == (rec.label,)
         maps.clear()
-        wait_for(lambda: MAP_WORLD not in handle.world.options and not layer.signs)
+        wait_for(lambda: MAP_WORLD not in handle.world.options and not layer.signs, timeout=IDLE_TIMEOUT_S)
     finally:
         handle.close()
         server.stop()
