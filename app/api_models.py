@@ -420,3 +420,51 @@ class FlightFramesOut(BaseModel):
 
 class FlightCursorIn(BaseModel):
     frame: WholeNumber = Field(ge=0, description="the frame shown, from 0")
+
+
+class MappedSignOut(BaseModel):
+    """One sign of the map held: X_map = R(orientation_wxyz)·X_sign + position_m (metres); `covariance`
+    6x6 in ROS order (x, y, z, rotation about the map's x, y, z) or null; `sigma_position_m` and
+    `sigma_rotation_deg`, its 1-sigma along its worst direction (null without a covariance). A map
+    built here adds how the survey saw the sign: `fixed` ("anchor", else null), `images` that saw it
+    and `seen_with` (the other signs in them, and in how many)."""
+
+    id: str
+    position_m: list[float]
+    orientation_wxyz: list[float]
+    yaw_pitch_roll_deg: list[float]
+    covariance: list[list[float]] | None
+    sigma_position_m: float | None
+    sigma_rotation_deg: float | None
+    fixed: str | None = None
+    images: int | None = None
+    seen_with: dict[str, int] | None = None
+
+
+class RejectedOut(BaseModel):
+    """An observation a build left out as inconsistent: `image` (a photo's or flight frame's name), its
+    `sign` and its whitened squared residual `chi2`."""
+
+    image: str
+    sign: str
+    chi2: float
+
+
+class MapOut(BaseModel):
+    """The sign map held: its `frame` id, `source` (the file's name, or what it was built from),
+    `revision` (+1 on every change), `signs`, and for a map built here the observations `rejected`,
+    the signs left out (`unmapped`: id -> why) and `warnings` (photos that could not be run)."""
+
+    frame: str
+    source: str
+    revision: int
+    signs: list[MappedSignOut]
+    rejected: list[RejectedOut] = []
+    unmapped: dict[str, str] = {}
+    warnings: list[str] = []
+
+
+class MapBuildIn(BaseModel):
+    """`anchor`: the library sign whose frame is the map frame (null: the first sign seen)."""
+
+    anchor: str | None = Field(default=None, max_length=64)

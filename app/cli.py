@@ -660,6 +660,7 @@ def cmd_serve(args) -> int:
         state_dir=Path(args.state_dir), library_dir=Path(args.library) if args.library else None,
         camera_file=Path(args.camera) if args.camera else None,
         settings_file=Path(args.settings) if args.settings else None,
+        map_file=Path(args.map) if args.map else None,
         max_images=args.max_images, max_pixels=max_pixels(args), max_memory_bytes=round(args.max_memory_gb * 1e9),
         max_upload_bytes=round(args.max_upload_mb * 1e6), request_timeout_s=args.request_timeout,
         max_flight_upload_bytes=round(args.max_flight_mb * 1e6), max_flight_frames=args.max_flight_frames,
@@ -673,7 +674,7 @@ def cmd_serve(args) -> int:
     share_cores(config.workers)  # process-wide, so here where the serving process starts
     try:
         app = create_app(config, token=token)
-    except (StateError, SettingsError, CameraError, LibraryError) as exc:
+    except (StateError, SettingsError, CameraError, LibraryError, MapError) as exc:
         sock.close()
         raise CliError(str(exc)) from None
     workspace = app.state.workspace
@@ -877,6 +878,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="settings JSON to start from (full or partial, over the defaults); they become the state's "
                         "settings, and settings the state held that differ (e.g. tuned in the page) are kept as "
                         "settings.replaced-<UTC time>.json in the state directory (default: the state's settings)")
+    p.add_argument("--map", type=file_path, metavar="FILE",
+                   help="a sign map file (YAML or JSON, docs/map.md) to hold from the start: the 3D scene's map "
+                        "world shows it (default: none; one can be loaded or built in the page)")
     p.add_argument("--state-dir", default=str(WorkspaceConfig.state_dir),
                    help="where settings, library, camera and images survive restarts (default ./%(default)s)")
     p.add_argument("--max-images", type=positive_int, default=WorkspaceConfig.max_images,

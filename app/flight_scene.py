@@ -149,37 +149,57 @@ class FlightLayer:
                 self._show_cursor(flight, nodes)
 
     def _show_cursor(self, flight: Flight, nodes: FlightNodes) -> None:
-        cursor = flight.cursor
-        if nodes.cursor == cursor:
-            return
-        nodes.cursor = cursor
-        seen = nodes.by_frame.get(cursor)
-        if seen is None:
-            nodes.current.visible = False
-            return
-        with self.server.atomic():
-            nodes.current.position, nodes.current.wxyz = seen.position, seen.wxyz
-            if cursor < len(flight.jpegs):
-                frame = cv2.imdecode(np.frombuffer(flight.jpegs[cursor], np.uint8), cv2.IMREAD_COLOR)
-                nodes.current.image = cv2.cvtColor(fit_width(frame, THUMBNAIL_WIDTH_PX), cv2.COLOR_BGR2RGB)
-            nodes.current.visible = True
+        show_current(self.server, flight, nodes)
 
     def _add(self, flight: Flight, label: str, seen: list[Seen], library: Library, photo_width_m: float) -> FlightNodes:
-        root = f"/signs/{label}/flights/{flight.id}"
-        color = label_rgb(library, label)
-        scene = self.server.scene
-        trajectory = scene.add_line_segments(f"{root}/trajectory", trajectory_segments(seen), color,
-                                             thickness=3.0, thickness_units="screen")
-        fov, aspect = frustum_of(flight)
-        scale = frustum_scale(fov, aspect, photo_width_m)
-        every = max(1, round(FRUSTUM_EVERY_S * (flight.fps or DEFAULT_FPS)))
-        frusta = [scene.add_camera_frustum(f"{root}/frusta/{s.frame}", fov, aspect, scale=TRAIL_SCALE * scale,
-                                           color=color, thickness=1.0, thickness_units="screen",
-                                           position=s.position, wxyz=s.wxyz)
-                  for s in seen if s.frame % every == 0]
-        current = scene.add_camera_frustum(f"{root}/current", fov, aspect, scale=scale, color=CURRENT_RGB,
-                                           thickness=3.0, thickness_units="screen", visible=False)
-        return FlightNodes(flight.result_version, trajectory, frusta, current, {s.frame: s for s in seen})
+        return add_flight_nodes(self.server, f"/signs/{label}/flights/{flight.id}", flight, seen,
+                                label_rgb(library, label), photo_width_m)
+
+
+def add_flight_nodes(server: viser.ViserServer, root: str, flight: Flight, seen: list[Seen],
+                     color: tuple[int, int, int], photo_width_m: float) -> FlightNodes:
+    """The flight's cameras `seen` drawn under `root`: its trajectory and a frustum every FRUSTUM_EVERY_S
+    in `color`, and the current camera (hidden until `show_current` places it)."""
+    scene = server.scene
+    trajectory = scene.add_line_segments(f"{root}/trajectory", trajectory_segments(seen), color,
+                                         thickness=3.0, thickness_units="screen")
+    fov, aspect = frustum_of(flight)
+    scale = frustum_scale(fov, aspect, photo_width_m)
+    every = max(1, round(FRUSTUM_EVERY_S * (flight.fps or DEFAULT_FPS)))
+    frusta = [scene.add_camera_frustum(f"{root}/frusta/{s.frame}", fov, aspect, scale=TRAIL_SCALE * scale,
+                                       color=color, thickness=1.0, thickness_units="screen",
+                                       position=s.position, wxyz=s.wxyz)
+              for s in seen if s.frame % every == 0]
+    current = scene.add_camera_frustum(f"{root}/current", fov, aspect, scale=scale, color=CURRENT_RGB,
+                                       thickness=3.0, thickness_units="screen", visible=False)
+    return FlightNodes(flight.result_version, trajectory, frusta, current, {s.frame: s for s in seen})
+
+
+def show_current(server: viser.ViserServer, flight: Flight, nodes: FlightNodes) -> None:
+    """Move `nodes`' current camera to the flight's cursor, with that frame on it; hidden on a frame it did
+    not see."""
+    cursor = flight.cursor
+    if nodes.cursor == cursor:
+        return
+    nodes.cursor = cursor
+    seen = nodes.by_frame.get(cursor)
+    if seen is None:
+        nodes.current.visible = False
+        return
+    with server.atomic():
+        nodes.current.position, nodes.current.wxyz = seen.position, seen.wxyz
+        image = frame_thumbnail(flight, cursor)
+        if image is not None:
+            nodes.current.image = image
+        nodes.current.visible = True
+
+
+def frame_thumbnail(flight: Flight, index: int) -> np.ndarray | None:
+    """Frame `index` of the flight as an RGB thumbnail for a frustum (THUMBNAIL_WIDTH_PX wide at most);
+    None when its JPEG is not kept."""
+    if not 0 <= index < len(flight.jpegs):
+        return None
+    return fit_width(cv2.imdecode(np.frombuffer(flight.jpegs[index], np.uint8), cv2.IMREAD_COLOR), THUMBNAIL_WIDTH_PX)
 
 
 def frustum_of(flight: Flight) -> tuple[float, float]:

@@ -73,7 +73,8 @@ class Flight:
     its own camera file, if one came with it. The rest is its processing's state, guarded by `Flights`'
     lock: `status` (STATUSES), `done` of `total` frames (None: not known), `error`, `warnings`, the
     `records` of the last complete run (`signpose track --json` lines), each frame's `stamps` (ns
-    since the epoch, a bag's) and `jpegs`, the `intrinsics` the tracker used, `fps`, the `generation`
+    since the epoch, a bag's) and `jpegs`, the camera the tracker used (`tracked_camera`, and its `intrinsics`
+    for the page), `fps`, the `generation`
     (workspace snapshot) the records are of (-1: none yet) and `result_version`, new on each run's end."""
 
     id: str
@@ -94,6 +95,7 @@ class Flight:
     stamps: list[int | None] = field(default_factory=list, repr=False)
     jpegs: list[bytes] = field(default_factory=list, repr=False)
     intrinsics: dict | None = None
+    tracked_camera: Camera | None = None
     fps: float | None = None
     generation: int = -1
     result_version: int = 0
@@ -364,9 +366,8 @@ class Flights:
         if outcome is None:
             return   # stopped: it runs again under the newer state
         records, stamps, jpegs, error = outcome
-        intrinsics = camera_json(tracker.camera) if tracker.camera is not None else None
         self._finish(flight, snap.generation, records=records, stamps=stamps, jpegs=jpegs, warnings=warnings,
-                     intrinsics=intrinsics, error=error)
+                     camera=tracker.camera, error=error)
 
     def _track(self, flight: Flight, snap: Snapshot, source: FrameSource, tracker: Tracker, warnings: list[str],
                ) -> tuple[list[dict], list[int | None], list[bytes], str | None] | None:
@@ -409,14 +410,15 @@ class Flights:
 
     def _finish(self, flight: Flight, generation: int, *, records: list[dict] | None = None,
                 stamps: list[int | None] | None = None, jpegs: list[bytes] | None = None,
-                warnings: list[str] | None = None, intrinsics: dict | None = None, error: str | None = None) -> None:
+                warnings: list[str] | None = None, camera: Camera | None = None, error: str | None = None) -> None:
         with self._lock:
             flight.generation = generation
             flight.error = error
             if records:
                 flight.records, flight.stamps = records, stamps or []
                 flight.jpegs = jpegs or []
-                flight.intrinsics = intrinsics
+                flight.tracked_camera = camera
+                flight.intrinsics = camera_json(camera) if camera is not None else None
                 flight.warnings = warnings or []
                 flight.total = len(records)
                 flight.cursor = min(flight.cursor, len(records) - 1)

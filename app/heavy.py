@@ -1,5 +1,5 @@
-"""The queue that heavy requests wait in: sweeps, single-image recognition, threshold calibration
-and chessboard calibration runs (docs/security.md lists the routes).
+"""The queue that heavy requests wait in: sweeps, single-image recognition, threshold calibration,
+chessboard calibration runs, flight exports and map builds (docs/security.md lists the routes).
 
 Each of those holds a thread for seconds to minutes. Run in the AnyIO thread pool that serves
 every plain `def` route, a few dozen of them at once (another site's page firing `<img>` tags at a

@@ -15,15 +15,13 @@ from signpose.pipeline.every_sign import recognize_every_sign
 from signpose.pipeline.frames import FrameSource, ImageSource, SourceError, open_source
 from signpose.pipeline.image import ImageError, read_file
 from signpose.pipeline.library import SAMPLE_LIBRARY, Library
-from signpose.pipeline.map_build import MapBuildError, Observation, build_map, format_report, observations_of
+from signpose.pipeline.map_build import (FLIGHT_STEP, MapBuildError, Observation, build_map, format_report,
+                                        observations_of, takes_frame)
 from signpose.pipeline.recognize import PipelineError
 from signpose.pipeline.settings import PRESETS, Settings
 from signpose.pipeline.sign_map import MapError, load_sign_map, save_sign_map, sign_map_yaml
 from signpose.pipeline.track import Tracker
 
-# A flight's frames close in time see a sign with nearly the same errors, which the pose graph would
-# count as independent: one frame in this many is taken, besides every frame that links two signs.
-FLIGHT_STEP = 10
 # A survey folder may carry these beside its photos; used unless --camera or --library is given.
 SURVEY_CAMERA, SURVEY_LIBRARY = "camera.yaml", "library"
 
@@ -169,6 +167,5 @@ def flight_observations(source: FrameSource, library: Library, settings: Setting
             result = tracker.step(frame.image, index=frame.index, time_s=frame.time_s)
         except CameraError as exc:
             raise CliError(f"{source.name}: {exc}") from None
-        linking = len(result.signs) >= 2
         yield 1, (observations_of(f"{source.name}#{frame.index}", result.signs)
-                  if linking or frame.index % step == 0 else [])
+                  if takes_frame(frame.index, len(result.signs), step) else [])

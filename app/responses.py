@@ -5,16 +5,20 @@ summary and the settings it names come from the same run.
 
 from __future__ import annotations
 
+import math
+
 from fastapi import HTTPException, status
 
 from signpose.pipeline.calibrate import MAX_SQUARE_M, MIN_VIEWS
 from signpose.pipeline.camera import Camera, CameraError
 from signpose.pipeline.exif import turned_camera
+from signpose.pipeline.pose import euler_zyx_deg, quaternion_wxyz
 
-from .api_models import (AttemptOut, BoardSearchOut, BoardSpec, CalibrationOut, CalibrationResult, CalibrationView,
+from .api_models import (MappedSignOut, MapOut, RejectedOut, AttemptOut, BoardSearchOut, BoardSpec, CalibrationOut, CalibrationResult, CalibrationView,
                          CameraIntrinsics, CameraOut, ImageDetail, ImageSummary, SettingsOut)
 from .calibration import CalibrationSession, CalibrationState, calibrated_camera, page_outlier_advice
 from .image_store import ImageRecord, Outcome, status_of
+from .sign_maps import HeldMap
 from .workspace import Workspace
 
 
@@ -137,3 +141,28 @@ def calibration_out(calibration: CalibrationSession, state: CalibrationState) ->
                           board=BoardSpec(cols=state.board[0], rows=state.board[1], square_m=state.square_m),
                           search=None if search is None else BoardSearchOut(**search.to_json()),
                           result=result, unfitted=state.unfitted, size_mismatch=state.size_mismatch)
+
+
+def map_out(held: HeldMap) -> MapOut:
+    """The map held as GET /api/map gives it: each sign's pose, covariance and worst-direction 1-sigma,
+    and for a map built here how the survey saw each sign and what it rejected."""
+    build = held.build
+    signs = []
+    for sign in held.sign_map.signs.values():
+        sigma = sign.worst_sigma()
+        report = build.reports.get(sign.sign_id) if build is not None else None
+        signs.append(MappedSignOut(
+            id=sign.sign_id, position_m=[float(v) for v in sign.position_m],
+            orientation_wxyz=[float(v) for v in quaternion_wxyz(sign.R)],
+            yaw_pitch_roll_deg=[float(v) for v in euler_zyx_deg(sign.R)],
+            covariance=None if sign.covariance is None else sign.covariance.tolist(),
+            sigma_position_m=None if sigma is None else sigma[0],
+            sigma_rotation_deg=None if sigma is None else math.degrees(sigma[1]),
+            fixed=report.fixed if report is not None else None, images=report.images if report is not None else None,
+            seen_with=report.seen_with if report is not None else None))
+    rejected = [] if build is None else [
+        RejectedOut(image=held.names.get(r.observation.image, r.observation.image), sign=r.observation.sign_id,
+                    chi2=r.chi2) for r in build.rejected]
+    return MapOut(frame=held.sign_map.frame, source=held.source, revision=held.revision, signs=signs,
+                  rejected=rejected, unmapped=dict(build.unmapped) if build is not None else {},
+                  warnings=list(held.warnings))

@@ -8,7 +8,9 @@ axes, so Rᵀ goes to viser unchanged (as a wxyz quaternion).
 
 Different signs cannot share one world (they all sit at the origin), so the scene keeps one
 subtree per recognised sign under ``/signs/<sign id>`` and a "Sign world" dropdown shows one of
-them at a time; the default is the sign with the most recognised images.
+them at a time; the default is the sign with the most recognised images. A sign map held
+(app/sign_maps.py) adds one more world, MAP_WORLD, every mapped sign in place (app/map_scene.py),
+shown as soon as a map comes to be held.
 
 Workspace events arrive on worker threads; they only mark the scene dirty, and one redraw thread
 brings the viser scene up to date at most every `REDRAW_INTERVAL_S`. A viewer's view moving marks
@@ -44,6 +46,8 @@ from signpose.pipeline.settings import Settings, SettingsError, settings_schema
 if TYPE_CHECKING:
     from signpose.app.flight_scene import FlightLayer
     from signpose.app.flights import Flights
+    from signpose.app.map_scene import MapLayer
+    from signpose.app.sign_maps import SignMaps
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +66,9 @@ AMBIGUOUS_RGB = (230, 30, 30)
 LABEL_RGB = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (148, 103, 189),
              (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207))
 NO_WORLD = "(no sign recognised)"
+# The world of the sign map held (app/map_scene.py): every mapped sign in place. Not a sign id (those
+# have no parentheses or spaces).
+MAP_WORLD = "(sign map)"
 # `status_of`'s statuses as the page's top bar words them ("correct" shows as correct/labelled).
 STATUS_WORDS = {"wrong": "wrong", "recognized": "recognised (unlabelled)", "none": "no sign (unlabelled)",
                 "pending": "pending", "error": "error"}
@@ -540,6 +547,10 @@ class SceneHandle:
     # the (id, result_version) of the flights held, last seen in `_flight_runs`, change.
     flight_layer: FlightLayer | None = None
     _flight_runs: tuple = ()
+    # The sign map's world (app/map_scene.py), None for a scene without a map holder; `_show_map` is
+    # set when a map comes to be held, which the next redraw then shows.
+    map_layer: MapLayer | None = None
+    _show_map: bool = False
 
     # ---- lifecycle
 
@@ -601,6 +612,8 @@ class SceneHandle:
             if runs == self._flight_runs:
                 return
             self._flight_runs = runs
+        if event.kind == "map":
+            self._show_map = self.map_layer is not None and self.map_layer.held is not None
         if event.kind == "results":
             self._progress = event.payload
         elif event.kind == "library":
@@ -635,12 +648,16 @@ class SceneHandle:
         log.info("upload refused: %s", why)
 
     def _follow_cursor(self, flight_id: str) -> None:
-        """Move the flight's current frustum to the frame the page shows, in the world of a sign that
-        frame sees (switching worlds when the one shown does not see it)."""
+        """Move the flight's current frustum to the frame the page shows, in the map world and in the
+        world of a sign that frame sees (switching worlds when the one shown is a sign's that does not see it)."""
         if self.flight_layer is None:
             return
         with self._lock:
+            if self.map_layer is not None:
+                self.map_layer.show_cursor(flight_id)
             self.flight_layer.show_cursor(flight_id)
+            if self.world.value == MAP_WORLD:
+                return
             worlds = self.flight_layer.cursor_labels(flight_id)
             if worlds and self.world.value not in worlds and worlds[0] in self.world.options:
                 self.world.value = worlds[0]  # type: ignore[misc]
@@ -650,6 +667,8 @@ class SceneHandle:
         with self._lock:
             for sign_id, nodes in self.signs.items():
                 nodes.frame.visible = sign_id == self.world.value
+            if self.map_layer is not None:
+                self.map_layer.root.visible = self.world.value == MAP_WORLD
             for nodes in self.cameras.values():
                 nodes.matches.visible = self.show_matches.value
             self._frame_world()
@@ -663,6 +682,9 @@ class SceneHandle:
     def _overview(self, fov_rad: float, aspect: float) -> tuple[np.ndarray, np.ndarray] | None:
         """`overview_camera` of the shown sign and its cameras; None without a sign. The caller
         holds the lock."""
+        if self.world.value == MAP_WORLD and self.map_layer is not None:
+            mapped = self.map_layer.points()
+            return overview_camera(np.vstack(mapped), fov_rad, aspect) if mapped else None
         sign = self.signs.get(self.world.value)
         if sign is None:
             return None
@@ -840,6 +862,8 @@ class SceneHandle:
                 self._remove_cameras(set(self.cameras))
                 if self.flight_layer is not None:
                     self.flight_layer.clear()
+                if self.map_layer is not None:
+                    self.map_layer.clear()
                 self._remove_signs(set(self.signs))
             if self.flight_layer is not None:
                 self.flight_layer.prune(library)
@@ -858,6 +882,8 @@ class SceneHandle:
                     self._draw_camera(record, rec, library)
             if self.flight_layer is not None:
                 self.flight_layer.draw(library, self.frustum_width.value, redraw_all=stale_geometry)
+            if self.map_layer is not None:
+                self.map_layer.draw(library, shown, self.frustum_width.value, redraw_all=stale_geometry)
             self._choose_world(counts)
             self._shown = shown
             self._share_labels(shown)   # laid out in the views as framed for the world chosen
@@ -908,26 +934,20 @@ class SceneHandle:
             self.signs.pop(sign_id).remove()
 
     def _choose_world(self, counts: Counter) -> None:
-        options = tuple(sorted(counts)) or (NO_WORLD,)
+        mapped = self.map_layer is not None and self.map_layer.held is not None
+        options = (*sorted(counts), *((MAP_WORLD,) if mapped else ())) or (NO_WORLD,)
         if tuple(self.world.options) != options:
             keep = self.world.value if self.world.value in options else None
             self.world.options = options
-            self.world.value = keep or (counts.most_common(1)[0][0] if counts else NO_WORLD)  # type: ignore[misc]
-        self.world.disabled = not counts
+            self.world.value = keep or (counts.most_common(1)[0][0] if counts else options[0])  # type: ignore[misc]
+        if self._show_map and mapped:
+            self.world.value = MAP_WORLD  # type: ignore[misc]
+        self._show_map = False
+        self.world.disabled = options == (NO_WORLD,)
         self._on_view_option()
 
     def _add_sign(self, sign: LibrarySign) -> SignNodes:
-        root = f"/signs/{sign.id}"
-        size = max(sign.width_m, sign.height_m)
-        frame = self.server.scene.add_frame(root, axes_length=0.5 * size, axes_radius=0.01 * size,
-                                            visible=self.world.value == sign.id)
-        plane = self.server.scene.add_image(f"{root}/plane", fit_width(sign.image, SIGN_TEXTURE_MAX_WIDTH_PX),
-                                            sign.width_m, sign.height_m)
-        corners = sign.to_metric(sign.corners_px)
-        outline = self.server.scene.add_line_segments(
-            f"{root}/outline", np.stack([corners, np.roll(corners, -1, axis=0)], axis=1), OUTLINE_RGB,
-            thickness=2.0, thickness_units="screen")
-        return SignNodes(frame, plane, outline)
+        return add_sign_nodes(self.server, f"/signs/{sign.id}", sign, visible=self.world.value == sign.id)
 
     def _draw_camera(self, record: ImageRecord, rec: Recognition, library: Library) -> None:
         sign = library[rec.label]
@@ -967,6 +987,23 @@ class SceneHandle:
         image_id = record.id
         frustum.on_click(lambda event: self.view_from(image_id, event.client))
         return frustum
+
+
+def add_sign_nodes(server: viser.ViserServer, root: str, sign: LibrarySign, *, visible: bool = True,
+                   wxyz: np.ndarray | tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0),
+                   position: np.ndarray | tuple[float, float, float] = (0.0, 0.0, 0.0)) -> SignNodes:
+    """`sign` drawn at `root`: its frame's axes (at `position`, m, turned by `wxyz` in the parent's
+    frame), its image at its physical size and its outline."""
+    size = max(sign.width_m, sign.height_m)
+    frame = server.scene.add_frame(root, axes_length=0.5 * size, axes_radius=0.01 * size, visible=visible,
+                                   wxyz=wxyz, position=position)
+    plane = server.scene.add_image(f"{root}/plane", fit_width(sign.image, SIGN_TEXTURE_MAX_WIDTH_PX),
+                                   sign.width_m, sign.height_m)
+    corners = sign.to_metric(sign.corners_px)
+    outline = server.scene.add_line_segments(
+        f"{root}/outline", np.stack([corners, np.roll(corners, -1, axis=0)], axis=1), OUTLINE_RGB,
+        thickness=2.0, thickness_units="screen")
+    return SignNodes(frame, plane, outline)
 
 
 def matched_points(rec: Recognition, sign: LibrarySign) -> tuple[np.ndarray, np.ndarray]:
@@ -1036,10 +1073,12 @@ def fold_panel_in_small_view(client: viser.ClientHandle, css_width: float) -> No
         client.gui.main_panel.minimize()
 
 
-def attach(server: viser.ViserServer, workspace: Workspace, flights: Flights | None = None) -> SceneHandle:
+def attach(server: viser.ViserServer, workspace: Workspace, flights: Flights | None = None,
+           sign_maps: SignMaps | None = None) -> SceneHandle:
     """Add the sign/camera scene and the tuning GUI to `server` and keep both in step with `workspace`,
-    and with `flights`' trajectories when given."""
-    from signpose.app.flight_scene import FlightLayer   # it draws with this module's helpers
+    with `flights`' trajectories when given, and with the map `sign_maps` holds in a world of its own."""
+    from signpose.app.flight_scene import FlightLayer   # they draw with this module's helpers
+    from signpose.app.map_scene import MapLayer
 
     server.scene.set_up_direction("-y")  # y runs down the sign
     server.initial_camera.position = INITIAL_VIEW_POSITION_M
@@ -1049,7 +1088,8 @@ def attach(server: viser.ViserServer, workspace: Workspace, flights: Flights | N
     upload = gui.add_upload_button("Add image", icon=viser.Icon.UPLOAD, mime_type="image/*",
                                    hint="Recognise a photo and add it to the workspace")
     with gui.add_folder("View"):
-        world = gui.add_dropdown("Sign world", (NO_WORLD,), hint="Each sign is its own world: show this one",
+        world = gui.add_dropdown("Sign world", (NO_WORLD,), hint="Each sign is its own world: show this one, or "
+                                                                 f"{MAP_WORLD}: every mapped sign in place",
                                  disabled=True)
         show_matches = gui.add_checkbox("Inlier matches", True,
                                         hint="Lines from each inlier on the sign to its pixel on the photo")
@@ -1059,7 +1099,8 @@ def attach(server: viser.ViserServer, workspace: Workspace, flights: Flights | N
     panel = add_settings_panel(gui, workspace.settings, lambda changes, client: scene._apply_settings(changes, client))
     panel.version = workspace.settings_version
     scene = SceneHandle(server, workspace, panel, world, show_matches, frustum_width, status, upload,
-                        flight_layer=FlightLayer(server, flights) if flights is not None else None)
+                        flight_layer=FlightLayer(server, flights) if flights is not None else None,
+                        map_layer=MapLayer(server, sign_maps, flights) if sign_maps is not None else None)
     world.on_update(scene._on_world)
     show_matches.on_update(scene._on_view_option)
     frustum_width.on_update(scene._on_frustum_width)

@@ -6,11 +6,13 @@ viser relay; `bind` and `serve` run it with uvicorn. Routes are thin: they valid
 workspace or the pipeline off the event loop (plain `def` routes run in a thread pool, heavy work
 in the queue of app/heavy.py, 503 "busy" when it is full) and shape the answer
 (app/responses.py). Domain errors become 4xx with the pipeline's own message: SettingsError,
-CameraError, LibraryError, ImageError, CalibrationError, PipelineError, TuningError and FlightError
-422, ImageTooLarge, FlightTooLarge and oversized bodies 413 (app/uploads.py), Conflict 409, unknown
+CameraError, LibraryError, ImageError, CalibrationError, PipelineError, TuningError, FlightError and
+MapError 422, ImageTooLarge, FlightTooLarge and oversized bodies 413 (app/uploads.py), Conflict and
+MapBuildError (no map from the photos held) 409, unknown
 ids 404, pipeline work past the request time limit 503; requests that fail validation 422, as one `where: what` line that
 never echoes the input. app/security.py guards access and sets security headers. The camera
-calibration session (app/calibration.py) and the flights (app/flights.py) sit beside the Workspace
+calibration session (app/calibration.py), the flights (app/flights.py) and the sign map
+(app/sign_maps.py) sit beside the Workspace
 and reach the routes through their own dependencies.
 """
 
@@ -39,6 +41,8 @@ from signpose.pipeline.image import ImageError
 from signpose.pipeline.library import LibraryError
 from signpose.pipeline.recognize import PipelineError
 from signpose.pipeline.settings import SettingsError
+from signpose.pipeline.map_build import MapBuildError
+from signpose.pipeline.sign_map import MapError, load_sign_map
 
 from . import api
 from .calibration import CalibrationSession
@@ -47,6 +51,7 @@ from .heavy import WorkQueue
 from .image_store import Conflict, ImageTooLarge
 from .scene import attach as attach_scene
 from .security import DOCS_ASSETS, AccessGuard, SecurityHeaders
+from .sign_maps import SignMaps
 from .tuning import TuningError
 from .uploads import UploadLimit
 from .viser_proxy import PrivateViser, mount_viser
@@ -108,6 +113,15 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
     """
     workspace = source if isinstance(source, Workspace) else Workspace.open(source)
     owned = workspace is not source
+    sign_maps = SignMaps(publish=workspace.publish)
+    if workspace.config.map_file is not None:
+        try:
+            sign_maps.hold_file(load_sign_map(workspace.config.map_file, workspace.library.ids),
+                                workspace.config.map_file.name)
+        except MapError:
+            if owned:
+                workspace.close()
+            raise
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -115,7 +129,7 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
         with contextlib.redirect_stdout(io.StringIO()):
             private = PrivateViser.start()
         app.state.viser_socket = private.socket_path
-        scene = app.state.scene = attach_scene(private.server, workspace, flights)
+        scene = app.state.scene = attach_scene(private.server, workspace, flights, sign_maps)
         try:
             yield
         finally:
@@ -131,6 +145,7 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
                          summary="Recognise known planar signs and recover the camera pose; tune every step.")
     app.state.workspace = workspace
     app.state.scene = None   # until the lifespan attaches it
+    app.state.sign_maps = sign_maps
     app.state.calibration = CalibrationSession(workspace.config.max_pixels,
                                                publish=lambda payload: workspace.publish("calibration", payload))
     app.state.work_queue = WorkQueue(workers=workspace.config.workers)
@@ -148,7 +163,8 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
     app.add_middleware(SecurityHeaders)
     for error, code in ((SettingsError, 422), (CameraError, 422), (LibraryError, 422), (ImageError, 422),
                         (PipelineError, 422), (CalibrationError, 422), (TuningError, 422), (FlightError, 422),
-                        (ImageTooLarge, 413), (FlightTooLarge, 413), (Conflict, 409)):
+                        (MapError, 422), (ImageTooLarge, 413), (FlightTooLarge, 413), (Conflict, 409),
+                        (MapBuildError, 409)):
         app.add_exception_handler(error, _error_handler(code))
     app.add_exception_handler(RequestValidationError, _validation_error_handler)
     app.include_router(api.router)

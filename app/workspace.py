@@ -32,6 +32,7 @@ import numpy as np
 
 from signpose.pipeline.camera import Camera, CameraError, check_hfov, load_camera
 from signpose.pipeline.evaluate import CORES
+from signpose.pipeline.every_sign import recognize_every_sign
 from signpose.pipeline.exif import ExifCamera
 from signpose.pipeline.features import library_features
 from signpose.pipeline.image import ImageError
@@ -62,6 +63,7 @@ class WorkspaceConfig:
     library_dir: Path | None = None  # None: the state's library; on a fresh state the samples
     camera_file: Path | None = None  # None: the state's camera
     settings_file: Path | None = None  # None: the state's settings
+    map_file: Path | None = None  # a sign map to hold from the start (not kept in the state)
     load_samples: bool = True  # on a fresh state with the sample library, load sample_images/scenes
     max_images: int = 500
     max_pixels: int = 40_000_000
@@ -515,6 +517,28 @@ class Workspace:
         finally:
             self._rerun.trim_soon()
         return [[results[i] for results in per_image] for i in range(len(variants))]
+
+    def signs_in_view(self, records: list[ImageRecord], stop: threading.Event | None = None,
+                      ) -> list[list[Recognition] | None]:
+        """Every library sign in each of `records` under the current state (`recognize_every_sign`: the
+        recognitions of its searches, the last one without a sign), on the pipeline's pool; None for an
+        image that could not be run (the camera does not fit it, or the pipeline failed on it: its own
+        result says why). Setting `stop` (the caller gave up waiting) ends it early with TimeoutError."""
+        snap = self.snapshot
+
+        def run(record: ImageRecord) -> list[Recognition] | None:
+            if stop is not None and stop.is_set():
+                raise TimeoutError("abandoned")
+            try:
+                camera = snap.camera_for(record.exif, record.width, record.height)
+                return recognize_every_sign(record.gray, snap.library, snap.settings, camera)
+            except (CameraError, PipelineError):
+                return None
+
+        try:
+            return list(self._pool.map(run, records))
+        finally:
+            self._rerun.trim_soon()
 
     def close(self) -> None:
         """Stop the re-run thread and the pool (waits for the images being processed)."""

@@ -43,6 +43,9 @@ CHI2_REJECT = 22.458
 # σ of the priors that fix the anchor, and the known signs given without covariance (m and rad):
 # tight enough to fix them, loose enough to keep the information matrix well conditioned.
 FIXED_SIGMA = 1e-6
+# A flight's frames close in time see a sign with nearly the same errors, which the pose graph would
+# count as independent: one frame in this many is taken, besides every frame that links two signs.
+FLIGHT_STEP = 10
 
 
 class MapBuildError(ValueError):
@@ -135,6 +138,13 @@ def observations_of(image: str, found: Iterable[SeenSign]) -> list[Observation]:
     """The observations in image `image` of the signs `found` in it that have a pose."""
     return [Observation(image, sign.label, sign.pose.R, sign.pose.t, sign.pose.covariance)
             for sign in found if sign.label is not None and sign.pose is not None]
+
+
+def takes_frame(index: int, signs: int, step: int = FLIGHT_STEP) -> bool:
+    """Whether frame `index` of a flight, on which `signs` signs are confirmed, gives its observations
+    to a map: one frame in `step`, and every frame with two or more (the links between signs, which a
+    flight past a wall gives a few frames of)."""
+    return signs >= 2 or index % step == 0
 
 
 def right_jacobian(r: np.ndarray) -> np.ndarray:
@@ -395,14 +405,14 @@ def _assemble(problem: _Graph, kept: list[Observation], rejected: list[Rejected]
         R, position = pose.rotation().matrix(), np.asarray(pose.translation(), dtype=np.float64)
         covariance = ros_covariance(R, marginals.marginalCovariance(key))
         covariance = 0.5 * (covariance + covariance.T)
-        signs[sign_id] = MappedSign(sign_id=sign_id, R=R, position_m=position, covariance=covariance)
+        signs[sign_id] = sign = MappedSign(sign_id=sign_id, R=R, position_m=position, covariance=covariance)
+        sigma_position_m, sigma_rotation_rad = sign.worst_sigma() or (0.0, 0.0)
         images = [im for im, s in by_image.items() if sign_id in s]
         seen_with = Counter(other for im in images for other in by_image[im] if other != sign_id)
         reports[sign_id] = SignReport(
             sign_id=sign_id, images=len(images), seen_with=dict(seen_with),
             fixed=fixed[sign_id][2] if sign_id in fixed else None,
-            sigma_position_mm=1e3 * math.sqrt(max(float(np.linalg.eigvalsh(covariance[:3, :3]).max()), 0.0)),
-            sigma_rotation_deg=math.degrees(math.sqrt(max(float(np.linalg.eigvalsh(covariance[3:, 3:]).max()), 0.0))),
+            sigma_position_mm=1e3 * sigma_position_m, sigma_rotation_deg=math.degrees(sigma_rotation_rad),
             rejected=rejected_count[sign_id])
     cameras = {}
     for image in by_image:

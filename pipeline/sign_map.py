@@ -65,6 +65,14 @@ class MappedSign:
         """(N, 3) points in the map frame of (N, 3) points in this sign's frame (metres)."""
         return np.asarray(points_sign, dtype=np.float64) @ self.R.T + self.position_m
 
+    def worst_sigma(self) -> tuple[float, float] | None:
+        """1-sigma along the worst direction of the position (m) and of the rotation (rad); None
+        without a covariance."""
+        if self.covariance is None:
+            return None
+        return tuple(math.sqrt(max(float(np.linalg.eigvalsh(block).max()), 0.0))  # type: ignore[return-value]
+                     for block in (self.covariance[:3, :3], self.covariance[3:, 3:]))
+
 
 @dataclass(frozen=True)
 class SignMap:

@@ -6,6 +6,7 @@ import { initDetail } from "./detail.js";
 import { initFlights, refreshFlights } from "./flights.js";
 import { choose, initGallery, refreshImages } from "./gallery.js";
 import { initLibrary, loadLibrary } from "./library.js";
+import { initMap, loadMap } from "./map.js";
 import { reloadScene } from "./scene.js";
 import { apply as applySettings, initSettings } from "./settings.js";
 import { emit, on, select, state } from "./store.js";
@@ -52,6 +53,7 @@ async function resync() {
     applySettings(await get("/api/settings"), true);
     refreshImages();
     refreshFlights();
+    loadMap().catch(report);
     emit("calibration", null);   // an open Camera dialog shows the calibration again
     loadHealth();   // a restarted server may have another memory limit
   } catch (err) {
@@ -84,6 +86,7 @@ function listen() {
   source.addEventListener("camera", handle(() => emit("camera")));
   source.addEventListener("calibration", handle((change) => emit("calibration", change)));
   source.addEventListener("flights", handle((progress) => emit("flights", progress)));
+  source.addEventListener("map", handle((change) => emit("map", change)));
 }
 
 /** The image a `#image=<id>` link names, or null. */
@@ -101,6 +104,7 @@ async function main() {
   initGallery();
   initDetail();
   initFlights();
+  initMap();
   const wanted = linkedImage();
   let autoOpen = true;
   let heldIds = null;   // the ids of the images the memory figure counts

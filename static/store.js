@@ -14,7 +14,7 @@ export const state = {
 const bus = new EventTarget();
 
 /** Events: settings, library, images, select, camera, calibration, detail (an image's detail drawn),
- *  flights (the server's flights event: their progress). */
+ *  flights (the server's flights event: their progress), map (the sign map held changed). */
 export function emit(name, detail) {
   bus.dispatchEvent(new CustomEvent(name, { detail }));
 }

@@ -16,30 +16,10 @@ pytestmark = [pytest.mark.browser, pytest.mark.server]
 
 VIDEO = SAMPLE_FLIGHT / "flight.mp4"
 
-# The flight's nodes in the viser client's scene tree: the trajectory's segments and the current
-# camera's position (where its Three.js object is, else the pose the server last sent) and visibility.
-FLIGHT_NODES = """flightId => {
-    const m = window.__viserMutable, tree = window.__viserSceneTree.getState();
-    const nodes = {};
-    for (const [name, node] of Object.entries(tree)) {
-        const match = name.match(/^\\/signs\\/([^/]+)\\/flights\\/([^/]+)\\/(trajectory|current)$/);
-        if (!match || match[2] !== flightId) continue;
-        const object = m.nodeRefFromName[name];
-        nodes[`${match[1]}/${match[3]}`] = {
-            type: node.message.type,
-            points: node.message.props.points?.length ?? null,
-            position: object ? object.position.toArray() : (m.nodePoseData[name]?.position ?? null),
-            visible: node.effectiveVisibility ?? null,
-        };
-    }
-    return nodes;
-}"""
-
 
 @pytest.fixture(scope="module")
 def base(tmp_path_factory):
-    if not harness.CHROMIUM.exists():
-        pytest.skip(f"{harness.CHROMIUM} not found: install Debian's chromium to run the browser tests")
+    harness.skip_without_chromium()
     tmp = tmp_path_factory.mktemp("serve")
     with harness.serve(tmp / "state", tmp / "serve.log") as url:
         yield url
@@ -47,14 +27,19 @@ def base(tmp_path_factory):
 
 @pytest.fixture
 def page(base):
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        browser = harness.launch(p)
-        page = harness.open_page(browser, base)
+    with harness.page_of(base) as page:
         yield page
-        harness.close_page(page)
-        browser.close()
+
+
+def flight_nodes(frame, flight_id: str) -> dict[str, dict]:
+    """The flight's nodes in the viser scene by "<sign>/trajectory" and "<sign>/current": the trajectory's
+    segments, the current camera's position and visibility (`harness.scene_nodes`)."""
+    nodes = {}
+    for name, node in harness.scene_nodes(frame, "/signs/").items():
+        match = re.fullmatch(r"/signs/([^/]+)/flights/([^/]+)/(trajectory|current)", name)
+        if match and match[2] == flight_id:
+            nodes[f"{match[1]}/{match[3]}"] = node
+    return nodes
 
 
 def flight_row(page, name: str):
@@ -110,7 +95,7 @@ def test_upload_scrub_and_see_the_trajectory_in_the_3d_scene(page, base, tmp_pat
         expected = viewed_from(record, label)
         nodes = None
         for _ in range(100):
-            nodes = frame.evaluate(FLIGHT_NODES, flight_id)
+            nodes = flight_nodes(frame, flight_id)
             current = nodes.get(f"{label}/current")
             if current and current["visible"] and current["position"] and \
                     np.allclose(current["position"], expected, atol=1e-3):

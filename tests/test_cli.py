@@ -577,6 +577,16 @@ def test_bad_paths_ports_and_numbers_are_refused_up_front_in_one_line(tmp_path, 
     assert sorted(p.name for p in tmp_path.iterdir()) == []  # no state, scenes or camera file made
 
 
+def test_serve_refuses_a_bad_map_file_in_one_line_as_a_bad_camera(tmp_path):
+    bad = tmp_path / "map.yaml"
+    bad.write_text("signs:\n  - id: archives\n    position_m: [0, 0, 0]\n    orientation_wxyz: [1, 0, 0, 0]\n")
+    result = signpose("serve", "--port", 0, "--state-dir", tmp_path / "state", "--library",
+                      shutil.copytree(load_library().root, tmp_path / "library"), "--map", bad)
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr == (f"signpose serve: error: {bad}: signs[0].id: 'archives' is not a sign of the library, "
+                             "which has chief_of_security, ministry_of_torture, security_compound\n")
+
+
 def evaluate_under_way(tmp_path: Path) -> tuple[subprocess.Popen, int]:
     """`signpose evaluate` of 200 images on 2 worker processes, as `on_a_terminal` gives it, once its progress
     bar has passed 20 images: the workers are measuring."""

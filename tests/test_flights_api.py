@@ -138,6 +138,20 @@ def test_a_settings_change_runs_the_flight_again(client, sample):
         wait_flight(client, flight_id, after_version=version + 1)
 
 
+def test_a_sign_map_is_built_from_the_signs_the_flight_sees_together(client, sample):
+    """As `signpose map build` maps the sample flight (tests/test_map_build.py), from its frames as tracked here."""
+    r = client.post("/api/map/build", json={"anchor": "security_compound"})
+    assert r.status_code == 200, r.text
+    built = r.json()
+    assert built["source"] == "built from 0 photo(s) and 1 flight(s)"
+    signs = {s["id"]: s for s in built["signs"]}
+    assert signs["security_compound"]["fixed"] == "anchor" and signs["chief_of_security"]["images"] > 1
+    # On the corridor wall: chief_of_security 2.6 m along x and 0.1 m up from security_compound.
+    offset = np.subtract(signs["chief_of_security"]["position_m"], [2.6, 0.1, 0.0])
+    assert np.all(np.abs(offset) < [0.05, 0.05, 0.2]), offset
+    assert client.delete("/api/map").status_code == 204
+
+
 def bag_messages(n: int) -> list[tuple[str, object]]:
     """The first `n` frames of the sample flight as JPEG CompressedImage messages on /cam/image_raw/compressed."""
     messages = []

@@ -9,6 +9,7 @@ import json
 import time
 import types
 
+import cv2
 import numpy as np
 import pytest
 import viser
@@ -653,3 +654,94 @@ def test_close_stops_following(scene):
     time.sleep(0.3)
     assert len(handle.cameras) == len(POSITIVES)
     assert handle.panel.controls["min_inliers"].input.value != 1000
+
+
+def test_the_map_world_draws_every_mapped_sign_in_place_its_uncertainty_and_the_photos_cameras(workspace):
+    """A map of the sample signs, one of them turned: the map world is shown as the map comes, each sign
+    at its map pose with its 3-sigma ellipsoid, and each photo's camera located in the map frame (one
+    sign in view: where its pose puts it in the sign's world, carried through the map)."""
+    from signpose.app.map_scene import ELLIPSOID_SIGMAS
+    from signpose.app.scene import MAP_WORLD
+    from signpose.app.sign_maps import SignMaps
+    from signpose.pipeline.pose import rotation_from_euler_zyx_deg
+    from signpose.pipeline.sign_map import MappedSign, SignMap
+
+    covariance = np.diag([1e-4, 4e-4, 9e-4, 1e-5, 1e-5, 1e-5])
+    poses = {sign_id: (rotation_from_euler_zyx_deg(30.0 * i, 0.0, 0.0), np.array([2.0 * i, 0.1, -1.0 * i]))
+             for i, sign_id in enumerate(workspace.library.ids)}
+    sign_map = SignMap({s: MappedSign(s, R, p, covariance) for s, (R, p) in poses.items()})
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    maps = SignMaps(publish=workspace.publish)
+    handle = attach(server, workspace, sign_maps=maps)
+    try:
+        wait_for(lambda: len(handle.cameras) == len(POSITIVES), timeout=IDLE_TIMEOUT_S)
+        assert MAP_WORLD not in handle.world.options   # no map held: no map world
+        maps.hold_file(sign_map, "test.yaml")
+        wait_for(lambda: handle.world.value == MAP_WORLD and len(handle.map_layer.cameras) == len(POSITIVES),
+                 timeout=IDLE_TIMEOUT_S)
+        layer = handle.map_layer
+        assert layer.root.visible and not any(n.frame.visible for n in handle.signs.values())
+        for sign_id, (R, position) in poses.items():
+            nodes = layer.signs[sign_id]
+            np.testing.assert_allclose(nodes.sign.frame.position, position)
+            np.testing.assert_allclose(tf.SO3(nodes.sign.frame.wxyz).as_matrix(), R, atol=1e-12)
+            np.testing.assert_allclose(sorted(nodes.ellipsoid.scale), ELLIPSOID_SIGMAS * np.array([0.01, 0.02, 0.03]))
+        for image_id, (rec, camera, frustum) in layer.cameras.items():
+            R, position = poses[rec.label]
+            in_sign = handle.cameras[image_id].frustum.position
+            # Within a centimetre: the fit in the map is over the sign's corners, the pose over its inliers.
+            np.testing.assert_allclose(frustum.position, R @ in_sign + position, atol=0.01)
+            assert camera.signs_used == (rec.label,)
+        maps.clear()
+        wait_for(lambda: MAP_WORLD not in handle.world.options and not layer.signs, timeout=IDLE_TIMEOUT_S)
+    finally:
+        handle.close()
+        server.stop()
+
+
+def test_a_flight_is_drawn_in_the_map_world_through_its_frames_located_in_the_map(tmp_path):
+    """Frames that see a mapped sign (as a flight's records keep them) give the camera's trajectory in the map
+    frame: each frame's camera where its pose puts it in the sign's frame, carried through the map; its current
+    camera follows the frame the page shows."""
+    from signpose.app.flights import Flight
+    from signpose.app.map_scene import MapLayer
+    from signpose.app.sign_maps import SignMaps
+    from signpose.pipeline.library import load_library
+    from signpose.pipeline.pose import Pose, camera_position, rotation_from_euler_zyx_deg
+    from signpose.pipeline.sign_map import MappedSign, SignMap
+
+    library = load_library()
+    sign = library["security_compound"]
+    camera = assumed_camera(640, 480)
+    corners = sign.to_metric(sign.corners_px)
+    records, expected = [], []
+    for frame in range(4):
+        R, t = rotation_from_euler_zyx_deg(0.0, 5.0 * frame, 0.0), np.array([0.1 * frame, 0.0, 2.0])
+        px = cv2.projectPoints(corners, cv2.Rodrigues(R)[0], t, camera.K, camera.dist)[0].reshape(-1, 2)
+        pose = Pose(R, t, "outline", 0.1, False, None, np.diag([1e-6] * 3 + [1e-6] * 3)).to_json()
+        seen = [{"label": "security_compound", "corners": px.tolist(), "pose": pose, "filtered_pose": None}]
+        records.append({"frame": frame, "signs": seen if frame != 2 else []})   # frame 2 sees nothing
+        expected.append(camera_position(R, t))
+    R_map, p_map = rotation_from_euler_zyx_deg(90.0, 0.0, 0.0), np.array([1.0, 2.0, 3.0])
+    maps = SignMaps(publish=lambda *_: None)
+    maps.hold_file(SignMap({"security_compound": MappedSign("security_compound", R_map, p_map)}), "test.yaml")
+    flight = Flight("f1", "f1.mp4", "video", tmp_path, tmp_path / "f1.mp4", 640, 480, records=records,
+                    tracked_camera=camera, fps=30.0, result_version=1)
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        layer = MapLayer(server, maps, types.SimpleNamespace(held=lambda: [flight]))
+        layer.draw(library, [], 0.25)
+        segments = np.asarray(layer.flight_nodes["f1"].trajectory.points)
+        in_map = [R_map @ p + p_map for p in expected]
+        # frames 0-1 and, across the gap of frame 2, none to 3
+        np.testing.assert_allclose(segments, [[in_map[0], in_map[1]]], atol=1e-4)
+        np.testing.assert_allclose(layer.flight_nodes["f1"].frusta[0].position, in_map[0], atol=1e-4)
+        current = layer.flight_nodes["f1"].current
+        assert current.visible   # at the cursor, frame 0
+        for cursor, shown in ((3, True), (2, False)):   # the page scrubs to frame 3, then to 2, which sees no sign
+            flight.cursor = cursor
+            layer.show_cursor("f1")
+            assert current.visible == shown
+        np.testing.assert_allclose(current.position, in_map[3], atol=1e-4)
+    finally:
+        server.stop()

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from . import calibration, camera, events, flights, images, library, scene, settings, tuning
+from . import calibration, camera, events, flights, images, library, map, scene, settings, tuning
 
 router = APIRouter(prefix="/api")
-for resource in (events, settings, library, images, flights, tuning, camera, calibration, scene):
+for resource in (events, settings, library, images, flights, map, tuning, camera, calibration, scene):
     router.include_router(resource.router)

@@ -1,6 +1,6 @@
 """What the API's routes share: the objects they work on (the workspace, an image, a sign, the
-calibration session, the flights, the 3D scene, the queue heavy work waits in) as FastAPI dependencies, the
-checks of a request's body (its media type, its multipart fields), and the route class that reads
+calibration session, the flights, the sign map, the 3D scene, the queue heavy work waits in) as
+FastAPI dependencies, the checks of a request's body (its media type, its multipart fields), and the route class that reads
 bodies.
 
 The objects live on `app.state` (app/server.py's `create_app` puts them there); a route asks for
@@ -28,6 +28,7 @@ from ..flights import Flights
 from ..heavy import WorkQueue
 from ..scene import SceneHandle
 from ..security import cross_site_refusal
+from ..sign_maps import SignMaps
 from ..uploads import in_order, single_values, the_file, uploads
 from ..image_store import IMAGE_ID, ImageRecord
 from ..workspace import Workspace
@@ -93,6 +94,13 @@ async def get_flights(request: Request) -> Flights:
 
 
 FlightsDep = Annotated[Flights, Depends(get_flights)]
+
+
+async def get_sign_maps(request: Request) -> SignMaps:
+    return request.app.state.sign_maps
+
+
+SignMapsDep = Annotated[SignMaps, Depends(get_sign_maps)]
 
 
 async def get_work_queue(request: Request) -> WorkQueue:

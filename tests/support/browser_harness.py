@@ -30,15 +30,16 @@ def free_port() -> int:
 
 
 @contextlib.contextmanager
-def serve(state_dir: Path, log_path: Path, timeout: float = 300, port: int | None = None):
-    """`signpose serve` on `port` (default: a free loopback port); yields its base URL once /api/health
-    answers (which is after the sample scenes a fresh state starts with have been processed)."""
+def serve(state_dir: Path, log_path: Path, timeout: float = 300, port: int | None = None, options: tuple[str, ...] = ()):
+    """`signpose serve` on `port` (default: a free loopback port) with more command-line `options`; yields its
+    base URL once /api/health answers (which is after the sample scenes a fresh state starts with have been
+    processed)."""
     port = port or free_port()
     base = f"http://127.0.0.1:{port}"
     with open(log_path, "wb") as log:
         proc = subprocess.Popen(
             [sys.executable, "-m", "signpose.app.cli", "serve", "--port", str(port),
-             "--state-dir", str(state_dir)],
+             "--state-dir", str(state_dir), *options],
             cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
         try:
             deadline = time.monotonic() + timeout
@@ -62,6 +63,51 @@ def serve(state_dir: Path, log_path: Path, timeout: float = 300, port: int | Non
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
+
+
+# The viser client's scene tree (viser's page, the tool's iframe): each node under a name prefix, with its
+# message type, its point count (line segments), where it is (its Three.js object, else the pose the
+# server last sent) and whether it is shown.
+SCENE_NODES = """prefix => {
+    const m = window.__viserMutable, tree = window.__viserSceneTree.getState();
+    const nodes = {};
+    for (const [name, node] of Object.entries(tree)) {
+        if (!name.startsWith(prefix)) continue;
+        const object = m.nodeRefFromName[name];
+        nodes[name] = {
+            type: node.message.type,
+            points: node.message.props.points?.length ?? null,
+            position: object ? object.position.toArray() : (m.nodePoseData[name]?.position ?? null),
+            visible: node.effectiveVisibility ?? null,
+        };
+    }
+    return nodes;
+}"""
+
+
+def scene_nodes(frame, prefix: str) -> dict[str, dict]:
+    """By name, the nodes of the viser client in `frame` (a Playwright frame of /viser/) whose names start
+    with `prefix`, as SCENE_NODES gives them."""
+    return frame.evaluate(SCENE_NODES, prefix)
+
+
+def skip_without_chromium() -> None:
+    if not CHROMIUM.exists():
+        pytest.skip(f"{CHROMIUM} not found: install Debian's chromium to run the browser tests")
+
+
+@contextlib.contextmanager
+def page_of(base: str):
+    """A fresh page of the tool at `base` in its own Chromium (`open_page`), closed after (`close_page`:
+    failing on the page's errors)."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = launch(p)
+        page = open_page(browser, base)
+        yield page
+        close_page(page)
+        browser.close()
 
 
 def launch(playwright):

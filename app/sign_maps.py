@@ -1,0 +1,158 @@
+"""The sign map `signpose serve` holds (docs/map.md): loaded from a map file (`--map`, the page) or
+built from the photos and flights held, as `signpose map build` builds one from files
+(pipeline/map_build.py); drawn in the 3D scene's map world and downloaded as YAML. Held while the
+server runs, not kept in the state directory.
+
+A build's observations: every library sign in each photo held (`Workspace.signs_in_view`), keyed by
+the image's id, and from each flight's last complete run the measured poses of the signs on the
+frames `takes_frame` takes, keyed `<flight id>#<frame>`, as `map build` takes a flight's frames.
+The cameras in the map frame (the scene's) are located by `pipeline.localise.locate_in_map` from
+the signs each photo or frame sees.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from signpose.pipeline.camera import Camera
+from signpose.pipeline.library import Library
+from signpose.pipeline.localise import CameraInMap, locate_in_map
+from signpose.pipeline.map_build import MapBuild, MapBuildError, Observation, build_map, observations_of, takes_frame
+from signpose.pipeline.pose import Pose
+from signpose.pipeline.sign_map import SignMap, sign_map_yaml
+
+from .flights import Flight, Flights
+from .workspace import Workspace
+
+
+@dataclass(frozen=True, eq=False)
+class HeldMap:
+    """The map held: `sign_map`; `source`, where it came from (a file's name, or what it was built
+    from); `revision`, +1 on every change of the map held; for a map built here, the `build` (its
+    reports per sign, the observations rejected), `names` (each observation's image key: the photo's
+    or the flight frame's name) and `warnings` (photos that could not be run)."""
+
+    sign_map: SignMap
+    source: str
+    revision: int
+    build: MapBuild | None = None
+    names: dict[str, str] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+
+    def yaml(self) -> str:
+        """The map file's text; a built map's signs carry the build's report as comments."""
+        return sign_map_yaml(self.sign_map, self.build.comments() if self.build is not None else None)
+
+
+class SignMaps:
+    """The one map a server holds, or none. Thread-safe; `publish("map", {"revision"})` on every change."""
+
+    def __init__(self, *, publish: Callable[[str, dict], None]) -> None:
+        self._publish = publish
+        self._lock = threading.Lock()
+        self._held: HeldMap | None = None
+        self._revision = 0
+
+    @property
+    def held(self) -> HeldMap | None:
+        return self._held
+
+    def hold_file(self, sign_map: SignMap, name: str) -> HeldMap:
+        """Hold `sign_map`, read from the map file `name`."""
+        return self._hold(lambda revision: HeldMap(sign_map, name, revision))
+
+    def hold_build(self, build: MapBuild, source: str, names: dict[str, str], warnings: list[str]) -> HeldMap:
+        """Hold the map of `build`, made from `source` (said for people)."""
+        return self._hold(lambda revision: HeldMap(build.sign_map, source, revision, build, names, tuple(warnings)))
+
+    def clear(self) -> None:
+        with self._lock:
+            self._held = None
+            self._revision += 1
+            revision = self._revision
+        self._publish("map", {"revision": revision})
+
+    def _hold(self, make: Callable[[int], HeldMap]) -> HeldMap:
+        with self._lock:
+            held = make(self._revision + 1)   # raises before anything changes
+            self._held, self._revision = held, held.revision
+        self._publish("map", {"revision": held.revision})
+        return held
+
+
+@dataclass(frozen=True, eq=False)
+class RecordedSign:
+    """A sign as a flight's record keeps it (`signpose track --json`): label, (4, 2) corners in frame
+    px and its measured pose, for `observations_of` and `locate_in_map`."""
+
+    label: str
+    corners: np.ndarray
+    pose: Pose | None
+
+
+def recorded_signs(record: dict) -> list[RecordedSign]:
+    """The signs of one flight record (a frame), with their measured poses (None where there is none)."""
+    signs = []
+    for sign in record["signs"]:
+        measured, pose = sign["pose"], None
+        if measured is not None and measured["R"] is not None and measured["t"] is not None:
+            covariance = measured["covariance"]   # non-finite numbers are null in JSON: NaN here
+            pose = Pose(R=np.array(measured["R"], float), t=np.array(measured["t"], float), method="recorded",
+                        reprojection_rmse_px=measured["reprojection_rmse_px"] or float("nan"),
+                        ambiguous=measured["ambiguous"], solution_errors=None,
+                        covariance=None if covariance is None else np.array(covariance, dtype=float))
+        signs.append(RecordedSign(sign["label"], np.array(sign["corners"], float), pose))
+    return signs
+
+
+def frame_key(flight: Flight, index: int) -> str:
+    """The image key of frame `index` of `flight` among a build's observations."""
+    return f"{flight.id}#{index}"
+
+
+def survey(workspace: Workspace, flights: Flights, stop: threading.Event | None = None,
+           ) -> tuple[list[Observation], dict[str, str], str, list[str]]:
+    """Every observation the photos and flights held give a map: (observations, image key -> name,
+    what they came from, warnings for the photos that could not be run). TimeoutError when `stop` is set."""
+    records = workspace.images()
+    names = {r.id: r.name for r in records}
+    observations: list[Observation] = []
+    warnings = []
+    for record, found in zip(records, workspace.signs_in_view(records, stop)):
+        if found is None:
+            warnings.append(f"{record.name} could not be run (its result says why) and is left out")
+        else:
+            observations += observations_of(record.id, found)
+    done = [f for f in flights.held() if f.records]
+    for flight in done:
+        for record in flight.records:
+            index = int(record["frame"])
+            if takes_frame(index, len(record["signs"])):
+                names[frame_key(flight, index)] = f"{flight.name} frame {index}"
+                observations += observations_of(frame_key(flight, index), recorded_signs(record))
+    source = f"built from {len(records)} photo(s) and {len(done)} flight(s)"
+    return observations, names, source, warnings
+
+
+def build_from_held(workspace: Workspace, flights: Flights, anchor: str | None,
+                    stop: threading.Event | None = None) -> tuple[MapBuild, str, dict[str, str], list[str]]:
+    """The map of the photos and flights held, in the frame of `anchor` (default: the first sign seen)
+    (`build_map`), with what it came from, the image names and the warnings of `survey`. MapBuildError
+    when no map can be built (no sign seen, the anchor not seen, signs in groups no image links)."""
+    observations, names, source, warnings = survey(workspace, flights, stop)
+    if not observations:
+        raise MapBuildError(f"no sign with a pose in the photos and flights held ({source.removeprefix('built from ')}): "
+                            "add survey photos in which neighbouring signs are seen together")
+    return build_map(observations, anchor=anchor), source, names, warnings
+
+
+def camera_in_map(found: list, sign_map: SignMap, library: Library, camera: Camera | None) -> CameraInMap | None:
+    """The camera of a photo or frame in the map frame, from the signs `found` in it (`locate_in_map`);
+    None without a camera or a mapped sign among them."""
+    if camera is None:
+        return None
+    return locate_in_map(found=found, sign_map=sign_map, library=library, camera=camera)
