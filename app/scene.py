@@ -940,9 +940,10 @@ class SceneHandle:
             keep = self.world.value if self.world.value in options else None
             self.world.options = options
             self.world.value = keep or (counts.most_common(1)[0][0] if counts else options[0])  # type: ignore[misc]
+        # Cleared only once acted on: a map arriving while this redraw runs sets it again for the next one.
         if self._show_map and mapped:
             self.world.value = MAP_WORLD  # type: ignore[misc]
-        self._show_map = False
+            self._show_map = False
         self.world.disabled = options == (NO_WORLD,)
         self._on_view_option()
 
