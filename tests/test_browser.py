@@ -1310,11 +1310,12 @@ def test_the_charts_show_the_threshold_as_the_form_does(page, api):
     page.unroute("**/api/sweep?*")
 
 
-def test_the_charts_set_their_value_from_the_keyboard(page, api):
+def test_the_charts_set_their_value_from_the_keyboard(fresh_page, api):
     """The threshold histogram and the sweep chart set the value where they are clicked, and did
     nothing from the keyboard: each is a slider of its setting that Tab reaches, showing its focus and
     saying what it does and the value now; ← → step it by the setting's step (ten with Shift), Home and
     End go to the chart's ends, as a click there would, and ← → no longer step through the images."""
+    page = fresh_page
     image_id = uploaded_scene(api)
     open_detail(page, image_id)
     histogram = page.locator("#histogram")
