@@ -289,7 +289,7 @@ class FlightItem:
 def tracked_range(library: Library, variants: Sequence[Settings], item: FlightItem) -> dict:
     """On a worker: the `signpose track --json` line of every frame of the item's range, and the error that cut
     it short ({"records": [...], "error": str | None}). The tracker starts cold `warm_up` frames before the
-    range (frames before those are decoded, not tracked): a sign in view at `start` is then confirmed and its
+    range (a video seeks there; `FrameSource.frames_from`): a sign in view at `start` is then confirmed and its
     filter under way there, as in a run over the whole flight."""
     from signpose.pipeline.camera import CameraError
     from signpose.pipeline.frames import SourceError, open_source
@@ -306,7 +306,7 @@ def tracked_range(library: Library, variants: Sequence[Settings], item: FlightIt
                                   item.camera if item.camera is not None else source.camera, fps=source.fps,
                                   sign_map=item.sign_map)
                 frames = itertools.takewhile(lambda frame: item.stop is None or frame.index < item.stop,
-                                             (frame for frame in source if frame.index >= first))
+                                             source.frames_from(first))
                 for _, _, record in tracked_frames(frames, tracker, item.name):
                     if record["frame"] >= item.start:
                         records.append(record)
