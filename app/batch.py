@@ -4,7 +4,8 @@ kept in a `ResultStore` (`--results DIR`) so that a run cut short continues wher
 The chunk functions (`image_outcomes`, `tracked_range`) run on the workers: plain Python over the pipeline,
 handed the images' bytes (or, with `--shared-paths`, paths every worker can read) and the library, sent
 once with its features. Results come back in any order and are put back in the jobs' order, so the output
-is a local run's. The Dask side is in `signpose.app.cluster`, imported only for `--dask`.
+is a local run's; a long flight is tracked in frame ranges (`tracked_range`), whose boundaries differ from a
+single run as docs/cluster.md says. The Dask side is in `signpose.app.cluster`, imported only for `--dask`.
 """
 
 from __future__ import annotations
