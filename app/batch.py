@@ -268,9 +268,9 @@ def placed(files: Sequence[tuple[str, bytes]], folder: str) -> str:
 @dataclass(frozen=True)
 class FlightItem:
     """A frame range of a flight to track: the flight's place among the sources, the settings variant it is
-    tracked with, the range's place among the flight's, its name as given, its files (or a path every worker can read), the options of
-    `signpose track`, and the range: frames `start` to `stop` (None: the flight's end) reported, after
-    `warm_up` frames before `start` tracked and not reported."""
+    tracked with, the range's place among the flight's ranges, its name as given, its files (or a path every
+    worker can read), the options of `signpose track`, and the range: frames `start` to `stop` (None: the
+    flight's end) reported, after `warm_up` frames before `start` tracked and not reported."""
 
     index: int
     variant: int
@@ -325,6 +325,12 @@ def frame_ranges(count: int | None, max_frames: int | None, frames_per_chunk: in
         return [(0, max_frames)]
     starts = list(range(0, known, frames_per_chunk))
     return [(start, start + frames_per_chunk) for start in starts[:-1]] + [(starts[-1], max_frames)]
+
+
+def range_name(spec: str, start: int, stop: int | None, variant: int, variants: int) -> str:
+    """How the final table names a flight's range: the flight, its frames, and which of the `variants`."""
+    frames = f" frames {start}..{'end' if stop is None else stop - 1}"
+    return f"{spec}{frames}" + (f" at value {variant + 1} of {variants}" if variants > 1 else "")
 
 
 def joined(parts: Sequence[dict]) -> dict:
@@ -392,9 +398,9 @@ def track_all(jobs: Sequence[tuple[str, Camera | None]], library: Library, varia
                             tally.reused += 1
                             done(1)
                             continue
-                    item = FlightItem(index, variant, part, spec, payload, camera, sign_map, topic, fps, max_pixels, start,
-                                      stop, WARM_UP_FRAMES)
-                    yield Chunk(f"{spec} frames {start}..{'end' if stop is None else stop - 1}", item, 1)
+                    item = FlightItem(index, variant, part, spec, payload, camera, sign_map, topic, fps, max_pixels,
+                                      start, stop, WARM_UP_FRAMES)
+                    yield Chunk(range_name(spec, start, stop, variant, len(variants)), item, 1)
 
     shared = (runner.share(with_features(library, variants)), list(variants))
     for chunk, result in runner.run(tracked_range, shared, chunks()):

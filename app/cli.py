@@ -387,9 +387,9 @@ def flights_in_chunks(args, jobs: list[tuple[str, Camera | None]], library: Libr
             bar.total = chunks
             bar.refresh()
 
-        return track_all(jobs, library, variants, sign_map=sign_map, topic=topic, fps=fps, max_frames=args.max_frames, max_pixels=max_pixels(args),
-                         frames_per_chunk=args.chunk_frames, runner=runner, store=result_store(args),
-                         shared_paths=args.shared_paths, planned=planned, done=bar.update)
+        return track_all(jobs, library, variants, sign_map=sign_map, topic=topic, fps=fps, max_frames=args.max_frames,
+                         max_pixels=max_pixels(args), frames_per_chunk=args.chunk_frames, runner=runner,
+                         store=result_store(args), shared_paths=args.shared_paths, planned=planned, done=bar.update)
 
 
 def cmd_synth(args) -> int:
