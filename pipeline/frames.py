@@ -100,7 +100,7 @@ class FrameSource:
 
     def frames_from(self, start: int) -> Iterator[Frame]:
         """The frames from index `start` on, instead of iterating the source: those before it are read and
-        dropped, unless the source can go to `start` directly (a video file, image files)."""
+        dropped, unless the source can go to `start` directly (a video file, image files, a bag's messages)."""
         return (frame for frame in self if frame.index >= start)
 
     def close(self) -> None:
@@ -383,10 +383,17 @@ class BagSource(FrameSource):
         return None
 
     def __iter__(self) -> Iterator[Frame]:
+        return self.frames_from(0)
+
+    def frames_from(self, start: int) -> Iterator[Frame]:
+        """The frames from message `start` on; the messages before it are read from the bag, and not decoded
+        (the first gives the stamp that times count from)."""
         first_ns: int | None = None
         header_stamps = True
         messages = self.reader.messages(connections=[c for c in self.reader.connections if c.topic == self.topic])
         for index, (connection, logged_ns, raw) in enumerate(messages):
+            if index < start and first_ns is not None:
+                continue
             try:
                 msg: Any = self.reader.deserialize(raw, connection.msgtype)
             except self.reader_error as exc:
@@ -399,6 +406,8 @@ class BagSource(FrameSource):
                 stamp_ns = int(logged_ns)
             if first_ns is None:
                 first_ns = stamp_ns
+            if index < start:
+                continue
             where = f"message {index} on {self.topic}"
             if connection.msgtype == "sensor_msgs/msg/CompressedImage":
                 image = self._decompressed(msg, where)

@@ -379,10 +379,14 @@ def test_damaged_bags_and_frames_are_refused(tmp_path):
 @pytest.mark.skipif(not BOX.exists(), reason="shared data (box.mp4) not found: set SIGNPOSE_SHARED")
 def test_a_range_of_frames_is_the_frames_a_read_from_the_start_gives(tmp_path):
     """`frames_from`, where a flight's range starts on a worker: a real H.264 video seeks (from a keyframe, not
-    from the start), image files skip the files before; the same images, indices and times either way."""
+    from the start), image files skip the files before, a bag decodes no image before; the same images,
+    indices and times (counted from the first frame's) either way."""
+    (tmp_path / "frames").mkdir()
     for i in range(5):
-        cv2.imwrite(str(tmp_path / f"frame{i}.png"), _frame(i))
-    for spec, start in ((str(BOX), 150), (tmp_path, 3)):
+        cv2.imwrite(str(tmp_path / "frames" / f"frame{i}.png"), _frame(i))
+    bag = write_mcap(tmp_path / "flight.mcap", [("/cam/image_raw", _image_msg(ROS2, i, "rgb8", stamp))
+                                                for i, stamp in enumerate(_stamps(5))])
+    for spec, start in ((str(BOX), 150), (tmp_path / "frames", 3), (bag, 2)):
         with open_source(spec) as source:
             whole = [frame for frame, _ in zip(source, range(start + 3))]
         with open_source(spec) as source:
