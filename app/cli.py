@@ -107,7 +107,7 @@ def add_cluster(p: argparse.ArgumentParser, what: str, *, images: bool, frames: 
                    help="run on the Dask cluster whose scheduler is at ADDRESS (e.g. tcp://host:8786) instead of this "
                         "machine's processes; needs signpose[dask] installed here and on the workers (docs/cluster.md)")
     p.add_argument("--results", metavar="DIR",
-                   help=f"keep each {what}'s result in DIR, keyed by the file's content and the settings that feed it: "
+                   help=f"keep each {what} in DIR, keyed by the file's content and the settings that feed it: "
                         "a re-run (after Ctrl-C, a lost worker or a settings change) computes only what is missing")
     p.add_argument("--shared-paths", action="store_true",
                    help="send the workers paths, not the files' bytes: every worker sees the files at the same paths")
@@ -902,7 +902,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", type=flight_output_path, metavar="OUT",
                    help="write the flight as OUT.mcap (ROS 2: poses with covariance, /tf, the frames), OUT.csv "
                         "or OUT.jsonl")
-    add_cluster(p, "flight chunk", images=False, frames=True)
+    add_cluster(p, "flight range's result", images=False, frames=True)
     p.set_defaults(func=cmd_track)
 
     p = sub.add_parser("synth", help="render synthetic scenes with ground truth")
@@ -922,7 +922,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_common(p)
     add_max_megapixels(p)
     add_map_option(p)
-    add_cluster(p, "image", images=True, frames=False)
+    add_cluster(p, "image's result", images=True, frames=False)
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("sweep", help="the page's sweep over labelled datasets and flights with ground truth: images "
@@ -941,7 +941,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="one JSON object, as the page's GET /api/sweep answers")
     add_common(p)
     add_max_megapixels(p)
-    add_cluster(p, "image, flight chunk and value", images=True, frames=True)
+    add_cluster(p, "image's and flight range's result at each value", images=True, frames=True)
     p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("calibrate", help="camera intrinsics from photos of a printed chessboard (docs/calibration.md)")

@@ -267,7 +267,7 @@ class VideoSource(FrameSource):
         if self.first is None:
             raise SourceError(f"{self.name}: a video is read once")
         image, self.first = self.first, None
-        return self._frames(0, image)
+        yield from self._frames(0, image)
 
     def frames_from(self, start: int) -> Iterator[Frame]:
         """The frames from index `start` on. A file seeks there: FFmpeg decodes from the keyframe before it, so
