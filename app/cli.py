@@ -582,7 +582,7 @@ def cmd_sweep(args) -> int:
     answer: dict = {"param": args.param, "values": values}
     tables, summaries, failed = [], [], 0
     if datasets:
-        labelled, swept, tally = swept_photos(args, datasets, library, variants, camera)
+        labelled, swept, tally = swept_photos(args, datasets, library, values, variants, camera)
         answer.update({"labelled": labelled, **dataclasses.asdict(swept)})
         tables.append(format_sweep(args.param, values, labelled, swept))
         summaries.append(tally.summary("images"))
@@ -612,9 +612,10 @@ def flight_folders(folders: list[str]) -> dict:
     return {folder: truth for folder, truth in found.items() if truth is not None}
 
 
-def swept_photos(args, datasets: list, library: Library, variants: list[Settings], camera: Camera | None):
-    """The sweep's tally of the labelled photos of `datasets` (as the page's): (how many, `SweepTally`, the
-    run's `Tally`)."""
+def swept_photos(args, datasets: list, library: Library, values: list[float], variants: list[Settings],
+                 camera: Camera | None):
+    """The sweep's tally of the labelled photos of `datasets` over the `values` of --param, each in `variants`
+    (as the page's sweep): (how many, `SweepTally`, the run's `Tally`)."""
     from signpose.app.tuning import INTEGER_SETTINGS, tally_sweep
     from signpose.pipeline.library import NO_SIGN
 
@@ -622,7 +623,6 @@ def swept_photos(args, datasets: list, library: Library, variants: list[Settings
     expected = [sample.label or NO_SIGN for d in datasets for sample in d.samples]
     # As the page's sweep: an image the pipeline could not run on at a value is None there.
     runs = [[None if o.error is not None else o for o in row] for row in outcomes]
-    values = [getattr(v, args.param) for v in variants]
     return len(expected), tally_sweep(values, expected, runs, integer=args.param in INTEGER_SETTINGS), tally
 
 
