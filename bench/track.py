@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 
 from signpose.pipeline.camera import Camera, load_camera
+from signpose.pipeline.flight_truth import MAX_DISTANCE_M, MIN_WIDTH_PX
 from signpose.pipeline.library import Library, load_library
 from signpose.pipeline.pose import Pose
 from signpose.pipeline.recognize import recognize
@@ -41,9 +42,6 @@ from signpose.pipeline.settings import Settings
 from signpose.pipeline.synth import synthetic_camera
 from signpose.pipeline.synth_flight import write_flight
 from signpose.pipeline.track import Tracker
-
-MIN_WIDTH_PX = 45.0
-MAX_DISTANCE_M = 3.0
 
 
 @dataclass
