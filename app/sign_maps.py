@@ -1,13 +1,12 @@
 """The sign map `signpose serve` holds (docs/map.md): loaded from a map file (`--map`, the page) or
 built from the photos and flights held, as `signpose map build` builds one from files
-(pipeline/map_build.py); drawn in the 3D scene's map world and downloaded as YAML. Held while the
-server runs, not kept in the state directory.
+(pipeline/map_build.py); drawn in the 3D scene's map world and downloaded as YAML.
 
 A build's observations: every library sign in each photo held (`Workspace.signs_in_view`), keyed by
 the image's id, and from each flight's last complete run the measured poses of the signs on the
 frames `takes_frame` takes, keyed `<flight id>#<frame>`, as `map build` takes a flight's frames.
 The cameras in the map frame (the scene's) are located by `pipeline.localise.locate_in_map` from
-the signs each photo or frame sees.
+every sign each photo (`Workspace.signs_in_view`, as a build searches it) or frame sees.
 """
 
 from __future__ import annotations
@@ -19,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from signpose.pipeline.camera import Camera
+from signpose.pipeline.every_sign import SignSeen
 from signpose.pipeline.library import Library
 from signpose.pipeline.localise import CameraInMap, locate_in_map
 from signpose.pipeline.map_build import MapBuild, MapBuildError, Observation, build_map, observations_of, takes_frame
@@ -84,18 +84,9 @@ class SignMaps:
         return held
 
 
-@dataclass(frozen=True, eq=False)
-class RecordedSign:
-    """A sign as a flight's record keeps it (`signpose track --json`): label, (4, 2) corners in frame
-    px and its measured pose, for `observations_of` and `locate_in_map`."""
-
-    label: str
-    corners: np.ndarray
-    pose: Pose | None
-
-
-def recorded_signs(record: dict) -> list[RecordedSign]:
-    """The signs of one flight record (a frame), with their measured poses (None where there is none)."""
+def recorded_signs(record: dict) -> list[SignSeen]:
+    """The signs of one flight record (a frame, as `signpose track --json` keeps it), with their measured
+    poses (None where there is none)."""
     signs = []
     for sign in record["signs"]:
         measured, pose = sign["pose"], None
@@ -105,7 +96,7 @@ def recorded_signs(record: dict) -> list[RecordedSign]:
                         reprojection_rmse_px=measured["reprojection_rmse_px"] or float("nan"),
                         ambiguous=measured["ambiguous"], solution_errors=None,
                         covariance=None if covariance is None else np.array(covariance, dtype=float))
-        signs.append(RecordedSign(sign["label"], np.array(sign["corners"], float), pose))
+        signs.append(SignSeen(sign["label"], np.array(sign["corners"], float), pose))
     return signs
 
 
@@ -150,7 +141,7 @@ def build_from_held(workspace: Workspace, flights: Flights, anchor: str | None,
     return build_map(observations, anchor=anchor), source, names, warnings
 
 
-def camera_in_map(found: list, sign_map: SignMap, library: Library, camera: Camera | None) -> CameraInMap | None:
+def camera_in_map(found: list[SignSeen], sign_map: SignMap, library: Library, camera: Camera | None) -> CameraInMap | None:
     """The camera of a photo or frame in the map frame, from the signs `found` in it (`locate_in_map`);
     None without a camera or a mapped sign among them."""
     if camera is None:

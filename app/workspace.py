@@ -32,7 +32,7 @@ import numpy as np
 
 from signpose.pipeline.camera import Camera, CameraError, check_hfov, load_camera
 from signpose.pipeline.evaluate import CORES
-from signpose.pipeline.every_sign import recognize_every_sign
+from signpose.pipeline.every_sign import SignSeen, recognize_every_sign
 from signpose.pipeline.exif import ExifCamera
 from signpose.pipeline.features import library_features
 from signpose.pipeline.image import ImageError
@@ -519,21 +519,28 @@ class Workspace:
         return [[results[i] for results in per_image] for i in range(len(variants))]
 
     def signs_in_view(self, records: list[ImageRecord], stop: threading.Event | None = None,
-                      ) -> list[list[Recognition] | None]:
-        """Every library sign in each of `records` under the current state (`recognize_every_sign`: the
-        recognitions of its searches, the last one without a sign), on the pipeline's pool; None for an
+                      ) -> list[list[SignSeen] | None]:
+        """Every library sign in each of `records` under the current state (`recognize_every_sign`: what
+        each of its searches found, the last one no sign), on the pipeline's pool; None for an
         image that could not be run (the camera does not fit it, or the pipeline failed on it: its own
-        result says why). Setting `stop` (the caller gave up waiting) ends it early with TimeoutError."""
+        result says why). Kept on the record until the state changes: a map build and the map world's
+        cameras search a photo once. Setting `stop` (the caller gave up waiting) ends it early with
+        TimeoutError."""
         snap = self.snapshot
 
-        def run(record: ImageRecord) -> list[Recognition] | None:
+        def run(record: ImageRecord) -> list[SignSeen] | None:
             if stop is not None and stop.is_set():
                 raise TimeoutError("abandoned")
+            kept = record.in_view
+            if kept is not None and kept[0] == snap.generation:
+                return kept[1]
             try:
                 camera = snap.camera_for(record.exif, record.width, record.height)
-                return recognize_every_sign(record.gray, snap.library, snap.settings, camera)
+                found = [SignSeen.of(r) for r in recognize_every_sign(record.gray, snap.library, snap.settings, camera)]
             except (CameraError, PipelineError):
                 return None
+            record.in_view = (snap.generation, found)
+            return found
 
         try:
             return list(self._pool.map(run, records))
