@@ -63,7 +63,7 @@ class WorkspaceConfig:
     library_dir: Path | None = None  # None: the state's library; on a fresh state the samples
     camera_file: Path | None = None  # None: the state's camera
     settings_file: Path | None = None  # None: the state's settings
-    map_file: Path | None = None  # a sign map to hold from the start (not kept in the state)
+    map_file: Path | None = None  # None: the state's sign map, if it keeps one
     load_samples: bool = True  # on a fresh state with the sample library, load sample_images/scenes
     max_images: int = 500
     max_pixels: int = 40_000_000
@@ -91,7 +91,7 @@ def sample_scenes(folder: Path = SAMPLE_SCENES) -> list[tuple[Path, str | None]]
 
 
 def say_kept(what: str, file: Path, replaced: Replaced | None) -> None:
-    """The one log line saying that `--<what> file` (what: "camera" or "settings") replaced what the state
+    """The one log line saying that `--<what> file` (what: "camera", "map" or "settings") replaced what the state
     held, where that is kept and how to use it again; nothing when `replaced` is None (nothing moved)."""
     if replaced is None:
         return
@@ -100,7 +100,7 @@ def say_kept(what: str, file: Path, replaced: Replaced | None) -> None:
         log.warning("%s %s replaced the state's %s, which could not be read; it is kept as it was in %s",
                     option, file, what, replaced.kept)
     else:
-        held, them = ("camera, which is", "that one") if what == "camera" else ("settings, which are", "them")
+        held, them = ("settings, which are", "them") if what == "settings" else (f"{what}, which is", "that one")
         log.warning(f"%s %s replaced the state's {held} kept in %s: to use {them} again, start with %s %s",
                     option, file, replaced.kept, option, replaced.kept)
 
