@@ -17,10 +17,10 @@ camera by.
 
 A sign that disagrees with the others (moved since the survey, a wrong recognition) is left out.
 The fit's whitened squared residual, each sign's corners counting its σ and its map covariance,
-is tested against the 99.9 % point of chi-square with 8N - 6 dof (N signs); beyond it, the sign
-whose removal leaves the others fitting best is dropped, and the test repeated. Of two signs,
-which only say that they disagree, the less certain one is dropped. The dropped signs are named
-in `signs_rejected`. (Each sign is fitted over the others, not predicted by them: one sign alone
+is tested against the 99.9 % point of chi-square with 8N - 6 dof (N signs, three or more); beyond
+it, the sign whose removal leaves the others fitting best is dropped, and the test repeated down
+to two signs. Two signs that disagree do not say which is wrong: both stay, and their
+disagreement grows the covariance. The dropped signs are named in `signs_rejected`. (Each sign is fitted over the others, not predicted by them: one sign alone
 fixes its tilt against its distance too loosely, and a planar flip too often, to predict another.)
 """
 
@@ -195,11 +195,11 @@ def locate_in_map(*, found: Iterable[SignInView], sign_map: SignMap, library: Li
         return None
     rejected: list[str] = []
     pose = _joint_fit(signs, camera)
-    while len(signs) > 1 and _chi2(signs, pose, camera) > _chi2_limit(8 * len(signs) - 6):
+    # Two signs that disagree do not say which is wrong: both stay, and the covariance grows.
+    while len(signs) > 2 and _chi2(signs, pose, camera) > _chi2_limit(8 * len(signs) - 6):
         rest = [signs[:i] + signs[i + 1:] for i in range(len(signs))]
         fits = [_joint_fit(r, camera) for r in rest]
-        # Two signs only say that they disagree: the more certain one (first) stays.
-        worst = len(signs) - 1 if len(signs) == 2 else int(np.argmin([_chi2(r, f, camera) for r, f in zip(rest, fits)]))
+        worst = int(np.argmin([_chi2(r, f, camera) for r, f in zip(rest, fits)]))
         rejected.append(signs[worst].sign_id)
         signs, pose = rest[worst], fits[worst]
     return CameraInMap(pose, tuple(s.sign_id for s in signs), tuple(rejected))
