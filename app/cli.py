@@ -233,14 +233,16 @@ def sign_json(rec: Recognition) -> dict:
 
 
 def format_in_map(located: CameraInMap | None, frame: str) -> str:
-    """The table's line of the camera in the map frame `frame`: position, 1σ, the signs it came from."""
+    """The table's line of the camera in the map frame `frame`: position, 1σ, the signs it came from and
+    those left out."""
     if located is None:
         return f"in {frame}: no mapped sign in view"
     x, y, z = located.position_m
     covariance = located.covariance_xyz_rpy
     sigma = ("" if covariance is None
              else f" ± {1e3 * math.sqrt(max(np.linalg.eigvalsh(covariance[:3, :3]).max(), 0.0)):.0f} mm")
-    return f"in {frame}: cam at ({x:+.3f}, {y:+.3f}, {z:+.3f}) m{sigma}, from {', '.join(located.signs_used)}"
+    left_out = f" (left out as disagreeing: {', '.join(located.signs_rejected)})" if located.signs_rejected else ""
+    return f"in {frame}: cam at ({x:+.3f}, {y:+.3f}, {z:+.3f}) m{sigma}, from {', '.join(located.signs_used)}{left_out}"
 
 
 def progress(iterable: Iterable | None = None, *, hidden: bool = False, **options) -> tqdm:

@@ -295,7 +295,8 @@ class Tracker:
         if self.sign_map is not None:
             located = locate_in_map(found=signs, sign_map=self.sign_map, library=self.library, camera=camera)
             if located is not None:
-                filtered = CameraInMap(self.map_filter.update(located.pose, time_s), located.signs_used)
+                filtered = CameraInMap(self.map_filter.update(located.pose, time_s), located.signs_used,
+                                       located.signs_rejected)
         t_end = time.perf_counter()
         tracking = (t_tracked - t_start) + (t_end - t_detected)
         timing = {"detect": (t_detected - t_tracked) * 1e3, "track": tracking * 1e3, "total": (t_end - t_start) * 1e3}
