@@ -704,6 +704,13 @@ def find_plaque(gray: np.ndarray, segmentation: Segmentation, library: Library, 
     return plaque, []
 
 
+def uses_outline(sign: LibrarySign, settings: Settings) -> bool:
+    """Whether `sign` is placed by its outline (`refine_outline`) under `settings`: a plaque's four
+    straight edges. A picture's are not its own (on box.mp4 a box's printed face was drawn 9 px off
+    it, on the lid's edges), nor are a landmark's searched without segmentation."""
+    return settings.refine_outline and settings.segment_mode != "none" and sign.kind == "plaque"
+
+
 def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.ndarray, dst: np.ndarray,
                   settings: Settings, attempt: Attempt | None, camera: Camera, warnings: list[str]):
     """(H, src, dst, ecc, outline): the winner's homography and the correspondences for its pose,
@@ -719,8 +726,7 @@ def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.nd
     fitted as `camera`'s ideal pinhole image shows them, straight under lens distortion too.
     """
     why = None
-    # A landmark searched without segmentation need not be a plaque with four straight edges.
-    use_outline = settings.refine_outline and settings.segment_mode != "none" and sign.kind == "plaque"
+    use_outline = uses_outline(sign, settings)
     if use_outline:
         outline, why = outline_agreeing(gray, sign, H, src, dst, settings, attempt, camera)
         if outline is not None:

@@ -60,7 +60,7 @@ from .outline import Outline, outline_fit, refine_outline
 from .plaque import grid_correspondences, sign_corners
 from .pose import CORNER_SIGMA_PX, Pose, PoseError, pose_near, with_corner_floor
 from .pose_filter import PoseFilter
-from .recognize import Recognition, image_camera, quad_problem
+from .recognize import Recognition, image_camera, quad_problem, uses_outline
 from .segment import Box, box_iou
 from .settings import Settings
 from .sign_map import SignMap
@@ -374,7 +374,7 @@ class Tracker:
         if p1 is None:
             return None
         good = status.ravel() == 1
-        if not (track.outlined and self.settings.refine_outline):
+        if not (track.outlined and uses_outline(track.sign, self.settings)):
             # Checked backward where the points alone place the sign. Where its outline does, they
             # only start the search for its edges, and RANSAC drops the strays among them.
             back, status_back, _ = cv2.calcOpticalFlowPyrLK(after, before, p1, None, **lk)
@@ -398,7 +398,7 @@ class Tracker:
         # Weak when most of the points seeded are lost: the view changed beyond what they can follow.
         weak = inl.sum() < max(cfg.min_points, cfg.keep_fraction * track.seeded)
         H = H / H[2, 2]
-        if self.settings.refine_outline:
+        if uses_outline(track.sign, self.settings):
             # The plaque's edges put H where the sign is now, not where the points drifted to.
             outline, _ = refine_outline(gray, track.sign, H, self.settings.seed, camera)
             if outline is not None:
