@@ -3,6 +3,7 @@ flights (pipeline/synth_flight.py) and on the committed sample flight."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -12,7 +13,7 @@ import numpy as np
 import pytest
 
 from signpose.pipeline.camera import CameraError, load_camera
-from signpose.pipeline.library import load_library
+from signpose.pipeline.library import Library, load_library
 from signpose.pipeline.pose import Pose, corner_covariance, rotation_error_deg
 from signpose.pipeline.pose_filter import PoseFilter, pose_jacobian, exp_so3, log_so3
 from signpose.pipeline.settings import Settings
@@ -70,6 +71,21 @@ def test_a_track_without_an_outline_is_re_anchored_by_the_detector(library):
     assert states[1] == ["detected"] and states[2] == ["tracked"], states
     assert states[4] == ["detected"], f"the detector's next budgeted run re-anchors the track: {states}"
     assert len({s.track_id for r in results[1:] for s in r.signs}) == 1
+
+
+def test_a_picture_is_followed_by_its_points_not_by_an_outline(library):
+    # recognize places a plaque by its four edges and a picture by its features alone (a picture's
+    # boundary need not be an edge of its own); the tracker follows each the same way.
+    frames = render(library, [Plaque("security_compound", (0.0, -0.2), SIGN)], hover(0.0, 1.2), 5)
+    sign = library["security_compound"]
+    for kind in ("plaque", "picture"):
+        tracker = Tracker(Library(library.root, [dataclasses.replace(sign, kind=kind)]), Settings(),
+                          synthetic_camera(), fps=FPS)
+        outlined = []
+        for i, frame in enumerate(frames):
+            states = [s.state for s in tracker.step(frame, index=i, time_s=i / FPS).signs]
+            outlined += [t.outlined for t in tracker.tracks if states == ["tracked"]]
+        assert outlined and all(outlined) == (kind == "plaque") and any(outlined) == (kind == "plaque"), (kind, outlined)
 
 
 def test_a_check_where_the_cut_has_no_camera_searches_the_frame(library, monkeypatch):
