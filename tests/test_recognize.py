@@ -370,8 +370,7 @@ def test_the_full_frame_fallback_is_searched_shrunk_and_a_frame_without_segmenta
     """After the crops the full frame is searched shrunk by full_frame_scale; searched without
     segmentation it is the search itself, and keeps its size."""
     image = read_image(SCENES / "scene_000.jpg")
-    fallback = preset("default")
-    assert fallback.full_frame_scale < 1.0
+    fallback = preset("default").replace(full_frame_scale=0.75)
     for settings, scale in ((fallback, fallback.full_frame_scale), (fallback.replace(segment_mode="none"), 1.0)):
         rec = recognize(image, library, settings)
         full = next(a for a in rec.attempts if a.source == "full frame")
@@ -380,9 +379,8 @@ def test_the_full_frame_fallback_is_searched_shrunk_and_a_frame_without_segmenta
 
 def test_the_plaque_fallback_says_why_features_did_not_decide(library):
     # At this RANSAC threshold scene_009's leading sign had 11 inliers but an absurd quad: the
-    # warning blamed "too few feature inliers" (its full frame searched at full size, as recorded).
-    settings = preset("default").replace(ransac_threshold_px=14.8, full_frame_scale=1.0)
-    rec = recognize(read_image(SCENES / "scene_009.jpg"), library, settings)
+    # warning blamed "too few feature inliers".
+    rec = recognize(read_image(SCENES / "scene_009.jpg"), library, preset("default").replace(ransac_threshold_px=14.8))
     assert rec.by_plaque and rec.attempt.leader.n_inliers >= rec.settings.min_inliers
     note = next(w for w in rec.warnings if w.startswith("recognised by the plaque fallback"))
     assert note.endswith(f"features did not decide ({rec.attempt.leader.reason})") and "absurd" in note
