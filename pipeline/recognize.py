@@ -550,7 +550,7 @@ class Run:
         gray, library, settings = self.gray, self.library, self.settings
         # A picture's view gets a feature budget grown with the region's area: the features, and the
         # matches made of them, are keyed by the settings they were detected with.
-        searched_with = search_settings(settings, library, region)
+        searched_with = self.region_settings(region)
         with self.stages.timed("features"):
             query = self.stages.run("features", lambda: detect(gray, searched_with, region), (region,),
                                     settings=searched_with)
@@ -562,6 +562,16 @@ class Run:
                              self.stages.timing)
         winner, margin = decide(scores, settings)
         return Attempt(region, source, query, scores, winner, margin)
+
+    def region_settings(self, region: Box) -> Settings:
+        """The settings `region` is searched with: `search_settings`', the full frame at its full size
+        where it is the search itself (no segmentation) or where a picture, which is found in it
+        rather than in the crops, may be in view."""
+        searched_with = search_settings(self.settings, self.library, region)
+        if searched_with.full_frame_scale != 1.0 and (
+                self.segmentation is None or any(sign.kind == "picture" for sign in self.library.signs)):
+            return searched_with.replace(full_frame_scale=1.0)
+        return searched_with
 
     def affine_fallback(self, attempts: list[Attempt], chosen: Attempt | None,
                         warnings: list[str]) -> tuple[Attempt, Refined] | None:
@@ -579,7 +589,7 @@ class Run:
             query, region = searched.features, searched.region
             matches = self.stages.run("affine match",
                                       lambda: match_library(query.descriptors, trains, settings.ratio, query.norm),
-                                      (region,), settings=search_settings(settings, library, region))
+                                      (region,), settings=self.region_settings(region))
             scores = score_signs(library, query, lib, matches, settings, image_size, self.stages.timing)
             winner, margin = decide(scores, settings)
             if winner is None:
