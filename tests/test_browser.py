@@ -1005,10 +1005,11 @@ def test_a_measurement_of_a_replaced_box_is_not_shown_when_it_comes_last(page, a
                                                                                abs=1e-3)
 
 
-def test_settings_changes_leave_no_threshold_errors_in_the_console(page, api):
+def test_settings_changes_leave_no_threshold_errors_in_the_console(fresh_page, api):
     """Nothing recognised and the features' best region the full frame: the server refused (422) to
     measure the blob the page draws, and the page asked again after every settings change, an error
     in the console each time. The blob is measured now, and a refusal is not asked for again."""
+    page = fresh_page  # its console must hold only what this test does
     photo = sign_photo(load_library(SAMPLE_LIBRARY), "security_compound")
     r = api.post("/api/images", files={"files": ("threshold-errors.jpg", photo, "image/jpeg")})
     r.raise_for_status()
@@ -2266,10 +2267,11 @@ def test_a_failed_image_says_why_without_figures(page, api, no_camera):
     assert card.locator(".card-stats").inner_text() == ""
 
 
-def test_a_detail_asks_for_no_figure_its_result_says_is_not_there(page, api, no_camera):
+def test_a_detail_asks_for_no_figure_its_result_says_is_not_there(fresh_page, api, no_camera):
     """Every no-sign image logged a 404 for its text check's figure, and an image that could not be
     run a 409 for every stage, its thumbnails showing the error clipped: the result says which
     figures there are, and the others are placeholders the page words, whole in their boxes."""
+    page = fresh_page  # its console must hold only what this test does
     problems = []
     page.on("console", lambda msg: msg.type == "error" and problems.append(msg.text))
     page.on("response", lambda response: response.status >= 400 and problems.append(f"{response.status} {response.url}"))
