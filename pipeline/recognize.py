@@ -58,7 +58,7 @@ MIN_HOMOGRAPHY_POINTS = 4
 # for a homography among the clutter's, but they crowd where it is; searched at twice the resolution
 # it gives two to three times the inliers. On the photo world's 150 scenes (seed 0) the signs it found
 # held 11-26 matches in the window, the 15 photos without a plaque 6-18: at 15, 7 of the 9 found and 2
-# of those 15 photos searched again. A window of 0.2 found 4 more hard views, 0.3 6, 0.4 4.
+# of those 15 photos searched again. At 11, a window of 0.2 found 4 more hard views, 0.3 6, 0.4 4.
 ZOOM_WINDOW = 0.3
 ZOOM_SCALE = 2.0
 ZOOM_MIN_MATCHES = 15
