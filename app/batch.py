@@ -1,15 +1,17 @@
 """Images and flights in chunks, on a Dask cluster (`--dask`) or this machine's processes, with their results
 kept in a `ResultStore` (`--results DIR`) so that a run cut short continues where it stopped.
 
-The chunk functions (`image_outcomes`, `tracked_flight`) run on the workers: plain Python over the pipeline,
+The chunk functions (`image_outcomes`, `tracked_range`) run on the workers: plain Python over the pipeline,
 handed the images' bytes (or, with `--shared-paths`, paths every worker can read) and the library, sent
 once with its features. Results come back in any order and are put back in the jobs' order, so the output
-is a local run's. The Dask side is in `signpose.app.cluster`, imported only for `--dask`.
+is a local run's; a long flight is tracked in frame ranges (`tracked_range`), whose boundaries differ from a
+single run as docs/cluster.md says. The Dask side is in `signpose.app.cluster`, imported only for `--dask`.
 """
 
 from __future__ import annotations
 
 import concurrent.futures
+import itertools
 import multiprocessing
 import signal
 import tempfile
@@ -32,6 +34,9 @@ from signpose.pipeline.stages import ALL_STAGES
 
 EXTRA = "signpose[dask]"  # what `pip install` needs for --dask
 IMAGES_PER_CHUNK = 8
+# A flight's chunks: 30 s at 30 fps, each tracked after a warm-up of 1 s (`tracked_range`).
+FRAMES_PER_CHUNK = 900
+WARM_UP_FRAMES = 30
 
 
 class BatchError(Exception):
@@ -262,82 +267,148 @@ def placed(files: Sequence[tuple[str, bytes]], folder: str) -> str:
 
 @dataclass(frozen=True)
 class FlightItem:
-    """A flight to track: its place among the sources, its name as given, its files (or a path every worker
-    can read) and the options of `signpose track`."""
+    """A frame range of a flight to track: the flight's place among the sources, the settings variant it is
+    tracked with, the range's place among the flight's ranges, its name as given, its files (or a path every
+    worker can read), the options of `signpose track`, and the range: frames `start` to `stop` (None: the
+    flight's end) reported, after `warm_up` frames before `start` tracked and not reported."""
 
     index: int
+    variant: int
+    part: int
     name: str
     payload: list[tuple[str, bytes]] | str
     camera: Camera | None
     sign_map: SignMap | None
     topic: str | None
     fps: float | None
-    max_frames: int | None
     max_pixels: int
+    start: int
+    stop: int | None
+    warm_up: int
 
 
-def tracked_flight(library: Library, settings: Settings, item: FlightItem) -> dict:
-    """On a worker: every frame's `signpose track --json` line of the flight, and the error that cut it short
-    ({"records": [...], "error": str | None}). One chunk per flight: the tracker's state (its tracks, when it
-    last ran the detector) carries from each frame to the next, so a frame range tracked on its own would
-    not give what the whole flight gives."""
+def tracked_range(library: Library, variants: Sequence[Settings], item: FlightItem) -> dict:
+    """On a worker: the `signpose track --json` line of every frame of the item's range, and the error that cut
+    it short ({"records": [...], "error": str | None}). The tracker starts cold `warm_up` frames before the
+    range (a video seeks there; `FrameSource.frames_from`): a sign in view at `start` is then confirmed and its
+    filter under way there, as in a run over the whole flight."""
     from signpose.pipeline.camera import CameraError
     from signpose.pipeline.frames import SourceError, open_source
     from signpose.pipeline.track import Tracker, tracked_frames
 
     worker_process()
+    first = max(0, item.start - item.warm_up)
     with tempfile.TemporaryDirectory(prefix="signpose-flight-") as folder:
         where = item.payload if isinstance(item.payload, str) else placed(item.payload, folder)
         records: list[dict] = []
         try:
             with open_source(where, topic=item.topic, fps=item.fps, max_pixels=item.max_pixels) as source:
-                tracker = Tracker(library, settings, item.camera if item.camera is not None else source.camera,
-                                  fps=source.fps, sign_map=item.sign_map)
-                for _, _, record in tracked_frames(source, tracker, item.name):
-                    records.append(record)
-                    if item.max_frames is not None and len(records) >= item.max_frames:
-                        break
+                tracker = Tracker(library, variants[item.variant],
+                                  item.camera if item.camera is not None else source.camera, fps=source.fps,
+                                  sign_map=item.sign_map)
+                frames = itertools.takewhile(lambda frame: item.stop is None or frame.index < item.stop,
+                                             source.frames_from(first))
+                for _, _, record in tracked_frames(frames, tracker, item.name):
+                    if record["frame"] >= item.start:
+                        records.append(record)
         except (SourceError, CameraError) as exc:
             return {"records": records, "error": str(exc).replace(where, item.name)}
     return {"records": records, "error": None}
 
 
-def track_all(sources: Sequence[str], library: Library, settings: Settings, camera: Camera | None, *,
+def frame_ranges(count: int | None, max_frames: int | None, frames_per_chunk: int) -> list[tuple[int, int | None]]:
+    """(start, stop) of the chunks of a flight of `count` frames (None: not known) tracked up to `max_frames`:
+    `frames_per_chunk` frames each, the last to the end (stop None, or `max_frames`). A flight whose length is
+    not known is one chunk."""
+    known = min(filter(None, (count, max_frames)), default=None)
+    if known is None or known <= frames_per_chunk:
+        return [(0, max_frames)]
+    starts = list(range(0, known, frames_per_chunk))
+    return [(start, start + frames_per_chunk) for start in starts[:-1]] + [(starts[-1], max_frames)]
+
+
+def range_name(spec: str, start: int, stop: int | None, variant: int, variants: int) -> str:
+    """How the final table names a flight's range: the flight, its frames, and which of the `variants`."""
+    frames = f" frames {start}..{'end' if stop is None else stop - 1}"
+    return f"{spec}{frames}" + (f" at value {variant + 1} of {variants}" if variants > 1 else "")
+
+
+def joined(parts: Sequence[dict]) -> dict:
+    """A flight's chunk results, in frame order, as one: the records up to the first chunk's error, with each
+    chunk's track ids moved past those of the chunks before it (every chunk's tracker numbers its tracks from
+    1, so a sign followed across a boundary gets a new id there)."""
+    records: list[dict] = []
+    offset = 0
+    for part in parts:
+        highest = offset
+        for record in part["records"]:
+            signs = [{**sign, "track_id": sign["track_id"] + offset} for sign in record["signs"]]
+            highest = max([highest, *(sign["track_id"] for sign in signs)])
+            records.append({**record, "signs": signs})
+        if part["error"] is not None:
+            return {"records": records, "error": part["error"]}
+        offset = highest
+    return {"records": records, "error": None}
+
+
+def flight_count(spec: str, *, topic: str | None, fps: float | None, max_pixels: int) -> int | None:
+    """How many frames the flight at `spec` holds, as its container says; None when it does not say or the
+    source cannot be opened here (the chunk then says why)."""
+    from signpose.pipeline.frames import SourceError, open_source
+
+    try:
+        with open_source(spec, topic=topic, fps=fps, max_pixels=max_pixels) as source:
+            return source.count
+    except SourceError:
+        return None
+
+
+def track_all(jobs: Sequence[tuple[str, Camera | None]], library: Library, variants: Sequence[Settings], *,
               sign_map: SignMap | None, topic: str | None, fps: float | None, max_frames: int | None, max_pixels: int,
-              runner: Runner, store: ResultStore | None, shared_paths: bool,
-              done: Callable[[int], None]) -> tuple[list[dict], Tally]:
-    """`tracked_flight` of every source, in the sources' order, taken from `store` where it holds it (keyed by
-    the flight's files and every setting: tracking runs every stage). `done(1)` follows each flight."""
-    results: list[dict | None] = [None] * len(sources)
-    tally = Tally()
-    keys: dict[int, tuple[str, str]] = {}
+              frames_per_chunk: int, runner: Runner, store: ResultStore | None, shared_paths: bool,
+              planned: Callable[[int], None], done: Callable[[int], None]) -> tuple[list[list[dict]], Tally]:
+    """Every job's flight (source, camera) tracked under each of `variants`, in chunks of `frames_per_chunk`
+    frames (`tracked_range`, `WARM_UP_FRAMES` of warm-up), each taken from `store` where it holds it (keyed by
+    the flight's files, every setting and the range: tracking runs every stage); joined per flight
+    ([variant][job], `joined`). `planned(n)` is told the number of chunks before they run, `done(1)` follows
+    each chunk."""
     context = {"kind": "track", "library": library_fingerprint(library), "topic": topic, "fps": fps,
-               "max_frames": max_frames, "max_pixels": max_pixels,
-               "camera": None if camera is None else camera.to_json(),
+               "max_pixels": max_pixels, "warm_up": WARM_UP_FRAMES,
                "map": None if sign_map is None else sign_map.to_json()}
+    ranges = [frame_ranges(flight_count(spec, topic=topic, fps=fps, max_pixels=max_pixels), max_frames,
+                           frames_per_chunk) for spec, _ in jobs]
+    parts: list[list[list[dict | None]]] = [[[None] * len(r) for r in ranges] for _ in variants]
+    keys: dict[tuple[int, int, int], tuple[str, str]] = {}  # (variant, job, chunk): (content hash, key)
+    tally = Tally()
+    planned(len(variants) * sum(map(len, ranges)))
 
     def chunks() -> Iterator[Chunk]:
-        for index, spec in enumerate(sources):
+        for index, (spec, camera) in enumerate(jobs):
             files = source_files(spec) if store is not None or not shared_paths else []
-            if store is not None:
-                content, key = files_hash(files), result_key(settings, ALL_STAGES, context)
-                keys[index] = (content, key)
-                if (stored := store.get(content, key)) is not None:
-                    results[index] = stored
-                    tally.reused += 1
-                    done(1)
-                    continue
+            content = files_hash(files) if store is not None else ""
             payload: list[tuple[str, bytes]] | str = str(Path(spec).resolve()) if shared_paths else files
-            yield Chunk(spec, FlightItem(index, spec, payload, camera, sign_map, topic, fps, max_frames, max_pixels), 1)
+            for variant, settings in enumerate(variants):
+                for part, (start, stop) in enumerate(ranges[index]):
+                    if store is not None:
+                        key = result_key(settings, ALL_STAGES, {**context, "start": start, "stop": stop,
+                                                                "camera": None if camera is None else camera.to_json()})
+                        keys[variant, index, part] = (content, key)
+                        if (stored := store.get(content, key)) is not None:
+                            parts[variant][index][part] = stored
+                            tally.reused += 1
+                            done(1)
+                            continue
+                    item = FlightItem(index, variant, part, spec, payload, camera, sign_map, topic, fps, max_pixels,
+                                      start, stop, WARM_UP_FRAMES)
+                    yield Chunk(range_name(spec, start, stop, variant, len(variants)), item, 1)
 
-    shared = (runner.share(with_features(library, [settings])), settings)
-    for chunk, result in runner.run(tracked_flight, shared, chunks()):
-        index = chunk.work.index
-        results[index] = result
+    shared = (runner.share(with_features(library, variants)), list(variants))
+    for chunk, result in runner.run(tracked_range, shared, chunks()):
+        item = chunk.work
+        parts[item.variant][item.index][item.part] = result
         if store is not None and result["error"] is None:
-            store.put(*keys[index], result)
+            store.put(*keys[item.variant, item.index, item.part], result)
         tally.computed += 1
         done(1)
     tally.retried = runner.retried()
-    return results, tally  # type: ignore[return-value]  # every place is filled above
-
+    return [[joined(flight) for flight in row] for row in parts], tally  # type: ignore[arg-type]  # all filled

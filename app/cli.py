@@ -23,7 +23,8 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from signpose.app.batch import IMAGES_PER_CHUNK, BatchError, Runner, Tally, runner_for
+from signpose.app.batch import (FRAMES_PER_CHUNK, IMAGES_PER_CHUNK, WARM_UP_FRAMES, BatchError, Runner, Tally,
+                                runner_for)
 from signpose.app.entry import STOP_SIGNALS, Interrupted, interrupted, stopping_on_signals
 from signpose.app.image_store import HELD_BYTES_PER_PIXEL, check_image_header, decode_upload, held_bytes
 from signpose.app.tuning import MAX_SWEEP_STEPS
@@ -99,19 +100,24 @@ def max_pixels(args) -> int:
     return round(args.max_megapixels * 1e6)
 
 
-def add_cluster(p: argparse.ArgumentParser, what: str, chunks: bool = True) -> None:
-    """--dask, --results, --shared-paths (and --chunk): where the work runs and where its results are kept."""
+def add_cluster(p: argparse.ArgumentParser, what: str, *, images: bool, frames: bool) -> None:
+    """--dask, --results, --shared-paths, and --chunk (`images`), --chunk-frames (`frames`): where the work runs,
+    in what pieces, and where its results are kept."""
     p.add_argument("--dask", metavar="ADDRESS",
                    help="run on the Dask cluster whose scheduler is at ADDRESS (e.g. tcp://host:8786) instead of this "
                         "machine's processes; needs signpose[dask] installed here and on the workers (docs/cluster.md)")
     p.add_argument("--results", metavar="DIR",
-                   help=f"keep each {what}'s result in DIR, keyed by the file's content and the settings that feed it: "
+                   help=f"keep each {what} in DIR, keyed by the file's content and the settings that feed it: "
                         "a re-run (after Ctrl-C, a lost worker or a settings change) computes only what is missing")
     p.add_argument("--shared-paths", action="store_true",
                    help="send the workers paths, not the files' bytes: every worker sees the files at the same paths")
-    if chunks:
+    if images:
         p.add_argument("--chunk", type=positive_int, default=IMAGES_PER_CHUNK, metavar="N",
                        help="images sent to a worker at a time (default %(default)s)")
+    if frames:
+        p.add_argument("--chunk-frames", type=positive_int, default=FRAMES_PER_CHUNK, metavar="N",
+                       help="frames of a flight tracked by one worker at a time, each range after a warm-up of "
+                            f"{WARM_UP_FRAMES} frames (default %(default)s; docs/cluster.md)")
 
 
 @contextmanager
@@ -227,14 +233,16 @@ def sign_json(rec: Recognition) -> dict:
 
 
 def format_in_map(located: CameraInMap | None, frame: str) -> str:
-    """The table's line of the camera in the map frame `frame`: position, 1σ, the signs it came from."""
+    """The table's line of the camera in the map frame `frame`: position, 1σ, the signs it came from and
+    those left out."""
     if located is None:
         return f"in {frame}: no mapped sign in view"
     x, y, z = located.position_m
     covariance = located.covariance_xyz_rpy
     sigma = ("" if covariance is None
              else f" ± {1e3 * math.sqrt(max(np.linalg.eigvalsh(covariance[:3, :3]).max(), 0.0)):.0f} mm")
-    return f"in {frame}: cam at ({x:+.3f}, {y:+.3f}, {z:+.3f}) m{sigma}, from {', '.join(located.signs_used)}"
+    left_out = f" (left out as disagreeing: {', '.join(located.signs_rejected)})" if located.signs_rejected else ""
+    return f"in {frame}: cam at ({x:+.3f}, {y:+.3f}, {z:+.3f}) m{sigma}, from {', '.join(located.signs_used)}{left_out}"
 
 
 def progress(iterable: Iterable | None = None, *, hidden: bool = False, **options) -> tqdm:
@@ -341,9 +349,7 @@ def signs_seen(labels: dict[int, str]) -> str:
 
 def track_in_chunks(args, library: Library, settings: Settings, camera: Camera | None,
                     sign_map: SignMap | None) -> int:
-    """`track --dask` or `--results`: every SOURCE a flight of its own, one chunk each, printed in order."""
-    from signpose.app.batch import track_all
-
+    """`track --dask` or `--results`: every SOURCE a flight of its own, in frame ranges, printed in order."""
     if args.output:
         raise CliError("-o writes the flight of a local run; with --dask or --results use --json, whose lines name "
                        "their source")
@@ -352,14 +358,10 @@ def track_in_chunks(args, library: Library, settings: Settings, camera: Camera |
             raise CliError(f"{spec}: no such file or folder; with --dask or --results each SOURCE is a video, a bag "
                            "or a folder of frames")
     started = time.perf_counter()
-    with progress(total=len(args.sources), unit="flight", desc="track", leave=False) as bar, \
-            batch_runner(args, CORES) as runner:
-        results, tally = track_all(args.sources, library, settings, camera, sign_map=sign_map, topic=args.topic,
-                                   fps=args.fps, max_frames=args.max_frames, max_pixels=max_pixels(args),
-                                   runner=runner, store=result_store(args), shared_paths=args.shared_paths,
-                                   done=bar.update)
+    results, tally = flights_in_chunks(args, [(spec, camera) for spec in args.sources], library, [settings],
+                                       sign_map=sign_map, topic=args.topic, fps=args.fps, workers=CORES, desc="track")
     frames = failed = 0
-    for spec, result in zip(args.sources, results):
+    for spec, result in zip(args.sources, results[0]):
         labels: dict[int, str] = {}
         seen = sum(told(record, labels, args.json) for record in result["records"])
         frames += len(result["records"])
@@ -370,8 +372,26 @@ def track_in_chunks(args, library: Library, settings: Settings, camera: Camera |
               file=sys.stderr)
     elapsed = time.perf_counter() - started
     print(f"{frames} frames of {len(args.sources)} flight(s), {frames / elapsed:.1f} frames/s; "
-          f"{tally.summary('flight(s)')}", file=sys.stderr)
+          f"{tally.summary('chunk(s)')}", file=sys.stderr)
     return 1 if failed else 0
+
+
+def flights_in_chunks(args, jobs: list[tuple[str, Camera | None]], library: Library, variants: list[Settings], *,
+                      sign_map: SignMap | None, topic: str | None, fps: float | None, workers: int,
+                      desc: str) -> tuple[list[list[dict]], Tally]:
+    """Every flight of `jobs` (source, camera) tracked under each of `variants` ([variant][job]: its records and
+    error), in ranges of --chunk-frames on the cluster at --dask or `workers` processes here, taken from
+    --results where it holds them."""
+    from signpose.app.batch import track_all
+
+    with progress(total=0, unit="chunk", desc=desc, leave=False) as bar, batch_runner(args, workers) as runner:
+        def planned(chunks: int) -> None:
+            bar.total = chunks
+            bar.refresh()
+
+        return track_all(jobs, library, variants, sign_map=sign_map, topic=topic, fps=fps, max_frames=args.max_frames,
+                         max_pixels=max_pixels(args), frames_per_chunk=args.chunk_frames, runner=runner,
+                         store=result_store(args), shared_paths=args.shared_paths, planned=planned, done=bar.update)
 
 
 def cmd_synth(args) -> int:
@@ -551,31 +571,87 @@ def evaluated_in_chunks(args, datasets: list, library: Library, settings: Settin
 
 
 def cmd_sweep(args) -> int:
-    from signpose.app.tuning import INTEGER_SETTINGS, TuningError, tally_sweep, values_to_sweep
-    from signpose.pipeline.library import NO_SIGN
+    from signpose.app.tuning import TuningError, values_to_sweep
 
     library, settings, camera = load_inputs(args)
-    datasets = load_datasets(args.datasets, library)
+    flights = flight_folders(args.datasets)
+    datasets = load_datasets([d for d in args.datasets if d not in flights], library)
     try:
         values = values_to_sweep(settings, args.param, args.lo, args.hi, args.steps)
     except TuningError as exc:
         raise CliError(str(exc)) from None
     variants = [settings.replace(**{args.param: value}) for value in values]
+    answer: dict = {"param": args.param, "values": values}
+    tables, summaries, failed = [], [], 0
+    if datasets:
+        labelled, swept, tally = swept_photos(args, datasets, library, values, variants, camera)
+        answer.update({"labelled": labelled, **dataclasses.asdict(swept)})
+        tables.append(format_sweep(args.param, values, labelled, swept))
+        summaries.append(tally.summary("images"))
+    if flights:
+        scores, tally, failed = swept_flights(args, flights, library, variants, camera)
+        answer["flights"] = scores
+        tables += [format_flight_sweep(args.param, values, score) for score in scores]
+        summaries.append(tally.summary("flight chunk(s)"))
+    kept = args.dask or args.results
+    if args.json:
+        print(json.dumps(answer))
+        if kept:
+            print("\n".join(summaries), file=sys.stderr)
+    else:
+        print("\n\n".join(tables) + ("\n\n" + "\n".join(summaries) if kept else ""))
+    return 1 if failed else 0
+
+
+def flight_folders(folders: list[str]) -> dict:
+    """{folder: its `FlightTruth`} of the `folders` that hold a flight with its ground truth."""
+    from signpose.pipeline.flight_truth import load_flight_truth
+
+    try:
+        found = {folder: load_flight_truth(folder) for folder in folders}
+    except (ValueError, OSError) as exc:  # DatasetError, and what reading truth.json raises
+        raise CliError(str(exc)) from None
+    return {folder: truth for folder, truth in found.items() if truth is not None}
+
+
+def swept_photos(args, datasets: list, library: Library, values: list[float], variants: list[Settings],
+                 camera: Camera | None):
+    """The sweep's tally of the labelled photos of `datasets` over the `values` of --param, each in `variants`
+    (as the page's sweep): (how many, `SweepTally`, the run's `Tally`)."""
+    from signpose.app.tuning import INTEGER_SETTINGS, tally_sweep
+    from signpose.pipeline.library import NO_SIGN
+
     outcomes, tally = outcomes_in_chunks(args, datasets, library, variants, camera, args.workers, "sweep")
     expected = [sample.label or NO_SIGN for d in datasets for sample in d.samples]
     # As the page's sweep: an image the pipeline could not run on at a value is None there.
     runs = [[None if o.error is not None else o for o in row] for row in outcomes]
-    swept = tally_sweep(values, expected, runs, integer=args.param in INTEGER_SETTINGS)
-    if args.json:
-        print(json.dumps({"param": args.param, "values": values, "labelled": len(expected),
-                          **dataclasses.asdict(swept)}))
-        if args.dask or args.results:
-            print(tally.summary("images"), file=sys.stderr)
-    else:
-        print(format_sweep(args.param, values, len(expected), swept))
-        if args.dask or args.results:
-            print("\n" + tally.summary("images"))
-    return 0
+    return len(expected), tally_sweep(values, expected, runs, integer=args.param in INTEGER_SETTINGS), tally
+
+
+def swept_flights(args, flights: dict, library: Library, variants: list[Settings],
+                  camera: Camera | None) -> tuple[list[dict], Tally, int]:
+    """Each flight of `flights` ({folder: `FlightTruth`}) tracked under every variant and scored against its
+    truth: ({"flight", then each of `FlightScore.to_json`'s figures as a list in the variants' order}, the
+    run's tally, how many flights an error cut short, each error said on stderr). A flight is tracked with
+    --camera, else the camera.yaml beside it."""
+    from signpose.pipeline.flight_truth import score_flight
+
+    try:
+        jobs = [(str(truth.video), camera if camera is not None or truth.camera is None else load_camera(truth.camera))
+                for truth in flights.values()]
+    except CameraError as exc:
+        raise CliError(str(exc)) from None
+    tracked, tally = flights_in_chunks(args, jobs, library, variants, sign_map=None, topic=None, fps=None,
+                                       workers=args.workers, desc="sweep flights")
+    scores, failed = [], 0
+    for index, (folder, truth) in enumerate(flights.items()):
+        errors = sorted({row[index]["error"] for row in tracked} - {None})
+        for error in errors:
+            say(f"signpose sweep: error: {error}", sys.stderr)
+        failed += bool(errors)
+        per_value = [score_flight(truth, row[index]["records"]).to_json() for row in tracked]
+        scores.append({"flight": Path(folder).name, **{k: [s[k] for s in per_value] for k in per_value[0]}})
+    return scores, tally, failed
 
 
 def format_sweep(param: str, values: list[float], labelled: int, swept) -> str:
@@ -590,6 +666,24 @@ def format_sweep(param: str, values: list[float], labelled: int, swept) -> str:
         lines.append(f"\nno value of {param} gets every labelled image right")
     else:
         lines.append(f"\nevery image right from {swept.band[0]:g} to {swept.band[1]:g}; centre {swept.centre:g}")
+    return "\n".join(lines)
+
+
+def format_flight_sweep(param: str, values: list[float], score: dict) -> str:
+    """A flight's sweep table: per value its recall, wrong labels and camera position error (`swept_flights`)."""
+    from signpose.pipeline.flight_truth import MAX_DISTANCE_M, MIN_WIDTH_PX
+
+    def shown(value: float | None, unit: str) -> str:
+        return "-" if value is None else f"{value:g}{unit}"
+
+    lines = [f"flight {score['flight']}: {max(score['frames'])} frames",
+             f"{param:>20} {'recall':>8} {'wrong labels':>13} {'position p50':>13} {'p90':>8}"]
+    for i, value in enumerate(values):
+        lines.append(f"{value:>20g} {shown(score['recall_pct'][i], ' %'):>8} {score['wrong_labels'][i]:>13} "
+                     f"{shown(score['position_error_cm_p50'][i], ' cm'):>13} "
+                     f"{shown(score['position_error_cm_p90'][i], ' cm'):>8}")
+    lines.append(f"recall of the {max(score['sign_frames_due'])} (frame, sign) pairs fully in view and at least "
+                 f"{MIN_WIDTH_PX:g} px wide; position: the camera's error from signs within {MAX_DISTANCE_M:g} m")
     return "\n".join(lines)
 
 
@@ -810,7 +904,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", type=flight_output_path, metavar="OUT",
                    help="write the flight as OUT.mcap (ROS 2: poses with covariance, /tf, the frames), OUT.csv "
                         "or OUT.jsonl")
-    add_cluster(p, "flight", chunks=False)
+    add_cluster(p, "flight range's result", images=False, frames=True)
     p.set_defaults(func=cmd_track)
 
     p = sub.add_parser("synth", help="render synthetic scenes with ground truth")
@@ -830,22 +924,26 @@ def build_parser() -> argparse.ArgumentParser:
     add_common(p)
     add_max_megapixels(p)
     add_map_option(p)
-    add_cluster(p, "image")
+    add_cluster(p, "image's result", images=True, frames=False)
     p.set_defaults(func=cmd_evaluate)
 
-    p = sub.add_parser("sweep", help="the page's sweep over labelled datasets: images right per value of one setting")
+    p = sub.add_parser("sweep", help="the page's sweep over labelled datasets and flights with ground truth: images "
+                                     "right, or a flight's recall and pose error, per value of one setting")
     p.add_argument("param", metavar="PARAM", help="the numeric setting to sweep, e.g. threshold")
     p.add_argument("--lo", type=float, required=True, help="first value")
     p.add_argument("--hi", type=float, required=True, help="last value")
     p.add_argument("--steps", type=whole_number(2, MAX_SWEEP_STEPS), default=13,
                    help=f"values from lo to hi, 2 to {MAX_SWEEP_STEPS} (default %(default)s)")
-    p.add_argument("datasets", nargs="+", metavar="DATASET", help="dataset folders, as for evaluate")
+    p.add_argument("datasets", nargs="+", metavar="DATASET",
+                   help="dataset folders, as for evaluate, or flight folders: a video with a truth.json of its frames "
+                        "and camera.yaml, as pipeline.synth_flight writes them")
+    p.add_argument("--max-frames", type=positive_int, metavar="N", help="track only the first N frames of each flight")
     p.add_argument("--workers", type=positive_int, default=WorkspaceConfig.workers,
                    help="processes sharing the images without --dask (default: every core, here %(default)s)")
     p.add_argument("--json", action="store_true", help="one JSON object, as the page's GET /api/sweep answers")
     add_common(p)
     add_max_megapixels(p)
-    add_cluster(p, "image and value")
+    add_cluster(p, "image's and flight range's result at each value", images=True, frames=True)
     p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("calibrate", help="camera intrinsics from photos of a printed chessboard (docs/calibration.md)")

@@ -24,6 +24,7 @@ from typing import Protocol, TypeVar
 import cv2
 import numpy as np
 
+from signpose.pipeline.every_sign import SignSeen
 from signpose.pipeline.exif import ExifCamera, decode_with_exif
 from signpose.pipeline.image import ImageError, ImageTooLarge, check_image_header, to_gray
 from signpose.pipeline.library import NO_SIGN
@@ -155,6 +156,8 @@ class ImageRecord:
     slot: Slot = Slot(0)
     cache: StageCache = field(init=False, repr=False)
     outcome: Outcome = field(default_factory=Outcome)
+    # Every library sign in the image (`Workspace.signs_in_view`) and the snapshot generation it is of.
+    in_view: tuple[int, list[SignSeen]] | None = field(default=None, repr=False)
     # Held while the pipeline uses `cache`: StageCache is not thread-safe and a sweep may run
     # alongside a re-run.
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False)

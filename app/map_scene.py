@@ -4,22 +4,24 @@ Under ``/map`` (the map frame, metres: X_map = R·X_sign + position_m, docs/map.
 library sign is drawn in place as the sign worlds draw a sign (``signs/<id>``), with the 3-sigma
 ellipsoid of its position (``uncertainty/<id>``: axes along the eigenvectors of its position
 covariance, half-lengths three times their sigma) and a label giving its worst-direction 1-sigma.
-Each photo whose recognised sign is mapped is drawn as a frustum (``cameras/<image id>``), and each
+Each photo that sees a mapped sign is drawn as a frustum (``cameras/<image id>``), and each
 flight as its camera's trajectory through the frames located in the map (``flights/<id>/``, as
 app/flight_scene.py draws one in a sign's world: ``trajectory``, ``frusta/<frame>`` and ``current``,
-the frame the page shows), the cameras located from the signs they see by
-`pipeline.localise.locate_in_map` (app/sign_maps.py).
+the frame the page shows), the cameras located from every sign they see (a photo's as
+`Workspace.signs_in_view` finds them) by `pipeline.localise.locate_in_map` (app/sign_maps.py).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import viser
 import viser.transforms as tf
 
+from signpose.pipeline.every_sign import SignSeen
 from signpose.pipeline.library import Library
 from signpose.pipeline.localise import CameraInMap
 from signpose.pipeline.recognize import Recognition
@@ -73,12 +75,18 @@ class MappedSignNodes:
         self.sign.remove()
 
 
+InView = Callable[[list[ImageRecord]], list[list[SignSeen] | None]]
+
+
 class MapLayer:
     """The map world of a viser scene; the scene's redraw thread calls `draw`, under the scene's lock.
-    What it drew is of map revision `revision` (-1: no map)."""
+    What it drew is of map revision `revision` (-1: no map). `signs_in_view`: every sign in each of
+    some photos (`Workspace.signs_in_view`; None for a photo that could not be run)."""
 
-    def __init__(self, server: viser.ViserServer, sign_maps: SignMaps, flights: Flights | None) -> None:
+    def __init__(self, server: viser.ViserServer, sign_maps: SignMaps, flights: Flights | None,
+                 signs_in_view: InView) -> None:
         self.server, self.sign_maps, self.flights = server, sign_maps, flights
+        self.signs_in_view = signs_in_view
         self.root = server.scene.add_frame(ROOT, show_axes=False, visible=False)
         self.revision = -1
         self.signs: dict[str, MappedSignNodes] = {}
@@ -154,13 +162,14 @@ class MapLayer:
             frustum = self.cameras.pop(image_id)[2]
             if frustum is not None:
                 frustum.remove()
-        for image_id, rec in wanted.items():
-            drawn = self.cameras.get(image_id)
-            if drawn is not None and drawn[0] is rec:
-                continue
+        stale = [(record, rec) for record, rec in shown
+                 if (drawn := self.cameras.get(record.id)) is None or drawn[0] is not rec]
+        in_view = self.signs_in_view([record for record, _ in stale]) if stale else []
+        for (record, rec), found in zip(stale, in_view):
+            image_id, drawn = record.id, self.cameras.get(record.id)
             if drawn is not None and drawn[2] is not None:
                 drawn[2].remove()
-            camera = camera_in_map([rec], held.sign_map, library, rec.camera)
+            camera = camera_in_map(found or [SignSeen.of(rec)], held.sign_map, library, rec.camera)
             frustum = None
             if camera is not None:
                 fov, aspect = frustum_shape(*rec.image_size, rec.camera.K)

@@ -1101,7 +1101,8 @@ def attach(server: viser.ViserServer, workspace: Workspace, flights: Flights | N
     panel.version = workspace.settings_version
     scene = SceneHandle(server, workspace, panel, world, show_matches, frustum_width, status, upload,
                         flight_layer=FlightLayer(server, flights) if flights is not None else None,
-                        map_layer=MapLayer(server, sign_maps, flights) if sign_maps is not None else None)
+                        map_layer=(MapLayer(server, sign_maps, flights, workspace.signs_in_view)
+                                   if sign_maps is not None else None))
     world.on_update(scene._on_world)
     show_matches.on_update(scene._on_view_option)
     frustum_width.on_update(scene._on_frustum_width)

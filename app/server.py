@@ -42,7 +42,7 @@ from signpose.pipeline.library import LibraryError
 from signpose.pipeline.recognize import PipelineError
 from signpose.pipeline.settings import SettingsError
 from signpose.pipeline.map_build import MapBuildError
-from signpose.pipeline.sign_map import MapError, load_sign_map
+from signpose.pipeline.sign_map import MapError
 
 from . import api
 from .calibration import CalibrationSession
@@ -51,7 +51,7 @@ from .heavy import WorkQueue
 from .image_store import Conflict, ImageTooLarge
 from .scene import attach as attach_scene
 from .security import DOCS_ASSETS, AccessGuard, SecurityHeaders
-from .sign_maps import SignMaps
+from .sign_maps import open_sign_maps
 from .tuning import TuningError
 from .uploads import UploadLimit
 from .viser_proxy import PrivateViser, mount_viser
@@ -113,15 +113,12 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
     """
     workspace = source if isinstance(source, Workspace) else Workspace.open(source)
     owned = workspace is not source
-    sign_maps = SignMaps(publish=workspace.publish)
-    if workspace.config.map_file is not None:
-        try:
-            sign_maps.hold_file(load_sign_map(workspace.config.map_file, workspace.library.ids),
-                                workspace.config.map_file.name)
-        except MapError:
-            if owned:
-                workspace.close()
-            raise
+    try:
+        sign_maps = open_sign_maps(workspace)
+    except MapError:
+        if owned:
+            workspace.close()
+        raise
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:

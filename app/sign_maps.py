@@ -1,17 +1,19 @@
 """The sign map `signpose serve` holds (docs/map.md): loaded from a map file (`--map`, the page) or
 built from the photos and flights held, as `signpose map build` builds one from files
-(pipeline/map_build.py); drawn in the 3D scene's map world and downloaded as YAML. Held while the
-server runs, not kept in the state directory.
+(pipeline/map_build.py); drawn in the 3D scene's map world and downloaded as YAML. Kept in the
+state directory (`map.yaml`, the map file as downloaded) and held again at the next start, unless
+`--map` gives another (`open_sign_maps`).
 
 A build's observations: every library sign in each photo held (`Workspace.signs_in_view`), keyed by
 the image's id, and from each flight's last complete run the measured poses of the signs on the
 frames `takes_frame` takes, keyed `<flight id>#<frame>`, as `map build` takes a flight's frames.
 The cameras in the map frame (the scene's) are located by `pipeline.localise.locate_in_map` from
-the signs each photo or frame sees.
+every sign each photo (`Workspace.signs_in_view`, as a build searches it) or frame sees.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -19,14 +21,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from signpose.pipeline.camera import Camera
+from signpose.pipeline.every_sign import SignSeen
 from signpose.pipeline.library import Library
 from signpose.pipeline.localise import CameraInMap, locate_in_map
 from signpose.pipeline.map_build import MapBuild, MapBuildError, Observation, build_map, observations_of, takes_frame
 from signpose.pipeline.pose import Pose
-from signpose.pipeline.sign_map import SignMap, sign_map_yaml
+from signpose.pipeline.sign_map import SignMap, load_sign_map, sign_map_yaml
 
 from .flights import Flight, Flights
-from .workspace import Workspace
+from .state import StateDir, StateError
+from .workspace import Workspace, say_kept
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, eq=False)
@@ -49,10 +55,12 @@ class HeldMap:
 
 
 class SignMaps:
-    """The one map a server holds, or none. Thread-safe; `publish("map", {"revision"})` on every change."""
+    """The one map a server holds, or none. Thread-safe; `publish("map", {"revision"})` on every change,
+    which is kept in `state` when given (its map file, or none)."""
 
-    def __init__(self, *, publish: Callable[[str, dict], None]) -> None:
+    def __init__(self, *, publish: Callable[[str, dict], None], state: StateDir | None = None) -> None:
         self._publish = publish
+        self._state = state
         self._lock = threading.Lock()
         self._held: HeldMap | None = None
         self._revision = 0
@@ -61,9 +69,9 @@ class SignMaps:
     def held(self) -> HeldMap | None:
         return self._held
 
-    def hold_file(self, sign_map: SignMap, name: str) -> HeldMap:
-        """Hold `sign_map`, read from the map file `name`."""
-        return self._hold(lambda revision: HeldMap(sign_map, name, revision))
+    def hold_file(self, sign_map: SignMap, name: str, *, kept: bool = False) -> HeldMap:
+        """Hold `sign_map`, read from the map file `name`; `kept`: it is the state's map already."""
+        return self._hold(lambda revision: HeldMap(sign_map, name, revision), keep=not kept)
 
     def hold_build(self, build: MapBuild, source: str, names: dict[str, str], warnings: list[str]) -> HeldMap:
         """Hold the map of `build`, made from `source` (said for people)."""
@@ -71,31 +79,49 @@ class SignMaps:
 
     def clear(self) -> None:
         with self._lock:
+            if self._state is not None:
+                self._state.save_map(None)
             self._held = None
             self._revision += 1
             revision = self._revision
         self._publish("map", {"revision": revision})
 
-    def _hold(self, make: Callable[[int], HeldMap]) -> HeldMap:
+    def _hold(self, make: Callable[[int], HeldMap], keep: bool = True) -> HeldMap:
         with self._lock:
             held = make(self._revision + 1)   # raises before anything changes
+            if keep and self._state is not None:
+                self._state.save_map(held.yaml())
             self._held, self._revision = held, held.revision
         self._publish("map", {"revision": held.revision})
         return held
 
 
-@dataclass(frozen=True, eq=False)
-class RecordedSign:
-    """A sign as a flight's record keeps it (`signpose track --json`): label, (4, 2) corners in frame
-    px and its measured pose, for `observations_of` and `locate_in_map`."""
+def open_sign_maps(workspace: Workspace) -> SignMaps:
+    """The map a server on `workspace` starts with, kept in its state directory: `--map`'s
+    (config.map_file; a different map the state kept is moved aside and logged, as `--camera` does;
+    MapError for a file that cannot be used), else the one the state kept. A kept map that no longer
+    fits the library (a sign removed, the library replaced) is moved aside, logged, and the server
+    starts without one."""
+    state, ids, file = workspace.state, workspace.library.ids, workspace.config.map_file
+    maps = SignMaps(publish=workspace.publish, state=state)
+    if file is not None:
+        sign_map = load_sign_map(file, ids)
+        say_kept("map", file, state.replace_map(sign_map_yaml(sign_map)))
+        maps.hold_file(sign_map, file.name, kept=True)
+        return maps
+    try:
+        sign_map = state.load_map(ids)
+    except StateError as exc:
+        log.warning("%s: it is kept in %s", exc, state.set_map_aside())
+        return maps
+    if sign_map is not None:
+        maps.hold_file(sign_map, f"{state.map_path.name} kept from the last run", kept=True)
+    return maps
 
-    label: str
-    corners: np.ndarray
-    pose: Pose | None
 
-
-def recorded_signs(record: dict) -> list[RecordedSign]:
-    """The signs of one flight record (a frame), with their measured poses (None where there is none)."""
+def recorded_signs(record: dict) -> list[SignSeen]:
+    """The signs of one flight record (a frame, as `signpose track --json` keeps it), with their measured
+    poses (None where there is none)."""
     signs = []
     for sign in record["signs"]:
         measured, pose = sign["pose"], None
@@ -105,7 +131,7 @@ def recorded_signs(record: dict) -> list[RecordedSign]:
                         reprojection_rmse_px=measured["reprojection_rmse_px"] or float("nan"),
                         ambiguous=measured["ambiguous"], solution_errors=None,
                         covariance=None if covariance is None else np.array(covariance, dtype=float))
-        signs.append(RecordedSign(sign["label"], np.array(sign["corners"], float), pose))
+        signs.append(SignSeen(sign["label"], np.array(sign["corners"], float), pose))
     return signs
 
 
@@ -150,7 +176,7 @@ def build_from_held(workspace: Workspace, flights: Flights, anchor: str | None,
     return build_map(observations, anchor=anchor), source, names, warnings
 
 
-def camera_in_map(found: list, sign_map: SignMap, library: Library, camera: Camera | None) -> CameraInMap | None:
+def camera_in_map(found: list[SignSeen], sign_map: SignMap, library: Library, camera: Camera | None) -> CameraInMap | None:
     """The camera of a photo or frame in the map frame, from the signs `found` in it (`locate_in_map`);
     None without a camera or a mapped sign among them."""
     if camera is None:

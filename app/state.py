@@ -20,6 +20,9 @@ Layout (every file name is chosen by the server, never by a client)::
                             the state's library as it was before `--library` changed it (a library
                             folder: `--library` reads it)
     images/index.json       [{"id", "name", "expected", "file", "media_type"}] in the order listed (the order chosen)
+    map.yaml                the sign map held (a map file: `--map` reads it); absent: no map
+    map.replaced-<UTC time>.yaml
+                            a map `--map` replaced, or one that no longer fits the library, as it was in map.yaml
     images/<id>.<ext>       the original uploaded bytes
 
 Every write is atomic (temporary file in the same folder, fsync, rename, fsync the folder), so a
@@ -42,6 +45,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from collections.abc import Collection
 from typing import Any, Callable, TypeVar
 
 import numpy as np
@@ -50,6 +54,7 @@ from signpose.pipeline.camera import ASSUMED_HFOV_DEG, Camera, CameraError, came
 from signpose.pipeline.jsonfile import JsonError, parse_json
 from signpose.pipeline.library import Library, LibraryError, LibrarySign, alike_sign, load_library
 from signpose.pipeline.settings import Settings, SettingsError, load_settings
+from signpose.pipeline.sign_map import MapError, SignMap, load_sign_map
 
 TMP_SUFFIX = ".tmp"
 LIBRARY_ASIDE = f".library.old{TMP_SUFFIX}"  # the state's library while its replacement is moved in
@@ -276,6 +281,7 @@ class StateDir:
         self.library_dir = self.root / "library"
         self.images_dir = self.root / "images"
         self.index_path = self.images_dir / "index.json"
+        self.map_path = self.root / "map.yaml"
 
     # ---- settings and camera
 
@@ -350,6 +356,39 @@ class StateDir:
 
     def save_assumed_hfov(self, hfov_deg: float) -> None:
         atomic_write_json(self.fov_path, {"hfov_deg": hfov_deg})
+
+    # ---- sign map
+
+    def load_map(self, library_ids: Collection[str]) -> SignMap | None:
+        """The sign map kept (None: none); StateError when it cannot be read or names a sign not in `library_ids`."""
+        if not self.map_path.exists():
+            return None
+        try:
+            return load_sign_map(self.map_path, library_ids)
+        except MapError as exc:
+            raise StateError(f"{exc}; fix or delete it to start without a sign map") from None
+
+    def _map_text(self) -> str | None:
+        return self.map_path.read_text(encoding="utf-8") if self.map_path.exists() else None
+
+    def save_map(self, text: str | None) -> None:
+        """Keep the map file `text` as the state's sign map; None: no map."""
+        if text is None:
+            remove_file(self.map_path)
+        else:
+            atomic_write(self.map_path, text.encode("utf-8"))
+
+    def replace_map(self, text: str) -> Replaced | None:
+        """Keep the map file `text` as the state's sign map. A different map kept before is not lost: it is
+        moved to a new `map.replaced-<UTC time>.yaml` (None: nothing was moved)."""
+        return self._replace(self.map_path, self._map_text, text, operator.eq, self.save_map)
+
+    def set_map_aside(self) -> Path:
+        """Move the state's map file, as it is, to a new `map.replaced-<UTC time>.yaml`; where it went."""
+        kept = replaced_path(self.root, self.map_path.stem, self.map_path.suffix)
+        os.replace(self.map_path, kept)
+        _fsync_dir(self.root)
+        return kept
 
     # ---- library
 

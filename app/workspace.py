@@ -32,7 +32,7 @@ import numpy as np
 
 from signpose.pipeline.camera import Camera, CameraError, check_hfov, load_camera
 from signpose.pipeline.evaluate import CORES
-from signpose.pipeline.every_sign import recognize_every_sign
+from signpose.pipeline.every_sign import SignSeen, recognize_every_sign
 from signpose.pipeline.exif import ExifCamera
 from signpose.pipeline.features import library_features
 from signpose.pipeline.image import ImageError
@@ -63,7 +63,7 @@ class WorkspaceConfig:
     library_dir: Path | None = None  # None: the state's library; on a fresh state the samples
     camera_file: Path | None = None  # None: the state's camera
     settings_file: Path | None = None  # None: the state's settings
-    map_file: Path | None = None  # a sign map to hold from the start (not kept in the state)
+    map_file: Path | None = None  # None: the state's sign map, if it keeps one
     load_samples: bool = True  # on a fresh state with the sample library, load sample_images/scenes
     max_images: int = 500
     max_pixels: int = 40_000_000
@@ -91,7 +91,7 @@ def sample_scenes(folder: Path = SAMPLE_SCENES) -> list[tuple[Path, str | None]]
 
 
 def say_kept(what: str, file: Path, replaced: Replaced | None) -> None:
-    """The one log line saying that `--<what> file` (what: "camera" or "settings") replaced what the state
+    """The one log line saying that `--<what> file` (what: "camera", "map" or "settings") replaced what the state
     held, where that is kept and how to use it again; nothing when `replaced` is None (nothing moved)."""
     if replaced is None:
         return
@@ -100,7 +100,7 @@ def say_kept(what: str, file: Path, replaced: Replaced | None) -> None:
         log.warning("%s %s replaced the state's %s, which could not be read; it is kept as it was in %s",
                     option, file, what, replaced.kept)
     else:
-        held, them = ("camera, which is", "that one") if what == "camera" else ("settings, which are", "them")
+        held, them = ("settings, which are", "them") if what == "settings" else (f"{what}, which is", "that one")
         log.warning(f"%s %s replaced the state's {held} kept in %s: to use {them} again, start with %s %s",
                     option, file, replaced.kept, option, replaced.kept)
 
@@ -519,21 +519,28 @@ class Workspace:
         return [[results[i] for results in per_image] for i in range(len(variants))]
 
     def signs_in_view(self, records: list[ImageRecord], stop: threading.Event | None = None,
-                      ) -> list[list[Recognition] | None]:
-        """Every library sign in each of `records` under the current state (`recognize_every_sign`: the
-        recognitions of its searches, the last one without a sign), on the pipeline's pool; None for an
+                      ) -> list[list[SignSeen] | None]:
+        """Every library sign in each of `records` under the current state (`recognize_every_sign`: what
+        each of its searches found, the last one no sign), on the pipeline's pool; None for an
         image that could not be run (the camera does not fit it, or the pipeline failed on it: its own
-        result says why). Setting `stop` (the caller gave up waiting) ends it early with TimeoutError."""
+        result says why). Kept on the record until the state changes: a map build and the map world's
+        cameras search a photo once. Setting `stop` (the caller gave up waiting) ends it early with
+        TimeoutError."""
         snap = self.snapshot
 
-        def run(record: ImageRecord) -> list[Recognition] | None:
+        def run(record: ImageRecord) -> list[SignSeen] | None:
             if stop is not None and stop.is_set():
                 raise TimeoutError("abandoned")
+            kept = record.in_view
+            if kept is not None and kept[0] == snap.generation:
+                return kept[1]
             try:
                 camera = snap.camera_for(record.exif, record.width, record.height)
-                return recognize_every_sign(record.gray, snap.library, snap.settings, camera)
+                found = [SignSeen.of(r) for r in recognize_every_sign(record.gray, snap.library, snap.settings, camera)]
             except (CameraError, PipelineError):
                 return None
+            record.in_view = (snap.generation, found)
+            return found
 
         try:
             return list(self._pool.map(run, records))

@@ -19,6 +19,7 @@ import numpy as np
 from .camera import Camera, CameraError
 from .image import to_gray
 from .library import Library
+from .pose import Pose
 from .recognize import Recognition, recognize
 from .settings import Settings
 
@@ -31,6 +32,21 @@ MAX_SEARCHES = 4
 # `recognize_near` cuts out the box of the quad grown by this fraction of its size on every side: room
 # for a sign that moved a little since the quad was seen, and for the wall around its plaque.
 NEAR_MARGIN = 0.5
+
+
+@dataclass(frozen=True, eq=False)
+class SignSeen:
+    """A sign found in an image as a map needs it (`map_build.observations_of`, `localise.locate_in_map`),
+    without the recognition's intermediates: its `label` (None: no sign), `corners` (4, 2) image px
+    (TL, TR, BR, BL) and measured `pose` (None where there is none)."""
+
+    label: str | None
+    corners: np.ndarray | None
+    pose: Pose | None
+
+    @classmethod
+    def of(cls, recognition: Recognition) -> SignSeen:
+        return cls(recognition.label, recognition.corners, recognition.pose)
 
 
 def mask_quads(gray: np.ndarray, quads: Sequence[np.ndarray]) -> np.ndarray:

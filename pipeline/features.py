@@ -79,18 +79,21 @@ def region_scale(long_side: int, settings: Settings, full_frame: bool = False) -
     Below `settings.min_crop_size` it is upscaled (at most `MAX_UPSCALE` times), so a sign 60 px
     wide still yields enough keypoints. A crop above `settings.max_crop_size` (when not 0) is
     downscaled: SIFT's cost grows with the area, and a blob that large is a sign seen large
-    enough to match from fewer pixels. The full frame is not, since a small sign anywhere in it
-    needs every pixel, unless its longer side is above `settings.max_search_size` (when not 0),
-    which bounds any region: SIFT doubles its input first and holds about 11 float copies of
-    that, so a 12 MP photo would take 2.8 GB.
+    enough to match from fewer pixels. The full frame is shrunk by `settings.full_frame_scale`
+    alone, since a small sign anywhere in it needs its pixels (at 0.75 a frame without a sign took
+    half the CPU, and `bench/worlds.py` missed, net, 2 easy, 3 hard and 1 steep view more of its
+    300 scenes), and at most to `settings.max_search_size` (when not 0), which bounds any region:
+    SIFT doubles its input first and holds about 11 float copies of that, so a 12 MP photo would
+    take 2.8 GB.
     """
     if 0 < long_side < settings.min_crop_size:
         return min(settings.min_crop_size / long_side, MAX_UPSCALE)
     if 0 < settings.max_crop_size < long_side and not full_frame:
         return settings.max_crop_size / long_side
-    if 0 < settings.max_search_size < long_side:
+    scale = settings.full_frame_scale if full_frame else 1.0
+    if 0 < settings.max_search_size < long_side * scale:
         return settings.max_search_size / long_side
-    return 1.0
+    return scale
 
 
 def detect(gray: np.ndarray, settings: Settings, region: Box | None = None, resize: bool = True,

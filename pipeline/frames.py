@@ -98,6 +98,11 @@ class FrameSource:
     def __iter__(self) -> Iterator[Frame]:
         raise NotImplementedError
 
+    def frames_from(self, start: int) -> Iterator[Frame]:
+        """The frames from index `start` on, instead of iterating the source: those before it are read and
+        dropped, unless the source can go to `start` directly (a video file, image files, a bag's messages)."""
+        return (frame for frame in self if frame.index >= start)
+
     def close(self) -> None:
         """Release what the source holds open; iterating afterwards is an error."""
 
@@ -196,9 +201,13 @@ class ImageSource(FrameSource):
         self.paths = paths
 
     def __iter__(self) -> Iterator[Frame]:
+        return self.frames_from(0)
+
+    def frames_from(self, start: int) -> Iterator[Frame]:
+        """The frames from index `start` on; the files before it are not read."""
         step = 1.0 / (self.fps or DEFAULT_IMAGE_FPS)
         first: tuple[int, int] | None = None
-        for index, path in enumerate(self.paths):
+        for index, path in enumerate(self.paths[start:], start):
             try:
                 data = read_file(path)
                 # The header's size, before decoding: a small file can claim gigabytes of pixels.
@@ -258,7 +267,21 @@ class VideoSource(FrameSource):
         if self.first is None:
             raise SourceError(f"{self.name}: a video is read once")
         image, self.first = self.first, None
-        index = 0
+        yield from self._frames(0, image)
+
+    def frames_from(self, start: int) -> Iterator[Frame]:
+        """The frames from index `start` on. A file seeks there: FFmpeg decodes from the keyframe before it, so
+        the frames are those a read from the start gives (checked on the sample flight and on a real
+        hand-held H.264 video) at the cost of one group of pictures, not of every frame before `start`."""
+        if start == 0 or self.live or self.first is None or not self.capture.set(cv2.CAP_PROP_POS_FRAMES, start):
+            return super().frames_from(start)
+        self.first = None
+        ok, image = self.capture.read()
+        return self._frames(start, image if ok else None)
+
+    def _frames(self, index: int, image: np.ndarray | None) -> Iterator[Frame]:
+        """Frame `index`, whose `image` is read, and those after it; SourceError at the end when the frames end
+        well before the count the container lists."""
         while image is not None:
             if self.live:
                 time_s = time.monotonic() - self.first_clock if index else 0.0
@@ -360,10 +383,17 @@ class BagSource(FrameSource):
         return None
 
     def __iter__(self) -> Iterator[Frame]:
+        return self.frames_from(0)
+
+    def frames_from(self, start: int) -> Iterator[Frame]:
+        """The frames from message `start` on; the messages before it are read from the bag, and not decoded
+        (the first gives the stamp that times count from)."""
         first_ns: int | None = None
         header_stamps = True
         messages = self.reader.messages(connections=[c for c in self.reader.connections if c.topic == self.topic])
         for index, (connection, logged_ns, raw) in enumerate(messages):
+            if index < start and first_ns is not None:
+                continue
             try:
                 msg: Any = self.reader.deserialize(raw, connection.msgtype)
             except self.reader_error as exc:
@@ -376,6 +406,8 @@ class BagSource(FrameSource):
                 stamp_ns = int(logged_ns)
             if first_ns is None:
                 first_ns = stamp_ns
+            if index < start:
+                continue
             where = f"message {index} on {self.topic}"
             if connection.msgtype == "sensor_msgs/msg/CompressedImage":
                 image = self._decompressed(msg, where)

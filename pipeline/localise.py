@@ -14,6 +14,14 @@ The covariance is σ-whitened Gauss-Newton's (JᵀJ)⁻¹ scaled, as `pipeline.p
 the residuals: here by χ²/dof when signs disagree beyond their σ (never below 1, since a sign's
 four corners alone fit a pose nearly exactly), plus what each sign's map covariance moves the
 camera by.
+
+A sign that disagrees with the others (moved since the survey, a wrong recognition) is left out.
+The fit's whitened squared residual, each sign's corners counting its σ and its map covariance,
+is tested against the 99.9 % point of chi-square with 8N - 6 dof (N signs, three or more); beyond
+it, the sign whose removal leaves the others fitting best is dropped, and the test repeated down
+to two signs. Two signs that disagree do not say which is wrong: both stay, and their
+disagreement grows the covariance. The dropped signs are named in `signs_rejected`. (Each sign is fitted over the others, not predicted by them: one sign alone
+fixes its tilt against its distance too loosely, and a planar flip too often, to predict another.)
 """
 
 from __future__ import annotations
@@ -54,10 +62,12 @@ class SignInView(Protocol):
 class CameraInMap:
     """The camera in the map frame: `pose` is the map's pose in the camera as `pipeline.pose` writes a
     sign's (X_cam = R·X_map + t, covariance over [rotation vector of R, t]; `reprojection_rmse_px` over
-    every corner used), `signs_used` the mapped signs it was fitted to."""
+    every corner used), `signs_used` the mapped signs it was fitted to, `signs_rejected` the mapped
+    signs in view left out as disagreeing with them."""
 
     pose: Pose
     signs_used: tuple[str, ...]
+    signs_rejected: tuple[str, ...] = ()
 
     @property
     def R(self) -> np.ndarray:
@@ -85,11 +95,12 @@ class CameraInMap:
 
     def to_json(self) -> dict:
         """{"position_m", "orientation_wxyz", "covariance_xyz_rpy" (6x6 or null), "signs_used",
-        "reprojection_rmse_px"}; non-finite numbers as null."""
+        "signs_rejected", "reprojection_rmse_px"}; non-finite numbers as null."""
         covariance = self.covariance_xyz_rpy
         return {"position_m": _json_numbers(self.position_m), "orientation_wxyz": _json_numbers(quaternion_wxyz(self.R)),
                 "covariance_xyz_rpy": None if covariance is None else _json_numbers(covariance),
-                "signs_used": list(self.signs_used), "reprojection_rmse_px": _json_numbers(self.reprojection_rmse_px)}
+                "signs_used": list(self.signs_used), "signs_rejected": list(self.signs_rejected),
+                "reprojection_rmse_px": _json_numbers(self.reprojection_rmse_px)}
 
 
 @dataclass(frozen=True, eq=False)
@@ -169,7 +180,8 @@ def locate_in_map(*, found: Iterable[SignInView], sign_map: SignMap, library: Li
                   camera: Camera) -> CameraInMap | None:
     """The camera in `sign_map`'s frame from the signs `found` in one image (`camera`: its intrinsics,
     scaled to the image), or None when none of them is a mapped sign with corners and a pose with
-    covariance. Signs not in the map are left out.
+    covariance. Signs not in the map are left out, and signs that disagree with the others (see the
+    module's docstring) are left out and named.
 
     The fit starts from each sign's own pose composed with the map, the most certain first, and
     keeps the best end: a flipped planar pose of one sign does not decide where it ends."""
@@ -181,6 +193,21 @@ def locate_in_map(*, found: Iterable[SignInView], sign_map: SignMap, library: Li
             signs.append(sign)
     if not signs:
         return None
+    rejected: list[str] = []
+    pose = _joint_fit(signs, camera)
+    # Two signs that disagree do not say which is wrong: both stay, and the covariance grows.
+    while len(signs) > 2 and _chi2(signs, pose, camera) > _chi2_limit(8 * len(signs) - 6):
+        rest = [signs[:i] + signs[i + 1:] for i in range(len(signs))]
+        fits = [_joint_fit(r, camera) for r in rest]
+        worst = int(np.argmin([_chi2(r, f, camera) for r, f in zip(rest, fits)]))
+        rejected.append(signs[worst].sign_id)
+        signs, pose = rest[worst], fits[worst]
+    return CameraInMap(pose, tuple(s.sign_id for s in signs), tuple(rejected))
+
+
+def _joint_fit(signs: list[_SignPoints], camera: Camera) -> Pose:
+    """The map's pose in the camera fitted over `signs` (one or more), with its covariance (None:
+    singular), from each one's start, keeping the end with the least cost."""
     points = np.concatenate([s.points for s in signs])
     measured = np.concatenate([s.measured for s in signs])
     weights = np.repeat([1.0 / s.sigma_px for s in signs], 4)
@@ -191,25 +218,50 @@ def locate_in_map(*, found: Iterable[SignInView], sign_map: SignMap, library: Li
     covariance = _scaled_inverse(Jw.T @ Jw, max(1.0, chi2 / dof))
     if covariance is not None:
         covariance = covariance + _map_covariance(signs, R, J, Jw, weights)
-    pose = Pose(R=R, t=t, method="map", reprojection_rmse_px=_rmse(projected - measured), ambiguous=False,
+    return Pose(R=R, t=t, method="map", reprojection_rmse_px=_rmse(projected - measured), ambiguous=False,
                 solution_errors=None, covariance=covariance)
-    return CameraInMap(pose, tuple(s.sign_id for s in signs))
+
+
+def _chi2(signs: list[_SignPoints], pose: Pose, camera: Camera) -> float:
+    """Whitened squared residual of the signs' corners at `pose` (the map's in the camera), each sign's
+    corners counting its σ and what its map covariance moves them by."""
+    total = 0.0
+    for sign in signs:
+        projected, J = _project(pose.R, pose.t, sign.points, camera)
+        residual = (sign.measured - projected).ravel()
+        spread = np.eye(8) * sign.sigma_px**2
+        if sign.map_covariance is not None:
+            moved = _map_jacobian(sign, pose.R, J)
+            spread += moved @ sign.map_covariance @ moved.T
+        total += float(residual @ np.linalg.solve(spread, residual))
+    return total
+
+
+def _chi2_limit(dof: int) -> float:
+    """The 99.9 % point of chi-square with `dof` degrees of freedom (Wilson-Hilferty, within 1 % from 10 dof)."""
+    z, k = 3.0902, 2.0 / (9.0 * dof)
+    return dof * (1.0 - k + z * math.sqrt(k)) ** 3
+
+
+def _map_jacobian(sign: _SignPoints, R: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """(8, 6) d px of `sign`'s four corners / d [δp, δθ] of its map pose (ROS order, about the map's
+    axes): a sign so moved moves its corners by δp - [X - p]×·δθ. J (8, 6): their projection
+    Jacobian at the camera (R, t), its t columns d px / d X_cam."""
+    moved = np.vstack([np.hstack([np.eye(3), -skew(X - sign.map_position)]) for X in sign.points])  # (12, 6)
+    return np.vstack([J[2 * k:2 * k + 2, 3:] @ R @ moved[3 * k:3 * k + 3] for k in range(4)])
 
 
 def _map_covariance(signs: list[_SignPoints], R: np.ndarray, J: np.ndarray, Jw: np.ndarray,
                     weights: np.ndarray) -> np.ndarray:
     """(6, 6) covariance over [rotation vector, t] the signs' map covariances add: a sign moved by
-    [δp, δθ] (ROS order, about the map's axes) moves its corners by δp - [X - p]×·δθ, and the fit's
-    solution by -(JᵀJ)⁻¹Jᵀ of what that moves the whitened residuals (J (2N, 6) projection Jacobian,
-    its t columns d px / d X_cam)."""
+    [δp, δθ] moves its corners (`_map_jacobian`), and the fit's solution by -(JᵀJ)⁻¹Jᵀ of what that
+    moves the whitened residuals (J (2N, 6) projection Jacobian, Jw whitened)."""
     gain = np.linalg.solve(Jw.T @ Jw, Jw.T)
     added = np.zeros((6, 6))
     for i, sign in enumerate(signs):
         if sign.map_covariance is None:
             continue
         rows = slice(8 * i, 8 * i + 8)
-        moved = np.vstack([np.hstack([np.eye(3), -skew(X - sign.map_position)]) for X in sign.points])  # (12, 6)
-        d_px = np.vstack([J[rows][2 * k:2 * k + 2, 3:] @ R @ moved[3 * k:3 * k + 3] for k in range(4)])
-        A = gain[:, rows] @ (d_px * np.repeat(weights[4 * i:4 * i + 4], 2)[:, None])
+        A = gain[:, rows] @ (_map_jacobian(sign, R, J[rows]) * np.repeat(weights[4 * i:4 * i + 4], 2)[:, None])
         added += A @ sign.map_covariance @ A.T
     return added

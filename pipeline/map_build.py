@@ -6,9 +6,11 @@ per sign (T_map_sign) and one per image (T_map_cam) and, per observation, a Betw
 the image to the sign measuring T_cam_sign = T_map_cam⁻¹·T_map_sign. The anchor sign (the map frame
 is its frame) or the signs of a known map fix the frame with priors. Levenberg-Marquardt solves it
 under a Huber kernel, so that a bad detection (a flipped planar pose, a wrong sign) pulls little;
-an observation whose whitened residual is then beyond CHI2_REJECT is rejected, the graph is solved
-again without the rejected ones and without the kernel, and GTSAM's Marginals give every sign's
-covariance.
+an observation whose whitened residual is then beyond CHI2_REJECT, at the survey's own scale of
+the covariances (`_covariance_scale`), is rejected, the graph is solved again without the rejected
+ones and without the kernel, and GTSAM's Marginals give every sign's covariance. Each sign's photos
+share part of their error (SHARED_SHARE): the observations measure where the photos see the sign,
+tied to where it is by that shared error, which no number of photos averages out.
 
 Covariance conventions. GTSAM's Pose3 tangent is ξ = [ω, v] (rotation first) and perturbs on the
 right, T = T̂·Exp(ξ): R = R̂·Exp(ω), t = t̂ + R̂·v to first order. A measured pose's covariance is
@@ -40,6 +42,18 @@ HUBER_K = math.sqrt(12.592)
 # A whitened squared residual beyond this, after the robust solve, is an inconsistent observation:
 # the 99.9 % point of chi-square with 6 dof, which a consistent one passes once in a thousand.
 CHI2_REJECT = 22.458
+# The median of chi-square with 6 dof: an observation's whitened squared residual, were its covariance exact.
+CHI2_MEDIAN = 5.348
+# What every photo of one sign shares of its pose's error (its edges pulled the same way by the wall
+# beside them in every view, which no number of photos averages out), as a share of the 1σ of its
+# median observation: on bench/map.py's surveys at 1280x960 (36 signs), a sign's median error over
+# its photos, less what their number leaves of their scatter, is 0.14-0.19 of that 1σ in rotation
+# and 0.37 along its normal (signs seen nearer than they are).
+SHARED_SHARE = 0.3
+# Fewer degrees of freedom than this leave the survey's own scale of the covariances unmeasured (1 is
+# kept); the scale is kept above MIN_SCALE, so that a survey of exact poses keeps a solvable graph.
+MIN_DOF_FOR_SCALE = 30
+MIN_SCALE = 0.01
 # σ of the priors that fix the anchor, and the known signs given without covariance (m and rad):
 # tight enough to fix them, loose enough to keep the information matrix well conditioned.
 FIXED_SIGMA = 1e-6
@@ -226,34 +240,59 @@ def _measurement_covariance(o: Observation) -> np.ndarray:
     return gtsam_covariance(o.R, o.covariance)
 
 
+def _median_covariance(covariances: list[np.ndarray]) -> np.ndarray:
+    """Of (6, 6) covariances, the one of median rotation variance (trace of its rotation block)."""
+    return sorted(covariances, key=lambda c: float(np.trace(c[:3, :3])))[len(covariances) // 2]
+
+
 class _Graph:
     """The survey's keys, priors and measurements, from which graphs are made (robust or not, over
-    a subset of the observations)."""
+    a subset of the observations). Each sign has two poses: where it is (`sign_key`, the map's) and
+    where its photos see it (`seen_key`), tied by the error they all share (SHARED_SHARE of the 1σ
+    of its median observation); the observations measure the second. `scale` multiplies every
+    observation's covariance."""
 
-    def __init__(self, observations: Sequence[Observation], fixed: dict[str, tuple[gtsam.Pose3, np.ndarray]]) -> None:
+    def __init__(self, observations: Sequence[Observation], fixed: dict[str, tuple[gtsam.Pose3, np.ndarray]],
+                 scale: float = 1.0) -> None:
         self.observations = observations
         self.fixed = fixed  # sign id: (pose, GTSAM covariance)
         signs = list(dict.fromkeys([*fixed, *(o.sign_id for o in observations)]))
         images = list(dict.fromkeys(o.image for o in observations))
         self.sign_key = {s: gtsam.symbol("s", i) for i, s in enumerate(signs)}
+        self.seen_key = {s: gtsam.symbol("a", i) for i, s in enumerate(signs)}
         self.image_key = {im: gtsam.symbol("c", i) for i, im in enumerate(images)}
         self.measured = [_pose3(o.R, o.t) for o in observations]
-        self.noise = [_noise(_measurement_covariance(o)) for o in observations]
+        covariances = [_measurement_covariance(o) for o in observations]
+        self.noise = [_noise(c * scale) for c in covariances]
+        by_sign: dict[str, list[np.ndarray]] = defaultdict(list)
+        for o, c in zip(observations, covariances):
+            by_sign[o.sign_id].append(c)
+        self.shared = {s: _noise(SHARED_SHARE**2 * _median_covariance(c)) for s, c in by_sign.items()}
 
     def factor(self, i: int, robust: bool) -> gtsam.BetweenFactorPose3:
         o = self.observations[i]
         noise = self.noise[i]
         if robust:
             noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(HUBER_K), noise)
-        return gtsam.BetweenFactorPose3(self.image_key[o.image], self.sign_key[o.sign_id], self.measured[i], noise)
+        return gtsam.BetweenFactorPose3(self.image_key[o.image], self.seen_key[o.sign_id], self.measured[i], noise)
 
     def graph(self, kept: Sequence[int], robust: bool) -> gtsam.NonlinearFactorGraph:
         graph = gtsam.NonlinearFactorGraph()
         for sign_id, (pose, covariance) in self.fixed.items():
             graph.add(gtsam.PriorFactorPose3(self.sign_key[sign_id], pose, _noise(covariance)))
+        for sign_id in dict.fromkeys(self.observations[i].sign_id for i in kept):
+            graph.add(gtsam.BetweenFactorPose3(self.sign_key[sign_id], self.seen_key[sign_id], gtsam.Pose3(),
+                                               self.shared[sign_id]))
         for i in kept:
             graph.add(self.factor(i, robust))
         return graph
+
+    def dof(self, kept: Sequence[int]) -> int:
+        """The degrees of freedom of the graph over the `kept` observations: 6 per observation and
+        prior, less 6 per image and sign placed (the shared ties add as many as they place)."""
+        images = {self.observations[i].image for i in kept}
+        signs = {self.observations[i].sign_id for i in kept} | set(self.fixed)
+        return 6 * (len(kept) + len(self.fixed) - len(images) - len(signs))
 
     def initial(self, kept: Sequence[int]) -> gtsam.Values:
         """Every sign and image reached from the fixed signs, each through its most certain
@@ -275,6 +314,8 @@ class _Graph:
         values = gtsam.Values()
         for s, pose in signs.items():
             values.insert(self.sign_key[s], pose)
+        for s in {self.observations[i].sign_id for i in kept} & set(signs):
+            values.insert(self.seen_key[s], signs[s])
         for image, pose in images.items():
             values.insert(self.image_key[image], pose)
         return values
@@ -355,7 +396,14 @@ def build_map(observations: Sequence[Observation], *, anchor: str | None = None,
     problem = _Graph(obs, {s: (pose, cov) for s, (pose, cov, _) in fixed.items()})
     every = list(range(len(obs)))
     robust = _optimize(problem.graph(every, robust=True), problem.initial(every))
-    chi2 = [2.0 * problem.factor(i, robust=False).error(robust) for i in every]
+    # A pose fit's covariance is made for one photo: its corner floor stands for errors the photos of a
+    # sign share, so the residuals of most observations are well within it and an outlier hides among
+    # them. Which observations are inconsistent is judged at the survey's own scale of the covariances;
+    # the map's covariance keeps the fits' covariances (errors shared along a chain of photos, not only
+    # per sign, outgrow the scaled ones).
+    scaled = _Graph(obs, problem.fixed, _covariance_scale(problem, robust, every))
+    robust = _optimize(scaled.graph(every, robust=True), robust)
+    chi2 = [2.0 * scaled.factor(i, robust=False).error(robust) for i in every]
     rejected = [i for i in every if chi2[i] > CHI2_REJECT]
     kept = [i for i in every if chi2[i] <= CHI2_REJECT]
     kept_obs = [obs[i] for i in kept]
@@ -377,13 +425,24 @@ def build_map(observations: Sequence[Observation], *, anchor: str | None = None,
                      fixed, result, marginals, unmapped, frame or (known.frame if known is not None else DEFAULT_FRAME))
 
 
+def _covariance_scale(problem: _Graph, values: gtsam.Values, kept: Sequence[int]) -> float:
+    """The factor to the observations' covariances that makes the median of their whitened squared
+    residuals at `values` what chi-square gives for their redundancy (dof per observation of 6), at
+    least MIN_SCALE; 1 when the graph has fewer than MIN_DOF_FOR_SCALE dof."""
+    dof = problem.dof(kept)
+    if dof < MIN_DOF_FOR_SCALE:
+        return 1.0
+    chi2 = [2.0 * problem.factor(i, robust=False).error(values) for i in kept]
+    return max(MIN_SCALE, float(np.median(chi2)) / (CHI2_MEDIAN * dof / (6 * len(kept))))
+
+
 def _subset(values: gtsam.Values, problem: _Graph, kept: Sequence[int]) -> gtsam.Values:
     """`values` of the fixed signs and of the signs and images the `kept` observations hold."""
     out = gtsam.Values()
     keys = {problem.sign_key[s] for s in problem.fixed}
     for i in kept:
         o = problem.observations[i]
-        keys |= {problem.sign_key[o.sign_id], problem.image_key[o.image]}
+        keys |= {problem.sign_key[o.sign_id], problem.seen_key[o.sign_id], problem.image_key[o.image]}
     for key in keys:
         out.insert(key, values.atPose3(key))
     return out

@@ -20,6 +20,7 @@ camera down.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -39,11 +40,13 @@ LINEAR_ACCELERATION_DENSITY = 0.05
 RESTART_MAHALANOBIS = 12.0
 # Without a covariance, a measurement counts with this σ: rad for rotation, m for position.
 FALLBACK_SIGMA = (0.01, 0.01)
+# Identities of the sizes the filter works in: read only (np.eye on each use was a tenth of an update).
+_I3, _I12 = np.eye(3), np.eye(12)
 
 
 def skew(v: np.ndarray) -> np.ndarray:
     """(3, 3) cross-product matrix [v]x of (3,) v."""
-    x, y, z = (float(a) for a in v)
+    x, y, z = np.asarray(v, dtype=np.float64).reshape(3).tolist()
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
@@ -59,12 +62,14 @@ def log_so3(R: np.ndarray) -> np.ndarray:
 
 def left_jacobian(phi: np.ndarray) -> np.ndarray:
     """(3, 3) left Jacobian of SO(3) at rotation vector phi: exp(phi + δ) ≈ exp(J_l(phi)·δ)·exp(phi)."""
-    angle = float(np.linalg.norm(phi))
+    phi = np.asarray(phi, dtype=np.float64).reshape(3)
+    angle = math.sqrt(float(phi @ phi))
     K = skew(phi)
     if angle < 1e-8:
-        return np.eye(3) + 0.5 * K
-    return (np.eye(3) + (1 - math.cos(angle)) / angle**2 * K
-            + (angle - math.sin(angle)) / angle**3 * K @ K)
+        return _I3 + 0.5 * K
+    # K·K = phi·phiᵀ - angle²·I
+    b = (angle - math.sin(angle)) / angle**3
+    return (1 - b * angle**2) * _I3 + (1 - math.cos(angle)) / angle**2 * K + b * np.outer(phi, phi)
 
 
 def pose_jacobian(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -80,6 +85,18 @@ def pose_jacobian(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return J
 
 
+def pose_jacobian_inverse(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(6, 6) inverse of `pose_jacobian(R, t)`: the filter's [φ, p] errors back to the pose's
+    [rotation vector of R, t] errors."""
+    # pose_jacobian is [[A, 0], [C·A, D]] with A = -Rᵀ·J_l, C = Rᵀ[t]x R, D = -Rᵀ, whose inverse is
+    # [[A⁻¹, 0], [-D⁻¹·C, D⁻¹]] = [[-J_l⁻¹·R, 0], [[t]x·R, -R]].
+    J_inv = np.zeros((6, 6))
+    J_inv[:3, :3] = -np.linalg.inv(left_jacobian(log_so3(R))) @ R
+    J_inv[3:, :3] = skew(t) @ R
+    J_inv[3:, 3:] = -R
+    return J_inv
+
+
 def ros_jacobian(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     """(6, 6) Jacobian of the camera's pose in the frame a pose (R (3, 3), t (3,) m) maps from (X_cam =
     R·X + t: a sign's, the map's), in ROS order [position (m), rotation about that frame's x, y, z (rad)],
@@ -87,6 +104,16 @@ def ros_jacobian(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     swapped."""
     jacobian = pose_jacobian(np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64).reshape(3))
     return np.vstack([jacobian[3:], jacobian[:3]])
+
+
+@functools.lru_cache(maxsize=64)
+def process_noise(dt: float, angular_density: float, linear_density: float) -> np.ndarray:
+    """(12, 12) process noise over [φ, p, ω, v] of white angular (rad²/s³) and linear (m²/s³)
+    acceleration over `dt` s. Cached: frames mostly come at one rate. Read only."""
+    densities = np.diag([angular_density] * 3 + [linear_density] * 3)
+    Q = np.kron(np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]]), densities)
+    Q.flags.writeable = False
+    return Q
 
 
 @dataclass
@@ -147,8 +174,8 @@ class PoseFilter:
         self.P = np.zeros((12, 12))
         self.P[:6, :6] = J @ cov @ J.T
         # Unknown rates at the start: a turn of a few rad/s or a move of a few m/s.
-        self.P[6:9, 6:9] = np.eye(3) * 4.0
-        self.P[9:, 9:] = np.eye(3) * 1.0
+        self.P[6:9, 6:9] = _I3 * 4.0
+        self.P[9:, 9:] = _I3 * 1.0
         self.time_s = time_s
 
     def predict(self, time_s: float) -> None:
@@ -159,15 +186,11 @@ class PoseFilter:
             return
         self.R_sc = exp_so3(self.omega * dt) @ self.R_sc
         self.p = self.p + self.v * dt
-        F = np.eye(12)
-        F[0:3, 6:9] = F[3:6, 9:12] = np.eye(3) * dt
-        Q = np.zeros((12, 12))
-        for block, q in ((slice(0, 3), self.angular_density), (slice(3, 6), self.linear_density)):
-            rate = slice(block.start + 6, block.stop + 6)
-            Q[block, block] = np.eye(3) * q * dt**3 / 3
-            Q[block, rate] = Q[rate, block] = np.eye(3) * q * dt**2 / 2
-            Q[rate, rate] = np.eye(3) * q * dt
-        self.P = F @ self.P @ F.T + Q
+        # F·P·Fᵀ with F = [[I, dt·I], [0, I]] over [(φ, p), (ω, v)]: rows, then columns, added to.
+        P = self.P.copy()
+        P[:6] += dt * P[6:]
+        P[:, :6] += dt * P[:, 6:]
+        self.P = P + process_noise(dt, self.angular_density, self.linear_density)
         self.time_s = time_s
 
     def update(self, pose: Pose, time_s: float) -> Pose:
@@ -182,19 +205,21 @@ class PoseFilter:
         PH = self.P @ H.T
         S = H @ PH + cov
         try:
-            distance = math.sqrt(max(0.0, float(innovation @ np.linalg.solve(S, innovation))))
+            # One solve for both: S⁻¹·innovation (the Mahalanobis distance) and S⁻¹·(P·Hᵀ)ᵀ (the gain, S symmetric).
+            solved = np.linalg.solve(S, np.column_stack([innovation, PH.T]))
+            distance = math.sqrt(max(0.0, float(innovation @ solved[:, 0])))
         except np.linalg.LinAlgError:
-            distance = math.inf
-        if distance > self.restart_mahalanobis:
+            solved, distance = None, math.inf
+        if solved is None or distance > self.restart_mahalanobis:
             self._start(pose, time_s)
             return self.pose()
-        gain = PH @ np.linalg.inv(S)
+        gain = solved[:, 1:].T
         dx = gain @ innovation
         self.R_sc = exp_so3(dx[:3]) @ self.R_sc
         self.p = self.p + dx[3:6]
         self.omega = self.omega + dx[6:9]
         self.v = self.v + dx[9:12]
-        I_KH = np.eye(12) - gain @ H
+        I_KH = _I12 - gain @ H
         # Joseph form: stays symmetric positive definite whatever the rounding.
         self.P = I_KH @ self.P @ I_KH.T + gain @ cov @ gain.T
         return self.pose()
@@ -205,7 +230,7 @@ class PoseFilter:
         assert self.R_sc is not None, "no pose before the first update"
         R = self.R_sc.T
         t = -R @ self.p
-        J_inv = np.linalg.inv(pose_jacobian(R, t))
+        J_inv = pose_jacobian_inverse(R, t)
         covariance = J_inv @ self.P[:6, :6] @ J_inv.T
         return Pose(R=R, t=t, method="filtered", reprojection_rmse_px=math.nan, ambiguous=False,
                     solution_errors=None, covariance=0.5 * (covariance + covariance.T))

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -272,25 +273,27 @@ def quad_problem(H: np.ndarray, sign: LibrarySign, width: int, height: int) -> t
 
     Returns ((4, 2) corners or None, reason or None).
     """
-    hom = project(H, sign.corners_px)
-    w = hom[:, 2]
-    if np.any(w <= 1e-12 * np.abs(hom[:, :2]).max(axis=1)):
+    # Four points: plain floats, not numpy's per-call overhead (the tracker checks every sign on every frame).
+    w_px, h_px = sign.size_px
+    (a, b, c), (d, e, f), (g, h, i) = np.asarray(H, dtype=np.float64).tolist()
+    hom = [(a * x + b * y + c, d * x + e * y + f, g * x + h * y + i)
+           for x, y in ((0.0, 0.0), (w_px, 0.0), (w_px, h_px), (0.0, h_px))]
+    if any(z <= 1e-12 * max(abs(u), abs(v)) for u, v, z in hom):
         return None, "degenerate homography: the sign plane crosses the horizon"
-    corners = hom[:, :2] / w[:, None]
-    edges = np.roll(corners, -1, axis=0) - corners
-    cross = edges[:, 0] * np.roll(edges, -1, axis=0)[:, 1] - edges[:, 1] * np.roll(edges, -1, axis=0)[:, 0]
-    if np.any(cross <= 0):
+    xy = [(u / z, v / z) for u, v, z in hom]
+    corners = np.array(xy)
+    edges = [(xy[(k + 1) % 4][0] - xy[k][0], xy[(k + 1) % 4][1] - xy[k][1]) for k in range(4)]
+    if any(edges[k][0] * edges[(k + 1) % 4][1] - edges[k][1] * edges[(k + 1) % 4][0] <= 0 for k in range(4)):
         # TL, TR, BR, BL run clockwise on screen (y down); anything else is mirrored, self-crossing or concave.
         return corners, "degenerate homography: non-convex, self-crossing or mirrored quad"
-    area = 0.5 * abs(np.sum(corners[:, 0] * np.roll(corners[:, 1], -1) - corners[:, 1] * np.roll(corners[:, 0], -1)))
-    sides = np.linalg.norm(edges, axis=1)
+    area = 0.5 * abs(sum(xy[k][0] * xy[(k + 1) % 4][1] - xy[k][1] * xy[(k + 1) % 4][0] for k in range(4)))
+    sides = [math.hypot(ex, ey) for ex, ey in edges]
     if area < MIN_QUAD_AREA_PX or max(sides[0] / sides[2], sides[2] / sides[0],
                                       sides[1] / sides[3], sides[3] / sides[1]) > MAX_SIDE_RATIO:
         return corners, "absurd scale: the sign would be tiny or extremely foreshortened"
     excursion = MAX_PICTURE_CORNER_EXCURSION if sign.kind == "picture" else MAX_CORNER_EXCURSION
     margin_x, margin_y = excursion * width, excursion * height
-    if np.any((corners[:, 0] < -margin_x) | (corners[:, 0] > width + margin_x)
-              | (corners[:, 1] < -margin_y) | (corners[:, 1] > height + margin_y)):
+    if any(x < -margin_x or x > width + margin_x or y < -margin_y or y > height + margin_y for x, y in xy):
         return corners, "corners far outside the image"
     return corners, None
 
@@ -604,7 +607,7 @@ class Run:
         gray, library, settings = self.gray, self.library, self.settings
         # A picture's view gets a feature budget grown with the region's area: the features, and the
         # matches made of them, are keyed by the settings they were detected with.
-        searched_with = search_settings(settings, library, region)
+        searched_with = self.region_settings(region)
         with self.stages.timed("features"):
             query = self.stages.run("features", lambda: detect(gray, searched_with, region, scale=scale),
                                     (region, scale), settings=searched_with)
@@ -616,6 +619,16 @@ class Run:
                              self.stages.timing)
         winner, margin = decide(scores, settings)
         return Attempt(region, source, query, scores, winner, margin)
+
+    def region_settings(self, region: Box) -> Settings:
+        """The settings `region` is searched with: `search_settings`', the full frame at its full size
+        where it is the search itself (no segmentation) or where a picture, which is found in it
+        rather than in the crops, may be in view."""
+        searched_with = search_settings(self.settings, self.library, region)
+        if searched_with.full_frame_scale != 1.0 and (
+                self.segmentation is None or any(sign.kind == "picture" for sign in self.library.signs)):
+            return searched_with.replace(full_frame_scale=1.0)
+        return searched_with
 
     def affine_fallback(self, attempts: list[Attempt], chosen: Attempt | None,
                         warnings: list[str]) -> tuple[Attempt, Refined] | None:
@@ -633,7 +646,7 @@ class Run:
             query, region = searched.features, searched.region
             matches = self.stages.run("affine match",
                                       lambda: match_library(query.descriptors, trains, settings.ratio, query.norm),
-                                      (region,), settings=search_settings(settings, library, region))
+                                      (region,), settings=self.region_settings(region))
             scores = score_signs(library, query, lib, matches, settings, image_size, self.stages.timing)
             winner, margin = decide(scores, settings)
             if winner is None:
@@ -758,6 +771,13 @@ def find_plaque(gray: np.ndarray, segmentation: Segmentation, library: Library, 
     return plaque, []
 
 
+def uses_outline(sign: LibrarySign, settings: Settings) -> bool:
+    """Whether `sign` is placed by its outline (`refine_outline`) under `settings`: a plaque's four
+    straight edges. A picture's are not its own (on box.mp4 a box's printed face was drawn 9 px off
+    it, on the lid's edges), nor are a landmark's searched without segmentation."""
+    return settings.refine_outline and settings.segment_mode != "none" and sign.kind == "plaque"
+
+
 def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.ndarray, dst: np.ndarray,
                   settings: Settings, attempt: Attempt | None, camera: Camera, warnings: list[str]):
     """(H, src, dst, ecc, outline): the winner's homography and the correspondences for its pose,
@@ -773,8 +793,7 @@ def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.nd
     fitted as `camera`'s ideal pinhole image shows them, straight under lens distortion too.
     """
     why = None
-    # A landmark searched without segmentation need not be a plaque with four straight edges.
-    use_outline = settings.refine_outline and settings.segment_mode != "none" and sign.kind == "plaque"
+    use_outline = uses_outline(sign, settings)
     if use_outline:
         outline, why = outline_agreeing(gray, sign, H, src, dst, settings, attempt, camera)
         if outline is not None:

@@ -1,9 +1,9 @@
 """Results kept on disk between runs (`--results DIR`), so that a run cut short continues where it stopped.
 
-One JSON file per image (or per flight) and key: ``DIR/<content hash>/<key>.json``. The content hash is
-the SHA-256 of the file's bytes (of a flight's files), so a renamed or moved file keeps its results and an
-edited one does not. The key is a hash of what else the result depends on: the settings that feed the
-stages the result comes from (from each setting's declared stages, `settings.Settings` metadata, so a
+One JSON file per image (or per frame range of a flight) and key: ``DIR/<content hash>/<key>.json``. The
+content hash is the SHA-256 of the file's bytes (of a flight's files), so a renamed or moved file keeps its
+results and an edited one does not. The key is a hash of what else the result depends on: the settings that
+feed the stages the result comes from (from each setting's declared stages, `settings.Settings` metadata, so a
 setting added there reaches the keys by itself), the library's signs, the camera and what the caller names
 (the kind of result, its limits). A changed setting changes the key of the results it feeds only; results
 under other keys stay, and going back to earlier settings finds them.

@@ -56,7 +56,8 @@ class Settings:
     # Segmentation
     segment_mode: str = _choice("threshold", SEGMENT_MODES, "Segmentation",
                                 "threshold: find bright plaques first; none: search the full frame",
-                                stages=("segment", "refine"))
+                                # the full frame keeps its size when it is the search itself (full_frame_scale)
+                                stages=("segment", "features", "refine"))
     normalization: str = _choice("minmax", NORMALIZATIONS, "Segmentation",
                                  "Grayscale to [0,1]: scale divides by 255, minmax stretches min..max (the paper)",
                                  stages=("segment",))
@@ -102,6 +103,12 @@ class Settings:
                                 "Any region, the full frame included, whose longer side is above this many px is "
                                 "downscaled to it before detection (SIFT on a 12 MP frame took 2.8 GB and 8 s); "
                                 "0: never", step=64, stages=("features",))
+    full_frame_scale: float = _num(1.0, 0.1, 1.0, "Features",
+                                   "The full-frame fallback (after the candidate regions) searches the frame shrunk by "
+                                   "this factor (SIFT's first octave doubles it again); searched without segmentation, "
+                                   "or for a library holding a picture, it keeps its size; 1: never shrunk (0.75 halves what a frame "
+                                   "without a sign costs, and misses some small, dim and steep signs)", step=0.05,
+                                   stages=("features",))
     contrast_threshold: float = _num(0.03, 0.001, 0.2, "Features",
                                      "SIFT contrast threshold: lower finds more, weaker keypoints", step=0.001,
                                      stages=("library features", "features"))

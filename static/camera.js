@@ -26,8 +26,12 @@ let hfovTyped = false;    // a number typed in its field and not yet applied: se
 let cameraToken = 0;      // drops a camera answered after a newer request was sent
 let reconnected = false;  // the event stream came back: the next calibration is shown whatever its revision
 
+/** What a camera file may hold, for every picker of one (the workspace's camera, a flight's). */
+export const CAMERA_FILE_FORMATS = "ROS camera_info YAML (file or ros2 topic echo output), OpenCV YAML/XML/JSON, "
+  + "Kalibr camchain of one camera or {fx,fy,cx,cy,dist}";
+
 /** "fx 520.1 fy 515.0 cx 318.0 cy 243.0 px @ 640×480" */
-const intrinsicsText = (cam) => `fx ${fmt(cam.fx, 1)} fy ${fmt(cam.fy, 1)} cx ${fmt(cam.cx, 1)} `
+export const intrinsicsText = (cam) => `fx ${fmt(cam.fx, 1)} fy ${fmt(cam.fy, 1)} cx ${fmt(cam.cx, 1)} `
   + `cy ${fmt(cam.cy, 1)} px${cam.width ? ` @ ${cam.width}×${cam.height}` : ""}`;
 
 /** Where `cam` came from, in a few words ("typed in", "upload:cam.yaml", "calibration: 12 views, …"). */
@@ -145,6 +149,7 @@ const putHfov = debounce(async (hfov) => {
 
 function bindSidebar() {
   const file = $("#camera-file");
+  file.parentElement.title = CAMERA_FILE_FORMATS;
   file.onchange = async () => {
     const form = new FormData();
     form.append("file", file.files[0]);

@@ -4,6 +4,7 @@
 // (server side) draws the trajectory and follows the frame shown (PUT /api/flights/{id}/cursor).
 
 import { api, get } from "./api.js";
+import { CAMERA_FILE_FORMATS, intrinsicsText } from "./camera.js";
 import { drawFlightPositions, drawFlightStates, valueAt } from "./charts.js";
 import { on, select, signName } from "./store.js";
 import { $, el, fill, plural, report, throttle, download } from "./ui.js";
@@ -26,6 +27,7 @@ let flights = [];   // FlightOut, as the server lists them
 const rows = new Map();   // id -> {row, parts}
 let view = null;   // the flight shown: {flight, frames, label, index, playing}
 let enqueue = null;
+let camera = null;   // the camera file (File) sent with each flight queued, or null
 
 const statusText = (f) => (f.status === "processing" ? `processing ${f.done}${f.total ? `/${f.total}` : ""}`
   : f.status === "error" ? "error" : f.status === "queued" ? "queued" : `${plural(f.frames, "frame")}`);
@@ -124,7 +126,7 @@ async function openFlight(id, index = 0) {
     $("#flight-name").textContent = flight.name;
     $("#flight-summary").textContent = flight.status === "done" || frames.length
       ? `${plural(frames.length, "frame")}${flight.fps ? ` at ${flight.fps.toFixed(2)} fps` : ""}`
-        + (flight.camera ? ` · fx ${flight.camera.fx.toFixed(1)} px, ${cameraSource(flight.camera.source)}` : "")
+        + (flight.camera ? ` · ${intrinsicsText(flight.camera)}, ${cameraSource(flight.camera.source)}` : "")
       : statusText(flight);
     fill($("#flight-warnings"), [flight.error, ...flight.warnings].filter(Boolean).map((w) => el("li", {}, w)));
     const labels = [...new Set(frames.flatMap((r) => r.signs.map((s) => s.label)))];
@@ -244,6 +246,21 @@ function exportAs(format) {
   if (view) download(`/api/flights/${view.flight.id}/export?format=${format}`);
 }
 
+/** Take `file` (or null) as the camera file sent with the flights queued from now on. */
+function chooseCamera(file) {
+  camera = file;
+  $("#flight-camera-name").textContent = file ? file.name : "camera file";
+  $("#flight-camera-clear").hidden = !file;
+}
+
+/** A flight's upload form: the file, and the camera file chosen when it was queued. */
+function flightForm(file) {
+  const form = new FormData();
+  form.append("file", file);
+  if (camera) form.append("camera", camera);
+  return form;
+}
+
 /** Send `files` (videos and bags) as flights, with a progress row each. */
 export function addFlights(files) {
   enqueue(files);
@@ -253,12 +270,17 @@ export function initFlights() {
   enqueue = uploadQueue({
     list: $("#uploads"),
     url: "/api/flights",
-    form: (file) => { const form = new FormData(); form.append("file", file); return form; },
+    form: flightForm,
     done: () => { refreshFlights(); return "✓ added: processing"; },
     kind: FLIGHTS,
   });
   const picker = $("#flight-picker");
   picker.onchange = () => { enqueue(picker.files); picker.value = ""; };
+  $("#flight-camera-pick").title = "The camera that filmed the next flights, sent with each (without one: the "
+    + `workspace's camera, else a bag's CameraInfo, else the assumed field of view): ${CAMERA_FILE_FORMATS}`;
+  const cameraPicker = $("#flight-camera");
+  cameraPicker.onchange = () => { chooseCamera(cameraPicker.files[0] ?? null); cameraPicker.value = ""; };
+  $("#flight-camera-clear").onclick = () => chooseCamera(null);
   $("#flight-close").onclick = closeFlight;
   $("#flight-play").onclick = play;
   $("#flight-scrub").addEventListener("input", (e) => { stopPlaying(); showFrame(Number(e.target.value)); });

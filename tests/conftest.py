@@ -12,6 +12,7 @@ import pytest
 
 import signpose.pipeline.recognize as recognize_module
 from signpose.pipeline.settings import Settings
+from tests.support import browser_harness as harness
 from tests.support.browser_harness import FAILED
 
 SegmentationFault = Callable[[Callable[[int, Settings], bool]], None]
@@ -40,6 +41,45 @@ def fail_segmentation(monkeypatch) -> SegmentationFault:
 def fail_first_segmentation(fail_segmentation: SegmentationFault) -> None:
     """`fail_segmentation` on the first image segmented in this process only, from the test's start."""
     fail_segmentation(lambda n, _: n == 1)
+
+
+# The browser tests' page: a module that drives the browser gives `base`, its server's URL.
+
+@pytest.fixture(scope="module")
+def browser(base):
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = harness.launch(p)
+        yield browser
+        browser.close()
+
+
+@pytest.fixture(scope="module")
+def shared_page(browser, base):
+    """The module's tests share one page (opening one takes 2-3 s); `page` opens it again after a
+    test that failed, closed it or left errors in it."""
+    held = harness.SharedPage(browser, base)
+    yield held
+    held.close()
+
+
+@pytest.fixture
+def fresh_page(browser, base, shared_page):
+    """A page of its own, for a test that needs one just loaded or leaves listeners on it (dialogs,
+    file choosers). The shared page is closed first: what it holds open (a dialog, a request on its
+    way) would act on the server beside the test's page."""
+    shared_page.close()
+    page = harness.open_page(browser, base)
+    yield page
+    harness.close_page(page)
+
+
+@pytest.fixture
+def page(shared_page, request):
+    page = shared_page.take()
+    yield page
+    shared_page.give_back(failed=request.node.stash.get(harness.FAILED, False))
 
 
 @pytest.hookimpl(wrapper=True)

@@ -52,43 +52,6 @@ def base(tmp_path_factory):
         yield url
 
 
-@pytest.fixture(scope="module")
-def browser(base):
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        browser = harness.launch(p)
-        yield browser
-        browser.close()
-
-
-@pytest.fixture(scope="module")
-def shared_page(browser, base):
-    """The module's tests share one page (opening one takes 2-3 s); `page` opens it again after a
-    test that failed, closed it or left errors in it."""
-    held = harness.SharedPage(browser, base)
-    yield held
-    held.close()
-
-
-@pytest.fixture
-def fresh_page(browser, base, shared_page):
-    """A page of its own, for a test that needs one just loaded or leaves listeners on it (dialogs,
-    file choosers). The shared page is closed first: what it holds open (a dialog, a request on its
-    way) would act on the server beside the test's page."""
-    shared_page.close()
-    page = harness.open_page(browser, base)
-    yield page
-    harness.close_page(page)
-
-
-@pytest.fixture
-def page(shared_page, request):
-    page = shared_page.take()
-    yield page
-    shared_page.give_back(failed=request.node.stash.get(harness.FAILED, False))
-
-
 @pytest.fixture
 def api(base):
     with httpx.Client(base_url=base, timeout=30) as client:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 
+import cv2
 import httpx
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from tests.support import browser_harness as harness
 pytestmark = [pytest.mark.browser, pytest.mark.server]
 
 VIDEO = SAMPLE_FLIGHT / "flight.mp4"
+CAMERA = SAMPLE_FLIGHT / "camera.yaml"
 
 
 @pytest.fixture(scope="module")
@@ -25,10 +27,18 @@ def base(tmp_path_factory):
         yield url
 
 
-@pytest.fixture
-def page(base):
-    with harness.page_of(base) as page:
-        yield page
+def write_short_flight(path, frames: int) -> None:
+    """The sample flight's first `frames` frames as an MP4 at `path`: a flight tracked in a second."""
+    video = cv2.VideoCapture(str(VIDEO))
+    writer = None
+    for _ in range(frames):
+        ok, image = video.read()
+        assert ok
+        if writer is None:
+            writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 30, image.shape[1::-1])
+        writer.write(image)
+    writer.release()
+    video.release()
 
 
 def flight_nodes(frame, flight_id: str) -> dict[str, dict]:
@@ -107,3 +117,36 @@ def test_upload_scrub_and_see_the_trajectory_in_the_3d_scene(page, base, tmp_pat
         trajectory = nodes[f"{label}/trajectory"]
         assert trajectory["type"] == "LineSegmentsMessage"
         assert trajectory["visible"]
+
+
+def test_a_flight_takes_the_camera_file_chosen_beside_it(page, base, tmp_path):
+    flight = tmp_path / "camera-flight.mp4"
+    write_short_flight(flight, 5)
+    wide = tmp_path / "wide-camera.yaml"   # a 1280x720 camera: it does not fit the 640x480 frames
+    wide.write_text(CAMERA.read_text().replace("640", "1280").replace("480", "720").replace("320.0", "640.0")
+                    .replace("240.0", "360.0"))
+    page.set_input_files("#flight-camera", str(wide))
+    assert page.inner_text("#flight-camera-name") == wide.name and page.is_visible("#flight-camera-clear")
+    page.set_input_files("#flight-picker", str(flight))
+    refused = page.locator(".upload.failed", has=page.locator(".upload-name", has_text=flight.name))
+    refused.wait_for(timeout=30_000)
+    assert "does not fit" in refused.locator(".upload-status").inner_text()
+
+    page.set_input_files("#flight-camera", str(CAMERA))
+    page.set_input_files("#flight-picker", str(flight))
+    row = flight_row(page, flight.name)
+    row.wait_for(timeout=30_000)
+    flight_id = row.get_attribute("data-id")
+    page.wait_for_function("id => document.querySelector(`.flight-row[data-id='${id}']`)?.dataset.status === 'done'",
+                           arg=flight_id, timeout=60_000)
+    with httpx.Client(base_url=base, timeout=30) as api:
+        camera = api.get(f"/api/flights/{flight_id}").json()["camera"]
+        assert camera["source"] == f"file:{CAMERA.name}" and camera["fx"] == pytest.approx(554.256, abs=1e-3)
+        row.locator(".flight-open").click()
+        page.wait_for_function("id => document.querySelector('#flight').dataset.id === id", arg=flight_id)
+        assert "fx 554.3" in page.inner_text("#flight-summary") and CAMERA.name in page.inner_text("#flight-summary")
+
+        # Cleared, the next flight goes without one.
+        page.click("#flight-camera-clear")
+        assert page.inner_text("#flight-camera-name") == "camera file" and not page.is_visible("#flight-camera-clear")
+        api.delete(f"/api/flights/{flight_id}").raise_for_status()

@@ -4,6 +4,7 @@ the results kept with --results: the same answers as a local run, a worker kille
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import subprocess
@@ -70,7 +71,7 @@ def test_track_on_the_cluster_answers_as_a_local_run(cluster, capsys):
     code, local, _ = run(capsys, "track", FLIGHT, "--json", "--max-frames", "60")
     assert code == 0
     code, remote, err = run(capsys, "track", FLIGHT, FLIGHT, "--json", "--max-frames", "60", "--dask", cluster)
-    assert code == 0 and "2 flight(s) computed" in err
+    assert code == 0 and "2 chunk(s) computed" in err
     local_lines = [without_times(json.loads(line)) for line in local.splitlines()]
     remote_lines = [without_times(json.loads(line)) for line in remote.splitlines()]
     assert len(local_lines) == 60 and remote_lines == local_lines * 2
@@ -128,12 +129,46 @@ def test_a_resumed_run_computes_only_what_is_missing(cluster, capsys, tmp_path):
     assert without_times(json.loads(back)) == without_times(json.loads(first))
 
 
-def test_a_flight_is_resumed_too(cluster, capsys, tmp_path):
-    argv = ["track", FLIGHT, "--json", "--max-frames", "20", "--results", str(tmp_path), "--dask", cluster]
+def test_a_flight_in_frame_ranges_resumes_and_reports_what_a_whole_run_does(cluster, capsys, tmp_path):
+    """80 frames in two ranges of 40, the second tracked after its warm-up of 30 frames: the same signs on every
+    frame as a local run over the whole flight, the same camera positions within a millimetre; the second
+    range's track ids follow the first's. A range's result kept with --results is not computed again."""
+    code, whole, _ = run(capsys, "track", FLIGHT, "--json", "--max-frames", "80")
+    argv = ["track", FLIGHT, "--json", "--max-frames", "80", "--chunk-frames", "40", "--results", str(tmp_path),
+            "--dask", cluster]
     code, first, err = run(capsys, *argv)
-    assert code == 0 and "1 flight(s) computed, 0 taken" in err
+    assert code == 0 and "2 chunk(s) computed, 0 taken" in err
+    lines = [json.loads(line) for line in first.splitlines()]
+    assert len(lines) == 80 and [line["frame"] for line in lines] == list(range(80))
+    for ours, theirs in zip(lines, map(json.loads, whole.splitlines())):
+        assert sorted(s["label"] for s in ours["signs"]) == sorted(s["label"] for s in theirs["signs"]), ours["frame"]
+        for sign in ours["signs"]:
+            same = next(s for s in theirs["signs"] if s["label"] == sign["label"])
+            assert math.dist(sign["pose"]["camera_position"], same["pose"]["camera_position"]) < 1e-3
+    ids = [{s["track_id"] for line in lines[start:start + 40] for s in line["signs"]} for start in (0, 40)]
+    assert ids[0] and ids[1] and min(ids[1]) > max(ids[0])
+    stored = {json.loads(path.read_text())["records"][0]["frame"]: path for path in tmp_path.glob("*/*.json")}
+    assert sorted(stored) == [0, 40]
+    stored[0].unlink()  # a run cut short before its first range was done
     code, again, err = run(capsys, *argv)
-    assert code == 0 and "0 flight(s) computed, 1 taken" in err and again == first
+    assert code == 0 and "1 chunk(s) computed, 1 taken" in err
+    assert [without_times(json.loads(line)) for line in again.splitlines()] == list(map(without_times, lines))
+
+
+def test_a_sweep_over_a_flight_on_the_cluster_answers_as_a_local_run(cluster, capsys):
+    """The flight scored against its ground truth at each value (recall, wrong labels, position error), in
+    ranges of 20 frames: the same figures from this machine's processes and from the cluster."""
+    argv = ["sweep", "threshold", "--lo", "0.3", "--hi", "0.95", "--steps", "2", str(Path(FLIGHT).parent),
+            "--max-frames", "40", "--chunk-frames", "20", "--json"]
+    code, local, _ = run(capsys, *argv, "--workers", "2")
+    assert code == 0
+    code, remote, err = run(capsys, *argv, "--dask", cluster)
+    assert code == 0 and "4 flight chunk(s) computed" in err
+    assert json.loads(remote) == json.loads(local)
+    flight = json.loads(local)["flights"][0]
+    assert flight["frames"] == [40, 40] and flight["wrong_labels"] == [0, 0]
+    assert flight["recall_pct"][1] > 90 > flight["recall_pct"][0]  # the values tell the settings apart
+    assert all(error < 5 for error in flight["position_error_cm_p50"])
 
 
 def test_the_sweep_command_tallies_as_the_pages_sweep(cluster, capsys, tmp_path):
@@ -199,3 +234,6 @@ def test_sweep_and_track_refuse_what_they_cannot_do_in_one_line(capsys, tmp_path
     assert code == 2 and "-o writes the flight of a local run" in err
     code, _, err = run(capsys, "track", "camera:0", "--results", str(tmp_path))
     assert code == 2 and "camera:0: no such file or folder" in err
+    (tmp_path / "truth.json").write_text(json.dumps({"video": "gone.mp4", "frames": []}))  # a flight without its video
+    code, _, err = run(capsys, "sweep", "threshold", "--lo", "0.5", "--hi", "0.9", str(tmp_path))
+    assert code == 2 and f"{tmp_path / 'truth.json'} must name its video, a file beside it" in err

@@ -203,9 +203,11 @@ def test_runs_the_real_pipeline(library):
 
 
 def _measured_here(job, library, settings, check_image):
-    """Stands in for `_measure` in this process only (the workers are spawned): slow, and marks its results."""
+    """Stands in for `_measure` in this process only (the workers are spawned): slow, and marks its results.
+    Slow enough that 40 jobs outlast a worker's start-up (import numpy, OpenCV and the pipeline) on a busy
+    machine, where at 0.05 s this process took every job before the worker was up."""
     dataset, sample, _ = job
-    time.sleep(0.05)
+    time.sleep(0.2)
     return ImageResult(dataset, sample, None, math.nan, error="measured in the calling process")
 
 

@@ -374,3 +374,22 @@ def test_damaged_bags_and_frames_are_refused(tmp_path):
     assert "holds 100 bytes, too few for 32x24 px bgr8" in _error(bag)
     big = write_mcap(tmp_path / "big.mcap", [("/image", _image_msg(ROS2, 0, "bgr8", T0))])
     assert "message 0 on /image is 32x24 px" in _error(big, max_pixels=100)
+
+
+@pytest.mark.skipif(not BOX.exists(), reason="shared data (box.mp4) not found: set SIGNPOSE_SHARED")
+def test_a_range_of_frames_is_the_frames_a_read_from_the_start_gives(tmp_path):
+    """`frames_from`, where a flight's range starts on a worker: a real H.264 video seeks (from a keyframe, not
+    from the start), image files skip the files before, a bag decodes no image before; the same images,
+    indices and times (counted from the first frame's) either way."""
+    (tmp_path / "frames").mkdir()
+    for i in range(5):
+        cv2.imwrite(str(tmp_path / "frames" / f"frame{i}.png"), _frame(i))
+    bag = write_mcap(tmp_path / "flight.mcap", [("/cam/image_raw", _image_msg(ROS2, i, "rgb8", stamp))
+                                                for i, stamp in enumerate(_stamps(5))])
+    for spec, start in ((str(BOX), 150), (tmp_path / "frames", 3), (bag, 2)):
+        with open_source(spec) as source:
+            whole = [frame for frame, _ in zip(source, range(start + 3))]
+        with open_source(spec) as source:
+            ranged = [frame for frame, _ in zip(source.frames_from(start), range(3))]
+        assert [(f.index, f.time_s) for f in ranged] == [(f.index, f.time_s) for f in whole[start:start + 3]]
+        assert all(np.array_equal(a.image, b.image) for a, b in zip(ranged, whole[start:]))

@@ -126,3 +126,32 @@ def test_the_map_covariance_of_the_signs_adds_to_the_camera_and_the_json_is_plai
     assert document["signs_used"] == list(certain.signs_used)
     w, x, y, z = document["orientation_wxyz"]
     assert pytest.approx(1.0) == w * w + x * x + y * y + z * z
+
+
+def test_a_sign_that_disagrees_with_the_others_is_left_out_and_named():
+    """Three signs in view, one of them moved 15 cm since the map was made: the fit leaves it out and names it,
+    and locates the camera from the other two as if it were not there; with the map right, all three are used.
+    Two signs that disagree are both kept, their disagreement in the covariance."""
+    third = "chief_of_security"
+    truth = SignMap({**MAP.signs, third: MappedSign(third, exp_so3(np.array([0.0, 0.3, 0.0])), np.array([1.2, -0.9, 0.2]))})
+    stale = SignMap({**truth.signs, third: MappedSign(third, truth.signs[third].R,
+                                                      truth.signs[third].position_m + [0.15, 0.0, 0.0])})
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        R, t = true_camera(rng)
+        found = [seen(label, R, t, rng, truth) for label in truth.signs]
+        right = locate_in_map(found=found, sign_map=truth, library=LIBRARY, camera=CAMERA)
+        assert set(right.signs_used) == set(truth.signs) and right.signs_rejected == ()
+        moved = locate_in_map(found=found, sign_map=stale, library=LIBRARY, camera=CAMERA)
+        assert moved.signs_rejected == (third,) and set(moved.signs_used) == set(MAP.signs)
+        two = locate_in_map(found=found[:2], sign_map=truth, library=LIBRARY, camera=CAMERA)
+        np.testing.assert_allclose(moved.position_m, two.position_m, atol=1e-9)
+        assert moved.to_json()["signs_rejected"] == [third]
+    # Two signs that disagree do not say which is wrong: both stay, the covariance grows.
+    apart = SignMap({**MAP.signs, "ministry_of_torture": MappedSign("ministry_of_torture", MAP.signs["ministry_of_torture"].R,
+                                                                    MAP.signs["ministry_of_torture"].position_m + 0.3)})
+    found = [seen(label, R, t, rng) for label in MAP.signs]
+    agreeing = locate_in_map(found=found, sign_map=MAP, library=LIBRARY, camera=CAMERA)
+    one = locate_in_map(found=found, sign_map=apart, library=LIBRARY, camera=CAMERA)
+    assert set(one.signs_used) == set(MAP.signs) and one.signs_rejected == ()
+    assert np.trace(one.covariance_xyz_rpy[:3, :3]) > 10 * np.trace(agreeing.covariance_xyz_rpy[:3, :3])

@@ -5,6 +5,7 @@ signs form two groups no photo links refused, naming both, and one without photo
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -127,3 +128,35 @@ def test_a_survey_in_two_unlinked_groups_is_refused_naming_both_and_one_without_
             assert client.get("/api/map").json() is None
             assert client.delete("/api/images").status_code == 200
             assert_error(client.post("/api/map/build"), 409, "no sign with a pose in the photos and flights held")
+
+
+def test_the_map_held_is_kept_in_the_state_across_a_restart_and_map_overrides_it(tmp_path):
+    """A map loaded in the server is held again after a restart on the same state; `serve --map` holds its
+    own instead, the one the state kept moved aside (nothing lost); a map cleared leaves none; a kept map
+    that no longer fits the library is moved aside and the server starts without one."""
+    state = tmp_path / "state"
+    one_sign = tmp_path / "one_sign.yaml"
+    one_sign.write_text("signs:\n  - id: archives\n    position_m: [1, 2, 3]\n    orientation_wxyz: [1, 0, 0, 0]\n")
+
+    def served(map_file: Path | None = None):
+        return running_workspace(dataclasses.replace(survey_config(state), map_file=map_file))
+
+    with served() as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as client:
+        assert put_map(client, "truth_map.yaml", (ROOM / "truth_map.yaml").read_text()).status_code == 200
+        held = client.get("/api/map").json()
+    with served() as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as client:
+        again = client.get("/api/map").json()
+        assert again is not None and "kept" in again["source"]
+        assert [s["id"] for s in again["signs"]] == [s["id"] for s in held["signs"]]
+        np.testing.assert_allclose([s["position_m"] for s in again["signs"]], [s["position_m"] for s in held["signs"]])
+    with served(one_sign) as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as client:
+        assert [s["id"] for s in client.get("/api/map").json()["signs"]] == ["archives"]
+        [aside] = state.glob("map.replaced-*.yaml")
+        assert list(load_sign_map(aside).signs) == list(TRUTH.signs)
+        assert client.delete("/api/map").status_code == 204
+        assert not (state / "map.yaml").exists()
+    # A kept map that no longer fits the library: the server starts without it, and it is moved aside.
+    (state / "map.yaml").write_text(one_sign.read_text().replace("archives", "gone_since"))
+    with served() as url, httpx.Client(base_url=url, timeout=TIMEOUT_S) as client:
+        assert client.get("/api/map").json() is None
+        assert len(list(state.glob("map.replaced-*.yaml"))) == 2 and not (state / "map.yaml").exists()

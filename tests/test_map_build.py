@@ -15,7 +15,7 @@ import pytest
 
 from signpose.app.cli import main
 from signpose.pipeline.library import load_library
-from signpose.pipeline.map_build import (CHI2_REJECT, DisconnectedSurvey, MapBuildError, Observation, build_map,
+from signpose.pipeline.map_build import (CHI2_REJECT, SHARED_SHARE, DisconnectedSurvey, MapBuildError, Observation, build_map,
                                          gtsam_covariance, ros_covariance, sign_groups)
 from signpose.pipeline.pose_filter import exp_so3, log_so3
 from signpose.pipeline.sign_map import MappedSign, SignMap, load_sign_map, read_sign_map
@@ -45,15 +45,19 @@ def seen(i: int, sign: str) -> bool:
 
 
 def survey(rng: np.random.Generator, signs=SIGNS, cams=None, correlated: bool = False) -> list[Observation]:
-    """Noisy observations of `signs` from `cams`, noise drawn from each observation's covariance."""
+    """Noisy observations of `signs` from `cams`: each sign seen by every photo off by one error of its own
+    (SHARED_SHARE of an observation's covariance, in the sign's frame, as GTSAM perturbs a pose), then each observation by noise drawn
+    from its covariance."""
     covariance = np.diag([SIGMA_ROT**2] * 3 + [SIGMA_T**2] * 3)
     if correlated:  # rotation and translation errors that go together, as a pose fit's do
         covariance[0, 4] = covariance[4, 0] = 0.6 * SIGMA_ROT * SIGMA_T
     observations = []
+    shared = {sign_id: rng.multivariate_normal(np.zeros(6), SHARED_SHARE**2 * covariance) for sign_id in signs}
     for i, (R_c, p_c) in enumerate(cams or cameras()):
-        for sign_id, (R_s, p_s) in signs.items():
+        for sign_id, (R_true, p_true) in signs.items():
             if not seen(i, sign_id):
                 continue
+            R_s, p_s = R_true @ exp_so3(shared[sign_id][:3]), p_true + R_true @ shared[sign_id][3:]
             R, t = R_c.T @ R_s, R_c.T @ (p_s - p_c)  # X_cam = R·X_sign + t
             e = rng.multivariate_normal(np.zeros(6), covariance)
             observations.append(Observation(f"img{i}", sign_id, exp_so3(log_so3(R) + e[:3]), t + e[3:], covariance))
@@ -75,7 +79,7 @@ def test_the_pose_graph_recovers_hand_made_signs_with_a_covariance_that_covers_t
         np.testing.assert_allclose(build.sign_map.signs["a"].position_m, 0.0, atol=1e-9)
         for sign_id in "bc":
             e = error(build.sign_map.signs[sign_id], *SIGNS[sign_id])
-            assert np.linalg.norm(e[:3]) < 0.02 and math.degrees(np.linalg.norm(e[3:])) < 0.5
+            assert np.linalg.norm(e[:3]) < 0.03 and math.degrees(np.linalg.norm(e[3:])) < 1.0
             covariance = build.sign_map.signs[sign_id].covariance
             assert np.allclose(covariance, covariance.T) and np.linalg.eigvalsh(covariance).min() > 0
             squared.append(float(e @ np.linalg.solve(covariance, e)))

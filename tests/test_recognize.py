@@ -367,6 +367,17 @@ def test_a_frame_larger_than_max_search_size_is_searched_downscaled(library):
     assert np.abs(rec.corners - truth).max() < 2 * f
 
 
+def test_the_full_frame_fallback_is_searched_shrunk_and_a_frame_without_segmentation_whole(library):
+    """After the crops the full frame is searched shrunk by full_frame_scale; searched without
+    segmentation it is the search itself, and keeps its size."""
+    image = read_image(SCENES / "scene_000.jpg")
+    fallback = preset("default").replace(full_frame_scale=0.75)
+    for settings, scale in ((fallback, fallback.full_frame_scale), (fallback.replace(segment_mode="none"), 1.0)):
+        rec = recognize(image, library, settings)
+        full = next(a for a in rec.attempts if a.source == "full frame")
+        assert rec.label is None and full.features.scale == pytest.approx(scale)
+
+
 def test_the_plaque_fallback_says_why_features_did_not_decide(library):
     # At this RANSAC threshold scene_009's leading sign had 11 inliers but an absurd quad: the
     # warning blamed "too few feature inliers". (The zoom on the full frame's matches finds it by its

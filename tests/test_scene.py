@@ -729,7 +729,7 @@ def test_a_flight_is_drawn_in_the_map_world_through_its_frames_located_in_the_ma
                     tracked_camera=camera, fps=30.0, result_version=1)
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     try:
-        layer = MapLayer(server, maps, types.SimpleNamespace(held=lambda: [flight]))
+        layer = MapLayer(server, maps, types.SimpleNamespace(held=lambda: [flight]), lambda records: [])
         layer.draw(library, [], 0.25)
         segments = np.asarray(layer.flight_nodes["f1"].trajectory.points)
         in_map = [R_map @ p + p_map for p in expected]
@@ -745,3 +745,43 @@ def test_a_flight_is_drawn_in_the_map_world_through_its_frames_located_in_the_ma
         np.testing.assert_allclose(current.position, in_map[3], atol=1e-4)
     finally:
         server.stop()
+
+
+def test_a_photo_s_camera_in_the_map_world_is_fitted_to_every_mapped_sign_it_sees(tmp_path):
+    """A survey photo that sees two mapped signs is located from both, as `recognize --map` locates it
+    (every sign in view, one joint fit), not from its answer's sign alone; a photo of one sign from that one."""
+    from signpose.app.sign_maps import SignMaps
+    from signpose.pipeline.camera import load_camera
+    from signpose.pipeline.every_sign import recognize_every_sign
+    from signpose.pipeline.localise import locate_in_map
+    from signpose.pipeline.settings import preset
+    from signpose.pipeline.sign_map import load_sign_map
+
+    room = SAMPLE_SCENES.parent / "surveys" / "room"
+    truth = {p["image"]: p for p in json.loads((room / "truth.json").read_text())["photos"]}
+    names = ["photo_000.jpg", "photo_002.jpg", "photo_005.jpg"]   # one sign, then two neighbours each
+    ws = Workspace.open(WorkspaceConfig(state_dir=tmp_path / "state", library_dir=room / "library",
+                                        camera_file=room / "camera.yaml", load_samples=False, workers=2))
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    maps = SignMaps(publish=ws.publish)
+    handle = attach(server, ws, sign_maps=maps)
+    try:
+        ws.add_images([(name, (room / name).read_bytes(), None) for name in names])
+        assert ws.wait_idle(IDLE_TIMEOUT_S)
+        sign_map = load_sign_map(room / "truth_map.yaml")
+        maps.hold_file(sign_map, "truth_map.yaml")
+        wait_for(lambda: len(handle.map_layer.cameras) == len(names), timeout=IDLE_TIMEOUT_S)
+        library, camera = ws.library, load_camera(room / "camera.yaml")
+        by_name = {r.id: r.name for r in ws.images()}
+        for image_id, (_, located, frustum) in handle.map_layer.cameras.items():
+            name = by_name[image_id]
+            found = recognize_every_sign(cv2.imread(str(room / name)), library, preset("default"), camera)
+            cli = locate_in_map(found=found, sign_map=sign_map, library=library, camera=camera)
+            assert located is not None and set(truth[name]["signs"]) <= set(located.signs_used)
+            assert sorted(located.signs_used) == sorted(cli.signs_used)
+            np.testing.assert_allclose(frustum.position, cli.position_m, atol=1e-6)
+            np.testing.assert_allclose(located.position_m, truth[name]["camera_position"], atol=0.05)
+    finally:
+        handle.close()
+        server.stop()
+        ws.close()

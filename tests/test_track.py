@@ -3,6 +3,7 @@ flights (pipeline/synth_flight.py) and on the committed sample flight."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -12,13 +13,13 @@ import numpy as np
 import pytest
 
 from signpose.pipeline.camera import CameraError, load_camera
-from signpose.pipeline.library import load_library
+from signpose.pipeline.library import Library, load_library
 from signpose.pipeline.pose import Pose, corner_covariance, rotation_error_deg
 from signpose.pipeline.pose_filter import PoseFilter, pose_jacobian, exp_so3, log_so3
 from signpose.pipeline.settings import Settings
 from signpose.pipeline.synth import synthetic_camera
 from signpose.pipeline.synth_flight import FlightRenderer, Keyframe, Plaque
-from signpose.pipeline.track import STATES, FrameResult, Tracker, TrackerConfig
+from signpose.pipeline.track import STATES, FrameResult, Tracker, TrackerConfig, drifting_measurement
 
 SAMPLE_FLIGHT = Path(__file__).resolve().parents[1] / "sample_images" / "flights" / "corridor"
 FPS = 30.0
@@ -70,6 +71,21 @@ def test_a_track_without_an_outline_is_re_anchored_by_the_detector(library):
     assert states[1] == ["detected"] and states[2] == ["tracked"], states
     assert states[4] == ["detected"], f"the detector's next budgeted run re-anchors the track: {states}"
     assert len({s.track_id for r in results[1:] for s in r.signs}) == 1
+
+
+def test_a_picture_is_followed_by_its_points_not_by_an_outline(library):
+    # recognize places a plaque by its four edges and a picture by its features alone (a picture's
+    # boundary need not be an edge of its own); the tracker follows each the same way.
+    frames = render(library, [Plaque("security_compound", (0.0, -0.2), SIGN)], hover(0.0, 1.2), 5)
+    sign = library["security_compound"]
+    for kind in ("plaque", "picture"):
+        tracker = Tracker(Library(library.root, [dataclasses.replace(sign, kind=kind)]), Settings(),
+                          synthetic_camera(), fps=FPS)
+        outlined = []
+        for i, frame in enumerate(frames):
+            states = [s.state for s in tracker.step(frame, index=i, time_s=i / FPS).signs]
+            outlined += [t.outlined for t in tracker.tracks if states == ["tracked"]]
+        assert outlined and all(outlined) == (kind == "plaque") and any(outlined) == (kind == "plaque"), (kind, outlined)
 
 
 def test_a_check_where_the_cut_has_no_camera_searches_the_frame(library, monkeypatch):
@@ -222,6 +238,28 @@ def test_filter_reduces_jitter_on_a_still_noisy_camera():
     raw_jitter = np.median(np.linalg.norm(np.diff(raw[30:], axis=0), axis=1))
     filtered_jitter = np.median(np.linalg.norm(np.diff(filtered[30:], axis=0), axis=1))
     assert filtered_jitter < 0.5 * raw_jitter, (raw_jitter, filtered_jitter)
+
+
+def test_poses_followed_by_points_alone_drift_the_filter_less_the_longer_since_their_anchor():
+    # A still camera 6 m from a far sign, which pins its bearing (t) but not its tilt: after each
+    # anchor its point-followed poses drift sideways round the sign 20 mm a frame (their errors run
+    # together), and the next anchor puts it back: a sawtooth the filter should not follow.
+    steps = {"as measured": [], "weighted by the frames since the anchor": []}
+    for how, taken in steps.items():
+        pose_filter = PoseFilter()
+        for i in range(90):
+            unanchored = i % 15
+            position = np.array([0.02 * unanchored, 0.0, -6.0])
+            # the rotation that keeps the sign straight ahead: R·position along -z
+            axis = np.cross(position / np.linalg.norm(position), [0.0, 0.0, -1.0])
+            R = exp_so3(axis / max(np.linalg.norm(axis), 1e-12) * math.asin(min(1.0, np.linalg.norm(axis))))
+            measured = _pose(R, position, sigma_rad=0.05, sigma_m=0.005)
+            if how != "as measured":
+                measured = drifting_measurement(measured, unanchored)
+            taken.append(pose_filter.update(measured, i / FPS).camera_position)
+    jitter = {how: float(np.median(np.linalg.norm(np.diff(taken[30:], axis=0), axis=1))) for how, taken in steps.items()}
+    assert jitter["weighted by the frames since the anchor"] < 0.6 * jitter["as measured"], jitter
+    assert drifting_measurement(_pose(np.eye(3), np.zeros(3)), 0).covariance[0, 0] == 0.002**2
 
 
 def test_tracker_on_the_sample_flight_finds_both_signs_with_no_wrong_label(library):
