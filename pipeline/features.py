@@ -96,13 +96,15 @@ def region_scale(long_side: int, settings: Settings, full_frame: bool = False) -
     return scale
 
 
-def detect(gray: np.ndarray, settings: Settings, region: Box | None = None, resize: bool = True) -> Features:
+def detect(gray: np.ndarray, settings: Settings, region: Box | None = None, resize: bool = True,
+           scale: float | None = None) -> Features:
     """Detect and describe keypoints of an (H, W) uint8 image inside `region` (default: all of it),
-    resized first by `region_scale` unless `resize` is False."""
+    resized first by `scale` when given, else by `region_scale` unless `resize` is False."""
     h, w = gray.shape
     x0, y0, x1, y1 = region if region is not None else (0, 0, w, h)
     patch = gray[y0:y1, x0:x1]
-    scale = region_scale(max(patch.shape), settings, patch.shape == gray.shape) if resize else 1.0
+    if scale is None:
+        scale = region_scale(max(patch.shape), settings, patch.shape == gray.shape) if resize else 1.0
     if scale != 1.0:
         patch = cv2.resize(patch, None, fx=scale, fy=scale,
                            interpolation=cv2.INTER_CUBIC if scale > 1 else cv2.INTER_AREA)

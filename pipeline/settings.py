@@ -83,6 +83,10 @@ class Settings:
                                   step=1, stages=("regions",))
     full_frame_fallback: bool = _flag(True, "Segmentation",
                                       "Search the full frame when no candidate blob yields a sign", stages=("regions",))
+    zoom_fallback: bool = _flag(True, "Segmentation",
+                                "When the full frame names no sign, search again, at twice its resolution, the "
+                                "window where its matches crowd most (a small or dim sign whose plaque no "
+                                "threshold cuts out)", stages=("regions",))
 
     # Features
     detector: str = _choice("sift", DETECTORS, "Features", "Local feature detector and descriptor",
@@ -297,6 +301,7 @@ PRESETS: dict[str, Settings] = {
         candidates=1,
         plaque_candidates=0,
         full_frame_fallback=False,
+        zoom_fallback=False,
         min_crop_size=0,
         max_crop_size=0,
         affine_fallback=False,

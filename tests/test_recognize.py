@@ -17,7 +17,8 @@ from signpose.pipeline.library import load_library
 from signpose.pipeline.pose import rotation_error_deg
 import signpose.pipeline.recognize as recognize_module
 from signpose.pipeline.plaque_search import QuadCandidate
-from signpose.pipeline.recognize import AUTO_ECC_MAX_INLIERS, StageCache, candidate_regions, decide, recognize, score_sign
+from signpose.pipeline.recognize import (AUTO_ECC_MAX_INLIERS, ZOOM_MIN_MATCHES, Attempt, SignScore, StageCache,
+                                        candidate_regions, decide, recognize, score_sign, zoom_region)
 from signpose.pipeline.segment import Blob, Segmentation
 from signpose.pipeline.settings import preset
 from tests.support.scene_images import (DECOYS, PLAQUE_AT, decoy_image, like_a_camera, plaque_of, render_plaque,
@@ -379,8 +380,27 @@ def test_the_full_frame_fallback_is_searched_shrunk_and_a_frame_without_segmenta
 
 def test_the_plaque_fallback_says_why_features_did_not_decide(library):
     # At this RANSAC threshold scene_009's leading sign had 11 inliers but an absurd quad: the
-    # warning blamed "too few feature inliers".
-    rec = recognize(read_image(SCENES / "scene_009.jpg"), library, preset("default").replace(ransac_threshold_px=14.8))
+    # warning blamed "too few feature inliers". (The zoom on the full frame's matches finds it by its
+    # features, before the plaque fallback.)
+    rec = recognize(read_image(SCENES / "scene_009.jpg"), library,
+                    preset("default").replace(ransac_threshold_px=14.8, zoom_fallback=False))
     assert rec.by_plaque and rec.attempt.leader.n_inliers >= rec.settings.min_inliers
     note = next(w for w in rec.warnings if w.startswith("recognised by the plaque fallback"))
     assert note.endswith(f"features did not decide ({rec.attempt.leader.reason})") and "absurd" in note
+
+
+def test_the_zoom_window_is_where_the_matches_crowd_and_only_where_enough_do():
+    """Matches scattered over the left of a 640 x 480 frame, too few to zoom on anywhere, and a cluster
+    of them about a point on the right: the zoom window (`zoom_region`) holds the cluster; with one
+    match too few in it, there is none."""
+    rng = np.random.default_rng(0)
+    scattered = rng.uniform([0, 0], [250, 480], (ZOOM_MIN_MATCHES - 1, 2))
+
+    def attempt(cluster: int) -> Attempt:
+        dst = np.vstack([scattered, rng.normal([500, 400], 10, (cluster, 2))])
+        score = SignScore("sign", mock.Mock(), np.zeros_like(dst), dst, None, None)
+        return Attempt((0, 0, 640, 480), "full frame", mock.Mock(), [score], None, 0)
+
+    x0, y0, x1, y1 = zoom_region(attempt(ZOOM_MIN_MATCHES), 640, 480)
+    assert x0 < 470 and 530 < x1 and y0 < 370 and 430 < y1 and x1 - x0 < 200
+    assert zoom_region(attempt(ZOOM_MIN_MATCHES - 1), 640, 480) is None

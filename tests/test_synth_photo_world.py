@@ -114,3 +114,15 @@ def test_the_default_preset_on_a_fixed_set_of_the_photo_world(library, photos):
         assert rec.label == sign_id, (look, rec.label, rec.warnings)
         if sign_id is not None:
             assert rotation_error_deg(rendered.R, rec.pose.R) < 3.0, look
+
+
+def test_a_small_sign_no_threshold_cuts_out_is_found_by_zooming_where_the_full_frames_matches_crowd(library, photos):
+    """A sign about 60 px wide in clutter: no crop holds it, and the full frame's few matches give no
+    homography among the clutter's, but they crowd on it; that window, searched at twice the
+    resolution, names the sign, which nothing finds without it."""
+    rendered = scene(library, photos, 10, look="small", sign_id="ministry_of_torture", category="hard")
+    camera = photo_world_camera()
+    rec = recognize(rendered.image, library, preset("default"), camera)
+    assert rec.label == "ministry_of_torture" and rec.attempt.source.startswith("zoom"), rec.warnings
+    assert rotation_error_deg(rendered.R, rec.pose.R) < 3.0
+    assert recognize(rendered.image, library, preset("default").replace(zoom_fallback=False), camera).label is None
