@@ -627,7 +627,7 @@ def test_threshold_calibration_measures_the_blob_when_the_answer_came_from_elsew
     every settings change. It measures the largest blob now."""
     (image_id,) = add_photos(client, "security_compound")
     try:
-        client.put("/api/settings", json={"min_inliers": 200, "plaque_fallback": False}).raise_for_status()
+        client.put("/api/settings", json={"min_inliers": 200, "plaque_fallback": False, "zoom_fallback": False}).raise_for_status()
         wait_done(client)
         attempts = [a["source"] for a in client.get(f"/api/images/{image_id}").json()["attempts"]]
         assert attempts == ["blob 1", "full frame"], attempts
