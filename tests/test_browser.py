@@ -59,8 +59,13 @@ def api(base):
 
 
 @pytest.fixture(autouse=True)
-def default_settings(api):
-    """Every test starts from the default preset, whatever the previous one changed."""
+def default_settings(api, request):
+    """Every test starts from the default preset, whatever the previous one changed. A test with a
+    page of its own has the shared page closed first: closing it sends an edit it still held (its
+    pagehide flush, or the change event of a focused field), which would land after the reset."""
+    if "fresh_page" in request.fixturenames:
+        request.getfixturevalue("fresh_page")
+        harness.wait_server_idle(api)
     api.post("/api/settings/preset/default").raise_for_status()
     harness.wait_server_idle(api)
 
