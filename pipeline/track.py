@@ -227,18 +227,22 @@ class Followed:
 
 def drifting_measurement(pose: Pose, unanchored: int) -> Pose:
     """`pose` as the filter takes it from a track followed by its points alone for `unanchored` frames
-    since it was last placed (by the detector or its outline): its covariance times 1 + `unanchored`.
+    since it was last placed (by the detector or its outline): the σ of its rotation times 1 +
+    `unanchored`, that of its t times √(1 + `unanchored`) (covariance blocks scaled accordingly).
 
     Such poses are not independent measurements: each carries its anchor's error and the points'
     drift since, so their errors run together from frame to frame (on the corridor flight a sign
-    4.5-7 m away drifted 103 mm a frame median, then jumped 2.6-2.9 m when re-anchored), while the filter
-    takes each as new evidence and followed the drift. Each frame's own covariance is honest (the
-    poses' NEES against the truth, 6 dof, median 3.0-5.8 by frames since the anchor: χ² gives 5.35);
-    weighted down by the frames they share, the corridor flight's filtered jitter over every frame
-    went from 90 to 47 mm p90 (replayed through the filter), within 3 m unchanged."""
+    4.5-7 m away drifted 103 mm a frame median, then jumped 2.6-2.9 m when re-anchored), while the
+    filter takes each as new evidence and followed the drift as a velocity. The drift is in the
+    sign's tilt, which a few points on a small sign hardly pin and which builds up frame after
+    frame (its variance grows as the square of the frames); t, where the points are, is each
+    frame's own. Replayed through the filter on the corridor flight, against both weighted by
+    1 + `unanchored` in variance, this took the filtered jitter over every frame from 54 to 37 mm
+    p90 (median 5.5 and 5.4 mm), within 3 m from 6.5 to 6.2 mm p90."""
     if unanchored <= 0 or pose.covariance is None:
         return pose
-    return dataclasses.replace(pose, covariance=pose.covariance * (1 + unanchored))
+    scale = np.repeat([1.0 + unanchored, math.sqrt(1.0 + unanchored)], 3)
+    return dataclasses.replace(pose, covariance=pose.covariance * np.outer(scale, scale))
 
 
 def quad_box(corners: np.ndarray, width: int, height: int) -> Box:
@@ -485,23 +489,25 @@ class Tracker:
             if other is not mine and not other.confirmed:
                 self.tracks.remove(other)  # a tentative track the detector now reads as another sign
         H = H / H[2, 2]
+        # Re-anchored: the pose refitted from the track's own, so the ambiguity stays settled. Its
+        # corners count with at least the σ of a tracked frame's (TRACK_CORNER_SIGMA_PX): a plaque
+        # its outline places in a video frame is no better placed for being found by the detector.
+        start = rec.pose if mine is None else mine.pose or rec.pose
+        sigma = max(CORNER_SIGMA_PX["outline" if rec.outline is not None else "dense"], TRACK_CORNER_SIGMA_PX)
+        pose = rec.pose
+        if start is not None:
+            src, dst = grid_correspondences(H, sign)
+            try:
+                pose = pose_near(start.R, start.t, src, dst, sign, camera, sigma)
+            except PoseError:
+                pass
         if mine is None:
-            mine = Track(self.next_id, sign, H, rec.pose, np.zeros((0, 2), np.float32), np.zeros((0, 2)), gray,
+            mine = Track(self.next_id, sign, H, pose, np.zeros((0, 2), np.float32), np.zeros((0, 2)), gray,
                          born=index)
             self.next_id += 1
             self.tracks.append(mine)
         else:
-            # Re-anchored: the pose refitted from the track's own, so the ambiguity stays settled.
-            src, dst = grid_correspondences(H, sign)
-            sigma = CORNER_SIGMA_PX["outline" if rec.outline is not None else "dense"]
-            start = mine.pose or rec.pose
-            mine.pose = rec.pose
-            if start is not None:
-                try:
-                    mine.pose = pose_near(start.R, start.t, src, dst, sign, camera, sigma)
-                except PoseError:
-                    pass
-            mine.H = H
+            mine.pose, mine.H = pose, H
         mine.misses, mine.weak, mine.outlined, mine.unanchored = 0, False, rec.outline is not None, 0
         self._seed(mine, gray)
         return mine

@@ -19,7 +19,8 @@ from signpose.pipeline.pose_filter import PoseFilter, pose_jacobian, exp_so3, lo
 from signpose.pipeline.settings import Settings
 from signpose.pipeline.synth import synthetic_camera
 from signpose.pipeline.synth_flight import FlightRenderer, Keyframe, Plaque
-from signpose.pipeline.track import STATES, FrameResult, Tracker, TrackerConfig, drifting_measurement
+from signpose.pipeline.track import (STATES, TRACK_CORNER_SIGMA_PX, FrameResult, Tracker, TrackerConfig,
+                                     drifting_measurement)
 
 SAMPLE_FLIGHT = Path(__file__).resolve().parents[1] / "sample_images" / "flights" / "corridor"
 FPS = 30.0
@@ -59,6 +60,18 @@ def test_a_sign_is_detected_confirmed_then_tracked(library):
     assert len({s.track_id for r in results[1:] for s in r.signs}) == 1
     pose = results[-1].signs[0].pose
     assert pose is not None and abs(pose.camera_position[2] + 1.2) < 0.02
+
+
+def test_a_detected_pose_counts_its_corners_as_a_video_frame_places_them(library):
+    # recognize gives a plaque its outline places a corner σ of 0.1 px (a still photo's); in a
+    # video frame a tracked one has TRACK_CORNER_SIGMA_PX, and a detected one no less, or the
+    # filter takes each re-anchor as near certain and jumps to it.
+    frames = render(library, [Plaque("security_compound", (0.0, -0.2), SIGN)], hover(0.0, 3.0), 3)
+    detected = [s for r in run(library, frames) for s in r.signs if s.state == "detected"]
+    assert detected, "the sign is detected"
+    sign, pose = library["security_compound"], detected[0].pose
+    floor = corner_covariance(pose.R, pose.t, sign, synthetic_camera(), TRACK_CORNER_SIGMA_PX)
+    assert np.all(np.linalg.eigvalsh(pose.covariance - floor) > -1e-12 * np.abs(floor).max())
 
 
 def test_a_track_without_an_outline_is_re_anchored_by_the_detector(library):
@@ -260,6 +273,10 @@ def test_poses_followed_by_points_alone_drift_the_filter_less_the_longer_since_t
     jitter = {how: float(np.median(np.linalg.norm(np.diff(taken[30:], axis=0), axis=1))) for how, taken in steps.items()}
     assert jitter["weighted by the frames since the anchor"] < 0.6 * jitter["as measured"], jitter
     assert drifting_measurement(_pose(np.eye(3), np.zeros(3)), 0).covariance[0, 0] == 0.002**2
+    # The tilt's drift builds up frame after frame, t is each frame's own: σ of the rotation times
+    # 1 + frames, of t times √(1 + frames).
+    weighted = drifting_measurement(_pose(np.eye(3), np.zeros(3), sigma_rad=0.01, sigma_m=0.01), 3).covariance
+    assert np.allclose(np.sqrt(np.diag(weighted)), [0.04] * 3 + [0.02] * 3)
 
 
 def test_tracker_on_the_sample_flight_finds_both_signs_with_no_wrong_label(library):
