@@ -310,7 +310,7 @@ class Tracker:
 
         recognitions: list[Recognition] = []
         detected: set[int] = set()
-        checks = self._checks_due(followed)
+        checks = self._checks_due(index, followed)
         search = self._search_due(index, followed)
         if checks or search:
             if search:
@@ -335,16 +335,15 @@ class Tracker:
                            [t.track_id for t in self.tracks if not t.confirmed], self.sign_map is not None, located,
                            filtered)
 
-    def _checks_due(self, followed: dict[int, Followed]) -> list[Track]:
+    def _checks_due(self, index: int, followed: dict[int, Followed]) -> list[Track]:
         """The tracks the detector checks where they are on this frame: each tentative one (to confirm
         it), and each healthy confirmed one followed by its points alone (a picture, or a plaque whose
-        edges were not found) for `detect_every` frames since the detector or its outline last placed
-        it, which re-anchors it on the library image before its points' drift builds up. A track held
-        by its plaque's outline needs no check, nor one whose outline was missed on a frame or two."""
+        edges were not found), every `detect_every` frames, which re-anchors it on the library image
+        before its points' drift builds up. A track held by its plaque's outline needs no check."""
         def drifting(t: Track) -> bool:
             step = followed.get(t.track_id)
             return (step is not None and not step.weak and step.outline is None
-                    and t.unanchored + 1 >= self.detect_every)
+                    and index - t.detected_at >= self.detect_every)
 
         return [t for t in self.tracks if not t.confirmed or drifting(t)]
 

@@ -19,7 +19,6 @@ from signpose.pipeline.pose_filter import PoseFilter, pose_jacobian, exp_so3, lo
 from signpose.pipeline.settings import Settings
 from signpose.pipeline.synth import synthetic_camera
 from signpose.pipeline.synth_flight import FlightRenderer, Keyframe, Plaque
-import signpose.pipeline.track as track_module
 from signpose.pipeline.track import (STATES, TRACK_CORNER_SIGMA_PX, FrameResult, Tracker, TrackerConfig,
                                      drifting_measurement)
 
@@ -85,19 +84,6 @@ def test_a_track_without_an_outline_is_re_anchored_by_the_detector(library):
     assert states[1] == ["detected"] and states[2] == ["tracked"], states
     assert states[4] == ["detected"], f"the detector's next budgeted run re-anchors the track: {states}"
     assert len({s.track_id for r in results[1:] for s in r.signs}) == 1
-
-
-def test_a_track_its_outline_misses_on_one_frame_is_not_checked_by_the_detector(library, monkeypatch):
-    # The points' drift builds up over the frames followed by them alone, not since the last detection.
-    frames = render(library, [Plaque("security_compound", (0.0, -0.2), SIGN)], hover(0.0, 1.2), 7)
-    refine, index = track_module.refine_outline, [0]
-    monkeypatch.setattr(track_module, "refine_outline", lambda *args: (None, "missed") if index[0] == 5 else refine(*args))
-    tracker = Tracker(library, Settings(), synthetic_camera(), fps=FPS, config=TrackerConfig(detect_interval_s=0.1))
-    results = []
-    for index[0], frame in enumerate(frames):
-        results.append(tracker.step(frame, index=index[0], time_s=index[0] / FPS))
-    assert [s.state for s in results[5].signs] == ["tracked"]
-    assert results[5].checked == [], "one frame without its outline is no drift to re-anchor"
 
 
 def test_a_picture_is_followed_by_its_points_not_by_an_outline(library):
