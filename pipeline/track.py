@@ -495,9 +495,10 @@ class Tracker:
             if other is not mine and not other.confirmed:
                 self.tracks.remove(other)  # a tentative track the detector now reads as another sign
         H = H / H[2, 2]
-        # Re-anchored: the pose refitted from the track's own, so the ambiguity stays settled. Its
-        # corners count with at least the σ of a tracked frame's (TRACK_CORNER_SIGMA_PX): a plaque
-        # its outline places in a video frame is no better placed for being found by the detector.
+        # The pose refitted to the detection's H from the track's own (a new track's: the detection's),
+        # so the ambiguity stays settled. Its corners count with at least a tracked frame's σ
+        # (TRACK_CORNER_SIGMA_PX): a plaque its outline places in a video frame is no better placed
+        # for being found by the detector (recognize's 0.1 px is a still photo's).
         start = rec.pose if mine is None else mine.pose or rec.pose
         sigma = max(CORNER_SIGMA_PX["outline" if rec.outline is not None else "dense"], TRACK_CORNER_SIGMA_PX)
         pose = rec.pose
