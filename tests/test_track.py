@@ -86,6 +86,15 @@ def test_a_track_without_an_outline_is_re_anchored_by_the_detector(library):
     assert len({s.track_id for r in results[1:] for s in r.signs}) == 1
 
 
+def test_new_signs_are_searched_for_every_search_interval_while_a_track_is_healthy(library):
+    frames = render(library, [Plaque("security_compound", (0.0, -0.2), SIGN)], hover(0.0, 1.2), 9)
+    tracker = Tracker(library, Settings(), synthetic_camera(), fps=FPS, config=TrackerConfig(search_interval_s=0.1))
+    results = [tracker.step(frame, index=i, time_s=i / FPS) for i, frame in enumerate(frames)]
+    assert all(s.state == "tracked" for r in results[2:] for s in r.signs) and results[-1].signs
+    # Searched on frames 0 (found) and 1 (a tentative track), then every 3 frames from the last search.
+    assert [i for i, r in enumerate(results) if r.recognitions] == [0, 1, 4, 7]
+
+
 def test_a_picture_is_followed_by_its_points_not_by_an_outline(library):
     # recognize places a plaque by its four edges and a picture by its features alone (a picture's
     # boundary need not be an edge of its own); the tracker follows each the same way.
