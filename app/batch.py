@@ -54,6 +54,8 @@ class Chunk:
 
 
 class Runner(Protocol):
+    slots: int  # chunks it runs at once (worker processes or threads)
+
     def share(self, value: Any) -> Any: ...
 
     def run(self, function: Callable[..., Any], shared: tuple, chunks: Iterable[Chunk]) -> Iterator[tuple[Chunk, Any]]:
@@ -68,7 +70,7 @@ class LocalRunner:
     """Runs chunks on `workers` processes of this machine (spawned, one OpenCV thread each)."""
 
     def __init__(self, workers: int) -> None:
-        self.workers = workers
+        self.workers = self.slots = workers
         # Ctrl-C reaches the whole process group: this process stops the run, the workers finish their chunk.
         self.pool = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
                                                            initializer=signal.signal,
@@ -177,8 +179,8 @@ def recognize_all(jobs: Sequence[tuple[str, Camera | None]], library: Library, v
     """The pipeline's `Outcome` on every job (image file name, camera) under each of `variants`: [variant][job].
 
     Results in `store` (keyed by the image's bytes and the settings that feed recognition, with `context`:
-    the library, the camera and limits) are taken from it; the rest are computed in chunks of
-    `images_per_chunk` images on `runner` and stored as they arrive. `done(n)` follows each n images finished.
+    the library, the camera and limits) are taken from it; the rest are computed in chunks of at most
+    `images_per_chunk` images on `runner` (`guided_size`) and stored as they arrive. `done(n)` follows each n images finished.
     An image that cannot be read here is that image's error, computed nowhere.
     """
     outcomes: list[list[Outcome | None]] = [[None] * len(jobs) for _ in variants]
@@ -188,12 +190,15 @@ def recognize_all(jobs: Sequence[tuple[str, Camera | None]], library: Library, v
 
     def chunks() -> Iterator[Chunk]:
         items: list[ImageItem] = []
+        size = images_per_chunk
         for index, (name, camera) in enumerate(jobs):
+            if not items:
+                size = guided_size(len(jobs) - index, most=images_per_chunk, slots=runner.slots)
             item = pending_item(index, name, camera)
             if item is None:
                 continue
             items.append(item)
-            if len(items) == images_per_chunk:
+            if len(items) == size:
                 yield image_chunk(items)
                 items = []
         if items:
@@ -238,6 +243,13 @@ def recognize_all(jobs: Sequence[tuple[str, Camera | None]], library: Library, v
         done(chunk.size)
     tally.retried = runner.retried()
     return outcomes, tally  # type: ignore[return-value]  # every place is filled above
+
+
+def guided_size(left: int, *, most: int, slots: int) -> int:
+    """Images in the next chunk when `left` images are still to be sent to `slots` workers: `most` while much
+    is left, then smaller (a share of what is left), so that the workers finish together instead of one
+    running the last full chunk while the others wait (guided self-scheduling)."""
+    return max(1, min(most, -(-left // (2 * slots))))
 
 
 def image_chunk(items: list[ImageItem]) -> Chunk:

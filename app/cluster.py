@@ -53,6 +53,7 @@ class DaskRunner:
 
     def __init__(self, client: Client) -> None:
         self.client = client
+        self.slots = sum(client.nthreads().values()) or 1
         self._keys: dict[Hashable, str] = {}  # a submitted task's key: the chunk's name
 
     def share(self, value: Any) -> Future:
@@ -63,7 +64,7 @@ class DaskRunner:
         """(chunk, `function(*shared, chunk.work)`) for every chunk, as each finishes. Chunks are submitted as
         workers take them, never more than `IN_FLIGHT_PER_THREAD` a thread: the images' bytes of a long run
         stay on disk until their turn."""
-        threads = sum(self.client.nthreads().values()) or 1
+        threads = self.slots = sum(self.client.nthreads().values()) or 1
         pending = iter(chunks)
         running: dict[Future, Chunk] = {}
         finished = as_completed()
