@@ -280,15 +280,13 @@ def placed(files: Sequence[tuple[str, bytes]], folder: str) -> str:
 @dataclass(frozen=True)
 class FlightItem:
     """A frame range of a flight to track: the flight's place among the sources, the settings variant it is
-    tracked with, the range's place among the flight's ranges, its name as given, its files (or a path every
-    worker can read), the options of `signpose track`, and the range: frames `start` to `stop` (None: the
+    tracked with, the range's place among the flight's ranges, its name as given, the options of `signpose track`, and the range: frames `start` to `stop` (None: the
     flight's end) reported, after `warm_up` frames before `start` tracked and not reported."""
 
     index: int
     variant: int
     part: int
     name: str
-    payload: list[tuple[str, bytes]] | str
     camera: Camera | None
     sign_map: SignMap | None
     topic: str | None
@@ -299,9 +297,11 @@ class FlightItem:
     warm_up: int
 
 
-def tracked_range(library: Library, variants: Sequence[Settings], item: FlightItem) -> dict:
-    """On a worker: the `signpose track --json` line of every frame of the item's range, and the error that cut
-    it short ({"records": [...], "error": str | None}). The tracker starts cold `warm_up` frames before the
+def tracked_range(library: Library, variants: Sequence[Settings],
+                  work: tuple[FlightItem, list[tuple[str, bytes]] | str]) -> dict:
+    """On a worker: the `signpose track --json` line of every frame of the range of `work` (the range, and its
+    flight's files or a path this worker can read), and the error that cut it short
+    ({"records": [...], "error": str | None}). The tracker starts cold `warm_up` frames before the
     range (a video seeks there; `FrameSource.frames_from`): a sign in view at `start` is then confirmed and its
     filter under way there, as in a run over the whole flight."""
     from signpose.pipeline.camera import CameraError
@@ -309,9 +309,10 @@ def tracked_range(library: Library, variants: Sequence[Settings], item: FlightIt
     from signpose.pipeline.track import Tracker, tracked_frames
 
     worker_process()
+    item, source = work
     first = max(0, item.start - item.warm_up)
     with tempfile.TemporaryDirectory(prefix="signpose-flight-") as folder:
-        where = item.payload if isinstance(item.payload, str) else placed(item.payload, folder)
+        where = source if isinstance(source, str) else placed(source, folder)
         records: list[dict] = []
         try:
             with open_source(where, topic=item.topic, fps=item.fps, max_pixels=item.max_pixels) as source:
@@ -398,7 +399,9 @@ def track_all(jobs: Sequence[tuple[str, Camera | None]], library: Library, varia
         for index, (spec, camera) in enumerate(jobs):
             files = source_files(spec) if store is not None or not shared_paths else []
             content = files_hash(files) if store is not None else ""
-            payload: list[tuple[str, bytes]] | str = str(Path(spec).resolve()) if shared_paths else files
+            # The flight's files are shared with the workers once, when a range of it is first to be computed,
+            # and each range names them: a chunk's task (a tuple, which Dask looks into) then holds no bytes.
+            source = None
             for variant, settings in enumerate(variants):
                 for part, (start, stop) in enumerate(ranges[index]):
                     if store is not None:
@@ -410,13 +413,15 @@ def track_all(jobs: Sequence[tuple[str, Camera | None]], library: Library, varia
                             tally.reused += 1
                             done(1)
                             continue
-                    item = FlightItem(index, variant, part, spec, payload, camera, sign_map, topic, fps, max_pixels,
+                    if source is None:
+                        source = str(Path(spec).resolve()) if shared_paths else runner.share(files)
+                    item = FlightItem(index, variant, part, spec, camera, sign_map, topic, fps, max_pixels,
                                       start, stop, WARM_UP_FRAMES)
-                    yield Chunk(range_name(spec, start, stop, variant, len(variants)), item, 1)
+                    yield Chunk(range_name(spec, start, stop, variant, len(variants)), (item, source), 1)
 
     shared = (runner.share(with_features(library, variants)), list(variants))
     for chunk, result in runner.run(tracked_range, shared, chunks()):
-        item = chunk.work
+        item, _ = chunk.work
         parts[item.variant][item.index][item.part] = result
         if store is not None and result["error"] is None:
             store.put(*keys[item.variant, item.index, item.part], result)

@@ -57,8 +57,9 @@ class DaskRunner:
         self._keys: dict[Hashable, str] = {}  # a submitted task's key: the chunk's name
 
     def share(self, value: Any) -> Future:
-        """`value` sent once to every worker (the library with its features): a future that the chunks name."""
-        return self.client.scatter(value, broadcast=True, hash=False)
+        """`value` sent once to every worker (the library with its features, a flight's files): a future that the
+        chunks name. Every worker holds it, so a worker lost takes no shared value with it."""
+        return self.client.scatter([value], broadcast=True, hash=False)[0]  # a list's items would each be one
 
     def run(self, function: Callable[..., Any], shared: tuple, chunks: Iterable[Chunk]) -> Iterator[tuple[Chunk, Any]]:
         """(chunk, `function(*shared, chunk.work)`) for every chunk, as each finishes. Chunks are submitted as

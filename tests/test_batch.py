@@ -2,12 +2,13 @@
 
 from pathlib import Path
 
-from signpose.app.batch import recognize_all
+from signpose.app.batch import recognize_all, source_files, track_all
 from signpose.pipeline.evaluate import Outcome
 from signpose.pipeline.library import load_library
 from signpose.pipeline.settings import preset
 
 SCENES = Path(__file__).parents[1] / "sample_images" / "scenes"
+FLIGHT = Path(__file__).parents[1] / "sample_images" / "flights" / "corridor" / "flight.mp4"
 
 
 class RecordingRunner:
@@ -17,14 +18,21 @@ class RecordingRunner:
 
     def __init__(self) -> None:
         self.sizes: list[int] = []
+        self.shared: list = []
+        self.work: list = []
 
     def share(self, value):
-        return value
+        self.shared.append(value)
+        return f"shared value {len(self.shared) - 1}"
 
     def run(self, function, shared, chunks):
         for chunk in chunks:
             self.sizes.append(chunk.size)
-            yield chunk, [[Outcome(error=item.name)] for item in chunk.work]
+            self.work.append(chunk.work)
+            if isinstance(chunk.work, list):
+                yield chunk, [[Outcome(error=item.name)] for item in chunk.work]
+            else:
+                yield chunk, {"records": [], "error": None}
 
     def retried(self):
         return []
@@ -45,3 +53,14 @@ def test_the_last_chunks_shrink_so_that_the_workers_finish_together():
     assert runner.sizes[:2] == [8, 8] and runner.sizes[-1] == 1, runner.sizes
     assert runner.sizes == sorted(runner.sizes, reverse=True) and sum(runner.sizes) == 40, runner.sizes
     assert [o.error for o in outcomes[0]] == [name for name, _ in jobs] and tally.computed == 40
+
+
+def test_a_flight_in_ranges_is_shared_with_the_workers_once_not_sent_with_each_range():
+    """A flight cut into 4 ranges under 2 settings variants: its file is handed to the runner to share once
+    (a Dask cluster scatters it to every worker), and each of the 8 ranges names that shared copy."""
+    runner = RecordingRunner()
+    track_all([(str(FLIGHT), None)], load_library(), [preset("default"), preset("paper")], sign_map=None,
+              topic=None, fps=None, max_frames=120, max_pixels=10**8, frames_per_chunk=30, runner=runner, store=None,
+              shared_paths=False, planned=lambda n: None, done=lambda n: None)
+    assert runner.shared[1:] == [source_files(str(FLIGHT))], "the flight was not shared once, as its files"
+    assert len(runner.work) == 8 and {source for _, source in runner.work} == {"shared value 1"}
