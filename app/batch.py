@@ -54,6 +54,8 @@ class Chunk:
 
 
 class Runner(Protocol):
+    slots: int  # chunks it runs at once (worker processes or threads)
+
     def share(self, value: Any) -> Any: ...
 
     def run(self, function: Callable[..., Any], shared: tuple, chunks: Iterable[Chunk]) -> Iterator[tuple[Chunk, Any]]:
@@ -68,7 +70,7 @@ class LocalRunner:
     """Runs chunks on `workers` processes of this machine (spawned, one OpenCV thread each)."""
 
     def __init__(self, workers: int) -> None:
-        self.workers = workers
+        self.workers = self.slots = workers
         # Ctrl-C reaches the whole process group: this process stops the run, the workers finish their chunk.
         self.pool = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
                                                            initializer=signal.signal,
@@ -177,8 +179,8 @@ def recognize_all(jobs: Sequence[tuple[str, Camera | None]], library: Library, v
     """The pipeline's `Outcome` on every job (image file name, camera) under each of `variants`: [variant][job].
 
     Results in `store` (keyed by the image's bytes and the settings that feed recognition, with `context`:
-    the library, the camera and limits) are taken from it; the rest are computed in chunks of
-    `images_per_chunk` images on `runner` and stored as they arrive. `done(n)` follows each n images finished.
+    the library, the camera and limits) are taken from it; the rest are computed in chunks of at most
+    `images_per_chunk` images on `runner` (`guided_size`) and stored as they arrive. `done(n)` follows each n images finished.
     An image that cannot be read here is that image's error, computed nowhere.
     """
     outcomes: list[list[Outcome | None]] = [[None] * len(jobs) for _ in variants]
@@ -188,12 +190,15 @@ def recognize_all(jobs: Sequence[tuple[str, Camera | None]], library: Library, v
 
     def chunks() -> Iterator[Chunk]:
         items: list[ImageItem] = []
+        size = images_per_chunk
         for index, (name, camera) in enumerate(jobs):
+            if not items:
+                size = guided_size(len(jobs) - index, most=images_per_chunk, slots=runner.slots)
             item = pending_item(index, name, camera)
             if item is None:
                 continue
             items.append(item)
-            if len(items) == images_per_chunk:
+            if len(items) == size:
                 yield image_chunk(items)
                 items = []
         if items:
@@ -240,6 +245,13 @@ def recognize_all(jobs: Sequence[tuple[str, Camera | None]], library: Library, v
     return outcomes, tally  # type: ignore[return-value]  # every place is filled above
 
 
+def guided_size(left: int, *, most: int, slots: int) -> int:
+    """Images in the next chunk when `left` images are still to be sent to `slots` workers: `most` while much
+    is left, then smaller (a share of what is left), so that the workers finish together instead of one
+    running the last full chunk while the others wait (guided self-scheduling)."""
+    return max(1, min(most, -(-left // (2 * slots))))
+
+
 def image_chunk(items: list[ImageItem]) -> Chunk:
     first, last = Path(items[0].name).name, Path(items[-1].name).name
     return Chunk(first if len(items) == 1 else f"{first}..{last}", list(items), len(items))
@@ -268,15 +280,13 @@ def placed(files: Sequence[tuple[str, bytes]], folder: str) -> str:
 @dataclass(frozen=True)
 class FlightItem:
     """A frame range of a flight to track: the flight's place among the sources, the settings variant it is
-    tracked with, the range's place among the flight's ranges, its name as given, its files (or a path every
-    worker can read), the options of `signpose track`, and the range: frames `start` to `stop` (None: the
+    tracked with, the range's place among the flight's ranges, its name as given, the options of `signpose track`, and the range: frames `start` to `stop` (None: the
     flight's end) reported, after `warm_up` frames before `start` tracked and not reported."""
 
     index: int
     variant: int
     part: int
     name: str
-    payload: list[tuple[str, bytes]] | str
     camera: Camera | None
     sign_map: SignMap | None
     topic: str | None
@@ -287,9 +297,11 @@ class FlightItem:
     warm_up: int
 
 
-def tracked_range(library: Library, variants: Sequence[Settings], item: FlightItem) -> dict:
-    """On a worker: the `signpose track --json` line of every frame of the item's range, and the error that cut
-    it short ({"records": [...], "error": str | None}). The tracker starts cold `warm_up` frames before the
+def tracked_range(library: Library, variants: Sequence[Settings],
+                  work: tuple[FlightItem, list[tuple[str, bytes]] | str]) -> dict:
+    """On a worker: the `signpose track --json` line of every frame of the range of `work` (the range, and its
+    flight's files or a path this worker can read), and the error that cut it short
+    ({"records": [...], "error": str | None}). The tracker starts cold `warm_up` frames before the
     range (a video seeks there; `FrameSource.frames_from`): a sign in view at `start` is then confirmed and its
     filter under way there, as in a run over the whole flight."""
     from signpose.pipeline.camera import CameraError
@@ -297,9 +309,10 @@ def tracked_range(library: Library, variants: Sequence[Settings], item: FlightIt
     from signpose.pipeline.track import Tracker, tracked_frames
 
     worker_process()
+    item, source = work
     first = max(0, item.start - item.warm_up)
     with tempfile.TemporaryDirectory(prefix="signpose-flight-") as folder:
-        where = item.payload if isinstance(item.payload, str) else placed(item.payload, folder)
+        where = source if isinstance(source, str) else placed(source, folder)
         records: list[dict] = []
         try:
             with open_source(where, topic=item.topic, fps=item.fps, max_pixels=item.max_pixels) as source:
@@ -386,7 +399,9 @@ def track_all(jobs: Sequence[tuple[str, Camera | None]], library: Library, varia
         for index, (spec, camera) in enumerate(jobs):
             files = source_files(spec) if store is not None or not shared_paths else []
             content = files_hash(files) if store is not None else ""
-            payload: list[tuple[str, bytes]] | str = str(Path(spec).resolve()) if shared_paths else files
+            # The flight's files are shared with the workers once, when a range of it is first to be computed,
+            # and each range names them: a chunk's task (a tuple, which Dask looks into) then holds no bytes.
+            source = None
             for variant, settings in enumerate(variants):
                 for part, (start, stop) in enumerate(ranges[index]):
                     if store is not None:
@@ -398,13 +413,15 @@ def track_all(jobs: Sequence[tuple[str, Camera | None]], library: Library, varia
                             tally.reused += 1
                             done(1)
                             continue
-                    item = FlightItem(index, variant, part, spec, payload, camera, sign_map, topic, fps, max_pixels,
+                    if source is None:
+                        source = str(Path(spec).resolve()) if shared_paths else runner.share(files)
+                    item = FlightItem(index, variant, part, spec, camera, sign_map, topic, fps, max_pixels,
                                       start, stop, WARM_UP_FRAMES)
-                    yield Chunk(range_name(spec, start, stop, variant, len(variants)), item, 1)
+                    yield Chunk(range_name(spec, start, stop, variant, len(variants)), (item, source), 1)
 
     shared = (runner.share(with_features(library, variants)), list(variants))
     for chunk, result in runner.run(tracked_range, shared, chunks()):
-        item = chunk.work
+        item, _ = chunk.work
         parts[item.variant][item.index][item.part] = result
         if store is not None and result["error"] is None:
             store.put(*keys[item.variant, item.index, item.part], result)

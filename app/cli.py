@@ -113,7 +113,8 @@ def add_cluster(p: argparse.ArgumentParser, what: str, *, images: bool, frames: 
                    help="send the workers paths, not the files' bytes: every worker sees the files at the same paths")
     if images:
         p.add_argument("--chunk", type=positive_int, default=IMAGES_PER_CHUNK, metavar="N",
-                       help="images sent to a worker at a time (default %(default)s)")
+                       help="most images sent to a worker at a time; the last chunks are smaller, so that the "
+                            "workers finish together (default %(default)s)")
     if frames:
         p.add_argument("--chunk-frames", type=positive_int, default=FRAMES_PER_CHUNK, metavar="N",
                        help="frames of a flight tracked by one worker at a time, each range after a warm-up of "

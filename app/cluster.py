@@ -53,17 +53,19 @@ class DaskRunner:
 
     def __init__(self, client: Client) -> None:
         self.client = client
+        self.slots = sum(client.nthreads().values()) or 1
         self._keys: dict[Hashable, str] = {}  # a submitted task's key: the chunk's name
 
     def share(self, value: Any) -> Future:
-        """`value` sent once to every worker (the library with its features): a future that the chunks name."""
-        return self.client.scatter(value, broadcast=True, hash=False)
+        """`value` sent once to every worker (the library with its features, a flight's files): a future that the
+        chunks name. Every worker holds it, so a worker lost takes no shared value with it."""
+        return self.client.scatter([value], broadcast=True, hash=False)[0]  # a list's items would each be one
 
     def run(self, function: Callable[..., Any], shared: tuple, chunks: Iterable[Chunk]) -> Iterator[tuple[Chunk, Any]]:
         """(chunk, `function(*shared, chunk.work)`) for every chunk, as each finishes. Chunks are submitted as
         workers take them, never more than `IN_FLIGHT_PER_THREAD` a thread: the images' bytes of a long run
         stay on disk until their turn."""
-        threads = sum(self.client.nthreads().values()) or 1
+        threads = self.slots = sum(self.client.nthreads().values()) or 1
         pending = iter(chunks)
         running: dict[Future, Chunk] = {}
         finished = as_completed()

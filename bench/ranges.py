@@ -36,8 +36,8 @@ MAX_PIXELS = 100_000_000
 def tracked(video: str, camera, ranges: list[tuple[int, int | None]], warm_up: int) -> list[dict]:
     """The flight's `--json` records tracked in `ranges`, each after `warm_up` frames, joined."""
     library, settings = load_library(), [Settings()]
-    parts = [tracked_range(library, settings, FlightItem(0, 0, part, video, video, camera, None, None, None,
-                                                         MAX_PIXELS, start, stop, warm_up))
+    parts = [tracked_range(library, settings, (FlightItem(0, 0, part, video, camera, None, None, None, MAX_PIXELS,
+                                                          start, stop, warm_up), video))
              for part, (start, stop) in enumerate(ranges)]
     return joined(parts)["records"]
 
