@@ -87,11 +87,11 @@ class TrackerConfig:
     detect_interval_s: float = 0.5  # detector checks of a track followed by its points alone
     # Searches of the whole frame for new signs while every track is healthy. Each costs 11-32 ms on
     # the corridor flight (`recognize`'s blobs, features and plaque quads, the tracks masked out);
-    # every 1 s rather than 0.5 s took the tracker's CPU a frame from 6.99 to 6.18 ms (the two on
-    # the same frames in turn), with the same answers there, where no sign comes into view while
-    # another is tracked. One that does is found up to 1 s after it could be (a lost or weak track
-    # asks every `weak_retry_frames`, and nothing tracked every `idle_interval_s`).
-    search_interval_s: float = 1.0
+    # every 1 s rather than 0.5 s would take the tracker's CPU a frame from 6.99 to 6.18 ms, but a
+    # sign coming into view beside a tracked one (the room's sign beside a corridor's) would be found
+    # up to 1 s after it could be (a lost or weak track asks every `weak_retry_frames`, and nothing
+    # tracked every `idle_interval_s`).
+    search_interval_s: float = 0.5
     idle_interval_s: float = 0.2  # detector while nothing is tracked
     # Recognize calls per detection frame (one more per sign found). One: a search that finds a sign
     # makes a tentative track, which has the next frame searched with it masked out, so a second
