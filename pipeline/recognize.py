@@ -687,8 +687,8 @@ class Run:
             again = self.refined_winner(attempt, None, start)
             if again.text_problem(text_threshold(again.sign, self.settings)) is None:
                 return dataclasses.replace(again, notes=[*again.notes, (
-                    f"refined from the affine fit to its {attempt.scores[attempt.winner].n_inliers} inliers: from "
-                    f"their homography its text did not read as {again.sign.id}'s ({why})")]), None
+                    f"refined from the affine fit to its {attempt.scores[attempt.winner].n_inliers} inliers: refined "
+                    "from their homography, its text check failed")]), None
         return refined, self.turn_down(refined, source)
 
     def refined_winner(self, attempt: Attempt | None, plaque: PlaqueMatch | None,
