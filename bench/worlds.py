@@ -6,7 +6,8 @@ Per world and preset: easy and hard views identified, signs 40-80 px wide (of th
 steep views, by their truth corners), dim plaques, steep views (60-75 degrees off the normal),
 false positives on the negatives (and on the photo world's look-alike plaques of other words),
 answers naming another sign, the rotation error median and p90, and time per image. `--misses`
-lists the default preset's misses with their look, width and angle.
+lists the default preset's misses with their look, width and angle, and for each positive missed
+the stage that dropped it (`dropped_by`, the image recognised again).
 
     SIGNPOSE_SHARED=/path/to/shared python bench/worlds.py [--n 150] [--seed 0] [--data DIR] [--misses]
 
@@ -23,6 +24,7 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+import cv2
 import numpy as np
 from tqdm import tqdm
 
@@ -30,7 +32,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout roo
 from bench.accuracy import _fraction, _pair  # noqa: E402
 from bench.speed import machine  # noqa: E402
 from signpose.pipeline.evaluate import Dataset, ImageResult, Report, evaluate, load_dataset, summarize  # noqa: E402
+from signpose.pipeline.camera import Camera  # noqa: E402
 from signpose.pipeline.library import Library, load_library  # noqa: E402
+from signpose.pipeline.recognize import recognize  # noqa: E402
 from signpose.pipeline.settings import preset  # noqa: E402
 from signpose.pipeline.synth import generate_dataset  # noqa: E402
 from signpose.pipeline.synth_photo_world import generate_photo_world  # noqa: E402
@@ -91,14 +95,38 @@ def rows(report: Report) -> list[tuple[str, str]]:
     ]
 
 
-def misses(report: Report) -> list[str]:
-    """One line per positive the preset did not identify, and per negative it answered."""
+def dropped_by(result: ImageResult, library: Library, camera: Camera | None) -> str:
+    """The stage that dropped a positive the default preset missed, its image recognised again: the
+    text check (the weakest strip or the side the plaque went on beyond, and where), else the most
+    inliers the sign had in a region searched (which, and whether any region searched held all of
+    its truth corners), or the plaque fallback's reason."""
+    label, corners = result.sample.label, result.sample.corners
+    rec = recognize(cv2.imread(str(result.sample.path)), library, preset("default"), camera)
+    turned = [t for t in rec.turned_down if t.sign == label]
+    if turned:
+        text = turned[0].text
+        what = (f"continued {'/'.join(text.continued)}" if text.continued else
+                "no strip read" if text.score is None else f"strip score {text.score:.2f}")
+        return f"text check ({what}) in {turned[0].source}"
+    held = [a for a in rec.attempts if a.region[0] <= corners[:, 0].min() and a.region[1] <= corners[:, 1].min()
+            and a.region[2] >= corners[:, 0].max() and a.region[3] >= corners[:, 1].max()]
+    best = max(((s.n_inliers, s.n_matches, a.source) for a in rec.attempts for s in a.scores if s.sign == label),
+               default=(0, 0, "nothing"))
+    plaque = f"; plaque fallback: {rec.plaque.reason}" if rec.plaque is not None and rec.plaque.reason else ""
+    return (f"features: at most {best[0]} inliers ({best[1]} matches) in {best[2]}; "
+            f"{len(held)} of {len(rec.attempts)} regions searched held it{plaque}")
+
+
+def misses(report: Report, library: Library, camera: Camera | None) -> list[str]:
+    """One line per positive the preset did not identify, with the stage that dropped it (`dropped_by`),
+    and per negative it answered."""
     lines = []
     for r in report.results:
         if r.correct:
             continue
         p = r.sample.params
-        seen = f"{width_px(r):.0f} px, {p.get('off_axis_deg', float('nan')):.0f} deg" if r.sample.label else ""
+        seen = (f"{width_px(r):.0f} px, {p.get('off_axis_deg', float('nan')):.0f} deg: {dropped_by(r, library, camera)}"
+                if r.sample.label else "")
         lines.append(f"  {r.sample.path.name}: {r.sample.category}/{p.get('look')} {r.sample.label} -> {r.predicted} "
                      f"{seen}")
     return lines
@@ -140,7 +168,7 @@ def main() -> None:
     if args.misses:
         for world in worlds:
             print(f"\n{world}, default preset: misses")
-            print("\n".join(misses(reports[world, "default"])))
+            print("\n".join(misses(reports[world, "default"], library, worlds[world].camera)))
 
 
 if __name__ == "__main__":
