@@ -1,7 +1,10 @@
-"""The `signpose` command line, run as a user runs it: a subprocess on real files."""
+"""The `signpose` command line on real files: by its `main` in this process, and as a process of its own where
+the process is what is tested (what C libraries write to its stderr, signals, terminals, pipes)."""
 
 import argparse
+import contextlib
 import fcntl
+import io
 import json
 import os
 import pty
@@ -38,7 +41,34 @@ POSE_KEYS = {"R", "t", "camera_position", "quaternion_wxyz", "euler_deg", "repro
 TIMING_KEYS = {"segment", "features", "match", "ransac", "pose", "total"}
 
 
-def signpose(*args, cwd=ROOT):
+def signpose(*args, cwd=ROOT) -> subprocess.CompletedProcess:
+    """`signpose ARGS` run by the console script's `main` in this process, in `cwd`: its exit code and
+    what it printed (starting Python and importing OpenCV for each would cost about half a second of
+    CPU). What the process itself does (C libraries writing to its stderr, signals, terminals, pipes,
+    its imports) is tested on a real one: `signpose_process`, `on_a_terminal`."""
+    out, err = io.StringIO(), io.StringIO()
+    with (contextlib.chdir(cwd), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err),
+          unchanged_environment()):
+        try:
+            code = main([str(a) for a in args])
+        except SystemExit as exc:   # argparse's refusals and --help
+            code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
+    return subprocess.CompletedProcess(args, code, out.getvalue(), err.getvalue())
+
+
+@contextlib.contextmanager
+def unchanged_environment():
+    """The environment as it was before (`main` sets OpenCV's log level for its worker processes)."""
+    before = dict(os.environ)
+    try:
+        yield
+    finally:
+        os.environ.clear()
+        os.environ.update(before)
+
+
+def signpose_process(*args, cwd=ROOT) -> subprocess.CompletedProcess:
+    """`signpose ARGS` in a process of its own, as a user runs it."""
     return subprocess.run([sys.executable, "-m", "signpose.app.cli", *map(str, args)], cwd=cwd, capture_output=True,
                           text=True, timeout=300)
 
@@ -194,7 +224,7 @@ def test_a_truncated_image_gets_signposes_line_and_not_opencvs_warning(tmp_path)
     (tmp_path / "none").mkdir()
     (tmp_path / "none" / "cut.png").write_bytes(truncated.read_bytes())
     for args in (("recognize", truncated), ("evaluate", tmp_path, "--workers", 1)):
-        result = signpose(*args)
+        result = signpose_process(*args)
         out = result.stdout
         assert "cut.png" in out and "damaged or truncated PNG file" in out and "WARN" not in result.stderr, result.stderr
 
@@ -206,8 +236,8 @@ def test_decoders_say_nothing_on_the_terminal_of_an_image_signpose_refuses(tmp_p
     photo[5000:25000] = bytes(20000)  # zeros over its data: libjpeg runs out and warns
     (tmp_path / "zeroed.jpg").write_bytes(photo)
     Image.fromarray(np.full((48, 64), 0.5, np.float32)).save(tmp_path / "float.tiff")  # OpenCV fails, and logs it
-    result = signpose("recognize", tmp_path / "zeroed.jpg", tmp_path / "float.tiff", SCENES / "scene_002.jpg",
-                      "--camera", SCENES / "camera.yaml")
+    result = signpose_process("recognize", tmp_path / "zeroed.jpg", tmp_path / "float.tiff", SCENES / "scene_002.jpg",
+                              "--camera", SCENES / "camera.yaml")
     rows = result.stdout.splitlines()
     assert [row.split()[0] for row in rows] == ["image", "zeroed.jpg", "float.tiff", "scene_002.jpg"], rows
     assert "damaged JPEG file" in rows[1] and "float32 samples" in rows[2]
@@ -493,7 +523,7 @@ def test_synth_then_evaluate_report_with_progress_bars_on_a_terminal_only(tmp_pa
     assert made.returncode == 0 and len(list(data.glob("*.jpg"))) == 4 and (data / "truth.json").is_file()
     assert made.stderr == "" and made.stdout.startswith("wrote 4 scenes")
     # Into a log (here a pipe): no bar and its carriage-return redraws, the table all the same.
-    result = signpose("evaluate", data, "--workers", 2)
+    result = signpose_process("evaluate", data, "--workers", 2)
     assert result.returncode == 0
     assert result.stderr == ""
     row = next(line.split() for line in result.stdout.splitlines() if line.startswith("scenes "))
@@ -580,8 +610,8 @@ def test_bad_paths_ports_and_numbers_are_refused_up_front_in_one_line(tmp_path, 
 def test_serve_refuses_a_bad_map_file_in_one_line_as_a_bad_camera(tmp_path):
     bad = tmp_path / "map.yaml"
     bad.write_text("signs:\n  - id: archives\n    position_m: [0, 0, 0]\n    orientation_wxyz: [1, 0, 0, 0]\n")
-    result = signpose("serve", "--port", 0, "--state-dir", tmp_path / "state", "--library",
-                      shutil.copytree(load_library().root, tmp_path / "library"), "--map", bad)
+    result = signpose_process("serve", "--port", 0, "--state-dir", tmp_path / "state", "--library",
+                              shutil.copytree(load_library().root, tmp_path / "library"), "--map", bad)
     assert result.returncode == 2 and result.stdout == ""
     assert result.stderr == (f"signpose serve: error: {bad}: signs[0].id: 'archives' is not a sign of the library, "
                              "which has chief_of_security, ministry_of_torture, security_compound\n")
