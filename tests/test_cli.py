@@ -2,9 +2,7 @@
 the process is what is tested (what C libraries write to its stderr, signals, terminals, pipes)."""
 
 import argparse
-import contextlib
 import fcntl
-import io
 import json
 import os
 import pty
@@ -31,6 +29,7 @@ from signpose.pipeline.camera import assumed_camera, save_camera
 from signpose.pipeline.library import load_library
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import preset
+from tests.support.cli import signpose, signpose_process
 from tests.support.scene_images import OFF_CENTRE, TURNED_SCENE, png_bomb, turned_photos, turned_scene_position
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,38 +38,6 @@ SURVEY = ROOT / "sample_images" / "surveys" / "room"
 POSE_KEYS = {"R", "t", "camera_position", "quaternion_wxyz", "euler_deg", "reprojection_rmse_px", "ambiguous",
              "covariance"}
 TIMING_KEYS = {"segment", "features", "match", "ransac", "pose", "total"}
-
-
-def signpose(*args, cwd=ROOT) -> subprocess.CompletedProcess:
-    """`signpose ARGS` run by the console script's `main` in this process, in `cwd`: its exit code and
-    what it printed (starting Python and importing OpenCV for each would cost about half a second of
-    CPU). What the process itself does (C libraries writing to its stderr, signals, terminals, pipes,
-    its imports) is tested on a real one: `signpose_process`, `on_a_terminal`."""
-    out, err = io.StringIO(), io.StringIO()
-    with (contextlib.chdir(cwd), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err),
-          unchanged_environment()):
-        try:
-            code = main([str(a) for a in args])
-        except SystemExit as exc:   # argparse's refusals and --help
-            code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
-    return subprocess.CompletedProcess(args, code, out.getvalue(), err.getvalue())
-
-
-@contextlib.contextmanager
-def unchanged_environment():
-    """The environment as it was before (`main` sets OpenCV's log level for its worker processes)."""
-    before = dict(os.environ)
-    try:
-        yield
-    finally:
-        os.environ.clear()
-        os.environ.update(before)
-
-
-def signpose_process(*args, cwd=ROOT) -> subprocess.CompletedProcess:
-    """`signpose ARGS` in a process of its own, as a user runs it."""
-    return subprocess.run([sys.executable, "-m", "signpose.app.cli", *map(str, args)], cwd=cwd, capture_output=True,
-                          text=True, timeout=300)
 
 
 def check_schema(obj):
