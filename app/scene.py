@@ -766,6 +766,10 @@ class SceneHandle:
             self._mark_stale(labels_only=True)
 
         client.camera.on_update(on_camera)
+        # viser calls this on its thread pool once the first camera report is in, and hands that
+        # report to the callbacks registered by then: on a busy machine, before this one. A view
+        # that never moves reports no more, and would be neither framed nor its panel folded.
+        on_camera(client.camera)
 
     def _on_disconnect(self, client: viser.ClientHandle) -> None:
         with self._lock:

@@ -184,6 +184,8 @@ def test_table_columns_line_up_after_a_name_with_arabic_vowel_marks(library):
     # came out four columns short.
     datasets = [load_dataset(SET3), load_dataset(SET3)]
     datasets[0].name = "مُجَمَّع"
+    for dataset in datasets:
+        del dataset.samples[1:]   # the rows' widths do not depend on how many images a row counts
     rows = format_table(evaluate(datasets, library, preset("default"), workers=1)).splitlines()[2:5]
     assert [row.split()[0] for row in rows] == ["مُجَمَّع", "set3", "all"]
     assert len({text_columns(row[:row.index("%")]) for row in rows}) == 1

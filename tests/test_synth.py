@@ -16,16 +16,28 @@ def library():
     return load_library()
 
 
+# Two scenes per category, the i-th rendered with seed 100 + i.
+CASES = [("easy", "security_compound"), ("easy", "chief_of_security"), ("hard", "ministry_of_torture"),
+         ("hard", "security_compound"), ("negative", None), ("negative", None)]
+
+
+def render_cases(library, camera: Camera, negative: bool) -> list:
+    """The scenes of CASES without a sign (`negative`) or with one, at the small size."""
+    return [render_scene(library, sign_id, camera, np.random.default_rng(100 + i), category)
+            for i, (category, sign_id) in enumerate(CASES) if (category == "negative") == negative]
+
+
 @pytest.fixture(scope="module")
-def scenes(library):
-    """Two scenes per category at the small size, fixed seeds."""
+def negatives(library):
+    """The scenes of CASES without a sign (rendering one takes most of a second)."""
+    return render_cases(library, synthetic_camera(SMALL), negative=True)
+
+
+@pytest.fixture(scope="module")
+def scenes(library, negatives):
+    """Every scene of CASES, in order, and their camera."""
     camera = synthetic_camera(SMALL)
-    out = []
-    for i, (category, sign_id) in enumerate([("easy", "security_compound"), ("easy", "chief_of_security"),
-                                             ("hard", "ministry_of_torture"), ("hard", "security_compound"),
-                                             ("negative", None), ("negative", None)]):
-        out.append(render_scene(library, sign_id, camera, np.random.default_rng(100 + i), category))
-    return camera, out
+    return camera, [*render_cases(library, camera, negative=False), *negatives]
 
 
 @pytest.mark.slow
@@ -49,10 +61,8 @@ def test_positive_ground_truth_is_self_consistent(library, scenes):
         assert scene.image.shape == (h, w, 3) and scene.image.dtype == np.uint8
 
 
-def test_negatives_have_no_sign(scenes):
-    _, rendered = scenes
-    negatives = [s for s in rendered if s.category == "negative"]
-    assert negatives and all(s.label is None for s in negatives)
+def test_negatives_have_no_sign(negatives):
+    assert [s.category for s in negatives] == ["negative", "negative"] and all(s.label is None for s in negatives)
     assert all(s.R is None and s.t is None and s.H is None and s.corners is None for s in negatives)
     assert all(s.truth()["label"] is None and s.truth()["H"] is None for s in negatives)
 

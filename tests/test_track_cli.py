@@ -18,6 +18,7 @@ from mcap_ros2.reader import read_ros2_messages
 from signpose.pipeline.camera import load_camera
 from signpose.pipeline.library import load_library
 from tests.support.bags import ROS2, header, write_mcap
+from tests.support.cli import signpose, signpose_process
 
 ROOT = Path(__file__).resolve().parents[1]
 FLIGHT = ROOT / "sample_images" / "flights" / "corridor"
@@ -28,9 +29,8 @@ SIGN_KEYS = {"label", "track_id", "state", "corners", "homography", "pose", "fil
 T0 = 1_700_000_000_000_000_000  # ns: a bag's first header stamp
 
 
-def track(*args, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "signpose.app.cli", "track", *map(str, args)], cwd=ROOT,
-                          capture_output=True, text=True, timeout=timeout)
+def track(*args) -> subprocess.CompletedProcess:
+    return signpose("track", *args)
 
 
 def records(stdout: str) -> list[dict]:
@@ -181,7 +181,7 @@ def test_with_a_map_each_frame_locates_the_camera_in_it_and_every_output_carries
     ([VIDEO, "-o", "flight.txt"], "write a flight as"),
 ])
 def test_bad_sources_and_outputs_are_one_line_errors(args, message):
-    run = track(*args)
+    run = signpose_process("track", *args)   # one line on the process' stderr: the decoders' own say nothing
     assert run.returncode == 2 and message in run.stderr and len(run.stderr.strip().splitlines()) == 1, run.stderr
 
 
