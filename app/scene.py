@@ -779,7 +779,7 @@ class SceneHandle:
 
     def set_canvas_width(self, client_id: int, css_px: float) -> None:
         """Note that viewer `client_id`'s canvas is `css_px` CSS px wide (its page says so: viser
-        does not); it is framed, and the labels laid out, again. Kept by viewer, not by the canvas'
+        does not); it is framed at once, and the labels laid out again. Kept by viewer, not by the canvas'
         size in device px: two screens' canvases of one size can be of two sizes in CSS px (a phone
         of 2 device px to the CSS px beside a laptop of 1), and a window zoomed keeps its device px."""
         with self._lock:
@@ -790,6 +790,10 @@ class SceneHandle:
             self._css_width[client_id] = css_px
             if was is not None and (was < SHEET_BELOW_PX) != (css_px < SHEET_BELOW_PX):
                 self._panel_checked.discard(client_id)   # viser builds its panel anew, open
+            # Framed at its scale now, before the page's request is answered, not on the redraw thread
+            # after it: a busy redraw would leave the view framed for the wrong scale meanwhile.
+            if self._follows(client):
+                self.frame_for(client)
         self._fold_panel_once(client)
         self._mark_stale()
 
