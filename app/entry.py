@@ -67,3 +67,9 @@ def main() -> int:
             return cli_main()
         except KeyboardInterrupt as exc:  # while importing or parsing arguments: the command handles its own
             return interrupted("signpose", exc)
+        except ImportError as exc:
+            # A C extension stopped while it loads (gtsam, imported by the commands that need it) says
+            # "initialization failed", from the interruption.
+            if not isinstance(exc.__cause__, KeyboardInterrupt):
+                raise
+            return interrupted("signpose", exc.__cause__)

@@ -737,6 +737,26 @@ def test_a_signal_while_the_command_is_still_starting_is_one_line_and_128_plus_i
     assert re.fullmatch(rf"signpose( recognize)?: {said}( after \d+ of {len(images)} images)?", err.splitlines()[-1])
 
 
+def test_a_signal_while_a_c_extension_loads_is_one_line_and_128_plus_it(monkeypatch, capsys):
+    """SIGTERM while gtsam loads (`map build` imports it): its module init turned the interruption into
+    ImportError("initialization failed"), and the command ended with exit 1 and a traceback."""
+    import signpose.app.cli as cli
+    from signpose.app.entry import Interrupted, main as console_main
+
+    def loading_gtsam(argv=None):
+        try:
+            raise Interrupted(signal.SIGTERM)
+        except Interrupted as exc:
+            raise ImportError("initialization failed") from exc
+
+    monkeypatch.setattr(cli, "main", loading_gtsam)
+    assert console_main() == 128 + signal.SIGTERM
+    assert capsys.readouterr().err == "signpose: stopped by SIGTERM\n"
+    monkeypatch.setattr(cli, "main", lambda argv=None: __import__("no_such_module_of_signpose"))
+    with pytest.raises(ImportError, match="no_such_module_of_signpose"):   # not an interruption: as it was
+        console_main()
+
+
 def test_a_reader_that_stops_early_ends_the_output_quietly():
     # `signpose recognize ... --json | head -1`: the pipe closes while images are still coming.
     proc = subprocess.Popen([sys.executable, "-m", "signpose.app.cli", "recognize", *sorted(SCENES.glob("*.jpg")), "--json"],
