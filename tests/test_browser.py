@@ -2187,6 +2187,9 @@ def test_typed_intrinsics_of_part_of_a_sensor_as_camera_files_give_them(fresh_pa
     page = fresh_page
     api.put("/api/camera", json=SENSOR | WINDOW).raise_for_status()
     given = api.get("/api/camera/file").json()
+    # The form is filled from the camera the page knows when the tab opens: before the camera's event
+    # came, from the assumed camera of the first image, without the roi.
+    page.wait_for_function("() => document.querySelector('#camera-info').textContent.includes('@ 320×240')")
     page.click("#camera-open")
     open_typed_tab(page)
     assert page.evaluate("() => document.querySelector('#typed-window').open")
