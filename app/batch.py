@@ -54,7 +54,9 @@ class Chunk:
 
 
 class Runner(Protocol):
-    slots: int  # chunks it runs at once (worker processes or threads)
+    @property
+    def slots(self) -> int:
+        """Chunks it runs at once (worker processes or threads)."""
 
     def share(self, value: Any) -> Any: ...
 
@@ -70,7 +72,7 @@ class LocalRunner:
     """Runs chunks on `workers` processes of this machine (spawned, one OpenCV thread each)."""
 
     def __init__(self, workers: int) -> None:
-        self.workers = self.slots = workers
+        self.slots = workers
         # Ctrl-C reaches the whole process group: this process stops the run, the workers finish their chunk.
         self.pool = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
                                                            initializer=signal.signal,
@@ -85,7 +87,7 @@ class LocalRunner:
         pending = iter(chunks)
         running: dict[concurrent.futures.Future, Chunk] = {}
         while True:
-            while len(running) < 2 * self.workers and (chunk := next(pending, None)) is not None:
+            while len(running) < 2 * self.slots and (chunk := next(pending, None)) is not None:
                 running[self.pool.submit(function, *shared, chunk.work)] = chunk
             if not running:
                 return
@@ -180,7 +182,8 @@ def recognize_all(jobs: Sequence[tuple[str, Camera | None]], library: Library, v
 
     Results in `store` (keyed by the image's bytes and the settings that feed recognition, with `context`:
     the library, the camera and limits) are taken from it; the rest are computed in chunks of at most
-    `images_per_chunk` images on `runner` (`guided_size`) and stored as they arrive. `done(n)` follows each n images finished.
+    `images_per_chunk` images on `runner` (`guided_size`) and stored as they arrive. `done(n)` follows each n
+    images finished.
     An image that cannot be read here is that image's error, computed nowhere.
     """
     outcomes: list[list[Outcome | None]] = [[None] * len(jobs) for _ in variants]
@@ -280,8 +283,9 @@ def placed(files: Sequence[tuple[str, bytes]], folder: str) -> str:
 @dataclass(frozen=True)
 class FlightItem:
     """A frame range of a flight to track: the flight's place among the sources, the settings variant it is
-    tracked with, the range's place among the flight's ranges, its name as given, the options of `signpose track`, and the range: frames `start` to `stop` (None: the
-    flight's end) reported, after `warm_up` frames before `start` tracked and not reported."""
+    tracked with, the range's place among the flight's ranges, its name as given, the options of `signpose
+    track`, and the range: frames `start` to `stop` (None: the flight's end) reported, after `warm_up` frames
+    before `start` tracked and not reported."""
 
     index: int
     variant: int
@@ -309,10 +313,10 @@ def tracked_range(library: Library, variants: Sequence[Settings],
     from signpose.pipeline.track import Tracker, tracked_frames
 
     worker_process()
-    item, source = work
+    item, flight = work
     first = max(0, item.start - item.warm_up)
     with tempfile.TemporaryDirectory(prefix="signpose-flight-") as folder:
-        where = source if isinstance(source, str) else placed(source, folder)
+        where = flight if isinstance(flight, str) else placed(flight, folder)
         records: list[dict] = []
         try:
             with open_source(where, topic=item.topic, fps=item.fps, max_pixels=item.max_pixels) as source:

@@ -53,8 +53,12 @@ class DaskRunner:
 
     def __init__(self, client: Client) -> None:
         self.client = client
-        self.slots = sum(client.nthreads().values()) or 1
         self._keys: dict[Hashable, str] = {}  # a submitted task's key: the chunk's name
+
+    @property
+    def slots(self) -> int:
+        """The cluster's worker threads now: workers may join or leave during a run."""
+        return sum(self.client.nthreads().values()) or 1
 
     def share(self, value: Any) -> Future:
         """`value` sent once to every worker (the library with its features, a flight's files): a future that the
@@ -65,7 +69,7 @@ class DaskRunner:
         """(chunk, `function(*shared, chunk.work)`) for every chunk, as each finishes. Chunks are submitted as
         workers take them, never more than `IN_FLIGHT_PER_THREAD` a thread: the images' bytes of a long run
         stay on disk until their turn."""
-        threads = self.slots = sum(self.client.nthreads().values()) or 1
+        threads = self.slots
         pending = iter(chunks)
         running: dict[Future, Chunk] = {}
         finished = as_completed()
