@@ -680,10 +680,11 @@ def test_the_map_world_draws_every_mapped_sign_in_place_its_uncertainty_and_the_
         wait_for(lambda: len(handle.cameras) == len(POSITIVES), timeout=IDLE_TIMEOUT_S)
         assert MAP_WORLD not in handle.world.options   # no map held: no map world
         maps.hold_file(sign_map, "test.yaml")
-        wait_for(lambda: handle.world.value == MAP_WORLD and len(handle.map_layer.cameras) == len(POSITIVES),
-                 timeout=IDLE_TIMEOUT_S)
+        # Until the redraw that chose the map world has also shown it (it sets the world, then the nodes).
+        wait_for(lambda: handle.world.value == MAP_WORLD and len(handle.map_layer.cameras) == len(POSITIVES)
+                 and handle.map_layer.root.visible, timeout=IDLE_TIMEOUT_S)
         layer = handle.map_layer
-        assert layer.root.visible and not any(n.frame.visible for n in handle.signs.values())
+        assert not any(n.frame.visible for n in handle.signs.values())
         for sign_id, (R, position) in poses.items():
             nodes = layer.signs[sign_id]
             np.testing.assert_allclose(nodes.sign.frame.position, position)
