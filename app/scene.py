@@ -90,6 +90,10 @@ LABEL_WIDE_PX, LABEL_NARROW_PX, LABEL_CHAR_PX = 9.0, 3.4, 6.7
 LABEL_NARROW = set(".,:;!|'ijlI ")
 # Labels nearer each other on screen than this read as one.
 LABEL_GAP_PX = 2.0
+# Labels are kept this far inside a view's edges: the browser projects the cameras with its own
+# rounding of the canvas' size (device px, two or more to the CSS px on a sharp screen), and a label
+# laid out here to touch the left edge was drawn 1 px past it there.
+LABEL_EDGE_PX = 3.0
 # Between the texts a shared label lists on one line.
 LABEL_SEPARATOR = "   "
 # A shared label lists at most this many texts; one for more says how many and the first and last:
@@ -269,14 +273,18 @@ class SharedLabel:
         return left, top, left + width, top + height
 
     def beyond(self, view: View) -> float:
-        """How far, px, it reaches past the edges of `view`'s screen (0 when its camera is behind the viewer)."""
+        """How far, px, it reaches past `view`'s screen less LABEL_EDGE_PX at each edge (0 when its
+        camera is behind the viewer)."""
         left, top, right, bottom = self.box(view)
         if not np.isfinite(left):
             return 0.0
-        return max(0.0, -left) + max(0.0, -top) + max(0.0, right - view.width) + max(0.0, bottom - view.height)
+        edge = LABEL_EDGE_PX
+        return (max(0.0, edge - left) + max(0.0, edge - top) + max(0.0, right - view.width + edge)
+                + max(0.0, bottom - view.height + edge))
 
     def fits(self, view: View) -> bool:
-        """Whether it is drawn whole on `view`'s screen (or not at all: its camera behind the viewer)."""
+        """Whether it is drawn whole on `view`'s screen, clear of its edges (`beyond`), or not at all:
+        its camera behind the viewer."""
         return self.beyond(view) == 0
 
 
@@ -736,7 +744,7 @@ class SceneHandle:
         with self._lock:
             css_width = camera.image_width / self._px_per_css_px_of(client)
             # at least a quarter of the width: labels wider than that cannot be helped by zooming out
-            room = max(0.25, 1.0 - 2.0 * self._label_px() / css_width)
+            room = max(0.25, 1.0 - 2.0 * (self._label_px() + LABEL_EDGE_PX) / css_width)
             view = self._overview(camera.fov, min(camera.aspect * room, 1.0))
             framed = self._framed.get(client.client_id)
             # Every redraw comes here for the viewers left where they were framed: send changes only.

@@ -15,7 +15,7 @@ import pytest
 import viser
 import viser.transforms as tf
 
-from signpose.app.scene import (INITIAL_VIEW_LOOK_AT_M, INITIAL_VIEW_POSITION_M, LABEL_GAP_PX, LABEL_SEPARATOR,
+from signpose.app.scene import (INITIAL_VIEW_LOOK_AT_M, INITIAL_VIEW_POSITION_M, LABEL_EDGE_PX, LABEL_GAP_PX, LABEL_SEPARATOR,
                        MAX_TEXTS_LISTED, NO_WORLD, View, attach, camera_pose_in_sign, frustum_scale, frustum_shape,
                        image_plane_points, label_groups, label_size_px, labels_apart, matched_points, screen_px,
                        status_markdown)
@@ -580,6 +580,18 @@ def test_a_label_that_would_run_off_the_view_is_written_the_other_way():
     right, low = labels_apart([[0], list(range(1, 41))], names, [view])
     assert right.anchor == "top-right" and right.fits(view)
     assert low.fits(view) and _said(low, names)
+
+
+def test_a_label_is_written_clear_of_the_view_edge():
+    """A label laid out to end exactly at the left edge was drawn 1 px past it by the browser, which
+    rounds the canvas' size its own way: a label that would come nearer an edge than LABEL_EDGE_PX is
+    written the other way."""
+    name = "IMG_20240512_103400.jpg"
+    width, _ = label_size_px(name)
+    view = View(px=np.array([[400 - width - 1, 100.0]]), width=400, height=300)   # its text ends 1 px short of the right edge
+    [label] = labels_apart([[0]], [name], [view])
+    assert label.anchor == "top-right" and label.fits(view)
+    assert label.box(view)[0] >= LABEL_EDGE_PX
 
 
 def test_many_cameras_sharing_a_label_are_counted_beside_them():
