@@ -146,11 +146,11 @@ def calibration_out(calibration: CalibrationSession, state: CalibrationState) ->
 def map_out(held: HeldMap) -> MapOut:
     """The map held as GET /api/map gives it: each sign's pose, covariance and worst-direction 1-sigma,
     and for a map built here how the survey saw each sign and what it rejected."""
-    build = held.build
+    report = held.report
     signs = []
     for sign in held.sign_map.signs.values():
         sigma = sign.worst_sigma()
-        report = build.reports.get(sign.sign_id) if build is not None else None
+        seen = report.signs.get(sign.sign_id) if report is not None else None
         signs.append(MappedSignOut(
             id=sign.sign_id, position_m=[float(v) for v in sign.position_m],
             orientation_wxyz=[float(v) for v in quaternion_wxyz(sign.R)],
@@ -158,11 +158,10 @@ def map_out(held: HeldMap) -> MapOut:
             covariance=None if sign.covariance is None else sign.covariance.tolist(),
             sigma_position_m=None if sigma is None else sigma[0],
             sigma_rotation_deg=None if sigma is None else math.degrees(sigma[1]),
-            fixed=report.fixed if report is not None else None, images=report.images if report is not None else None,
-            seen_with=report.seen_with if report is not None else None))
-    rejected = [] if build is None else [
-        RejectedOut(image=held.names.get(r.observation.image, r.observation.image), sign=r.observation.sign_id,
-                    chi2=r.chi2) for r in build.rejected]
+            fixed=seen.fixed if seen is not None else None, images=seen.images if seen is not None else None,
+            seen_with=seen.seen_with if seen is not None else None))
+    if report is None:
+        return MapOut(frame=held.sign_map.frame, source=held.source, revision=held.revision, signs=signs)
     return MapOut(frame=held.sign_map.frame, source=held.source, revision=held.revision, signs=signs,
-                  rejected=rejected, unmapped=dict(build.unmapped) if build is not None else {},
-                  warnings=list(held.warnings))
+                  rejected=[RejectedOut(image=image, sign=sign, chi2=chi2) for image, sign, chi2 in report.rejected],
+                  unmapped=report.unmapped, warnings=list(report.warnings))

@@ -13,6 +13,7 @@ every sign each photo (`Workspace.signs_in_view`, as a build searches it) or fra
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 from collections.abc import Callable
@@ -24,34 +25,64 @@ from signpose.pipeline.camera import Camera
 from signpose.pipeline.every_sign import SignSeen
 from signpose.pipeline.library import Library
 from signpose.pipeline.localise import CameraInMap, locate_in_map
-from signpose.pipeline.map_build import MapBuild, MapBuildError, Observation, build_map, observations_of, takes_frame
+from signpose.pipeline.map_build import (MapBuild, MapBuildError, Observation, SignReport, build_map, observations_of,
+                                         takes_frame)
 from signpose.pipeline.pose import Pose
 from signpose.pipeline.sign_map import SignMap, load_sign_map, sign_map_yaml
 
 from .flights import Flight, Flights
-from .state import StateDir, StateError
+from .state import KeptMap, StateDir, StateError
 from .workspace import Workspace, say_kept
 
 log = logging.getLogger(__name__)
 
 
+@dataclass(frozen=True)
+class BuildReport:
+    """What a map build here found beyond the map: how the survey saw each sign (`signs`), the
+    observations rejected as inconsistent, as (image name, sign id, chi2), the signs no map could hold
+    (`unmapped`: id -> why) and the photos that could not be run (`warnings`). Kept in the state
+    directory beside the map, so a restart does not lose it."""
+
+    signs: dict[str, SignReport]
+    rejected: tuple[tuple[str, str, float], ...] = ()
+    unmapped: dict[str, str] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+
+    @staticmethod
+    def of(build: MapBuild, names: dict[str, str], warnings: list[str]) -> BuildReport:
+        """The report of `build`, its observations' image keys named by `names`."""
+        return BuildReport(dict(build.reports), tuple(
+            (names.get(r.observation.image, r.observation.image), r.observation.sign_id, r.chi2) for r in build.rejected),
+            dict(build.unmapped), tuple(warnings))
+
+    def to_json(self) -> dict:
+        return {"signs": {i: dataclasses.asdict(r) for i, r in self.signs.items()},
+                "rejected": [list(r) for r in self.rejected], "unmapped": self.unmapped, "warnings": list(self.warnings)}
+
+    @staticmethod
+    def from_json(data: dict) -> BuildReport:
+        """The report `to_json` gave; KeyError, TypeError or ValueError for anything else."""
+        return BuildReport({str(i): SignReport(**r) for i, r in data["signs"].items()},
+                           tuple((str(image), str(sign), float(chi2)) for image, sign, chi2 in data["rejected"]),
+                           {str(i): str(why) for i, why in data["unmapped"].items()},
+                           tuple(str(w) for w in data["warnings"]))
+
+
 @dataclass(frozen=True, eq=False)
 class HeldMap:
     """The map held: `sign_map`; `source`, where it came from (a file's name, or what it was built
-    from); `revision`, +1 on every change of the map held; for a map built here, the `build` (its
-    reports per sign, the observations rejected), `names` (each observation's image key: the photo's
-    or the flight frame's name) and `warnings` (photos that could not be run)."""
+    from); `revision`, +1 on every change of the map held; for a map built here, its `report`."""
 
     sign_map: SignMap
     source: str
     revision: int
-    build: MapBuild | None = None
-    names: dict[str, str] = field(default_factory=dict)
-    warnings: tuple[str, ...] = ()
+    report: BuildReport | None = None
 
     def yaml(self) -> str:
         """The map file's text; a built map's signs carry the build's report as comments."""
-        return sign_map_yaml(self.sign_map, self.build.comments() if self.build is not None else None)
+        return sign_map_yaml(self.sign_map, None if self.report is None else
+                             {sign_id: r.lines() for sign_id, r in self.report.signs.items()})
 
 
 class SignMaps:
@@ -74,8 +105,22 @@ class SignMaps:
         return self._hold(lambda revision: HeldMap(sign_map, name, revision), keep=not kept)
 
     def hold_build(self, build: MapBuild, source: str, names: dict[str, str], warnings: list[str]) -> HeldMap:
-        """Hold the map of `build`, made from `source` (said for people)."""
-        return self._hold(lambda revision: HeldMap(build.sign_map, source, revision, build, names, tuple(warnings)))
+        """Hold the map of `build`, made from `source` (said for people), its observations' image keys
+        named by `names`."""
+        report = BuildReport.of(build, names, warnings)
+        return self._hold(lambda revision: HeldMap(build.sign_map, source, revision, report))
+
+    def hold_kept(self, sign_map: SignMap, origin: KeptMap | None, name: str) -> HeldMap:
+        """Hold `sign_map`, the state's map file `name`, with what the state kept of its `origin`
+        (where it came from, its build's report; None: nothing)."""
+        source, report = f"{name} kept from the last run", None
+        if origin is not None:
+            source = f"{origin.source}, kept from the last run"
+            try:
+                report = None if origin.report is None else BuildReport.from_json(origin.report)
+            except (KeyError, TypeError, ValueError) as exc:
+                log.warning("the sign map's build report kept in the state cannot be read (%s): it is left out", exc)
+        return self._hold(lambda revision: HeldMap(sign_map, source, revision, report), keep=False)
 
     def clear(self) -> None:
         with self._lock:
@@ -90,7 +135,8 @@ class SignMaps:
         with self._lock:
             held = make(self._revision + 1)   # raises before anything changes
             if keep and self._state is not None:
-                self._state.save_map(held.yaml())
+                self._state.save_map(held.yaml(), KeptMap(held.source, None if held.report is None else
+                                                          held.report.to_json()))
             self._held, self._revision = held, held.revision
         self._publish("map", {"revision": held.revision})
         return held
@@ -115,7 +161,7 @@ def open_sign_maps(workspace: Workspace) -> SignMaps:
         log.warning("%s: it is kept in %s", exc, state.set_map_aside())
         return maps
     if sign_map is not None:
-        maps.hold_file(sign_map, f"{state.map_path.name} kept from the last run", kept=True)
+        maps.hold_kept(sign_map, state.load_map_origin(), state.map_path.name)
     return maps
 
 

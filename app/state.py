@@ -21,6 +21,9 @@ Layout (every file name is chosen by the server, never by a client)::
                             folder: `--library` reads it)
     images/index.json       [{"id", "name", "expected", "file", "media_type"}] in the order listed (the order chosen)
     map.yaml                the sign map held (a map file: `--map` reads it); absent: no map
+    map.origin.json         {"map_sha256", "source", "report"}: where map.yaml came from, and for a map built
+                            by the server its build's report (sign_maps.BuildReport); used only while
+                            map_sha256 is map.yaml's
     map.replaced-<UTC time>.yaml
                             a map `--map` replaced, or one that no longer fits the library, as it was in map.yaml
     images/<id>.<ext>       the original uploaded bytes
@@ -137,6 +140,15 @@ class Replaced:
 
 
 @dataclass(frozen=True)
+class KeptMap:
+    """Where the state's sign map came from (`source`, said for people) and, for a map the server
+    built, its build's `report` as JSON (sign_maps.BuildReport.to_json); None: none."""
+
+    source: str
+    report: dict | None
+
+
+@dataclass(frozen=True)
 class LibraryRecord:
     """What the state's `library.json` records of where its signs came from: the folder it was last
     copied from and that folder's `library_fingerprint` then, the ids of the signs added through the
@@ -192,6 +204,11 @@ class LibraryReread:
                          if self.damaged else f"the state's library as it was is kept in {self.kept} (to use it "
                          f"again, start with --library {self.kept})")
         return "; ".join(parts)
+
+
+def text_sha256(text: str) -> str:
+    """SHA-256 (hex) of `text` in UTF-8."""
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
 def library_fingerprint(library: Library) -> str:
@@ -282,6 +299,7 @@ class StateDir:
         self.images_dir = self.root / "images"
         self.index_path = self.images_dir / "index.json"
         self.map_path = self.root / "map.yaml"
+        self.map_origin_path = self.root / "map.origin.json"
 
     # ---- settings and camera
 
@@ -371,12 +389,29 @@ class StateDir:
     def _map_text(self) -> str | None:
         return self.map_path.read_text(encoding="utf-8") if self.map_path.exists() else None
 
-    def save_map(self, text: str | None) -> None:
-        """Keep the map file `text` as the state's sign map; None: no map."""
+    def save_map(self, text: str | None, origin: KeptMap | None = None) -> None:
+        """Keep the map file `text` as the state's sign map, and its `origin` (None: none kept); None: no map."""
+        remove_file(self.map_origin_path)
         if text is None:
             remove_file(self.map_path)
-        else:
-            atomic_write(self.map_path, text.encode("utf-8"))
+            return
+        atomic_write(self.map_path, text.encode("utf-8"))
+        if origin is not None:
+            atomic_write_json(self.map_origin_path, {"map_sha256": text_sha256(text), "source": origin.source,
+                                                     "report": origin.report})
+
+    def load_map_origin(self) -> KeptMap | None:
+        """What `save_map` kept of where the state's map came from; None when nothing was, or it was
+        kept for another map (a crash between the two writes, the file edited by hand) or cannot be read."""
+        text = self._map_text()
+        try:
+            kept = parse_json(self.map_origin_path.read_bytes())
+        except (OSError, JsonError):
+            return None
+        if text is None or not isinstance(kept, dict) or kept.get("map_sha256") != text_sha256(text):
+            return None
+        report = kept.get("report")
+        return KeptMap(str(kept.get("source")), report if isinstance(report, dict) else None)
 
     def replace_map(self, text: str) -> Replaced | None:
         """Keep the map file `text` as the state's sign map. A different map kept before is not lost: it is
@@ -386,6 +421,7 @@ class StateDir:
     def set_map_aside(self) -> Path:
         """Move the state's map file, as it is, to a new `map.replaced-<UTC time>.yaml`; where it went."""
         kept = replaced_path(self.root, self.map_path.stem, self.map_path.suffix)
+        remove_file(self.map_origin_path)
         os.replace(self.map_path, kept)
         _fsync_dir(self.root)
         return kept

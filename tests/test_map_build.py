@@ -7,6 +7,7 @@ import math
 import shutil
 import subprocess
 import sys
+import types
 from pathlib import Path
 
 import gtsam
@@ -14,6 +15,9 @@ import numpy as np
 import pytest
 
 from signpose.app.cli import main
+from signpose.app.responses import map_out
+from signpose.app.sign_maps import open_sign_maps
+from signpose.app.state import StateDir
 from signpose.pipeline.library import load_library
 from signpose.pipeline.map_build import (CHI2_REJECT, SHARED_SHARE, DisconnectedSurvey, MapBuildError, Observation, build_map,
                                          gtsam_covariance, ros_covariance, sign_groups)
@@ -166,6 +170,33 @@ def test_an_inconsistent_observation_is_rejected_and_listed():
     assert build.reports["b"].rejected == 1 and build.reports["b"].images == 11
     for sign_id in "bc":
         assert np.linalg.norm(build.sign_map.signs[sign_id].position_m - good.sign_map.signs[sign_id].position_m) < 0.005
+
+
+def test_a_map_built_in_the_server_keeps_its_report_across_a_restart(tmp_path):
+    """After a restart the server held a built map's signs without how the survey saw them (images,
+    signs seen with, what was rejected): the report is kept in the state beside the map, and left out
+    once the map file no longer is the one built."""
+    observations = survey(np.random.default_rng(6))
+    bad = next(i for i, o in enumerate(observations) if o.image == "img3" and o.sign_id == "b")
+    o = observations[bad]
+    observations[bad] = Observation(o.image, o.sign_id, o.R, o.t + [0.15, 0.0, 0.0], o.covariance)
+    workspace = types.SimpleNamespace(state=StateDir(tmp_path), library=types.SimpleNamespace(ids=list(SIGNS)),
+                                      config=types.SimpleNamespace(map_file=None), publish=lambda *_: None)
+    held = open_sign_maps(workspace).hold_build(build_map(observations), "built from 12 photo(s) and 0 flight(s)",
+                                                {"img3": "IMG_0003.jpg"}, ["blurred.jpg could not be run"])
+    assert held.report is not None and ("IMG_0003.jpg", "b") in [r[:2] for r in held.report.rejected]
+
+    again = open_sign_maps(workspace).held
+    assert again is not None and again.source == "built from 12 photo(s) and 0 flight(s), kept from the last run"
+    said = {"rejected": True, "unmapped": True, "warnings": True, "signs": {"__all__": {"id", "fixed", "images", "seen_with"}}}
+    assert map_out(again).model_dump(include=said) == map_out(held).model_dump(include=said)
+    assert "1 observation(s) rejected as inconsistent" in again.yaml()   # the download carries the report too
+
+    with workspace.state.map_path.open("a") as f:
+        f.write("# edited by hand\n")
+    edited = open_sign_maps(workspace).held
+    assert edited is not None and edited.report is None and edited.source == "map.yaml kept from the last run"
+    assert map_out(edited).signs[1].images is None
 
 
 def test_no_sign_and_an_anchor_not_seen_are_refused():
