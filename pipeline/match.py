@@ -67,7 +67,8 @@ def nearest_two(query: np.ndarray, train: np.ndarray, norm: int) -> tuple[np.nda
     query, train = query.astype(np.float32, copy=False), train.astype(np.float32, copy=False)
     # |t|² - 2 q·t as one product of [q, 1] and [-2 t, |t|²]; |q|², the same along a row, is added to the
     # two nearest alone (whole numbers: the order and every tie are the same): two passes fewer over the
-    # (N, M) matrix, 15 % of the call.
+    # (N, M) matrix, 7-13 % of the call (763 frame features against a sign's 1336-1581 simulated views:
+    # 3.3-3.9 ms against 3.7-4.2 on one thread).
     ones = np.ones((len(query), 1), np.float32)
     lifted = np.hstack([-2.0 * train, np.einsum("ij,ij->i", train, train)[:, None]])
     squared = cv2.gemm(np.hstack([query, ones]), lifted, 1.0, None, 0.0, flags=cv2.GEMM_2_T)
