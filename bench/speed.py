@@ -10,7 +10,9 @@ pipeline cannot go below), a RANSAC and a ratio slider change re-run on the load
 their StageCaches, evaluate's wall time on 2 worker processes against 1, and a full re-run of
 every image in `signpose serve`'s Workspace on one pipeline worker per core against one.
 
-    python bench/speed.py [--n 200] [--seed 0] [--rounds 3] [--data DIR] [--quick]
+    python bench/speed.py [--n 200] [--seed 0] [--rounds 3] [--data DIR] [--quick] [--also SETTING=VALUE ...]
+
+`--also` adds a configuration beside the others: the default preset with settings changed.
 
 Scenes are rendered once into --data (default: signpose-speed in the temp folder) and re-used;
 1280x960 takes several seconds a scene, so the first run renders for a while.
@@ -19,6 +21,7 @@ Scenes are rendered once into --data (default: signpose-speed in the temp folder
 from __future__ import annotations
 
 import argparse
+import json
 import multiprocessing
 import os
 import statistics
@@ -44,7 +47,7 @@ from signpose.pipeline.image import read_image, to_gray
 from signpose.pipeline.library import Library, load_library
 from signpose.pipeline.pose import rotation_error_deg
 from signpose.pipeline.recognize import recognize
-from signpose.pipeline.settings import Settings, preset
+from signpose.pipeline.settings import Settings, SettingsError, preset
 from signpose.pipeline.stages import STAGES, StageCache
 from signpose.pipeline.synth import CATEGORIES, generate_dataset
 
@@ -184,12 +187,13 @@ def _rss_kb(field: str) -> int:
         return next(int(line.split()[1]) for line in status if line.startswith(field + ":"))
 
 
-def _peak_rss_mb(name: str, paths: list[Path], camera: Camera) -> float:
-    """In a fresh process: peak RSS (MB) above the process's own after loading and one warm-up image.
+def _peak_rss_mb(settings: Settings | None, paths: list[Path], camera: Camera) -> float:
+    """In a fresh process: peak RSS (MB) above the process's own after loading and one warm-up image,
+    running the pipeline with `settings` (None: the naive reference).
 
     Linux: writing 5 to /proc/self/clear_refs resets the peak (VmHWM) to the current RSS.
     """
-    library, run = load_library(), runner(CONFIGS[name])
+    library, run = load_library(), runner(settings)
     run(read_image(paths[0]), library, camera)
     images = [read_image(p) for p in paths]
     Path("/proc/self/clear_refs").write_text("5")
@@ -199,13 +203,13 @@ def _peak_rss_mb(name: str, paths: list[Path], camera: Camera) -> float:
     return (_rss_kb("VmHWM") - baseline) / 1024
 
 
-def peak_memory(dataset: Dataset, count: int) -> dict[str, float]:
-    """`_peak_rss_mb` of each configuration over the first `count` images, each in a new process."""
+def peak_memory(dataset: Dataset, count: int, configs: dict[str, Settings | None] = CONFIGS) -> dict[str, float]:
+    """`_peak_rss_mb` of each configuration of `configs` over the first `count` images, each in a new process."""
     paths = [s.path for s in dataset.samples[:count]]
     peaks = {}
-    for name in CONFIGS:
+    for name, settings in configs.items():
         with ProcessPoolExecutor(1, multiprocessing.get_context("spawn")) as pool:
-            peaks[name] = pool.submit(_peak_rss_mb, name, paths, dataset.camera).result()
+            peaks[name] = pool.submit(_peak_rss_mb, settings, paths, dataset.camera).result()
     return peaks
 
 
@@ -320,14 +324,15 @@ def rotation_median(outcomes: list[Outcome], dataset: Dataset) -> str:
 def table(dataset: Dataset, outcomes: dict[str, list[Outcome]], memory: dict[str, float]) -> list[str]:
     """One row per configuration: times, stages, memory, accuracy by category, ratio to naive."""
     naive = np.array([o.timing_ms["total"] for o in outcomes["naive"]])
-    head = (f"{'':<8}{'median':>8}{'p90':>8}{'vs naive':>9} |" + "".join(f"{s:>9}" for s in STAGES)
+    width = max(8, *map(len, outcomes))
+    head = (f"{'':<{width}}{'median':>8}{'p90':>8}{'vs naive':>9} |" + "".join(f"{s:>9}" for s in STAGES)
             + f" |{'peak MB':>8} |" + "".join(f"{c:>9}" for c in CATEGORIES) + f"{'rot med':>9}")
     lines = [head, "-" * len(head)]
     for name, runs in outcomes.items():
         total = np.array([o.timing_ms["total"] for o in runs])
         stages = "".join(f"{np.mean([o.timing_ms[s] for o in runs]):>9.1f}" for s in STAGES)
         accuracy = "".join(f"{identified_percent(runs, dataset, c):>9}" for c in CATEGORIES)
-        lines.append(f"{name:<8}{np.median(total):>8.1f}{np.percentile(total, 90):>8.1f}"
+        lines.append(f"{name:<{width}}{np.median(total):>8.1f}{np.percentile(total, 90):>8.1f}"
                      f"{np.median(naive / total):>8.1f}x |{stages} |{memory[name]:>8.1f} |{accuracy}"
                      f"{rotation_median(runs, dataset):>9}")
     return lines
@@ -401,12 +406,34 @@ def scene_parser(doc: str) -> argparse.ArgumentParser:
     return parser
 
 
+def changed_default(spec: str) -> tuple[str, Settings]:
+    """argparse type: (`spec`, the default preset with the changes it names), `spec` being
+    "SETTING=VALUE[,SETTING=VALUE...]", each VALUE read as JSON (false, 0.5) and else as a string."""
+    changes = {}
+    for item in spec.split(","):
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise argparse.ArgumentTypeError(f"{item!r} is not SETTING=VALUE")
+        try:
+            changes[key.strip()] = json.loads(text)
+        except json.JSONDecodeError:
+            changes[key.strip()] = text
+    try:
+        return spec, preset("default").replace(**changes)
+    except (SettingsError, TypeError, ValueError) as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from exc
+
+
 def main() -> None:
     parser = scene_parser(__doc__)
     parser.add_argument("--memory-images", type=int, default=20, help="images per peak-memory run (default 20)")
     parser.add_argument("--quick", action="store_true",
                         help="640x480 only, at most 50 scenes, 5 images per memory run, evaluate once")
+    parser.add_argument("--also", type=changed_default, action="append", default=[], metavar="SETTING=VALUE[,...]",
+                        help="a further configuration beside the others: the default preset with these settings "
+                             "changed, e.g. full_frame_fallback=false (repeatable)")
     args = parser.parse_args()
+    configs: dict[str, Settings | None] = {**CONFIGS, **dict(args.also)}
     n, sizes, memory_images, repeats = args.n, SIZES, args.memory_images, 2
     if args.quick:
         n, sizes, memory_images, repeats = min(n, 50), SIZES[:1], 5, 1
@@ -416,12 +443,12 @@ def main() -> None:
     report = [machine(), f"load average at start: {os.getloadavg()[0]:.2f}"]
     for size in sizes:
         dataset = scenes(args.data, size, n, args.seed, library)
-        outcomes, floors = measure(dataset, library, args.rounds)
+        outcomes, floors = measure(dataset, library, args.rounds, configs)
         counts = ", ".join(f"{sum(s.category == c for s in dataset.samples)} {c}" for c in CATEGORIES)
         report += ["", f"{size[0]}x{size[1]}: {len(dataset)} scenes ({counts}), seed {args.seed}; ms per image "
                        f"(the fastest of {args.rounds} runs), "
                        "stage means in ms, peak RSS above a warm process in MB, rotation error median in degrees"]
-        report += table(dataset, outcomes, peak_memory(dataset, memory_images))
+        report += table(dataset, outcomes, peak_memory(dataset, memory_images, configs))
         report += default_lines(dataset, outcomes, floors)
         if size == sizes[0]:
             report += ["", *rerun(dataset, library), batch_speedup(dataset, library, repeats),

@@ -65,15 +65,20 @@ def nearest_two(query: np.ndarray, train: np.ndarray, norm: int) -> tuple[np.nda
     if norm == cv2.NORM_HAMMING:
         return cv2.batchDistance(query, train, cv2.CV_32S, normType=norm, K=2)
     query, train = query.astype(np.float32, copy=False), train.astype(np.float32, copy=False)
-    squared = cv2.gemm(query, train, -2.0, None, 0.0, flags=cv2.GEMM_2_T)
-    squared += np.einsum("ij,ij->i", query, query)[:, None]
-    squared += np.einsum("ij,ij->i", train, train)[None, :]
+    # |t|² - 2 q·t as one product of [q, 1] and [-2 t, |t|²]; |q|², the same along a row, is added to the
+    # two nearest alone (whole numbers: the order and every tie are the same): two passes fewer over the
+    # (N, M) matrix, 7-13 % of the call (763 frame features against a sign's 1336-1581 simulated views:
+    # 3.3-3.9 ms against 3.7-4.2 on one thread).
+    ones = np.ones((len(query), 1), np.float32)
+    lifted = np.hstack([-2.0 * train, np.einsum("ij,ij->i", train, train)[:, None]])
+    squared = cv2.gemm(np.hstack([query, ones]), lifted, 1.0, None, 0.0, flags=cv2.GEMM_2_T)
     rows = np.arange(len(query))
     first = squared.argmin(axis=1)
     nearest = squared[rows, first]
     squared[rows, first] = np.inf  # a row's argmin once more finds its second nearest (argpartition: 35 times slower)
     second = squared.argmin(axis=1)
-    distances = np.sqrt(np.maximum(np.stack([nearest, squared[rows, second]], axis=1), 0.0))
+    own = np.einsum("ij,ij->i", query, query)[:, None]
+    distances = np.sqrt(np.maximum(np.stack([nearest, squared[rows, second]], axis=1) + own, 0.0))
     return distances, np.stack([first, second], axis=1)
 
 
