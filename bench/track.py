@@ -19,7 +19,8 @@ MAX_DISTANCE_M.
 
     python bench/track.py [--flight DIR] [--duration 12] [--json OUT]
 
-Without --flight the 12 s corridor flight is rendered into the temp folder (once; re-used).
+Without --flight the 12 s corridor flight is rendered into the temp folder (once; re-used until the
+renderer's `RENDERING` changes).
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ from signpose.pipeline.pose import Pose
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import Settings
 from signpose.pipeline.synth import synthetic_camera
-from signpose.pipeline.synth_flight import write_flight
+from signpose.pipeline.synth_flight import RENDERING, write_flight
 from signpose.pipeline.track import Tracker
 
 
@@ -203,7 +204,7 @@ def main() -> None:
     args = parser.parse_args()
     cv2.setNumThreads(1)
     library = load_library()
-    flight = args.flight or Path(tempfile.gettempdir()) / f"signpose-flight-{args.duration:g}s"
+    flight = args.flight or Path(tempfile.gettempdir()) / f"signpose-flight-{args.duration:g}s-r{RENDERING}"
     if not (flight / "truth.json").exists():
         print(f"rendering the {args.duration:g} s corridor flight into {flight}")
         t0 = time.perf_counter()

@@ -35,6 +35,9 @@ TEXTURE_SIZE = 512  # px: a texture repeats every TEXTURE_SIZE / TEXTURE_PX_PER_
 # Shutter open for this fraction of the frame interval: the length of the motion blur.
 SHUTTER = 0.5
 FOURCC = "mp4v"
+# The renderer's version, raised whenever a change moves what its frames show: a flight rendered
+# once and kept (bench/track.py's) is named by it, so that an older rendering is not measured again.
+RENDERING = 2
 
 
 @dataclass(frozen=True)
@@ -131,6 +134,17 @@ def _look_alike(size_m: tuple[float, float], px_per_m: float = 1333.0) -> np.nda
     return img
 
 
+def level_pixels(level: int) -> np.ndarray:
+    """(3, 3) map from the pixels of mip `level` of a decal's `_pyramid` to its full-size
+    coordinates, whose edges are at 0 and w (a full-size pixel u spans [u, u + 1], as
+    `pixel_to_world` and the truth's corners have it): warpPerspective samples pixel centres at
+    whole coordinates, and a pixel i of the level spans [2^level i, 2^level (i + 1)], its centre
+    at 2^level (i + 1/2). Mapped without the half pixel, a plaque was drawn 0.25-0.5 px up and
+    left of its true corners."""
+    step = 2.0**level
+    return np.array([[step, 0.0, step / 2], [0.0, step, step / 2], [0.0, 0.0, 1.0]])
+
+
 def _pyramid(image: np.ndarray) -> list[np.ndarray]:
     levels = [image.astype(np.float32) / 255]
     while min(levels[-1].shape) > 16:
@@ -220,8 +234,7 @@ class FlightRenderer:
             px = corners[:, :2] / corners[:, 2:]
             width_px = max(np.linalg.norm(px[1] - px[0]), np.linalg.norm(px[2] - px[3]), 1.0)
             level = int(np.clip(math.floor(math.log2(w / width_px)), 0, len(decal.levels) - 1))
-            scale = 2.0**level
-            H_level = H @ np.diag([scale, scale, 1.0])
+            H_level = H @ level_pixels(level)
             src = decal.levels[level]
             warped = cv2.warpPerspective(src, H_level, self.size, flags=cv2.INTER_LINEAR,
                                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)

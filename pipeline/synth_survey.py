@@ -31,7 +31,7 @@ from .camera import Camera, save_camera
 from .library import Library
 from .pose import camera_position
 from .sign_map import MappedSign, SignMap, save_sign_map
-from .synth_flight import CEILING_Y, FLOOR_Y, TEXTURE_PX_PER_M, _pyramid, _texture, look_at
+from .synth_flight import CEILING_Y, FLOOR_Y, TEXTURE_PX_PER_M, _pyramid, _texture, level_pixels, look_at
 
 # A sign seen with fewer px across than this, or more oblique than this, is not a view a survey relies on.
 MIN_SIGN_PX = 70.0
@@ -183,11 +183,7 @@ class SurveyRenderer:
             px = hom[:, :2] / hom[:, 2:]
             width_px = max(np.linalg.norm(px[1] - px[0]), np.linalg.norm(px[2] - px[3]), 1.0)
             level = int(np.clip(math.floor(math.log2(w / width_px)), 0, len(levels) - 1))
-            # The sign's pixel u spans [u, u + 1] of `pixel_to_metric`'s coordinates (its edges at 0 and w),
-            # while warpPerspective samples pixel centres at whole coordinates: a pixel of mip level L spans
-            # [2^L i, 2^L (i + 1)], its centre at 2^L (i + 1/2).
-            step, offset = 2.0**level, 2.0**level / 2
-            H_level = H @ np.array([[step, 0.0, offset], [0.0, step, offset], [0.0, 0.0, 1.0]])
+            H_level = H @ level_pixels(level)
             src = levels[level]
             warped = cv2.warpPerspective(src, H_level, self.size, flags=cv2.INTER_LINEAR,
                                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)

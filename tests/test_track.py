@@ -16,6 +16,7 @@ from signpose.pipeline.camera import CameraError, load_camera
 from signpose.pipeline.library import Library, load_library
 from signpose.pipeline.pose import Pose, corner_covariance, rotation_error_deg
 from signpose.pipeline.pose_filter import PoseFilter, pose_jacobian, exp_so3, log_so3
+from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import Settings
 from signpose.pipeline.synth import synthetic_camera
 from signpose.pipeline.synth_flight import FlightRenderer, Keyframe, Plaque
@@ -326,3 +327,17 @@ def test_filter_carries_the_covariance_into_its_state_to_first_order():
     numeric = np.column_stack([(state_error(x0 + eps * e) - state_error(x0 - eps * e)) / (2 * eps)
                                for e in np.eye(6)])
     assert np.allclose(pose_jacobian(R, t), numeric, atol=1e-6)
+
+
+@pytest.mark.parametrize("distance", [1.2, 2.5, 5.0])
+def test_a_flight_draws_its_plaque_where_its_truth_puts_the_corners(library, distance):
+    # The truth of every flight figure: drawn from a mip level half a pixel off, the plaques sat
+    # 0.25-0.5 px up and left of their true corners, which a pose's NEES took for its own error.
+    renderer = FlightRenderer(library, synthetic_camera(), [Plaque("security_compound", (0.0, -0.2), SIGN)])
+    offsets = []
+    for i in range(3):
+        frame = renderer.render(hover(0.0, distance), i / FPS, FPS)
+        rec = recognize(frame.image, library, Settings(), synthetic_camera())
+        assert rec.outline is not None
+        offsets.append(np.mean(rec.outline.corners - np.array(frame.truth["signs"][0]["corners"]), axis=0))
+    assert np.all(np.abs(np.mean(offsets, axis=0)) < 0.12), offsets
