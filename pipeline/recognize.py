@@ -23,12 +23,12 @@ from .homography import HomographyEstimate, estimate_homography
 from .image import to_gray
 from .library import Library, LibrarySign
 from .match import Matches, match_library
-from .outline import Outline, outline_fit, refine_outline
+from .outline import Outline, outline_pose, refine_outline
 from .plaque import (PlaqueMatch, grid_correspondences, match_plaque, project, refine_ecc, seen_grid, sign_corners,
                      sign_to_quad)
 from .plaque_search import (MIN_NCC, SAME_PLAQUE_IOU, BlobReading, QuadCandidate, confirm_plaque, cut_image,
                            cut_levels, level_quads, plaque_order, quad_levels, ranked, read_blob, search_plaques)
-from .pose import CORNER_SIGMA_PX, Pose, PoseError, distort_pixels, estimate_pose, with_corner_floor
+from .pose import CORNER_SIGMA_PX, Pose, PoseError, distort_pixels, estimate_pose
 from .segment import Box, Segmentation, box_iou, expand_box, segment
 from .settings import Settings
 from .stages import StageCache, StageRunner
@@ -777,10 +777,7 @@ class Run:
                 pose = estimate_pose(H, src, dst, sign, self.camera, self.settings.pose_method,
                                      self.settings.ambiguity_ratio, corner_sigma, with_covariance=outline is None)
                 if outline is not None:
-                    # the grid fitted is exact by construction: the fit and the noise show in the edge points
-                    rmse, covariance = outline_fit(pose.R, pose.t, outline, sign, self.camera)
-                    pose = dataclasses.replace(pose, reprojection_rmse_px=rmse, covariance=with_corner_floor(
-                        covariance, pose.R, pose.t, sign, self.camera, corner_sigma))
+                    pose = outline_pose(pose, outline, sign, self.camera)
             except PoseError as exc:
                 warnings.append(f"no pose: {exc}")
         if pose is not None and pose.ambiguous:

@@ -56,7 +56,7 @@ from .frames import Frame
 from .image import to_gray
 from .library import Library, LibrarySign
 from .localise import CameraInMap, locate_in_map
-from .outline import Outline, outline_fit, refine_outline
+from .outline import Outline, outline_corner_sigma, outline_pose, refine_outline
 from .plaque import grid_correspondences, sign_corners
 from .pose import CORNER_SIGMA_PX, Pose, PoseError, pose_near, with_corner_floor
 from .pose_filter import PoseFilter
@@ -66,11 +66,17 @@ from .settings import Settings
 from .sign_map import SignMap
 
 STATES = ("detected", "tracked")
-# 1σ px of a tracked sign's corners beyond what the fit's residuals show: the points' shared drift,
-# or the edges of a plaque in a blurred, compressed video frame, off by more than in a still photo
-# (CORNER_SIGMA_PX["outline"]). On the 12 s synthetic corridor flight 0.5 against 0.1 took the
-# filtered jitter from 3.4 to 2.6 mm median (13.3 to 11.3 mm p90); 1.0 lagged, 14.7 mm p90.
+# 1σ px of the corners of a sign followed by its points alone, beyond what the fit's residuals
+# show: the points' shared drift since the frame that seeded them. (A plaque its outline places,
+# detected or followed, has its corners' σ from its edges, `outline_corner_sigma`, as `recognize`
+# gives it.)
 TRACK_CORNER_SIGMA_PX = 0.5
+# 1σ px the filter adds to the corners of a pose its outline or the detector placed. Such a pose's
+# own covariance is honest for that frame (NEES 4.1 / 10.9 median / p90 within 3 m on the 12 s
+# corridor flight), but a plaque's edges err alike on consecutive frames (the same blur, the same
+# wall beside them), which the filter would take for independent evidence and follow: without it the
+# filtered jitter within 3 m went from 1.9 / 7.4 to 2.4 / 9.3 mm median / p90 there.
+FILTER_CORNER_SIGMA_PX = 0.5
 # Detections of one label whose quads' boxes overlap more than this are the same sign.
 SAME_SIGN_IOU = 0.2
 # Image px around a quad's box read when seeding its points: more than the corner measure's block.
@@ -234,6 +240,16 @@ class Followed:
     dst: np.ndarray
     weak: bool
     outline: Outline | None = None
+
+
+def filter_measurement(pose: Pose, unanchored: int, sign: LibrarySign, camera: Camera) -> Pose:
+    """`pose` of `sign` as the filter takes it: followed by its points alone for `unanchored` frames,
+    as `drifting_measurement` weighs it; placed on this frame (`unanchored` 0), with its corners
+    counted FILTER_CORNER_SIGMA_PX less certain besides."""
+    if unanchored > 0 or pose.covariance is None:
+        return drifting_measurement(pose, unanchored)
+    return dataclasses.replace(pose, covariance=with_corner_floor(pose.covariance, pose.R, pose.t, sign, camera,
+                                                                  FILTER_CORNER_SIGMA_PX))
 
 
 def drifting_measurement(pose: Pose, unanchored: int) -> Pose:
@@ -504,11 +520,11 @@ class Tracker:
                 self.tracks.remove(other)  # a tentative track the detector now reads as another sign
         H = H / H[2, 2]
         # The pose refitted to the detection's H from the track's own (a new track's: the detection's),
-        # so the ambiguity stays settled. Its corners count with at least a tracked frame's σ
-        # (TRACK_CORNER_SIGMA_PX): a plaque its outline places in a video frame is no better placed
-        # for being found by the detector (recognize's 0.1 px is a still photo's).
+        # so the ambiguity stays settled. Its corners count with the σ `recognize` gave them: from the
+        # outline's edges (whose RMS the pose reports), else as a dense alignment's.
         start = rec.pose if mine is None else mine.pose or rec.pose
-        sigma = max(CORNER_SIGMA_PX["outline" if rec.outline is not None else "dense"], TRACK_CORNER_SIGMA_PX)
+        sigma = (outline_corner_sigma(rec.pose.reprojection_rmse_px) if rec.outline is not None and rec.pose is not None
+                 else CORNER_SIGMA_PX["dense"])
         pose = rec.pose
         if start is not None:
             src, dst = grid_correspondences(H, sign)
@@ -543,7 +559,8 @@ class Tracker:
                     continue
                 self._advance(track, step, gray, camera, warnings)
             if track.pose is not None:
-                track.filtered = track.pose_filter.update(drifting_measurement(track.pose, track.unanchored), time_s)
+                track.filtered = track.pose_filter.update(
+                    filter_measurement(track.pose, track.unanchored, track.sign, camera), time_s)
             if not track.confirmed:
                 continue
             state = "detected" if track.track_id in detected else "tracked"
@@ -581,11 +598,8 @@ class Tracker:
         if step.outline is None:
             return pose_near(start.R, start.t, src, step.dst, sign, camera, TRACK_CORNER_SIGMA_PX)
         grid_src, grid_dst = step.outline.grid(sign, camera)
-        sigma = TRACK_CORNER_SIGMA_PX
         pose = pose_near(start.R, start.t, grid_src, grid_dst, sign, camera, with_covariance=False)
-        rmse, covariance = outline_fit(pose.R, pose.t, step.outline, sign, camera)
-        return dataclasses.replace(pose, reprojection_rmse_px=rmse,
-                                   covariance=with_corner_floor(covariance, pose.R, pose.t, sign, camera, sigma))
+        return outline_pose(pose, step.outline, sign, camera)
 
 
 def tracked_frames(frames: Iterable[Frame], tracker: Tracker, source: str) -> Iterator[tuple[Frame, FrameResult, dict]]:

@@ -12,9 +12,10 @@ from signpose.pipeline.camera import Camera, assumed_camera
 from signpose.pipeline.evaluate import load_dataset
 from signpose.pipeline.image import read_image
 from signpose.pipeline.library import load_library
-from signpose.pipeline.outline import outline_fit, refine_outline
+from signpose.pipeline.outline import outline_corner_sigma, outline_fit, outline_pose, refine_outline
 from signpose.pipeline.plaque import SHRUNK_WIDTH_PX, sign_corners
-from signpose.pipeline.pose import estimate_pose, homography_from_pose, rotation_error_deg, undistort_pixels
+from signpose.pipeline.pose import (CORNER_SIGMA_PX, corner_covariance, estimate_pose, homography_from_pose,
+                                   rotation_error_deg, undistort_pixels)
 from signpose.pipeline.recognize import StageCache, recognize
 from signpose.pipeline.settings import preset
 from signpose.pipeline.synth import render_scene, synthetic_camera
@@ -238,3 +239,27 @@ def test_a_close_sign_is_outlined_with_the_principal_point_at_the_image_edge(sig
     assert rec.label == sign.id and rec.outline is not None
     assert any("another resolution" in w for w in rec.warnings)
     assert np.abs(rec.corners - corners).max() < 1.0
+
+
+@pytest.mark.parametrize("blur, noise, sharp", [(0.8, 3.0, True), (2.0, 12.0, False)])
+def test_an_outlines_corner_sigma_comes_from_its_edges(sign, blur, noise, sharp):
+    """A sharp plaque's corners keep CORNER_SIGMA_PX["outline"]; a blurred, noisy one's count with its
+    edge points' scatter, and the wider covariance still covers the pose's error (NEES, 6 dof)."""
+    camera = assumed_camera(640, 480)
+    R, t = cv2.Rodrigues(np.array([0.15, 0.35, 0.05]))[0], np.array([0.05, 0.02, 1.6])
+    corners = cv2.perspectiveTransform(sign.corners_px[None], homography_from_pose(R, t, camera.K, sign))[0]
+    plaque = render_plaque(sign, corners, 90.0, 1.0)
+    errors = []
+    for seed in range(8):
+        noisy = cv2.GaussianBlur(plaque, (0, 0), blur) + np.random.default_rng(seed).normal(0, noise, plaque.shape)
+        outline, _ = refine_outline(np.clip(noisy, 0, 255).astype(np.uint8), sign,
+                                    start_homography(sign, 3.0, seed + 100, corners))
+        fitted = estimate_pose(outline.H, *outline.grid(sign, camera), sign, camera, with_covariance=False)
+        pose = outline_pose(fitted, outline, sign, camera)
+        sigma = outline_corner_sigma(pose.reprojection_rmse_px)
+        assert sigma == CORNER_SIGMA_PX["outline"] if sharp else sigma > 0.15, pose.reprojection_rmse_px
+        _, edges = outline_fit(pose.R, pose.t, outline, sign, camera)
+        assert np.allclose(pose.covariance, edges + corner_covariance(pose.R, pose.t, sign, camera, sigma))
+        error = np.concatenate([cv2.Rodrigues(pose.R)[0].ravel() - cv2.Rodrigues(R)[0].ravel(), pose.t - t])
+        errors.append(error @ np.linalg.solve(pose.covariance, error))
+    assert np.mean(errors) < 12.6  # chi-squared's 95 % point for 6 dof: not overconfident

@@ -20,8 +20,8 @@ from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import Settings
 from signpose.pipeline.synth import synthetic_camera
 from signpose.pipeline.synth_flight import FlightRenderer, Keyframe, Plaque
-from signpose.pipeline.track import (STATES, TRACK_CORNER_SIGMA_PX, FrameResult, Tracker, TrackerConfig,
-                                     drifting_measurement)
+from signpose.pipeline.track import (FILTER_CORNER_SIGMA_PX, STATES, TRACK_CORNER_SIGMA_PX, FrameResult, Tracker,
+                                     TrackerConfig, drifting_measurement, filter_measurement)
 
 SAMPLE_FLIGHT = Path(__file__).resolve().parents[1] / "sample_images" / "flights" / "corridor"
 FPS = 30.0
@@ -63,16 +63,21 @@ def test_a_sign_is_detected_confirmed_then_tracked(library):
     assert pose is not None and abs(pose.camera_position[2] + 1.2) < 0.02
 
 
-def test_a_detected_pose_counts_its_corners_as_a_video_frame_places_them(library):
-    # recognize gives a plaque its outline places a corner σ of 0.1 px (a still photo's); in a
-    # video frame a tracked one has TRACK_CORNER_SIGMA_PX, and a detected one no less, or the
-    # filter takes each re-anchor as near certain and jumps to it.
+def test_a_detected_pose_counts_its_corners_as_its_edges_say_and_the_filter_adds_its_own(library):
+    # A detected plaque's pose has the corner σ recognize measures from its edges, not a video
+    # frame's constant; the filter counts its corners FILTER_CORNER_SIGMA_PX less certain besides, or it
+    # takes the edges' errors, alike on consecutive frames, for independent evidence and follows them.
     frames = render(library, [Plaque("security_compound", (0.0, -0.2), SIGN)], hover(0.0, 3.0), 3)
     detected = [s for r in run(library, frames) for s in r.signs if s.state == "detected"]
     assert detected, "the sign is detected"
-    sign, pose = library["security_compound"], detected[0].pose
-    floor = corner_covariance(pose.R, pose.t, sign, synthetic_camera(), TRACK_CORNER_SIGMA_PX)
-    assert np.all(np.linalg.eigvalsh(pose.covariance - floor) > -1e-12 * np.abs(floor).max())
+    sign, pose, camera = library["security_compound"], detected[0].pose, synthetic_camera()
+    constant = corner_covariance(pose.R, pose.t, sign, camera, TRACK_CORNER_SIGMA_PX)
+    assert np.all(np.linalg.eigvalsh(constant - pose.covariance) > 0)
+    measured = filter_measurement(pose, 0, sign, camera)
+    assert np.allclose(measured.covariance,
+                       pose.covariance + corner_covariance(pose.R, pose.t, sign, camera, FILTER_CORNER_SIGMA_PX))
+    assert np.array_equal(filter_measurement(pose, 2, sign, camera).covariance,
+                          drifting_measurement(pose, 2).covariance)
 
 
 def test_a_track_without_an_outline_is_re_anchored_by_the_detector(library):
