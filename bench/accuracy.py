@@ -4,8 +4,9 @@ Renders N scenes (default 300) from a fixed seed - easy, hard and negatives in
 `pipeline.synth.DEFAULT_WEIGHTS` proportions - and a set of --steep scenes (default 40) of the
 "steep" category (a sign 60-75 degrees off its normal), runs both presets on them and prints
 accuracy by category and hard look, steep views with the default's affine fallback and without it,
-false positives on negatives, rotation / translation / corner errors and time per image (of the
-first set). The figures in docs/benchmarks.md come from:
+false positives on negatives, rotation / translation / corner errors, time per image and the
+poses' NEES against the truth under their own covariances (of the first set; an honest covariance
+gives chi-squared with 6 dof, median 5.35, p90 10.6). The figures in docs/benchmarks.md come from:
 
     python bench/accuracy.py [--n 300] [--steep 40] [--seed 0] [--data DIR]
 
@@ -16,16 +17,23 @@ steep set in DIR/steep). Not a timed test: rendering takes about a second a scen
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+import cv2
+import numpy as np
 from tqdm import tqdm
 
-from signpose.pipeline.evaluate import Dataset, ImageResult, Report, evaluate, load_dataset, summarize
-from signpose.pipeline.library import Library, load_library
-from signpose.pipeline.settings import Settings, preset
-from signpose.pipeline.synth import HARD_MODES, generate_dataset
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout root, for bench
+from bench.track import nees  # noqa: E402
+from signpose.pipeline.camera import Camera  # noqa: E402
+from signpose.pipeline.evaluate import Dataset, ImageResult, Report, evaluate, load_dataset, summarize  # noqa: E402
+from signpose.pipeline.library import Library, load_library  # noqa: E402
+from signpose.pipeline.recognize import recognize  # noqa: E402
+from signpose.pipeline.settings import Settings, preset  # noqa: E402
+from signpose.pipeline.synth import HARD_MODES, generate_dataset  # noqa: E402
 
 PRESETS = ("paper", "default")
 
@@ -41,8 +49,28 @@ def _pair(value: tuple[float, float] | None, digits: int = 2, scale: float = 1.0
     return "-" if value is None else f"{scale * value[0]:.{digits}f} / {scale * value[1]:.{digits}f}"
 
 
-def rows(report: Report, both_right: set[str]) -> list[tuple[str, str]]:
-    """(row name, value) for one preset; `both_right`: images every preset identified correctly."""
+def pose_nees(report: Report, library: Library, settings: Settings, camera: Camera | None) -> dict[str, list[float]]:
+    """The NEES (bench/track.py's `nees`) of each pose of a sign `report` identified, against its truth,
+    under the pose's own covariance, by how the sign was placed: "outline" (its plaque's edges) or
+    "other" (features, dense alignment). The images are recognised again with `settings`: a report
+    keeps no covariance."""
+    out: dict[str, list[float]] = {"outline": [], "other": []}
+    for r in report.results:
+        if not r.correct or r.sample.R is None or r.sample.t is None:
+            continue
+        rec = recognize(cv2.imread(str(r.sample.path)), library, settings, camera)
+        if rec.label == r.sample.label and rec.pose is not None and rec.pose.covariance is not None:
+            out["outline" if rec.outline is not None else "other"].append(nees(rec.pose, r.sample.R, r.sample.t))
+    return out
+
+
+def _nees_pair(values: list[float]) -> str:
+    return "-" if not values else f"{np.median(values):.2f} / {np.percentile(values, 90):.2f} ({len(values)})"
+
+
+def rows(report: Report, both_right: set[str], nees_by: dict[str, list[float]]) -> list[tuple[str, str]]:
+    """(row name, value) for one preset; `both_right`: images every preset identified correctly;
+    `nees_by`: `pose_nees` of its report."""
     results = report.results
 
     def of(category: str, look: str | None = None) -> list[ImageResult]:
@@ -66,6 +94,9 @@ def rows(report: Report, both_right: set[str]) -> list[tuple[str, str]]:
         ("  same, images both got right: rot (deg)", _pair(common.rotation_deg)),
         ("  same, images both got right: corner (px)", _pair(common.corner_px)),
         ("time per image med / p90 (ms)", _pair((report.total.median_time_ms, report.total.p90_time_ms), 0)),
+        ("pose NEES med / p90 (honest 5.35 / 10.6)", _nees_pair(nees_by["outline"] + nees_by["other"])),
+        ("  placed by the outline", _nees_pair(nees_by["outline"])),
+        ("  placed otherwise", _nees_pair(nees_by["other"])),
     ]
     return out
 
@@ -106,10 +137,11 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         data = args.data or Path(tmp)
         dataset = rendered(data, library, args.n, args.seed)
-        reports = {}
+        reports, nees_by = {}, {}
         for name in PRESETS:
             with tqdm(total=len(dataset), desc=name, unit="img") as bar:
                 reports[name] = evaluate([dataset], library, preset(name), progress=lambda i, n: bar.update(1))
+            nees_by[name] = pose_nees(reports[name], library, preset(name), dataset.camera)
         steep_reports = {}
         if args.steep > 0:
             steep = rendered(data / "steep", library, args.steep, args.seed, ("steep",))
@@ -120,7 +152,7 @@ def main() -> None:
 
     both_right = set.intersection(*({r.sample.path.name for r in rep.results if r.correct and r.sample.label}
                                     for rep in reports.values()))
-    table = {name: dict(rows(rep, both_right)) for name, rep in reports.items()}
+    table = {name: dict(rows(rep, both_right, nees_by[name])) for name, rep in reports.items()}
     names = list(next(iter(table.values())))
     width = max(map(len, names)) + 2
     counts = {c: sum(s.category == c for s in dataset.samples) for c in ("easy", "hard", "negative")}
