@@ -75,7 +75,7 @@ TRACK_CORNER_SIGMA_PX = 0.5
 # own covariance is honest for that frame (NEES 4.1 / 10.9 median / p90 within 3 m on the 12 s
 # corridor flight), but a plaque's edges err alike on consecutive frames (the same blur, the same
 # wall beside them), which the filter would take for independent evidence and follow: without it the
-# filtered jitter within 3 m went from 1.9 / 7.4 to 2.4 / 9.3 mm median / p90 there.
+# filtered jitter within 3 m went from 1.9 / 7.3 to 2.4 / 9.3 mm median / p90 there.
 FILTER_CORNER_SIGMA_PX = 0.5
 # Detections of one label whose quads' boxes overlap more than this are the same sign.
 SAME_SIGN_IOU = 0.2
