@@ -69,6 +69,13 @@ def test_kind_is_told_from_the_image_when_not_given():
     assert {infer_kind(s.image) for s in library.signs} == {"plaque"}
     texture = np.random.default_rng(0).integers(0, 256, (120, 200), dtype=np.uint8)
     assert infer_kind(cv2.GaussianBlur(texture, (0, 0), 2)) == "picture"
+    # A picture on a plain ground (a magazine on a table) has a plain margin too, but no paper among its marks.
+    on_table = np.full((300, 400), 230, np.uint8)
+    on_table[90:210, 100:300] = cv2.GaussianBlur(texture, (0, 0), 2)
+    assert infer_kind(on_table) == "picture"
+    bold = np.full((200, 500), 235, np.uint8)
+    cv2.putText(bold, "EXIT 8", (40, 150), cv2.FONT_HERSHEY_SIMPLEX, 4.5, 20, 18)
+    assert infer_kind(bold) == "plaque"
 
 
 def test_a_plaque_of_other_words_is_refused_when_the_kinds_are_told_from_the_images(tmp_path):
