@@ -59,7 +59,7 @@ def test_a_picture_larger_than_the_view_is_recognised_saying_how_much_was_in_vie
     assert any("dense refinement disagreed with the matched points" in w for w in rec.warnings), rec.warnings
 
 def test_unsolvable_pair_is_reported_not_guessed():
-    """LePoint1 is a facade seen far off its normal: SIFT on the photos finds 5 inliers."""
+    """LePoint1 is a magazine seen far off its normal: SIFT on the photos finds 5 inliers."""
     rec, rmse = run_pair("LePoint1", affine_fallback=False)
     score = rec.scores[0]
     assert not rec.recognized
