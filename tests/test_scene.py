@@ -58,6 +58,9 @@ def scene(workspace):
     handle = attach(server, workspace)
     # The world is chosen after the last camera is drawn: waiting for the cameras alone raced it.
     wait_for(lambda: len(handle.cameras) == len(POSITIVES) and handle.world.value in handle.signs)
+    # ... and mid-redraw: setting the world's options shows their first before the redraw picks the
+    # most seen. A redraw of our own waits for that one to end.
+    handle.redraw()
     yield handle, workspace
     handle.close()
     server.stop()
