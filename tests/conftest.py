@@ -11,11 +11,22 @@ from collections.abc import Callable
 import pytest
 
 import signpose.pipeline.recognize as recognize_module
+from signpose.pipeline.library import Library, load_library
 from signpose.pipeline.settings import Settings
 from tests.support import browser_harness as harness
 from tests.support.browser_harness import FAILED
 
 SegmentationFault = Callable[[Callable[[int, Settings], bool]], None]
+
+
+@pytest.fixture(scope="session")
+def library() -> Library:
+    """The sample library, read once per test process: its signs' features, and their simulated steep
+    views (0.7 s of CPU), are computed once per settings for every test that recognizes with it, as a
+    server computes them once for its library. Read-only: a test that changes a library or counts what
+    loading one computes loads its own, and a module whose tests need another library gives its own
+    `library` fixture."""
+    return load_library()
 
 
 @pytest.fixture

@@ -4,7 +4,6 @@ from pathlib import Path
 
 from signpose.app.batch import recognize_all, source_files, track_all
 from signpose.pipeline.evaluate import Outcome
-from signpose.pipeline.library import load_library
 from signpose.pipeline.settings import preset
 
 SCENES = Path(__file__).parents[1] / "sample_images" / "scenes"
@@ -41,25 +40,25 @@ class RecordingRunner:
         pass
 
 
-def test_the_last_chunks_shrink_so_that_the_workers_finish_together():
+def test_the_last_chunks_shrink_so_that_the_workers_finish_together(library):
     """40 images, chunks of at most 8, on two workers: full chunks while much is left, then smaller ones down
     to a single image, so no worker runs a full last chunk while the other waits; every image answered once,
     in its place."""
     names = [str(p) for p in sorted(SCENES.glob("scene_*.jpg"))]
     jobs = [(names[i % len(names)], None) for i in range(40)]
     runner = RecordingRunner()
-    outcomes, tally = recognize_all(jobs, load_library(), [preset("default")], None, runner=runner, store=None,
+    outcomes, tally = recognize_all(jobs, library, [preset("default")], None, runner=runner, store=None,
                                     context={}, shared_paths=False, images_per_chunk=8, done=lambda n: None)
     assert runner.sizes[:2] == [8, 8] and runner.sizes[-1] == 1, runner.sizes
     assert runner.sizes == sorted(runner.sizes, reverse=True) and sum(runner.sizes) == 40, runner.sizes
     assert [o.error for o in outcomes[0]] == [name for name, _ in jobs] and tally.computed == 40
 
 
-def test_a_flight_in_ranges_is_shared_with_the_workers_once_not_sent_with_each_range():
+def test_a_flight_in_ranges_is_shared_with_the_workers_once_not_sent_with_each_range(library):
     """A flight cut into 4 ranges under 2 settings variants: its file is handed to the runner to share once
     (a Dask cluster scatters it to every worker), and each of the 8 ranges names that shared copy."""
     runner = RecordingRunner()
-    track_all([(str(FLIGHT), None)], load_library(), [preset("default"), preset("paper")], sign_map=None,
+    track_all([(str(FLIGHT), None)], library, [preset("default"), preset("paper")], sign_map=None,
               topic=None, fps=None, max_frames=120, max_pixels=10**8, frames_per_chunk=30, runner=runner, store=None,
               shared_paths=False, planned=lambda n: None, done=lambda n: None)
     assert runner.shared[1:] == [source_files(str(FLIGHT))], "the flight was not shared once, as its files"

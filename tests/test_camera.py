@@ -10,7 +10,6 @@ import pytest
 
 from signpose.pipeline.camera import Camera, CameraError, assumed_camera, camera_from_json, load_camera, save_camera
 from signpose.pipeline.image import read_image
-from signpose.pipeline.library import SAMPLE_LIBRARY, load_library
 from signpose.pipeline.pose import camera_position
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import preset
@@ -828,9 +827,9 @@ def test_a_principal_point_no_image_has_is_refused_with_what_to_do(cx, cy, messa
         camera_from_json({"fx": 4e5, "fy": 4e5, "cx": cx, "cy": cy})  # a focal length that allows it
 
 
-def test_the_other_resolution_warning_reaches_the_recognition():
+def test_the_other_resolution_warning_reaches_the_recognition(library):
     scenes = Path(__file__).parents[1] / "sample_images" / "scenes"
-    rec = recognize(read_image(scenes / "scene_002.jpg"), load_library(SAMPLE_LIBRARY), preset("default"),
+    rec = recognize(read_image(scenes / "scene_002.jpg"), library, preset("default"),
                     camera_from_json(CORNER_JSON))
     assert any("another resolution" in w for w in rec.warnings)
 
@@ -945,10 +944,9 @@ SCENES = Path(__file__).parents[1] / "sample_images" / "scenes"
 
 
 @pytest.fixture(scope="module")
-def sensor_render():
+def sensor_render(library):
     """(library, the 1280x960 sensor's camera, a render of a sign through it, the recognition of the whole
     render); the sign lies at x 366..774, y 393..613 px."""
-    library = load_library()
     sensor = synthetic_camera((1280, 960))
     scene = render_scene(library, "security_compound", sensor, np.random.default_rng(11), "easy")
     return library, sensor, scene, recognize(scene.image, library, preset("default"), sensor)
@@ -1105,7 +1103,7 @@ def test_part_of_a_sensor_is_written_as_its_file_gives_it_and_read_back():
 CROP = {"fx": 554.2562584220408, "fy": 554.2562584220408, "cx": 320, "cy": 240}
 
 
-def test_a_crop_given_with_its_own_size_is_refused_saying_how_to_give_it(tmp_path):
+def test_a_crop_given_with_its_own_size_is_refused_saying_how_to_give_it(library, tmp_path):
     """The crop's own K and size look like a file for another resolution; the refusal said only to check
     the values and the size, which were right, and the crop had no way in."""
     image = read_image(SCENES / "scene_002.jpg")
@@ -1122,7 +1120,6 @@ def test_a_crop_given_with_its_own_size_is_refused_saying_how_to_give_it(tmp_pat
     # as it says: the sensor's K and size with the crop as roi, which gives the whole image's pose
     path.write_text(json.dumps(CROP | {"width": 640, "height": 480,
                                        "roi": {"x_offset": 0, "y_offset": 0, "width": 400, "height": 480}}))
-    library = load_library(SAMPLE_LIBRARY)
     crop = recognize(image[:, :400], library, preset("default"), load_camera(path))
     whole = recognize(image, library, preset("default"), load_camera(SCENES / "camera.yaml"))
     assert np.linalg.norm(crop.pose.camera_position - whole.pose.camera_position) < 0.002

@@ -20,7 +20,6 @@ import signpose.pipeline.recognize as recognize_module
 from signpose.app.image_store import check_image_header
 from signpose.pipeline.evaluate import (Dataset, DatasetError, ImageResult, Sample, check_labels, evaluate, format_table,
                                load_dataset, summarize, text_columns)
-from signpose.pipeline.library import load_library
 from signpose.pipeline.settings import preset
 from tests.support.scene_images import TURNED_SCENE, png_bomb, with_orientation
 
@@ -28,10 +27,6 @@ SCENES = Path(__file__).resolve().parent.parent / "sample_images" / "scenes"
 
 SET3 = SCENES.parent / "datasets" / "set3"
 
-
-@pytest.fixture(scope="module")
-def library():
-    return load_library()
 
 
 def test_loads_truth_json_with_camera():

@@ -7,7 +7,6 @@ import numpy as np
 
 from signpose.pipeline.camera import load_camera
 from signpose.pipeline.every_sign import recognize_every_sign
-from signpose.pipeline.library import load_library
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import preset
 
@@ -22,8 +21,8 @@ def first_frame() -> np.ndarray:
     return frame
 
 
-def test_both_signs_in_view_are_found_and_the_first_answer_is_recognizes():
-    frame, library, settings = first_frame(), load_library(), preset("default")
+def test_both_signs_in_view_are_found_and_the_first_answer_is_recognizes(library):
+    frame, settings = first_frame(), preset("default")
     camera = load_camera(SAMPLE_FLIGHT / "camera.yaml")
     recognitions = recognize_every_sign(frame, library, settings, camera)
     assert sorted(r.label for r in recognitions[:-1]) == ["chief_of_security", "security_compound"]
@@ -34,8 +33,8 @@ def test_both_signs_in_view_are_found_and_the_first_answer_is_recognizes():
     assert np.linalg.norm(a - b) > 100
 
 
-def test_a_known_quad_is_masked_and_most_bounds_the_searches():
-    frame, library, settings = first_frame(), load_library(), preset("default")
+def test_a_known_quad_is_masked_and_most_bounds_the_searches(library):
+    frame, settings = first_frame(), preset("default")
     first = recognize(frame, library, settings)
     rest = recognize_every_sign(frame, library, settings, known=[first.corners], most=1)
     assert len(rest) == 1 and rest[0].label not in (None, first.label)

@@ -11,7 +11,6 @@ import pytest
 from signpose.pipeline.camera import Camera, assumed_camera
 from signpose.pipeline.evaluate import load_dataset
 from signpose.pipeline.image import read_image
-from signpose.pipeline.library import load_library
 from signpose.pipeline.outline import outline_corner_sigma, outline_fit, outline_pose, refine_outline
 from signpose.pipeline.plaque import SHRUNK_WIDTH_PX, sign_corners
 from signpose.pipeline.pose import (CORNER_SIGMA_PX, corner_covariance, estimate_pose, homography_from_pose,
@@ -26,8 +25,8 @@ TRUE_CORNERS = np.array([[212.3, 141.7], [431.9, 158.2], [425.6, 251.4], [205.8,
 
 
 @pytest.fixture(scope="module")
-def sign():
-    return load_library().signs[0]
+def sign(library):
+    return library.signs[0]
 
 
 def plaque_image(sign, wall: float, plaque_gain: float = 1.0, seed: int = 0, corners=TRUE_CORNERS) -> np.ndarray:
@@ -75,8 +74,7 @@ def test_a_start_too_far_off_is_refused(sign):
     assert outline is None and why
 
 
-def test_recognize_uses_the_outline_on_a_synthetic_scene():
-    library = load_library()
+def test_recognize_uses_the_outline_on_a_synthetic_scene(library):
     camera = synthetic_camera((640, 480))
     scene = render_scene(library, "chief_of_security", camera, np.random.default_rng(7), "easy")
     with_outline = recognize(scene.image, library, preset("default"), camera)
@@ -127,11 +125,10 @@ def through_lens(image: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.slow
-def test_pose_under_lens_distortion_is_as_good_as_without():
+def test_pose_under_lens_distortion_is_as_good_as_without(library):
     """The sample scenes seen through a wide-angle lens (k1 -0.25): the plaque's sides are curves
     in the image, and the pose is as accurate as on the scenes themselves. Fitting straight
     lines to the curved sides gave 0.4-1.5 degrees."""
-    library = load_library()
     errors = []
     for sample in (s for s in SCENES.samples if s.label is not None):
         photo = through_lens(read_image(sample.path))
@@ -146,19 +143,19 @@ def test_pose_under_lens_distortion_is_as_good_as_without():
 
 
 @pytest.mark.parametrize("name", ["scene_005.jpg", "scene_008.jpg", "scene_011.jpg"])
-def test_a_sign_hundreds_of_pixels_wide_is_outlined_too(name):
+def test_a_sign_hundreds_of_pixels_wide_is_outlined_too(library, name):
     """The sample scenes enlarged 4x, as a 12 MP photo shows a sign: features on a 160 px crop
     put its corners 10-70 px off, beyond the edge search, where these would fall back to ECC (0.8
     degrees) or to the inliers alone (5.8 degrees). The outline is found in the image shrunk to
     the sign's usual size."""
     sample = next(s for s in SCENES.samples if s.path.name == name)
     photo = cv2.resize(read_image(sample.path), None, fx=4, fy=4, interpolation=cv2.INTER_CUBIC)
-    rec = recognize(photo, load_library(), preset("default"), SCENES.camera)
+    rec = recognize(photo, library, preset("default"), SCENES.camera)
     assert rec.label == sample.label and rec.outline is not None, rec.warnings
     assert rotation_error_deg(rec.pose.R, sample.R) < 0.15
     # in the photo's pixels: its corners are those of its H, its edge points on its sides
     corners = rec.outline.corners
-    assert np.allclose(corners, sign_corners(load_library()[rec.label], rec.outline.H), atol=1e-6)
+    assert np.allclose(corners, sign_corners(library[rec.label], rec.outline.H), atol=1e-6)
     for i, points in enumerate(rec.outline.points):
         a, b = corners[i], corners[(i + 1) % 4]
         (dx, dy), (px, py) = b - a, (points - a).T
@@ -166,7 +163,7 @@ def test_a_sign_hundreds_of_pixels_wide_is_outlined_too(name):
         assert len(points) >= 8 and np.abs(across).max() < 2.0
 
 
-def test_only_the_signs_neighbourhood_is_shrunk(monkeypatch):
+def test_only_the_signs_neighbourhood_is_shrunk(library, monkeypatch):
     """Each time a wide sign was outlined or aligned densely, the whole photo was shrunk first: 7 ms
     on 12 MP, most of it far from the sign. Here a sign 980 px wide in a 4000 x 3000 photo is
     outlined (the default) and aligned (ECC only)."""
@@ -183,12 +180,12 @@ def test_only_the_signs_neighbourhood_is_shrunk(monkeypatch):
     monkeypatch.setattr(cv2, "resize", spy)
     for settings in (preset("default"), dataclasses.replace(preset("default"), refine_outline=False, refine="ecc")):
         shrunk.clear()
-        rec = recognize(photo, load_library(), settings, SCENES.camera)
+        rec = recognize(photo, library, settings, SCENES.camera)
         assert rec.label == sample.label and (rec.outline is not None or rec.ecc is not None), rec.warnings
         assert shrunk and max(shrunk) < 0.15 * photo.shape[0] * photo.shape[1]
 
 
-def test_a_wide_sign_is_aligned_in_the_shrunk_image(monkeypatch):
+def test_a_wide_sign_is_aligned_in_the_shrunk_image(library, monkeypatch):
     """ECC on a sign 1500 px wide in a 12 MP photo through a wide lens took 8 s and 4.7 GB: it
     ran on the sign's full-resolution neighbourhood. It is aligned where the sign is
     SHRUNK_WIDTH_PX wide, as the outline is read."""
@@ -204,19 +201,18 @@ def test_a_wide_sign_is_aligned_in_the_shrunk_image(monkeypatch):
 
     monkeypatch.setattr(cv2, "findTransformECC", spy)
     ecc_only = dataclasses.replace(preset("default"), refine_outline=False, refine="ecc")
-    rec = recognize(photo, load_library(), ecc_only, lens)
+    rec = recognize(photo, library, ecc_only, lens)
     assert rec.label == sample.label and rec.ecc is not None and rec.outline is None
     assert aligned_in and max(max(shape) for shape in aligned_in) < 2 * SHRUNK_WIDTH_PX
     assert rotation_error_deg(rec.pose.R, sample.R) < 2.0  # ECC alone, as on the scenes themselves
 
 
 @pytest.mark.slow
-def test_dense_refinement_under_lens_distortion_aligns_as_without():
+def test_dense_refinement_under_lens_distortion_aligns_as_without(library):
     """Without the outline, ECC alone refines H. Through the wide-angle lens it aligns the sign in
     the image an ideal pinhole camera would take, so the sign's corners (undistorted) come out
     as close to the truth as on the scenes themselves (about 1 px); aligned in the distorted
     image they were up to 11 px off."""
-    library = load_library()
     ecc_only = dataclasses.replace(preset("default"), refine_outline=False, refine="ecc")
     for sample in (s for s in SCENES.samples if s.label is not None):
         image = read_image(sample.path)
@@ -229,13 +225,13 @@ def test_dense_refinement_under_lens_distortion_aligns_as_without():
         assert errors[1] < errors[0] + 0.5, (sample.path.name, errors)
 
 
-def test_a_close_sign_is_outlined_with_the_principal_point_at_the_image_edge(sign):
+def test_a_close_sign_is_outlined_with_the_principal_point_at_the_image_edge(library, sign):
     """The camera of the shrunk image a wide sign is outlined in was held to a camera file's bounds:
     a file without an image size, its principal point at this image's edge (cx = 0, warned as
     made for another resolution), moved half a pixel out of the image there, and recognition failed."""
     corners = np.array([[60.0, 150], [580, 165], [575, 370], [66, 355]])
     camera = Camera(np.array([[554.0, 0, 0], [0, 554, 240], [0, 0, 1]]), np.zeros(5))
-    rec = recognize(plaque_image(sign, 90, corners=corners), load_library(), preset("default"), camera)
+    rec = recognize(plaque_image(sign, 90, corners=corners), library, preset("default"), camera)
     assert rec.label == sign.id and rec.outline is not None
     assert any("another resolution" in w for w in rec.warnings)
     assert np.abs(rec.corners - corners).max() < 1.0

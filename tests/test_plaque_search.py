@@ -11,7 +11,7 @@ import pytest
 from signpose.pipeline.image import read_image
 import signpose.pipeline.plaque_search as plaque_search
 import signpose.pipeline.recognize as recognize_module
-from signpose.pipeline.library import Library, load_library
+from signpose.pipeline.library import Library
 from signpose.pipeline.plaque_search import (cut_image, cut_levels, level_quads, quad_levels, ranked, read_blob,
                                    required_correlation, search_plaques)
 from signpose.pipeline.recognize import recognize
@@ -22,10 +22,6 @@ from tests.support.scene_images import dim_plaque_scene as scene
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_images"
 
-
-@pytest.fixture(scope="module")
-def library():
-    return load_library()
 
 
 @pytest.mark.parametrize("sign_id", ["security_compound", "ministry_of_torture", "chief_of_security"])

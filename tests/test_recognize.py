@@ -13,7 +13,6 @@ from signpose.pipeline.camera import Camera, load_camera
 from signpose.pipeline.features import library_features
 from signpose.pipeline.homography import normalize_scale
 from signpose.pipeline.image import read_image, resize_map
-from signpose.pipeline.library import load_library
 from signpose.pipeline.pose import rotation_error_deg
 import signpose.pipeline.recognize as recognize_module
 from signpose.pipeline.plaque_search import QuadCandidate
@@ -27,10 +26,6 @@ from tests.support.scene_images import (DECOYS, PLAQUE_AT, decoy_image, like_a_c
 SCENES = Path(__file__).resolve().parents[1] / "sample_images" / "scenes"
 TRUTH = json.loads((SCENES / "truth.json").read_text())["images"]
 
-
-@pytest.fixture(scope="module")
-def library():
-    return load_library()
 
 
 @pytest.mark.parametrize("name", sorted(n for n, t in TRUTH.items() if t["label"] is not None))

@@ -16,7 +16,6 @@ import pytest
 
 from signpose.pipeline.camera import load_camera
 from signpose.pipeline.image import read_image
-from signpose.pipeline.library import load_library
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import Settings, settings_schema
 from signpose.pipeline.stages import ALL_STAGES, CACHED_STAGES, StageCache, feeding_settings, stage_key
@@ -34,17 +33,12 @@ CHANGES = {"min_blob_area": 0.01, "max_features": 300, "max_search_size": 320, "
 
 
 @pytest.fixture(scope="module")
-def library():
-    return load_library()
-
-
-@pytest.fixture(scope="module")
-def scenes():
+def scenes(library):
     """(name, image, its camera, the settings changed from) of each scene searched."""
     photos = [(path, read_image(SAMPLES / path), load_camera((SAMPLES / path).parent / "camera.yaml"), Settings())
               for path in SCENE_PATHS]
     # A dim sign below a lamp, which only the plaque search finds (when no plaque candidate is searched for features)
-    dim = ("dim sign", dim_plaque_scene(load_library()["security_compound"], exit_plaque=(420, 330)), None,
+    dim = ("dim sign", dim_plaque_scene(library["security_compound"], exit_plaque=(420, 330)), None,
            Settings(plaque_candidates=0))
     return [*photos, dim]
 

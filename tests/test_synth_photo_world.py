@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from signpose.pipeline.evaluate import load_dataset
-from signpose.pipeline.library import load_library
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.pose import rotation_error_deg
 from signpose.pipeline.settings import preset
@@ -19,10 +18,6 @@ BACKGROUNDS = [shared_folder() / "data" / "homogr", shared_folder() / "data" / "
 
 pytestmark = pytest.mark.skipif(not BACKGROUNDS[0].is_dir(), reason=f"real photos not found at {BACKGROUNDS[0]}")
 
-
-@pytest.fixture(scope="module")
-def library():
-    return load_library()
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from signpose.pipeline.camera import CameraError, load_camera
-from signpose.pipeline.library import Library, load_library
+from signpose.pipeline.library import Library
 from signpose.pipeline.pose import Pose, corner_covariance, rotation_error_deg
 from signpose.pipeline.pose_filter import PoseFilter, pose_jacobian, exp_so3, log_so3
 from signpose.pipeline.recognize import recognize
@@ -27,10 +27,6 @@ SAMPLE_FLIGHT = Path(__file__).resolve().parents[1] / "sample_images" / "flights
 FPS = 30.0
 SIGN = (0.6, 0.24)
 
-
-@pytest.fixture(scope="module")
-def library():
-    return load_library()
 
 
 def render(library, plaques, keyframes, n: int, seed: int = 0) -> list[np.ndarray]:
