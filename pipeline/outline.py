@@ -134,14 +134,16 @@ def _robust_lines(pts: np.ndarray, side: np.ndarray, rng: np.random.Generator) -
     keep = length > 1e-6
     length = np.where(keep, length, 1.0)
     nx, ny = -d[:, 1] / length, d[:, 0] / length
-    dist = np.abs(pts[:, :1] * nx + pts[:, 1:] * ny - (pts[i, 0] * nx + pts[i, 1] * ny))  # (N, S K)
-    hyp_side = np.repeat(np.arange(len(draws)), LINE_RANSAC_ITERATIONS)
-    votes = np.count_nonzero((dist < LINE_INLIER_PX) & (side[:, None] == hyp_side), axis=0)
-    votes[~keep] = -1  # pairs of coincident points define no line
-    best = np.argmax(votes.reshape(len(draws), -1), axis=1) + np.arange(len(draws)) * LINE_RANSAC_ITERATIONS
-    drawn = side < len(draws)
-    hyp = best[np.where(drawn, side, 0)]  # each point's side's best hypothesis
-    inliers = drawn & keep[hyp] & (dist[np.arange(len(pts)), hyp] < LINE_INLIER_PX)
+    # Each point is measured against its own side's hypotheses alone (the drawn sides' points come
+    # first, sorted by side): a quarter of the distances of every point to every hypothesis.
+    n = int(first[len(draws) - 1] + counts[len(draws) - 1])
+    own = side[:n, None] * LINE_RANSAC_ITERATIONS + np.arange(LINE_RANSAC_ITERATIONS)  # (n, K)
+    close = np.abs(pts[:n, :1] * nx[own] + pts[:n, 1:] * ny[own] - (pts[i, 0] * nx + pts[i, 1] * ny)[own]) < LINE_INLIER_PX
+    votes = np.add.reduceat(close.astype(np.int32), first[:len(draws)], axis=0)  # (S, K)
+    votes[~keep.reshape(len(draws), -1)] = -1  # pairs of coincident points define no line
+    best = np.argmax(votes, axis=1)
+    inliers = np.zeros(len(pts), dtype=bool)
+    inliers[:n] = keep[own[np.arange(n), best[side[:n]]]] & close[np.arange(n), best[side[:n]]]
     for _ in range(2):
         inliers = _distances(pts, side, _line_fits(pts, side, inliers)) < LINE_INLIER_PX
     return _line_fits(pts, side, inliers), inliers
@@ -282,20 +284,27 @@ def _outline_shrunk(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, seed: in
 def _outline(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, seed: int,
              camera: Camera | None) -> tuple[Outline | None, str | None]:
     """`refine_outline` searching SEARCH_PX px across the sides where H puts them."""
-    rng = np.random.default_rng(seed)
     start = sign_corners(sign, H)
     if camera is not None:
         start = undistort_pixels(start, camera)
+    expected = _expected(np.hypot(*(start[[1, 2, 3, 0]] - start).T))
+    # Each profile gives at most one edge point, so a side read by fewer profiles than a line needs
+    # points (one under 21 px) is refused before the image is read: a far plaque's short sides, in
+    # a video where its outline is looked for on every frame.
+    short = np.flatnonzero(expected < MIN_SIDE_POINTS)
+    if len(short):
+        i = int(short[0])
+        return None, _side_refused(i, f"{expected[i]} profiles fit along it, fewer than the {MIN_SIDE_POINTS} a "
+                                      "line needs", start, gray.shape, camera)
+    rng = np.random.default_rng(seed)
     pts, side = _edge_points(gray, start, SEARCH_PX, camera)
     ideal = pts if camera is None else undistort_pixels(pts, camera)
     lines, inliers = _robust_lines(ideal, side, rng)
     found = np.bincount(side[inliers], minlength=4)
-    expected = _expected(np.hypot(*(start[[1, 2, 3, 0]] - start).T))
     for i in range(4):
         if found[i] < max(MIN_SIDE_POINTS, MIN_INLIER_FRACTION * expected[i]):
-            if _inside_fraction(start[i], start[(i + 1) % 4], gray.shape, camera) < MIN_INLIER_FRACTION:
-                return None, f"side {i + 1} lies mostly outside the image"
-            return None, f"side {i + 1}: {found[i]} of {expected[i]} profiles on a straight edge (search {SEARCH_PX} px)"
+            return None, _side_refused(i, f"{found[i]} of {expected[i]} profiles on a straight edge (search "
+                                          f"{SEARCH_PX} px)", start, gray.shape, camera)
     # corner i joins sides i - 1 and i: the cross product of their lines
     (a1, b1, c1), (a2, b2, c2) = lines[[3, 0, 1, 2]].T, lines.T
     w = a1 * b2 - b1 * a2
@@ -308,6 +317,14 @@ def _outline(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, seed: int,
     corners = ideal_corners if camera is None else distort_pixels(ideal_corners, camera)
     return Outline(corners, sign_to_quad(sign, corners), [pts[inliers & (side == i)] for i in range(4)],
                    sign_to_quad(sign, ideal_corners)), None
+
+
+def _side_refused(i: int, detail: str, start: np.ndarray, shape: tuple[int, ...], camera: Camera | None) -> str:
+    """Why side `i` of the quad `start` (4, 2) px (ideal pinhole px with `camera`) gives no edge: it
+    lies mostly outside the (H, W) image `shape`, else `detail`."""
+    if _inside_fraction(start[i], start[(i + 1) % 4], shape, camera) < MIN_INLIER_FRACTION:
+        return f"side {i + 1} lies mostly outside the image"
+    return f"side {i + 1}: {detail}"
 
 
 def _inside_fraction(a: np.ndarray, b: np.ndarray, shape: tuple[int, ...], camera: Camera | None) -> float:
