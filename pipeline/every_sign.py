@@ -108,14 +108,14 @@ class Nearby:
 
 
 def recognize_near(image: np.ndarray, library: Library, settings: Settings, camera: Camera, *,
-                   quad: np.ndarray) -> Nearby:
+                   quad: np.ndarray, with_pose: bool = True) -> Nearby:
     """`recognize` of the neighbourhood of `quad` ((4, 2) image px, TL TR BR BL: where a sign was
     last seen) in `image` ((H, W, 3) BGR or (H, W) gray uint8, `camera`'s): the quad's box grown
     by NEAR_MARGIN of its size on every side is cut out and searched with the camera of the cut (its
     principal point moved with it), without the full-frame fallback (a library of pictures alone, which
     is not segmented, has the whole cut searched). A check of a known sign costing a fraction of a search of the whole
     frame (the same text check; the affine fallback as `settings` say, for a sign turned steeply
-    away), its pose in `camera`'s frame."""
+    away), its pose in `camera`'s frame (None without `with_pose`, as for `recognize`)."""
     gray = to_gray(image)
     height, width = gray.shape
     low, high = quad.min(axis=0), quad.max(axis=0)
@@ -134,4 +134,4 @@ def recognize_near(image: np.ndarray, library: Library, settings: Settings, came
         flat[y0:y1, x0:x1] = cut
         cut, cut_camera, x0, y0 = flat, camera, 0, 0
     local = dataclasses.replace(settings, full_frame_fallback=False)
-    return Nearby(recognize(cut, library, local, cut_camera), (int(x0), int(y0)))
+    return Nearby(recognize(cut, library, local, cut_camera, with_pose=with_pose), (int(x0), int(y0)))

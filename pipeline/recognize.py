@@ -482,7 +482,7 @@ def pipeline_errors(name: str) -> Iterator[None]:
 
 
 def recognize(image: np.ndarray, library: Library, settings: Settings, camera: Camera | None = None,
-              cache: StageCache | None = None) -> Recognition:
+              cache: StageCache | None = None, *, with_pose: bool = True) -> Recognition:
     """Recognise a library sign in an (H, W, 3) BGR or (H, W) gray uint8 image and estimate the camera pose.
 
     Without `camera`, a 60° horizontal field of view is assumed. When there is a pose, a warning
@@ -492,6 +492,8 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     re-uses every stage the change does not affect (a RANSAC change re-uses features and
     matches, a ratio change re-uses features). The cache must be dropped with the image and
     whenever the library changes.
+    `with_pose` False leaves the pose None, for a caller that fits its own to the answer's H (a
+    tracker re-anchoring a sign it follows, from the pose it had).
     """
     t_start = time.perf_counter()
     gray = to_gray(image)
@@ -515,7 +517,8 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
         if steep is not None:
             chosen, refined = steep
             attempts.append(chosen)
-    pose = run.winner_pose(refined, not no_feature_winner(chosen), warnings) if refined is not None else None
+    pose = (run.winner_pose(refined, not no_feature_winner(chosen), warnings)
+            if refined is not None and with_pose else None)
     if pose is not None and approximate is not None:
         # Last, after what the run found: where the server's clients have always read it.
         warnings.append(approximate)

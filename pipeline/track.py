@@ -56,9 +56,9 @@ from .frames import Frame
 from .image import to_gray
 from .library import Library, LibrarySign
 from .localise import CameraInMap, locate_in_map
-from .outline import Outline, outline_corner_sigma, outline_pose, refine_outline
+from .outline import Outline, outline_corner_sigma, outline_fit, outline_pose, refine_outline
 from .plaque import grid_correspondences, sign_corners
-from .pose import CORNER_SIGMA_PX, Pose, PoseError, pose_near, with_corner_floor
+from .pose import CORNER_SIGMA_PX, Pose, PoseError, estimate_pose, pose_near, with_corner_floor
 from .pose_filter import PoseFilter
 from .recognize import Recognition, image_camera, quad_problem, uses_outline
 from .segment import Box, box_iou
@@ -472,9 +472,10 @@ class Tracker:
         # A plaque seen steeply is found by the plaque fallback's quads; a picture has its features
         # alone, and keeps the settings' affine fallback for steep views of it.
         plaque_check = dataclasses.replace(self.settings, affine_fallback=False)
+        # A check's pose is fitted from the track's own (`_claim`): `recognize`'s would go unused.
         nearby = [recognize_near(gray, self.library, self.settings if t.sign.kind == "picture" else plaque_check,
                                  camera, quad=sign_corners(t.sign, followed[t.track_id].H if t.track_id in followed
-                                                           else t.H))
+                                                           else t.H), with_pose=False)
                   for t in checks]
         seen = [(n.recognition, n.H, n.corners) for n in nearby]
         recognitions: list[Recognition] = []
@@ -519,19 +520,28 @@ class Tracker:
             if other is not mine and not other.confirmed:
                 self.tracks.remove(other)  # a tentative track the detector now reads as another sign
         H = H / H[2, 2]
-        # The pose refitted to the detection's H from the track's own (a new track's: the detection's),
-        # so the ambiguity stays settled. Its corners count with the σ `recognize` gave them: from the
-        # outline's edges (whose RMS the pose reports), else as a dense alignment's.
+        # The pose refitted to the detection's H from the track's own (a new track's: the detection's;
+        # without either, as from a check, which estimates none, estimated afresh), so the ambiguity
+        # stays settled. Its corners count with the σ `recognize` gives them: from the outline's edges
+        # (their RMS off the pose's sides, which a check leaves to be measured here), else as a dense
+        # alignment's.
         start = rec.pose if mine is None else mine.pose or rec.pose
-        sigma = (outline_corner_sigma(rec.pose.reprojection_rmse_px) if rec.outline is not None and rec.pose is not None
-                 else CORNER_SIGMA_PX["dense"])
         pose = rec.pose
-        if start is not None:
-            src, dst = grid_correspondences(H, sign)
-            try:
-                pose = pose_near(start.R, start.t, src, dst, sign, camera, sigma)
-            except PoseError:
-                pass
+        src, dst = grid_correspondences(H, sign)
+        try:
+            if start is None:
+                start = estimate_pose(H, src, dst, sign, camera, self.settings.pose_method,
+                                      self.settings.ambiguity_ratio)
+            if rec.outline is None:
+                sigma = CORNER_SIGMA_PX["dense"]
+            elif rec.pose is not None:
+                sigma = outline_corner_sigma(rec.pose.reprojection_rmse_px)
+            else:
+                start = pose_near(start.R, start.t, src, dst, sign, camera, with_covariance=False)
+                sigma = outline_corner_sigma(outline_fit(start.R, start.t, rec.outline, sign, camera)[0])
+            pose = pose_near(start.R, start.t, src, dst, sign, camera, sigma)
+        except PoseError:
+            pass
         if mine is None:
             mine = Track(self.next_id, sign, H, pose, np.zeros((0, 2), np.float32), np.zeros((0, 2)), gray,
                          born=index)

@@ -130,6 +130,27 @@ def test_a_check_where_the_cut_has_no_camera_searches_the_frame(library, monkeyp
     assert np.abs(whole.corners - cut.corners).max() < 0.5
 
 
+def test_a_check_estimates_no_pose_and_a_track_it_starts_gets_one_of_its_own(library):
+    """The tracker's checks ask `recognize_near` for no pose (it fits its own from the track's); a
+    track a check's answer starts, with no track's pose to start from, has its pose estimated."""
+    from signpose.pipeline import every_sign
+
+    frame = render(library, [Plaque("security_compound", (0.0, -0.2), SIGN)], hover(0.0, 1.2), 1)[0]
+    quad = run(library, [frame] * 2)[1].signs[0].corners
+    camera = synthetic_camera()
+    posed = every_sign.recognize_near(frame, library, Settings(), camera, quad=quad)
+    bare = every_sign.recognize_near(frame, library, Settings(), camera, quad=quad, with_pose=False)
+    assert bare.recognition.label == posed.recognition.label == "security_compound"
+    assert bare.recognition.pose is None and posed.recognition.pose is not None
+    assert np.array_equal(bare.H, posed.H)
+    tracker = Tracker(library, Settings(), camera, fps=FPS)
+    gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+    track = tracker._claim(bare.recognition, bare.H, bare.corners, gray.shape[1], gray.shape[0], gray, camera, 0)
+    assert track.pose is not None
+    assert np.linalg.norm(track.pose.t - posed.recognition.pose.t) < 0.01 * np.linalg.norm(posed.recognition.pose.t)
+    assert rotation_error_deg(track.pose.R, posed.recognition.pose.R) < 1.0
+
+
 def test_a_one_frame_sign_and_a_look_alike_never_become_tracks(library):
     plaques = [Plaque("security_compound", (0.0, -0.2), SIGN), Plaque(None, (0.9, -0.2), SIGN)]
     with_sign = render(library, plaques, hover(0.45, 1.8), 1)
