@@ -64,7 +64,8 @@ def mask_quads(gray: np.ndarray, quads: Sequence[np.ndarray]) -> np.ndarray:
 
 
 def recognize_every_sign(image: np.ndarray, library: Library, settings: Settings, camera: Camera | None = None, *,
-                         known: Sequence[np.ndarray] = (), most: int = MAX_SEARCHES) -> list[Recognition]:
+                         known: Sequence[np.ndarray] = (), most: int = MAX_SEARCHES,
+                         plaque_search_shrink: int = 1) -> list[Recognition]:
     """The recognitions of `image` ((H, W, 3) BGR or (H, W) gray uint8), one a search: each search
     masks out the quads ((4, 2) image px, TL TR BR BL) of the signs found before it and of `known`.
     Stops at the first search that finds no sign, or after `most` searches; the last recognition is
@@ -72,13 +73,15 @@ def recognize_every_sign(image: np.ndarray, library: Library, settings: Settings
     leaves out the full-frame fallback: a further sign is a plaque of its own, found among the
     blobs, and the fallback is the costliest part of a search that finds nothing.
 
-    Each recognition's image px are those of `image` (masking keeps the size)."""
+    Each recognition's image px are those of `image` (masking keeps the size); `plaque_search_shrink`
+    as for `recognize`."""
     gray = to_gray(image)
     beside = dataclasses.replace(settings, full_frame_fallback=False)
     hidden = list(known)
     recognitions: list[Recognition] = []
     for _ in range(most):
-        rec = recognize(mask_quads(gray, hidden) if hidden else image, library, beside if hidden else settings, camera)
+        rec = recognize(mask_quads(gray, hidden) if hidden else image, library, beside if hidden else settings, camera,
+                        plaque_search_shrink=plaque_search_shrink)
         recognitions.append(rec)
         if rec.label is None or rec.corners is None:
             break

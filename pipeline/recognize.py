@@ -482,7 +482,8 @@ def pipeline_errors(name: str) -> Iterator[None]:
 
 
 def recognize(image: np.ndarray, library: Library, settings: Settings, camera: Camera | None = None,
-              cache: StageCache | None = None, *, with_pose: bool = True) -> Recognition:
+              cache: StageCache | None = None, *, with_pose: bool = True,
+              plaque_search_shrink: int = 1) -> Recognition:
     """Recognise a library sign in an (H, W, 3) BGR or (H, W) gray uint8 image and estimate the camera pose.
 
     Without `camera`, a 60° horizontal field of view is assumed. When there is a pose, a warning
@@ -493,13 +494,15 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     matches, a ratio change re-uses features). The cache must be dropped with the image and
     whenever the library changes.
     `with_pose` False leaves the pose None, for a caller that fits its own to the answer's H (a
-    tracker re-anchoring a sign it follows, from the pose it had).
+    tracker re-anchoring a sign it follows, from the pose it had). `plaque_search_shrink`: the plaque
+    search cuts its lower gray levels in the image shrunk this many times (`cut_image`; 2 as the plaque
+    candidates are cut, losing more plaques under about 70 px across at 640 x 480).
     """
     t_start = time.perf_counter()
     gray = to_gray(image)
     height, width = gray.shape
     camera, warnings, approximate = image_camera(camera, width, height)
-    run = Run(gray, library, settings, camera, StageRunner(settings, cache))
+    run = Run(gray, library, settings, camera, StageRunner(settings, cache), plaque_search_shrink)
     # Pictures are no bright plaques: their crops, shrunk to max_crop_size, only cost accuracy.
     if settings.segment_mode == "threshold" and not library.pictures_only:
         run.segmentation = run.stages.run("segment", lambda: segment(gray, settings))
@@ -551,14 +554,16 @@ def image_camera(camera: Camera | None, width: int, height: int) -> tuple[Camera
 class Run:
     """The steps of one `recognize` call, over what they all read: the (H, W) uint8 `gray` image,
     the library, settings, the camera scaled to the image and the runner that times and caches
-    the stages; `segmentation` (None: `segment_mode` none), the largest blob's reading (`first`)
-    and the winners the text check turned down as they are found."""
+    the stages, how many times the plaque search shrinks the image it cuts at lower gray levels;
+    `segmentation` (None: `segment_mode` none), the largest blob's reading (`first`) and the winners
+    the text check turned down as they are found."""
 
     gray: np.ndarray = field(repr=False)
     library: Library
     settings: Settings
     camera: Camera
     stages: StageRunner
+    plaque_search_shrink: int = 1
     segmentation: Segmentation | None = field(default=None, repr=False)
     first: BlobReading | None = None
     turned_down: list[TurnedDown] = field(default_factory=list)
@@ -743,7 +748,9 @@ class Run:
         segmentation = self.segmentation
         assert segmentation is not None, "the plaque fallback reads the segmentation's blobs"
         plaque, notes = self.stages.run("plaque", lambda: find_plaque(self.gray, segmentation, self.library,
-                                                                      self.settings, self.quads))
+                                                                      self.settings, self.quads,
+                                                                      self.plaque_search_shrink),
+                                        (self.plaque_search_shrink,))
         warnings += notes
         if plaque is None or plaque.sign is None:
             return plaque, None
@@ -790,12 +797,14 @@ class Run:
 
 
 def find_plaque(gray: np.ndarray, segmentation: Segmentation, library: Library, settings: Settings,
-                quads: Callable[[int], Iterator[list[QuadCandidate]]]) -> tuple[PlaqueMatch | None, list[str]]:
+                quads: Callable[[int], Iterator[list[QuadCandidate]]],
+                shrink: int = 1) -> tuple[PlaqueMatch | None, list[str]]:
     """The plaque fallback: the candidate blobs read as plaques, then (`settings.plaque_search`)
-    the search among the `quads` at lower gray levels. Returns (the plaque or None, warnings to report)."""
+    the search among the `quads` at lower gray levels, cut in the image shrunk `shrink` times.
+    Returns (the plaque or None, warnings to report)."""
     plaque = read_plaques(gray, segmentation, library, settings)
     if (plaque is None or plaque.sign is None) and settings.plaque_search:
-        found = search_plaques(gray, ranked(quads(1)), library, settings)
+        found = search_plaques(gray, ranked(quads(shrink)), library, settings)
         if found is not None:
             return found[0], [f"plaque found by the search at lower gray levels (aligned correlation {found[1]:.2f})"]
     return plaque, []

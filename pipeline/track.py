@@ -99,6 +99,13 @@ class TrackerConfig:
     # tracked every `idle_interval_s`).
     search_interval_s: float = 0.5
     idle_interval_s: float = 0.2  # detector while nothing is tracked
+    # The plaque search's lower gray levels in a search beside followed tracks are cut in the frame
+    # shrunk this many times, as the plaque candidates' are: at full resolution the levels' connected
+    # components were a third of such a search. On the corridor flight, and on it rendered with
+    # another seed, every frame's answers and poses stayed the same at 2 (its far signs, 45-50 px wide,
+    # found beside each other on the second frame as before) for 5-11 % less of the tracker's CPU
+    # time; a plaque under about 70 px across that only this search finds may be found later.
+    beside_search_shrink: int = 2
     # Recognize calls per detection frame (one more per sign found). One: a search that finds a sign
     # makes a tentative track, which has the next frame searched with it masked out, so a second
     # search on this frame finds a sign beside it one frame sooner. On the corridor flight two took
@@ -491,7 +498,8 @@ class Tracker:
                 size = int(min(size or math.inf, self.config.idle_search_size))
             settings = dataclasses.replace(self.settings, affine_fallback=affine, max_search_size=size)
             recognitions = recognize_every_sign(gray, self.library, settings, camera, known=hidden,
-                                                most=self.config.searches_per_frame)
+                                                most=self.config.searches_per_frame,
+                                                plaque_search_shrink=self.config.beside_search_shrink if hidden else 1)
             seen += [(rec, rec.H, rec.corners) for rec in recognitions]
         # A sign mostly out of the frame would be lost again on the next frame: it is not followed.
         found = {self._claim(rec, H, corners, width, height, gray, camera, index).track_id

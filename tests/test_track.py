@@ -151,6 +151,30 @@ def test_a_check_estimates_no_pose_and_a_track_it_starts_gets_one_of_its_own(lib
     assert rotation_error_deg(track.pose.R, posed.recognition.pose.R) < 1.0
 
 
+def test_the_plaque_search_beside_a_followed_sign_cuts_the_frame_at_half_resolution(library, monkeypatch):
+    """Beside a followed sign the search for new ones cuts the plaque search's lower gray levels in
+    the frame shrunk twice (`TrackerConfig.beside_search_shrink`); with nothing followed, at full
+    resolution."""
+    from signpose.pipeline import recognize as recognize_module
+
+    shrinks: list[int] = []
+    find_plaque = recognize_module.find_plaque
+
+    def recorded(*args, **kwargs):
+        shrinks.append(args[5] if len(args) > 5 else kwargs.get("shrink", 1))
+        return find_plaque(*args, **kwargs)
+
+    monkeypatch.setattr(recognize_module, "find_plaque", recorded)
+    plaques = [Plaque("security_compound", (0.0, -0.2), SIGN), Plaque(None, (0.9, -0.2), SIGN)]
+    frames = render(library, plaques, hover(0.45, 1.8), 3)
+    for config, wanted in ((TrackerConfig(), 2), (TrackerConfig(beside_search_shrink=1), 1)):
+        shrinks.clear()
+        tracker = Tracker(library, Settings(), synthetic_camera(), fps=FPS, config=config)
+        results = [tracker.step(frame, index=i, time_s=i / FPS) for i, frame in enumerate(frames)]
+        assert [s.label for s in results[-1].signs] == ["security_compound"]
+        assert wanted in shrinks and set(shrinks) <= {1, wanted}, shrinks
+
+
 def test_a_one_frame_sign_and_a_look_alike_never_become_tracks(library):
     plaques = [Plaque("security_compound", (0.0, -0.2), SIGN), Plaque(None, (0.9, -0.2), SIGN)]
     with_sign = render(library, plaques, hover(0.45, 1.8), 1)
