@@ -555,8 +555,8 @@ class Run:
     """The steps of one `recognize` call, over what they all read: the (H, W) uint8 `gray` image,
     the library, settings, the camera scaled to the image and the runner that times and caches
     the stages, how many times the plaque search shrinks the image it cuts at lower gray levels;
-    `segmentation` (None: `segment_mode` none), the largest blob's reading (`first`) and the winners
-    the text check turned down as they are found."""
+    `segmentation` (None: `segment_mode` none), the largest blob's reading (`first`), the winners
+    the text check turned down as they are found and the quads cut so far by (shrink, level) (`quads`)."""
 
     gray: np.ndarray = field(repr=False)
     library: Library
@@ -567,6 +567,7 @@ class Run:
     segmentation: Segmentation | None = field(default=None, repr=False)
     first: BlobReading | None = None
     turned_down: list[TurnedDown] = field(default_factory=list)
+    cut_quads: dict[tuple[int, float], list[QuadCandidate]] = field(default_factory=dict, repr=False)
 
     def search_regions(self) -> tuple[list[Attempt], Refined | None]:
         """The candidate regions searched in order until a winner passes the text check: (the
@@ -670,7 +671,8 @@ class Run:
 
     def quads(self, shrink: int) -> Iterator[list[QuadCandidate]]:
         """The segmentation's plaque-shaped regions level by level (`cut_levels`), the levels other
-        than its threshold cut from the image shrunk `shrink` times."""
+        than its threshold cut from the image shrunk `shrink` times. A level is cut once a run: the
+        plaque fallback cutting at the plaque candidates' resolution reads their levels again."""
         segmentation = self.segmentation
         assert segmentation is not None, "quads are cut from a segmentation"
         read = (self.first.quad,) if self.first is not None and self.first.quad is not None else ()
@@ -678,8 +680,12 @@ class Run:
         image = functools.cache(lambda: cut_image(segmentation.source, segmentation.normalization, shrink))
 
         def cut(level: float, taken: Sequence[QuadCandidate]) -> list[QuadCandidate]:
-            return self.stages.run("quads", lambda: level_quads(self.gray, segmentation, self.library, self.settings,
-                                                                image, level, taken, read), (shrink, level))
+            # `taken` is what the brighter levels at this shrink gave: the same on each pass
+            if (shrink, level) not in self.cut_quads:
+                self.cut_quads[shrink, level] = self.stages.run(
+                    "quads", lambda: level_quads(self.gray, segmentation, self.library, self.settings, image, level,
+                                                 taken, read), (shrink, level))
+            return self.cut_quads[shrink, level]
 
         return cut_levels(cut, quad_levels(self.settings))
 
