@@ -91,20 +91,22 @@ class TrackerConfig:
     """
 
     detect_interval_s: float = 0.5  # detector checks of a track followed by its points alone
-    # Searches of the whole frame for new signs while every track is healthy. Each costs 11-32 ms on
-    # the corridor flight (`recognize`'s blobs, features and plaque quads, the tracks masked out);
-    # every 1 s rather than 0.5 s would take the tracker's CPU a frame from 6.99 to 6.18 ms, but a
+    # Searches of the whole frame for new signs while every track is healthy. Each costs 5-32 ms on
+    # the corridor flight, 13 ms median (`recognize`'s blobs, features and plaque quads, the tracks
+    # masked out; 11-32 ms with `beside_search_shrink` 1); every 1 s rather than 0.5 s took the
+    # tracker's CPU a frame from 6.99 to 6.18 ms (with `beside_search_shrink` 1), but a
     # sign coming into view beside a tracked one (the room's sign beside a corridor's) would be found
     # up to 1 s after it could be (a lost or weak track asks every `weak_retry_frames`, and nothing
     # tracked every `idle_interval_s`).
     search_interval_s: float = 0.5
     idle_interval_s: float = 0.2  # detector while nothing is tracked
     # The plaque search's lower gray levels in a search beside followed tracks are cut in the frame
-    # shrunk this many times, as the plaque candidates' are: at full resolution the levels' connected
-    # components were a third of such a search. On the corridor flight, and on it rendered with
-    # another seed, every frame's answers and poses stayed the same at 2 (its far signs, 45-50 px wide,
-    # found beside each other on the second frame as before) for 5-11 % less of the tracker's CPU
-    # time; a plaque under about 70 px across that only this search finds may be found later.
+    # shrunk this many times, as the plaque candidates' are (and then cut once for both): at full
+    # resolution the levels' connected components were over a third of such a search. On the corridor
+    # flight, on it rendered with another seed and on the sample flight every frame's answers and
+    # poses stayed the same at 2 (the far signs, 45-50 px wide, found beside each other on the second
+    # frame as before), the searches beside tracked signs 13.0 ms median against 19.6; a plaque under
+    # about 70 px across that only this search finds may be found later.
     beside_search_shrink: int = 2
     # Recognize calls per detection frame (one more per sign found). One: a search that finds a sign
     # makes a tentative track, which has the next frame searched with it masked out, so a second
