@@ -18,6 +18,7 @@ import numpy as np
 
 from .camera import Camera, CameraError
 from .image import to_gray
+from .outline import Outline
 from .library import Library
 from .pose import Pose
 from .recognize import Recognition, recognize
@@ -98,10 +99,21 @@ class Nearby:
     offset: tuple[int, int]
 
     @property
+    def shift(self) -> np.ndarray:
+        """(3, 3) the cut's px -> the image's px."""
+        return np.array([[1.0, 0, self.offset[0]], [0, 1, self.offset[1]], [0, 0, 1]])
+
+    @property
     def H(self) -> np.ndarray | None:
         """(3, 3) library px -> the image's px, or None."""
         H = self.recognition.H
-        return None if H is None else np.array([[1.0, 0, self.offset[0]], [0, 1, self.offset[1]], [0, 0, 1]]) @ H
+        return None if H is None else self.shift @ H
+
+    @property
+    def outline(self) -> Outline | None:
+        """The plaque outline that placed the sign, in the image's px, or None."""
+        outline = self.recognition.outline
+        return None if outline is None else outline.moved(self.shift)
 
     @property
     def corners(self) -> np.ndarray | None:

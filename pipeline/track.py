@@ -486,7 +486,7 @@ class Tracker:
                                  camera, quad=sign_corners(t.sign, followed[t.track_id].H if t.track_id in followed
                                                            else t.H), with_pose=False)
                   for t in checks]
-        seen = [(n.recognition, n.H, n.corners) for n in nearby]
+        seen = [(dataclasses.replace(n.recognition, outline=n.outline), n.H, n.corners) for n in nearby]
         recognitions: list[Recognition] = []
         if search:
             hidden = [sign_corners(t.sign, followed[t.track_id].H) for t in self.tracks
