@@ -486,7 +486,7 @@ class Tracker:
                                  camera, quad=sign_corners(t.sign, followed[t.track_id].H if t.track_id in followed
                                                            else t.H), with_pose=False)
                   for t in checks]
-        seen = [(dataclasses.replace(n.recognition, outline=n.outline), n.H, n.corners) for n in nearby]
+        seen = [(n.recognition, n.H, n.corners, n.outline) for n in nearby]
         recognitions: list[Recognition] = []
         if search:
             hidden = [sign_corners(t.sign, followed[t.track_id].H) for t in self.tracks
@@ -502,10 +502,10 @@ class Tracker:
             recognitions = recognize_every_sign(gray, self.library, settings, camera, known=hidden,
                                                 most=self.config.searches_per_frame,
                                                 plaque_search_shrink=self.config.beside_search_shrink if hidden else 1)
-            seen += [(rec, rec.H, rec.corners) for rec in recognitions]
+            seen += [(rec, rec.H, rec.corners, rec.outline) for rec in recognitions]
         # A sign mostly out of the frame would be lost again on the next frame: it is not followed.
-        found = {self._claim(rec, H, corners, width, height, gray, camera, index).track_id
-                 for rec, H, corners in seen if rec.label is not None and H is not None and corners is not None
+        found = {self._claim(rec, H, corners, outline, width, height, gray, camera, index).track_id
+                 for rec, H, corners, outline in seen if rec.label is not None and H is not None and corners is not None
                  and visible_fraction(corners, width, height) >= self.config.min_visible}
         # A tentative track the detector has not found `confirm_frames` times within
         # `confirm_window` frames is a look-alike (or too uncertain to report) and goes.
@@ -517,10 +517,11 @@ class Tracker:
                 self.tracks.remove(track)
         return recognitions, found
 
-    def _claim(self, rec: Recognition, H: np.ndarray, corners: np.ndarray, width: int, height: int, gray: np.ndarray,
-               camera: Camera, index: int) -> Track:
+    def _claim(self, rec: Recognition, H: np.ndarray, corners: np.ndarray, outline: Outline | None, width: int,
+               height: int, gray: np.ndarray, camera: Camera, index: int) -> Track:
         """The track a detection belongs to, re-anchored on it, or a new tentative one: `rec` names the
-        sign and gives its pose and outline, `H` (3, 3) and `corners` (4, 2) are in `gray`'s px."""
+        sign and gives its pose; `H` (3, 3), `corners` (4, 2) and the plaque `outline` that placed it
+        (or None) are in `gray`'s px."""
         assert rec.label is not None
         sign = self.library[rec.label]
         box = quad_box(corners, width, height)
@@ -542,13 +543,13 @@ class Tracker:
             if start is None:
                 start = estimate_pose(H, src, dst, sign, camera, self.settings.pose_method,
                                       self.settings.ambiguity_ratio)
-            if rec.outline is None:
+            if outline is None:
                 sigma = CORNER_SIGMA_PX["dense"]
             elif rec.pose is not None:
                 sigma = outline_corner_sigma(rec.pose.reprojection_rmse_px)
             else:
                 start = pose_near(start.R, start.t, src, dst, sign, camera, with_covariance=False)
-                sigma = outline_corner_sigma(outline_fit(start.R, start.t, rec.outline, sign, camera)[0])
+                sigma = outline_corner_sigma(outline_fit(start.R, start.t, outline, sign, camera)[0])
             pose = pose_near(start.R, start.t, src, dst, sign, camera, sigma)
         except PoseError:
             pass
@@ -559,7 +560,7 @@ class Tracker:
             self.tracks.append(mine)
         else:
             mine.pose, mine.H = pose, H
-        mine.misses, mine.weak, mine.outlined, mine.unanchored = 0, False, rec.outline is not None, 0
+        mine.misses, mine.weak, mine.outlined, mine.unanchored = 0, False, outline is not None, 0
         self._seed(mine, gray)
         return mine
 

@@ -145,10 +145,13 @@ def test_a_check_estimates_no_pose_and_a_track_it_starts_gets_one_of_its_own(lib
     assert np.array_equal(bare.H, posed.H)
     tracker = Tracker(library, Settings(), camera, fps=FPS)
     gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
-    track = tracker._claim(bare.recognition, bare.H, bare.corners, gray.shape[1], gray.shape[0], gray, camera, 0)
+    track = tracker._claim(bare.recognition, bare.H, bare.corners, bare.outline, gray.shape[1], gray.shape[0], gray, camera, 0)
     assert track.pose is not None
     assert np.linalg.norm(track.pose.t - posed.recognition.pose.t) < 0.01 * np.linalg.norm(posed.recognition.pose.t)
     assert rotation_error_deg(track.pose.R, posed.recognition.pose.R) < 1.0
+    # its corner σ measured on the outline in the frame's px, as recognize's (in the cut's, it read 200 px)
+    spread, posed_spread = (np.trace(p.covariance[3:, 3:]) for p in (track.pose, posed.recognition.pose))
+    assert posed_spread / 3 < spread < 3 * posed_spread
 
 
 def test_the_plaque_search_beside_a_followed_sign_cuts_the_frame_at_half_resolution(library, monkeypatch):
