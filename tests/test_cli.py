@@ -719,19 +719,24 @@ def console_script() -> list[str]:
 @pytest.mark.parametrize("signum, said", [(signal.SIGINT, "interrupted"), (signal.SIGTERM, "stopped by SIGTERM")])
 def test_a_signal_while_the_command_is_still_starting_is_one_line_and_128_plus_it(signum, said):
     # -X importtime writes a line to stderr as each module finishes importing: once numpy has, the
-    # CLI's imports (OpenCV, FastAPI, the pipeline: 0.2 s more) are under way. Every sample scene, so
-    # that the command is still at work when the signal comes from a test process kept waiting by a
-    # busy machine (with one image it had ended, exit status 0).
+    # CLI's imports (OpenCV, FastAPI, the pipeline) are under way. Its stderr is a pipe of one page,
+    # left unread until the signal is sent: the command cannot finish its imports before it comes
+    # (a test process kept waiting by a busy machine saw every image done, exit status 0).
     images = sorted(SCENES.glob("*.jpg"))
     command = [sys.executable, "-X", "importtime", *console_script()[1:], "recognize", *images]
-    proc = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    for line in proc.stderr:
-        if line.split("|")[-1].strip() == "numpy":
-            break
-    else:
-        raise AssertionError("numpy was never imported")
-    proc.send_signal(signum)
-    _, err = proc.communicate(timeout=60)
+    read_end, write_end = os.pipe()
+    fcntl.fcntl(write_end, fcntl.F_SETPIPE_SZ, 4096)
+    proc = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=write_end)
+    os.close(write_end)
+    with os.fdopen(read_end, encoding="utf-8") as stderr:
+        for line in stderr:
+            if line.split("|")[-1].strip() == "numpy":
+                break
+        else:
+            raise AssertionError("numpy was never imported")
+        proc.send_signal(signum)
+        err = stderr.read()
+    proc.wait(timeout=60)
     assert proc.returncode == 128 + signum, err
     assert "Traceback" not in err and "KeyboardInterrupt" not in err and "Interrupted" not in err
     assert re.fullmatch(rf"signpose( recognize)?: {said}( after \d+ of {len(images)} images)?", err.splitlines()[-1])
