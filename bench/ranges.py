@@ -9,8 +9,8 @@ a frame takes to decode and to track, what a range's worker spends on the frames
 
     python bench/ranges.py [--flight sample_images/flights/corridor] [--chunk-frames 50] [--warm-up 0 30]
 
-The differences are not times: run them without the lock. The decode and track times are: run those under
-`flock /work/bench.lock`.
+The differences are not times; the decode and track times are: measure those with nothing else
+running (`--no-times` leaves them out).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Scaling on a Dask cluster: 2 workers against 1, the cost of Dask per image against the local pool, and a
 simulation of 1 to 16 workers with the work stubbed by the measured per-image times.
 
-    flock /work/bench.lock python bench/scale.py [--n 200] [--chunk 8] [--data DIR]
+    python bench/scale.py [--n 200] [--chunk 8] [--data DIR]
 
 1. The same N synthetic scenes (pipeline.synth, seed 0, rendered once into --data) evaluated by the local
    process pool (`measure`, 1 and 2 processes) and by `signpose evaluate --dask`'s code (`recognize_all`
