@@ -6,6 +6,7 @@ browser says so with a module-level `pytestmark`; single tests that take seconds
 
 from __future__ import annotations
 
+import signal
 from collections.abc import Callable
 
 import pytest
@@ -17,6 +18,10 @@ from tests.support import browser_harness as harness
 from tests.support.browser_harness import FAILED
 
 SegmentationFault = Callable[[Callable[[int, Settings], bool]], None]
+
+# A run started in the background of a non-interactive shell ignores SIGINT, and the commands these
+# tests start would inherit that and never see their Ctrl-C. Handled here, it is default in them.
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="session")
