@@ -33,20 +33,25 @@ class Interrupted(KeyboardInterrupt):
 
 
 @contextlib.contextmanager
-def stopping_on_signals() -> Iterator[None]:
-    """Inside, STOP_SIGNALS raise Interrupted in the main thread, as SIGINT raises KeyboardInterrupt; after, they do
-    what they did before (the CLI may run inside another program, a test). By default they end the process at
-    once: evaluate's worker processes went on without it, then waited forever to hand their results to nobody."""
-    before = {signum: signal.signal(signum, _raise_interrupted) for signum in STOP_SIGNALS}
+def stopping_on_signals() -> Iterator[list[int]]:
+    """Inside, STOP_SIGNALS raise Interrupted in the main thread, and so does SIGINT where it raised KeyboardInterrupt
+    (not where it is ignored, as in a shell's background job); after, they do what they did before (the CLI may run
+    inside another program, a test). By default STOP_SIGNALS end the process at once: evaluate's worker processes
+    went on without it, then waited forever to hand their results to nobody. Yields the signals raised so far, in
+    order: a signal whose Interrupted something caught and dropped is still there."""
+    raised: list[int] = []
+
+    def raise_interrupted(signum: int, frame: object) -> None:
+        raised.append(signum)
+        raise Interrupted(signum)
+
+    handled = STOP_SIGNALS + ((signal.SIGINT,) if signal.getsignal(signal.SIGINT) is signal.default_int_handler else ())
+    before = {signum: signal.signal(signum, raise_interrupted) for signum in handled}
     try:
-        yield
+        yield raised
     finally:
         for signum, handler in before.items():
             signal.signal(signum, handler)
-
-
-def _raise_interrupted(signum: int, frame: object) -> None:
-    raise Interrupted(signum)
 
 
 def interrupted(command: str, exc: KeyboardInterrupt) -> int:
@@ -60,10 +65,14 @@ def interrupted(command: str, exc: KeyboardInterrupt) -> int:
 
 
 def main() -> int:
-    with stopping_on_signals():
+    with stopping_on_signals() as raised:
         try:
             from signpose.app.cli import main as cli_main
 
+            # A C extension initialising clears the errors of the Python it calls, a signal's among them: a
+            # Ctrl-C in the import was lost 1 time in 100 or so, and the command ran to its end.
+            if raised:
+                raise Interrupted(raised[-1])
             return cli_main()
         except KeyboardInterrupt as exc:  # while importing or parsing arguments: the command handles its own
             return interrupted("signpose", exc)

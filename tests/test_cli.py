@@ -2,6 +2,7 @@
 the process is what is tested (what C libraries write to its stderr, signals, terminals, pipes)."""
 
 import argparse
+import contextlib
 import fcntl
 import json
 import os
@@ -16,6 +17,7 @@ import tempfile
 import termios
 import time
 import tomllib
+import types
 from pathlib import Path
 
 import cv2
@@ -760,6 +762,23 @@ def test_a_signal_while_a_c_extension_loads_is_one_line_and_128_plus_it(monkeypa
     monkeypatch.setattr(cli, "main", lambda argv=None: __import__("no_such_module_of_signpose"))
     with pytest.raises(ImportError, match="no_such_module_of_signpose"):   # not an interruption: as it was
         console_main()
+
+
+def test_a_ctrl_c_dropped_while_the_command_imports_still_stops_it(monkeypatch, capsys):
+    """A C extension initialising clears the errors of the Python it calls: a Ctrl-C raised there was lost, and
+    the command ran to its end with exit status 0."""
+    from signpose.app.entry import main as console_main
+
+    def importing(name):
+        with contextlib.suppress(KeyboardInterrupt):   # as the extension's init does
+            signal.raise_signal(signal.SIGINT)
+        return lambda argv=None: pytest.fail("the command ran")
+
+    loading = types.ModuleType("signpose.app.cli")
+    loading.__getattr__ = importing   # type: ignore[method-assign]
+    monkeypatch.setitem(sys.modules, "signpose.app.cli", loading)
+    assert console_main() == 128 + signal.SIGINT
+    assert capsys.readouterr().err == "signpose: interrupted\n"
 
 
 def test_a_reader_that_stops_early_ends_the_output_quietly():
