@@ -1594,7 +1594,7 @@ def settled_view(viewer, timeout: float = 30) -> list[float]:
     raise AssertionError(f"the view never stayed in one place: last at {last}")
 
 
-def test_each_3d_viewer_is_framed_at_its_own_scale(browser, base):
+def test_each_3d_viewer_is_framed_at_its_own_scale(browser, base, api):
     """The scale viewers' pages said (device px to the CSS px) was kept by their canvas' size in device
     px, the same for a view 400×800 CSS px on a screen of two device px to the CSS px and one 800×1600
     on a screen of one: the one said last held for both, and the wider view, framed with room for its
@@ -1603,6 +1603,12 @@ def test_each_3d_viewer_is_framed_at_its_own_scale(browser, base):
     wide = viser_viewer(browser, base, 800, 1600, 1)
     viewers = [wide]
     try:
+        # The scene drops a previous test's cameras on its own thread, after their images went: each
+        # viewer, framed as they go, would be framed for another scene than the one before it.
+        posed = sum(api.get(f"/api/images/{i['id']}").json()["result"]["pose"] is not None
+                    for i in api.get("/api/images").json()["images"] if i["label"])
+        wide.wait_for_function("n => Object.keys(window.__viserSceneTree.getState())"
+                               ".filter((name) => /\\/cameras\\/[^/]+$/.test(name)).length === n", arg=posed, timeout=30_000)
         alone = settled_view(wide)
         viewers += [viser_viewer(browser, base, 400, 800, 2), viser_viewer(browser, base, 400, 800, 1)]
         sharp, plain = (settled_view(v) for v in viewers[1:])
