@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 from .camera import Camera, CameraError, camera_from_json
-from .image import ImageError, check_image_header, decode_image, read_file
+from .image import ImageError, check_image_header, decode_image, decoders_kept_quiet, read_file
 
 # The largest frame read, as for photos (app.workspace.WorkspaceConfig.max_pixels).
 DEFAULT_MAX_PIXELS = 40_000_000
@@ -231,7 +231,11 @@ class VideoSource(FrameSource):
     def __init__(self, name: str, *, device: int | None = None, live: bool = False, max_pixels: int) -> None:
         super().__init__(name, max_pixels=max_pixels)
         self.live = live or device is not None
-        self.capture = cv2.VideoCapture(device if device is not None else name)
+        if self.live:
+            self.capture = cv2.VideoCapture(device if device is not None else name)
+        else:  # FFmpeg logs why it cannot open a file ("moov atom not found"), which is said below in other words
+            with decoders_kept_quiet():
+                self.capture = cv2.VideoCapture(name)
         if not self.capture.isOpened():
             self.capture.release()
             if device is not None:
@@ -311,7 +315,7 @@ def _unopened_video(path: Path) -> str:
     container = next((kind for kind, test in _CONTAINERS.items() if test(head)), None)
     if container is None:
         return "not a video file OpenCV's FFmpeg reads (or one truncated or corrupt)"
-    return (f"a {container} file OpenCV's FFmpeg cannot open: truncated, corrupt, or in a codec it cannot decode "
+    return (f"OpenCV's FFmpeg cannot open this {container} file: truncated, corrupt, or in a codec it cannot decode "
             "(re-encode it as H.264)")
 
 

@@ -11,7 +11,7 @@ import tempfile
 import threading
 import warnings
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
 from typing import IO, NamedTuple
 
@@ -75,11 +75,13 @@ _NOT_FILES = {stat.S_IFDIR: "a directory", stat.S_IFIFO: "a named pipe (FIFO)", 
               stat.S_IFCHR: "a device", stat.S_IFBLK: "a device"}
 
 
-# What decoders print on the process's stderr of an image signpose refuses, or reads, saying so in its own words:
-# libjpeg's warnings on corrupt data, libpng's, and OpenCV's log of a decode that failed (and the blank line after).
+# What decoders print on the process's stderr of an image or video signpose refuses, or reads, saying so in its own
+# words: libjpeg's warnings on corrupt data, libpng's, OpenCV's log of a decode that failed (and the blank line
+# after), and FFmpeg's log lines ("[mov,mp4,m4a,3gp,3g2,mj2 @ 0x55d0c1a2b3c0] moov atom not found").
 _DECODER_CHATTER = re.compile(
     rb"^(?:Corrupt JPEG data|Premature end of JPEG file|Invalid SOS parameters|Inconsistent progression|"
-    rb"Warning: unknown JFIF|libpng (?:warning|error)|\[ ?(?:WARN|ERROR):[^\]\n]*\] global (?:loadsave|grfmt))"
+    rb"Warning: unknown JFIF|libpng (?:warning|error)|\[ ?(?:WARN|ERROR):[^\]\n]*\] global (?:loadsave|grfmt)|"
+    rb"\[[^\]\n]+ @ 0x[0-9a-f]+\] )"
     rb"[^\n]*\n\n?", re.MULTILINE)
 
 
@@ -624,9 +626,15 @@ def decode_image(data: bytes, name: str = "image", as_stored: bool = False) -> n
     return image if as_stored else turned(image, orientation)
 
 
+def decoders_kept_quiet() -> AbstractContextManager[None]:
+    """A context in which what the decoders print on stderr (_DECODER_CHATTER) is kept off it (`_StderrCapture`):
+    around a decode whose failure signpose says in its own words."""
+    return _STDERR_CAPTURE.capturing()
+
+
 def _imdecode(buf: np.ndarray, flags: int) -> np.ndarray | None:
-    """cv2.imdecode, with what the decoders print on stderr (_DECODER_CHATTER) kept off it (`_StderrCapture`)."""
-    with _STDERR_CAPTURE.capturing():
+    """cv2.imdecode, its decoders kept quiet (`decoders_kept_quiet`)."""
+    with decoders_kept_quiet():
         return cv2.imdecode(buf, flags)
 
 

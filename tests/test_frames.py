@@ -199,15 +199,18 @@ def test_real_footage_cut_short_reads_what_is_there_then_says_it_is_truncated(tm
     assert str(info.value) == f"{cut}: frames end at {len(read)} of the 456 its container lists: the file is truncated or corrupt"
 
 
-def test_a_truncated_or_corrupt_video_is_refused_when_opened(tmp_path):
+def test_a_truncated_or_corrupt_video_is_refused_when_opened(tmp_path, capfd):
+    """Each in signpose's words alone: FFmpeg's own log of it ("[mov,mp4,m4a,3gp,3g2,mj2 @ 0x55d0c1a2b3c0] moov
+    atom not found") was printed above them."""
     data = _write_mp4(tmp_path / "clip.mp4").read_bytes()
     (tmp_path / "cut.mp4").write_bytes(data[:len(data) // 2])  # mp4v puts its index (moov) last: it is lost
-    assert _error(tmp_path / "cut.mp4") == (f"{tmp_path / 'cut.mp4'}: a MP4/MOV file OpenCV's FFmpeg cannot open: "
+    assert _error(tmp_path / "cut.mp4") == (f"{tmp_path / 'cut.mp4'}: OpenCV's FFmpeg cannot open this MP4/MOV file: "
                                             "truncated, corrupt, or in a codec it cannot decode (re-encode it as H.264)")
-    (tmp_path / "text.avi").write_text("not a video at all")
-    assert _error(tmp_path / "text.avi") == (f"{tmp_path / 'text.avi'}: not a video file OpenCV's FFmpeg reads (or one "
+    (tmp_path / "text.mp4").write_text("not a video at all")
+    assert _error(tmp_path / "text.mp4") == (f"{tmp_path / 'text.mp4'}: not a video file OpenCV's FFmpeg reads (or one "
                                              "truncated or corrupt)")
     assert "each frame is 64x48 px" in _error(tmp_path / "clip.mp4", max_pixels=1000)
+    assert capfd.readouterr().err == ""
 
 
 def test_a_codec_opencv_cannot_decode_is_named(tmp_path):
@@ -217,8 +220,8 @@ def test_a_codec_opencv_cannot_decode_is_named(tmp_path):
     data = (tmp_path / "clip.avi").read_bytes()
     assert data.count(b"MJPG") == 2  # the stream header's and the format's codec, which FFmpeg reads
     (tmp_path / "odd.avi").write_bytes(data.replace(b"MJPG", b"ZZZZ"))
-    assert _error(tmp_path / "odd.avi") == (f"{tmp_path / 'odd.avi'}: a AVI file OpenCV's FFmpeg cannot open: truncated, "
-                                            "corrupt, or in a codec it cannot decode (re-encode it as H.264)")
+    assert _error(tmp_path / "odd.avi") == (f"{tmp_path / 'odd.avi'}: OpenCV's FFmpeg cannot open this AVI file: "
+                                            "truncated, corrupt, or in a codec it cannot decode (re-encode it as H.264)")
 
 
 def test_live_cameras_and_streams_that_cannot_be_opened_say_so():
