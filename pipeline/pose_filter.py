@@ -119,8 +119,8 @@ def process_noise(dt: float, angular_density: float, linear_density: float) -> n
 @dataclass
 class PoseFilter:
     """Constant-velocity filter of one sign's camera pose; `update` takes each frame's measured
-    `Pose` at `time_s` and returns the filtered one, `predict_pose` the filter's guess for a
-    frame without a measurement. The first measurement starts it at rest."""
+    `Pose` at `time_s` and returns the filtered one; for a frame without a measurement, `predict`
+    moves it to the frame's time and `pose` is its guess. The first measurement starts it at rest."""
 
     angular_density: float = ANGULAR_ACCELERATION_DENSITY
     linear_density: float = LINEAR_ACCELERATION_DENSITY

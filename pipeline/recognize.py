@@ -493,8 +493,9 @@ def recognize(image: np.ndarray, library: Library, settings: Settings, camera: C
     re-uses every stage the change does not affect (a RANSAC change re-uses features and
     matches, a ratio change re-uses features). The cache must be dropped with the image and
     whenever the library changes.
-    `with_pose` False leaves the pose None, for a caller that fits its own to the answer's H (a
-    tracker re-anchoring a sign it follows, from the pose it had). `plaque_search_shrink`: the plaque
+    `with_pose` False leaves the pose None, and the warnings that come with a pose (the partial view,
+    the strips read, the refinement's notes) unsaid, for a caller that fits its own pose to the
+    answer's H (a tracker re-anchoring a sign it follows, from the pose it had). `plaque_search_shrink`: the plaque
     search cuts its lower gray levels in the image shrunk this many times (`cut_image`; 2 as the plaque
     candidates are cut, losing more plaques under about 70 px across at 640 x 480).
     """

@@ -538,7 +538,8 @@ class Tracker:
         # alignment's.
         start = rec.pose if mine is None else mine.pose or rec.pose
         pose = rec.pose
-        src, dst = grid_correspondences(H, sign)
+        # Through a distorting lens the outline's H is exact at its corners alone; its grid is not.
+        src, dst = outline.grid(sign, camera) if outline is not None else grid_correspondences(H, sign)
         try:
             if start is None:
                 start = estimate_pose(H, src, dst, sign, camera, self.settings.pose_method,
@@ -582,6 +583,10 @@ class Tracker:
             if track.pose is not None:
                 track.filtered = track.pose_filter.update(
                     filter_measurement(track.pose, track.unanchored, track.sign, camera), time_s)
+            elif track.pose_filter.started:
+                # No pose measured on this frame: the filter's prediction, as uncertain as the time since says.
+                track.pose_filter.predict(time_s)
+                track.filtered = track.pose_filter.pose()
             if not track.confirmed:
                 continue
             state = "detected" if track.track_id in detected else "tracked"
@@ -598,14 +603,17 @@ class Tracker:
         if step.outline is not None:
             # The points' library px re-read through the outline's H: their drift does not build up.
             src = cv2.perspectiveTransform(step.dst.reshape(-1, 1, 2), np.linalg.inv(step.H)).reshape(-1, 2)
-        if track.pose is not None:
-            try:
-                track.pose = self._tracked_pose(track.sign, track.pose, step, src, camera)
-                if track.pose.reprojection_rmse_px > self.config.max_rmse_px:
-                    track.weak = True
-            except PoseError as exc:
-                warnings.append(f"track {track.track_id} ({track.sign.id}): no pose: {exc}")
-                track.pose = None
+        try:
+            # A track whose pose was lost on an earlier frame has it estimated afresh: else it stayed
+            # without one for as long as it was followed.
+            start = track.pose or estimate_pose(step.H, src, step.dst, track.sign, camera, self.settings.pose_method,
+                                                self.settings.ambiguity_ratio, with_covariance=False)
+            track.pose = self._tracked_pose(track.sign, start, step, src, camera)
+            if track.pose.reprojection_rmse_px > self.config.max_rmse_px:
+                track.weak = True
+        except PoseError as exc:
+            warnings.append(f"track {track.track_id} ({track.sign.id}): no pose: {exc}")
+            track.pose = None
         if step.weak:
             self._seed(track, gray)
         else:
