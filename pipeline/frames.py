@@ -20,6 +20,7 @@ import math
 import re
 import time
 from collections.abc import Iterator, Sequence
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -231,11 +232,8 @@ class VideoSource(FrameSource):
     def __init__(self, name: str, *, device: int | None = None, live: bool = False, max_pixels: int) -> None:
         super().__init__(name, max_pixels=max_pixels)
         self.live = live or device is not None
-        if self.live:
+        with self._quiet():
             self.capture = cv2.VideoCapture(device if device is not None else name)
-        else:  # FFmpeg logs why it cannot open a file ("moov atom not found"), which is said below in other words
-            with decoders_kept_quiet():
-                self.capture = cv2.VideoCapture(name)
         if not self.capture.isOpened():
             self.capture.release()
             if device is not None:
@@ -248,18 +246,25 @@ class VideoSource(FrameSource):
         count = self.capture.get(cv2.CAP_PROP_FRAME_COUNT)
         self.count = int(count) if not self.live and math.isfinite(count) and count > 0 else None
         width, height = (int(self.capture.get(p)) for p in (cv2.CAP_PROP_FRAME_WIDTH, cv2.CAP_PROP_FRAME_HEIGHT))
-        try:
-            self.check_size(width, height, "each frame")
-            ok, first = self.capture.read()
-            if not ok or first is None:
-                raise SourceError(f"{name}: {'no frame arrives' if self.live else 'opens but no frame decodes'} "
-                                  f"(codec {self.codec()!r}: one OpenCV's FFmpeg cannot decode, or the data is "
-                                  "corrupt)")
-        except SourceError:
-            self.capture.release()
-            raise
+        # Until a refused file is released: FFmpeg's decoder threads log the frames they drop meanwhile.
+        with self._quiet():
+            try:
+                self.check_size(width, height, "each frame")
+                ok, first = self.capture.read()
+                if not ok or first is None:
+                    raise SourceError(f"{name}: {'no frame arrives' if self.live else 'opens but no frame decodes'} "
+                                      f"(codec {self.codec()!r}: one OpenCV's FFmpeg cannot decode, or the data is "
+                                      "corrupt)")
+            except SourceError:
+                self.capture.release()
+                raise
         self.first: np.ndarray | None = first
         self.first_clock = time.monotonic()
+
+    def _quiet(self) -> AbstractContextManager[None]:
+        """FFmpeg's log kept off stderr while a file is opened and checked: why it is refused ("moov atom
+        not found") is said in signpose's words. A live source's log is kept: it names the refusal."""
+        return nullcontext() if self.live else decoders_kept_quiet()
 
     def codec(self) -> str:
         """The stream's FourCC as text ("avc1", "mp4v", ...), "unknown" when OpenCV gives none."""

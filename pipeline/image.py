@@ -77,11 +77,12 @@ _NOT_FILES = {stat.S_IFDIR: "a directory", stat.S_IFIFO: "a named pipe (FIFO)", 
 
 # What decoders print on the process's stderr of an image or video signpose refuses, or reads, saying so in its own
 # words: libjpeg's warnings on corrupt data, libpng's, OpenCV's log of a decode that failed (and the blank line
-# after), and FFmpeg's log lines ("[mov,mp4,m4a,3gp,3g2,mj2 @ 0x55d0c1a2b3c0] moov atom not found").
+# after), and FFmpeg's log lines ("[mov,mp4,m4a,3gp,3g2,mj2 @ 0x55d0c1a2b3c0] moov atom not found", coloured
+# when its first line went to a terminal).
 _DECODER_CHATTER = re.compile(
     rb"^(?:Corrupt JPEG data|Premature end of JPEG file|Invalid SOS parameters|Inconsistent progression|"
     rb"Warning: unknown JFIF|libpng (?:warning|error)|\[ ?(?:WARN|ERROR):[^\]\n]*\] global (?:loadsave|grfmt)|"
-    rb"\[[^\]\n]+ @ 0x[0-9a-f]+\] )"
+    rb"(?:\x1b\[[0-9;]*m)?\[[^\]\n]+ @ 0x[0-9a-f]+\] )"
     rb"[^\n]*\n\n?", re.MULTILINE)
 
 

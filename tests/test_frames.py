@@ -210,7 +210,22 @@ def test_a_truncated_or_corrupt_video_is_refused_when_opened(tmp_path, capfd):
     assert _error(tmp_path / "text.mp4") == (f"{tmp_path / 'text.mp4'}: not a video file OpenCV's FFmpeg reads (or one "
                                              "truncated or corrupt)")
     assert "each frame is 64x48 px" in _error(tmp_path / "clip.mp4", max_pixels=1000)
+    damaged = bytearray(data)
+    start, end = damaged.find(b"mdat") + 4, damaged.find(b"moov") - 4
+    damaged[start:end] = bytes(end - start)  # its frames' data zeros, its index (moov, last) whole
+    (tmp_path / "zeroed.mp4").write_bytes(damaged)
+    assert _error(tmp_path / "zeroed.mp4") == (f"{tmp_path / 'zeroed.mp4'}: opens but no frame decodes (codec 'FMP4': "
+                                               "one OpenCV's FFmpeg cannot decode, or the data is corrupt)")
     assert capfd.readouterr().err == ""
+
+
+def test_ffmpegs_log_lines_are_told_apart_from_other_lines_coloured_or_not():
+    """FFmpeg colours its lines when its first went to a terminal: ESC[...m before the bracket."""
+    from signpose.pipeline.image import _DECODER_CHATTER
+
+    text = (b"\x1b[0;33m[mov,mp4,m4a,3gp,3g2,mj2 @ 0x55d0c1a2b3c0] \x1b[0m\x1b[1;31mmoov atom not found\n\x1b[0m"
+            b"[mpeg4 @ 0x56214f342fc0] header damaged\nframe 3 of 9 [tracked]\n[2 @ 1] not FFmpeg's\n")
+    assert _DECODER_CHATTER.sub(b"", text) == b"frame 3 of 9 [tracked]\n[2 @ 1] not FFmpeg's\n"
 
 
 def test_a_codec_opencv_cannot_decode_is_named(tmp_path):
