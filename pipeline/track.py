@@ -57,8 +57,9 @@ from .image import to_gray
 from .library import Library, LibrarySign
 from .localise import CameraInMap, locate_in_map
 from .outline import Outline, outline_corner_sigma, outline_fit, outline_pose, refine_outline
-from .plaque import grid_correspondences, sign_corners
-from .pose import CORNER_SIGMA_PX, Pose, PoseError, estimate_pose, pose_near, with_corner_floor
+from .plaque import grid_correspondences, sign_corners, sign_to_quad
+from .pose import (CORNER_SIGMA_PX, Pose, PoseError, distort_pixels, estimate_pose, pose_near, undistort_pixels,
+                   with_corner_floor)
 from .pose_filter import PoseFilter
 from .recognize import Recognition, image_camera, quad_problem, uses_outline
 from .segment import Box, box_iou
@@ -236,6 +237,14 @@ class Track:
     @property
     def corners(self) -> np.ndarray:
         return sign_corners(self.sign, self.H)
+
+    def ideal_H(self, camera: Camera) -> np.ndarray:
+        """(3, 3) library px -> px of an ideal pinhole camera with `camera`'s K, through the corners:
+        the plane's homography. Through a distorting lens no homography maps it to the image's px,
+        and `H`, through the corners as seen, is exact at them alone (as `Outline.H`)."""
+        if not camera.has_distortion:
+            return self.H
+        return sign_to_quad(self.sign, undistort_pixels(self.corners, camera))
 
 
 @dataclass(frozen=True, eq=False)
@@ -426,10 +435,14 @@ class Tracker:
             return None
         src, dst = track.src[good], p1.reshape(-1, 2)[good].astype(np.float64) + (x0, y0)
         # USAC_FAST: 0.03 ms a call on the corridor flight's tracks (12 points median) against cv2.RANSAC's
-        # 0.15, with the same recall and position errors there.
-        H, inliers = cv2.findHomography(src, dst, cv2.USAC_FAST, cfg.ransac_px)
+        # 0.15, with the same recall and position errors there. Fitted in the ideal pinhole's px, where
+        # the plane's points keep to a homography whatever the lens (a sign filling a frame of k1 -0.25
+        # lost its outline there, and its points' H put corners 5-14 px off).
+        H, inliers = cv2.findHomography(src, undistort_pixels(dst, camera), cv2.USAC_FAST, cfg.ransac_px)
         if H is None:
             return None
+        if camera.has_distortion:
+            H = sign_to_quad(track.sign, distort_pixels(sign_corners(track.sign, H), camera))
         inl = inliers.ravel().astype(bool)
         if inl.sum() < cfg.min_points or inl.mean() < cfg.min_inlier_ratio:
             return None
@@ -449,7 +462,7 @@ class Tracker:
                 return Followed(outline.H, src[inl], dst[inl], weak, outline)
         return Followed(H, src[inl], dst[inl], weak)
 
-    def _seed(self, track: Track, gray: np.ndarray) -> None:
+    def _seed(self, track: Track, gray: np.ndarray, camera: Camera) -> None:
         """New points for `track`: corners inside its quad in `gray`, their library px through its H."""
         cfg = self.config
         height, width = gray.shape
@@ -466,8 +479,8 @@ class Tracker:
             if found is not None:
                 points = (found.reshape(-1, 2) + (x0, y0)).astype(np.float32)
         track.points, track.seeded = points, len(points)
-        track.src = cv2.perspectiveTransform(points.astype(np.float64).reshape(-1, 1, 2),
-                                             np.linalg.inv(track.H)).reshape(-1, 2)
+        track.src = cv2.perspectiveTransform(undistort_pixels(points, camera).reshape(-1, 1, 2),
+                                             np.linalg.inv(track.ideal_H(camera))).reshape(-1, 2)
         track.reference = gray
 
     # -- detecting ---------------------------------------------------------------------------
@@ -562,7 +575,7 @@ class Tracker:
         else:
             mine.pose, mine.H = pose, H
         mine.misses, mine.weak, mine.outlined, mine.unanchored = 0, False, outline is not None, 0
-        self._seed(mine, gray)
+        self._seed(mine, gray, camera)
         return mine
 
     # -- reporting ---------------------------------------------------------------------------
@@ -601,8 +614,9 @@ class Tracker:
         track.unanchored = 0 if track.outlined else track.unanchored + 1
         src = step.src
         if step.outline is not None:
-            # The points' library px re-read through the outline's H: their drift does not build up.
-            src = cv2.perspectiveTransform(step.dst.reshape(-1, 1, 2), np.linalg.inv(step.H)).reshape(-1, 2)
+            # The points' library px re-read through the outline: their drift does not build up.
+            src = cv2.perspectiveTransform(undistort_pixels(step.dst, camera).reshape(-1, 1, 2),
+                                           np.linalg.inv(step.outline.ideal_H)).reshape(-1, 2)
         try:
             # A track whose pose was lost on an earlier frame has it estimated afresh: else it stayed
             # without one for as long as it was followed.
@@ -615,7 +629,7 @@ class Tracker:
             warnings.append(f"track {track.track_id} ({track.sign.id}): no pose: {exc}")
             track.pose = None
         if step.weak:
-            self._seed(track, gray)
+            self._seed(track, gray, camera)
         else:
             track.points, track.src, track.reference = step.dst.astype(np.float32), src, gray
 
