@@ -17,7 +17,12 @@ filtered poses against the truth under their own covariances, over [rotation vec
 honest covariance gives a median of 5.35 and a p90 of 10.6, chi-squared), within and beyond
 MAX_DISTANCE_M.
 
-    python bench/track.py [--flight DIR] [--duration 12] [--json OUT]
+    python bench/track.py [--flight DIR] [--duration 12] [--lens=K1,K2] [--json OUT]
+
+With --lens (written --lens=-0.25,0.08, as its value may start with a minus) the frames are seen
+through a lens of radial distortion k1, k2 (each rendered pinhole frame remapped, outside both
+methods' time) and both methods are given that camera; a sign is in view where its corners, so
+distorted, are in the frame.
 
 Without --flight the 12 s corridor flight is rendered into the temp folder (once; re-used until the
 renderer's `RENDERING` changes).
@@ -41,7 +46,7 @@ import numpy as np
 from signpose.pipeline.camera import Camera, load_camera
 from signpose.pipeline.flight_truth import MAX_DISTANCE_M, MIN_WIDTH_PX
 from signpose.pipeline.library import Library, load_library
-from signpose.pipeline.pose import Pose
+from signpose.pipeline.pose import Pose, distort_pixels, undistort_pixels
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import Settings
 from signpose.pipeline.synth import synthetic_camera
@@ -149,11 +154,34 @@ def clocks() -> tuple[float, float]:
     return time.perf_counter(), time.thread_time()
 
 
-def measure(video: Path, truth: dict, methods: dict[str, Answer]) -> list[Tally]:
+def through_lens(camera: Camera, width: int, height: int) -> tuple[Callable[[np.ndarray], np.ndarray],
+                                                                  Callable[[dict], dict]]:
+    """(frame -> the frame as `camera`'s distorting lens shows it, frame truth -> the same with each sign
+    in view where its corners, distorted, are in the frame), for frames rendered by a pinhole with its K."""
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
+    pinhole = undistort_pixels(np.column_stack([xs.ravel(), ys.ravel()]), camera).astype(np.float32)
+    map_x, map_y = pinhole[:, 0].reshape(height, width), pinhole[:, 1].reshape(height, width)
+
+    def frame(image: np.ndarray) -> np.ndarray:
+        return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR)
+
+    def truth(frame_truth: dict) -> dict:
+        def in_view(sign: dict) -> bool:
+            corners = distort_pixels(np.array(sign["corners"]), camera)
+            return sign["in_view"] and bool(np.all((corners >= 0) & (corners <= [width - 1, height - 1])))
+        return {**frame_truth, "signs": [{**sign, "in_view": in_view(sign)} for sign in frame_truth["signs"]]}
+
+    return frame, truth
+
+
+def measure(video: Path, truth: dict, methods: dict[str, Answer], lens: Camera | None = None) -> list[Tally]:
     """Decode each frame of `video` once and run each of `methods` on it in turn; each method's time
-    is the frame's decode and its own answer (scoring is no method's time)."""
+    is the frame's decode and its own answer (scoring is no method's time). With `lens`, each frame
+    is first seen through it (`through_lens`, no method's time either)."""
     tallies = {name: Tally(name) for name in methods}
     fps = truth["fps"]
+    seen, seen_truth = (through_lens(lens, truth["width"], truth["height"]) if lens is not None
+                        else (lambda image: image, lambda frame_truth: frame_truth))
     capture = cv2.VideoCapture(str(video))
     try:
         for index in itertools.count():
@@ -162,6 +190,7 @@ def measure(video: Path, truth: dict, methods: dict[str, Answer]) -> list[Tally]
             decode_wall, decode_cpu = (b - a for a, b in zip((wall, cpu), clocks()))
             if not ok:
                 break
+            frame = seen(frame)
             for name, answer in methods.items():
                 wall, cpu = clocks()
                 answers = answer(frame, index, index / fps)
@@ -171,7 +200,7 @@ def measure(video: Path, truth: dict, methods: dict[str, Answer]) -> list[Tally]
                 tally.cpu_seconds += decode_cpu + end_cpu - cpu
                 if index == 0:
                     tally.first_cpu_seconds = tally.cpu_seconds
-                tally.add(index, truth["frames"][index], answers)
+                tally.add(index, seen_truth(truth["frames"][index]), answers)
                 tally.frames += 1
     finally:
         capture.release()
@@ -200,6 +229,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--flight", type=Path, help="a folder with flight.mp4, truth.json, camera.yaml")
     parser.add_argument("--duration", type=float, default=12.0, help="seconds of the rendered flight")
+    parser.add_argument("--lens", help="K1,K2: the flight seen through a lens of this radial distortion")
     parser.add_argument("--json", type=Path, help="write the figures here as JSON")
     args = parser.parse_args()
     cv2.setNumThreads(1)
@@ -212,11 +242,14 @@ def main() -> None:
         print(f"  rendered in {time.perf_counter() - t0:.1f} s")
     truth = json.loads((flight / "truth.json").read_text())
     camera = load_camera(flight / "camera.yaml")
+    if args.lens:
+        k1, k2 = (float(k) for k in args.lens.split(","))
+        camera = Camera(camera.K, np.array([k1, k2, 0.0, 0.0, 0.0]), source=f"--lens {args.lens}")
     video = flight / truth["video"]
     settings = Settings()
     methods = {"tracker": tracker_answers(load_library(), settings, camera, truth["fps"]),
                "recognize": recognize_answers(load_library(), settings, camera)}
-    results = [tally.summary() for tally in measure(video, truth, methods)]
+    results = [tally.summary() for tally in measure(video, truth, methods, camera if args.lens else None)]
     results[0]["speedup"] = round(results[0]["fps"] / results[1]["fps"], 2)
     results[0]["cpu_speedup"] = round(results[0]["cpu_fps"] / results[1]["cpu_fps"], 2)
     results[0]["cpu_speedup_after_the_first_frame"] = round(
