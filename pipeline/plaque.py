@@ -127,6 +127,19 @@ def sign_corners(sign: LibrarySign, H: np.ndarray) -> np.ndarray:
     return cv2.perspectiveTransform(sign.corners_px[None], H)[0]
 
 
+def ideal_homography(sign: LibrarySign, H: np.ndarray, camera: Camera) -> np.ndarray:
+    """The plane-to-pinhole map of `H` (3, 3) library px -> image px through the sign's corners as
+    `camera`'s lens shows them: library px -> px of an ideal pinhole camera with its K, through the
+    corners undistorted. Through a distorting lens no homography maps the sign onto the image."""
+    return sign_to_quad(sign, undistort_pixels(sign_corners(sign, H), camera))
+
+
+def seen_homography(sign: LibrarySign, ideal_H: np.ndarray, camera: Camera) -> np.ndarray:
+    """The inverse of `ideal_homography`: library px -> image px through the corners of `ideal_H`
+    as `camera`'s lens shows them, exact at them alone (as `Outline.H`)."""
+    return sign_to_quad(sign, distort_pixels(sign_corners(sign, ideal_H), camera))
+
+
 def grid_correspondences(H: np.ndarray, sign: LibrarySign, n: int = 5) -> tuple[np.ndarray, np.ndarray]:
     """An n x n grid over the sign (library px) and its image through H: (n*n, 2) each.
 

@@ -24,11 +24,10 @@ from .image import to_gray
 from .library import Library, LibrarySign
 from .match import Matches, match_library
 from .outline import Outline, outline_pose, refine_outline
-from .plaque import (PlaqueMatch, grid_correspondences, match_plaque, project, refine_ecc, seen_grid, sign_corners,
-                     sign_to_quad)
+from .plaque import (PlaqueMatch, grid_correspondences, match_plaque, project, refine_ecc, seen_grid, seen_homography)
 from .plaque_search import (MIN_NCC, SAME_PLAQUE_IOU, BlobReading, QuadCandidate, confirm_plaque, cut_image,
                            cut_levels, level_quads, plaque_order, quad_levels, ranked, read_blob, search_plaques)
-from .pose import CORNER_SIGMA_PX, Pose, PoseError, distort_pixels, estimate_pose
+from .pose import CORNER_SIGMA_PX, Pose, PoseError, estimate_pose
 from .segment import Box, Segmentation, box_iou, expand_box, segment
 from .settings import Settings
 from .stages import StageCache, StageRunner
@@ -856,8 +855,7 @@ def refine_winner(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np.nd
         if refined is not None and refined[1] >= MIN_ECC:
             ideal_H = refined[0]
             # Under distortion no H is exact: keep the one through the corners, as the outline does.
-            dense_H = (sign_to_quad(sign, distort_pixels(sign_corners(sign, ideal_H), camera))
-                       if camera.has_distortion else ideal_H)
+            dense_H = seen_homography(sign, ideal_H, camera) if camera.has_distortion else ideal_H
             # ECC can settle on a warp no view of a sign gives: a look-alike cut by the frame was
             # drawn to a corner 1500 px beyond a 640 px frame, its pose 68 px RMSE off its points.
             _, implausible = quad_problem(dense_H, sign, gray.shape[1], gray.shape[0])

@@ -57,9 +57,8 @@ from .image import to_gray
 from .library import Library, LibrarySign
 from .localise import CameraInMap, locate_in_map
 from .outline import Outline, outline_corner_sigma, outline_fit, outline_pose, refine_outline
-from .plaque import grid_correspondences, sign_corners, sign_to_quad
-from .pose import (CORNER_SIGMA_PX, Pose, PoseError, distort_pixels, estimate_pose, pose_near, undistort_pixels,
-                   with_corner_floor)
+from .plaque import grid_correspondences, ideal_homography, seen_homography, sign_corners
+from .pose import CORNER_SIGMA_PX, Pose, PoseError, estimate_pose, pose_near, undistort_pixels, with_corner_floor
 from .pose_filter import PoseFilter
 from .recognize import Recognition, image_camera, quad_problem, uses_outline
 from .segment import Box, box_iou
@@ -242,9 +241,7 @@ class Track:
         """(3, 3) library px -> px of an ideal pinhole camera with `camera`'s K, through the corners:
         the plane's homography. Through a distorting lens no homography maps it to the image's px,
         and `H`, through the corners as seen, is exact at them alone (as `Outline.H`)."""
-        if not camera.has_distortion:
-            return self.H
-        return sign_to_quad(self.sign, undistort_pixels(self.corners, camera))
+        return ideal_homography(self.sign, self.H, camera) if camera.has_distortion else self.H
 
 
 @dataclass(frozen=True, eq=False)
@@ -442,7 +439,7 @@ class Tracker:
         if H is None:
             return None
         if camera.has_distortion:
-            H = sign_to_quad(track.sign, distort_pixels(sign_corners(track.sign, H), camera))
+            H = seen_homography(track.sign, H, camera)
         inl = inliers.ravel().astype(bool)
         if inl.sum() < cfg.min_points or inl.mean() < cfg.min_inlier_ratio:
             return None
