@@ -18,8 +18,7 @@ from signpose.pipeline.pose import (CORNER_SIGMA_PX, corner_covariance, estimate
 from signpose.pipeline.recognize import StageCache, recognize
 from signpose.pipeline.settings import preset
 from signpose.pipeline.synth import render_scene, synthetic_camera
-from tests.support.chessboards import pixel_rays
-from tests.support.scene_images import like_a_camera, render_plaque
+from tests.support.scene_images import like_a_camera, render_plaque, through_lens
 
 TRUE_CORNERS = np.array([[212.3, 141.7], [431.9, 158.2], [425.6, 251.4], [205.8, 236.9]])
 
@@ -116,14 +115,6 @@ SCENES = load_dataset(Path(__file__).parents[1] / "sample_images" / "scenes")
 LENS = Camera(SCENES.camera.K, np.array([-0.25, 0.08, 0.001, -0.0005, 0.0]), 640, 480, source="wide-angle")
 
 
-def through_lens(image: np.ndarray) -> np.ndarray:
-    """`image`, taken by the scenes' pinhole camera, as `LENS` would have taken it."""
-    ideal_px = (pixel_rays(LENS.K, LENS.dist, (640, 480)) @ LENS.K.T)[..., :2].astype(np.float32)
-    # Near its edges the lens sees past the scene's frame: replicated, not black, which
-    # would be an edge beside the plaque that no camera makes.
-    return cv2.remap(image, ideal_px[..., 0], ideal_px[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-
-
 @pytest.mark.slow
 def test_pose_under_lens_distortion_is_as_good_as_without(library):
     """The sample scenes seen through a wide-angle lens (k1 -0.25): the plaque's sides are curves
@@ -131,7 +122,7 @@ def test_pose_under_lens_distortion_is_as_good_as_without(library):
     lines to the curved sides gave 0.4-1.5 degrees."""
     errors = []
     for sample in (s for s in SCENES.samples if s.label is not None):
-        photo = through_lens(read_image(sample.path))
+        photo = through_lens(read_image(sample.path), LENS)
         rec = recognize(photo, library, preset("default"), LENS)
         assert rec.label == sample.label and rec.outline is not None, sample.path.name
         errors.append(rotation_error_deg(rec.pose.R, sample.R))
@@ -190,7 +181,7 @@ def test_a_wide_sign_is_aligned_in_the_shrunk_image(library, monkeypatch):
     ran on the sign's full-resolution neighbourhood. It is aligned where the sign is
     SHRUNK_WIDTH_PX wide, as the outline is read."""
     sample = next(s for s in SCENES.samples if s.path.name == "scene_005.jpg")
-    photo = cv2.resize(through_lens(read_image(sample.path)), None, fx=4, fy=4, interpolation=cv2.INTER_CUBIC)
+    photo = cv2.resize(through_lens(read_image(sample.path), LENS), None, fx=4, fy=4, interpolation=cv2.INTER_CUBIC)
     lens = LENS.for_image(2560, 1920)[0]
     aligned_in = []
     find_transform_ecc = cv2.findTransformECC
@@ -217,7 +208,7 @@ def test_dense_refinement_under_lens_distortion_aligns_as_without(library):
     for sample in (s for s in SCENES.samples if s.label is not None):
         image = read_image(sample.path)
         errors = []
-        for photo, camera in ((image, SCENES.camera), (through_lens(image), LENS)):
+        for photo, camera in ((image, SCENES.camera), (through_lens(image, LENS), LENS)):
             rec = recognize(photo, library, ecc_only, camera)
             assert rec.label == sample.label and rec.ecc is not None and rec.outline is None
             corners = undistort_pixels(sign_corners(library[rec.label], rec.H), camera)

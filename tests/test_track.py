@@ -22,6 +22,7 @@ from signpose.pipeline.synth import synthetic_camera
 from signpose.pipeline.synth_flight import FlightRenderer, Keyframe, Plaque
 from signpose.pipeline.track import (FILTER_CORNER_SIGMA_PX, STATES, TRACK_CORNER_SIGMA_PX, FrameResult, Tracker,
                                      TrackerConfig, drifting_measurement, filter_measurement)
+from tests.support.scene_images import through_lens
 
 SAMPLE_FLIGHT = Path(__file__).resolve().parents[1] / "sample_images" / "flights" / "corridor"
 FPS = 30.0
@@ -128,15 +129,6 @@ def test_a_check_where_the_cut_has_no_camera_searches_the_frame(library, monkeyp
     assert whole.offset == (0, 0) and cut.offset != (0, 0)
     assert whole.recognition.label == cut.recognition.label == "security_compound"
     assert np.abs(whole.corners - cut.corners).max() < 0.5
-
-
-def through_lens(frame: np.ndarray, camera: Camera) -> np.ndarray:
-    """`frame`, rendered by a pinhole camera with `camera`'s K, as `camera`'s distorting lens sees it."""
-    h, w = frame.shape[:2]
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
-    pinhole = cv2.undistortPoints(np.column_stack([xs.ravel(), ys.ravel()])[:, None], camera.K, camera.dist,
-                                  P=camera.K).reshape(h, w, 2)
-    return cv2.remap(frame, pinhole[..., 0], pinhole[..., 1], cv2.INTER_LINEAR)
 
 
 @pytest.mark.parametrize("dist", [None, (-0.25, 0.08, 0.0, 0.0, 0.0)], ids=["pinhole", "barrel"])

@@ -192,15 +192,22 @@ OFF_CENTRE = Camera(np.array([[554.2562584220408, 0, 380], [0, 554.2562584220408
 TURNED_SCENE = "scene_002.jpg"  # security_compound, its pose in the scenes' truth.json
 
 
+def through_lens(image: np.ndarray, lens: Camera, pinhole_K: np.ndarray | None = None) -> np.ndarray:
+    """`image`, rendered by a pinhole camera with `pinhole_K` (3, 3) (default: `lens`'s K), as `lens` takes it,
+    distortion and all: each of the lens's pixels reads the render where its ray meets it. Near its edges the
+    lens sees past the render: replicated, not black, which would be an edge beside a plaque that no camera makes."""
+    h, w = image.shape[:2]
+    rays = pixel_rays(lens.K, lens.dist, (w, h))
+    source = (rays @ (lens.K if pinhole_K is None else pinhole_K).T)[..., :2].astype(np.float32)
+    return cv2.remap(image, source[..., 0], source[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
 def turned_photos(*orientations: int) -> dict[int, bytes]:
     """JPEGs of the sample scene TURNED_SCENE as the OFF_CENTRE camera takes it, by EXIF orientation: their
     pixels are stored alike, as the sensor gave them, and the orientation turns them to be shown, as a phone
     held each way writes them (a camera file describes the pixels as stored)."""
     ideal = load_camera(SAMPLE_SCENES / "camera.yaml")  # the renders' pinhole camera
-    rays = pixel_rays(OFF_CENTRE.K, OFF_CENTRE.dist, (OFF_CENTRE.width, OFF_CENTRE.height))
-    source = (rays @ ideal.K.T)[..., :2].astype(np.float32)  # where each of the lens's pixels looks in the render
-    seen = cv2.remap(cv2.imread(str(SAMPLE_SCENES / TURNED_SCENE)), source[..., 0], source[..., 1], cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_REPLICATE)
+    seen = through_lens(cv2.imread(str(SAMPLE_SCENES / TURNED_SCENE)), OFF_CENTRE, ideal.K)
     out = io.BytesIO()
     Image.fromarray(seen[..., ::-1]).save(out, "JPEG", quality=95)
     return {orientation: with_orientation(out.getvalue(), orientation) for orientation in orientations}
