@@ -20,9 +20,10 @@ MAX_DISTANCE_M.
     python bench/track.py [--flight DIR] [--duration 12] [--lens=K1,K2] [--json OUT]
 
 With --lens (written --lens=-0.25,0.08, as its value may start with a minus) the frames are seen
-through a lens of radial distortion k1, k2 (each rendered pinhole frame remapped, outside both
-methods' time) and both methods are given that camera; a sign is in view where its corners, so
-distorted, are in the frame.
+through a lens of radial distortion k1, k2 and both methods are given that camera: the flight is
+rendered by a pinhole wider than the frame by the most the lens reaches beyond it (a barrel lens
+shows at its frame's edges what lies outside the pinhole's), and each frame remapped through the
+lens outside both methods' time; a sign is in view where its corners, so distorted, are in the frame.
 
 Without --flight the 12 s corridor flight is rendered into the temp folder (once; re-used until the
 renderer's `RENDERING` changes).
@@ -154,33 +155,52 @@ def clocks() -> tuple[float, float]:
     return time.perf_counter(), time.thread_time()
 
 
-def through_lens(camera: Camera, width: int, height: int) -> tuple[Callable[[np.ndarray], np.ndarray],
-                                                                  Callable[[dict], dict]]:
-    """(frame -> the frame as `camera`'s distorting lens shows it, frame truth -> the same with each sign
-    in view where its corners, distorted, are in the frame), for frames rendered by a pinhole with its K."""
-    ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
-    pinhole = undistort_pixels(np.column_stack([xs.ravel(), ys.ravel()]), camera).astype(np.float32)
-    map_x, map_y = pinhole[:, 0].reshape(height, width), pinhole[:, 1].reshape(height, width)
+def lens_margin(lens: Camera) -> int:
+    """How far (px, whole) beyond `lens`'s frame the ideal pinhole's px its frame shows reach."""
+    w, h = lens.width, lens.height
+    edge = np.concatenate([np.column_stack([np.arange(w), np.zeros(w)]), np.column_stack([np.arange(w), np.full(w, h - 1)]),
+                           np.column_stack([np.zeros(h), np.arange(h)]), np.column_stack([np.full(h, w - 1), np.arange(h)])])
+    ideal = undistort_pixels(edge.astype(np.float64), lens)
+    return int(np.ceil(max(0.0, -ideal.min(), (ideal - [w - 1, h - 1]).max()))) + 2  # + bilinear's reach
+
+
+def widened(camera: Camera, margin: int) -> Camera:
+    """`camera` (distortion-free) with `margin` px more on every side of its frame."""
+    if not margin:
+        return camera
+    K = camera.K.copy()
+    K[:2, 2] += margin
+    return Camera(K, np.zeros(5), camera.width + 2 * margin, camera.height + 2 * margin, f"{camera.source}, widened")
+
+
+def through_lens(lens: Camera, margin: int) -> tuple[Callable[[np.ndarray], np.ndarray], Callable[[dict], dict]]:
+    """(frame -> the frame as `lens` shows it, frame truth -> the same with each sign in view where
+    its corners, distorted, are in the frame), for frames rendered by `widened(lens, margin)`'s pinhole."""
+    ys, xs = np.mgrid[0:lens.height, 0:lens.width].astype(np.float64)
+    pinhole = (undistort_pixels(np.column_stack([xs.ravel(), ys.ravel()]), lens) + margin).astype(np.float32)
+    map_x, map_y = (pinhole[:, i].reshape(lens.height, lens.width) for i in (0, 1))
 
     def frame(image: np.ndarray) -> np.ndarray:
         return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR)
 
     def truth(frame_truth: dict) -> dict:
-        def in_view(sign: dict) -> bool:
-            corners = distort_pixels(np.array(sign["corners"]), camera)
-            return sign["in_view"] and bool(np.all((corners >= 0) & (corners <= [width - 1, height - 1])))
-        return {**frame_truth, "signs": [{**sign, "in_view": in_view(sign)} for sign in frame_truth["signs"]]}
+        def seen(sign: dict) -> dict:
+            corners = distort_pixels(np.array(sign["corners"]) - margin, lens)
+            in_view = bool(np.all((corners >= 0) & (corners <= [lens.width - 1, lens.height - 1])))
+            return {**sign, "corners": corners.tolist(), "in_view": in_view}
+        return {**frame_truth, "signs": [seen(sign) for sign in frame_truth["signs"]]}
 
     return frame, truth
 
 
-def measure(video: Path, truth: dict, methods: dict[str, Answer], lens: Camera | None = None) -> list[Tally]:
+def measure(video: Path, truth: dict, methods: dict[str, Answer], lens: Camera | None = None,
+            margin: int = 0) -> list[Tally]:
     """Decode each frame of `video` once and run each of `methods` on it in turn; each method's time
     is the frame's decode and its own answer (scoring is no method's time). With `lens`, each frame
-    is first seen through it (`through_lens`, no method's time either)."""
+    is first seen through it (`through_lens` of frames `margin` px wider, no method's time either)."""
     tallies = {name: Tally(name) for name in methods}
     fps = truth["fps"]
-    seen, seen_truth = (through_lens(lens, truth["width"], truth["height"]) if lens is not None
+    seen, seen_truth = (through_lens(lens, margin) if lens is not None
                         else (lambda image: image, lambda frame_truth: frame_truth))
     capture = cv2.VideoCapture(str(video))
     try:
@@ -234,22 +254,28 @@ def main() -> None:
     args = parser.parse_args()
     cv2.setNumThreads(1)
     library = load_library()
-    flight = args.flight or Path(tempfile.gettempdir()) / f"signpose-flight-{args.duration:g}s-r{RENDERING}"
+    pinhole = synthetic_camera()
+    lens, margin = None, 0
+    if args.lens:
+        if args.flight:
+            parser.error("--lens renders a flight of its own, wider than the frame it is seen in: give no --flight")
+        k1, k2 = (float(k) for k in args.lens.split(","))
+        lens = Camera(pinhole.K, np.array([k1, k2, 0.0, 0.0, 0.0]), pinhole.width, pinhole.height, f"--lens {args.lens}")
+        margin = lens_margin(lens)
+    flight = args.flight or Path(tempfile.gettempdir()) / (f"signpose-flight-{args.duration:g}s-r{RENDERING}"
+                                                          + (f"-wider{margin}" if margin else ""))
     if not (flight / "truth.json").exists():
         print(f"rendering the {args.duration:g} s corridor flight into {flight}")
         t0 = time.perf_counter()
-        write_flight(flight, library, synthetic_camera(), duration_s=args.duration)
+        write_flight(flight, library, widened(pinhole, margin), duration_s=args.duration)
         print(f"  rendered in {time.perf_counter() - t0:.1f} s")
     truth = json.loads((flight / "truth.json").read_text())
-    camera = load_camera(flight / "camera.yaml")
-    if args.lens:
-        k1, k2 = (float(k) for k in args.lens.split(","))
-        camera = Camera(camera.K, np.array([k1, k2, 0.0, 0.0, 0.0]), source=f"--lens {args.lens}")
+    camera = lens or load_camera(flight / "camera.yaml")
     video = flight / truth["video"]
     settings = Settings()
     methods = {"tracker": tracker_answers(load_library(), settings, camera, truth["fps"]),
                "recognize": recognize_answers(load_library(), settings, camera)}
-    results = [tally.summary() for tally in measure(video, truth, methods, camera if args.lens else None)]
+    results = [tally.summary() for tally in measure(video, truth, methods, lens, margin)]
     results[0]["speedup"] = round(results[0]["fps"] / results[1]["fps"], 2)
     results[0]["cpu_speedup"] = round(results[0]["cpu_fps"] / results[1]["cpu_fps"], 2)
     results[0]["cpu_speedup_after_the_first_frame"] = round(
