@@ -9,7 +9,8 @@ Per method: frames a second, by the clock and by the CPU time of the thread (les
 the machine's load), and by CPU time without the first frame (where each computes the library's
 features, once a run); recall, the share of (frame, sign)
 pairs with the sign at least MIN_WIDTH_PX wide and fully in view that are answered with its
-label; wrong labels (a label for a sign not in front of the camera); camera position error
+label, and per run of such frames of one sign the frames from its first to its first answer (None:
+not answered in it); wrong labels (a label for a sign not in front of the camera); camera position error
 p50 / p90 for signs within MAX_DISTANCE_M, raw and filtered; and the frame-to-frame jitter of the camera position
 beyond the true motion (median, p90), raw and, for the tracker, filtered, over every frame and
 for signs within MAX_DISTANCE_M; and the normalised estimation error squared (NEES) of the raw and
@@ -72,14 +73,24 @@ class Tally:
     nees: dict[str, dict[str, list[float]]] = field(default_factory=dict)
     # per label and kind ("raw", "filtered"): (frame, measured position, true position, distance m)
     tracks: dict[str, dict[str, list[tuple[int, np.ndarray, np.ndarray, float]]]] = field(default_factory=dict)
+    # per label: [first frame of its current run of frames due, frames until first answered in it or None]
+    runs: dict[str, list] = field(default_factory=dict)
+    latencies: list[int | None] = field(default_factory=list)  # per run of frames due, in order of its end
 
     def add(self, index: int, truth: dict, answers: list[tuple[str, Pose | None, Pose | None]]) -> None:
         present = {s["label"]: s for s in truth["signs"]}
         labels = {label for label, _, _ in answers}
-        for sign in present.values():
+        for label, sign in present.items():
+            run = self.runs.get(label)
             if sign["in_view"] and sign["width_px"] >= MIN_WIDTH_PX:
                 self.due += 1
-                self.answered += sign["label"] in labels
+                self.answered += label in labels
+                if run is None:
+                    run = self.runs[label] = [index, None]
+                if label in labels and run[1] is None:
+                    run[1] = index - run[0]
+            elif run is not None:
+                self.latencies.append(self.runs.pop(label)[1])
         for label, pose, filtered in answers:
             if label not in present:
                 self.wrong.append((index, label))
@@ -112,6 +123,8 @@ class Tally:
         return out
 
     def summary(self) -> dict:
+        latencies = self.latencies + [run[1] for run in self.runs.values()]
+
         def pct(values: list[float], q: float) -> float | None:
             return round(float(np.percentile(values, q)), 2) if values else None
 
@@ -124,6 +137,7 @@ class Tally:
             "cpu_fps_after_the_first_frame": round((self.frames - 1) / (self.cpu_seconds - self.first_cpu_seconds), 1),
             "recall_pct": round(100 * self.answered / self.due, 1) if self.due else None,
             "sign_frames_due": self.due, "wrong_labels": len(self.wrong),
+            "frames_to_first_answer": latencies,
             "position_error_cm_p50": pct(errors_cm, 50), "position_error_cm_p90": pct(errors_cm, 90),
             "filtered_position_error_cm_p50": pct(filtered_cm, 50),
             "filtered_position_error_cm_p90": pct(filtered_cm, 90),
