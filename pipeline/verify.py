@@ -40,7 +40,7 @@ import numpy as np
 from .camera import Camera
 from .image import inside_image
 from .library import Library, LibrarySign
-from .plaque import COMPARE_BLUR_SIGMA, quad_width, shrunk_view, sign_corners, sign_to_quad
+from .plaque import COMPARE_BLUR_SIGMA, quad_width, shrunk_view, sign_corners, sign_to_quad, without_smooth_light
 from .pose import distort_pixels, undistort_pixels
 from .settings import Settings
 
@@ -91,15 +91,6 @@ MAX_WASHED = 0.25
 # A picture's light is taken out over this many px of the 128 px wide template (`local_contrast`):
 # wider than its texture's detail, narrower than a shadow's or a glare's extent across it.
 LOCAL_SIGMA = 4.0
-# A plaque's light is evened out over this many px of the 128 px template (`without_smooth_light`):
-# wider than a letter's stroke, narrower than a shadow's, a glare's or a lamp's gradient across
-# the plaque. On the photo world (pipeline/synth_photo_world.py) 7 of 10 true signs the check
-# turned down (weakest strip 0.21-0.71 under glare, a shadow's edge or a steep gradient across
-# them) pass (0.80-0.91); of plaques of other words that features read as a sign, tests.support's
-# six reach 0.67 at most and the photo world's look-alikes 0.31, but for one whose other word glare
-# washes out (answered without the light evened out too). The sample and synthetic rooms' answers
-# are the same with it and without (bench/worlds.py, 150 scenes).
-PLAQUE_LIGHT_SIGMA = 8.0
 # A picture's strip counts when this fraction of it lies in the image (MIN_VISIBLE for a plaque's).
 PICTURE_MIN_VISIBLE = 0.25
 # Evidence no look-alike gives: at least this many inliers, their convex hull covering at least
@@ -122,12 +113,6 @@ DENSE_FLOOR_PX = 0.5
 # them again, at 5 ms a sign.
 OUTLINE_FLOOR_PX = 1.0
 VISIBLE_GRID = 32  # points along each side of the landmark at which `visible_fraction` looks
-
-
-def without_smooth_light(image: np.ndarray) -> np.ndarray:
-    """The (h, w) float32 `image` less its Gaussian-weighted local mean over PLAQUE_LIGHT_SIGMA
-    px: a plaque's print under any light that changes smoothly across it."""
-    return image - cv2.GaussianBlur(image, (0, 0), PLAQUE_LIGHT_SIGMA)
 
 
 def local_contrast(image: np.ndarray) -> np.ndarray:
