@@ -24,8 +24,9 @@ from .image import to_gray
 from .library import Library, LibrarySign
 from .match import Matches, match_library
 from .outline import Outline, outline_pose, refine_outline
-from .plaque import (PlaqueMatch, grid_correspondences, match_plaque, project, refine_ecc, seen_grid, seen_homography)
-from .plaque_search import (MIN_NCC, SAME_PLAQUE_IOU, BlobReading, QuadCandidate, confirm_plaque, cut_image,
+from .plaque import (PlaqueMatch, grid_correspondences, match_plaque, project, refine_ecc, seen_grid, seen_homography,
+                     sign_to_quad)
+from .plaque_search import (MAX_ALIGNED, MIN_NCC, SAME_PLAQUE_IOU, BlobReading, QuadCandidate, confirm_plaque, cut_image,
                            cut_levels, level_quads, plaque_order, quad_levels, ranked, read_blob, search_plaques)
 from .pose import CORNER_SIGMA_PX, Pose, PoseError, estimate_pose
 from .segment import Box, Segmentation, box_iou, expand_box, segment
@@ -759,7 +760,13 @@ class Run:
                                         (self.plaque_search_shrink,))
         warnings += notes
         if plaque is None or plaque.sign is None:
-            return plaque, None
+            read = self.plaque_by_text() if self.settings.plaque_search else None
+            if read is None:
+                return plaque, None
+            warnings.append(f"recognised by its plaque's outline and text (correlation {read[0].correlation:.2f}), "
+                            f"which dense alignment did not confirm: features did not decide "
+                            f"({why_no_feature_winner(chosen)})")
+            return read
         refined = self.refined_winner(None, plaque)
         why = self.turn_down(refined, "plaque fallback")
         if why is not None:
@@ -767,6 +774,26 @@ class Run:
         warnings.append(f"recognised by the plaque fallback (correlation {plaque.correlation:.2f}): "
                         f"features did not decide ({why_no_feature_winner(chosen)})")
         return plaque, refined
+
+    def plaque_by_text(self) -> tuple[PlaqueMatch, Refined] | None:
+        """(plaque, its sign refined) of the first of the plaque search's best-correlating quads whose
+        outline is found and whose text passes the check, for the sign it correlates best with; None
+        without one. Dense alignment judges a quad by its correlation with the sign's whole image, which
+        light falling unevenly across the plaque (a shadow's edge, glare, a steep gradient) takes below
+        its threshold, or from which it diverges; the outline is read off the plaque's edges and the text
+        check evens its light out."""
+        for quad in ranked(self.quads(self.plaque_search_shrink))[:MAX_ALIGNED]:
+            if quad.best_ncc < MIN_NCC:
+                break
+            sign = self.library[max(quad.ncc, key=quad.ncc.__getitem__)]
+            if text_threshold(sign, self.settings) <= 0:
+                continue
+            H = sign_to_quad(sign, np.roll(quad.corners, -quad.rolls[sign.id], axis=0))
+            plaque = PlaqueMatch(quad.blob, quad.corners, quad.ncc, sign.id, H, None)
+            refined = self.refined_winner(None, plaque)
+            if refined.outline is not None and self.turn_down(refined, "plaque read by its text") is None:
+                return plaque, refined
+        return None
 
     def winner_pose(self, refined: Refined, by_features: bool, warnings: list[str]) -> Pose | None:
         """The camera pose from the `refined` winner (`by_features`: a feature match's, else the

@@ -172,7 +172,9 @@ class Settings:
 
     plaque_search: bool = _flag(True, "Plaque",
                                 "When the plaque fallback finds nothing, look for quadrilateral plaques at lower gray "
-                                "levels too and accept one only after dense (ECC) alignment with a sign",
+                                "levels too and accept one only after dense (ECC) alignment with a sign, or where "
+                                "that falls short (shadow, glare, a steep view) when its outline is found and its text "
+                                "passes the check",
                                 stages=("plaque",))
     min_plaque_ecc: float = _num(0.85, 0.0, 1.0, "Plaque",
                                  "Plaque fallback and search: least correlation after dense alignment to accept a "
