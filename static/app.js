@@ -51,9 +51,10 @@ function followTopbarHeight() {
 async function resync() {
   try {
     applySettings(await get("/api/settings"), true);
-    refreshImages();
+    loadLibrary().then(refreshImages, report);
     refreshFlights();
     loadMap().catch(report);
+    emit("camera");
     emit("calibration", null);   // an open Camera dialog shows the calibration again
     loadHealth();   // a restarted server may have another memory limit
   } catch (err) {

@@ -1712,6 +1712,22 @@ def test_an_open_camera_dialog_shows_a_restarted_servers_calibration(browser, tm
     harness.close_page(page)
 
 
+def test_a_page_shows_the_field_of_view_a_restarted_server_assumes(browser, tmp_path):
+    """The field of view assumed was changed while the server was down: when the page's event stream
+    came back it read the settings, images, flights, map and calibration again, not the camera, and
+    kept showing the old field of view."""
+    port = harness.free_port()
+    with harness.serve(tmp_path / "state", tmp_path / "before.log", port=port) as url:
+        page = harness.open_page(browser, url)
+        page.wait_for_function("() => document.querySelector('#hfov-num').value === '60'")
+    page.wait_for_selector("#live.off")
+    (tmp_path / "state" / "assumed_fov.json").write_text('{"hfov_deg": 75}', encoding="utf-8")
+    with harness.serve(tmp_path / "state", tmp_path / "after.log", port=port):
+        page.wait_for_selector("#live.on", timeout=30_000)
+        page.wait_for_function("() => document.querySelector('#hfov-num').value === '75'", timeout=10_000)
+    harness.close_page(page)
+
+
 # ---------------------------------------------------------------- library
 
 @pytest.fixture
