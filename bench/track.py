@@ -36,6 +36,7 @@ import argparse
 import itertools
 import json
 import os
+import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -54,6 +55,8 @@ from signpose.pipeline.settings import Settings
 from signpose.pipeline.synth import synthetic_camera
 from signpose.pipeline.synth_flight import RENDERING, write_flight
 from signpose.pipeline.track import Tracker
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout root, for tests.support
+from tests.support.scene_images import lens_maps  # noqa: E402
 
 
 @dataclass
@@ -190,9 +193,7 @@ def widened(camera: Camera, margin: int) -> Camera:
 def through_lens(lens: Camera, margin: int) -> tuple[Callable[[np.ndarray], np.ndarray], Callable[[dict], dict]]:
     """(frame -> the frame as `lens` shows it, frame truth -> the same with each sign in view where
     its corners, distorted, are in the frame), for frames rendered by `widened(lens, margin)`'s pinhole."""
-    ys, xs = np.mgrid[0:lens.height, 0:lens.width].astype(np.float64)
-    pinhole = (undistort_pixels(np.column_stack([xs.ravel(), ys.ravel()]), lens) + margin).astype(np.float32)
-    map_x, map_y = (pinhole[:, i].reshape(lens.height, lens.width) for i in (0, 1))
+    map_x, map_y = lens_maps(lens, widened(lens, margin).K, (lens.width, lens.height))
 
     def frame(image: np.ndarray) -> np.ndarray:
         return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR)

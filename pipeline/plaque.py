@@ -322,13 +322,16 @@ def plaque_correlations(gray: np.ndarray, corners: np.ndarray,
     turned = turned_templates(library)
     scores, rolls = {}, {}
     patches: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}  # signs of one aspect share them
+
+    def read(size: tuple[int, int]) -> np.ndarray:
+        return standardized(without_smooth_light(rectify(gray, corners, size))).ravel()
+
     for sign in library.signs:
         size = compare_size(sign)
         if size not in patches:
             w, h = size
-            upright = standardized(without_smooth_light(rectify(gray, corners, (w, h)))).ravel()
-            patches[size] = upright, upright if w == h else standardized(
-                without_smooth_light(rectify(gray, corners, (h, w)))).ravel()
+            upright = read((w, h))
+            patches[size] = upright, upright if w == h else read((h, w))
         upright, sideways = patches[size]
         by_roll = np.empty(4)
         by_roll[0::2], by_roll[1::2] = turned[sign.id][0::2] @ upright, turned[sign.id][1::2] @ sideways

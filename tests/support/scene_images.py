@@ -192,14 +192,20 @@ OFF_CENTRE = Camera(np.array([[554.2562584220408, 0, 380], [0, 554.2562584220408
 TURNED_SCENE = "scene_002.jpg"  # security_compound, its pose in the scenes' truth.json
 
 
+def lens_maps(lens: Camera, pinhole_K: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """(map_x, map_y), each (h, w) float32 for `size` = (w, h) px of `lens`'s image: where each of its pixels
+    reads a render by a pinhole camera with `pinhole_K` (3, 3), the px its ray meets it at (for cv2.remap)."""
+    source = (pixel_rays(lens.K, lens.dist, size) @ pinhole_K.T)[..., :2].astype(np.float32)
+    return source[..., 0], source[..., 1]
+
+
 def through_lens(image: np.ndarray, lens: Camera, pinhole_K: np.ndarray | None = None) -> np.ndarray:
     """`image`, rendered by a pinhole camera with `pinhole_K` (3, 3) (default: `lens`'s K), as `lens` takes it,
-    distortion and all: each of the lens's pixels reads the render where its ray meets it. Near its edges the
-    lens sees past the render: replicated, not black, which would be an edge beside a plaque that no camera makes."""
+    distortion and all (`lens_maps`), at the render's size. Near its edges the lens sees past the render:
+    replicated, not black, which would be an edge beside a plaque that no camera makes."""
     h, w = image.shape[:2]
-    rays = pixel_rays(lens.K, lens.dist, (w, h))
-    source = (rays @ (lens.K if pinhole_K is None else pinhole_K).T)[..., :2].astype(np.float32)
-    return cv2.remap(image, source[..., 0], source[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    map_x, map_y = lens_maps(lens, lens.K if pinhole_K is None else pinhole_K, (w, h))
+    return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
 def turned_photos(*orientations: int) -> dict[int, bytes]:
