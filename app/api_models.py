@@ -74,6 +74,10 @@ class SignOut(BaseModel):
     image: str = Field(description="image file name inside the library folder")
     width_m: float
     height_m: float
+    kind: Literal["plaque", "picture"] = Field(description="a plaque of text, checked against plaques of other "
+                                                           "words, or a textured picture")
+    min_text_correlation: float | None = Field(None, description="the text check's bar for this sign; null: the "
+                                                                 "settings' min_text_correlation")
 
     @classmethod
     def of(cls, sign: LibrarySign) -> SignOut:

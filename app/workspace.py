@@ -368,12 +368,15 @@ class Workspace:
         self._images.reset_caches()
 
     def add_sign(self, sign_id: str, data: bytes, name: str = "", text: str = "",
-                 width_m: float = 0.0, height_m: float | None = None) -> LibrarySign:
-        """Add a library sign from an encoded image; LibraryError / ImageError when unusable, Conflict on a
-        taken id or an image that cannot be told apart from a sign's already there."""
+                 width_m: float = 0.0, height_m: float | None = None, *, kind: str | None = None,
+                 min_text_correlation: float | None = None) -> LibrarySign:
+        """Add a library sign from an encoded image (`kind` None: told from the image;
+        `min_text_correlation` None: the settings'); LibraryError / ImageError when unusable, Conflict on
+        a taken id or an image that cannot be told apart from a sign's already there."""
         entry = validate_sign_entry({"id": sign_id, "name": name or sign_id, "text": text,
                                      "image": f"{sign_id}-{secrets.token_hex(4)}.png", "width_m": width_m,
-                                     "height_m": height_m}, "new sign")
+                                     "height_m": height_m, "kind": kind,
+                                     "min_text_correlation": min_text_correlation}, "new sign")
         image, _, _ = decode_upload(data, f"sign {sign_id}", self.config.max_pixels)
         sign = make_sign(entry, cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), f"sign {sign_id}")
         with self._library_lock:

@@ -6,7 +6,7 @@ import { emit, on, state } from "./store.js";
 import { $, el, fill, plural, report, showModal, toast } from "./ui.js";
 import { dropTarget } from "./uploads.js";
 
-const SIGN_FIELDS = ["id", "name", "text", "width_m", "height_m"];   // POST /api/library's, besides `file`
+const SIGN_FIELDS = ["id", "name", "text", "width_m", "height_m", "kind"];   // POST /api/library's, besides `file`
 
 let picked = null;   // {url, width, height} of the image chosen for a new sign
 let idTyped = false; // the person typed the new sign's id: an image chosen after keeps it
@@ -44,7 +44,8 @@ function signItem(sign, last) {
     el("div", {},
       el("div.sign-name", {}, sign.name),
       sign.text && el("div.sign-text", { dir: "auto" }, sign.text),
-      el("div.sign-meta", {}, el("span.mono", {}, sign.id), ` · ${metres(sign.width_m)} × ${metres(sign.height_m)} m`)),
+      el("div.sign-meta", {}, el("span.mono", {}, sign.id),
+        ` · ${metres(sign.width_m)} × ${metres(sign.height_m)} m · ${sign.kind}`)),
     el("button.icon.remove", {
       type: "button", disabled: last, "aria-label": `remove ${sign.name}`,
       title: last ? "The library's last sign cannot be removed: add another first" : `Remove ${sign.name} from the library`,

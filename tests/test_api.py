@@ -192,7 +192,8 @@ def test_schema_presets_export_and_import(client):
 def test_library_list_image_add_and_delete(client):
     signs = client.get("/api/library").json()
     assert [s["id"] for s in signs] == LIBRARY.ids
-    assert set(signs[0]) == {"id", "name", "text", "image", "width_m", "height_m"}
+    assert set(signs[0]) == {"id", "name", "text", "image", "width_m", "height_m", "kind", "min_text_correlation"}
+    assert (signs[0]["kind"], signs[0]["min_text_correlation"]) == ("plaque", None)
     image = client.get(f"/api/library/{signs[0]['id']}/image")
     assert image.status_code == 200 and image.content.startswith(PNG_SIGNATURE)
 
@@ -200,6 +201,8 @@ def test_library_list_image_add_and_delete(client):
     form = {"id": "door_plate", "name": "Door plate", "width_m": "0.4", "height_m": "0.3"}
     r = client.post("/api/library", files={"file": ("d.jpg", photo, "image/jpeg")}, data=form)
     assert r.status_code == 201 and r.json()["id"] == "door_plate" and r.json()["image"].endswith(".png")
+    # Told from the image: a photo of a plaque on a textured wall is a picture.
+    assert (r.json()["kind"], r.json()["min_text_correlation"]) == ("picture", None)
     assert client.get("/api/library/door_plate/image").content.startswith(PNG_SIGNATURE)
     assert_error(client.post("/api/library", files={"file": ("d.jpg", photo, "image/jpeg")}, data=form),
                  409, "already has")
@@ -207,7 +210,9 @@ def test_library_list_image_add_and_delete(client):
                        ({"width_m": "nan"}, ("width_m",)), ({"width_m": "-1"}, ("width_m",)),
                        ({"width_m": "abc"}, ("body.width_m: ", "number")),
                        ({"width_m": "400"}, ("metres",)), ({"width_m": "30"}, ("centimetres", "30 cm is 0.3 m")),
-                       ({"width_m": "0.0003"}, ("0.3 mm", "metres")), ({"height_m": "0.1"}, ("aspect",))):
+                       ({"width_m": "0.0003"}, ("0.3 mm", "metres")), ({"height_m": "0.1"}, ("aspect",)),
+                       ({"kind": "poster"}, ("kind 'poster'", '"plaque"', '"picture"')),
+                       ({"min_text_correlation": "5"}, ("min_text_correlation", "from 0 (no check) to 1"))):
         r = client.post("/api/library", files={"file": ("d.jpg", photo, "image/jpeg")}, data=form | {"id": "x"} | bad)
         assert_error(r, 422, *words)
     assert_error(client.post("/api/library", files={"file": ("d.jpg", b"GIF89a nope", "image/gif")},
@@ -216,6 +221,13 @@ def test_library_list_image_add_and_delete(client):
     assert_error(client.get("/api/library/passwd/image"), 404, "no sign", "known")
     assert client.delete("/api/library/door_plate").status_code == 204
     assert_error(client.delete("/api/library/door_plate"), 404, "door_plate", "known")
+    # Said to be a plaque, with its own bar for the text check: kept as given.
+    r = client.post("/api/library", files={"file": ("d.jpg", photo, "image/jpeg")},
+                    data=form | {"kind": "plaque", "min_text_correlation": "0.3"})
+    assert r.status_code == 201 and (r.json()["kind"], r.json()["min_text_correlation"]) == ("plaque", 0.3)
+    assert [(s["kind"], s["min_text_correlation"]) for s in client.get("/api/library").json()
+            if s["id"] == "door_plate"] == [("plaque", 0.3)]
+    assert client.delete("/api/library/door_plate").status_code == 204
     assert [s["id"] for s in client.get("/api/library").json()] == LIBRARY.ids
 
 

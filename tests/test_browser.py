@@ -1764,13 +1764,16 @@ def test_library_add_a_sign_see_it_scored_and_remove_it(page, api, exit_sign):
     page.fill("#sign-height_m", "")
     page.fill("#sign-name", "Exit 7")
     page.fill("#sign-text", "مخرج ٧")
+    page.select_option("#sign-kind", "picture")
     page.click("#sign-add")
     row = page.locator('.sign[data-id="exit_sign"]')
     row.wait_for()
     assert row.locator(".sign-name").inner_text() == "Exit 7"
-    assert "exit_sign · 0.5 × 0.2 m" in row.inner_text() and "مخرج ٧" in row.inner_text()
+    assert "exit_sign · 0.5 × 0.2 m · picture" in row.inner_text() and "مخرج ٧" in row.inner_text()
+    assert "security_compound · 0.6 × 0.24 m · plaque" in page.inner_text('.sign[data-id="security_compound"]')
     assert harness.stage_images_loaded(page, '.sign[data-id="exit_sign"] img')[0]["w"] == 500
     assert page.input_value("#sign-id") == "" and page.is_hidden("#sign-preview")   # ready for the next one
+    assert page.input_value("#sign-kind") == ""
     assert "Exit 7" in page.inner_text("#library-info")
     assert page.locator('#expected option[value="exit_sign"]').count() == 1
     page.keyboard.press("Escape")

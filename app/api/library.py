@@ -25,18 +25,23 @@ def get_sign_image(sign_id: SignIdDep, workspace: WorkspaceDep) -> FileResponse:
 
 
 @router.post("/library", response_model=SignOut, status_code=status.HTTP_201_CREATED,
-             dependencies=[MULTIPART, ONE_FILE, single("id", "width_m", "name", "text", "height_m")])
+             dependencies=[MULTIPART, ONE_FILE,
+                           single("id", "width_m", "name", "text", "height_m", "kind", "min_text_correlation")])
 def add_sign(file: Annotated[UploadFile, File(description="the sign, photographed flat or as artwork")],
              id: Annotated[str, Form(description="1-64 of a-z, 0-9, _ and -")],
              width_m: Annotated[float, Form(description="physical width, metres (0.02-10)")],
              workspace: WorkspaceDep,
              name: Annotated[str, Form()] = "", text: Annotated[str, Form()] = "",
              height_m: Annotated[float | None, Form(description="metres (0.02-10); default: from the image")] = None,
+             kind: Annotated[str, Form(description='"plaque" or "picture"; empty: told from the image')] = "",
+             min_text_correlation: Annotated[float | None, Form(
+                 description="the text check's bar for this sign, 0 (no check) to 1; default: the settings'")] = None,
              ) -> SignOut:
-    """Add a sign; 409 when its id is taken, or when its image cannot be told apart from a sign's already
-    there (the message names it)."""
+    """Add a sign; 422 for a bad field (the message names it), 409 when its id is taken, or when its image
+    cannot be told apart from a sign's already there (the message names it)."""
     _, data = read_upload(file)
-    return SignOut.of(workspace.add_sign(id, data, name, text, width_m, height_m))
+    return SignOut.of(workspace.add_sign(id, data, name, text, width_m, height_m, kind=kind or None,
+                                         min_text_correlation=min_text_correlation))
 
 
 @router.delete("/library/{sign_id}", status_code=status.HTTP_204_NO_CONTENT)
