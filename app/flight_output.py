@@ -52,6 +52,25 @@ CSV_COLUMNS = ("frame", "time_s", "label", "track_id", "state", "camera_x", "cam
                "map_x", "map_y", "map_z", "map_qw", "map_qx", "map_qy", "map_qz",
                "map_filtered_x", "map_filtered_y", "map_filtered_z",
                "map_var_x", "map_var_y", "map_var_z", "map_var_rot_x", "map_var_rot_y", "map_var_rot_z")
+# The QoS each topic was offered with, as rosbag2 records it (the MCAP ros2 profile requires it of every channel):
+# keep last, reliable, automatic liveliness, durations 0 (the default, none); durability volatile (2), but
+# transient local (1) for /tf_static, whose subscribers (tf2, rviz) take it only so when a bag is played.
+QOS_PROFILE = """- history: 1
+  depth: {depth}
+  reliability: 1
+  durability: {durability}
+  deadline:
+    sec: 0
+    nsec: 0
+  lifespan:
+    sec: 0
+    nsec: 0
+  liveliness: 1
+  liveliness_lease_duration:
+    sec: 0
+    nsec: 0
+  avoid_ros_namespace_conventions: false
+"""
 # geometry_msgs has no "covariance unknown" value; sensor_msgs' convention marks it so: -1 first, zeros after.
 UNKNOWN_COVARIANCE = (-1.0, *([0.0] * 35))
 
@@ -220,6 +239,11 @@ def _ros_pose(pose: PoseLike) -> dict[str, dict[str, float]]:
     return _pose_message(camera_position(pose.R, pose.t), quaternion_wxyz(np.asarray(pose.R).T))
 
 
+def _sign_in_camera(pose: PoseLike) -> dict[str, dict[str, float]]:
+    """geometry_msgs/Pose of the sign in the camera frame: position t, orientation R."""
+    return _pose_message(np.ravel(pose.t), quaternion_wxyz(np.asarray(pose.R)))
+
+
 def _pose_message(position: Iterable[float], orientation_wxyz: Iterable[float]) -> dict[str, dict[str, float]]:
     """geometry_msgs/Pose of a (3,) position (m) and a (4,) quaternion (w, x, y, z)."""
     w, x, y, z = orientation_wxyz
@@ -242,7 +266,9 @@ class McapWriter(FlightWriter):
     """A ROS 2 MCAP (profile ros2, CDR messages, message definitions embedded), per frame:
     - per sign with a pose, geometry_msgs/PoseWithCovarianceStamped on /signpose/<label>/camera_pose (and the
       filter's on .../camera_pose_filtered): the camera's pose in `sign_<label>`, covariance by `ros_covariance`;
-    - tf2_msgs/TFMessage on /tf: sign_<label> -> camera_optical per sign, from the filtered pose when there is one;
+    - tf2_msgs/TFMessage on /tf: camera_optical -> sign_<label> per sign, from the filtered pose when there is
+      one, but for the signs of the sign map, which /tf_static places: every frame keeps one parent, and
+      camera_optical none, so the robot's own tree (base_link -> camera_optical) takes these as they are;
     - sensor_msgs/CompressedImage (JPEG) on /signpose/image/compressed, frame camera_optical, when an image is given;
     - with a sign map, geometry_msgs/PoseWithCovarianceStamped on /signpose/camera_in_map (and .../camera_in_map_filtered)
       in the map's frame, covariance in ROS order about the map's axes, on each frame that has it; and once, with
@@ -269,7 +295,14 @@ class McapWriter(FlightWriter):
         self.closed = False
 
     def _send(self, topic: str, type_name: str, message: dict, stamp_ns: int) -> None:
-        self.writer.write_message(topic, self.schemas[type_name], message, log_time=stamp_ns, publish_time=stamp_ns)
+        schema = self.schemas[type_name]
+        if topic not in self.writer._channel_ids:
+            # mcap_ros2's Writer registers a channel without metadata, and takes none: register it first.
+            static = topic == TF_STATIC_TOPIC
+            qos = QOS_PROFILE.format(depth=1 if static else 10, durability=1 if static else 2)
+            self.writer._channel_ids[topic] = self.writer._writer.register_channel(
+                topic=topic, message_encoding="cdr", schema_id=schema.id, metadata={"offered_qos_profiles": qos})
+        self.writer.write_message(topic, schema, message, log_time=stamp_ns, publish_time=stamp_ns)
 
     def write(self, record: dict, *, image: np.ndarray | None = None, stamp_ns: int | None = None) -> None:
         if stamp_ns is None:
@@ -285,9 +318,9 @@ class McapWriter(FlightWriter):
                     "covariance": _covariance_message(located["covariance_xyz_rpy"])}}
                 self._send(topic, self.MESSAGE_TYPES[0], message, stamp_ns)
         transforms = []
+        mapped = set(self.sign_map.signs) if self.sign_map is not None else set()
         for sign in record["signs"]:
-            frame_id = sign_frame(sign["label"])
-            header = {"stamp": stamp, "frame_id": frame_id}
+            header = {"stamp": stamp, "frame_id": sign_frame(sign["label"])}
             poses = [(PoseValues.from_json(sign.get("pose")), False),
                      (PoseValues.from_json(sign.get("filtered_pose")), True)]
             for pose, filtered in poses:
@@ -297,8 +330,9 @@ class McapWriter(FlightWriter):
                 message = {"header": header, "pose": {"pose": _ros_pose(pose), "covariance": _covariance_message(covariance)}}
                 self._send(pose_topic(sign["label"], filtered=filtered), self.MESSAGE_TYPES[0], message, stamp_ns)
             shown = poses[1][0] or poses[0][0]
-            if shown is not None:
-                transforms.append(_transform(header, CAMERA_FRAME, _ros_pose(shown)))
+            if shown is not None and sign["label"] not in mapped:
+                transforms.append(_transform({"stamp": stamp, "frame_id": CAMERA_FRAME}, sign_frame(sign["label"]),
+                                             _sign_in_camera(shown)))
         if transforms:
             self._send(TF_TOPIC, self.MESSAGE_TYPES[1], {"transforms": transforms}, stamp_ns)
         if image is not None:

@@ -9,6 +9,7 @@ import json
 import cv2
 import numpy as np
 import pytest
+import yaml
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
@@ -199,11 +200,14 @@ def test_the_mcap_reads_back_with_rosbags_types_frames_stamps_and_covariance(tmp
     np.testing.assert_allclose(_quaternion_xyzw(msg.pose.pose.orientation), [x, y, z, w])
     np.testing.assert_allclose(np.reshape(msg.pose.covariance, (6, 6)), ros_covariance(pose))
 
+    # The sign a child of the camera, as apriltag_ros places tags: the camera keeps the parent the robot gives it.
     _, tf = by_topic["/tf"][1]
     (transform,) = tf.transforms
-    assert (transform.header.frame_id, transform.child_frame_id) == ("sign_exit", "camera_optical")
+    assert (transform.header.frame_id, transform.child_frame_id) == ("camera_optical", "sign_exit")
     translation = transform.transform.translation
-    np.testing.assert_allclose([translation.x, translation.y, translation.z], FILTERED.camera_position)
+    np.testing.assert_allclose([translation.x, translation.y, translation.z], FILTERED.t)
+    w, x, y, z = quaternion_wxyz(FILTERED.R)
+    np.testing.assert_allclose(_quaternion_xyzw(transform.transform.rotation), [x, y, z, w])
 
     _, image = by_topic["/signpose/image/compressed"][0]
     assert image.format == "jpeg" and image.header.frame_id == "camera_optical"
@@ -225,6 +229,20 @@ def test_the_mcap_reads_back_with_mcap_ros2_support_and_marks_an_unknown_covaria
     assert ros_msg.header.frame_id == "sign_3rd_floor"
     assert message.log_time == round(4 / 30 * 1e9)
     assert tuple(ros_msg.pose.covariance) == UNKNOWN_COVARIANCE
+
+
+def test_every_mcap_channel_says_the_qos_it_was_offered_with(tmp_path):
+    """The ros2 profile requires it; `ros2 bag play` replays /tf_static as transient local only when it says so,
+    and tf2 and rviz take /tf_static only so."""
+    path = tmp_path / "flight.mcap"
+    _write_mcap(path)
+    with path.open("rb") as file:
+        channels = make_reader(file).get_summary().channels.values()
+    profiles = {c.topic: yaml.safe_load(c.metadata["offered_qos_profiles"]) for c in channels}
+    assert set(profiles) == {"/signpose/exit/camera_pose", "/signpose/exit/camera_pose_filtered", "/tf",
+                             "/signpose/image/compressed"}
+    assert all(p == [p[0]] and (p[0]["durability"], p[0]["reliability"], p[0]["history"]) == (2, 1, 1)
+               for p in profiles.values())
 
 
 def test_an_interrupted_run_leaves_a_finished_mcap(tmp_path):

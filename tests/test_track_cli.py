@@ -13,6 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import yaml
 from mcap_ros2.reader import read_ros2_messages
 
 from signpose.pipeline.camera import load_camera
@@ -104,7 +105,8 @@ def test_a_bag_in_mcap_is_tracked_with_its_camera_info_and_written_as_ros2(tmp_p
     assert poses and all(p.header.frame_id == "sign_chief_of_security" for p in poses)
     assert len(poses[0].pose.covariance) == 36
     transforms = [t for m in topics["/tf"] for t in m.transforms]
-    assert {t.child_frame_id for t in transforms} == {"camera_optical"}
+    assert {t.header.frame_id for t in transforms} == {"camera_optical"}
+    assert "sign_chief_of_security" in {t.child_frame_id for t in transforms}
     assert "/signpose/image/compressed" not in topics  # the frames are in the bag already
 
 
@@ -161,10 +163,13 @@ def test_with_a_map_each_frame_locates_the_camera_in_it_and_every_output_carries
                                    r["camera_in_map"]["covariance_xyz_rpy"])
     (static,) = topics["/tf_static"]
     assert static.schema.name == "tf2_msgs/msg/TFMessage"
+    assert yaml.safe_load(static.channel.metadata["offered_qos_profiles"])[0]["durability"] == 1  # transient local
     placed = {t.child_frame_id: (t.header.frame_id, t.transform.translation) for t in static.ros_msg.transforms}
     assert set(placed) == {"sign_security_compound", "sign_chief_of_security"}
     parent, translation = placed["sign_chief_of_security"]
     assert parent == "corridor" and (translation.x, translation.y, translation.z) == (2.6, -0.1, 0.0)
+    # One tree: a mapped sign's parent is the map alone (camera_optical seeing it gives it no second one).
+    assert not [t for m in topics.get("/tf", []) for t in m.ros_msg.transforms if t.child_frame_id in placed]
 
     run = track(VIDEO, "--camera", CAMERA, "--map", tmp_path / "map.yaml", "--max-frames", 4, "-o", tmp_path / "f.csv")
     assert run.returncode == 0, run.stderr
