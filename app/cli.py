@@ -280,15 +280,29 @@ def unusable_images(failed: int, total: int) -> int:
 
 
 def cmd_track(args) -> int:
-    from signpose.app.flight_output import open_flight_output
-    from signpose.pipeline.frames import BagSource, SourceError, open_source
-    from signpose.pipeline.track import Tracker, tracked_frames
+    from signpose.app.flight_output import FlightOutputError
 
     library, settings, camera = load_inputs(args)
     sign_map = load_map(args, library)
     keep_freed_memory()
     if args.dask or args.results:
         return track_in_chunks(args, library, settings, camera, sign_map)
+    if args.output and Path(args.output).exists() and any(
+            Path(spec).exists() and Path(spec).samefile(args.output) for spec in args.sources):
+        raise CliError(f"-o {args.output} is a SOURCE: it would be overwritten; write the flight to another file")
+    try:
+        return track_locally(args, library, settings, camera, sign_map)
+    except FlightOutputError as exc:
+        say(f"signpose track: error: {exc}", sys.stderr)
+        return 1
+
+
+def track_locally(args, library: Library, settings: Settings, camera: Camera | None, sign_map: SignMap | None) -> int:
+    """`track` in this process: its SOURCE (one, or a list of frames) tracked frame by frame, written to -o."""
+    from signpose.app.flight_output import open_flight_output
+    from signpose.pipeline.frames import BagSource, SourceError, open_source
+    from signpose.pipeline.track import Tracker, tracked_frames
+
     spec = args.sources[0] if len(args.sources) == 1 else args.sources
     try:
         source = open_source(spec, topic=args.topic, fps=args.fps, max_pixels=max_pixels(args))
@@ -309,8 +323,10 @@ def cmd_track(args) -> int:
         while args.max_frames is None or frames < args.max_frames:
             try:
                 tracked = next(stream, None)
-            except SourceError as exc:  # the frames before it were tracked and written
-                say(f"signpose track: error: {exc}", sys.stderr)
+            except SourceError as exc:
+                if not frames:  # the source cannot be used
+                    raise CliError(str(exc)) from None
+                say(f"signpose track: error: {exc}", sys.stderr)  # the frames before it were tracked and written
                 return 1
             except CameraError as exc:
                 raise CliError(f"{source.name}: {exc}") from None

@@ -22,7 +22,8 @@ import csv
 import json
 import math
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Protocol
@@ -138,26 +139,70 @@ def pose_topic(label: str, *, filtered: bool = False) -> str:
     return f"/signpose/{ros_name(label)}/camera_pose{'_filtered' if filtered else ''}"
 
 
+class FlightOutputError(ValueError):
+    """The output file could not be written (a full disk, a file system error); the file is removed."""
+
+
 class FlightWriter:
     """Writes a flight's records to `path`, a frame at a time; a context manager that closes the file whole.
-    `sign_map`: the map the flight was located in, if any."""
+    `sign_map`: the map the flight was located in, if any.
+
+    The file is made at the first record, or at the end of a run that ended without error: a run that fails
+    before its first frame leaves a file already at `path` as it was. One that could not be written
+    (FlightOutputError) is removed rather than left cut in the middle of a record."""
 
     def __init__(self, path: Path, sign_map: SignMap | None = None) -> None:
         self.path, self.sign_map = path, sign_map
+        self.opened = self.closed = False
 
     def write(self, record: dict, *, image: np.ndarray | None = None, stamp_ns: int | None = None) -> None:
         """Write one frame's `record`. `image` (H, W, 3) BGR or (H, W) gray uint8: the input frame, which only the
         MCAP keeps. `stamp_ns`: the frame's time since the epoch (a bag's), else its time_s from 0."""
-        raise NotImplementedError
+        with self._writing():
+            if not self.opened:
+                self._open()
+                self.opened = True
+            self._write(record, image=image, stamp_ns=stamp_ns)
 
     def close(self) -> None:
+        """Finish the file (once), making it if no record was written."""
+        if self.closed:
+            return
+        self.closed = True
+        with self._writing():
+            if not self.opened:
+                self._open()
+                self.opened = True
+            self._close()
+
+    @contextmanager
+    def _writing(self) -> Iterator[None]:
+        try:
+            yield
+        except OSError as exc:
+            self.closed = True
+            if not self.opened:  # nothing was made, and what was there is left
+                raise FlightOutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
+            with suppress(OSError):
+                self._close()
+            self.path.unlink(missing_ok=True)
+            raise FlightOutputError(f"cannot write {self.path}: {exc.strerror or exc}; the file is removed") from None
+
+    def _open(self) -> None:
+        raise NotImplementedError
+
+    def _write(self, record: dict, *, image: np.ndarray | None, stamp_ns: int | None) -> None:
+        raise NotImplementedError
+
+    def _close(self) -> None:
         raise NotImplementedError
 
     def __enter__(self) -> FlightWriter:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        if exc_type is None or self.opened:
+            self.close()
 
 
 def open_flight_output(path: str | Path, *, sign_map: SignMap | None = None) -> FlightWriter:
@@ -175,15 +220,14 @@ def open_flight_output(path: str | Path, *, sign_map: SignMap | None = None) -> 
 class JsonLinesWriter(FlightWriter):
     """One record a line, as `--json` prints it."""
 
-    def __init__(self, path: Path, sign_map: SignMap | None = None) -> None:
-        super().__init__(path, sign_map)
-        self.file: IO[str] = path.open("w", encoding="utf-8")
+    def _open(self) -> None:
+        self.file: IO[str] = self.path.open("w", encoding="utf-8")
 
-    def write(self, record: dict, *, image: np.ndarray | None = None, stamp_ns: int | None = None) -> None:
+    def _write(self, record: dict, *, image: np.ndarray | None, stamp_ns: int | None) -> None:
         self.file.write(json.dumps(record, allow_nan=False) + "\n")
         self.file.flush()
 
-    def close(self) -> None:
+    def _close(self) -> None:
         self.file.close()
 
 
@@ -214,18 +258,17 @@ def csv_row(record: dict, sign: dict) -> list[str]:
 class CsvWriter(FlightWriter):
     """One row per sign observation (CSV_COLUMNS), after a header row; a frame without signs has no row."""
 
-    def __init__(self, path: Path, sign_map: SignMap | None = None) -> None:
-        super().__init__(path, sign_map)
-        self.file: IO[str] = path.open("w", encoding="utf-8", newline="")
+    def _open(self) -> None:
+        self.file: IO[str] = self.path.open("w", encoding="utf-8", newline="")
         self.csv = csv.writer(self.file)
         self.csv.writerow(CSV_COLUMNS)
         self.file.flush()
 
-    def write(self, record: dict, *, image: np.ndarray | None = None, stamp_ns: int | None = None) -> None:
+    def _write(self, record: dict, *, image: np.ndarray | None, stamp_ns: int | None) -> None:
         self.csv.writerows(csv_row(record, sign) for sign in record["signs"])
         self.file.flush()
 
-    def close(self) -> None:
+    def _close(self) -> None:
         self.file.close()
 
 
@@ -279,20 +322,18 @@ class McapWriter(FlightWriter):
     MESSAGE_TYPES = ("geometry_msgs/msg/PoseWithCovarianceStamped", "tf2_msgs/msg/TFMessage",
                      "sensor_msgs/msg/CompressedImage")
 
-    def __init__(self, path: Path, sign_map: SignMap | None = None) -> None:
+    def _open(self) -> None:
         from mcap_ros2.writer import Writer
         from rosbags.typesys import Stores, get_typestore
 
-        super().__init__(path, sign_map)
-        self.map_frame = sign_map.frame if sign_map is not None else DEFAULT_FRAME
-        self.static_sent = sign_map is None
+        self.map_frame = self.sign_map.frame if self.sign_map is not None else DEFAULT_FRAME
+        self.static_sent = self.sign_map is None
         typestore = get_typestore(Stores.ROS2_HUMBLE)
-        self.file = path.open("wb")
+        self.file = self.path.open("wb")
         self.writer = Writer(self.file)
         # mcap_ros2 wants "pkg/msg/Type" names and definitions whose dependencies read "MSG: pkg/Type".
         self.schemas = {name: self.writer.register_msgdef(name, typestore.generate_msgdef(name, ros_version=2)[0])
                         for name in self.MESSAGE_TYPES}
-        self.closed = False
 
     def _send(self, topic: str, type_name: str, message: dict, stamp_ns: int) -> None:
         schema = self.schemas[type_name]
@@ -304,7 +345,7 @@ class McapWriter(FlightWriter):
                 topic=topic, message_encoding="cdr", schema_id=schema.id, metadata={"offered_qos_profiles": qos})
         self.writer.write_message(topic, schema, message, log_time=stamp_ns, publish_time=stamp_ns)
 
-    def write(self, record: dict, *, image: np.ndarray | None = None, stamp_ns: int | None = None) -> None:
+    def _write(self, record: dict, *, image: np.ndarray | None, stamp_ns: int | None) -> None:
         if stamp_ns is None:
             stamp_ns = round(float(record["time_s"]) * 1e9)
         stamp = _stamp(stamp_ns)
@@ -351,11 +392,8 @@ class McapWriter(FlightWriter):
         self._send(TF_STATIC_TOPIC, self.MESSAGE_TYPES[1], {"transforms": transforms}, stamp_ns)
         self.static_sent = True
 
-    def close(self) -> None:
-        """Write the summary and footer (once), then close the file."""
-        if self.closed:
-            return
-        self.closed = True
+    def _close(self) -> None:
+        """Write the summary and footer, then close the file."""
         try:
             self.writer.finish()
         finally:

@@ -210,6 +210,45 @@ def test_a_camera_that_does_not_fit_the_video_is_refused(tmp_path):
     assert run.returncode == 2 and "flight.mp4" in run.stderr, run.stderr
 
 
+def test_a_run_that_cannot_start_leaves_the_output_there_as_it_was_and_the_source_is_never_the_output(tmp_path):
+    """A camera refused on the first frame overwrote the last run's CSV with a header; `-o` naming the bag
+    being read replaced the bag with the output of its first frames."""
+    good = tmp_path / "good.csv"
+    good.write_text("the last run\n")
+    portrait = tmp_path / "portrait.yaml"
+    portrait.write_text("image_width: 480\nimage_height: 640\ncamera_matrix: {rows: 3, cols: 3, data: "
+                        "[500, 0, 240, 0, 500, 320, 0, 0, 1]}\n")
+    run = track(VIDEO, "--camera", portrait, "-o", good)
+    assert run.returncode == 2 and good.read_text() == "the last run\n", run.stderr
+    run = track(tmp_path / "none", "-o", tmp_path / "new.jsonl")
+    assert run.returncode == 2 and not (tmp_path / "new.jsonl").exists()
+
+    bag = write_mcap(tmp_path / "in.mcap", [("/cam/image_raw/compressed", ROS2.types["sensor_msgs/msg/CompressedImage"](
+        header=header(ROS2, T0, False), format="jpeg", data=np.frombuffer(cv2.imencode(".jpg", video_frames(1)[0])[1],
+                                                                          np.uint8)))])
+    before = bag.read_bytes()
+    run = track(bag, "--camera", CAMERA, "-o", tmp_path / "." / "in.mcap")
+    assert run.returncode == 2 and "is a SOURCE" in run.stderr and bag.read_bytes() == before, run.stderr
+
+
+def test_a_full_disk_is_one_line_and_leaves_no_half_written_file(tmp_path):
+    """Written past what the file system takes (here the process' file size limit): a traceback per frame
+    and an MCAP no reader opens."""
+    import resource
+
+    def small_files() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)   # EFBIG from write() rather than the signal's kill
+        resource.setrlimit(resource.RLIMIT_FSIZE, (200_000, 200_000))
+
+    out = tmp_path / "flight.mcap"
+    run = subprocess.run([sys.executable, "-m", "signpose.app.cli", "track", str(VIDEO), "--camera", str(CAMERA),
+                          "--max-frames", "60", "-o", str(out)],
+                         cwd=ROOT, capture_output=True, text=True, timeout=300, preexec_fn=small_files)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 1 and lines[-1].startswith(f"signpose track: error: cannot write {out}"), run.stderr
+    assert "the file is removed" in lines[-1] and "Traceback" not in run.stderr and not out.exists()
+
+
 @pytest.mark.slow
 def test_ctrl_c_leaves_a_finished_mcap(tmp_path):
     out = tmp_path / "cut.mcap"
