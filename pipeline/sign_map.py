@@ -34,6 +34,9 @@ MAX_MAP_FILE_BYTES, MAX_MAP_NODES = 5_000_000, 200_000
 # How far from 1 a written quaternion's norm may be (six printed digits) before it is taken for a typo.
 QUATERNION_NORM_TOLERANCE = 1e-3
 DEFAULT_FRAME = "map"
+# Metres from the map's origin past which a sign is a slip of units (millimetres) or a typo, not a building: a
+# campus 10 km across stays within; 1e300 m made every fit in the map frame singular.
+MAX_POSITION_M = 10_000.0
 _SIGN_KEYS = ("id", "position_m", "orientation_wxyz", "yaw_pitch_roll_deg", "covariance")
 
 
@@ -164,6 +167,9 @@ def _mapped_sign(entry: object, where: str, library_ids: Collection[str] | None)
     if "position_m" not in entry:
         raise MapError(f"{where} ({sign_id}) has no position_m: give [x, y, z] in metres")
     position = _finite_vector(entry["position_m"], f"{where}.position_m", 3)
+    if np.abs(position).max() > MAX_POSITION_M:
+        raise MapError(f"{where}.position_m {[float(v) for v in position]} is more than {MAX_POSITION_M:g} m from the "
+                       "map's origin: positions are metres (not millimetres)")
     given = [k for k in ("orientation_wxyz", "yaw_pitch_roll_deg") if k in entry]
     if len(given) != 1:
         raise MapError(f"{where} ({sign_id}) needs exactly one of orientation_wxyz and yaw_pitch_roll_deg; "

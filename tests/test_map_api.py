@@ -85,6 +85,11 @@ def test_a_map_file_loads_and_a_bad_one_is_refused_naming_the_field_keeping_the_
         assert_error(put_map(client, "bad.yaml", text), 422, "bad.yaml", field)
     assert client.get("/api/map").json() == kept
 
+    # A sign the map places is not deleted from under it: the map would name a sign the library lacks, and be
+    # dropped at the next start.
+    assert_error(client.delete("/api/library/archives"), 409, "'archives' is in the sign map held", "clear the map")
+    assert "archives" in [s["id"] for s in client.get("/api/library").json()]
+
 
 def test_a_map_built_from_the_photos_is_downloaded_and_loads_back(client):
     r = client.post("/api/map/build", json={"anchor": "security_compound"})

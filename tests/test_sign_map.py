@@ -81,6 +81,8 @@ def covariance_text(diagonal: list[int], corner: int = 0) -> str:
      "signs[0].position_m must be finite numbers; got nan"),
     ('{"signs": [{"id": "security_compound", "position_m": [0, NaN, 0], "orientation_wxyz": [1, 0, 0, 0]}]}',
      "signs[0].position_m must be finite numbers; got nan"),
+    ("signs:\n  - {id: security_compound, position_m: [1e300, 0, 0], orientation_wxyz: [1, 0, 0, 0]}\n",
+     "signs[0].position_m [1e+300, 0.0, 0.0] is more than 10000 m from the map's origin"),
     ("signs:\n  - {id: security_compound, position_m: [0, 0], orientation_wxyz: [1, 0, 0, 0]}\n",
      "signs[0].position_m must be a list of 3 numbers"),
     ("signs:\n  - {id: security_compound, position_m: [0, '1', 0], orientation_wxyz: [1, 0, 0, 0]}\n",

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, File, Form, UploadFile, status
+from fastapi import APIRouter, File, Form, HTTPException, UploadFile, status
 from fastapi.responses import FileResponse
 
 from ..api_models import SignOut
 from ..uploads import read_upload
-from .deps import MULTIPART, ONE_FILE, JsonBodyRoute, SignIdDep, WorkspaceDep, single
+from .deps import MULTIPART, ONE_FILE, JsonBodyRoute, SignIdDep, SignMapsDep, WorkspaceDep, single
 
 router = APIRouter(tags=["library"], route_class=JsonBodyRoute)
 
@@ -45,6 +45,12 @@ def add_sign(file: Annotated[UploadFile, File(description="the sign, photographe
 
 
 @router.delete("/library/{sign_id}", status_code=status.HTTP_204_NO_CONTENT)
-def delete_sign(sign_id: SignIdDep, workspace: WorkspaceDep) -> None:
-    """Delete a sign; images whose result named it are re-run with the rest of the library."""
+def delete_sign(sign_id: SignIdDep, workspace: WorkspaceDep, sign_maps: SignMapsDep) -> None:
+    """Delete a sign; images whose result named it are re-run with the rest of the library. 409 while the sign
+    map held places it: the map would name a sign the library lacks, and could not be loaded again."""
+    held = sign_maps.held
+    if held is not None and sign_id in held.sign_map.signs:
+        raise HTTPException(status.HTTP_409_CONFLICT,
+                            f"sign {sign_id!r} is in the sign map held ({held.source}): clear the map first (Sign map › "
+                            "clear), or load one without it, then delete the sign")
     workspace.remove_sign(sign_id)
