@@ -339,6 +339,9 @@ def track_locally(args, library: Library, settings: Settings, camera: Camera | N
             seen += told(record, labels, args.json)
             frames += 1
             bar.update()
+        if not frames:
+            raise CliError(f"{source.name}: holds no frames" + (f" on {source.topic}" if isinstance(source, BagSource)
+                                                                 else ""))
     elapsed = time.perf_counter() - started
     print(f"{frames} frames, {seen} with a sign; signs seen: {signs_seen(labels)}; {frames / elapsed:.1f} frames/s",
           file=sys.stderr)

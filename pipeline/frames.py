@@ -28,7 +28,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .camera import Camera, CameraError, camera_from_json
+from .camera import OPENCV_DISTORTION_MODELS, Camera, CameraError, camera_from_json
 from .image import ImageError, check_image_header, decode_image, decoders_kept_quiet, read_file
 
 # The largest frame read, as for photos (app.workspace.WorkspaceConfig.max_pixels).
@@ -132,12 +132,28 @@ def open_source(spec: str | Path | Sequence[str | Path], *, topic: str | None = 
     a folder of images (natural sort order), an image file, or a sequence of image files (each a frame).
 
     `topic`: a bag's image topic (default: its only one). `fps`: the rate of image frames (default one a
-    second); ignored by the other kinds, which know their own. SourceError for what cannot be read.
+    second). SourceError for what cannot be read, and for a `topic` or `fps` the source has no use for (a video
+    has its own rate, a bag its stamps): said rather than ignored.
     """
+    source = _open_source(spec, topic=topic, fps=fps, max_pixels=max_pixels)
+    unused = None
+    if topic is not None and not isinstance(source, BagSource):
+        unused = f"is not a ROS bag, so it has no topic {topic}"
+    elif fps is not None and not isinstance(source, ImageSource):
+        unused = ("is timed by its own frame rate" if isinstance(source, VideoSource) else "is timed by its stamps") + \
+            "; a frame rate is given to a folder or list of images"
+    if unused is not None:
+        source.close()
+        raise SourceError(f"{source.name} {unused}")
+    return source
+
+
+def _open_source(spec: str | Path | Sequence[str | Path], *, topic: str | None, fps: float | None,
+                 max_pixels: int) -> FrameSource:
     if not isinstance(spec, (str, Path)):
         paths = [Path(p) for p in spec]
         if len(paths) == 1:
-            return open_source(paths[0], topic=topic, fps=fps, max_pixels=max_pixels)
+            return _open_source(paths[0], topic=topic, fps=fps, max_pixels=max_pixels)
         return ImageSource(_image_list(paths), name=f"{paths[0]} .. ({len(paths)} images)" if paths else "",
                            fps=fps, max_pixels=max_pixels)
     text = str(spec)
@@ -342,7 +358,10 @@ class BagSource(FrameSource):
         try:
             self.reader.open()
         except (AnyReaderError, OSError, ValueError, KeyError) as exc:
-            raise SourceError(f"{path}: cannot be read as a ROS bag: {exc}") from None
+            # A recording cut short (a full disk, a crash) has no index: the bag tools rebuild one.
+            fix = {".mcap": "; if the recording was cut short, `mcap recover` writes a readable copy",
+                   ROS1_SUFFIX: "; if the recording was cut short, `rosbag reindex` repairs it"}.get(path.suffix.lower(), "")
+            raise SourceError(f"{path}: cannot be read as a ROS bag: {exc}{fix}") from None
         try:
             self.connection = self._image_connection(topic)
             self.topic: str = self.connection.topic
@@ -383,9 +402,16 @@ class BagSource(FrameSource):
             if name not in infos:
                 continue
             for connection, _, raw in self.reader.messages(connections=[infos[name]]):
-                info = self.reader.deserialize(raw, connection.msgtype)
+                fields = _camera_info_fields(self.reader.deserialize(raw, connection.msgtype))
+                if (not fields.get("d", fields.get("D"))
+                        and fields["distortion_model"].lower() in OPENCV_DISTORTION_MODELS):
+                    # What drivers publish for an image without distortion, or one whose lens nobody calibrated:
+                    # its K is still nearer the truth than an assumed field of view.
+                    fields["distortion_model"] = "none"
+                    self.warnings.append(f"{self.name}: the CameraInfo on {name} gives no distortion coefficients: "
+                                         "the lens is taken as without distortion; give a camera file for one with")
                 try:
-                    return camera_from_json(_camera_info_fields(info), source=f"{self.name} {name}")
+                    return camera_from_json(fields, source=f"{self.name} {name}")
                 except CameraError as exc:
                     self.warnings.append(f"{self.name}: the CameraInfo on {name} is not used: {exc}")
                     return None

@@ -370,12 +370,37 @@ def test_an_uncalibrated_camera_info_is_left_out_with_a_warning(tmp_path):
     assert len(source.warnings) == 1 and "the CameraInfo on /cam/camera_info is not used" in source.warnings[0]
 
 
+def test_a_camera_info_without_coefficients_is_read_without_distortion_and_said(tmp_path):
+    """What drivers publish for a lens nobody calibrated: its K, not an assumed field of view."""
+    info = _info_msg(ROS2)
+    info.d = np.zeros(0)
+    frames, source = _collect(write_mcap(tmp_path / "flight.mcap", [("/cam/camera_info", info),
+                                                                     ("/cam/image_raw", _image_msg(ROS2, 0, "bgr8", T0))]))
+    assert source.camera is not None and np.allclose(source.camera.K.ravel(), K) and not source.camera.has_distortion
+    assert len(source.warnings) == 1 and "gives no distortion coefficients" in source.warnings[0]
+
+
+def test_a_topic_or_a_frame_rate_a_source_has_no_use_for_is_refused(tmp_path):
+    video = tmp_path / "v.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 20, (W, H))
+    for i in range(3):
+        writer.write(_frame(i))
+    writer.release()
+    assert _error(video, topic="/cam/image_raw") == f"{video} is not a ROS bag, so it has no topic /cam/image_raw"
+    assert _error(video, fps=5) == (f"{video} is timed by its own frame rate; a frame rate is given to a folder or "
+                                    "list of images")
+    bag = write_mcap(tmp_path / "b.mcap", [("/image", _image_msg(ROS2, 0, "bgr8", T0))])
+    assert _error(bag, fps=5).startswith(f"{bag} is timed by its stamps")
+
+
 def test_damaged_bags_and_frames_are_refused(tmp_path):
     (tmp_path / "junk.mcap").write_bytes(b"not a bag" * 10)
     assert _error(tmp_path / "junk.mcap").startswith(f"{tmp_path / 'junk.mcap'}: cannot be read as a ROS bag: ")
     whole = write_mcap(tmp_path / "whole.mcap", [("/image", _image_msg(ROS2, 0, "bgr8", T0))]).read_bytes()
     (tmp_path / "stopped.mcap").write_bytes(whole[:len(whole) // 2])  # a recording that stopped without its summary
     assert _error(tmp_path / "stopped.mcap").startswith(f"{tmp_path / 'stopped.mcap'}: cannot be read as a ROS bag: ")
+    assert _error(tmp_path / "stopped.mcap").endswith("if the recording was cut short, `mcap recover` writes a "
+                                                      "readable copy")
     (tmp_path / "junk.bag").write_bytes(b"not a bag" * 10)
     assert "junk.bag: cannot be read as a ROS bag" in _error(tmp_path / "junk.bag")
     bad = _compressed_msg(ROS2, 0, T0)

@@ -18,6 +18,8 @@ from mcap_ros2.reader import read_ros2_messages
 
 from signpose.pipeline.camera import load_camera
 from signpose.pipeline.library import load_library
+from rosbags.rosbag2 import Writer as Bag2Writer
+
 from tests.support.bags import ROS2, header, write_mcap
 from tests.support.cli import signpose, signpose_process
 
@@ -200,6 +202,14 @@ def test_a_bag_without_images_says_so(tmp_path):
     assert run.returncode == 2 and "no image topics" in run.stderr, run.stderr
     run = track(bag, "--topic", "/nope")
     assert run.returncode == 2 and "/nope" in run.stderr, run.stderr
+
+
+def test_an_image_topic_without_messages_is_an_error_not_an_empty_flight(tmp_path):
+    with Bag2Writer(tmp_path / "empty", version=9) as writer:
+        writer.add_connection("/cam/image_raw", "sensor_msgs/msg/Image", typestore=ROS2)
+    run = track(tmp_path / "empty", "-o", tmp_path / "out.mcap")
+    assert run.returncode == 2 and "holds no frames on /cam/image_raw" in run.stderr, run.stderr
+    assert not (tmp_path / "out.mcap").exists()
 
 
 def test_a_camera_that_does_not_fit_the_video_is_refused(tmp_path):
