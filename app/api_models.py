@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, BeforeValidator, Field
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 from pydantic_core import PydanticCustomError
 
 from signpose.pipeline.library import LibrarySign
@@ -36,6 +36,12 @@ def _unquoted(text: str) -> str:
 # Numbers in request bodies: JSON numbers only (a whole number may be written 640.0).
 Number = Annotated[float, BeforeValidator(json_number)]
 WholeNumber = Annotated[int, BeforeValidator(json_number)]
+
+
+class RequestBody(BaseModel):
+    """A JSON body a route takes: a key it does not read is refused (422 naming it), not dropped without a word."""
+
+    model_config = ConfigDict(extra="forbid")
 
 
 class Health(BaseModel):
@@ -216,11 +222,11 @@ class CameraOut(BaseModel):
                                             "camera is kept all the same, as it may be for photos still to come")
 
 
-class AssumedFovIn(BaseModel):
+class AssumedFovIn(RequestBody):
     hfov_deg: Number = Field(description="horizontal field of view, degrees (10 to 140)")
 
 
-class CanvasScaleIn(BaseModel):
+class CanvasScaleIn(RequestBody):
     width: WholeNumber = Field(ge=1, le=100_000, description="width of the 3D view's canvas as viser reports it: "
                                                              "device px")
     height: WholeNumber = Field(ge=1, le=100_000, description="its height, device px")
@@ -317,7 +323,7 @@ class CalibrationAdded(CalibrationOut):
                                          "views listed are in the order chosen, and names may repeat")
 
 
-class CalibrationRunIn(BaseModel):
+class CalibrationRunIn(RequestBody):
     drop_outliers: bool = Field(False, description="fit once more without the outliers of the first fit")
 
 
@@ -336,11 +342,11 @@ class ImageDetail(ImageSummary):
     attempts: list[AttemptOut]
 
 
-class ExpectedIn(BaseModel):
+class ExpectedIn(RequestBody):
     expected: str | None = Field(description='a sign id, "none" for an image without a sign, or null / ""')
 
 
-class CalibrateIn(BaseModel):
+class CalibrateIn(RequestBody):
     image_id: str
     rect: tuple[int, int, int, int] | None = Field(
         None, description="[x0, y0, x1, y1] image px around the sign; null: the detected sign or blob")
@@ -422,7 +428,7 @@ class FlightFramesOut(BaseModel):
     frames: list[dict[str, Any]]
 
 
-class FlightCursorIn(BaseModel):
+class FlightCursorIn(RequestBody):
     frame: WholeNumber = Field(ge=0, description="the frame shown, from 0")
 
 
@@ -468,7 +474,7 @@ class MapOut(BaseModel):
     warnings: list[str] = []
 
 
-class MapBuildIn(BaseModel):
+class MapBuildIn(RequestBody):
     """`anchor`: the library sign whose frame is the map frame (null: the first sign seen)."""
 
     anchor: str | None = Field(default=None, max_length=64)

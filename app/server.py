@@ -81,7 +81,8 @@ def _error_handler(code: int) -> Callable[[Request, Exception], Awaitable[JSONRe
 
 def _problem(error: dict) -> str:
     """One pydantic validation error as `where: what`, without the input."""
-    return f"{'.'.join(map(str, error['loc']))}: {error['msg']}"
+    what = "unknown key, which this request does not take" if error["type"] == "extra_forbidden" else error["msg"]
+    return f"{'.'.join(map(str, error['loc']))}: {what}"
 
 
 async def _validation_error_handler(request: Request, exc: Exception) -> JSONResponse:

@@ -555,6 +555,18 @@ def test_stateless_recognize(client):
 CAMERA_YAML = ros_camera_yaml(synthetic_camera((640, 480)), "synthetic").encode()
 
 
+def test_a_field_or_parameter_a_route_does_not_take_is_refused_naming_it(client):
+    """Dropped without a word, they read as applied: min_inliers=1000 on a recognition that used 10."""
+    photo = ("a.jpg", sign_photo(LIBRARY, "security_compound"), "image/jpeg")
+    assert_error(client.post("/api/recognize?min_inliers=1000", files={"file": photo}), 422,
+                 "unknown query parameter 'min_inliers': this request takes none")
+    assert_error(client.post("/api/recognize", files={"file": photo}, data={"detector": "orb"}), 422,
+                 "unknown form field 'detector': this request takes 'file'")
+    assert_error(client.put("/api/camera/assumed", json={"hfov_deg": 60, "x": 1}), 422,
+                 "body.x: unknown key, which this request does not take")
+    assert client.get("/api/library/security_compound/image?v=1").status_code == 200  # a page's cache-busting
+
+
 @pytest.mark.parametrize("method, path, files, form", [
     ("POST", "/api/recognize", [("a.jpg", sign_photo(LIBRARY, "security_compound"), "image/jpeg"),
                                 ("b.jpg", sign_photo(LIBRARY, "chief_of_security"), "image/jpeg")], None),
@@ -573,7 +585,7 @@ def test_single_file_routes_refuse_several_files_or_none(client, method, path, f
     before = state()
     r = client.request(method, path, files=[("file", f) for f in files], data=form)
     assert_error(r, 422, "got 2 files", "'file'", "one request per file")  # not the last one, silently
-    assert_error(client.request(method, path, files=[("files", files[0])], data=form), 422, "field 'file'")
+    assert_error(client.request(method, path, files=[("files", files[0])], data=form), 422, "'file'")
     assert state() == before
 
 

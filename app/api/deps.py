@@ -10,10 +10,11 @@ built in one process (the tests build many) has its own.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Coroutine
+from collections.abc import Callable, Coroutine, Iterable
 from typing import Annotated, Any
 
 from fastapi import Depends, Form, HTTPException, Request, Response, status
+from fastapi.dependencies.models import Dependant
 from fastapi.routing import APIRoute
 from python_multipart.exceptions import MultipartParseError
 from python_multipart.multipart import DEFAULT_MAX_HEADER_SIZE
@@ -208,12 +209,38 @@ class JsonBodyRequest(Request):
 
 
 class JsonBodyRoute(APIRoute):
-    """An API route whose body FastAPI reads from a `JsonBodyRequest`; every router of the API uses it."""
+    """An API route whose body FastAPI reads from a `JsonBodyRequest`; every router of the API uses it.
+
+    A form field or query parameter the route does not take is refused (422 naming it and those it takes)
+    rather than dropped: `POST /api/recognize?min_inliers=1000` answered as if it had been applied. Query
+    parameters are checked on routes that change something: a GET may carry a page's cache-busting `v`."""
 
     def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
         handler = super().get_route_handler()
+        query = names(self.dependant, "query_params")
+        form = names(self.dependant, "body_params")  # empty for a route that reads its form itself
 
         async def read_through(request: Request) -> Response:
-            return await handler(JsonBodyRequest(request.scope, request.receive))
+            request = JsonBodyRequest(request.scope, request.receive)
+            if request.method != "GET":
+                refuse_unknown("query parameter", request.query_params.keys(), query)
+            if form and request.headers.get("content-type", "").startswith("multipart/form-data"):
+                refuse_unknown("form field", (await request.form()).keys(), form)
+            return await handler(request)
         return read_through
+
+
+def names(dependant: Dependant, kind: str) -> set[str]:
+    """The names of the `kind` parameters ("query_params", "body_params") of `dependant` and its dependencies."""
+    return {param.alias for param in getattr(dependant, kind)}.union(
+        *(names(sub, kind) for sub in dependant.dependencies))
+
+
+def refuse_unknown(what: str, given: Iterable[str], known: set[str]) -> None:
+    """422 naming the `given` names (of a `what`) not `known`, and those that are."""
+    unknown = sorted(set(given) - known)
+    if unknown:
+        takes = f"this request takes {', '.join(map(repr, sorted(known)))}" if known else "this request takes none"
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"unknown {what}{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))}: {takes}")
 
