@@ -141,10 +141,12 @@ def result_store(args) -> ResultStore | None:
     """The --results folder's store, None without one."""
     if args.results is None:
         return None
+    if Path(args.results).exists() and not Path(args.results).is_dir():
+        raise CliError(f"--results {args.results} is a file: give a folder, which is made if it does not exist")
     try:
         return ResultStore(args.results)
     except OSError as exc:
-        raise CliError(f"cannot use --results {args.results}: {exc.strerror or exc}") from None
+        raise CliError(f"cannot make or write the --results folder {args.results}: {exc.strerror or exc}") from None
 
 
 def format_row(name: str, rec: Recognition) -> str:
@@ -1042,7 +1044,8 @@ def main(argv: list[str] | None = None) -> int:
         with stopping_on_signals():
             return args.func(args)
     except CliError as exc:
-        print(f"signpose {args.command}: error: {exc}", file=sys.stderr)
+        command = " ".join(filter(None, (args.command, getattr(args, "map_command", None))))
+        print(f"signpose {command}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt as exc:  # Ctrl-C, and SIGTERM or SIGHUP as Interrupted
         return interrupted(f"signpose {args.command}", exc)

@@ -347,13 +347,19 @@ def load_library(root: str | Path = SAMPLE_LIBRARY) -> Library:
     """Load every sign listed in `root/library.json`."""
     root = Path(root)
     meta_path = root / "library.json"
+    if root.is_file():
+        raise LibraryError(f"{root} is a file: give the sign library's folder, the one holding library.json and "
+                           "the signs' images")
+    if not root.is_dir():
+        raise LibraryError(f"{root}: no such folder (a sign library is a folder holding library.json)")
     if not meta_path.is_file():
         raise LibraryError(f"{root} is not a sign library: {meta_path} not found")
     meta = read_json(meta_path, LibraryError)
+    if isinstance(meta, dict):
+        _refuse_unknown_keys(meta, LIBRARY_KEYS, str(meta_path))
     entries = meta.get("signs") if isinstance(meta, dict) else None
     if not isinstance(meta, dict) or not isinstance(entries, list) or not entries:
         raise LibraryError(f'{meta_path} must hold {{"signs": [...]}} with at least one sign')
-    _refuse_unknown_keys(meta, LIBRARY_KEYS, str(meta_path))
 
     signs: list[LibrarySign] = []
     for i, entry in enumerate(entries):

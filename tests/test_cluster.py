@@ -234,6 +234,9 @@ def test_sweep_and_track_refuse_what_they_cannot_do_in_one_line(capsys, tmp_path
     assert code == 2 and "-o writes the flight of a local run" in err
     code, _, err = run(capsys, "track", "camera:0", "--results", str(tmp_path))
     assert code == 2 and "camera:0: no such file or folder" in err
+    (tmp_path / "a_file").write_text("")
+    code, _, err = run(capsys, "evaluate", DATASETS[2], "--results", str(tmp_path / "a_file"))
+    assert code == 2 and "is a file: give a folder" in err
     (tmp_path / "truth.json").write_text(json.dumps({"video": "gone.mp4", "frames": []}))  # a flight without its video
     code, _, err = run(capsys, "sweep", "threshold", "--lo", "0.5", "--hi", "0.9", str(tmp_path))
     assert code == 2 and f"{tmp_path / 'truth.json'} must name its video, a file beside it" in err

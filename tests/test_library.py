@@ -78,6 +78,9 @@ def test_a_library_file_with_a_size_in_centimetres_is_refused(tmp_path):
     (lambda meta: meta.update(sign=[]),
      ": unknown key(s) 'sign': correct or remove them; the keys read are signs, copied_from, "
      "fingerprint, added"),
+    (lambda meta: meta.update(sign=meta.pop("signs")),   # the only list misspelt: its name said, not "no signs"
+     ": unknown key(s) 'sign': correct or remove them; the keys read are signs, copied_from, "
+     "fingerprint, added"),
 ])
 def test_a_library_file_with_an_unknown_key_is_refused_naming_it(tmp_path, change, words):
     """A typo such as "heigth_m" was dropped without a word, and the height taken from the image's aspect."""
@@ -89,6 +92,13 @@ def test_a_library_file_with_an_unknown_key_is_refused_naming_it(tmp_path, chang
     with pytest.raises(LibraryError) as refused:
         load_library(tmp_path / "library")
     assert str(refused.value) == f"{path}{words}"
+
+
+def test_a_library_given_as_its_file_or_a_missing_folder_says_which(tmp_path):
+    with pytest.raises(LibraryError, match="is a file: give the sign library's folder"):
+        load_library(SAMPLE_LIBRARY / "library.json")
+    with pytest.raises(LibraryError, match="no such folder"):
+        load_library(tmp_path / "nowhere")
 
 
 def test_a_library_file_listing_a_copy_of_a_sign_is_refused_naming_both(tmp_path):

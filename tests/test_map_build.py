@@ -274,7 +274,7 @@ def test_map_build_refuses_a_disconnected_survey_and_a_bad_anchor(tmp_path, caps
     assert not (tmp_path / "map.yaml").exists()
     code, _, err = run_map_build(SURVEY / "photo_000.jpg", "-o", tmp_path / "map.yaml", "--anchor", "lobby",
                                  capsys=capsys)
-    assert code == 2 and "--anchor 'lobby' is not a sign of the library" in err
+    assert code == 2 and "signpose map build: error: --anchor 'lobby' is not a sign of the library" in err
     code, _, err = run_map_build(SURVEY / "photo_000.jpg", "-o", tmp_path / "map.yaml", "--anchor", "archives",
                                  capsys=capsys)
     assert code == 1 and "the anchor 'archives' is not among the signs the survey saw: security_compound" in err
