@@ -93,12 +93,27 @@ def cmd_map_build(args: argparse.Namespace) -> int:
     total = sum(c for c in counts if c is not None) if all(c is not None for c in counts) else None
     observations: list[Observation] = []
     done = failed = 0
+    # A photo or flight given twice (a folder and a file in it, a folder twice) would count as two
+    # independent views of its signs, and narrow their covariance for nothing.
+    used: set[Path] = set()
+    repeated: list[str] = []
     with progress(total=total, desc="map build", leave=False) as bar, \
             stopped_after(lambda: done, total or done, "images and frames"):
         for source in sources:
             with source:
+                if not isinstance(source, ImageSource) and Path(source.name).exists():
+                    if Path(source.name).resolve() in used:
+                        repeated.append(source.name)
+                        bar.update(source.count or 0)
+                        continue
+                    used.add(Path(source.name).resolve())
                 if isinstance(source, ImageSource):
                     for path in source.paths:
+                        if path.resolve() in used:
+                            repeated.append(str(path))
+                            bar.update()
+                            continue
+                        used.add(path.resolve())
                         seen = photo_observations(str(path), library, settings, camera, max_pixels(args))
                         if seen is None:
                             failed += 1
@@ -111,6 +126,9 @@ def cmd_map_build(args: argparse.Namespace) -> int:
                         observations += seen
                         done += frame_done
                         bar.update(frame_done)
+    if repeated:
+        print(f"warning: {len(repeated)} photo(s) or flight(s) given more than once, each used once: "
+              f"{', '.join(repeated[:3])}{', ...' if len(repeated) > 3 else ''}", file=sys.stderr)
     signs = sorted({o.sign_id for o in observations})
     images = len({o.image for o in observations})
     print(f"{done} images and frames, {images} with a sign: {len(observations)} observations of "

@@ -281,6 +281,11 @@ def test_map_build_refuses_a_disconnected_survey_and_a_bad_anchor(tmp_path, caps
     code, _, err = run_map_build(SURVEY, "-o", tmp_path / "map.yaml", "--anchor", "archives", "--known",
                                  SURVEY / "truth_map.yaml", capsys=capsys)
     assert code == 2 and "give --anchor or --known, not both" in err
+    # A photo given twice is one view: counted once and said, not taken for two independent ones.
+    photo = SURVEY / "photo_002.jpg"
+    code, _, err = run_map_build(photo, photo, "-o", tmp_path / "twice.yaml", "--anchor", "security_compound",
+                                 capsys=capsys)
+    assert "1 photo(s) or flight(s) given more than once, each used once" in err and "1 images and frames" in err
 
 
 def test_map_build_is_a_subcommand_with_its_help():
