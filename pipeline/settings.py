@@ -225,13 +225,33 @@ class Settings:
     def from_dict(cls, data: dict[str, Any], base: Settings | None = None) -> Settings:
         """Build from a full or partial dict; missing keys come from `base` (default: `Settings()`)."""
         if not isinstance(data, dict):
-            raise SettingsError(f"settings must be a JSON object, got {type(data).__name__}")
+            raise SettingsError(f"settings must be a JSON object, got {shown(data)}")
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
-            raise SettingsError(f"unknown setting(s): {reprlib.repr(unknown)[1:-1]}; known: {', '.join(sorted(known))}")
+            raise SettingsError(f"unknown setting(s): {shown(unknown)[1:-1]}; known: {', '.join(sorted(known))}")
         merged = {**(base or cls()).to_dict(), **data}
         return cls(**merged)
+
+
+class _JsonRepr(reprlib.Repr):
+    """reprlib's shortening in JSON's words (true, null, "text", Infinity): settings files and requests are
+    JSON, and Python's True or ['a'] is not what their author wrote."""
+
+    def repr_bool(self, x: bool, level: int) -> str:
+        return "true" if x else "false"
+
+    def repr_NoneType(self, x: None, level: int) -> str:  # noqa: N802 (reprlib's name for it)
+        return "null"
+
+    def repr_str(self, x: str, level: int) -> str:
+        return '"' + super().repr_str(x, level)[1:-1] + '"'
+
+    def repr_float(self, x: float, level: int) -> str:
+        return repr(x) if math.isfinite(x) else "NaN" if math.isnan(x) else "Infinity" if x > 0 else "-Infinity"
+
+
+shown = _JsonRepr().repr
 
 
 def check_setting(name: str, value: Any) -> Any:
@@ -255,22 +275,22 @@ def _check_field(f: dataclasses.Field, value: Any) -> Any:
         raise SettingsError(f"{name} must not be null")
     if "choices" in meta:
         if value not in meta["choices"]:
-            raise SettingsError(f"{name} must be one of {', '.join(meta['choices'])}; got {reprlib.repr(value)}")
+            raise SettingsError(f"{name} must be one of {', '.join(meta['choices'])}; got {shown(value)}")
         return value
     if isinstance(f.default, bool):
         if not isinstance(value, bool):
-            raise SettingsError(f"{name} must be true or false; got {reprlib.repr(value)}")
+            raise SettingsError(f"{name} must be true or false; got {shown(value)}")
         return value
     is_int = _is_int_field(f)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise SettingsError(f"{name} must be a number; got {reprlib.repr(value)}")
+        raise SettingsError(f"{name} must be a number; got {shown(value)}")
     # Only floats can be non-finite or fractional; float() of a huge JSON integer would overflow.
     if isinstance(value, float) and not math.isfinite(value):
-        raise SettingsError(f"{name} must be finite; got {reprlib.repr(value)}")
+        raise SettingsError(f"{name} must be finite; got {shown(value)}")
     if is_int and isinstance(value, float) and not value.is_integer():
-        raise SettingsError(f"{name} must be a whole number; got {reprlib.repr(value)}")
+        raise SettingsError(f"{name} must be a whole number; got {shown(value)}")
     if not meta["min"] <= value <= meta["max"]:
-        raise SettingsError(f"{name} must be between {meta['min']} and {meta['max']}; got {reprlib.repr(value)}")
+        raise SettingsError(f"{name} must be between {meta['min']} and {meta['max']}; got {shown(value)}")
     return int(value) if is_int else value
 
 

@@ -42,8 +42,12 @@ def test_a_min_crop_size_up_to_max_crop_size_or_with_no_max_is_taken(changes):
 
 @pytest.mark.parametrize("changes, message", [
     ({"threshold": [1] * 1_000_000}, "threshold must be a number; got [1, 1, 1, 1, 1, 1, ...]"),
-    ({"detector": "x" * 100_000}, "detector must be one of sift, orb; got 'xxxxxxxxxxxx...xxxxxxxxxxxxx'"),
-    ({"x" * 100_000: 1, "thresold": 0.5}, "unknown setting(s): 'thresold', 'xxxxxxxxxxxx...xxxxxxxxxxxxx'; known: "),
+    ({"detector": "x" * 100_000}, 'detector must be one of sift, orb; got "xxxxxxxxxxxx...xxxxxxxxxxxxx"'),
+    ({"x" * 100_000: 1, "thresold": 0.5}, 'unknown setting(s): "thresold", "xxxxxxxxxxxx...xxxxxxxxxxxxx"; known: '),
+    # in JSON's words, as the file or request wrote them
+    ({"candidates": True}, "candidates must be a number; got true"),
+    ({"refine": ["a"]}, 'refine must be one of auto, ecc, none; got ["a"]'),
+    ({"threshold": math.inf}, "threshold must be finite; got Infinity"),
 ])
 def test_an_error_shows_a_value_or_name_shortened(changes, message):
     """A settings file's million-number value was written out whole: a 6 MB error line, or detail of a 422."""
