@@ -165,6 +165,13 @@ class RecognitionOut(BaseModel):
     reused_stages: list[str] = Field(description="stages whose results came from the image's cache (their "
                                                  "times are a lookup's); empty in the CLI")
     warnings: list[str]
+    signs: list[dict[str, Any]] | None = Field(None, description="every library sign found in the image, each "
+                                               "{label, corners, pose}, the answer first, as `signpose recognize "
+                                               "--json` gives them; POST /api/recognize, and an image's result "
+                                               "while a sign map is held (null otherwise)")
+    camera_in_map: dict[str, Any] | None = Field(None, description="while a sign map is held: the camera in the "
+                                                 "map frame from one fit over the mapped signs in view, as "
+                                                 "`signpose recognize --map` gives it (null: none in view, or no map)")
 
 
 class PinholeModel(BaseModel):

@@ -33,7 +33,7 @@ from signpose.pipeline.camera import ASSUMED_HFOV_DEG, ASSUMED_HFOV_RANGE_DEG, C
 from signpose.pipeline.evaluate import CORES, keep_freed_memory, pad_to
 from signpose.pipeline.image import ImageError, read_file
 from signpose.pipeline.library import SAMPLE_LIBRARY, Library, LibraryError, load_library
-from signpose.pipeline.every_sign import recognize_every_sign
+from signpose.pipeline.every_sign import SignSeen, recognize_every_sign
 from signpose.pipeline.localise import CameraInMap, locate_in_map
 from signpose.pipeline.recognize import PipelineError, Recognition, pipeline_errors, why_no_feature_winner
 from signpose.pipeline.results import ResultStore
@@ -215,7 +215,7 @@ def recognize_one(name: str, library: Library, settings: Settings, camera: Camer
     rec = recognitions[0]
     if as_json:
         document = rec.to_json(name)
-        document["signs"] = [sign_json(r) for r in found]
+        document["signs"] = [SignSeen.of(r).to_json() for r in found]
         if sign_map is not None:
             document["camera_in_map"] = located.to_json() if located is not None else None
         say(json.dumps(document))
@@ -227,12 +227,6 @@ def recognize_one(name: str, library: Library, settings: Settings, camera: Camer
             lines.append(f"{'':<28}   {format_in_map(located, sign_map.frame)}")
         say("\n".join(lines))
     return True
-
-
-def sign_json(rec: Recognition) -> dict:
-    """One entry of `recognize --json`'s `signs`: a sign found in the image, its corners and pose."""
-    document = rec.to_json("")
-    return {key: document[key] for key in ("label", "corners", "pose")}
 
 
 def format_in_map(located: CameraInMap | None, frame: str) -> str:

@@ -222,6 +222,14 @@ def build_from_held(workspace: Workspace, flights: Flights, anchor: str | None,
     return build_map(observations, anchor=anchor), source, names, warnings
 
 
+def in_view_json(found: list[SignSeen], held: HeldMap | None, library: Library, camera: Camera | None) -> dict:
+    """A result's `signs` (every sign `found` in the image, each {label, corners, pose}) and, with a map `held`, its
+    `camera_in_map` (null where no mapped sign is in view), as `signpose recognize --json [--map]` gives them."""
+    located = camera_in_map(found, held.sign_map, library, camera) if held is not None else None
+    return {"signs": [sign.to_json() for sign in found if sign.label is not None],
+            "camera_in_map": None if located is None else located.to_json()}
+
+
 def camera_in_map(found: list[SignSeen], sign_map: SignMap, library: Library, camera: Camera | None) -> CameraInMap | None:
     """The camera of a photo or frame in the map frame, from the signs `found` in it (`locate_in_map`);
     None without a camera or a mapped sign among them."""

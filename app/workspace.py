@@ -21,7 +21,8 @@ import functools
 import logging
 import secrets
 import threading
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
@@ -39,7 +40,7 @@ from signpose.pipeline.image import ImageError
 from signpose.pipeline.jsonfile import parse_json
 from signpose.pipeline.library import (MAX_LIKENESS, NO_SIGN, SAMPLE_LIBRARY, Library, LibraryError, LibrarySign, alike_sign,
                               make_sign, validate_sign_entry)
-from signpose.pipeline.recognize import PipelineError, Recognition, StageCache, run_pipeline
+from signpose.pipeline.recognize import PipelineError, Recognition, StageCache, pipeline_errors, run_pipeline
 from signpose.pipeline.settings import PRESETS, Settings, load_settings
 
 from .events import Event, EventBus
@@ -466,8 +467,9 @@ class Workspace:
 
     # ---- one-off runs
 
-    def recognize_upload(self, data: bytes, name: str) -> Recognition:
-        """Recognise an uploaded image with the current state without keeping it.
+    def recognize_upload(self, data: bytes, name: str) -> list[Recognition]:
+        """Recognise every library sign in an uploaded image (`recognize_every_sign`: the first is the answer)
+        with the current state without keeping it.
 
         Runs in the caller's thread (a request worker), not behind a re-run in the pipeline pool.
         Raises ImageError when the upload is unusable, CameraError when the camera does not fit it,
@@ -476,8 +478,9 @@ class Workspace:
         image, _, exif = decode_upload(data, name, self.config.max_pixels)
         snap = self.snapshot
         try:
-            return run_logged(name, image, snap.library, snap.settings,
-                              snap.camera_for(exif, image.shape[1], image.shape[0]))
+            with logged_failure(name), pipeline_errors(name):
+                return recognize_every_sign(image, snap.library, snap.settings,
+                                            snap.camera_for(exif, image.shape[1], image.shape[0]))
         finally:
             self._rerun.trim_soon()
 
@@ -559,8 +562,15 @@ class Workspace:
 def run_logged(name: str, image: np.ndarray, library: Library, settings: Settings, camera: Camera | None,
                cache: StageCache | None = None) -> Recognition:
     """`run_pipeline`, with the traceback of a failure in the server's log."""
-    try:
+    with logged_failure(name):
         return run_pipeline(name, image, library, settings, camera, cache)
+
+
+@contextmanager
+def logged_failure(name: str) -> Iterator[None]:
+    """Inside, a PipelineError (on the image `name`) goes on with its traceback in the server's log."""
+    try:
+        yield
     except PipelineError:
         log.exception("pipeline failed on %s", name)
         raise

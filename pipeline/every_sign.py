@@ -49,6 +49,11 @@ class SignSeen:
     def of(cls, recognition: Recognition) -> SignSeen:
         return cls(recognition.label, recognition.corners, recognition.pose)
 
+    def to_json(self) -> dict:
+        """One entry of the JSON's `signs` (`signpose recognize --json`): {"label", "corners", "pose"}."""
+        return {"label": self.label, "corners": None if self.corners is None else np.asarray(self.corners, float).tolist(),
+                "pose": None if self.pose is None else self.pose.to_json()}
+
 
 def mask_quads(gray: np.ndarray, quads: Sequence[np.ndarray]) -> np.ndarray:
     """A copy of (H, W) uint8 `gray` with each (4, 2) image px quad, grown by MASK_GROWTH, filled

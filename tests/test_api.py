@@ -548,6 +548,9 @@ def test_stateless_recognize(client):
     body = r.json()
     assert body["image"] == "p.jpg" and body["label"] == "security_compound" and len(body["homography"]) == 3
     assert {"scores", "pose", "timing_ms", "warnings", "corners", "recognized"} <= set(body)
+    # every sign in view, as `recognize --json` lists them; no map held, so no camera in it
+    assert [s["label"] for s in body["signs"]] == ["security_compound"] and body["signs"][0]["pose"] == body["pose"]
+    assert body["camera_in_map"] is None
     assert len(client.get("/api/images").json()["images"]) == before
     assert_error(client.post("/api/recognize", files={"file": ("e.jpg", b"", "image/jpeg")}), 422, "empty")
 

@@ -9,12 +9,15 @@ from fastapi import APIRouter, File, Form, HTTPException, Query, Response, Uploa
 from fastapi.responses import FileResponse
 from starlette.concurrency import run_in_threadpool
 
+from signpose.pipeline.every_sign import SignSeen
+
 from .. import figures
 from ..api_models import ExpectedIn, ImageDetail, ImagesOut, ImagesRemoved, ImageSummary, RecognitionOut, UploadOut
 from ..responses import detail, result_of, summary
+from ..sign_maps import in_view_json
 from ..uploads import read_upload
 from .deps import (FILES, IN_ORDER, JSON_BODY, MULTIPART, ONE_FILE, Batch, JsonBodyRoute, Position, RecordDep,
-                   WorkQueueDep, WorkspaceDep)
+                   SignMapsDep, WorkQueueDep, WorkspaceDep)
 
 router = APIRouter(tags=["images"], route_class=JsonBodyRoute)
 
@@ -55,8 +58,15 @@ def delete_images(workspace: WorkspaceDep) -> ImagesRemoved:
 
 
 @router.get("/images/{image_id}", response_model=ImageDetail)
-def get_image(record: RecordDep, workspace: WorkspaceDep) -> ImageDetail:
-    return detail(workspace, record)
+def get_image(record: RecordDep, workspace: WorkspaceDep, sign_maps: SignMapsDep) -> ImageDetail:
+    """The image's summary and result; while a sign map is held, the result has every sign in view and the camera
+    in the map frame (searched for once per state of the workspace)."""
+    out, held, rec = detail(workspace, record), sign_maps.held, record.outcome.recognition
+    if held is not None and out.result is not None and rec is not None:
+        (found,) = workspace.signs_in_view([record])
+        if found is not None:
+            out.result = out.result.model_copy(update=in_view_json(found, held, workspace.library, rec.camera))
+    return out
 
 
 @router.patch("/images/{image_id}", response_model=ImageSummary, dependencies=[JSON_BODY])
@@ -96,11 +106,15 @@ def get_stage(record: RecordDep, stage: Literal[figures.STAGES], workspace: Work
 
 
 @router.post("/recognize", response_model=RecognitionOut, dependencies=[MULTIPART, ONE_FILE])
-async def recognize_once(file: Annotated[UploadFile, File()], workspace: WorkspaceDep, queue: WorkQueueDep) -> dict:
-    """Recognise one image with the current settings, library and camera without keeping it."""
+async def recognize_once(file: Annotated[UploadFile, File()], workspace: WorkspaceDep, queue: WorkQueueDep,
+                         sign_maps: SignMapsDep) -> dict:
+    """Recognise one image with the current settings, library and camera without keeping it: every sign in view,
+    and while a sign map is held the camera in the map frame."""
     # The sync upload routes call read_upload directly; here, as in PUT /api/camera, the read goes
     # to a worker thread so that a large upload spooled to disk does not block the event loop.
     name, data = await run_in_threadpool(read_upload, file)
-    rec = await queue.run(f"recognising {name}", lambda _: workspace.recognize_upload(data, name),
-                          limit_s=workspace.config.request_timeout_s)
-    return rec.to_json(name)
+    recognitions = await queue.run(f"recognising {name}", lambda _: workspace.recognize_upload(data, name),
+                                   limit_s=workspace.config.request_timeout_s)
+    answer = recognitions[0]
+    return {**answer.to_json(name), **in_view_json([SignSeen.of(r) for r in recognitions], sign_maps.held,
+                                                   workspace.library, answer.camera)}
