@@ -273,6 +273,7 @@ export function initFlights() {
     form: flightForm,
     done: () => { refreshFlights(); return "✓ added: processing"; },
     kind: FLIGHTS,
+    ordered: false,
   });
   const picker = $("#flight-picker");
   picker.onchange = () => { enqueue(picker.files); picker.value = ""; };

@@ -104,9 +104,10 @@ export function filesForm(file, fields = {}) {
  * `done(body)` gets each JSON answer and returns the row's closing message; `idle()` runs when
  * the queue has emptied. `kind`: the files it takes (IMAGES by default; others are refused with a
  * message). Returns `enqueue(files)`, with `enqueue.left()` the files queued or being sent and
- * `enqueue.stop()` (see there).
+ * `enqueue.stop()` (see there). `ordered` false: a route that lists what it gets as it lands (flights)
+ * is sent no batch or position, which it would refuse as fields it does not take.
  */
-export function uploadQueue({ list, url, form, done, idle = () => {}, kind = IMAGES }) {
+export function uploadQueue({ list, url, form, done, idle = () => {}, kind = IMAGES, ordered = true }) {
   const queue = [];
   const batch = batchLine(list, kind.noun);
   let active = 0;
@@ -154,8 +155,10 @@ export function uploadQueue({ list, url, form, done, idle = () => {}, kind = IMA
     unfinished += images.length;
     for (const file of images) {
       const body = form(file);
-      body.append("batch", batchName);
-      body.append("position", position++);
+      if (ordered) {
+        body.append("batch", batchName);
+        body.append("position", position++);
+      }
       queue.push({ body, row: uploadRow(list, file) });
     }
     pump();
