@@ -49,7 +49,7 @@ from signpose.pipeline.pose import rotation_error_deg
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import Settings, SettingsError, preset
 from signpose.pipeline.stages import STAGES, StageCache
-from signpose.pipeline.synth import CATEGORIES, generate_dataset
+from signpose.pipeline.synth import CATEGORIES, RENDERING, generate_dataset
 
 SIZES = ((640, 480), (1280, 960))
 # name -> the settings it runs the pipeline with; the naive reference (None) runs its own code.
@@ -128,7 +128,7 @@ def runner(settings: Settings | None) -> Callable[[np.ndarray, Library, Camera],
 
 def scenes(data: Path, size: tuple[int, int], n: int, seed: int, library: Library) -> Dataset:
     """The first n scenes of `size` (w, h) from `seed`, rendered into `data` unless already there."""
-    root = data / f"{size[0]}x{size[1]}-seed{seed}"
+    root = data / f"{size[0]}x{size[1]}-seed{seed}-r{RENDERING}"
     if not (root / "truth.json").is_file() or len(load_dataset(root)) < n:
         with tqdm(total=n, desc=f"render {size[0]}x{size[1]}", unit="scene") as bar:
             generate_dataset(root, library, n=n, seed=seed, size=size, progress=lambda i, total: bar.update(1))

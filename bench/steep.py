@@ -25,7 +25,7 @@ from signpose.pipeline.evaluate import Dataset, load_dataset
 from signpose.pipeline.features import library_affine_features, library_features
 from signpose.pipeline.library import Library, load_library
 from signpose.pipeline.settings import preset
-from signpose.pipeline.synth import generate_dataset
+from signpose.pipeline.synth import RENDERING, generate_dataset
 
 from speed import Outcome, identified_percent, machine, measure, scene_parser
 
@@ -36,7 +36,7 @@ MIX = {"steep": 2.0, "negative": 1.0}
 
 def steep_scenes(data: Path, n: int, seed: int, library: Library) -> Dataset:
     """`n` scenes of the MIX from `seed`, rendered into `data` unless already there."""
-    root = data / f"steep-seed{seed}-n{n}"
+    root = data / f"steep-seed{seed}-n{n}-r{RENDERING}"
     if not (root / "truth.json").is_file():
         with tqdm(total=n, desc="render", unit="scene") as bar:
             generate_dataset(root, library, n=n, seed=seed, categories=tuple(MIX), weights=tuple(MIX.values()),

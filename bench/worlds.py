@@ -36,7 +36,7 @@ from signpose.pipeline.camera import Camera  # noqa: E402
 from signpose.pipeline.library import Library, load_library  # noqa: E402
 from signpose.pipeline.recognize import recognize  # noqa: E402
 from signpose.pipeline.settings import preset  # noqa: E402
-from signpose.pipeline.synth import generate_dataset  # noqa: E402
+from signpose.pipeline.synth import RENDERING, generate_dataset  # noqa: E402
 from signpose.pipeline.synth_photo_world import generate_photo_world  # noqa: E402
 from tools.make_photo_world import MIX, default_backgrounds, look_alike_plaques, mix_counts  # noqa: E402
 
@@ -146,7 +146,8 @@ def main() -> None:
     args = parser.parse_args()
     library = load_library()
     load_start = os.getloadavg()[0]
-    render = {"rooms": lambda: rooms(args.data / f"rooms-n{args.n}-seed{args.seed}", library, args.n, args.seed),
+    render = {"rooms": lambda: rooms(args.data / f"rooms-n{args.n}-seed{args.seed}-r{RENDERING}", library, args.n,
+                                     args.seed),
               "photos": lambda: photos(args.data / f"photos-n{args.n}-seed{args.seed}", library, args.n, args.seed,
                                        args.backgrounds or default_backgrounds())}
     worlds = {world: make() for world, make in render.items() if world in (args.world or render)}

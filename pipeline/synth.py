@@ -37,6 +37,9 @@ from signpose.pipeline.library import Library, LibrarySign
 CATEGORIES = ("easy", "hard", "negative")
 ALL_CATEGORIES = (*CATEGORIES, "steep")
 DEFAULT_WEIGHTS = {"easy": 0.5, "hard": 0.3, "negative": 0.2, "steep": 0.3}
+# The renderer's version, raised whenever a change moves what its scenes show: scenes rendered once
+# and kept by the benches are named by it, so that an older rendering is not measured again.
+RENDERING = 2
 # Sign-width ranges below are in px for a 640 px wide image and scale with the image width.
 REFERENCE_WIDTH = 640
 SUPERSAMPLE = 2
@@ -832,6 +835,10 @@ def _composite(albedo: np.ndarray, emission: np.ndarray, hits: _Hits, decal: _De
     x1, y1 = np.ceil(np.clip(px.max(0) + 2, 0, [width, height])).astype(int)
     if x1 <= x0 or y1 <= y0:
         return
+    # The picture's pixel i spans [i, i + 1], as its corners above say; warpPerspective samples pixel
+    # centres at whole coordinates, so its pixel i goes where H takes i + 0.5. Without the half pixel
+    # every picture was drawn half a pixel of it up and left of its true corners.
+    H = H @ np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]])
     # Shrink big pictures with INTER_AREA first: warpPerspective's bilinear lookup would alias.
     edge_x = max(np.linalg.norm(px[1] - px[0]), np.linalg.norm(px[2] - px[3]))
     edge_y = max(np.linalg.norm(px[3] - px[0]), np.linalg.norm(px[2] - px[1]))
