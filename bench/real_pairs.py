@@ -68,10 +68,15 @@ def _read(path: Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
     return image
 
 
+# The ground truth is in OpenCV's px on both sides, pixel x's centre at x; an answer's H takes library px,
+# whose pixel u spans [u, u + 1] (docs/conventions.md): OpenCV's x of the landmark is its u = x + 0.5.
+TO_LIBRARY_PX = 0.5
+
+
 def _points_rmse(truth: np.ndarray) -> Callable[[np.ndarray], float]:
     """RMSE (B px) of the (N, 7) label-1 rows `xA yA 1 xB yB 1 label` mapped from A to B through H."""
     def error(H: np.ndarray) -> float:
-        mapped = cv2.perspectiveTransform(truth[None, :, :2].astype(np.float64), H)[0]
+        mapped = cv2.perspectiveTransform(truth[None, :, :2].astype(np.float64) + TO_LIBRARY_PX, H)[0]
         return float(np.sqrt(np.mean(np.sum((mapped - truth[:, 3:5]) ** 2, axis=1))))
     return error
 
@@ -80,7 +85,7 @@ def _corner_error(truth_H: np.ndarray, size: tuple[int, int]) -> Callable[[np.nd
     """The largest distance (scene px) between a (w, h) = `size` image's corners through H and through `truth_H`."""
     w, h = size
     corners = np.array([[[0, 0], [w, 0], [w, h], [0, h]]], dtype=np.float64)
-    expected = cv2.perspectiveTransform(corners, truth_H)[0]
+    expected = cv2.perspectiveTransform(corners - TO_LIBRARY_PX, truth_H)[0]
 
     def error(H: np.ndarray) -> float:
         return float(np.linalg.norm(cv2.perspectiveTransform(corners, H)[0] - expected, axis=1).max())
@@ -161,7 +166,9 @@ def run_opencv(case: Case) -> Outcome:
     inliers = int(mask.sum()) if mask is not None else 0
     if H is None or inliers < CV_MIN_INLIERS:
         return Outcome(False, None, inliers, f"{inliers} inliers of {len(good)} matches", ms)
-    return Outcome(True, case.error(H) if case.error else None, inliers, None, ms)
+    # OpenCV's H takes the landmark's OpenCV px: in library px, as the error reads an answer's, it is H·(u - 0.5).
+    in_library_px = H @ np.array([[1, 0, -TO_LIBRARY_PX], [0, 1, -TO_LIBRARY_PX], [0, 0, 1]])
+    return Outcome(True, case.error(in_library_px) if case.error else None, inliers, None, ms)
 
 
 def _cell(outcome: Outcome) -> str:

@@ -1,10 +1,13 @@
 """Stage 2: local features (SIFT by default, ORB as an option), in a crop or the full frame.
 
 Keypoints are returned as plain arrays in full-image pixel coordinates (OpenCV convention,
-pixel centres at integers), so results pickle cheaply to worker processes.
+pixel centres at integers), so results pickle cheaply to worker processes; a library sign's in
+library px, whose pixel u spans [u, u + 1] (`at_pixel_edges`, docs/conventions.md).
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -145,7 +148,7 @@ def sign_features(sign: LibrarySign, settings: Settings) -> Features:
     `picture_budget`'s features."""
     if sign.kind == "picture":
         settings = picture_budget(settings, *sign.size_px)
-    return detect(sign.image, settings, resize=False)
+    return at_pixel_edges(detect(sign.image, settings, resize=False))
 
 
 def library_features(library: Library, settings: Settings) -> dict[str, Features]:
@@ -176,7 +179,13 @@ def sign_affine_features(sign: LibrarySign, settings: Settings) -> Features:
     region = (0, 0, *sign.size_px)
     if descriptors is None or not keypoints:
         return no_features(region, scale, settings.detector)
-    return resized_features(keypoints, descriptors, region, scale, settings.detector)
+    return at_pixel_edges(resized_features(keypoints, descriptors, region, scale, settings.detector))
+
+
+def at_pixel_edges(features: Features) -> Features:
+    """A library sign's `features` with their positions in the library's px, whose pixel i spans [i, i + 1]
+    (`LibrarySign.corners_px` at 0 and the width), from OpenCV's, which put pixel i's centre at i."""
+    return dataclasses.replace(features, xy=features.xy + np.float32(0.5))
 
 
 def library_affine_features(library: Library, settings: Settings) -> dict[str, Features]:

@@ -276,8 +276,9 @@ def _refine_ecc(gray: np.ndarray, sign: LibrarySign, H: np.ndarray,
     sx, sy = small.shape[1] / w, small.shape[0] / h
     ix, iy = round(small.shape[1] * ECC_INSET), round(small.shape[0] * ECC_INSET)
     template = small[iy:small.shape[0] - iy, ix:small.shape[1] - ix]
-    # template px -> library px, aligning pixel centres as cv2.resize does
-    to_library = np.array([[1 / sx, 0, (ix + 0.5) / sx - 0.5], [0, 1 / sy, (iy + 0.5) / sy - 0.5], [0, 0, 1]])
+    # template px -> library px: the template's pixel j is the small image's j + ix, whose centre lies at
+    # (j + ix + 0.5) / sx of the library, where pixel i spans [i, i + 1] (`LibrarySign.corners_px`)
+    to_library = np.array([[1 / sx, 0, (ix + 0.5) / sx], [0, 1 / sy, (iy + 0.5) / sy], [0, 0, 1]])
     # ECC smooths and differentiates its whole input image before iterating: give it only the
     # neighbourhood of the sign, with room for the alignment to move.
     x0, y0, x1, y1 = box = expand_box(bounding_box(corners), ECC_CROP_MARGIN, gray.shape[1], gray.shape[0])

@@ -30,7 +30,8 @@ def run_pair(name: str, **changes):
     H = rec.H if rec.recognized else rec.scores[0].H
     if H is None:
         return rec, None
-    mapped = cv2.perspectiveTransform(truth[None, :, :2], H)[0]
+    # The truth's A points are OpenCV px, pixel x's centre at x; H takes library px, where it is at x + 0.5.
+    mapped = cv2.perspectiveTransform(truth[None, :, :2] + 0.5, H)[0]
     return rec, float(np.sqrt(np.mean(np.sum((mapped - truth[:, 3:5]) ** 2, axis=1))))
 
 
