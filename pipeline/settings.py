@@ -359,8 +359,13 @@ def file_settings(data: Any) -> Any:
 
 
 def load_settings(path: str | Path, base: Settings | None = None) -> Settings:
-    """Read settings JSON (full or partial, or as `GET /api/settings` answers) from `path`."""
-    return Settings.from_dict(file_settings(read_json(Path(path), SettingsError, "settings file")), base=base)
+    """Read settings JSON (full or partial, or as `GET /api/settings` answers) from `path`; SettingsError
+    naming the file."""
+    data = file_settings(read_json(Path(path), SettingsError, "settings file"))
+    try:
+        return Settings.from_dict(data, base=base)
+    except SettingsError as exc:
+        raise SettingsError(f"{path}: {exc}") from None
 
 
 def save_settings(settings: Settings, path: str | Path) -> None:

@@ -1,5 +1,6 @@
 import json
 import math
+import re
 
 import pytest
 
@@ -63,6 +64,9 @@ def test_partial_json_round_trip(tmp_path):
     assert s.threshold == 0.7 and s.ransac_iterations == 50
     path.write_text("{not json")
     with pytest.raises(SettingsError, match="not valid JSON"):
+        load_settings(path)
+    path.write_text('{"threshold": 5}')   # a value out of range names the file it came from
+    with pytest.raises(SettingsError, match=rf"^{re.escape(str(path))}: threshold must be between"):
         load_settings(path)
     path.write_text('{"threshold": NaN}')
     with pytest.raises(SettingsError, match="finite"):
