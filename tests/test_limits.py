@@ -16,6 +16,7 @@ import httpx
 import pytest
 
 import signpose.app.settings_history as settings_history
+import signpose.pipeline.every_sign as every_sign_module
 import signpose.pipeline.recognize as recognize_module
 from signpose.app.cli import main
 from signpose.app.server import create_app
@@ -43,7 +44,9 @@ def test_a_stuck_pipeline_call_answers_503_and_the_server_goes_on(tmp_path, monk
             calls.append(args)
             release.wait(TIMEOUT_S)
 
+        # where each call looks it up: a sweep runs `recognize`, POST /api/recognize `recognize_every_sign`
         monkeypatch.setattr(recognize_module, "recognize", stuck)
+        monkeypatch.setattr(every_sign_module, "recognize", stuck)
         started = time.monotonic()
         r = c.post("/api/recognize", files={"file": ("stuck.jpg", photo, "image/jpeg")})
         assert_error(r, 503, "stuck.jpg", f"{LIMIT_S:g} s limit", "--request-timeout")
