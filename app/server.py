@@ -33,6 +33,7 @@ from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
 from starlette.concurrency import run_in_threadpool
+from starlette.routing import Match, Mount
 
 from signpose.pipeline import shipped_folder
 from signpose.pipeline.calibrate import CalibrationError
@@ -92,6 +93,25 @@ async def _validation_error_handler(request: Request, exc: Exception) -> JSONRes
     assert isinstance(exc, RequestValidationError)
     return JSONResponse({"detail": "; ".join(map(_problem, exc.errors()))},
                         status_code=status.HTTP_422_UNPROCESSABLE_CONTENT)
+
+
+API_METHODS = ["GET", "POST", "PUT", "PATCH", "DELETE"]
+
+
+def _unknown_api_route(app: FastAPI) -> Callable[[Request], Awaitable[JSONResponse]]:
+    """The answer to an /api request no route takes: 405 naming the methods of a route of that path, else 404
+    naming /docs. Both fell through to the page's static files, whose bare 404 "Not Found" said neither."""
+    async def answer(request: Request) -> JSONResponse:
+        path = request.url.path
+        allowed = [method for method in API_METHODS if any(
+            getattr(route, "endpoint", None) is not answer and not isinstance(route, Mount)
+            and route.matches({**request.scope, "method": method})[0] == Match.FULL for route in app.router.routes)]
+        if allowed:
+            return JSONResponse({"detail": f"{request.method} {path}: this route takes {', '.join(allowed)}"},
+                                status_code=status.HTTP_405_METHOD_NOT_ALLOWED, headers={"Allow": ", ".join(allowed)})
+        return JSONResponse({"detail": f"no API route {path}: every route is listed at /docs"},
+                            status_code=status.HTTP_404_NOT_FOUND)
+    return answer
 
 
 def add_sample_flight(flights: Flights, folder: Path = SAMPLE_FLIGHT) -> None:
@@ -166,6 +186,7 @@ def create_app(source: Workspace | WorkspaceConfig, token: str | None = None) ->
         app.add_exception_handler(error, _error_handler(code))
     app.add_exception_handler(RequestValidationError, _validation_error_handler)
     app.include_router(api.router)
+    app.router.add_route("/api/{path:path}", _unknown_api_route(app), methods=API_METHODS)
     mount_viser(app)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True, check_dir=False), name="static")
     return app

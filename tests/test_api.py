@@ -568,6 +568,12 @@ def test_a_field_or_parameter_a_route_does_not_take_is_refused_naming_it(client)
     assert_error(client.put("/api/camera/assumed", json={"hfov_deg": 60, "x": 1}), 422,
                  "body.x: unknown key, which this request does not take")
     assert client.get("/api/library/security_compound/image?v=1").status_code == 200  # a page's cache-busting
+    # A method the route has not, or a route there is not: said, not the page's bare 404 "Not Found".
+    r = client.get("/api/recognize")
+    assert_error(r, 405, "GET /api/recognize: this route takes POST")
+    assert r.headers["allow"] == "POST"
+    assert_error(client.delete("/api/settings"), 405, "this route takes GET, PUT")
+    assert_error(client.get("/api/nothing"), 404, "no API route /api/nothing", "/docs")
 
 
 @pytest.mark.parametrize("method, path, files, form", [
