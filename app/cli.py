@@ -178,22 +178,25 @@ def cmd_recognize(args) -> int:
     done = failed = 0
     if not args.json:
         print(f"{'image':<28} {'label':<22} {'inliers':>7} {'margin':>6}  pose")
+    # A row names its image by its file name, unless two images share one (set1/scene_002.jpg, set2/scene_002.jpg).
+    names = [Path(path).name for path in args.images]
+    shown = names if len(set(names)) == len(names) else [str(path) for path in args.images]
     # The bar is on stderr, the table or the JSON on stdout: `--json > out.jsonl` shows it too.
-    with progress(args.images, desc="recognize", hidden=len(args.images) < 10, leave=False) as images, \
-            stopped_after(lambda: done, len(args.images), "images"):
-        for path in images:
+    with progress(list(zip(args.images, shown)), desc="recognize", hidden=len(args.images) < 10,
+                  leave=False) as images, stopped_after(lambda: done, len(args.images), "images"):
+        for path, row_name in images:
             failed += not recognize_one(str(path), library, settings, camera, args.assumed_fov, limit, args.json,
-                                        sign_map)
+                                        sign_map, row_name)
             done += 1
     return unusable_images(failed, len(args.images))
 
 
 def recognize_one(name: str, library: Library, settings: Settings, camera: Camera | None, hfov_deg: float,
-                  limit: int, as_json: bool, sign_map: SignMap | None = None) -> bool:
+                  limit: int, as_json: bool, sign_map: SignMap | None = None, row_name: str | None = None) -> bool:
     """Recognise every library sign in the image file `name` (`recognize_every_sign`) and print its lines: a table
-    row for the answer (the first) with its warnings, a row for each other sign and, with `sign_map`, a line of the
-    camera in the map frame; or, `as_json`, a JSON object. Returns whether the image could be used (else the line
-    says why not).
+    row for the answer (the first; named `row_name`, default the file's name) with its warnings, a row for each
+    other sign and, with `sign_map`, a line of the camera in the map frame; or, `as_json`, a JSON object. Returns
+    whether the image could be used (else the line says why not).
     `camera` turned as the image's EXIF orientation turned it; without one, the image's EXIF focal length, else
     `hfov_deg` assumed, as the server chooses."""
     try:
@@ -210,7 +213,7 @@ def recognize_one(name: str, library: Library, settings: Settings, camera: Camer
             say(json.dumps({"image": name, "error": str(exc)}))
         else:
             # The row names the image already; the image errors begin with its path.
-            say(f"{pad_to(Path(name).name, 28)} error: {str(exc).removeprefix(name + ': ')}")
+            say(f"{pad_to(row_name or Path(name).name, 28)} error: {str(exc).removeprefix(name + ': ')}")
         return False
     rec = recognitions[0]
     if as_json:
@@ -220,7 +223,7 @@ def recognize_one(name: str, library: Library, settings: Settings, camera: Camer
             document["camera_in_map"] = located.to_json() if located is not None else None
         say(json.dumps(document))
     else:
-        lines = [format_row(Path(name).name, rec), *(f"{'':<28}   warning: {w}" for w in rec.warnings)]
+        lines = [format_row(row_name or Path(name).name, rec), *(f"{'':<28}   warning: {w}" for w in rec.warnings)]
         for other in found[1:]:
             lines.append(format_row("  and", other))
         if sign_map is not None:

@@ -686,6 +686,19 @@ def test_sigterm_stops_recognize_between_whole_json_lines_and_says_how_many():
 
 
 @pytest.mark.slow
+def test_recognize_rows_tell_apart_images_of_one_name(tmp_path):
+    """Rows named by the file's name alone read `scene_002.jpg` twice for set1/ and set2/'s."""
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        shutil.copy(SCENES / "scene_002.jpg", tmp_path / folder)
+    run = signpose("recognize", tmp_path / "a" / "scene_002.jpg", tmp_path / "b" / "scene_002.jpg")
+    rows = run.stdout.splitlines()[1:]
+    assert run.returncode == 0 and rows[0].split()[0] != rows[1].split()[0], run.stdout
+    run = signpose("recognize", SCENES / "scene_002.jpg", SCENES / "scene_007.jpg")
+    assert [row.split()[0] for row in run.stdout.splitlines()[1:] if not row.startswith(" ")] == ["scene_002.jpg",
+                                                                                                 "scene_007.jpg"]
+
+
 def test_recognize_json_draws_its_progress_bar_between_whole_lines():
     """`recognize --json > out.jsonl` drew no bar; and a line printed while the bar was drawn on the same
     terminal began at the bar's end, in the table as in the JSON."""
