@@ -330,6 +330,7 @@ class Tracker:
         self.tracks: list[Track] = []
         self.next_id = 1
         self.last_detect: int | None = None
+        self.last_time_s: float | None = None
 
     # -- the frame ---------------------------------------------------------------------------
 
@@ -343,6 +344,11 @@ class Tracker:
             self.camera, notes, approximate = image_camera(self.given_camera, width, height)
             warnings += notes + ([approximate] if approximate else [])
         camera = self.camera
+        if self.last_time_s is not None and time_s < self.last_time_s:
+            # A bag's stamps out of order: the filters take it as no time passed, and the pose as it is.
+            warnings.append(f"frame {index} is stamped {self.last_time_s - time_s:.3f} s before the frame before it: "
+                            "taken as no time passed")
+        self.last_time_s = time_s if self.last_time_s is None else max(self.last_time_s, time_s)
 
         followed: dict[int, Followed] = {}
         for track in self.tracks:

@@ -247,6 +247,18 @@ def test_a_track_survives_one_blank_frame(library):
     assert results[5].signs and results[5].signs[0].track_id == before[0].track_id
 
 
+def test_a_frame_stamped_before_the_one_before_it_is_said_and_tracked_as_no_time_passed(library):
+    """A bag's stamps out of order went by without a word."""
+    frames = render(library, [Plaque("chief_of_security", (0.0, -0.2), SIGN)], hover(0.0, 1.2), 5)
+    tracker = Tracker(library, Settings(), synthetic_camera(), fps=FPS)
+    times = [0.0, 1 / FPS, 2 / FPS, 1.5 / FPS, 4 / FPS]
+    results = [tracker.step(frame, index=i, time_s=t) for i, (frame, t) in enumerate(zip(frames, times))]
+    assert [w for w in results[3].warnings if "stamped" in w] == [
+        "frame 3 is stamped 0.017 s before the frame before it: taken as no time passed"]
+    assert not any("stamped" in w for r in results[:3] + results[4:] for w in r.warnings)
+    assert results[3].signs and results[4].signs and results[4].signs[0].filtered_pose is not None
+
+
 def test_two_signs_in_one_frame_are_both_reported(library):
     plaques = [Plaque("security_compound", (-0.4, -0.2), SIGN), Plaque("chief_of_security", (0.4, -0.2), SIGN)]
     results = run(library, render(library, plaques, hover(0.0, 1.6), 4))
