@@ -590,7 +590,7 @@ def evaluated_in_chunks(args, datasets: list, library: Library, settings: Settin
 
 
 def cmd_sweep(args) -> int:
-    from signpose.app.tuning import TuningError, values_to_sweep
+    from signpose.app.tuning import INTEGER_SETTINGS, TuningError, sweep_values, values_to_sweep
 
     library, settings, camera = load_inputs(args)
     flights = flight_folders(args.datasets)
@@ -599,6 +599,10 @@ def cmd_sweep(args) -> int:
         values = values_to_sweep(settings, args.param, args.lo, args.hi, args.steps)
     except TuningError as exc:
         raise CliError(str(exc)) from None
+    distinct = len(sweep_values(args.lo, args.hi, args.steps, args.param in INTEGER_SETTINGS))
+    if distinct < args.steps:
+        print(f"note: {args.param} takes whole numbers: {args.steps} steps from {args.lo:g} to {args.hi:g} give "
+              f"{distinct} values", file=sys.stderr)
     variants = [settings.replace(**{args.param: value}) for value in values]
     answer: dict = {"param": args.param, "values": values}
     tables, summaries, failed = [], [], 0

@@ -686,6 +686,14 @@ def test_sigterm_stops_recognize_between_whole_json_lines_and_says_how_many():
 
 
 @pytest.mark.slow
+def test_a_sweep_of_a_whole_number_setting_says_when_its_steps_give_fewer_values():
+    """Three steps of min_inliers from 8 to 9 ran two values without a word."""
+    run = signpose("sweep", "min_inliers", "--lo", "8", "--hi", "9", "--steps", "3",
+                   ROOT / "sample_images" / "datasets" / "set3")
+    assert run.returncode == 0, run.stderr
+    assert "note: min_inliers takes whole numbers: 3 steps from 8 to 9 give 2 values" in run.stderr
+
+
 def test_recognize_rows_tell_apart_images_of_one_name(tmp_path):
     """Rows named by the file's name alone read `scene_002.jpg` twice for set1/ and set2/'s."""
     for folder in ("a", "b"):
