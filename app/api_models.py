@@ -167,8 +167,8 @@ class RecognitionOut(BaseModel):
     warnings: list[str]
     signs: list[dict[str, Any]] | None = Field(None, description="every library sign found in the image, each "
                                                "{label, corners, pose}, the answer first, as `signpose recognize "
-                                               "--json` gives them; POST /api/recognize, and an image's result "
-                                               "while a sign map is held (null otherwise)")
+                                               "--json` gives them; POST /api/recognize (null in an image's "
+                                               "result)")
     camera_in_map: dict[str, Any] | None = Field(None, description="while a sign map is held: the camera in the "
                                                  "map frame from one fit over the mapped signs in view, as "
                                                  "`signpose recognize --map` gives it (null: none in view, or no map)")

@@ -286,9 +286,12 @@ def cmd_track(args) -> int:
     keep_freed_memory()
     if args.dask or args.results:
         return track_in_chunks(args, library, settings, camera, sign_map)
-    if args.output and Path(args.output).exists() and any(
-            Path(spec).exists() and Path(spec).samefile(args.output) for spec in args.sources):
-        raise CliError(f"-o {args.output} is a SOURCE: it would be overwritten; write the flight to another file")
+    output = Path(args.output).resolve() if args.output else None
+    if output is not None and any(Path(spec).exists() and (output == Path(spec).resolve()
+                                                           or Path(spec).resolve() in output.parents)
+                                  for spec in args.sources):
+        raise CliError(f"-o {args.output} is a SOURCE or inside one (a bag's folder): it would be overwritten; "
+                       "write the flight elsewhere")
     try:
         return track_locally(args, library, settings, camera, sign_map)
     except FlightOutputError as exc:
@@ -299,7 +302,7 @@ def cmd_track(args) -> int:
 def track_locally(args, library: Library, settings: Settings, camera: Camera | None, sign_map: SignMap | None) -> int:
     """`track` in this process: its SOURCE (one, or a list of frames) tracked frame by frame, written to -o."""
     from signpose.app.flight_output import open_flight_output
-    from signpose.pipeline.frames import BagSource, SourceError, open_source
+    from signpose.pipeline.frames import BagSource, SourceError, open_source, unused_options
     from signpose.pipeline.track import Tracker, tracked_frames
 
     spec = args.sources[0] if len(args.sources) == 1 else args.sources
@@ -307,6 +310,9 @@ def track_locally(args, library: Library, settings: Settings, camera: Camera | N
         source = open_source(spec, topic=args.topic, fps=args.fps, max_pixels=max_pixels(args))
     except SourceError as exc:
         raise CliError(str(exc)) from None
+    if (unused := unused_options(source, topic=args.topic, fps=args.fps)) is not None:
+        source.close()
+        raise CliError(unused)
     frames = seen = 0
     labels: dict[int, str] = {}  # confirmed track id: label
     started = time.perf_counter()

@@ -183,7 +183,7 @@ class FlightWriter:
             self.closed = True
             if not self.opened:  # nothing was made, and what was there is left
                 raise FlightOutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
-            with suppress(OSError):
+            with suppress(OSError, ValueError):  # ValueError: the failure was in closing, the file is closed
                 self._close()
             self.path.unlink(missing_ok=True)
             raise FlightOutputError(f"cannot write {self.path}: {exc.strerror or exc}; the file is removed") from None
@@ -334,6 +334,9 @@ class McapWriter(FlightWriter):
         # mcap_ros2 wants "pkg/msg/Type" names and definitions whose dependencies read "MSG: pkg/Type".
         self.schemas = {name: self.writer.register_msgdef(name, typestore.generate_msgdef(name, ros_version=2)[0])
                         for name in self.MESSAGE_TYPES}
+        # As rosbag2 records its distro: its readers take the QoS profiles in that distro's words (Humble's, in
+        # numbers, QOS_PROFILE), where without it a Jazzy reader would read them as its own and not understand them.
+        self.writer.add_metadata("rosbag2", {"ROS_DISTRO": "humble"})
 
     def _send(self, topic: str, type_name: str, message: dict, stamp_ns: int) -> None:
         schema = self.schemas[type_name]

@@ -37,7 +37,7 @@ import numpy as np
 
 from signpose.pipeline.camera import Camera, CameraError, assumed_camera
 from signpose.pipeline.frames import (ROS1_SUFFIX, ROS2_SUFFIXES, VIDEO_SUFFIXES, FrameSource, SourceError,
-                                      open_source)
+                                      open_source, unused_options)
 from signpose.pipeline.track import Tracker, tracked_frames
 
 from .events import Event
@@ -126,6 +126,8 @@ def probe(source: Path, name: str, *, topic: str | None, max_pixels: int) -> Pro
     """Open `source` and decode its first frame; FlightError saying why it cannot be a flight (named `name`)."""
     try:
         with open_source(source, topic=topic, max_pixels=max_pixels) as frames:
+            if (unused := unused_options(frames, topic=topic, fps=None)) is not None:
+                raise SourceError(unused)
             first = next(iter(frames), None)
             if first is None:
                 raise FlightError(f"{name}: holds no frames")

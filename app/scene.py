@@ -84,12 +84,13 @@ OVERVIEW_MARGIN = 1.4
 # the sans-serif there is), lines 14 px apart, on a background a fifth of a line larger (viser's
 # client/src/label; measured in Chromium: 151 × 28 px for two lines, 302 × 59 device px at 2 to the
 # CSS px). Px a character, at most, over those fonts: the widest, DejaVu Sans (Debian's sans-serif,
-# measured in Chromium at 12 px: m 11.7, W 11.9, capitals up to 9.5, digits and lower case up to 7.6,
-# . , : ; | ' i j l I J and space up to 4.0); a label estimated with Arial's widths, 6.7 px a digit,
+# measured in Chromium at 12 px: m 11.7, W 11.9, @ 12.0, % 11.4, capitals up to 9.5, w 9.8, digits
+# and lower case up to 7.6, . , : ; | ' i j l I J and space up to 4.0; a character outside ASCII, a
+# name in Arabic, counted as the widest); a label estimated with Arial's widths, 6.7 px a digit,
 # came out 27 px wider than laid out and ran past the view's edge.
 LABEL_LINE_PX = 14.0
-LABEL_WIDEST_PX, LABEL_WIDE_PX, LABEL_NARROW_PX, LABEL_CHAR_PX = 11.9, 9.5, 4.1, 7.7
-LABEL_WIDEST = set("mMW")
+LABEL_WIDEST_PX, LABEL_WIDE_PX, LABEL_NARROW_PX, LABEL_CHAR_PX = 12.0, 9.9, 4.1, 7.7
+LABEL_WIDEST = set("mMW%@")
 LABEL_NARROW = set(".,:;|'ijlIJ ")
 # Labels nearer each other on screen than this read as one.
 LABEL_GAP_PX = 2.0
@@ -208,8 +209,8 @@ def label_groups(positions: list[np.ndarray], radius_m: float) -> list[list[int]
 def label_size_px(text: str) -> tuple[float, float]:
     """(width, height) on screen, CSS px, of the label viser draws for `text` (lines split at "\n"):
     an upper bound for the fonts viser's labels use."""
-    width = max(sum(LABEL_WIDEST_PX if c in LABEL_WIDEST else LABEL_NARROW_PX if c in LABEL_NARROW else
-                    LABEL_WIDE_PX if c.isupper() or c == "w" else LABEL_CHAR_PX for c in line)
+    width = max(sum(LABEL_WIDEST_PX if c in LABEL_WIDEST or not c.isascii() else LABEL_NARROW_PX if c in LABEL_NARROW
+                    else LABEL_WIDE_PX if c.isupper() or c == "w" else LABEL_CHAR_PX for c in line)
                 for line in text.split("\n"))
     pad = 0.2 * LABEL_LINE_PX
     return width + pad, LABEL_LINE_PX * (text.count("\n") + 1) + pad

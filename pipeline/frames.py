@@ -125,6 +125,18 @@ def natural_key(name: str) -> tuple[Any, ...]:
     return tuple(int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name))
 
 
+def unused_options(source: FrameSource, *, topic: str | None, fps: float | None) -> str | None:
+    """Why `topic` or `fps`, given for `source` alone, has no use there (a topic is a bag's; a video has its own
+    rate, a bag its stamps), None when each given has: for a caller to say rather than ignore. A command over
+    several sources of several kinds gives them to the bags or the images among them."""
+    if topic is not None and not isinstance(source, BagSource):
+        return f"{source.name} is not a ROS bag, so it has no topic {topic}"
+    if fps is not None and not isinstance(source, ImageSource):
+        timed = "its own frame rate" if isinstance(source, VideoSource) else "its stamps"
+        return f"{source.name} is timed by {timed}; a frame rate is given to a folder or list of images"
+    return None
+
+
 def open_source(spec: str | Path | Sequence[str | Path], *, topic: str | None = None, fps: float | None = None,
                 max_pixels: int = DEFAULT_MAX_PIXELS) -> FrameSource:
     """The `FrameSource` `spec` names: `camera:N` (a live camera), a stream URL (rtsp://, http://, ...), a
@@ -132,28 +144,13 @@ def open_source(spec: str | Path | Sequence[str | Path], *, topic: str | None = 
     a folder of images (natural sort order), an image file, or a sequence of image files (each a frame).
 
     `topic`: a bag's image topic (default: its only one). `fps`: the rate of image frames (default one a
-    second). SourceError for what cannot be read, and for a `topic` or `fps` the source has no use for (a video
-    has its own rate, a bag its stamps): said rather than ignored.
+    second); ignored by the other kinds, which know their own (`unused_options` says so for a source given
+    alone). SourceError for what cannot be read.
     """
-    source = _open_source(spec, topic=topic, fps=fps, max_pixels=max_pixels)
-    unused = None
-    if topic is not None and not isinstance(source, BagSource):
-        unused = f"is not a ROS bag, so it has no topic {topic}"
-    elif fps is not None and not isinstance(source, ImageSource):
-        unused = ("is timed by its own frame rate" if isinstance(source, VideoSource) else "is timed by its stamps") + \
-            "; a frame rate is given to a folder or list of images"
-    if unused is not None:
-        source.close()
-        raise SourceError(f"{source.name} {unused}")
-    return source
-
-
-def _open_source(spec: str | Path | Sequence[str | Path], *, topic: str | None, fps: float | None,
-                 max_pixels: int) -> FrameSource:
     if not isinstance(spec, (str, Path)):
         paths = [Path(p) for p in spec]
         if len(paths) == 1:
-            return _open_source(paths[0], topic=topic, fps=fps, max_pixels=max_pixels)
+            return open_source(paths[0], topic=topic, fps=fps, max_pixels=max_pixels)
         return ImageSource(_image_list(paths), name=f"{paths[0]} .. ({len(paths)} images)" if paths else "",
                            fps=fps, max_pixels=max_pixels)
     text = str(spec)
@@ -403,18 +400,21 @@ class BagSource(FrameSource):
                 continue
             for connection, _, raw in self.reader.messages(connections=[infos[name]]):
                 fields = _camera_info_fields(self.reader.deserialize(raw, connection.msgtype))
-                if (not fields.get("d", fields.get("D"))
-                        and fields["distortion_model"].lower() in OPENCV_DISTORTION_MODELS):
-                    # What drivers publish for an image without distortion, or one whose lens nobody calibrated:
-                    # its K is still nearer the truth than an assumed field of view.
+                # What drivers publish for an image without distortion, or one whose lens nobody calibrated:
+                # its K is still nearer the truth than an assumed field of view.
+                no_coefficients = (not fields.get("d", fields.get("D"))
+                                   and fields["distortion_model"].lower() in OPENCV_DISTORTION_MODELS)
+                if no_coefficients:
                     fields["distortion_model"] = "none"
-                    self.warnings.append(f"{self.name}: the CameraInfo on {name} gives no distortion coefficients: "
-                                         "the lens is taken as without distortion; give a camera file for one with")
                 try:
-                    return camera_from_json(fields, source=f"{self.name} {name}")
+                    camera = camera_from_json(fields, source=f"{self.name} {name}")
                 except CameraError as exc:
                     self.warnings.append(f"{self.name}: the CameraInfo on {name} is not used: {exc}")
                     return None
+                if no_coefficients:
+                    self.warnings.append(f"{self.name}: the CameraInfo on {name} gives no distortion coefficients: "
+                                         "the lens is taken as without distortion; give a camera file for one with")
+                return camera
         return None
 
     def __iter__(self) -> Iterator[Frame]:

@@ -27,7 +27,7 @@ from .library import Library
 from .settings import Settings
 
 # Bumped when what a stored result holds, or how it is computed, changes: older files are then not read.
-FORMAT = 1
+FORMAT = 2
 
 
 def content_hash(data: bytes) -> str:

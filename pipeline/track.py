@@ -346,7 +346,7 @@ class Tracker:
         camera = self.camera
         if self.last_time_s is not None and time_s < self.last_time_s:
             # A bag's stamps out of order: the filters take it as no time passed, and the pose as it is.
-            warnings.append(f"frame {index} is stamped {self.last_time_s - time_s:.3f} s before the frame before it: "
+            warnings.append(f"frame {index} is stamped {self.last_time_s - time_s:.3f} s before an earlier frame: "
                             "taken as no time passed")
         self.last_time_s = time_s if self.last_time_s is None else max(self.last_time_s, time_s)
 

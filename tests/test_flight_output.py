@@ -243,6 +243,8 @@ def test_every_mcap_channel_says_the_qos_it_was_offered_with(tmp_path):
                              "/signpose/image/compressed"}
     assert all(p == [p[0]] and (p[0]["durability"], p[0]["reliability"], p[0]["history"]) == (2, 1, 1)
                for p in profiles.values())
+    with path.open("rb") as file:   # the distro whose words the profiles are in, as rosbag2 records it
+        assert [(m.name, m.metadata) for m in make_reader(file).iter_metadata()] == [("rosbag2", {"ROS_DISTRO": "humble"})]
 
 
 def test_an_interrupted_run_leaves_a_finished_mcap(tmp_path):

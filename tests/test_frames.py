@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import StoragePlugin
 
-from signpose.pipeline.frames import Frame, SourceError, natural_key, open_source
+from signpose.pipeline.frames import Frame, SourceError, natural_key, open_source, unused_options
 from tests.support.bags import ROS1, ROS2, header, write_bag1, write_bag2, write_mcap
 from tests.support.shared_data import shared_folder
 
@@ -380,17 +380,23 @@ def test_a_camera_info_without_coefficients_is_read_without_distortion_and_said(
     assert len(source.warnings) == 1 and "gives no distortion coefficients" in source.warnings[0]
 
 
-def test_a_topic_or_a_frame_rate_a_source_has_no_use_for_is_refused(tmp_path):
+def test_a_topic_or_a_frame_rate_a_source_has_no_use_for_is_said(tmp_path):
     video = tmp_path / "v.avi"
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 20, (W, H))
     for i in range(3):
         writer.write(_frame(i))
     writer.release()
-    assert _error(video, topic="/cam/image_raw") == f"{video} is not a ROS bag, so it has no topic /cam/image_raw"
-    assert _error(video, fps=5) == (f"{video} is timed by its own frame rate; a frame rate is given to a folder or "
-                                    "list of images")
     bag = write_mcap(tmp_path / "b.mcap", [("/image", _image_msg(ROS2, 0, "bgr8", T0))])
-    assert _error(bag, fps=5).startswith(f"{bag} is timed by its stamps")
+
+    def unused(spec, **given) -> str | None:
+        with open_source(spec, **given) as source:
+            return unused_options(source, topic=given.get("topic"), fps=given.get("fps"))
+
+    assert unused(video, topic="/cam/image_raw") == f"{video} is not a ROS bag, so it has no topic /cam/image_raw"
+    assert unused(video, fps=5) == (f"{video} is timed by its own frame rate; a frame rate is given to a folder or "
+                                    "list of images")
+    assert unused(bag, fps=5).startswith(f"{bag} is timed by its stamps")
+    assert unused(bag, topic="/image") is None
 
 
 def test_damaged_bags_and_frames_are_refused(tmp_path):

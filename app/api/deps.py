@@ -28,7 +28,7 @@ from ..calibration import CalibrationSession
 from ..flights import Flights
 from ..heavy import WorkQueue
 from ..scene import SceneHandle
-from ..security import cross_site_refusal
+from ..security import TOKEN_QUERY, cross_site_refusal
 from ..sign_maps import SignMaps
 from ..uploads import in_order, single_values, the_file, uploads
 from ..image_store import IMAGE_ID, ImageRecord
@@ -222,8 +222,8 @@ class JsonBodyRoute(APIRoute):
 
         async def read_through(request: Request) -> Response:
             request = JsonBodyRequest(request.scope, request.receive)
-            if request.method != "GET":
-                refuse_unknown("query parameter", request.query_params.keys(), query)
+            if request.method != "GET":  # the access token may come in the query of any request
+                refuse_unknown("query parameter", request.query_params.keys() - {TOKEN_QUERY}, query)
             if form and request.headers.get("content-type", "").startswith("multipart/form-data"):
                 refuse_unknown("form field", (await request.form()).keys(), form)
             return await handler(request)

@@ -58,15 +58,8 @@ def delete_images(workspace: WorkspaceDep) -> ImagesRemoved:
 
 
 @router.get("/images/{image_id}", response_model=ImageDetail)
-def get_image(record: RecordDep, workspace: WorkspaceDep, sign_maps: SignMapsDep) -> ImageDetail:
-    """The image's summary and result; while a sign map is held, the result has every sign in view and the camera
-    in the map frame (searched for once per state of the workspace)."""
-    out, held, rec = detail(workspace, record), sign_maps.held, record.outcome.recognition
-    if held is not None and out.result is not None and rec is not None:
-        (found,) = workspace.signs_in_view([record])
-        if found is not None:
-            out.result = out.result.model_copy(update=in_view_json(found, held, workspace.library, rec.camera))
-    return out
+def get_image(record: RecordDep, workspace: WorkspaceDep) -> ImageDetail:
+    return detail(workspace, record)
 
 
 @router.patch("/images/{image_id}", response_model=ImageSummary, dependencies=[JSON_BODY])
