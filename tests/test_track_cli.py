@@ -239,7 +239,8 @@ def test_a_run_that_cannot_start_leaves_the_output_there_as_it_was_and_the_sourc
     before = bag.read_bytes()
     run = track(bag, "--camera", CAMERA, "-o", tmp_path / "." / "in.mcap")
     assert run.returncode == 2 and "is a SOURCE" in run.stderr and bag.read_bytes() == before, run.stderr
-    run = track(tmp_path, "-o", tmp_path / "bag" / "out.mcap")   # inside a source folder (a rosbag2 folder's)
+    (tmp_path / "bag").mkdir()   # inside a source folder (a rosbag2 folder's): checked before the folder is read
+    run = track(tmp_path / "bag", "-o", tmp_path / "bag" / "out.mcap")
     assert run.returncode == 2 and "is a SOURCE or inside one" in run.stderr, run.stderr
 
 
