@@ -159,9 +159,7 @@ class FlightWriter:
         """Write one frame's `record`. `image` (H, W, 3) BGR or (H, W) gray uint8: the input frame, which only the
         MCAP keeps. `stamp_ns`: the frame's time since the epoch (a bag's), else its time_s from 0."""
         with self._writing():
-            if not self.opened:
-                self._open()
-                self.opened = True
+            self._open_once()
             self._write(record, image=image, stamp_ns=stamp_ns)
 
     def close(self) -> None:
@@ -170,10 +168,13 @@ class FlightWriter:
             return
         self.closed = True
         with self._writing():
-            if not self.opened:
-                self._open()
-                self.opened = True
+            self._open_once()
             self._close()
+
+    def _open_once(self) -> None:
+        if not self.opened:
+            self._open()
+            self.opened = True
 
     @contextmanager
     def _writing(self) -> Iterator[None]:
