@@ -18,7 +18,7 @@ filtered poses against the truth under their own covariances, over [rotation vec
 honest covariance gives a median of 5.35 and a p90 of 10.6, chi-squared), within and beyond
 MAX_DISTANCE_M.
 
-    python bench/track.py [--flight DIR] [--duration 12] [--lens=K1,K2] [--json OUT]
+    python bench/track.py [--flight DIR] [--duration 12] [--lens=K1,K2] [--settings FILE] [--json OUT]
 
 With --lens (written --lens=-0.25,0.08, as its value may start with a minus) the frames are seen
 through a lens of radial distortion k1, k2 and both methods are given that camera: the flight is
@@ -51,7 +51,7 @@ from signpose.pipeline.flight_truth import MAX_DISTANCE_M, MIN_WIDTH_PX
 from signpose.pipeline.library import Library, load_library
 from signpose.pipeline.pose import Pose, distort_pixels, undistort_pixels
 from signpose.pipeline.recognize import recognize
-from signpose.pipeline.settings import Settings
+from signpose.pipeline.settings import Settings, load_settings
 from signpose.pipeline.synth import synthetic_camera
 from signpose.pipeline.synth_flight import RENDERING, write_flight
 from signpose.pipeline.track import Tracker
@@ -265,8 +265,10 @@ def main() -> None:
     parser.add_argument("--flight", type=Path, help="a folder with flight.mp4, truth.json, camera.yaml")
     parser.add_argument("--duration", type=float, default=12.0, help="seconds of the rendered flight")
     parser.add_argument("--lens", help="K1,K2: the flight seen through a lens of this radial distortion")
+    parser.add_argument("--settings", type=Path, help="settings JSON for both methods (default: the default preset)")
     parser.add_argument("--json", type=Path, help="write the figures here as JSON")
     args = parser.parse_args()
+    settings = load_settings(args.settings) if args.settings else Settings()
     cv2.setNumThreads(1)
     library = load_library()
     pinhole = synthetic_camera()
@@ -287,7 +289,6 @@ def main() -> None:
     truth = json.loads((flight / "truth.json").read_text())
     camera = lens or load_camera(flight / "camera.yaml")
     video = flight / truth["video"]
-    settings = Settings()
     methods = {"tracker": tracker_answers(load_library(), settings, camera, truth["fps"]),
                "recognize": recognize_answers(load_library(), settings, camera)}
     results = [tally.summary() for tally in measure(video, truth, methods, lens, margin)]

@@ -912,7 +912,7 @@ def outline_agreeing(gray: np.ndarray, sign: LibrarySign, H: np.ndarray, src: np
     (`dense_agrees` at OUTLINE_FLOOR_PX) is none: an edge of something beside the sign (a shadow's, a card's, a photo's)
     taken for one of the plaque's, which put a corner 4-7 px off and the text check's strips far
     below its bar on the photo world's frontal signs."""
-    outline, why = refine_outline(gray, sign, H, settings.seed, camera)
+    outline, why = refine_outline(gray, sign, H, settings.seed, camera, gamma=settings.edge_gamma)
     if (outline is not None and not no_feature_winner(attempt)
             and not dense_agrees(H, outline.H, src, dst, floor_px=OUTLINE_FLOOR_PX)):
         return None, "its edges disagreed with the matched points"

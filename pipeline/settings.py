@@ -192,6 +192,10 @@ class Settings:
                                  "Refine the winner's homography from the plaque's four straight edges (needs a "
                                  "library image cropped to the sign's edges); falls back to refine when an edge "
                                  "is not found; not used with segment_mode none", stages=("refine",))
+    edge_gamma: float = _num(2.2, 1.0, 3.0, "Pose",
+                             "The images' encoding gamma (2.2: sRGB cameras; 1: linear gray levels): the plaque's "
+                             "edges are read in linear light, where a blurred edge is symmetric about its place",
+                             step=0.1, stages=("refine",))
     pose_method: str = _choice("ippe_lm", POSE_METHODS, "Pose",
                                "paper: decompose H; ippe: planar PnP on all inliers; ippe_lm: ippe refined by LM",
                                stages=("pose",))

@@ -464,7 +464,8 @@ class Tracker:
         H = H / H[2, 2]
         if uses_outline(track.sign, self.settings):
             # The plaque's edges put H where the sign is now, not where the points drifted to.
-            outline, _ = refine_outline(gray, track.sign, H, self.settings.seed, camera)
+            outline, _ = refine_outline(gray, track.sign, H, self.settings.seed, camera,
+                                            gamma=self.settings.edge_gamma)
             if outline is not None:
                 return Followed(outline.H, src[inl], dst[inl], weak, outline)
         return Followed(H, src[inl], dst[inl], weak)

@@ -29,8 +29,8 @@ from signpose.pipeline.verify import CHECK_WIDTH
 from signpose.pipeline.synth import synthetic_camera
 from signpose.pipeline.camera import load_camera, ros_camera_yaml
 from tests.support.scene_images import (DECOYS, HEIC_START, OFF_CENTRE, big_photo, decoy_image, empty_photo, has,
-                                        plaque_of, png_bomb, scrambled_scene, sign_photo, tiny_photo, turned_photos,
-                                        turned_scene_position, with_focal_exif)
+                                        plaque_of, png_bomb, scrambled_scene, sign_photo, tiny_photo, TURNED_WITHIN_M,
+                                        turned_photos, turned_scene_position, with_focal_exif)
 from tests.support.serving import (MISFIT_CAMERA, REPO, TIMEOUT_S, VISER_PROTOCOL, assert_error, http_exchange,
                                    iter_events, running, start_serve, stop_serve, upload, wait_done)
 
@@ -989,11 +989,11 @@ def test_the_camera_turns_with_each_photos_exif_orientation(tmp_path):
         for orientation, image_id in zip(photos, ids):
             detail = c.get(f"/api/images/{image_id}").json()
             position = detail["result"]["pose"]["camera_position"]
-            assert np.linalg.norm(position - turned_scene_position()) < 0.005, (orientation, position)
+            assert np.linalg.norm(position - turned_scene_position()) < TURNED_WITHIN_M, (orientation, position)
             assert (detail["camera"]["width"], "turned" in detail["camera"]["source"]) == \
                 ((480, True) if orientation in (6, 8) else (640, orientation != 1))
         once = c.post("/api/recognize", files={"file": ("turned_8.jpg", photos[8], "image/jpeg")}).json()
-        assert np.linalg.norm(once["pose"]["camera_position"] - turned_scene_position()) < 0.005
+        assert np.linalg.norm(once["pose"]["camera_position"] - turned_scene_position()) < TURNED_WITHIN_M
 
 
 def test_assumed_field_of_view_for_photos_without_camera_or_exif(client):

@@ -32,7 +32,8 @@ from signpose.pipeline.library import load_library
 from signpose.pipeline.recognize import recognize
 from signpose.pipeline.settings import preset
 from tests.support.cli import signpose, signpose_process
-from tests.support.scene_images import OFF_CENTRE, TURNED_SCENE, png_bomb, turned_photos, turned_scene_position
+from tests.support.scene_images import (OFF_CENTRE, TURNED_SCENE, TURNED_WITHIN_M, png_bomb, turned_photos,
+                                        turned_scene_position)
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "sample_images" / "scenes"
@@ -847,7 +848,7 @@ def test_a_camera_file_turns_with_the_photos_exif_orientation(tmp_path):
     answers = {o: json.loads(line) for o, line in zip(paths, result.stdout.splitlines())}
     for orientation in (1, 3, 6, 8):
         position = answers[orientation]["pose"]["camera_position"]
-        assert np.linalg.norm(position - turned_scene_position()) < 0.005, (orientation, position)
+        assert np.linalg.norm(position - turned_scene_position()) < TURNED_WITHIN_M, (orientation, position)
     for orientation in (2, 4, 5, 7):  # no camera sees a mirror image
         assert "mirrored" in answers[orientation]["error"], answers[orientation]
 
@@ -862,7 +863,7 @@ def test_evaluate_turns_the_datasets_camera_with_each_photos_exif_orientation(tm
         paths[o].unlink()
     report = json.loads(signpose("evaluate", tmp_path / "turned", "--workers", 1, "--json").stdout)
     errors = [image["position_error_m"] for image in report["images"]]
-    assert len(errors) == 4 and max(errors) < 0.005, report["images"]
+    assert len(errors) == 4 and max(errors) < TURNED_WITHIN_M, report["images"]
 
 
 def test_option_defaults_are_read_from_the_workspace_config(monkeypatch):

@@ -59,6 +59,23 @@ def test_edges_recover_the_corners(sign, wall):
     assert len(outline.points) == 4 and all(len(p) >= 8 for p in outline.points)
 
 
+def test_edges_are_read_in_linear_light(sign):
+    """A camera blurs light and then encodes it: read as encoded, a blurred edge's ramp leans towards its dark
+    side and a bright plaque's corners moved outwards; read through the encoding gamma, they are where they are."""
+    blurred = cv2.GaussianBlur(render_plaque(sign, TRUE_CORNERS, 40.0) / 255, (0, 0), 1.5)
+    image = (255 * blurred ** (1 / 2.2) + np.random.default_rng(3).normal(0, 1.5, blurred.shape)).clip(0, 255)
+    image = image.astype(np.uint8)
+    centre = TRUE_CORNERS.mean(axis=0)
+    outwards = (TRUE_CORNERS - centre) / np.linalg.norm(TRUE_CORNERS - centre, axis=1, keepdims=True)
+
+    def radial_px(gamma: float) -> float:
+        outline, why = refine_outline(image, sign, start_homography(sign, 2.0), gamma=gamma)
+        assert outline is not None, why
+        return float(np.mean(np.sum((outline.corners - TRUE_CORNERS) * outwards, axis=1)))
+
+    assert radial_px(1.0) > 0.3 and abs(radial_px(2.2)) < 0.08, (radial_px(1.0), radial_px(2.2))
+
+
 def test_no_edge_no_refinement(sign):
     """A plaque as bright as its wall has no outline: refused with the side that failed, not guessed."""
     image = plaque_image(sign, 255.0)
