@@ -48,6 +48,7 @@ from signpose.pipeline.pose_filter import log_so3
 from signpose.pipeline.settings import preset
 from signpose.pipeline.sign_map import MappedSign, load_sign_map
 from signpose.pipeline.synth import synthetic_camera
+from signpose.pipeline.synth_flight import RENDERING
 from signpose.pipeline.synth_survey import write_survey
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -171,7 +172,7 @@ def surveys(args: argparse.Namespace) -> Iterator[Path]:
     width, height = (int(v) for v in args.size.split("x"))
     camera = synthetic_camera((width, height))
     library = load_library(LIBRARY)
-    out = args.out or Path(tempfile.gettempdir()) / f"signpose-bench-map-{args.size}"
+    out = args.out or Path(tempfile.gettempdir()) / f"signpose-bench-map-{args.size}-r{RENDERING}"
     for index in range(args.surveys):
         spacing = SPACINGS[index % len(SPACINGS)]
         # A room too small for its spacing (two neighbours no place in it sees together): the next seed.

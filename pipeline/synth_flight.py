@@ -37,7 +37,10 @@ SHUTTER = 0.5
 FOURCC = "mp4v"
 # The renderer's version, raised whenever a change moves what its frames show: a flight rendered
 # once and kept (bench/track.py's) is named by it, so that an older rendering is not measured again.
-RENDERING = 2
+RENDERING = 3
+# Frames are encoded as an sRGB camera encodes them, linear light to the power 1 / GAMMA; a surface's gray
+# level (a texture's, a plaque's) is what a frame shows of it unblurred, and it is drawn as the light that is.
+GAMMA = 2.2
 
 
 @dataclass(frozen=True)
@@ -109,8 +112,8 @@ def look_at(centre: np.ndarray, target: np.ndarray, roll_rad: float = 0.0) -> np
 
 
 def _texture(rng: np.random.Generator, base: float, lines_m: float | None, size: int = TEXTURE_SIZE) -> np.ndarray:
-    """(size, size) float32 repeating texture, gray level around `base` in [0, 1], with grid
-    lines every `lines_m` metres (tiles, planks) when given."""
+    """(size, size) float32 repeating texture of linear light, its gray level around `base` in [0, 1],
+    with grid lines every `lines_m` metres (tiles, planks) when given."""
     # Blurred as a 3 x 3 tiling and cut from the middle, so that the texture repeats seamlessly.
     tiled = np.tile(rng.normal(0.0, 1.0, (size, size)).astype(np.float32), (3, 3))
     middle = slice(size, 2 * size)
@@ -121,7 +124,7 @@ def _texture(rng: np.random.Generator, base: float, lines_m: float | None, size:
         step = max(2, int(round(lines_m * TEXTURE_PX_PER_M)))
         tex[::step, :] *= 0.6
         tex[:, ::step] *= 0.6
-    return np.clip(tex, 0.0, 1.0).astype(np.float32)
+    return (np.clip(tex, 0.0, 1.0) ** GAMMA).astype(np.float32)
 
 
 def _look_alike(size_m: tuple[float, float], px_per_m: float = 1333.0) -> np.ndarray:
@@ -146,7 +149,8 @@ def level_pixels(level: int) -> np.ndarray:
 
 
 def _pyramid(image: np.ndarray) -> list[np.ndarray]:
-    levels = [image.astype(np.float32) / 255]
+    """The uint8 gray `image` as linear light in [0, 1], then halved until under 16 px: its mip levels."""
+    levels = [(image.astype(np.float32) / 255) ** GAMMA]
     while min(levels[-1].shape) > 16:
         levels.append(cv2.pyrDown(levels[-1]))
     return levels
@@ -200,7 +204,7 @@ class FlightRenderer:
         return [self.library[d.plaque.label] for d in self.decals if d.plaque.label is not None]
 
     def radiance(self, R: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """(H, W) float32 linear-ish gray of the scene seen with world pose (R, t), before exposure."""
+        """(H, W) float32 linear light of the scene seen with world pose (R, t), before exposure."""
         centre = -R.T @ t
         K = self.camera.K
         # Each plane's texture goes on through its homography (texture px -> image px); which plane
@@ -251,7 +255,7 @@ class FlightRenderer:
         if np.hypot(*blur) >= 1.0:
             image = _motion_blur(image, blur)
         gain = 1.0 + 0.18 * math.sin(2 * math.pi * time_s / 5.0) + 0.05 * math.sin(2 * math.pi * time_s / 1.3)
-        image = cv2.pow(np.clip(image * np.float32(gain), 0.0, 1.0), 1 / 1.4) * np.float32(255)
+        image = encoded(image * np.float32(gain))
         noise = (2.0 * self.rng.standard_normal(image.shape, dtype=np.float32)
                  + self.rng.standard_normal((image.shape[0], 1), dtype=np.float32))
         gray = np.clip(image + noise, 0, 255).astype(np.uint8)
@@ -291,6 +295,11 @@ class FlightRenderer:
             signs.append({"label": label, "corners": corners.tolist(), "R": R.tolist(), "t": t_sign.tolist(),
                           "in_view": inside, "width_px": width_px})
         return {"camera_position": (-R.T @ t).tolist(), "signs": signs}
+
+
+def encoded(light: np.ndarray) -> np.ndarray:
+    """(H, W) float32 linear light, 1 the brightest a frame records -> its gray levels 0-255 (float32)."""
+    return cv2.pow(np.clip(light, 0.0, 1.0), 1 / GAMMA) * np.float32(255)
 
 
 def _motion_blur(image: np.ndarray, motion: tuple[float, float]) -> np.ndarray:

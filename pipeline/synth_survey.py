@@ -31,7 +31,7 @@ from .camera import Camera, save_camera
 from .library import Library
 from .pose import camera_position
 from .sign_map import MappedSign, SignMap, save_sign_map
-from .synth_flight import CEILING_Y, FLOOR_Y, TEXTURE_PX_PER_M, _pyramid, _texture, level_pixels, look_at
+from .synth_flight import CEILING_Y, FLOOR_Y, TEXTURE_PX_PER_M, _pyramid, _texture, encoded, level_pixels, look_at
 
 # A sign seen with fewer px across than this, or more oblique than this, is not a view a survey relies on.
 MIN_SIGN_PX = 70.0
@@ -197,7 +197,7 @@ class SurveyRenderer:
     def photo(self, R: np.ndarray, t: np.ndarray) -> np.ndarray:
         """(H, W, 3) BGR uint8 photo with world pose (R, t): its own exposure, sensor noise."""
         gain = np.float32(self.rng.uniform(0.85, 1.15))
-        image = cv2.pow(np.clip(self.radiance(R, t) * gain, 0.0, 1.0), 1 / 1.4) * np.float32(255)
+        image = encoded(self.radiance(R, t) * gain)
         gray = np.clip(image + 2.0 * self.rng.standard_normal(image.shape, dtype=np.float32), 0, 255).astype(np.uint8)
         return cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
 
