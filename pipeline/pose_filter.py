@@ -38,6 +38,10 @@ LINEAR_ACCELERATION_DENSITY = 0.05
 # A measurement this many σ (Mahalanobis, over 6 dof) from the prediction is a new motion the
 # model missed, not noise: the filter restarts from it instead of lagging behind it.
 RESTART_MAHALANOBIS = 12.0
+# A measurement this long (s) after the last one restarts the filter too: a constant-velocity guess
+# over a longer time (a camera that saw no mapped sign for a second) is no prior, and linearised at it
+# the update landed 16-25 cm off on the sample flight, the covariance saying a few centimetres.
+MAX_GAP_S = 0.5
 # Without a covariance, a measurement counts with this σ: rad for rotation, m for position.
 FALLBACK_SIGMA = (0.01, 0.01)
 # Identities of the sizes the filter works in: read only (np.eye on each use was a tenth of an update).
@@ -120,17 +124,20 @@ def process_noise(dt: float, angular_density: float, linear_density: float) -> n
 class PoseFilter:
     """Constant-velocity filter of one sign's camera pose; `update` takes each frame's measured
     `Pose` at `time_s` and returns the filtered one; for a frame without a measurement, `predict`
-    moves it to the frame's time and `pose` is its guess. The first measurement starts it at rest."""
+    moves it to the frame's time and `pose` is its guess. The first measurement starts it at rest, as
+    does one `max_gap_s` after the last or `restart_mahalanobis` σ from the prediction."""
 
     angular_density: float = ANGULAR_ACCELERATION_DENSITY
     linear_density: float = LINEAR_ACCELERATION_DENSITY
     restart_mahalanobis: float = RESTART_MAHALANOBIS
+    max_gap_s: float = MAX_GAP_S
     R_sc: np.ndarray | None = field(default=None, repr=False)  # (3, 3) camera -> sign rotation
     p: np.ndarray = field(default_factory=lambda: np.zeros(3), repr=False)  # camera centre, sign frame, m
     omega: np.ndarray = field(default_factory=lambda: np.zeros(3), repr=False)  # rad/s, sign frame
     v: np.ndarray = field(default_factory=lambda: np.zeros(3), repr=False)  # m/s, sign frame
     P: np.ndarray = field(default_factory=lambda: np.zeros((12, 12)), repr=False)
     time_s: float | None = None
+    measured_s: float | None = None  # time of the last measurement, s
 
     @property
     def started(self) -> bool:
@@ -176,7 +183,7 @@ class PoseFilter:
         # Unknown rates at the start: a turn of a few rad/s or a move of a few m/s.
         self.P[6:9, 6:9] = _I3 * 4.0
         self.P[9:, 9:] = _I3 * 1.0
-        self.time_s = time_s
+        self.time_s = self.measured_s = time_s
 
     def predict(self, time_s: float) -> None:
         """Move the state to `time_s` (s) under constant velocity."""
@@ -195,7 +202,7 @@ class PoseFilter:
 
     def update(self, pose: Pose, time_s: float) -> Pose:
         """Fold in the measured `pose` at `time_s` (s) and return the filtered pose."""
-        if self.R_sc is None:
+        if self.R_sc is None or (self.measured_s is not None and time_s - self.measured_s > self.max_gap_s):
             self._start(pose, time_s)
             return self.pose()
         R, t, cov = self._measurement(pose)
@@ -222,6 +229,7 @@ class PoseFilter:
         I_KH = _I12 - gain @ H
         # Joseph form: stays symmetric positive definite whatever the rounding.
         self.P = I_KH @ self.P @ I_KH.T + gain @ cov @ gain.T
+        self.measured_s = time_s
         return self.pose()
 
     def pose(self) -> Pose:

@@ -156,7 +156,8 @@ class SignObservation:
     """One sign reported on one frame: its `label`, `track_id`, `state` ("detected": the detector
     found it on this frame; "tracked": followed from the previous one), `corners` (4, 2) image px
     TL, TR, BR, BL, `H` (3, 3) library px -> image px, the measured `pose` and the `filtered_pose`
-    (None when none could be computed) and `points`, how many points supported the frame's H."""
+    (None when none could be computed), `points`, how many points supported the frame's H, and the
+    measured pose as the filters take it (`filter_measurement`)."""
 
     label: str
     track_id: int
@@ -166,6 +167,7 @@ class SignObservation:
     pose: Pose | None = field(repr=False)
     filtered_pose: Pose | None = field(repr=False)
     points: int
+    filter_measurement: Pose | None = field(default=None, repr=False)
 
     def to_json(self) -> dict:
         return {
@@ -375,7 +377,11 @@ class Tracker:
         if self.sign_map is not None:
             located = locate_in_map(found=signs, sign_map=self.sign_map, library=self.library, camera=camera)
             if located is not None:
-                filtered = CameraInMap(self.map_filter.update(located.pose, time_s), located.signs_used,
+                # The filter takes the camera as the signs' poses as the filters take them place it: their
+                # errors run on from frame to frame, which the frame's own fit cannot know.
+                measured = locate_in_map(found=[dataclasses.replace(s, pose=s.filter_measurement) for s in signs],
+                                         sign_map=self.sign_map, library=self.library, camera=camera) or located
+                filtered = CameraInMap(self.map_filter.update(measured.pose, time_s), located.signs_used,
                                        located.signs_rejected)
         t_end = time.perf_counter()
         tracking = (t_tracked - t_start) + (t_end - t_detected)
@@ -601,9 +607,10 @@ class Tracker:
                         self.tracks.remove(track)
                     continue
                 self._advance(track, step, gray, camera, warnings)
+            measured = None
             if track.pose is not None:
-                track.filtered = track.pose_filter.update(
-                    filter_measurement(track.pose, track.unanchored, track.sign, camera), time_s)
+                measured = filter_measurement(track.pose, track.unanchored, track.sign, camera)
+                track.filtered = track.pose_filter.update(measured, time_s)
             elif track.pose_filter.started:
                 # No pose measured on this frame: the filter's prediction, as uncertain as the time since says.
                 track.pose_filter.predict(time_s)
@@ -613,7 +620,7 @@ class Tracker:
             state = "detected" if track.track_id in detected else "tracked"
             points = len(step.dst) if step is not None and state == "tracked" else len(track.points)
             signs.append(SignObservation(track.sign.id, track.track_id, state, track.corners, track.H, track.pose,
-                                         track.filtered, points))
+                                         track.filtered, points, measured))
         return signs
 
     def _advance(self, track: Track, step: Followed, gray: np.ndarray, camera: Camera, warnings: list[str]) -> None:
