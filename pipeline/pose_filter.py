@@ -40,7 +40,8 @@ LINEAR_ACCELERATION_DENSITY = 0.05
 RESTART_MAHALANOBIS = 12.0
 # A measurement this long (s) after the last one restarts the filter too: a constant-velocity guess
 # over a longer time (a camera that saw no mapped sign for a second) is no prior, and linearised at it
-# the update landed 16-25 cm off on the sample flight, the covariance saying a few centimetres.
+# the update landed 16-25 cm off on the sample flight, the covariance saying a few centimetres. The
+# tracker allows as many frames as a track outlives unseen where frames come further apart.
 MAX_GAP_S = 0.5
 # Without a covariance, a measurement counts with this σ: rad for rotation, m for position.
 FALLBACK_SIGMA = (0.01, 0.01)
@@ -229,7 +230,8 @@ class PoseFilter:
         I_KH = _I12 - gain @ H
         # Joseph form: stays symmetric positive definite whatever the rounding.
         self.P = I_KH @ self.P @ I_KH.T + gain @ cov @ gain.T
-        self.measured_s = time_s
+        # a stamp back in time is taken as no time passed, as `predict` takes it
+        self.measured_s = time_s if self.measured_s is None else max(self.measured_s, time_s)
         return self.pose()
 
     def pose(self) -> Pose:

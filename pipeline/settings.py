@@ -193,8 +193,9 @@ class Settings:
                                  "library image cropped to the sign's edges); falls back to refine when an edge "
                                  "is not found; not used with segment_mode none", stages=("refine",))
     edge_gamma: float = _num(2.2, 1.0, 3.0, "Pose",
-                             "The images' encoding gamma (2.2: sRGB cameras; 1: linear gray levels): the plaque's "
-                             "edges are read in linear light, where a blurred edge is symmetric about its place",
+                             "The images' encoding gamma (2.2: sRGB cameras, JPEG and video; 1: linear data such as "
+                             "mono16 or raw frames): the plaque's edges are read in linear light, where a blurred "
+                             "edge is symmetric about its place",
                              step=0.1, stages=("refine",))
     pose_method: str = _choice("ippe_lm", POSE_METHODS, "Pose",
                                "paper: decompose H; ippe: planar PnP on all inliers; ippe_lm: ippe refined by LM",

@@ -146,7 +146,7 @@ class SurveyRenderer:
         self.levels = {s.label: _pyramid(library[s.label].image) for s in room.signs}
 
     def radiance(self, R: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """(H, W) float32 gray in [0, 1] of the room seen with world pose (R, t), X_cam = R·X_world + t."""
+        """(H, W) float32 linear light of the room seen with world pose (R, t), X_cam = R·X_world + t."""
         K = self.camera.K
         width, height = self.size
         centre = camera_position(R, t)

@@ -59,7 +59,7 @@ from .localise import CameraInMap, locate_in_map
 from .outline import Outline, outline_corner_sigma, outline_fit, outline_pose, refine_outline
 from .plaque import grid_correspondences, ideal_homography, seen_homography, sign_corners
 from .pose import CORNER_SIGMA_PX, Pose, PoseError, estimate_pose, pose_near, undistort_pixels, with_corner_floor
-from .pose_filter import PoseFilter
+from .pose_filter import MAX_GAP_S, PoseFilter
 from .recognize import Recognition, image_camera, quad_problem, uses_outline
 from .segment import Box, box_iou
 from .settings import Settings
@@ -72,10 +72,11 @@ STATES = ("detected", "tracked")
 # gives it.)
 TRACK_CORNER_SIGMA_PX = 0.5
 # 1σ px the filter adds to the corners of a pose its outline or the detector placed. Such a pose's
-# own covariance is honest for that frame (NEES 4.1 / 10.9 median / p90 within 3 m on the 12 s
+# own covariance is honest for that frame (NEES 2.3 / 7.2 median / p90 within 3 m on the 12 s
 # corridor flight), but a plaque's edges err alike on consecutive frames (the same blur, the same
 # wall beside them), which the filter would take for independent evidence and follow: without it the
-# filtered jitter within 3 m went from 1.9 / 7.3 to 2.4 / 9.3 mm median / p90 there.
+# filtered jitter within 3 m went from 1.9 / 7.3 to 2.4 / 9.3 mm median / p90 there (measured with
+# the edges read as encoded, whose outward lean made the frames' errors alike the more).
 FILTER_CORNER_SIGMA_PX = 0.5
 # Detections of one label whose quads' boxes overlap more than this are the same sign.
 SAME_SIGN_IOU = 0.2
@@ -322,10 +323,13 @@ class Tracker:
     def __init__(self, library: Library, settings: Settings, camera: Camera | None, *, fps: float | None = None,
                  config: TrackerConfig | None = None, sign_map: SignMap | None = None) -> None:
         self.library, self.settings, self.config = library, settings, config or TrackerConfig()
-        self.sign_map, self.map_filter = sign_map, PoseFilter()
         self.given_camera = camera
         self.camera: Camera | None = None
         rate = fps if fps is not None and fps > 0 and math.isfinite(fps) else 30.0
+        # A filter starts again after a gap it cannot bridge: MAX_GAP_S, or as many frames as a track
+        # outlives unseen where frames come further apart (a folder of photos at 1 a second).
+        self.max_gap_s = max(MAX_GAP_S, self.config.drop_after_misses / rate)
+        self.sign_map, self.map_filter = sign_map, PoseFilter(max_gap_s=self.max_gap_s)
         self.detect_every = max(1, round(self.config.detect_interval_s * rate))
         self.search_every = max(1, round(self.config.search_interval_s * rate))
         self.idle_every = max(1, round(self.config.idle_interval_s * rate))
@@ -381,8 +385,8 @@ class Tracker:
                 # errors run on from frame to frame, which the frame's own fit cannot know.
                 measured = locate_in_map(found=[dataclasses.replace(s, pose=s.filter_measurement) for s in signs],
                                          sign_map=self.sign_map, library=self.library, camera=camera) or located
-                filtered = CameraInMap(self.map_filter.update(measured.pose, time_s), located.signs_used,
-                                       located.signs_rejected)
+                filtered = CameraInMap(self.map_filter.update(measured.pose, time_s), measured.signs_used,
+                                       measured.signs_rejected)
         t_end = time.perf_counter()
         tracking = (t_tracked - t_start) + (t_end - t_detected)
         timing = {"detect": (t_detected - t_tracked) * 1e3, "track": tracking * 1e3, "total": (t_end - t_start) * 1e3}
@@ -583,7 +587,7 @@ class Tracker:
             pass
         if mine is None:
             mine = Track(self.next_id, sign, H, pose, np.zeros((0, 2), np.float32), np.zeros((0, 2)), gray,
-                         born=index)
+                         born=index, pose_filter=PoseFilter(max_gap_s=self.max_gap_s))
             self.next_id += 1
             self.tracks.append(mine)
         else:

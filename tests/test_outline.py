@@ -21,6 +21,7 @@ from signpose.pipeline.synth import render_scene, synthetic_camera
 from tests.support.scene_images import like_a_camera, render_plaque, through_lens
 
 TRUE_CORNERS = np.array([[212.3, 141.7], [431.9, 158.2], [425.6, 251.4], [205.8, 236.9]])
+LINEAR = 1.0  # the encoding gamma of like_a_camera's images, whose gray levels are linear light
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +53,7 @@ def test_edges_recover_the_corners(sign, wall):
     image = plaque_image(sign, wall, gain)
     H0 = start_homography(sign, 4.0)
     assert corner_error(sign, H0) > 3.9
-    outline, why = refine_outline(image, sign, H0)
+    outline, why = refine_outline(image, sign, H0, gamma=LINEAR)
     assert why is None and outline is not None
     assert corner_error(sign, outline.H) < 0.15
     assert np.allclose(outline.corners, cv2.perspectiveTransform(sign.corners_px[None], outline.H)[0], atol=1e-6)
@@ -76,17 +77,28 @@ def test_edges_are_read_in_linear_light(sign):
     assert radial_px(1.0) > 0.3 and abs(radial_px(2.2)) < 0.08, (radial_px(1.0), radial_px(2.2))
 
 
+def test_a_dim_plaques_edges_are_found_in_linear_light_as_in_its_gray_levels(sign):
+    """A plaque at gray level 33 on a wall at 13 (sRGB): its steps in linear light are a tenth of the
+    gray levels', under the least step the gray levels are held to, but its edges are no weaker."""
+    light = cv2.GaussianBlur(render_plaque(sign, TRUE_CORNERS, 255 * (13 / 255) ** 2.2, 255 * (33 / 255) ** 2.2 / 255),
+                             (0, 0), 0.8) / 255
+    image = (255 * light ** (1 / 2.2) + np.random.default_rng(4).normal(0, 0.5, light.shape)).clip(0, 255)
+    outline, why = refine_outline(image.astype(np.uint8), sign, start_homography(sign, 2.0), gamma=2.2)
+    assert outline is not None, why
+    assert np.abs(outline.corners - TRUE_CORNERS).max() < 0.5
+
+
 def test_no_edge_no_refinement(sign):
     """A plaque as bright as its wall has no outline: refused with the side that failed, not guessed."""
     image = plaque_image(sign, 255.0)
-    outline, why = refine_outline(image, sign, start_homography(sign, 2.0))
+    outline, why = refine_outline(image, sign, start_homography(sign, 2.0), gamma=LINEAR)
     assert outline is None and why.startswith("side ")
 
 
 def test_a_start_too_far_off_is_refused(sign):
     """Edges beyond the search are not looked for: the text's strokes must not pass for them."""
     image = plaque_image(sign, 90.0)
-    outline, why = refine_outline(image, sign, start_homography(sign, 25.0))
+    outline, why = refine_outline(image, sign, start_homography(sign, 25.0), gamma=LINEAR)
     assert outline is None and why
 
 
@@ -116,7 +128,7 @@ def test_pose_covariance_from_the_edges_matches_the_scatter(sign):
     rotations, covariances = [], []
     for seed in range(40):
         outline, _ = refine_outline(plaque_image(sign, 90.0, seed=seed, corners=corners), sign,
-                                    start_homography(sign, 3.0, seed + 100, corners))
+                                    start_homography(sign, 3.0, seed + 100, corners), gamma=LINEAR)
         pose = estimate_pose(outline.H, *outline.grid(sign, camera), sign, camera)
         rotations.append(cv2.Rodrigues(pose.R)[0].ravel())
         rmse, covariance = outline_fit(pose.R, pose.t, outline, sign, camera)
@@ -257,7 +269,7 @@ def test_an_outlines_corner_sigma_comes_from_its_edges(sign, blur, noise, sharp)
     for seed in range(8):
         noisy = cv2.GaussianBlur(plaque, (0, 0), blur) + np.random.default_rng(seed).normal(0, noise, plaque.shape)
         outline, _ = refine_outline(np.clip(noisy, 0, 255).astype(np.uint8), sign,
-                                    start_homography(sign, 3.0, seed + 100, corners))
+                                    start_homography(sign, 3.0, seed + 100, corners), gamma=LINEAR)
         fitted = estimate_pose(outline.H, *outline.grid(sign, camera), sign, camera, with_covariance=False)
         pose = outline_pose(fitted, outline, sign, camera)
         sigma = outline_corner_sigma(pose.reprojection_rmse_px)

@@ -454,6 +454,16 @@ def test_a_measurement_long_after_the_last_restarts_the_filter():
     assert np.allclose(filtered.t, later.t) and np.allclose(pose_filter.v, 0.0)
 
 
+def test_frames_a_second_apart_are_filtered_not_each_started_afresh(library):
+    """A folder of photos is read at 1 frame a second: a filter bridges as many frames as a track outlives unseen."""
+    tracker = Tracker(library, Settings(), synthetic_camera(), fps=1.0)
+    assert tracker.max_gap_s == tracker.config.drop_after_misses == tracker.map_filter.max_gap_s
+    pose_filter = PoseFilter(max_gap_s=tracker.max_gap_s)
+    for i in range(5):  # moving at 0.1 m/s along x
+        pose_filter.update(_pose(_yaw(0.0), np.array([0.1 * i, 0.0, -2.0])), float(i))
+    assert pose_filter.v[0] > 0.05
+
+
 def test_filter_carries_the_covariance_into_its_state_to_first_order():
     """The map from a pose's [rotation vector, t] errors to the filter's [φ, camera position]
     errors agrees with finite differences (where a wrong sign would weight the wrong axis)."""
