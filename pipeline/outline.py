@@ -213,7 +213,7 @@ def _edge_points(gray: np.ndarray, corners: np.ndarray, half: float, camera: Cam
     # past, not the whole image.
     x0, y0 = np.maximum(np.floor([x.min(), y.min()]).astype(int) - SMOOTH_MARGIN_PX, 0)
     x1, y1 = np.minimum(np.ceil([x.max(), y.max()]).astype(int) + 1 + SMOOTH_MARGIN_PX, [w, h])
-    patch = cv2.GaussianBlur(_linear_light(gamma)[gray[y0:y1, x0:x1]], (0, 0), SMOOTH_SIGMA)
+    patch = cv2.GaussianBlur(cv2.LUT(gray[y0:y1, x0:x1], _linear_light(gamma)), (0, 0), SMOOTH_SIGMA)
     values = cv2.remap(patch, (x - x0).astype(np.float32).reshape(-1, 1), (y - y0).astype(np.float32).reshape(-1, 1),
                        cv2.INTER_LINEAR).reshape(x.shape)
     profile = values.mean(axis=1)  # (M, O)
