@@ -74,10 +74,11 @@ TRACK_CORNER_SIGMA_PX = 0.5
 # 1σ px the filter adds to the corners of a pose its outline or the detector placed. Such a pose's
 # own covariance is honest for that frame (NEES 2.3 / 7.2 median / p90 within 3 m on the 12 s
 # corridor flight), but a plaque's edges err alike on consecutive frames (the same blur, the same
-# wall beside them), which the filter would take for independent evidence and follow: without it the
-# filtered jitter within 3 m went from 1.9 / 7.3 to 2.4 / 9.3 mm median / p90 there (measured with
-# the edges read as encoded, whose outward lean made the frames' errors alike the more).
-FILTER_CORNER_SIGMA_PX = 0.5
+# wall beside them), which the filter would take for independent evidence and follow. On that flight
+# and the sample flight in its wall's map: 0.25 px gives filtered jitter within 3 m of 2.0 / 7.5 mm
+# median / p90 and the filtered camera in the map a NEES of 2.1 / 6.5 (3 dof; honest 2.37 / 6.25);
+# 0.5 px 1.8 / 6.6 mm and 1.5 / 5.9; none, 4.4 / 14.0 (overconfident).
+FILTER_CORNER_SIGMA_PX = 0.25
 # Detections of one label whose quads' boxes overlap more than this are the same sign.
 SAME_SIGN_IOU = 0.2
 # Image px around a quad's box read when seeding its points: more than the corner measure's block.
