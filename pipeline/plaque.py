@@ -282,6 +282,8 @@ def _refine_ecc(gray: np.ndarray, sign: LibrarySign, H: np.ndarray,
     # ECC smooths and differentiates its whole input image before iterating: give it only the
     # neighbourhood of the sign, with room for the alignment to move.
     x0, y0, x1, y1 = box = expand_box(bounding_box(corners), ECC_CROP_MARGIN, gray.shape[1], gray.shape[0])
+    if x1 <= x0 or y1 <= y0:  # a lens can put a sign at the frame's edge wholly outside the ideal frame
+        return None
     neighbourhood = ideal_patch(gray, box, camera) if distorted else gray[y0:y1, x0:x1]
     to_crop = np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1]], dtype=np.float64)
     warp = (to_crop @ H @ to_library).astype(np.float32)

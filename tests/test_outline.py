@@ -12,7 +12,7 @@ from signpose.pipeline.camera import Camera, assumed_camera
 from signpose.pipeline.evaluate import load_dataset
 from signpose.pipeline.image import read_image
 from signpose.pipeline.outline import outline_corner_sigma, outline_fit, outline_pose, refine_outline
-from signpose.pipeline.plaque import SHRUNK_WIDTH_PX, sign_corners
+from signpose.pipeline.plaque import SHRUNK_WIDTH_PX, refine_ecc, sign_corners
 from signpose.pipeline.pose import (CORNER_SIGMA_PX, corner_covariance, estimate_pose, homography_from_pose,
                                    rotation_error_deg, undistort_pixels)
 from signpose.pipeline.recognize import StageCache, recognize
@@ -86,6 +86,15 @@ def test_a_dim_plaques_edges_are_found_in_linear_light_as_in_its_gray_levels(sig
     outline, why = refine_outline(image.astype(np.uint8), sign, start_homography(sign, 2.0), gamma=2.2)
     assert outline is not None, why
     assert np.abs(outline.corners - TRUE_CORNERS).max() < 0.5
+
+
+def test_dense_alignment_of_a_sign_the_lens_puts_beyond_the_ideal_frame_is_none(sign):
+    """Through a barrel lens a sign at the frame's edge can lie wholly outside the frame an ideal pinhole with
+    the same K takes: there is nothing to align, where an empty neighbourhood raised cv2.error mid-flight."""
+    camera = Camera(assumed_camera(640, 480).K, np.array([-0.25, 0.08, 0.0, 0.0, 0.0]), 640, 480)
+    beyond = cv2.getPerspectiveTransform(sign.corners_px.astype(np.float32),
+                                         (TRUE_CORNERS + [700.0, 0.0]).astype(np.float32)).astype(float)
+    assert refine_ecc(plaque_image(sign, 90.0), sign, beyond, camera) is None
 
 
 def test_no_edge_no_refinement(sign):
