@@ -138,7 +138,7 @@ class PoseFilter:
     v: np.ndarray = field(default_factory=lambda: np.zeros(3), repr=False)  # m/s, sign frame
     P: np.ndarray = field(default_factory=lambda: np.zeros((12, 12)), repr=False)
     time_s: float | None = None
-    measured_s: float | None = None  # time of the last measurement, s
+    measured_s: float = -math.inf  # time of the last measurement, s
 
     @property
     def started(self) -> bool:
@@ -203,7 +203,7 @@ class PoseFilter:
 
     def update(self, pose: Pose, time_s: float) -> Pose:
         """Fold in the measured `pose` at `time_s` (s) and return the filtered pose."""
-        if self.R_sc is None or (self.measured_s is not None and time_s - self.measured_s > self.max_gap_s):
+        if self.R_sc is None or time_s - self.measured_s > self.max_gap_s:
             self._start(pose, time_s)
             return self.pose()
         R, t, cov = self._measurement(pose)
@@ -231,7 +231,7 @@ class PoseFilter:
         # Joseph form: stays symmetric positive definite whatever the rounding.
         self.P = I_KH @ self.P @ I_KH.T + gain @ cov @ gain.T
         # a stamp back in time is taken as no time passed, as `predict` takes it
-        self.measured_s = time_s if self.measured_s is None else max(self.measured_s, time_s)
+        self.measured_s = max(self.measured_s, time_s)
         return self.pose()
 
     def pose(self) -> Pose:

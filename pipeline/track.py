@@ -228,7 +228,7 @@ class Track:
     points: np.ndarray
     src: np.ndarray
     reference: np.ndarray
-    pose_filter: PoseFilter = field(default_factory=PoseFilter)
+    pose_filter: PoseFilter
     seeded: int = 0  # points when last seeded
     born: int = 0  # frame index of its first detection
     detected_at: int = 0  # frame index of its last detection
